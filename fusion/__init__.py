@@ -1,0 +1,1 @@
+"""Event and frame fusion: consumers of sequence folders (mapping, filling, scoring)."""
