@@ -1,0 +1,48 @@
+"""Built-in scenes: TOML scene files shipped with evfuse (see ``scenes/README.md``).
+
+Twins of the Event-Camera Dataset sequences that the paper uses (sliders, 6-DoF scenes) and
+complex surfaces for stress-testing map filling.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+__all__ = ["SCENE_DIR", "builtin_scenes", "describe_scenes", "resolve_scene"]
+
+SCENE_DIR = Path(__file__).resolve().parent
+
+
+def builtin_scenes() -> dict[str, Path]:
+    """Names of the built-in scenes and their files, sorted by name."""
+    return {path.stem: path for path in sorted(SCENE_DIR.glob("*.toml"))}
+
+
+def describe_scenes() -> dict[str, str]:
+    """One-line description of every built-in scene (its ``description`` field)."""
+    out = {}
+    for name, path in builtin_scenes().items():
+        with path.open("rb") as handle:
+            out[name] = tomllib.load(handle).get("description", "")
+    return out
+
+
+def resolve_scene(name_or_path: str | Path) -> Path:
+    """The file of a built-in scene name, or the given path if it is a file.
+
+    Raises
+    ------
+    ValueError
+        Neither a built-in scene nor an existing file; the message lists the built-in names.
+    """
+    scenes = builtin_scenes()
+    if str(name_or_path) in scenes:
+        return scenes[str(name_or_path)]
+    path = Path(name_or_path)
+    if path.is_file():
+        return path
+    raise ValueError(
+        f"{name_or_path}: no such scene file, and not a built-in scene "
+        f"(built-in: {', '.join(scenes)})"
+    )

@@ -1,0 +1,722 @@
+"""Scene files: a TOML description of a camera, its motion, lights and textured objects.
+
+A scene file is validated completely before anything is rendered: an unknown key, a missing
+field or a wrong type raises :class:`SceneError` naming the file, the key and what was expected.
+The format is documented field by field in ``scenes/README.md``; ``scenes/*.toml`` are examples.
+
+World frame: any right-handed frame; the built-in scenes use z up. Lengths in metres, angles in
+degrees in scene files (radians inside the code), times in seconds.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim.camera import Camera, camera_preset
+from sim.frames import FrameParams
+from sim.se3 import look_at, make_pose, rotation_from_euler, so3_exp
+from sim.trajectory import (
+    HandheldTrajectory,
+    LinearTrajectory,
+    SplineTrajectory,
+    Trajectory,
+    read_trajectory,
+)
+
+__all__ = [
+    "Light",
+    "Material",
+    "ObjectMotion",
+    "RenderParams",
+    "Scene",
+    "SceneError",
+    "SceneObject",
+    "load_scene",
+    "parse_scene",
+]
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be used; the message names the file and the key."""
+
+
+# --------------------------------------------------------------------------------------------
+# Parsed scene
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RenderParams:
+    """How frames are rendered.
+
+    Attributes
+    ----------
+    spp : int
+        Samples per pixel (a perfect square: the sampler is stratified). Default 16.
+    pose_rate : float
+        Rate of the written ``groundtruth.txt``, Hz (>= 200). Default 1000.
+    """
+
+    spp: int = 16
+    pose_rate: float = 1000.0
+
+
+@dataclass(frozen=True)
+class Material:
+    """A diffuse material: a constant colour or a texture.
+
+    Attributes
+    ----------
+    color : (3,) tuple of float
+        Linear RGB reflectance in [0, 1] (a single number means grey).
+    texture : dict or None
+        Texture description (``type`` plus its fields), see :mod:`sim.textures`.
+    texture_scale : (2,) tuple of float
+        How many times the texture repeats along u and v.
+    """
+
+    color: tuple[float, float, float] = (0.5, 0.5, 0.5)
+    texture: Mapping[str, Any] | None = None
+    texture_scale: tuple[float, float] = (1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class ObjectMotion:
+    """Rigid motion of an object about its centre, as a function of time.
+
+    ``linear``: displacement velocity * t and rotation by angular_velocity * t.
+    ``sine``: displacement amplitude * sin(2 pi frequency t + phase), no rotation.
+
+    Attributes
+    ----------
+    kind : {"linear", "sine"}
+    velocity : (3,) ndarray, m/s (linear)
+    angular_velocity : (3,) ndarray, rad/s, world axes (linear)
+    amplitude : (3,) ndarray, m (sine)
+    frequency : float, Hz (sine)
+    phase : float, rad (sine)
+    """
+
+    kind: str
+    velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    amplitude: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    frequency: float = 0.0
+    phase: float = 0.0
+
+    def offset(self, t: float) -> np.ndarray:
+        """Rigid displacement at time ``t``: (4,4) transform applied about the object centre."""
+        if self.kind == "linear":
+            rotation = so3_exp(self.angular_velocity * t)
+            translation = self.velocity * t
+        else:
+            rotation = np.eye(3)
+            translation = self.amplitude * math.sin(2 * math.pi * self.frequency * t + self.phase)
+        return make_pose(rotation, translation)
+
+
+@dataclass(frozen=True)
+class SceneObject:
+    """One object of a scene.
+
+    Attributes
+    ----------
+    name : str
+    shape : {"rectangle", "box", "sphere", "cylinder", "heightfield", "mesh"}
+    center : (3,) ndarray, metres, world frame
+    rotation : (3,3) ndarray
+        Orientation of the object's local frame in the world.
+    params : dict
+        Shape parameters, already validated (sizes in metres).
+    material : Material
+    motion : ObjectMotion or None
+    """
+
+    name: str
+    shape: str
+    center: np.ndarray
+    rotation: np.ndarray
+    params: Mapping[str, Any]
+    material: Material
+    motion: ObjectMotion | None = None
+
+    def pose(self, t: float = 0.0) -> np.ndarray:
+        """Object-to-world rigid transform (4,4) at time ``t`` (without the shape's scaling)."""
+        base = make_pose(self.rotation, self.center)
+        if self.motion is None:
+            return base
+        delta = self.motion.offset(t)
+        moved = base.copy()
+        moved[:3, :3] = delta[:3, :3] @ self.rotation
+        moved[:3, 3] = self.center + delta[:3, 3]
+        return moved
+
+
+@dataclass(frozen=True)
+class Light:
+    """A light that needs no sampling, so that renders carry no noise.
+
+    Attributes
+    ----------
+    kind : {"point", "spot", "directional"}
+    intensity : (3,) ndarray
+        W/sr for point and spot lights, W/m^2 (irradiance) for a directional light.
+    position : (3,) ndarray or None
+    target : (3,) ndarray or None
+        Where a spot light points.
+    direction : (3,) ndarray or None
+        Direction a directional light travels.
+    cutoff_angle, beam_width : float
+        Spot light cone (degrees).
+    """
+
+    kind: str
+    intensity: np.ndarray
+    position: np.ndarray | None = None
+    target: np.ndarray | None = None
+    direction: np.ndarray | None = None
+    cutoff_angle: float = 20.0
+    beam_width: float = 15.0
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene.
+
+    Attributes
+    ----------
+    name, description : str
+    duration : float
+        Length of the sequence, seconds.
+    seed : int
+        Seed of every random draw (textures, noise).
+    camera : Camera
+    frames : FrameParams
+        The standard camera.
+    render : RenderParams
+    trajectory : Trajectory
+        ``T_world_camera(t)``.
+    lights : tuple of Light
+    objects : tuple of SceneObject
+    source : Path or None
+        The file it was read from (textures and meshes are relative to its folder).
+    text : str
+        The TOML text it was parsed from.
+    """
+
+    name: str
+    description: str
+    duration: float
+    seed: int
+    camera: Camera
+    frames: FrameParams
+    render: RenderParams
+    trajectory: Trajectory
+    lights: tuple[Light, ...]
+    objects: tuple[SceneObject, ...]
+    source: Path | None = None
+    text: str = ""
+
+    @property
+    def base_dir(self) -> Path:
+        """Folder that relative paths in the scene file are resolved against."""
+        return self.source.parent if self.source is not None else Path.cwd()
+
+    @property
+    def is_dynamic(self) -> bool:
+        """True when some object moves on its own."""
+        return any(obj.motion is not None for obj in self.objects)
+
+
+# --------------------------------------------------------------------------------------------
+# Validation helpers: each returns the converted value or raises SceneError with the key path.
+# --------------------------------------------------------------------------------------------
+
+
+class _Ctx:
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, key: str, message: str) -> SceneError:
+        return SceneError(f"{self.source}: {key}: {message}")
+
+    def table(self, value: Any, key: str) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.fail(key, f"expected a table, got {_show(value)}")
+        return value
+
+    def keys(self, table: Mapping[str, Any], key: str, required: set[str], optional: set[str]):
+        unknown = sorted(set(table) - required - optional)
+        if unknown:
+            allowed = ", ".join(sorted(required | optional))
+            raise self.fail(key, f"unknown key {unknown[0]!r} (expected one of: {allowed})")
+        missing = sorted(required - set(table))
+        if missing:
+            raise self.fail(key, f"missing required key {missing[0]!r}")
+
+
+def _show(value: Any) -> str:
+    text = repr(value)
+    return f"{type(value).__name__} {text[:60]}"
+
+
+def _number(ctx: _Ctx, value: Any, key: str, *, positive=False, nonneg=False) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ctx.fail(key, f"expected a finite number, got {_show(value)}")
+    if positive and value <= 0:
+        raise ctx.fail(key, f"expected a positive number, got {value}")
+    if nonneg and value < 0:
+        raise ctx.fail(key, f"expected a number >= 0, got {value}")
+    return float(value)
+
+
+def _integer(ctx: _Ctx, value: Any, key: str, *, minimum: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ctx.fail(key, f"expected an integer, got {_show(value)}")
+    if minimum is not None and value < minimum:
+        raise ctx.fail(key, f"expected an integer >= {minimum}, got {value}")
+    return int(value)
+
+
+def _string(ctx: _Ctx, value: Any, key: str, choices: tuple[str, ...] | None = None) -> str:
+    if not isinstance(value, str):
+        raise ctx.fail(key, f"expected a string, got {_show(value)}")
+    if choices is not None and value not in choices:
+        raise ctx.fail(key, f"expected one of {', '.join(choices)}; got {value!r}")
+    return value
+
+
+def _vector(ctx: _Ctx, value: Any, key: str, n: int, *, positive=False, nonneg=False):
+    what = f"a list of {n} {'positive ' if positive else ''}numbers"
+    if not isinstance(value, list) or len(value) != n:
+        raise ctx.fail(key, f"expected {what}, got {_show(value)}")
+    out = []
+    for i, item in enumerate(value):
+        if isinstance(item, bool) or not isinstance(item, int | float) or not math.isfinite(item):
+            raise ctx.fail(key, f"expected {what}, got {_show(value)} (item {i})")
+        if (positive and item <= 0) or (nonneg and item < 0):
+            raise ctx.fail(key, f"expected {what}, got {_show(value)} (item {i})")
+        out.append(float(item))
+    return np.array(out)
+
+
+def _color(ctx: _Ctx, value: Any, key: str) -> np.ndarray:
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        value = [value] * 3
+    vec = _vector(ctx, value, key, 3, nonneg=True) if isinstance(value, list) else None
+    if vec is None:
+        raise ctx.fail(key, f"expected a number or a list of 3 numbers, got {_show(value)}")
+    return vec
+
+
+def _get(ctx, table, key, name, convert: Callable, default=None):
+    if name not in table:
+        return default
+    return convert(ctx, table[name], f"{key}.{name}" if key else name)
+
+
+# --------------------------------------------------------------------------------------------
+# Sections
+# --------------------------------------------------------------------------------------------
+
+_CAMERA_FIELDS = ("width", "height", "fx", "fy", "cx", "cy")
+
+
+def _parse_camera(ctx: _Ctx, raw: Any) -> Camera:
+    key = "[camera]"
+    table = ctx.table(raw, key)
+    ctx.keys(table, key, set(), {"preset", "distortion", *_CAMERA_FIELDS})
+    if "preset" in table:
+        name = _string(ctx, table["preset"], f"{key}.preset")
+        try:
+            camera = camera_preset(name)
+        except ValueError as exc:
+            raise ctx.fail(f"{key}.preset", str(exc)) from None
+        values = {f: getattr(camera, f) for f in _CAMERA_FIELDS}
+        distortion = tuple(camera.distortion)
+    else:
+        missing = [f for f in _CAMERA_FIELDS if f not in table]
+        if missing:
+            raise ctx.fail(key, f"missing required key {missing[0]!r} (or give a 'preset')")
+        values, distortion = {}, (0.0,) * 5
+    for name in _CAMERA_FIELDS:
+        if name in table:
+            conv = _integer if name in ("width", "height") else _number
+            extra = {"minimum": 1} if name in ("width", "height") else {}
+            values[name] = conv(ctx, table[name], f"{key}.{name}", **extra)
+    if "distortion" in table:
+        distortion = tuple(_vector(ctx, table["distortion"], f"{key}.distortion", 5))
+    try:
+        return Camera(distortion=distortion, **values)
+    except ValueError as exc:
+        raise ctx.fail(key, str(exc)) from None
+
+
+def _parse_frames(ctx: _Ctx, raw: Any) -> FrameParams:
+    key = "[frames]"
+    table = ctx.table(raw, key)
+    fields = {"rate", "exposure", "exposure_samples", "gamma", "gain", "full_well", "read_noise"}
+    ctx.keys(table, key, set(), fields)
+    values: dict[str, Any] = {}
+    for name, item in table.items():
+        if name == "exposure_samples":
+            values[name] = _integer(ctx, item, f"{key}.{name}", minimum=1)
+        else:
+            values[name] = _number(ctx, item, f"{key}.{name}")
+    try:
+        return FrameParams(**values)
+    except ValueError as exc:
+        raise ctx.fail(key, str(exc)) from None
+
+
+def _parse_render(ctx: _Ctx, raw: Any) -> RenderParams:
+    key = "[render]"
+    table = ctx.table(raw, key)
+    ctx.keys(table, key, set(), {"spp", "pose_rate"})
+    spp = _get(ctx, table, key, "spp", lambda c, v, k: _integer(c, v, k, minimum=1), 16)
+    if math.isqrt(spp) ** 2 != spp:
+        raise ctx.fail(f"{key}.spp", f"expected a perfect square (stratified sampler), got {spp}")
+    pose_rate = _get(ctx, table, key, "pose_rate", _number, 1000.0)
+    if pose_rate < 200:
+        raise ctx.fail(f"{key}.pose_rate", f"expected at least 200 Hz, got {pose_rate}")
+    return RenderParams(spp=spp, pose_rate=pose_rate)
+
+
+def _orientation(ctx: _Ctx, table: Mapping[str, Any], key: str, position: np.ndarray):
+    """Camera orientation from ``look_at`` (+ ``up``) or ``rotation`` (Euler degrees)."""
+    if ("look_at" in table) == ("rotation" in table):
+        raise ctx.fail(key, "expected exactly one of 'look_at' or 'rotation'")
+    if "rotation" in table:
+        return rotation_from_euler(_vector(ctx, table["rotation"], f"{key}.rotation", 3))
+    target = _vector(ctx, table["look_at"], f"{key}.look_at", 3)
+    up = _get(ctx, table, key, "up", lambda c, v, k: _vector(c, v, k, 3), np.array([0, 0, 1.0]))
+    try:
+        return look_at(position, target, up)
+    except ValueError as exc:
+        raise ctx.fail(key, str(exc)) from None
+
+
+def _parse_trajectory(ctx: _Ctx, raw: Any, base_dir: Path, seed: int) -> Trajectory:
+    key = "[trajectory]"
+    table = ctx.table(raw, key)
+    if "type" not in table:
+        raise ctx.fail(key, "missing required key 'type' (linear, handheld, spline or file)")
+    kind = _string(ctx, table["type"], f"{key}.type", ("linear", "handheld", "spline", "file"))
+    vec3 = lambda c, v, k: _vector(c, v, k, 3)  # noqa: E731
+    if kind == "linear":
+        ctx.keys(table, key, {"type", "position", "velocity"}, {"look_at", "up", "rotation"})
+        position = vec3(ctx, table["position"], f"{key}.position")
+        velocity = vec3(ctx, table["velocity"], f"{key}.velocity")
+        return LinearTrajectory(position, velocity, _orientation(ctx, table, key, position))
+    if kind == "handheld":
+        ctx.keys(
+            table, key,
+            {"type", "position", "translation_amplitude", "rotation_amplitude"},
+            {"look_at", "up", "rotation", "frequencies", "phases", "chirp"},
+        )
+        position = vec3(ctx, table["position"], f"{key}.position")
+        rotation = _orientation(ctx, table, key, position)
+        trans = _vector(ctx, table["translation_amplitude"], f"{key}.translation_amplitude", 3,
+                        nonneg=True)
+        rot = _vector(ctx, table["rotation_amplitude"], f"{key}.rotation_amplitude", 3, nonneg=True)
+        rng = np.random.default_rng(seed)
+        freqs = _get(ctx, table, key, "frequencies", lambda c, v, k: _vector(c, v, k, 6,
+                     positive=True), rng.uniform(0.2, 0.6, 6))
+        phases = _get(ctx, table, key, "phases", lambda c, v, k: _vector(c, v, k, 6),
+                      rng.uniform(0, 2 * np.pi, 6))
+        chirp = _get(ctx, table, key, "chirp", lambda c, v, k: _number(c, v, k, nonneg=True), 0.0)
+        return HandheldTrajectory(rotation, position, trans, np.radians(rot), freqs, phases, chirp)
+    if kind == "spline":
+        ctx.keys(table, key, {"type", "keyframes"}, {"up"})
+        frames = table["keyframes"]
+        if not isinstance(frames, list) or len(frames) < 2:
+            raise ctx.fail(f"{key}.keyframes", "expected a list of at least 2 keyframe tables")
+        times, poses = [], []
+        for i, item in enumerate(frames):
+            sub = f"{key}.keyframes[{i}]"
+            frame = ctx.table(item, sub)
+            ctx.keys(frame, sub, {"t", "position"}, {"look_at", "up", "rotation"})
+            if "up" in table and "up" not in frame:
+                frame = {**frame, "up": table["up"]}
+            position = vec3(ctx, frame["position"], f"{sub}.position")
+            times.append(_number(ctx, frame["t"], f"{sub}.t"))
+            poses.append(make_pose(_orientation(ctx, frame, sub, position), position))
+        if np.any(np.diff(times) <= 0):
+            raise ctx.fail(f"{key}.keyframes", f"expected strictly increasing times, got {times}")
+        return SplineTrajectory(np.array(times), np.stack(poses))
+    ctx.keys(table, key, {"type", "path"}, set())
+    path = base_dir / _string(ctx, table["path"], f"{key}.path")
+    if not path.is_file():
+        raise ctx.fail(f"{key}.path", f"trajectory file {path} does not exist")
+    return read_trajectory(path)
+
+
+def _parse_light(ctx: _Ctx, raw: Any, key: str) -> Light:
+    table = ctx.table(raw, key)
+    if "type" not in table:
+        raise ctx.fail(key, "missing required key 'type' (point, spot or directional)")
+    kind = _string(ctx, table["type"], f"{key}.type", ("point", "spot", "directional"))
+    vec3 = lambda c, v, k: _vector(c, v, k, 3)  # noqa: E731
+    if kind == "point":
+        ctx.keys(table, key, {"type", "position", "intensity"}, set())
+        return Light(kind, _color(ctx, table["intensity"], f"{key}.intensity"),
+                     position=vec3(ctx, table["position"], f"{key}.position"))
+    if kind == "spot":
+        ctx.keys(table, key, {"type", "position", "look_at", "intensity"},
+                 {"cutoff_angle", "beam_width"})
+        cutoff = _get(ctx, table, key, "cutoff_angle", _number, 20.0)
+        beam = _get(ctx, table, key, "beam_width", _number, cutoff * 0.75)
+        if not 0 < beam <= cutoff < 90:
+            raise ctx.fail(key, f"expected 0 < beam_width <= cutoff_angle < 90 degrees, got "
+                                f"beam_width {beam}, cutoff_angle {cutoff}")
+        return Light(kind, _color(ctx, table["intensity"], f"{key}.intensity"),
+                     position=vec3(ctx, table["position"], f"{key}.position"),
+                     target=vec3(ctx, table["look_at"], f"{key}.look_at"),
+                     cutoff_angle=cutoff, beam_width=beam)
+    ctx.keys(table, key, {"type", "direction", "irradiance"}, set())
+    direction = vec3(ctx, table["direction"], f"{key}.direction")
+    if np.linalg.norm(direction) == 0:
+        raise ctx.fail(f"{key}.direction", "expected a non-zero vector")
+    return Light(kind, _color(ctx, table["irradiance"], f"{key}.irradiance"),
+                 direction=direction / np.linalg.norm(direction))
+
+
+_TEXTURE_FIELDS = {
+    "image": ({"type", "path"}, set()),
+    "skimage": ({"type", "name"}, set()),
+    "checkerboard": ({"type"}, {"squares", "color0", "color1"}),
+    "noise": ({"type"}, {"resolution", "feature_size", "contrast", "mean"}),
+    "shapes": ({"type"}, {"resolution", "count", "min_size", "max_size", "background"}),
+}
+
+
+def _parse_texture(ctx: _Ctx, raw: Any, key: str, base_dir: Path) -> dict[str, Any]:
+    table = ctx.table(raw, key)
+    if "type" not in table:
+        raise ctx.fail(key, f"missing required key 'type' ({', '.join(_TEXTURE_FIELDS)})")
+    kind = _string(ctx, table["type"], f"{key}.type", tuple(_TEXTURE_FIELDS))
+    required, optional = _TEXTURE_FIELDS[kind]
+    ctx.keys(table, key, required, optional)
+    spec: dict[str, Any] = {"type": kind}
+    for name, value in table.items():
+        sub = f"{key}.{name}"
+        if name == "type":
+            continue
+        if name == "path":
+            path = base_dir / _string(ctx, value, sub)
+            if not path.is_file():
+                raise ctx.fail(sub, f"image file {path} does not exist")
+            spec[name] = str(path)
+        elif name == "name":
+            from sim.textures import SKIMAGE_IMAGES
+
+            spec[name] = _string(ctx, value, sub, SKIMAGE_IMAGES)
+        elif name == "squares":
+            spec[name] = [int(v) for v in _vector(ctx, value, sub, 2, positive=True)]
+        elif name in ("resolution", "count"):
+            spec[name] = _integer(ctx, value, sub, minimum=1)
+        else:
+            spec[name] = _number(ctx, value, sub, nonneg=True)
+    return spec
+
+
+def _parse_material(ctx: _Ctx, raw: Any, key: str, base_dir: Path) -> Material:
+    table = ctx.table(raw, key)
+    ctx.keys(table, key, set(), {"color", "texture", "texture_scale"})
+    color = _get(ctx, table, key, "color", _color, np.array([0.5, 0.5, 0.5]))
+    texture = None
+    if "texture" in table:
+        texture = _parse_texture(ctx, table["texture"], f"{key}.texture", base_dir)
+    scale = _get(ctx, table, key, "texture_scale",
+                 lambda c, v, k: _vector(c, v, k, 2, positive=True), np.ones(2))
+    return Material(tuple(color), texture, tuple(scale))
+
+
+def _parse_motion(ctx: _Ctx, raw: Any, key: str) -> ObjectMotion:
+    table = ctx.table(raw, key)
+    if "type" not in table:
+        raise ctx.fail(key, "missing required key 'type' (linear or sine)")
+    kind = _string(ctx, table["type"], f"{key}.type", ("linear", "sine"))
+    vec3 = lambda c, v, k: _vector(c, v, k, 3)  # noqa: E731
+    if kind == "linear":
+        ctx.keys(table, key, {"type"}, {"velocity", "angular_velocity"})
+        return ObjectMotion(
+            kind,
+            velocity=_get(ctx, table, key, "velocity", vec3, np.zeros(3)),
+            angular_velocity=np.radians(_get(ctx, table, key, "angular_velocity", vec3,
+                                             np.zeros(3))),
+        )
+    ctx.keys(table, key, {"type", "amplitude", "frequency"}, {"phase"})
+    return ObjectMotion(
+        kind,
+        amplitude=vec3(ctx, table["amplitude"], f"{key}.amplitude"),
+        frequency=_number(ctx, table["frequency"], f"{key}.frequency", nonneg=True),
+        phase=_get(ctx, table, key, "phase", _number, 0.0),
+    )
+
+
+# shape -> (required keys, optional keys) beyond the common ones
+_SHAPES: dict[str, tuple[set[str], set[str]]] = {
+    "rectangle": ({"size"}, {"normal", "up"}),
+    "box": ({"size"}, set()),
+    "sphere": ({"radius"}, set()),
+    "cylinder": ({"radius", "height"}, {"caps"}),
+    "heightfield": ({"size", "amplitude", "wavelength"}, {"resolution"}),
+    "mesh": ({"path"}, {"scale"}),
+}
+_COMMON = {"type", "name", "material", "motion", "center", "rotation"}
+
+
+def _parse_object(ctx: _Ctx, raw: Any, key: str, base_dir: Path) -> SceneObject:
+    table = ctx.table(raw, key)
+    if "type" not in table:
+        raise ctx.fail(key, f"missing required key 'type' ({', '.join(_SHAPES)})")
+    shape = _string(ctx, table["type"], f"{key}.type", tuple(_SHAPES))
+    required, optional = _SHAPES[shape]
+    ctx.keys(table, key, required | {"type", "center"}, optional | _COMMON)
+    center = _vector(ctx, table["center"], f"{key}.center", 3)
+    params: dict[str, Any] = {}
+    if shape == "rectangle":
+        params["size"] = _vector(ctx, table["size"], f"{key}.size", 2, positive=True)
+        if "rotation" in table and ("normal" in table or "up" in table):
+            raise ctx.fail(key, "expected either 'rotation' or 'normal'/'up', not both")
+        if "rotation" not in table:
+            # The textured front face looks along `normal`; texture v runs along -`up`.
+            normal = _get(ctx, table, key, "normal", lambda c, v, k: _vector(c, v, k, 3),
+                          np.array([0.0, -1.0, 0.0]))
+            up = _get(ctx, table, key, "up", lambda c, v, k: _vector(c, v, k, 3),
+                      np.array([0.0, 0.0, 1.0]))
+            try:
+                # look_at gives an OpenCV camera frame looking *into* the face: x right, y down.
+                frame = look_at(np.zeros(3), -normal, up)
+            except ValueError as exc:
+                raise ctx.fail(key, str(exc)) from None
+            # Local rectangle frame: x right, y up, z = front normal.
+            rotation = frame @ np.diag([1.0, -1.0, -1.0])
+        else:
+            rotation = rotation_from_euler(_vector(ctx, table["rotation"], f"{key}.rotation", 3))
+    else:
+        rotation = rotation_from_euler(
+            _get(ctx, table, key, "rotation", lambda c, v, k: _vector(c, v, k, 3), np.zeros(3))
+        )
+    if shape == "box":
+        params["size"] = _vector(ctx, table["size"], f"{key}.size", 3, positive=True)
+    elif shape == "sphere":
+        params["radius"] = _number(ctx, table["radius"], f"{key}.radius", positive=True)
+    elif shape == "cylinder":
+        params["radius"] = _number(ctx, table["radius"], f"{key}.radius", positive=True)
+        params["height"] = _number(ctx, table["height"], f"{key}.height", positive=True)
+        caps = table.get("caps", True)
+        if not isinstance(caps, bool):
+            raise ctx.fail(f"{key}.caps", f"expected true or false, got {_show(caps)}")
+        params["caps"] = caps
+    elif shape == "heightfield":
+        params["size"] = _vector(ctx, table["size"], f"{key}.size", 2, positive=True)
+        params["amplitude"] = _number(ctx, table["amplitude"], f"{key}.amplitude", nonneg=True)
+        params["wavelength"] = _vector(ctx, table["wavelength"], f"{key}.wavelength", 2,
+                                       positive=True)
+        res = table.get("resolution", [128, 128])
+        params["resolution"] = [int(v) for v in _vector(ctx, res, f"{key}.resolution", 2,
+                                                        positive=True)]
+        if min(params["resolution"]) < 2 or any(v != int(v) for v in res):
+            raise ctx.fail(f"{key}.resolution", f"expected 2 integers >= 2, got {res}")
+    elif shape == "mesh":
+        path = base_dir / _string(ctx, table["path"], f"{key}.path")
+        if path.suffix.lower() not in (".obj", ".ply"):
+            raise ctx.fail(f"{key}.path", f"expected an .obj or .ply file, got {path.name}")
+        if not path.is_file():
+            raise ctx.fail(f"{key}.path", f"mesh file {path} does not exist")
+        params["path"] = str(path)
+        params["scale"] = _get(ctx, table, key, "scale", lambda c, v, k: _number(c, v, k,
+                               positive=True), 1.0)
+    material = _parse_material(ctx, table.get("material", {}), f"{key}.material", base_dir)
+    motion = _parse_motion(ctx, table["motion"], f"{key}.motion") if "motion" in table else None
+    name = _string(ctx, table["name"], f"{key}.name") if "name" in table else key
+    return SceneObject(name, shape, center, rotation, params, material, motion)
+
+
+def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None = None) -> Scene:
+    """Parse and validate the TOML text of a scene.
+
+    Parameters
+    ----------
+    text : str
+        TOML document.
+    source : str or Path
+        Where it came from, for messages and for resolving relative paths.
+    seed : int, optional
+        Replaces the file's ``seed`` (random textures, default trajectory phases, noise).
+
+    Returns
+    -------
+    Scene
+
+    Raises
+    ------
+    SceneError
+        Invalid TOML, an unknown key, a missing field or a wrong type; the message names the
+        file, the key and what was expected.
+    """
+    ctx = _Ctx(str(source))
+    source_path = Path(source) if not str(source).startswith("<") else None
+    base_dir = source_path.parent if source_path is not None else Path.cwd()
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{source}: not valid TOML: {exc}") from None
+    top_required = {"duration", "camera", "trajectory", "objects"}
+    top_optional = {"name", "description", "seed", "frames", "render", "lights"}
+    ctx.keys(raw, "top level", top_required, top_optional)
+    name = _get(ctx, raw, "", "name", _string, source_path.stem if source_path else "scene")
+    description = _get(ctx, raw, "", "description", _string, "")
+    duration = _number(ctx, raw["duration"], "duration", positive=True)
+    file_seed = _get(ctx, raw, "", "seed", lambda c, v, k: _integer(c, v, k, minimum=0), 0)
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
+        raise SceneError(f"{source}: seed: expected an integer >= 0, got {seed!r}")
+    seed = file_seed if seed is None else seed
+    camera = _parse_camera(ctx, raw["camera"])
+    frames = _parse_frames(ctx, raw.get("frames", {}))
+    render = _parse_render(ctx, raw.get("render", {}))
+    trajectory = _parse_trajectory(ctx, raw["trajectory"], base_dir, seed)
+    if not (trajectory.t_start <= 0 and duration <= trajectory.t_end):
+        raise ctx.fail("duration", f"the trajectory covers [{trajectory.t_start}, "
+                                   f"{trajectory.t_end}] s, which does not contain [0, {duration}]")
+    lights_raw = raw.get("lights", [])
+    if not isinstance(lights_raw, list) or not lights_raw:
+        raise ctx.fail("[[lights]]", "expected at least one [[lights]] table")
+    lights = tuple(_parse_light(ctx, item, f"[[lights]][{i}]") for i, item in
+                   enumerate(lights_raw))
+    objects_raw = raw["objects"]
+    if not isinstance(objects_raw, list) or not objects_raw:
+        raise ctx.fail("[[objects]]", "expected at least one [[objects]] table")
+    objects = tuple(_parse_object(ctx, item, f"[[objects]][{i}]", base_dir)
+                    for i, item in enumerate(objects_raw))
+    names = [obj.name for obj in objects]
+    duplicate = next((n for n in names if names.count(n) > 1), None)
+    if duplicate is not None:
+        raise ctx.fail("[[objects]]", f"object name {duplicate!r} is used twice")
+    return Scene(name, description, duration, seed, camera, frames, render, trajectory, lights,
+                 objects, source_path, text)
+
+
+def load_scene(path: str | Path, *, seed: int | None = None) -> Scene:
+    """Read and validate a scene file (see :func:`parse_scene`; ``seed`` replaces the file's).
+
+    Raises
+    ------
+    SceneError
+        The file is missing or unreadable, or its content is invalid.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"{path}: cannot read scene file: {exc}") from None
+    return parse_scene(text, path, seed=seed)

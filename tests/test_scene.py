@@ -1,0 +1,154 @@
+"""Scene files: validation messages, built-in scenes, textures, moving objects."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scenes import builtin_scenes, describe_scenes, resolve_scene
+from sim.render import Renderer
+from sim.scene import SceneError, load_scene, parse_scene
+from tests.conftest import scene_text
+
+BOX = """
+[[objects]]
+name = "box"
+type = "box"
+center = [0.0, 2.0, 0.0]
+size = [1.0, 1.0, 1.0]
+"""
+
+
+def _error(text: str, tmp_path) -> str:
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    message = str(info.value)
+    assert str(path) in message, "the message must name the file"
+    return message
+
+
+def test_unknown_key_names_file_key_and_alternatives(tmp_path):
+    message = _error(scene_text(BOX.replace('name = "box"', 'name = "box"\ncolour = 0.3')),
+                     tmp_path)
+    assert "[[objects]][0]" in message and "'colour'" in message and "material" in message
+
+
+def test_missing_field_is_named(tmp_path):
+    message = _error(scene_text(BOX.replace("size = [1.0, 1.0, 1.0]\n", "")), tmp_path)
+    assert "[[objects]][0]" in message and "missing required key 'size'" in message
+
+
+def test_wrong_type_says_what_was_expected(tmp_path):
+    message = _error(scene_text(BOX.replace("[1.0, 1.0, 1.0]", '"big"')), tmp_path)
+    assert "[[objects]][0].size" in message and "list of 3 positive numbers" in message
+    message = _error(scene_text(BOX).replace("duration = 1.0", 'duration = "long"'), tmp_path)
+    assert "duration" in message and "finite number" in message
+    message = _error(scene_text(BOX).replace("fx = 60.0", "fx = -1.0"), tmp_path)
+    assert "[camera]" in message
+
+
+def test_invalid_toml_and_missing_file(tmp_path):
+    message = _error("duration = = 3\n", tmp_path)
+    assert "not valid TOML" in message and "line 1" in message
+    with pytest.raises(SceneError, match="cannot read scene file"):
+        load_scene(tmp_path / "absent.toml")
+
+
+def test_other_sections_are_checked(tmp_path):
+    assert "[trajectory].type" in _error(
+        scene_text(BOX).replace('type = "linear"', 'type = "teleport"'), tmp_path)
+    assert "[[lights]][0]" in _error(
+        scene_text(BOX).replace("irradiance = 1.0", "power = 1.0"), tmp_path)
+    assert "[render].spp" in _error(scene_text(BOX, extra="[render]\nspp = 10\n"), tmp_path)
+    assert "texture.name" in _error(scene_text(BOX.replace(
+        'size = [1.0, 1.0, 1.0]', 'size = [1.0, 1.0, 1.0]\nmaterial = { texture = { type = '
+        '"skimage", name = "mona_lisa" } }')), tmp_path)
+    spline = ('[trajectory]\ntype = "spline"\nkeyframes = [\n'
+              '  { t = 0.0, position = [0.0, 0.0, 0.0], look_at = [0.0, 1.0, 0.0] },\n'
+              '  { t = 1.0, position = [0.1, 0.0, 0.0], look_at = [0.1, 1.0, 0.0] },\n]\n')
+    message = _error(scene_text(BOX, duration=5.0, trajectory=spline), tmp_path)
+    assert "duration" in message and "does not contain [0, 5.0]" in message
+
+def test_builtin_scene_list_has_the_paper_twins_and_complex_surfaces():
+    names = set(builtin_scenes())
+    twins = {"slider_close", "slider_far", "slider_hdr_close", "slider_hdr_far", "poster_6dof",
+             "shapes_6dof", "boxes_6dof", "dynamic_6dof"}
+    assert twins <= names
+    assert {"complex_sphere", "complex_cylinder", "complex_slanted_plane", "complex_staircase",
+            "complex_heightfield"} <= names
+    assert all(describe_scenes()[name] for name in names)
+    with pytest.raises(ValueError, match="built-in"):
+        resolve_scene("no_such_scene")
+
+
+@pytest.mark.parametrize("name", sorted(builtin_scenes()))
+def test_every_builtin_scene_loads_and_renders_one_frame(name):
+    scene = load_scene(resolve_scene(name))
+    assert scene.camera.width == 240 and scene.camera.height == 180
+    view = Renderer(scene, spp=1).render(min(1.0, scene.duration / 2))
+    assert view.luminance.shape == (180, 240) and view.depth.shape == (180, 240)
+    assert np.all(np.isfinite(view.luminance)) and view.luminance.max() > 0
+    hit = view.depth > 0
+    assert hit.mean() > 0.95, "a built-in scene fills the view"
+    assert np.percentile(np.log(view.luminance[hit] + 1e-6), 99) > -8
+
+
+def test_slider_twins_have_the_papers_geometry():
+    for name, distance in (("slider_close", 0.231), ("slider_far", 0.585)):
+        scene = load_scene(resolve_scene(name))
+        assert scene.duration == 6.5
+        depth = Renderer(scene, spp=1).depth(3.0)
+        np.testing.assert_allclose(depth, distance, atol=1e-5)
+        v0, w0 = scene.trajectory.velocity(0.0)
+        v1, _ = scene.trajectory.velocity(6.0)
+        np.testing.assert_allclose(v0, v1)
+        assert np.allclose(w0, 0) and v0 @ np.array([0, 1.0, 0]) == 0
+
+
+def test_hdr_slider_spans_a_high_dynamic_range():
+    scene = load_scene(resolve_scene("slider_hdr_close"))
+    lum = Renderer(scene, spp=4).luminance(3.25)
+    low, high = np.percentile(lum, [2, 98])
+    assert high / low > 100
+
+
+def test_object_motion_moves_the_object_and_only_it():
+    objects = BOX.replace('name = "box"', 'name = "box"\nmotion = { type = "linear", '
+                          'velocity = [0.0, 1.0, 0.0] }') + """
+[[objects]]
+name = "wall"
+type = "rectangle"
+center = [0.0, 5.0, 0.0]
+size = [20.0, 20.0]
+"""
+    scene = parse_scene(scene_text(objects))
+    assert scene.is_dynamic
+    renderer = Renderer(scene, spp=1)
+    centre = (24, 32)
+    assert renderer.depth(0.0)[centre] == pytest.approx(1.5, abs=1e-5)
+    assert renderer.depth(0.5)[centre] == pytest.approx(2.0, abs=1e-5)
+    assert renderer.depth(0.5)[0, 0] == pytest.approx(renderer.depth(0.0)[0, 0], abs=1e-6)
+
+
+def test_textures_come_from_skimage_procedural_and_files(tmp_path):
+    import cv2
+
+    from sim.textures import texture_image
+
+    image = np.zeros((8, 8, 3), np.uint8)
+    image[:, 4:] = 255
+    cv2.imwrite(str(tmp_path / "half.png"), image)
+    half = texture_image({"type": "image", "path": str(tmp_path / "half.png")})
+    assert half.shape == (8, 8, 3)
+    assert half[0, 0, 0] == pytest.approx(0.03) and half[0, 7, 0] == pytest.approx(0.9)
+    astronaut = texture_image({"type": "skimage", "name": "astronaut"})
+    assert astronaut.shape == (512, 512, 3) and 0.03 <= astronaut.min() < astronaut.max() <= 0.9
+    a = texture_image({"type": "noise", "resolution": 64}, seed=1)
+    b = texture_image({"type": "noise", "resolution": 64}, seed=1)
+    c = texture_image({"type": "noise", "resolution": 64}, seed=2)
+    assert np.array_equal(a, b) and not np.array_equal(a, c)
+    spec = {"type": "shapes", "resolution": 128, "count": 10, "max_size": 50}
+    shapes = texture_image(spec, seed=0)
+    assert shapes.min() < 0.5 < shapes.max()
