@@ -1,0 +1,54 @@
+"""evfuse's simulator: scenes, camera motion, Mitsuba rendering and sequence folders.
+
+Importing ``sim`` does not import Mitsuba: the variant is chosen (and announced once) by the first
+:class:`Renderer`, or explicitly with :func:`use_variant`.
+"""
+
+from sim.camera import CAMERA_PRESETS, Camera, camera_preset, read_calib, write_calib
+from sim.exr import read_depth, write_depth
+from sim.frames import FrameParams, luminance_to_frame
+from sim.render import Renderer, RenderResult
+from sim.scene import Scene, SceneError, load_scene, parse_scene
+from sim.sequence import Sequence, load_sequence
+from sim.simulate import SimulationResult, simulate
+from sim.trajectory import (
+    HandheldTrajectory,
+    LinearTrajectory,
+    SampledTrajectory,
+    SplineTrajectory,
+    Trajectory,
+    read_trajectory,
+    write_trajectory,
+)
+from sim.variant import active_variant, use_variant
+
+__all__ = [
+    "CAMERA_PRESETS",
+    "Camera",
+    "FrameParams",
+    "HandheldTrajectory",
+    "LinearTrajectory",
+    "RenderResult",
+    "Renderer",
+    "SampledTrajectory",
+    "Scene",
+    "SceneError",
+    "Sequence",
+    "SimulationResult",
+    "SplineTrajectory",
+    "Trajectory",
+    "active_variant",
+    "camera_preset",
+    "load_scene",
+    "load_sequence",
+    "luminance_to_frame",
+    "parse_scene",
+    "read_calib",
+    "read_depth",
+    "read_trajectory",
+    "simulate",
+    "use_variant",
+    "write_calib",
+    "write_depth",
+    "write_trajectory",
+]

@@ -1,0 +1,171 @@
+"""The simulator pipeline: a scene in, a sequence folder (CONVENTIONS.md) out.
+
+Stages, in order: camera calibration -> ground-truth poses (``groundtruth.txt`` at the scene's
+``pose_rate``) -> standard-camera frames (renders averaged over the exposure, camera response,
+noise) and the exact depth at each frame time -> indexes and ``sequence.json``. Events are
+the next stage (``events.txt`` / ``events.h5``); ``sequence.json`` has an ``events`` entry for it.
+
+Everything is written into ``<out>.partial`` and renamed to ``<out>`` only when complete.
+"""
+
+from __future__ import annotations
+
+import platform
+import time
+from dataclasses import asdict, dataclass
+from importlib import metadata
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm.auto import tqdm
+
+from sim.camera import write_calib
+from sim.exr import write_depth
+from sim.frames import auto_gain, exposure_sample_times, frame_times, luminance_to_frame
+from sim.render import Renderer
+from sim.scene import Scene
+from sim.sequence import atomic_output_dir, frame_name, write_index, write_sequence_json
+from sim.trajectory import sample_times, write_trajectory
+
+__all__ = ["SimulationResult", "simulate"]
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """What :func:`simulate` wrote.
+
+    Attributes
+    ----------
+    out : Path
+        The sequence folder.
+    n_frames : int
+        Number of standard-camera frames (and depth maps).
+    n_renders : int
+        Number of luminance renders (frames x exposure samples).
+    variant : str
+        Mitsuba variant used.
+    timings : dict
+        Seconds spent per stage.
+    """
+
+    out: Path
+    n_frames: int
+    n_renders: int
+    variant: str
+    timings: dict
+
+
+def _versions() -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for package in ("evfuse", "mitsuba", "drjit", "numpy", "opencv-python-headless",
+                    "scikit-image", "OpenEXR"):
+        try:
+            versions[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            versions[package] = "not installed"
+    return versions
+
+
+def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
+             spp: int | None = None, variant: str | None = None, overwrite: bool = False,
+             progress: bool = True) -> SimulationResult:
+    """Render a scene into a sequence folder.
+
+    Parameters
+    ----------
+    scene : Scene
+        The validated scene (its seed drives every random draw).
+    out : str or Path
+        Sequence folder to create.
+    duration : float, optional
+        Seconds to simulate from t = 0, default the scene's duration.
+    spp : int, optional
+        Samples per pixel (a perfect square), default the scene's ``render.spp``.
+    variant : str, optional
+        Mitsuba variant (see :func:`sim.variant.use_variant`).
+    overwrite : bool
+        Replace an existing non-empty ``out`` (only once the new one is complete).
+    progress : bool
+        Show a progress bar.
+
+    Returns
+    -------
+    SimulationResult
+
+    Raises
+    ------
+    ValueError
+        A duration that is not positive or not covered by the trajectory, or an existing ``out``
+        without ``overwrite``.
+    """
+    duration = float(scene.duration if duration is None else duration)
+    traj = scene.trajectory
+    if not duration > 0:
+        raise ValueError(f"duration must be positive, got {duration}")
+    if not (traj.t_start <= 0.0 and duration <= traj.t_end):
+        raise ValueError(f"the trajectory covers [{traj.t_start}, {traj.t_end}] s, which does not "
+                         f"contain the simulated [0, {duration}] s")
+    params = scene.frames
+    times = frame_times(duration, params)
+    if len(times) == 0:
+        raise ValueError(f"duration {duration} s is too short for one frame at {params.rate} Hz "
+                         f"with a {params.exposure} s exposure")
+    out = Path(out)
+    timings = {"setup": 0.0, "render": 0.0, "depth": 0.0, "write": 0.0}
+    start = time.perf_counter()
+    renderer = Renderer(scene, spp=spp, variant=variant)
+    rng = np.random.default_rng(scene.seed)
+    timings["setup"] = time.perf_counter() - start
+    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+        write_calib(tmp / "calib.txt", scene.camera)
+        pose_times = sample_times(0.0, duration, scene.render.pose_rate)
+        write_trajectory(tmp / "groundtruth.txt", pose_times, traj.pose(pose_times))
+        (tmp / "images").mkdir()
+        (tmp / "depth").mkdir()
+        gain = params.gain
+        image_names, depth_names = [], []
+        bar = tqdm(times, desc=f"simulate {scene.name}", unit="frame", disable=not progress)
+        for index, t in enumerate(bar):
+            tick = time.perf_counter()
+            exposure = [renderer.luminance(ts) for ts in exposure_sample_times(t, params)]
+            luminance = np.mean(exposure, axis=0, dtype=np.float64).astype(np.float32)
+            tock = time.perf_counter()
+            depth = renderer.depth(t)
+            tack = time.perf_counter()
+            if gain is None:
+                gain = auto_gain(luminance)
+            frame = luminance_to_frame(luminance, gain, params, rng)
+            image_names.append(frame_name(index, "png"))
+            depth_names.append(frame_name(index, "exr"))
+            if not cv2.imwrite(str(tmp / image_names[-1]), frame):
+                raise OSError(f"cannot write {tmp / image_names[-1]}")
+            write_depth(tmp / depth_names[-1], depth)
+            timings["render"] += tock - tick
+            timings["depth"] += tack - tock
+            timings["write"] += time.perf_counter() - tack
+        write_index(tmp / "images.txt", times, image_names)
+        write_index(tmp / "depthmaps.txt", times, depth_names)
+        cam = scene.camera
+        write_sequence_json(tmp / "sequence.json", {
+            "format": "evfuse sequence 1",
+            "scene": {"name": scene.name, "description": scene.description,
+                      "source": str(scene.source) if scene.source else None,
+                      "toml": scene.text},
+            "duration": duration,
+            "seed": scene.seed,
+            "camera": {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy,
+                       "cx": cam.cx, "cy": cam.cy, "distortion": list(cam.distortion)},
+            "frames": {**asdict(params), "gain_used": gain, "count": len(times)},
+            "render": {"spp": renderer.spp, "sampler_seed": renderer.seed,
+                       "variant": renderer.variant, "integrator": "direct",
+                       "pose_rate": scene.render.pose_rate, "renders": len(times)
+                       * params.exposure_samples},
+            "depth": {"kind": "z", "units": "m", "at": "pixel centres, frame mid-exposure times"},
+            "events": None,
+            "software": _versions(),
+            "timings_s": {k: round(v, 3) for k, v in timings.items()},
+        })
+    timings["total"] = time.perf_counter() - start
+    return SimulationResult(out, len(times), len(times) * params.exposure_samples,
+                            renderer.variant, timings)

@@ -1,0 +1,116 @@
+"""evfuse simulate: the sequence folder, its determinism, and the command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from fusion.cli import main
+from sim.exr import read_depth
+from sim.scene import parse_scene
+from sim.sequence import load_sequence
+from sim.simulate import simulate
+from sim.trajectory import read_trajectory
+from tests.conftest import scene_text
+
+OBJECTS = """
+[[objects]]
+name = "poster"
+type = "rectangle"
+center = [0.0, 1.0, 0.0]
+size = [4.0, 4.0]
+material = { texture = { type = "noise", resolution = 128 } }
+"""
+MOVING = ('[trajectory]\ntype = "linear"\nposition = [0.0, 0.0, 0.0]\n'
+          "velocity = [0.2, 0.0, 0.0]\nlook_at = [0.0, 1.0, 0.0]\n")
+FRAMES = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 2\n[render]\nspp = 4\n"
+
+
+@pytest.fixture(scope="module")
+def tiny_scene_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scene") / "tiny.toml"
+    path.write_text(scene_text(OBJECTS, trajectory=MOVING, duration=0.3, extra=FRAMES))
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tiny_scene_file, tmp_path_factory):
+    scene = parse_scene(tiny_scene_file.read_text(), tiny_scene_file)
+    out = tmp_path_factory.mktemp("runs") / "tiny"
+    return scene, simulate(scene, out, progress=False)
+
+
+def test_sequence_folder_has_the_conventions_layout(tiny_run):
+    scene, result = tiny_run
+    out = result.out
+    for name in ("calib.txt", "groundtruth.txt", "images.txt", "depthmaps.txt", "sequence.json"):
+        assert (out / name).is_file(), name
+    assert not out.with_name(out.name + ".partial").exists()
+    seq = load_sequence(out)
+    assert len(seq.image_paths) == result.n_frames == len(seq.depth_paths) >= 5
+    np.testing.assert_array_equal(seq.image_times, seq.depth_times)
+    frame = cv2.imread(str(seq.image_paths[0]), cv2.IMREAD_UNCHANGED)
+    assert frame.dtype == np.uint8 and frame.shape == (48, 64) and frame.std() > 0
+    depth = read_depth(seq.depth_paths[0])
+    assert depth.dtype == np.float32 and depth.shape == (48, 64)
+    np.testing.assert_allclose(depth, 1.0, atol=1e-5)              # the poster is 1 m ahead
+    assert seq.camera.fx == 60.0 and seq.camera.fy == 45.0
+    meta = json.loads((out / "sequence.json").read_text())
+    assert meta["seed"] == 3 and meta["events"] is None and "mitsuba" in meta["software"]
+    assert meta["frames"]["count"] == result.n_frames
+
+
+def test_groundtruth_is_dense_and_matches_the_trajectory(tiny_run):
+    scene, result = tiny_run
+    written = read_trajectory(result.out / "groundtruth.txt")
+    times = np.loadtxt(result.out / "groundtruth.txt")[:, 0]
+    assert np.all(np.diff(times) <= 1 / 200 + 1e-9), "at least 200 Hz"
+    probe = np.array([0.0, 0.1234, 0.3])
+    np.testing.assert_allclose(written.pose(probe), scene.trajectory.pose(probe), atol=1e-9)
+
+
+def test_same_seed_same_files_different_seed_different_texture(tiny_scene_file, tiny_run,
+                                                                tmp_path):
+    scene, result = tiny_run
+    again = simulate(parse_scene(tiny_scene_file.read_text(), tiny_scene_file), tmp_path / "a",
+                     progress=False)
+    other = simulate(parse_scene(tiny_scene_file.read_text(), tiny_scene_file, seed=9),
+                     tmp_path / "b", progress=False)
+    for path in sorted(result.out.rglob("*")):
+        rel = path.relative_to(result.out)
+        if path.is_file() and rel.name != "sequence.json":
+            assert path.read_bytes() == (again.out / rel).read_bytes(), rel
+    first = "images/frame_00000000.png"
+    assert (result.out / first).read_bytes() != (other.out / first).read_bytes()
+
+
+def test_existing_output_is_not_overwritten_silently(tiny_run):
+    scene, result = tiny_run
+    with pytest.raises(ValueError, match="--overwrite"):
+        simulate(scene, result.out, progress=False)
+
+
+def test_cli_simulate_and_scenes(tiny_scene_file, tmp_path, capsys):
+    assert main(["scenes"]) == 0
+    listing = capsys.readouterr().out
+    assert "slider_close" in listing and "0.231 m" in listing
+    out = tmp_path / "cli"
+    assert main(["simulate", str(tiny_scene_file), "--out", str(out), "--duration", "0.12",
+                 "--seed", "7", "--quiet"]) == 0
+    assert f"to {out}" in capsys.readouterr().out
+    assert json.loads((out / "sequence.json").read_text())["seed"] == 7
+    assert main(["simulate", str(tiny_scene_file), "--out", str(out), "--quiet"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert main(["simulate", "no_such_scene", "--out", str(tmp_path / "x")]) == 2
+    assert "built-in" in capsys.readouterr().err
+
+
+def test_console_script_runs_in_a_fresh_process():
+    done = subprocess.run([sys.executable, "-m", "fusion.cli", "scenes"], capture_output=True,
+                          text=True, check=False, timeout=120)
+    assert done.returncode == 0 and "boxes_6dof" in done.stdout
