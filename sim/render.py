@@ -90,7 +90,8 @@ def _shape_dicts(index: int, obj: SceneObject, seed: int) -> dict[str, dict]:
 
     material = obj.material
     if material.texture is not None:
-        reflectance = mitsuba_texture(material.texture, material.texture_scale, seed + index)
+        reflectance = mitsuba_texture(material.texture, material.texture_scale, seed + index,
+                                      flip_v=obj.shape in ("rectangle", "cylinder"))
     else:
         reflectance = {"type": "rgb", "value": list(material.color)}
     bsdf = {"type": "twosided", "material": {"type": "diffuse", "reflectance": reflectance}}

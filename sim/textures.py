@@ -119,7 +119,8 @@ def texture_image(spec: Mapping[str, Any], seed: int = 0) -> np.ndarray:
                      "shapes")
 
 
-def mitsuba_texture(spec: Mapping[str, Any], scale: tuple[float, float], seed: int) -> dict:
+def mitsuba_texture(spec: Mapping[str, Any], scale: tuple[float, float], seed: int, *,
+                    flip_v: bool = False) -> dict:
     """Mitsuba texture dictionary for a material's texture spec.
 
     Parameters
@@ -131,6 +132,9 @@ def mitsuba_texture(spec: Mapping[str, Any], scale: tuple[float, float], seed: i
         Repetitions of the texture along u and v.
     seed : int
         Seed of the random textures.
+    flip_v : bool
+        Use v -> 1 - v, for shapes whose v grows upwards (Mitsuba's rectangle and cylinder) so
+        that the image's top row is at the top of the object.
 
     Returns
     -------
@@ -140,6 +144,8 @@ def mitsuba_texture(spec: Mapping[str, Any], scale: tuple[float, float], seed: i
     import mitsuba as mi
 
     to_uv = mi.ScalarTransform4f().scale([scale[0], scale[1], 1.0])
+    if flip_v:
+        to_uv = to_uv @ mi.ScalarTransform4f().translate([0.0, 1.0, 0.0]).scale([1.0, -1.0, 1.0])
     if spec["type"] == "checkerboard":
         squares = spec.get("squares", [8, 8])
         to_uv = to_uv @ mi.ScalarTransform4f().scale([squares[0] / 2, squares[1] / 2, 1.0])
