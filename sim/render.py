@@ -294,6 +294,7 @@ class Renderer:
             return self._depth_scalar(pose).reshape(shape)
         rotation = mi.Matrix3f(pose[:3, :3].astype(np.float32))
         origin = mi.Point3f(*pose[:3, 3].astype(np.float32).tolist())
+        dr.make_opaque(rotation, origin)                 # else each pose compiles a new kernel
         ray = mi.Ray3f(origin, rotation @ self._rays)
         si = self._scene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=True)
         z = dr.select(si.is_valid(), si.t * self._rays.z, 0.0)

@@ -163,3 +163,40 @@ def test_pose_argument_overrides_the_trajectory():
     assert np.median(renderer.depth(0.0, pose) - renderer.depth(0.0)) > 0.5
     with pytest.raises(ValueError, match="4, 4"):
         renderer.depth(0.0, np.eye(3))
+
+
+def test_new_poses_and_moving_objects_reuse_the_compiled_kernels():
+    """One loaded scene renders any pose without recompiling (parameters stay opaque)."""
+    objects = PLANE + """
+[[objects]]
+name = "spinning_box"
+type = "box"
+center = [0.0, 1.5, 0.0]
+size = [0.2, 0.2, 0.2]
+motion = { type = "linear", angular_velocity = [0.0, 0.0, 90.0] }
+
+[[objects]]
+name = "swinging_ball"
+type = "sphere"
+center = [0.3, 1.4, 0.1]
+radius = 0.1
+motion = { type = "sine", amplitude = [0.1, 0.0, 0.0], frequency = 1.0 }
+"""
+    trajectory = ('[trajectory]\ntype = "linear"\nposition = [0.0, 0.0, 0.0]\n'
+                  "velocity = [0.1, 0.05, 0.0]\nlook_at = [0.0, 1.0, 0.0]\n")
+    scene = parse_scene(scene_text(objects, trajectory=trajectory))
+    renderer = Renderer(scene, spp=4)
+    if renderer.variant == "scalar_rgb":
+        pytest.skip("scalar_rgb compiles nothing")
+    import drjit as dr
+
+    first = renderer.render(0.1)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        later = [renderer.render(t) for t in (0.2, 0.35)]
+        kernels = dr.kernel_history([dr.KernelType.JIT])
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert kernels, "rendering launched no kernel"
+    assert all(k["cache_hit"] for k in kernels), "a new pose compiled a new kernel"
+    assert not np.array_equal(first.depth, later[0].depth)
