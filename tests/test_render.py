@@ -200,3 +200,28 @@ motion = { type = "sine", amplitude = [0.1, 0.0, 0.0], frequency = 1.0 }
     assert kernels, "rendering launched no kernel"
     assert all(k["cache_hit"] for k in kernels), "a new pose compiled a new kernel"
     assert not np.array_equal(first.depth, later[0].depth)
+
+
+def test_scalar_fallback_renders_the_same_depth(tmp_path):
+    """Without LLVM, scalar_rgb must still work and agree with the vectorised variant."""
+    camera = "[camera]\nwidth = 16\nheight = 12\nfx = 15.0\nfy = 11.0\ncx = 7.3\ncy = 5.6\n"
+    text = scene_text(PLANE, camera=camera)
+    scene_file = tmp_path / "tiny.toml"
+    scene_file.write_text(text)
+    code = ("import numpy as np, sys; from sim import load_scene, Renderer;"
+            f"r = Renderer(load_scene({str(scene_file)!r}), spp=1);"
+            f"np.save({str(tmp_path / 'scalar.npy')!r}, r.depth(0.0));"
+            f"np.save({str(tmp_path / 'lum.npy')!r}, r.luminance(0.0))")
+    import os
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300, check=False,
+                          env={**os.environ, "EVFUSE_VARIANT": "scalar_rgb"})
+    assert done.returncode == 0, done.stderr
+    assert "scalar_rgb" in done.stderr
+    renderer = Renderer(parse_scene(text), spp=1)
+    np.testing.assert_allclose(np.load(tmp_path / "scalar.npy"), renderer.depth(0.0), atol=1e-5)
+    # Uniform plane under a directional light: both variants see the same shading.
+    np.testing.assert_allclose(np.load(tmp_path / "lum.npy"), renderer.luminance(0.0), rtol=1e-4)

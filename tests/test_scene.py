@@ -152,3 +152,60 @@ def test_textures_come_from_skimage_procedural_and_files(tmp_path):
     spec = {"type": "shapes", "resolution": 128, "count": 10, "max_size": 50}
     shapes = texture_image(spec, seed=0)
     assert shapes.min() < 0.5 < shapes.max()
+
+
+QUAD_OBJ = """# a unit square in the local x-z plane, facing -y
+v -0.5 0.0 -0.5
+v 0.5 0.0 -0.5
+v 0.5 0.0 0.5
+v -0.5 0.0 0.5
+f 1 2 3
+f 1 3 4
+"""
+QUAD_PLY = """ply
+format ascii 1.0
+element vertex 4
+property float x
+property float y
+property float z
+element face 2
+property list uchar int vertex_indices
+end_header
+-0.5 0.0 -0.5
+0.5 0.0 -0.5
+0.5 0.0 0.5
+-0.5 0.0 0.5
+3 0 1 2
+3 0 2 3
+"""
+
+
+@pytest.mark.parametrize("suffix, text", [("obj", QUAD_OBJ), ("ply", QUAD_PLY)])
+def test_triangle_meshes_from_obj_and_ply_are_placed_and_scaled(tmp_path, suffix, text):
+    (tmp_path / f"quad.{suffix}").write_text(text)
+    objects = f"""
+[[objects]]
+name = "quad"
+type = "mesh"
+path = "quad.{suffix}"
+center = [0.0, 2.0, 0.0]
+scale = 2.0
+"""
+    path = tmp_path / "mesh_scene.toml"
+    path.write_text(scene_text(objects))
+    depth = Renderer(load_scene(path), spp=1).depth(0.0)
+    # The 2 m square at y = 2 covers |X|, |Y| <= 1 m: pixels with |u - cx| < fx / 2 - 1 etc.
+    cam = load_scene(path).camera
+    v, u = np.mgrid[0:cam.height, 0:cam.width]
+    inside = (np.abs(u - cam.cx) < cam.fx / 2 - 1) & (np.abs(v - cam.cy) < cam.fy / 2 - 1)
+    outside = (np.abs(u - cam.cx) > cam.fx / 2 + 1) | (np.abs(v - cam.cy) > cam.fy / 2 + 1)
+    np.testing.assert_allclose(depth[inside], 2.0, atol=1e-5)
+    assert np.all(depth[outside] == 0)
+
+
+def test_mesh_file_errors_name_the_key(tmp_path):
+    objects = '[[objects]]\ntype = "mesh"\npath = "absent.obj"\ncenter = [0.0, 1.0, 0.0]\n'
+    assert "[[objects]][0].path" in _error(scene_text(objects), tmp_path)
+    (tmp_path / "quad.stl").write_text("solid")
+    objects = objects.replace("absent.obj", "quad.stl")
+    assert ".obj or .ply" in _error(scene_text(objects), tmp_path)
