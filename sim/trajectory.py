@@ -391,8 +391,29 @@ def _increments(control: np.ndarray, reference: np.ndarray | None = None) -> np.
     return out + (2.0 * np.pi * k)[:, None] * axis
 
 
+class _TimedTrajectory(Trajectory):
+    """A trajectory defined over strictly increasing ``times`` (keyframes or samples)."""
+
+    times: np.ndarray
+
+    @property
+    def t_start(self) -> float:
+        """float, seconds: the first time."""
+        return float(self.times[0])
+
+    @property
+    def t_end(self) -> float:
+        """float, seconds: the last time."""
+        return float(self.times[-1])
+
+    def _span(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Index j of the interval [times[j], times[j+1]] holding each t, and t - times[j]."""
+        j = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
+        return j, t - self.times[j]
+
+
 @dataclass(frozen=True, eq=False)
-class SplineTrajectory(Trajectory):
+class SplineTrajectory(_TimedTrajectory):
     """C2 cubic B-spline through keyframe poses, exactly interpolating them.
 
     Position: the natural cubic spline through the keyframe positions, written as a clamped
@@ -535,20 +556,6 @@ class SplineTrajectory(Trajectory):
         )
 
     # ---- evaluation --------------------------------------------------------------------------
-    @property
-    def t_start(self) -> float:
-        """float, seconds: the first keyframe time."""
-        return float(self.times[0])
-
-    @property
-    def t_end(self) -> float:
-        """float, seconds: the last keyframe time."""
-        return float(self.times[-1])
-
-    def _span(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        j = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
-        return j, t - self.times[j]
-
     def _rotation_factors(self, control: np.ndarray, increments: np.ndarray, t: np.ndarray,
                           derivative: bool) -> tuple[np.ndarray, np.ndarray | None]:
         """Rotations (N, 3, 3) and, if ``derivative``, body angular velocities (N, 3)."""
@@ -586,7 +593,7 @@ class SplineTrajectory(Trajectory):
 
 
 @dataclass(frozen=True, eq=False)
-class SampledTrajectory(Trajectory):
+class SampledTrajectory(_TimedTrajectory):
     """Poses sampled at given times (e.g. motion capture), interpolated geodesically in SE(3).
 
     Between samples ``k`` and ``k + 1`` the pose is
@@ -617,19 +624,9 @@ class SampledTrajectory(Trajectory):
         object.__setattr__(self, "_twists", twists)
         object.__setattr__(self, "_rates", twists / np.diff(times)[:, None])
 
-    @property
-    def t_start(self) -> float:
-        """float, seconds: the first sample time."""
-        return float(self.times[0])
-
-    @property
-    def t_end(self) -> float:
-        """float, seconds: the last sample time."""
-        return float(self.times[-1])
-
     def _segment(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        j = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
-        return j, (t - self.times[j]) / (self.times[j + 1] - self.times[j])
+        j, dt = self._span(t)
+        return j, dt / (self.times[j + 1] - self.times[j])
 
     def _poses(self, t: np.ndarray) -> np.ndarray:
         j, s = self._segment(t)
