@@ -1,0 +1,726 @@
+"""Sensor non-idealities of a DVS pixel array, after v2e (Hu, Liu & Delbruck, CVPRW 2021).
+
+Pure functions that :mod:`sim.events` calls once per interval ``[t0, t1)`` between two renders.
+Every random draw comes from a :class:`numpy.random.Generator` passed by the caller, so the same
+generator state gives the same output. The models, and where they follow or leave v2e
+(``v2ecore/emulator.py`` and ``emulator_utils.py``):
+
+Contrast-threshold mismatch (:func:`threshold_map`)
+    ``C = N(C_nominal, threshold_sigma**2)`` per pixel, independently for ON and OFF, sigma in
+    absolute log-intensity units, floored at :data:`THRESHOLD_FLOOR` = 0.01. As v2e.
+
+Photoreceptor low-pass (:func:`cutoff_frequency`, :func:`lowpass_step`)
+    A first-order low-pass on the log intensity whose 3 dB cutoff is proportional to the
+    photocurrent, ``f(Y) = cutoff_hz * clip(Y / cutoff_intensity_ref, cutoff_min_fraction, 1)``.
+    v2e uses ``f = cutoff_hz * (DN + 20) / 275`` for an 8-bit input DN: affine in DN, from
+    20/275 at DN 0 to 1 at DN 255. Here ``f`` is proportional to linear luminance, with
+    ``cutoff_intensity_ref`` in the role of DN 255 and v2e's 20/275 as the default floor
+    ``cutoff_min_fraction`` (they differ by at most 0.07 of ``cutoff_hz`` in between). v2e
+    integrates with a forward-Euler step clamped at 1; here the step is exact for an input
+    held constant over ``dt``: ``alpha = 1 - exp(-2 pi f dt)``, stable for any ``dt``
+    (:func:`lowpass_ramp_step` is exact for a linear ramp, the emulator's interpolation).
+
+Leak events (:func:`leak_rate_map`, :func:`leak_drift`)
+    Junction leakage in the reset switch moves each pixel's reference *down* by
+    ``rate * C_on`` per second, so a static pixel fires ON events at ``rate``. The per-pixel
+    rate is log-normal, ``leak_rate * 10 ** (leak_rate_cov_decades * N(0, 1))`` (fixed), and
+    each step's drift is scaled by ``1 - leak_jitter * N(0, 1)`` (temporal jitter, floored at
+    0 so the reference never moves up). As v2e's ``subtract_leak_current``.
+
+Background activity / shot noise (:func:`shot_noise_rate_map`, :func:`background_events`)
+    A Poisson process per pixel, half ON and half OFF as in v2e's ``generate_shot_noise``,
+    with v2e's intensity dependence: the rate falls linearly with normalised intensity
+    ``u = clip(Y / shot_noise_intensity_ref, 0, 1)`` from the dark value to
+    ``shot_noise_bright_factor`` (v2e's ``SHOT_NOISE_INTEN_FACTOR`` = 0.25) times it at
+    ``u = 1``. evfuse quotes the rate at the reference intensity, so::
+
+        rate(Y) = shot_noise_rate * (1 / k - (1 / k - 1) * u),   k = shot_noise_bright_factor
+
+    i.e. ``shot_noise_rate`` for ``Y >= shot_noise_intensity_ref`` and ``shot_noise_rate / k``
+    (4x) in the dark. Differences from v2e: v2e draws at most one noise event per pixel per
+    frame, stamped at the frame's end, and scales the rate by ``C_nominal / C_pixel``; here
+    each pixel draws a Poisson number of events with uniform times in ``[t0, t1)``, so long
+    intervals are exact, and the rate does not depend on the pixel's threshold. v2e also
+    resets a pixel's reference after a noise event; that is the emulator's business.
+
+Hot pixels (:func:`hot_pixel_mask`, :func:`hot_pixel_events`)
+    Not in v2e. A fixed, seeded set of ``round(hot_pixel_fraction * H * W)`` pixels fires ON
+    events as a Poisson process at ``hot_pixel_rate``.
+
+Events are the project's structured array (``t`` int64 ns, ``x``/``y`` uint16, ``p`` int8
++1/-1), sorted by ``t``; :func:`merge_events` merges streams stably.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+__all__ = [
+    "NOISE_PRESETS",
+    "THRESHOLD_FLOOR",
+    "NoiseParams",
+    "background_events",
+    "cutoff_frequency",
+    "hot_pixel_events",
+    "hot_pixel_mask",
+    "leak_drift",
+    "leak_rate_map",
+    "lowpass_ramp_step",
+    "lowpass_step",
+    "lowpass_substeps",
+    "merge_events",
+    "noise_preset",
+    "shot_noise_rate_map",
+    "threshold_map",
+]
+
+# The project's event layout. Identical to sim.events.EVENT_DTYPE, which cannot be imported
+# here because sim.events imports this module.
+_EVENT_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")])
+
+THRESHOLD_FLOOR = 0.01
+"""Smallest contrast threshold (log units) that :func:`threshold_map` returns (v2e's clamp)."""
+
+_MAX_SENSOR_SIDE = np.iinfo(np.uint16).max + 1
+"""Pixel coordinates are uint16, so a sensor side is at most 65536 pixels."""
+
+
+def _number(cls: str, name: str, value, *, low: float = 0.0, low_open: bool = False,
+            high: float | None = None, high_open: bool = False) -> float:
+    """``value`` as a float in the given range, or a ValueError naming ``cls.name``."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{cls}.{name} must be a number, got {value!r}")
+    value = float(value)
+    too_low = value <= low if low_open else value < low
+    too_high = high is not None and (value >= high if high_open else value > high)
+    if not math.isfinite(value) or too_low or too_high:
+        left = "(" if low_open else "["
+        right = "]" if high is None else (")" if high_open else "]")
+        upper = "inf)" if high is None else f"{high:g}{right}"
+        raise ValueError(f"{cls}.{name} must be a finite number in {left}{low:g}, {upper}, "
+                         f"got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class NoiseParams:
+    """Sensor non-idealities; the defaults are the ``ideal`` sensor (no noise of any kind).
+
+    The ``realistic`` preset (:data:`NOISE_PRESETS`) says where its numbers come from. Fields
+    that only shape a noise (jitters, reference intensities) default to v2e's values and have
+    no effect while the noise they shape is off.
+
+    Attributes
+    ----------
+    shot_noise_rate : float, Hz per pixel
+        Background-activity rate (ON + OFF) at ``shot_noise_intensity_ref`` and brighter;
+        4x this in the dark with the default ``shot_noise_bright_factor`` (see the module
+        docstring for the law). 0 = off. v2e's ``shot_noise_rate_hz`` (CLI default 0.001 Hz,
+        ``noisy`` preset 5 Hz) is the dark rate, i.e. ``shot_noise_rate / k``.
+    shot_noise_intensity_ref : float, linear luminance
+        Luminance at which the background rate equals ``shot_noise_rate`` (v2e's white level,
+        DN 255). Default 1.0.
+    shot_noise_bright_factor : float in (0, 1]
+        Bright-to-dark ratio ``k`` of the background rate (v2e's ``SHOT_NOISE_INTEN_FACTOR``
+        0.25); 1 makes the rate independent of intensity.
+    leak_rate : float, Hz per pixel
+        Median leak-event rate: each reference drifts down by ``leak_rate * C_on`` per second.
+        0 = off. v2e: CLI default 0.01 Hz, ``noisy`` preset 0.1 Hz.
+    leak_jitter : float in [0, 1)
+        Standard deviation of the per-step relative jitter of the leak drift (v2e's
+        ``leak_jitter_fraction``, 0.1).
+    leak_rate_cov_decades : float, decades
+        Standard deviation of log10 of the per-pixel leak rate (v2e's ``noise_rate_cov_decades``,
+        0.1): fixed-pattern spread of the leak rate across the array.
+    hot_pixel_fraction : float in [0, 1]
+        Fraction of pixels that are hot (not modelled by v2e). 0 = none.
+    hot_pixel_rate : float, Hz
+        ON-event rate of each hot pixel (Poisson).
+    cutoff_hz : float, Hz
+        3 dB cutoff of the photoreceptor low-pass at ``cutoff_intensity_ref`` and brighter.
+        0 = no filter (infinite bandwidth). v2e: CLI default 300 Hz, ``noisy`` preset 30 Hz.
+    cutoff_intensity_ref : float, linear luminance
+        Luminance at which the cutoff reaches ``cutoff_hz`` (v2e's DN 255). Default 1.0.
+    cutoff_min_fraction : float in (0, 1]
+        Floor of ``f(Y) / cutoff_hz`` in the dark (v2e's 20/275 = 0.0727 at DN 0).
+    threshold_sigma : float, log-intensity units
+        Standard deviation of the per-pixel contrast thresholds (absolute, not relative to C).
+        v2e's ``sigma_thres`` (default 0.03).
+    refractory_period : float, seconds
+        Dead time after each emitted event (v2e's ``refractory_period``, default 0.5 ms).
+    initial_phase : bool
+        Start each pixel's reference a random fraction of its ON threshold below the first
+        level, uniform in ``[0, C_on)``, so that the first events are not synchronised.
+    """
+
+    shot_noise_rate: float = 0.0
+    shot_noise_intensity_ref: float = 1.0
+    shot_noise_bright_factor: float = 0.25
+    leak_rate: float = 0.0
+    leak_jitter: float = 0.1
+    leak_rate_cov_decades: float = 0.1
+    hot_pixel_fraction: float = 0.0
+    hot_pixel_rate: float = 0.0
+    cutoff_hz: float = 0.0
+    cutoff_intensity_ref: float = 1.0
+    cutoff_min_fraction: float = 20.0 / 275.0
+    threshold_sigma: float = 0.0
+    refractory_period: float = 0.0
+    initial_phase: bool = False
+
+    def __post_init__(self) -> None:
+        ranges = {
+            "shot_noise_intensity_ref": {"low_open": True},
+            "shot_noise_bright_factor": {"low_open": True, "high": 1.0},
+            "leak_jitter": {"high": 1.0, "high_open": True},
+            "hot_pixel_fraction": {"high": 1.0},
+            "cutoff_intensity_ref": {"low_open": True},
+            "cutoff_min_fraction": {"low_open": True, "high": 1.0},
+        }
+        for f in fields(self):
+            if f.name == "initial_phase":
+                continue
+            value = _number("NoiseParams", f.name, getattr(self, f.name), **ranges.get(f.name, {}))
+            object.__setattr__(self, f.name, value)
+        if not isinstance(self.initial_phase, bool | np.bool_):
+            raise ValueError(f"NoiseParams.initial_phase must be a bool, "
+                             f"got {self.initial_phase!r}")
+        object.__setattr__(self, "initial_phase", bool(self.initial_phase))
+
+    @property
+    def has_noise(self) -> bool:
+        """True when any random or non-ideal behaviour is switched on."""
+        return bool(self.shot_noise_rate > 0 or self.leak_rate > 0
+                    or (self.hot_pixel_fraction > 0 and self.hot_pixel_rate > 0)
+                    or self.cutoff_hz > 0 or self.threshold_sigma > 0
+                    or self.refractory_period > 0 or self.initial_phase)
+
+
+NOISE_PRESETS: dict[str, NoiseParams] = {
+    "ideal": NoiseParams(),
+    "realistic": NoiseParams(
+        # Background activity of DAVIS240-class sensors at room light is of order 0.1 Hz/px;
+        # v2e's "noisy" examples use 1-5 Hz, its CLI default 0.001 Hz (dark rate).
+        shot_noise_rate=0.1,
+        # v2e's "noisy" preset; leak is the dominant BA source in bright light.
+        leak_rate=0.1,
+        # Not modelled by v2e: a few DAVIS240C pixels (~1e-4) fire at ~10 Hz.
+        hot_pixel_fraction=1e-4,
+        hot_pixel_rate=10.0,
+        # DAVIS photoreceptor bandwidth in bright light is a few hundred Hz (v2e CLI: 300 Hz).
+        cutoff_hz=200.0,
+        threshold_sigma=0.03,          # v2e CLI default sigma_thres
+        refractory_period=0.5e-3,      # v2e CLI default refractory_period
+        initial_phase=True,
+    ),
+}
+"""Named noise settings: ``ideal`` (none) and ``realistic`` (DAVIS240C-like)."""
+
+
+def noise_preset(name: str) -> NoiseParams:
+    """The :class:`NoiseParams` of preset ``name`` (``ideal`` or ``realistic``)."""
+    try:
+        return NOISE_PRESETS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown noise preset {name!r}; expected one of "
+                         f"{sorted(NOISE_PRESETS)}") from None
+
+
+# ------------------------------------------------------------------------------------------------
+# Input checks
+# ------------------------------------------------------------------------------------------------
+
+
+def _check_params(params) -> NoiseParams:
+    if not isinstance(params, NoiseParams):
+        raise ValueError(f"params must be a NoiseParams, got {type(params).__name__}")
+    return params
+
+
+def _check_shape(shape) -> tuple[int, int]:
+    try:
+        height, width = (int(s) for s in shape)
+    except (TypeError, ValueError):
+        raise ValueError(f"shape must be (height, width), got {shape!r}") from None
+    if not (0 < height <= _MAX_SENSOR_SIDE and 0 < width <= _MAX_SENSOR_SIDE):
+        raise ValueError(f"shape must be (height, width) with sides in [1, {_MAX_SENSOR_SIDE}], "
+                         f"got {tuple(shape)!r}")
+    return height, width
+
+
+def _check_rng(rng) -> np.random.Generator:
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng must be a numpy.random.Generator (np.random.default_rng(seed)), "
+                         f"got {type(rng).__name__}")
+    return rng
+
+
+def _check_luminance(luminance, name: str = "luminance") -> np.ndarray:
+    luminance = np.asarray(luminance, dtype=np.float64)
+    if luminance.ndim != 2:
+        raise ValueError(f"{name} must be an (H, W) array, got shape {luminance.shape}")
+    _check_shape(luminance.shape)
+    if not np.all(np.isfinite(luminance)) or np.any(luminance < 0):
+        raise ValueError(f"{name} must be finite and >= 0 (linear luminance)")
+    return luminance
+
+
+def _check_interval(t0_ns, t1_ns) -> tuple[int, int]:
+    for name, value in (("t0_ns", t0_ns), ("t1_ns", t1_ns)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise ValueError(f"{name} must be an integer number of nanoseconds, got {value!r}")
+    t0_ns, t1_ns = int(t0_ns), int(t1_ns)
+    if t1_ns < t0_ns:
+        raise ValueError(f"the interval must go forward in time: t1_ns = {t1_ns} < t0_ns = {t0_ns}")
+    return t0_ns, t1_ns
+
+
+def _check_dt(where: str, dt) -> float:
+    return _number(where, "dt", dt, low_open=True)
+
+
+# ------------------------------------------------------------------------------------------------
+# Contrast thresholds
+# ------------------------------------------------------------------------------------------------
+
+
+def threshold_map(shape: tuple[int, int], C_on: float, C_off: float, sigma: float,
+                  rng: np.random.Generator, *, floor: float = THRESHOLD_FLOOR
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel ON and OFF contrast thresholds with fixed-pattern mismatch.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Sensor height and width.
+    C_on, C_off : float, log-intensity units
+        Nominal thresholds, > 0.
+    sigma : float, log-intensity units
+        Standard deviation of the mismatch (absolute, not a fraction of C), >= 0.
+    rng : numpy.random.Generator
+        Source of the draws: the ON map is drawn first, then the OFF map; the generator
+        advances by the same amount whatever ``sigma`` is (0 included).
+    floor : float, log-intensity units
+        Values below it are raised to it (default 0.01, v2e's clamp).
+
+    Returns
+    -------
+    c_on, c_off : (H, W) float64 ndarray, log-intensity units
+        ``max(N(C, sigma**2), floor)``, independently per pixel and polarity. float64 (not
+        float32) so that ``sigma = 0`` gives exactly ``C``: float32(0.2) would move every
+        crossing time of the ideal sensor by a rounding error.
+    """
+    height, width = _check_shape(shape)
+    C_on = _number("threshold_map", "C_on", C_on, low_open=True)
+    C_off = _number("threshold_map", "C_off", C_off, low_open=True)
+    sigma = _number("threshold_map", "sigma", sigma)
+    floor = _number("threshold_map", "floor", floor, low_open=True)
+    rng = _check_rng(rng)
+    maps = []
+    for nominal in (C_on, C_off):
+        c = nominal + sigma * rng.standard_normal((height, width))
+        maps.append(np.maximum(c, floor))
+    return maps[0], maps[1]
+
+
+# ------------------------------------------------------------------------------------------------
+# Photoreceptor low-pass filter
+# ------------------------------------------------------------------------------------------------
+
+
+def cutoff_frequency(luminance: np.ndarray, params: NoiseParams) -> np.ndarray:
+    """3 dB cutoff of each pixel's photoreceptor, falling in the dark.
+
+    Parameters
+    ----------
+    luminance : (H, W) array_like, linear luminance >= 0
+    params : NoiseParams
+
+    Returns
+    -------
+    (H, W) float64 ndarray, Hz
+        ``cutoff_hz * clip(Y / cutoff_intensity_ref, cutoff_min_fraction, 1)``; all 0 when
+        ``cutoff_hz`` is 0 (filter off).
+    """
+    params = _check_params(params)
+    luminance = _check_luminance(luminance)
+    fraction = np.clip(luminance / params.cutoff_intensity_ref, params.cutoff_min_fraction, 1.0)
+    return params.cutoff_hz * fraction
+
+
+def _check_levels(L_filtered, L_new, luminance, names=("L_filtered", "L_new")):
+    arrays = []
+    for name, L in zip(names, (L_filtered, L_new), strict=True):
+        L = np.asarray(L, dtype=np.float64)
+        if L.ndim != 2 or not np.all(np.isfinite(L)):
+            raise ValueError(f"{name} must be a finite (H, W) array of log intensities, "
+                             f"got shape {L.shape}")
+        arrays.append(L)
+    luminance = _check_luminance(luminance)
+    for name, array in zip(names, arrays, strict=True):
+        if array.shape != luminance.shape:
+            raise ValueError(f"{name} has shape {array.shape} but luminance has shape "
+                             f"{luminance.shape}; expected the same (H, W)")
+    return arrays[0], arrays[1], luminance
+
+
+def lowpass_step(L_filtered: np.ndarray, L_new: np.ndarray, dt: float, luminance: np.ndarray,
+                 params: NoiseParams) -> np.ndarray:
+    """Advance the photoreceptor low-pass by ``dt`` with the input held at ``L_new``.
+
+    First-order filter ``tau dL/dt = L_in - L`` with ``tau = 1 / (2 pi f(Y))``
+    (:func:`cutoff_frequency`), integrated exactly for a constant input::
+
+        L <- L + alpha (L_new - L),    alpha = 1 - exp(-2 pi f dt)
+
+    so it is stable for any ``dt``; see :func:`lowpass_substeps` for when ``dt`` is too long
+    for the emulator's linear interpolation of the output, and :func:`lowpass_ramp_step` for
+    an input that ramps linearly over the interval.
+
+    Parameters
+    ----------
+    L_filtered : (H, W) array_like, log intensity
+        Filter output at the start of the interval.
+    L_new : (H, W) array_like, log intensity
+        Input over the interval (the new render).
+    dt : float, seconds, > 0
+    luminance : (H, W) array_like, linear luminance
+        Sets each pixel's cutoff (use the new render's luminance).
+    params : NoiseParams
+
+    Returns
+    -------
+    (H, W) float64 ndarray, log intensity
+        Filter output at the end of the interval; ``L_new`` itself (a copy) when
+        ``params.cutoff_hz`` is 0.
+    """
+    params = _check_params(params)
+    dt = _check_dt("lowpass_step", dt)
+    L_filtered, L_new, luminance = _check_levels(L_filtered, L_new, luminance)
+    if params.cutoff_hz == 0:
+        return L_new.copy()
+    alpha = -np.expm1(-2.0 * np.pi * dt * cutoff_frequency(luminance, params))
+    return L_filtered + alpha * (L_new - L_filtered)
+
+
+def lowpass_ramp_step(L_filtered: np.ndarray, L_prev: np.ndarray, L_new: np.ndarray, dt: float,
+                      luminance: np.ndarray, params: NoiseParams) -> np.ndarray:
+    """Advance the photoreceptor low-pass by ``dt`` with the input ramping linearly.
+
+    The exact solution of ``tau dL/dt = L_in - L`` for ``L_in`` linear in time (the
+    emulator's interpolation between renders), with ``x = dt / tau = 2 pi f dt``::
+
+        L <- e L + (1 - e) L_new + (L_new - L_prev) (e - (1 - e) / x),   e = exp(-x)
+
+    Parameters
+    ----------
+    L_filtered : (H, W) array_like, log intensity
+        Filter output at the start of the interval.
+    L_prev, L_new : (H, W) array_like, log intensity
+        Input at the start and at the end of the interval.
+    dt : float, seconds, > 0
+    luminance : (H, W) array_like, linear luminance
+        Sets each pixel's cutoff.
+    params : NoiseParams
+
+    Returns
+    -------
+    (H, W) float64 ndarray, log intensity
+        Filter output at the end of the interval; ``L_new`` (a copy) when ``cutoff_hz`` is 0.
+    """
+    params = _check_params(params)
+    dt = _check_dt("lowpass_ramp_step", dt)
+    L_filtered, L_new, luminance = _check_levels(L_filtered, L_new, luminance)
+    L_prev, _, _ = _check_levels(L_prev, L_new, luminance, names=("L_prev", "L_new"))
+    if params.cutoff_hz == 0:
+        return L_new.copy()
+    x = 2.0 * np.pi * dt * cutoff_frequency(luminance, params)
+    one_minus_e = -np.expm1(-x)
+    e = 1.0 - one_minus_e
+    return e * L_filtered + one_minus_e * L_new + (L_new - L_prev) * (e - one_minus_e / x)
+
+
+def lowpass_substeps(dt: float, params: NoiseParams, luminance: np.ndarray | None = None,
+                     max_step: float = 0.1) -> int:
+    """Number of equal sub-steps that keep each step within ``max_step`` time constants.
+
+    :func:`lowpass_step` is stable for any ``dt``, but between two filter outputs the emulator
+    interpolates linearly, which misses the curvature of the exponential approach: the error
+    is at most ``(dt / tau)**2 / 8`` of the step's size (0.125 % at the default 0.1). Splitting
+    an interval into this many sub-steps (with the input interpolated between the renders)
+    bounds that error; v2e warns from ``dt / tau > 0.3``.
+
+    Parameters
+    ----------
+    dt : float, seconds, > 0
+        Interval between two renders.
+    params : NoiseParams
+    luminance : (H, W) array_like, optional
+        When given, the fastest pixel's cutoff sets the count; otherwise ``cutoff_hz``.
+    max_step : float, > 0
+        Largest allowed ``dt_sub / tau = 2 pi f dt_sub``.
+
+    Returns
+    -------
+    int
+        ``max(1, ceil(2 pi f_max dt / max_step))``; 1 when the filter is off.
+    """
+    params = _check_params(params)
+    dt = _check_dt("lowpass_substeps", dt)
+    max_step = _number("lowpass_substeps", "max_step", max_step, low_open=True)
+    if params.cutoff_hz == 0:
+        return 1
+    f_max = params.cutoff_hz if luminance is None else float(
+        np.max(cutoff_frequency(luminance, params)))
+    # The tiny slack keeps an exact multiple (up to rounding) from asking for one more step.
+    return max(1, math.ceil(2.0 * math.pi * f_max * dt / max_step * (1.0 - 1e-12)))
+
+
+# ------------------------------------------------------------------------------------------------
+# Leak
+# ------------------------------------------------------------------------------------------------
+
+
+def leak_rate_map(shape: tuple[int, int], params: NoiseParams, rng: np.random.Generator
+                  ) -> np.ndarray:
+    """Fixed per-pixel leak-event rates (drawn once per sensor).
+
+    Parameters
+    ----------
+    shape : (int, int)
+    params : NoiseParams
+    rng : numpy.random.Generator
+        One standard normal per pixel is drawn, whatever the parameters.
+
+    Returns
+    -------
+    (H, W) float64 ndarray, Hz
+        ``leak_rate * 10 ** (leak_rate_cov_decades * N(0, 1))``: log-normal with median
+        ``leak_rate`` (mean higher by ``exp((cov ln 10)**2 / 2)``, 2.7 % for 0.1 decade).
+    """
+    shape = _check_shape(shape)
+    params = _check_params(params)
+    rng = _check_rng(rng)
+    z = rng.standard_normal(shape)
+    return params.leak_rate * 10.0 ** (params.leak_rate_cov_decades * z)
+
+
+def leak_drift(dt: float, c_on: np.ndarray, leak_rates: np.ndarray, params: NoiseParams,
+               rng: np.random.Generator) -> np.ndarray:
+    """Increment of each pixel's reference level over ``dt`` due to leakage (<= 0).
+
+    Parameters
+    ----------
+    dt : float, seconds, >= 0
+    c_on : (H, W) array_like or float, log-intensity units
+        Each pixel's ON threshold: a drift of ``rate * c_on`` per second gives ``rate``
+        ON events per second.
+    leak_rates : (H, W) array_like, Hz
+        From :func:`leak_rate_map`.
+    params : NoiseParams
+        ``leak_jitter`` is used.
+    rng : numpy.random.Generator
+        One standard normal per pixel is drawn.
+
+    Returns
+    -------
+    (H, W) float64 ndarray, log-intensity units
+        ``-dt * leak_rates * max(0, 1 - leak_jitter * N(0, 1)) * c_on``: add it to the
+        reference, which moves *down*, so that a static pixel emits ON events (v2e).
+    """
+    dt = _number("leak_drift", "dt", dt)
+    params = _check_params(params)
+    rng = _check_rng(rng)
+    leak_rates = np.asarray(leak_rates, dtype=np.float64)
+    if leak_rates.ndim != 2 or not np.all(np.isfinite(leak_rates)) or np.any(leak_rates < 0):
+        raise ValueError(f"leak_rates must be a finite (H, W) array of rates >= 0 Hz, "
+                         f"got shape {leak_rates.shape}")
+    c_on = np.asarray(c_on, dtype=np.float64)
+    if c_on.shape not in ((), leak_rates.shape):
+        raise ValueError(f"c_on must be a number or have the shape of leak_rates "
+                         f"{leak_rates.shape}, got shape {c_on.shape}")
+    jitter = np.maximum(0.0, 1.0 - params.leak_jitter * rng.standard_normal(leak_rates.shape))
+    return -(dt * leak_rates * jitter * c_on)
+
+
+# ------------------------------------------------------------------------------------------------
+# Poisson events: background activity and hot pixels
+# ------------------------------------------------------------------------------------------------
+
+
+def _poisson_events(t0_ns: int, t1_ns: int, flat_index: np.ndarray, counts: np.ndarray,
+                    shape: tuple[int, int], random_polarity: bool, rng: np.random.Generator
+                    ) -> np.ndarray:
+    """Events of pixels ``flat_index`` (row-major), ``counts[i]`` each, in [t0, t1).
+
+    Times are uniform; polarity is ON, or ON/OFF at 1/2 each when ``random_polarity``. Sorted
+    by time, ties in pixel order. Draws the times, then the polarities (in sorted order: they
+    are independent of time and pixel, so the order they are assigned in does not matter).
+    """
+    total = int(counts.sum())
+    n_pixels = shape[0] * shape[1]
+    offset = rng.integers(0, t1_ns - t0_ns, size=total, dtype=np.int64)
+    pixel = np.repeat(flat_index.astype(np.int64), counts)
+    if (t1_ns - t0_ns) < np.iinfo(np.int64).max // n_pixels:
+        # One sort of a combined key (time major, pixel minor): faster than a stable argsort.
+        key = offset * n_pixels + pixel
+        key.sort()
+        offset, pixel = np.divmod(key, n_pixels)
+    else:                                                    # intervals longer than ~8 hours
+        order = np.lexsort((pixel, offset))
+        offset, pixel = offset[order], pixel[order]
+    events = np.empty(total, _EVENT_DTYPE)
+    events["t"] = offset + t0_ns
+    events["y"], events["x"] = np.divmod(pixel, shape[1])
+    if random_polarity:
+        bits = np.unpackbits(np.frombuffer(rng.bytes((total + 7) // 8), dtype=np.uint8))
+        events["p"] = 2 * bits[:total].astype(np.int8) - 1
+    else:
+        events["p"] = 1
+    return events
+
+
+def shot_noise_rate_map(luminance: np.ndarray, params: NoiseParams) -> np.ndarray:
+    """Background-activity rate (ON + OFF) of each pixel.
+
+    Parameters
+    ----------
+    luminance : (H, W) array_like, linear luminance >= 0
+    params : NoiseParams
+
+    Returns
+    -------
+    (H, W) float64 ndarray, Hz
+        ``shot_noise_rate * (1/k - (1/k - 1) * clip(Y / shot_noise_intensity_ref, 0, 1))``
+        with ``k = shot_noise_bright_factor``: ``shot_noise_rate`` at and above the reference
+        intensity, ``shot_noise_rate / k`` in the dark (v2e's law, see the module docstring).
+    """
+    params = _check_params(params)
+    luminance = _check_luminance(luminance)
+    u = np.clip(luminance / params.shot_noise_intensity_ref, 0.0, 1.0)
+    inverse_k = 1.0 / params.shot_noise_bright_factor
+    return params.shot_noise_rate * (inverse_k - (inverse_k - 1.0) * u)
+
+
+def background_events(t0_ns: int, t1_ns: int, luminance: np.ndarray, params: NoiseParams,
+                      rng: np.random.Generator) -> np.ndarray:
+    """Background-activity (shot-noise) events of the interval ``[t0_ns, t1_ns)``.
+
+    Each pixel draws a Poisson number of events with mean ``rate(Y) * dt``
+    (:func:`shot_noise_rate_map`), at times uniform in the interval, each ON or OFF with
+    probability 1/2 (v2e splits the rate equally). Vectorised: one Poisson draw per pixel,
+    then per event; no Python loop over pixels.
+
+    Parameters
+    ----------
+    t0_ns, t1_ns : int, nanoseconds
+        The interval, ``t1_ns >= t0_ns`` (empty output when equal).
+    luminance : (H, W) array_like, linear luminance >= 0
+        Luminance over the interval (use the newer render's).
+    params : NoiseParams
+    rng : numpy.random.Generator
+        Draw order: per-pixel counts, then times, then polarities.
+
+    Returns
+    -------
+    (N,) structured ndarray
+        Fields ``t`` (int64 ns), ``x``, ``y`` (uint16), ``p`` (int8, +1/-1), sorted by ``t``;
+        ties keep row-major pixel order.
+    """
+    t0_ns, t1_ns = _check_interval(t0_ns, t1_ns)
+    rng = _check_rng(rng)
+    rates = shot_noise_rate_map(luminance, params)
+    if t1_ns == t0_ns or params.shot_noise_rate == 0:
+        return np.empty(0, _EVENT_DTYPE)
+    counts = rng.poisson(rates.ravel() * ((t1_ns - t0_ns) * 1e-9))
+    flat_index = np.arange(counts.size, dtype=np.int64)
+    return _poisson_events(t0_ns, t1_ns, flat_index, counts, rates.shape, True, rng)
+
+
+def hot_pixel_mask(shape: tuple[int, int], fraction: float, rng: np.random.Generator
+                   ) -> np.ndarray:
+    """A fixed, seeded set of hot pixels.
+
+    Parameters
+    ----------
+    shape : (int, int)
+    fraction : float in [0, 1]
+        ``round(fraction * H * W)`` pixels are chosen, uniformly without replacement.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    (H, W) bool ndarray
+        True at the hot pixels.
+    """
+    height, width = _check_shape(shape)
+    fraction = _number("hot_pixel_mask", "fraction", fraction, high=1.0)
+    rng = _check_rng(rng)
+    mask = np.zeros(height * width, dtype=bool)
+    mask[rng.choice(height * width, size=round(fraction * height * width), replace=False)] = True
+    return mask.reshape(height, width)
+
+
+def hot_pixel_events(t0_ns: int, t1_ns: int, hot_mask: np.ndarray, rate: float,
+                     rng: np.random.Generator) -> np.ndarray:
+    """ON events of the hot pixels in the interval ``[t0_ns, t1_ns)``.
+
+    Parameters
+    ----------
+    t0_ns, t1_ns : int, nanoseconds
+        The interval, ``t1_ns >= t0_ns``.
+    hot_mask : (H, W) bool ndarray
+        From :func:`hot_pixel_mask`.
+    rate : float, Hz
+        Poisson rate of each hot pixel.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    (N,) structured ndarray
+        ON events (``p`` = +1), sorted by ``t``; ties keep row-major pixel order.
+    """
+    t0_ns, t1_ns = _check_interval(t0_ns, t1_ns)
+    hot_mask = np.asarray(hot_mask)
+    if hot_mask.dtype != np.bool_ or hot_mask.ndim != 2:
+        raise ValueError(f"hot_mask must be an (H, W) bool array, got {hot_mask.dtype} "
+                         f"with shape {hot_mask.shape}")
+    _check_shape(hot_mask.shape)
+    rate = _number("hot_pixel_events", "rate", rate)
+    rng = _check_rng(rng)
+    flat_index = np.flatnonzero(hot_mask)
+    if t1_ns == t0_ns or rate == 0 or flat_index.size == 0:
+        return np.empty(0, _EVENT_DTYPE)
+    counts = rng.poisson(rate * ((t1_ns - t0_ns) * 1e-9), size=flat_index.size)
+    return _poisson_events(t0_ns, t1_ns, flat_index, counts, hot_mask.shape, False, rng)
+
+
+def merge_events(*arrays: np.ndarray) -> np.ndarray:
+    """Merge time-sorted event arrays into one, stably.
+
+    Parameters
+    ----------
+    *arrays : (N_i,) structured ndarrays
+        Each with the event dtype and sorted by ``t``.
+
+    Returns
+    -------
+    (sum N_i,) structured ndarray
+        Every input event, sorted by ``t``; events with equal times keep the order of the
+        arguments (and their order within an argument).
+    """
+    for i, array in enumerate(arrays):
+        if not isinstance(array, np.ndarray) or array.dtype != _EVENT_DTYPE or array.ndim != 1:
+            got = array.dtype if isinstance(array, np.ndarray) else type(array).__name__
+            raise ValueError(f"argument {i} of merge_events must be a 1-D event array with "
+                             f"dtype {_EVENT_DTYPE}, got {got}")
+    non_empty = [a for a in arrays if len(a)]
+    if not non_empty:
+        return np.empty(0, _EVENT_DTYPE)
+    if len(non_empty) == 1:
+        return non_empty[0].copy()
+    merged = np.concatenate(non_empty)
+    return merged[np.argsort(merged["t"], kind="stable")]
