@@ -1,0 +1,368 @@
+"""Event-camera emulator: log-intensity samples in, DVS events out (ESIM's model, v2e's noise).
+
+Each pixel keeps a reference log level ``ref``. Between two samples (t0, L0) and (t1, L1) the
+log intensity is interpolated linearly in time, and every crossing of ``ref + C_on`` (ON) or
+``ref - C_off`` (OFF) emits one event timestamped at its own interpolated crossing time, after
+which the reference moves by that threshold. Several events per pixel per interval are normal;
+the reference is carried from interval to interval.
+
+Choices (documented here because they change the events):
+
+- Refractory period: an event that falls within ``refractory_period`` of the pixel's previous
+  *emitted* event is dropped, but the reference still moves, as the comparator reset does in a
+  real DVS pixel. So the refractory period never makes a pixel lag behind the signal; it only
+  thins bursts.
+- Thresholds: ``C_on``/``C_off`` per pixel, drawn once (normal with sigma ``threshold_sigma``
+  around the nominal values, floored at 0.01) from the seed.
+- Initial reference: the first sample's level (``ideal``), or that level minus a random phase
+  in [0, C_on) per pixel (``initial_phase``), so that a scene start does not fire a synchronized
+  burst.
+- Noise (see :mod:`sim.noise`): photoreceptor low-pass filter on L with a cutoff that falls in
+  the dark (solved exactly for the linear ramp between samples), leak (each pixel's reference
+  drifts down at its own fixed rate, giving ON events), background activity and hot pixels
+  (Poisson events in [t0, t1) merged into the stream). Unlike v2e, a background event does not
+  reset the pixel's reference.
+
+Timestamps are int64 nanoseconds. Within an interval, events are sorted by time; ties keep pixel
+order (row-major), so results are deterministic with any number of threads.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from sim.eventio import EVENT_DTYPE
+from sim.noise import (
+    NoiseParams,
+    background_events,
+    hot_pixel_events,
+    hot_pixel_mask,
+    leak_drift,
+    leak_rate_map,
+    lowpass_ramp_step,
+    merge_events,
+    noise_preset,
+    threshold_map,
+)
+
+__all__ = [
+    "EVENT_DTYPE",
+    "EventEmulator",
+    "EventParams",
+    "emulate_events",
+    "emulate_events_reference",
+    "log_intensity",
+]
+
+
+@dataclass(frozen=True)
+class EventParams:
+    """Parameters of the event camera.
+
+    Attributes
+    ----------
+    contrast_on, contrast_off : float
+        Nominal contrast thresholds C+ and C- in log-intensity units (default 0.2).
+    log_eps : float
+        L = log(Y + log_eps) for linear luminance Y (used by :func:`log_intensity`).
+    noise : NoiseParams
+        Sensor non-idealities; default the ``ideal`` preset (none, thresholds exact, each
+        reference starting at the pixel's first level).
+    seed : int
+        Seed of every random draw of the sensor (thresholds, phases, noise).
+    """
+
+    contrast_on: float = 0.2
+    contrast_off: float = 0.2
+    log_eps: float = 1e-3
+    noise: NoiseParams = field(default_factory=lambda: noise_preset("ideal"))
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("contrast_on", "contrast_off", "log_eps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, int | float)
+                                               and math.isfinite(value) and value > 0):
+                raise ValueError(f"EventParams.{name} must be a finite number > 0, got {value!r}")
+        if not isinstance(self.noise, NoiseParams):
+            raise ValueError(f"EventParams.noise must be a NoiseParams, got {self.noise!r}")
+
+    @classmethod
+    def preset(cls, name: str, contrast: float = 0.2, seed: int = 0) -> EventParams:
+        """Parameters with the noise preset ``name`` (``ideal`` or ``realistic``)."""
+        return cls(contrast_on=contrast, contrast_off=contrast, noise=noise_preset(name),
+                   seed=seed)
+
+
+def log_intensity(luminance: np.ndarray, eps: float = 1e-3) -> np.ndarray:
+    """L = log(Y + eps) of linear luminance, float64 (..., H, W)."""
+    return np.log(np.asarray(luminance, dtype=np.float64) + eps)
+
+
+# ------------------------------------------------------------------------------------------------
+# Compiled kernels. The interval is processed in two parallel passes over rows: count the events
+# of every row, then (after a prefix sum gives each row its slot) write them.
+# ------------------------------------------------------------------------------------------------
+
+
+@numba.njit(cache=True, parallel=True)
+def _count_rows(L0, L1, ref, c_on, c_off):  # pragma: no cover - compiled
+    height, width = L1.shape
+    counts = np.zeros(height, dtype=np.int64)
+    for y in numba.prange(height):
+        n = 0
+        for x in range(width):
+            r = ref[y, x]
+            v = L1[y, x]
+            if v >= r + c_on[y, x]:
+                n += int(math.floor((v - r) / c_on[y, x]))
+            elif v <= r - c_off[y, x]:
+                n += int(math.floor((r - v) / c_off[y, x]))
+        counts[y] = n
+    return counts
+
+
+@numba.njit(cache=True, parallel=True)
+def _write_rows(L0, L1, ref, c_on, c_off, last_t, offsets, t0, dt, refractory,
+                out_t, out_x, out_y, out_p, keep):  # pragma: no cover - compiled
+    height, width = L1.shape
+    for y in numba.prange(height):
+        k = offsets[y]
+        for x in range(width):
+            r = ref[y, x]
+            a = L0[y, x]
+            b = L1[y, x]
+            slope = b - a
+            if b >= r + c_on[y, x]:
+                c = c_on[y, x]
+                n = int(math.floor((b - r) / c))
+                sign = 1
+            elif b <= r - c_off[y, x]:
+                c = -c_off[y, x]
+                n = int(math.floor((r - b) / -c))
+                sign = -1
+            else:
+                continue
+            last = last_t[y, x]
+            for i in range(1, n + 1):
+                level = r + i * c
+                # Linear interpolation: the time at which L reaches `level` in [t0, t0 + dt].
+                frac = (level - a) / slope if slope != 0.0 else 1.0
+                if frac < 0.0:
+                    frac = 0.0
+                elif frac > 1.0:
+                    frac = 1.0
+                t = t0 + np.int64(round(frac * dt))
+                out_t[k] = t
+                out_x[k] = x
+                out_y[k] = y
+                out_p[k] = sign
+                if refractory > 0 and t - last < refractory:
+                    keep[k] = False
+                else:
+                    keep[k] = True
+                    last = t
+                k += 1
+            last_t[y, x] = last
+            ref[y, x] = r + n * c
+
+
+class EventEmulator:
+    """Streaming event emulator: feed log-intensity samples in time order, get events.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Sensor height and width.
+    params : EventParams, optional
+        Default: the ``ideal`` preset, C = 0.2.
+
+    Examples
+    --------
+    >>> emulator = EventEmulator((180, 240))                          # doctest: +SKIP
+    >>> emulator.start(L0, 0.0)                                       # doctest: +SKIP
+    >>> events = emulator.advance(L1, 0.001)                          # doctest: +SKIP
+    """
+
+    def __init__(self, shape: tuple[int, int], params: EventParams | None = None):
+        self.params = params or EventParams()
+        self.shape = (int(shape[0]), int(shape[1]))
+        noise = self.params.noise
+        self._rng = np.random.default_rng(self.params.seed)
+        self.c_on, self.c_off = threshold_map(self.shape, self.params.contrast_on,
+                                              self.params.contrast_off, noise.threshold_sigma,
+                                              self._rng)
+        self.hot_mask = hot_pixel_mask(self.shape, noise.hot_pixel_fraction, self._rng)
+        self.leak_rates = leak_rate_map(self.shape, noise, self._rng)
+        self.ref: np.ndarray | None = None
+        self._L: np.ndarray | None = None
+        self._raw: np.ndarray | None = None
+        self._t: int | None = None
+        self._last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, dtype=np.int64)
+
+    @property
+    def time_ns(self) -> int | None:
+        """Time of the last sample, ns (None before :meth:`start`)."""
+        return self._t
+
+    @property
+    def level(self) -> np.ndarray | None:
+        """The (filtered) log intensity of the last sample, (H, W) float64."""
+        return self._L
+
+    def _check(self, L: np.ndarray, name: str) -> np.ndarray:
+        L = np.ascontiguousarray(L, dtype=np.float64)
+        if L.shape != self.shape:
+            raise ValueError(f"{name} must have shape {self.shape}, got {L.shape}")
+        if not np.all(np.isfinite(L)):
+            raise ValueError(f"{name} has non-finite values; expected log intensities")
+        return L
+
+    def start(self, L0: np.ndarray, t0: float) -> None:
+        """Set the first sample (t0 in seconds) and the references; emits nothing."""
+        L0 = self._check(L0, "L0")
+        self.ref = L0.copy()
+        if self.params.noise.initial_phase:
+            self.ref -= self._rng.random(self.shape) * self.c_on
+        self._L = self._raw = L0
+        self._t = int(round(t0 * 1e9))
+
+    def advance(self, L1: np.ndarray, t1: float, luminance: np.ndarray | None = None
+                ) -> np.ndarray:
+        """Process the interval from the previous sample to (t1, L1).
+
+        Parameters
+        ----------
+        L1 : (H, W) array_like, log intensity at t1
+        t1 : float, seconds, after the previous sample
+        luminance : (H, W) array_like, optional
+            Linear luminance at t1, for the intensity-dependent noise (default exp(L1)).
+
+        Returns
+        -------
+        (N,) EVENT_DTYPE ndarray
+            Events of the interval, sorted by time: threshold crossings with previous t < t <=
+            t1, noise events with previous t <= t < t1.
+        """
+        if self.ref is None:
+            raise ValueError("call start() before advance()")
+        L1 = self._check(L1, "L1")
+        t1_ns = int(round(t1 * 1e9))
+        if t1_ns <= self._t:
+            raise ValueError(f"samples must go forward in time: t1 = {t1} s is not after "
+                             f"{self._t / 1e9} s")
+        noise = self.params.noise
+        dt_ns = t1_ns - self._t
+        Y = np.exp(L1) if luminance is None else np.asarray(luminance, dtype=np.float64)
+        raw = L1
+        if noise.cutoff_hz > 0:
+            L1 = lowpass_ramp_step(self._L, self._raw, raw, dt_ns * 1e-9, Y, noise)
+        if noise.leak_rate > 0:
+            self.ref += leak_drift(dt_ns * 1e-9, self.c_on, self.leak_rates, noise, self._rng)
+        events = self._crossings(self._L, L1, self._t, dt_ns)
+        if noise.shot_noise_rate > 0:
+            events = merge_events(events, background_events(self._t, t1_ns, Y, noise, self._rng))
+        if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
+            events = merge_events(events, hot_pixel_events(self._t, t1_ns, self.hot_mask,
+                                                           noise.hot_pixel_rate, self._rng))
+        self._L, self._raw, self._t = L1, raw, t1_ns
+        return events
+
+    def _crossings(self, L0, L1, t0_ns: int, dt_ns: int) -> np.ndarray:
+        counts = _count_rows(L0, L1, self.ref, self.c_on, self.c_off)
+        total = int(counts.sum())
+        offsets = np.zeros(len(counts), dtype=np.int64)
+        np.cumsum(counts[:-1], out=offsets[1:])
+        t = np.empty(total, np.int64)
+        x = np.empty(total, np.uint16)
+        y = np.empty(total, np.uint16)
+        p = np.empty(total, np.int8)
+        keep = np.empty(total, np.bool_)
+        refractory = int(round(self.params.noise.refractory_period * 1e9))
+        _write_rows(L0, L1, self.ref, self.c_on, self.c_off, self._last_t, offsets, t0_ns,
+                    float(dt_ns), refractory, t, x, y, p, keep)
+        order = np.argsort(t, kind="stable")
+        if refractory > 0:
+            order = order[keep[order]]
+        events = np.empty(len(order), EVENT_DTYPE)
+        events["t"], events["x"], events["y"], events["p"] = t[order], x[order], y[order], p[order]
+        return events
+
+
+def _check_stack(log_frames, times) -> tuple[np.ndarray, np.ndarray]:
+    log_frames = np.asarray(log_frames, dtype=np.float64)
+    times = np.asarray(times, dtype=np.float64)
+    if log_frames.ndim != 3:
+        raise ValueError(f"log_frames must be (N, H, W), got shape {log_frames.shape}")
+    if times.shape != (len(log_frames),):
+        raise ValueError(f"times must be (N,) = ({len(log_frames)},), got shape {times.shape}")
+    if len(times) < 2:
+        raise ValueError("need at least 2 samples to emulate events")
+    if np.any(np.diff(times) <= 0):
+        raise ValueError("times must be strictly increasing")
+    return log_frames, times
+
+
+def emulate_events(log_frames: np.ndarray, times: np.ndarray,
+                   params: EventParams | None = None) -> np.ndarray:
+    """Events of a stack of log-intensity frames.
+
+    Parameters
+    ----------
+    log_frames : (N, H, W) array_like
+        Log intensity L = log(Y + eps) of linear luminance (never 8-bit gamma values) at each
+        sample time, from the renderer or a user's own high-frame-rate video.
+    times : (N,) array_like, seconds
+        Strictly increasing sample times.
+    params : EventParams, optional
+        Default: the ``ideal`` preset with C = 0.2.
+
+    Returns
+    -------
+    (M,) EVENT_DTYPE ndarray
+        Fields t (int64 ns), x, y (uint16), p (int8, +1 ON / -1 OFF), sorted by t.
+    """
+    log_frames, times = _check_stack(log_frames, times)
+    emulator = EventEmulator(log_frames.shape[1:], params)
+    emulator.start(log_frames[0], times[0])
+    chunks = [emulator.advance(frame, t) for frame, t in zip(log_frames[1:], times[1:],
+                                                              strict=True)]
+    return np.concatenate(chunks) if chunks else np.empty(0, EVENT_DTYPE)
+
+
+def emulate_events_reference(log_frames: np.ndarray, times: np.ndarray,
+                             contrast: float = 0.2) -> np.ndarray:
+    """A plain per-pixel Python loop of the ideal model, for validation and benchmarks only.
+
+    Same model as :func:`emulate_events` with the ``ideal`` preset (exact thresholds, no noise,
+    reference = first level), written as directly as possible. Slow: use small inputs.
+    """
+    log_frames, times = _check_stack(log_frames, times)
+    _, height, width = log_frames.shape
+    ref = log_frames[0].copy()
+    out = []
+    for k in range(1, len(times)):
+        t0 = int(round(times[k - 1] * 1e9))
+        dt = float(int(round(times[k] * 1e9)) - t0)
+        interval = []
+        for y in range(height):
+            for x in range(width):
+                a, b, r = log_frames[k - 1, y, x], log_frames[k, y, x], ref[y, x]
+                if b >= r + contrast:
+                    sign, n = 1, math.floor((b - r) / contrast)
+                elif b <= r - contrast:
+                    sign, n = -1, math.floor((r - b) / contrast)
+                else:
+                    continue
+                for i in range(1, n + 1):
+                    level = r + i * sign * contrast
+                    frac = min(max((level - a) / (b - a), 0.0), 1.0) if b != a else 1.0
+                    interval.append((t0 + int(round(frac * dt)), x, y, sign))
+                ref[y, x] = r + n * sign * contrast
+        interval.sort(key=lambda e: e[0])                      # stable: ties keep pixel order
+        out.extend(interval)
+    return np.array(out, dtype=EVENT_DTYPE) if out else np.empty(0, EVENT_DTYPE)
