@@ -1,0 +1,210 @@
+"""Adaptive time sampling of the renderer for the event emulator (as ESIM does).
+
+The next render time is chosen so that no pixel's log intensity changes by more than
+``lam * C`` between two samples. The change is *predicted* from the exact depth and the camera's
+velocity: the motion field of a static scene (pixel velocity from depth and the camera twist)
+times the log-intensity gradient (brightness constancy, dL/dt = -grad L . flow). It is then
+*checked* on the render itself: if some pixel changed by more than ``lam * C`` (a moving object,
+a shadow, a specular change the prediction cannot see), the interval is halved and rendered
+again, down to the maximum rate. Minimum and maximum sampling rates bound the interval.
+
+Refinement stops early when it no longer helps. A pixel is rendered from a fixed set of
+sub-pixel samples, so its luminance steps whenever an edge crosses one of them: that step does
+not shrink when the interval does. After each halving, a violating pixel whose change shrank
+(by at least ``1 - SHRINK``) is changing continuously and keeps the refinement going; once the
+only violations left are steps, the (already halved) sample is accepted. Such a sample has
+``bound_met`` False and ``refined`` True.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.camera import Camera
+
+__all__ = ["Sample", "SamplingParams", "SamplingStats", "adaptive_samples", "log_rate_bound",
+           "motion_field"]
+
+SHRINK = 0.75
+"""A change that halving the interval reduced below this fraction counts as continuous."""
+
+
+@dataclass(frozen=True)
+class SamplingParams:
+    """Adaptive sampling bounds.
+
+    Attributes
+    ----------
+    lam : float
+        Largest allowed change of L between samples, as a fraction of the contrast threshold
+        (default 0.5).
+    min_rate, max_rate : float, Hz
+        Bounds of the sampling rate (default 100 Hz and 20 kHz).
+    """
+
+    lam: float = 0.5
+    min_rate: float = 100.0
+    max_rate: float = 20000.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.lam <= 1:
+            raise ValueError(f"SamplingParams.lam must be in (0, 1], got {self.lam}")
+        if not 0 < self.min_rate <= self.max_rate:
+            raise ValueError(f"SamplingParams needs 0 < min_rate <= max_rate, got "
+                             f"{self.min_rate} and {self.max_rate}")
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One accepted render.
+
+    Attributes
+    ----------
+    t : float, seconds
+    luminance : (H, W) float32 ndarray, linear
+    log : (H, W) float64 ndarray, L = log(Y + eps)
+    max_change : float
+        Largest |L - L_previous| over the pixels (0 for the first sample).
+    bound_met : bool
+        max_change <= lam * C.
+    refined : bool
+        The interval was shortened after the render at the predicted time broke the bound.
+    """
+
+    t: float
+    luminance: np.ndarray
+    log: np.ndarray
+    max_change: float
+    bound_met: bool
+    refined: bool = False
+
+
+@dataclass
+class SamplingStats:
+    """Counts of an adaptive run (filled while iterating).
+
+    ``renders`` counts every render (rejected ones too), ``accepted`` the samples yielded,
+    ``refined`` the halvings, ``steps`` the accepted samples whose remaining violations were
+    sub-pixel-sample steps, ``at_max_rate`` those that still broke the bound at the maximum rate.
+    """
+
+    renders: int = 0
+    accepted: int = 0
+    refined: int = 0
+    steps: int = 0
+    at_max_rate: int = 0
+
+
+def motion_field(camera: Camera, depth: np.ndarray, v_cam: np.ndarray, w_cam: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel velocities of a static scene seen by a moving camera.
+
+    Parameters
+    ----------
+    camera : Camera
+    depth : (H, W) float ndarray, metres, 0 where nothing is seen
+    v_cam, w_cam : (3,) array_like
+        The camera's linear (m/s) and angular (rad/s) velocity in the camera frame.
+
+    Returns
+    -------
+    (H, W) float64 ndarray, (H, W) float64 ndarray
+        du/dt and dv/dt in pixels per second (0 where depth is 0).
+    """
+    xy = camera.normalized_pixel_centres()
+    x, y = xy[..., 0], xy[..., 1]
+    z = np.where(depth > 0, depth, np.inf)
+    vx, vy, vz = np.asarray(v_cam, dtype=np.float64)
+    wx, wy, wz = np.asarray(w_cam, dtype=np.float64)
+    # A static point P = z (x, y, 1) moves in the camera frame as dP/dt = -v - w x P.
+    px = -vx - z * (wy - wz * y)
+    py = -vy - z * (wz * x - wx)
+    pz = -vz - z * (wx * y - wy * x)
+    with np.errstate(invalid="ignore"):
+        du = camera.fx * (px - x * pz) / z
+        dv = camera.fy * (py - y * pz) / z
+    seen = depth > 0
+    return np.where(seen, du, 0.0), np.where(seen, dv, 0.0)
+
+
+def log_rate_bound(log: np.ndarray, flow_u: np.ndarray, flow_v: np.ndarray) -> float:
+    """Largest predicted |dL/dt| over the pixels (1/s), from brightness constancy."""
+    grad_v, grad_u = np.gradient(log)
+    return float(np.max(np.abs(grad_u * flow_u + grad_v * flow_v)))
+
+
+def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: float,
+                     params: SamplingParams | None = None, stats: SamplingStats | None = None
+                     ) -> Iterator[Sample]:
+    """Render samples from t0 to t1 (both included) at adaptively chosen times.
+
+    Parameters
+    ----------
+    renderer : sim.render.Renderer
+        Renders luminance and depth of the scene at any time.
+    t0, t1 : float, seconds
+    contrast : float
+        The smallest contrast threshold C (log units).
+    log_eps : float
+        L = log(Y + log_eps).
+    params : SamplingParams, optional
+    stats : SamplingStats, optional
+        Filled with counts while iterating (renders, refinements).
+
+    Yields
+    ------
+    Sample
+        In increasing time; consecutive samples differ by at most ``lam * C`` per pixel, unless
+        the interval was refined (down to the maximum rate, or until only sub-pixel-sample steps
+        broke the bound); ``bound_met`` and ``refined`` say which.
+    """
+    params = params or SamplingParams()
+    stats = stats if stats is not None else SamplingStats()
+    trajectory = renderer.scene.trajectory
+    bound = params.lam * contrast
+    dt_min, dt_max = 1.0 / params.max_rate, 1.0 / params.min_rate
+
+    def render(t):
+        stats.renders += 1
+        luminance = renderer.luminance(t)
+        return luminance, np.log(luminance.astype(np.float64) + log_eps)
+
+    t = float(t0)
+    luminance, log = render(t)
+    stats.accepted += 1
+    yield Sample(t, luminance, log, 0.0, True)
+    while t < t1:
+        v_cam, w_cam = trajectory.camera_velocity(t)
+        flow_u, flow_v = motion_field(renderer.camera, renderer.depth(t), v_cam, w_cam)
+        rate = log_rate_bound(log, flow_u, flow_v)
+        dt = dt_max if rate == 0 else min(dt_max, max(dt_min, bound / rate))
+        t_next = min(t + dt, t1)
+        lum_next, log_next = render(t_next)
+        change = np.abs(log_next - log)
+        refined = False
+        violating = change > bound
+        while violating.any() and t_next - t > dt_min * (1 + 1e-9):
+            t_half = t + max(dt_min, (t_next - t) / 2)
+            lum_half, log_half = render(t_half)
+            change_half = np.abs(log_half - log)
+            stats.refined += 1
+            refined = True
+            continuous = violating & (change_half < SHRINK * change)
+            t_next, lum_next, log_next, change = t_half, lum_half, log_half, change_half
+            violating = change > bound
+            if not (violating & continuous).any():
+                stats.steps += bool(violating.any())
+                break
+        largest = float(change.max())
+        met = largest <= bound
+        if not met and t_next - t <= dt_min * (1 + 1e-9):
+            stats.at_max_rate += 1
+        stats.accepted += 1
+        t, luminance, log = t_next, lum_next, log_next
+        yield Sample(t, luminance, log, largest, met, refined)
+        if math.isclose(t, t1, rel_tol=0, abs_tol=1e-12):
+            break
