@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 __all__ = ["main"]
 
@@ -21,15 +22,83 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from scenes import resolve_scene
+    from sim.events import EventParams
+    from sim.sampling import SamplingParams
     from sim.scene import load_scene
     from sim.simulate import simulate
 
     scene = load_scene(resolve_scene(args.scene), seed=args.seed)
+    events = EventParams.preset(args.noise, contrast=args.contrast, seed=scene.seed)
+    sampling = SamplingParams(lam=args.lam, min_rate=args.min_rate, max_rate=args.max_rate)
+    formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
     result = simulate(scene, args.out, duration=args.duration, spp=args.spp,
-                      variant=args.variant, overwrite=args.overwrite,
-                      progress=not args.quiet)
-    print(f"wrote {result.n_frames} frames and depth maps ({result.n_renders} renders, "
-          f"{result.variant}, {result.timings['total']:.1f} s) to {result.out}")
+                      variant=args.variant, overwrite=args.overwrite, progress=not args.quiet,
+                      events=events, sampling=sampling, with_events=not args.no_events,
+                      event_formats=formats)
+    what = f"{result.n_frames} frames and depth maps ({result.n_renders} renders)"
+    if result.n_events is not None:
+        what += f", {result.n_events} events ({result.event_renders} renders)"
+    print(f"wrote {what} with {result.variant} in {result.timings['total']:.1f} s to "
+          f"{result.out}")
+    return 0
+
+
+def _events_file(folder: Path) -> Path:
+    for name in ("events.h5", "events.txt"):
+        if (folder / name).is_file():
+            return folder / name
+    raise ValueError(f"{folder}: no events.h5 or events.txt in this folder")
+
+
+def _cmd_events(args: argparse.Namespace) -> int:
+    import cv2
+
+    from sim.eventio import event_frame, event_stats, read_events
+    from sim.sequence import load_sequence
+
+    folder = Path(args.sequence)
+    sequence = load_sequence(folder)
+    width, height = sequence.camera.width, sequence.camera.height
+    path = _events_file(folder)
+    events = read_events(path, width, height)
+    if not args.stats:
+        print(f"{path}: {len(events)} events (add --stats for statistics)")
+        return 0
+    stats = event_stats(events, width, height)
+    print(f"{path}  ({width}x{height})")
+    for key, value in stats.items():
+        shown = f"{value:.6g}" if isinstance(value, float) else value
+        print(f"  {key:<24} {shown}")
+    out = Path(args.out) if args.out else folder / "event_frame.png"
+    window = events
+    if args.window is not None and len(events):
+        t_end = int(events["t"][0] + args.window * 1e9)
+        window = events[events["t"] < t_end]
+    if not cv2.imwrite(str(out), cv2.cvtColor(event_frame(window, width, height),
+                                              cv2.COLOR_RGB2BGR)):
+        raise OSError(f"cannot write {out}")
+    print(f"event frame of {len(window)} events written to {out}")
+    return 0
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    from sim.eventio import convert_events
+
+    width = height = None
+    if args.sensor:
+        try:
+            width, height = (int(v) for v in args.sensor.lower().split("x"))
+        except ValueError:
+            raise ValueError(f"--sensor must look like 240x180, got {args.sensor!r}") from None
+    else:
+        folder = Path(args.src).resolve().parent
+        if (folder / "images.txt").is_file() or (folder / "sequence.json").is_file():
+            from sim.sequence import load_sequence
+
+            camera = load_sequence(folder).camera
+            width, height = camera.width, camera.height
+    convert_events(args.src, args.dst, width=width, height=height)
+    print(f"converted {args.src} to {args.dst}")
     return 0
 
 
@@ -64,7 +133,43 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("--overwrite", action="store_true",
                           help="replace an existing output folder once the new one is complete")
     simulate.add_argument("--quiet", action="store_true", help="no progress bar")
+    simulate.add_argument("--contrast", type=float, default=0.2,
+                          help="contrast thresholds C+ = C- of the event camera (default 0.2)")
+    simulate.add_argument("--noise", choices=("ideal", "realistic"), default="ideal",
+                          help="event-camera noise preset (default ideal: no noise)")
+    simulate.add_argument("--lambda", dest="lam", type=float, default=0.5,
+                          help="adaptive sampling: largest change of log intensity between "
+                               "renders, as a fraction of C (default 0.5)")
+    simulate.add_argument("--min-rate", type=float, default=100.0,
+                          help="lowest render rate for the event camera, Hz (default 100)")
+    simulate.add_argument("--max-rate", type=float, default=20000.0,
+                          help="highest render rate for the event camera, Hz (default 20000)")
+    simulate.add_argument("--event-format", default="h5,txt",
+                          help="event files to write: h5, txt or both (default h5,txt)")
+    simulate.add_argument("--no-events", action="store_true",
+                          help="render frames and depth only")
     simulate.set_defaults(run=_cmd_simulate)
+
+    events = sub.add_parser("events", help="statistics and an event frame of a sequence's events")
+    events.add_argument("sequence", help="sequence folder with events.h5 or events.txt")
+    events.add_argument("--stats", action="store_true",
+                        help="print count, rate, ON/OFF balance and write an event-frame PNG")
+    events.add_argument("--window", type=float, default=None,
+                        help="seconds of events from the start drawn in the event frame "
+                             "(default: all)")
+    events.add_argument("--out", default=None,
+                        help="event-frame PNG (default: SEQUENCE/event_frame.png)")
+    events.set_defaults(run=_cmd_events)
+
+    convert = sub.add_parser("convert", help="convert events between ECD text and HDF5",
+                             description="Convert events.txt (ECD) <-> events.h5 (DSEC layout), "
+                                         "streaming. The format follows the file suffix.")
+    convert.add_argument("src", help="events.txt or events.h5")
+    convert.add_argument("dst", help="events.h5 or events.txt")
+    convert.add_argument("--sensor", default=None,
+                         help="sensor size WxH for HDF5 output (default: from the sequence "
+                              "folder of SRC)")
+    convert.set_defaults(run=_cmd_convert)
     return parser
 
 

@@ -5,9 +5,21 @@ Importing ``sim`` does not import Mitsuba: the variant is chosen (and announced 
 """
 
 from sim.camera import CAMERA_PRESETS, Camera, camera_preset, read_calib, write_calib
+from sim.eventio import (
+    EVENT_DTYPE,
+    H5EventWriter,
+    TextEventWriter,
+    convert_events,
+    event_stats,
+    read_events,
+    read_window,
+)
+from sim.events import EventEmulator, EventParams, emulate_events
 from sim.exr import read_depth, write_depth
 from sim.frames import FrameParams, luminance_to_frame
+from sim.noise import NoiseParams, noise_preset
 from sim.render import Renderer, RenderResult
+from sim.sampling import SamplingParams
 from sim.scene import Scene, SceneError, load_scene, parse_scene
 from sim.sequence import Sequence, load_sequence
 from sim.simulate import SimulationResult, simulate
@@ -24,7 +36,20 @@ from sim.variant import active_variant, use_variant
 
 __all__ = [
     "CAMERA_PRESETS",
+    "EVENT_DTYPE",
     "Camera",
+    "EventEmulator",
+    "EventParams",
+    "H5EventWriter",
+    "NoiseParams",
+    "SamplingParams",
+    "TextEventWriter",
+    "convert_events",
+    "emulate_events",
+    "event_stats",
+    "noise_preset",
+    "read_events",
+    "read_window",
     "FrameParams",
     "HandheldTrajectory",
     "LinearTrajectory",

@@ -16,6 +16,7 @@ reused (no reload, no recompilation).
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 
@@ -194,7 +195,7 @@ class Renderer:
         self.scene = scene
         self.camera = scene.camera
         self.spp = int(spp if spp is not None else scene.render.spp)
-        if self.spp < 1 or int(np.sqrt(self.spp)) ** 2 != self.spp:
+        if self.spp < 1 or math.isqrt(self.spp) ** 2 != self.spp:
             raise ValueError(f"spp must be a perfect square >= 1, got {self.spp}")
         self.seed = int(seed if seed is not None else scene.seed)
         cam = self.camera
@@ -279,10 +280,17 @@ class Renderer:
             self._params.update()
         return pose
 
-    def luminance(self, t: float, pose: np.ndarray | None = None) -> np.ndarray:
-        """Linear luminance (H, W) float32 at time ``t`` (pose from the trajectory by default)."""
+    def luminance(self, t: float, pose: np.ndarray | None = None, spp: int | None = None
+                  ) -> np.ndarray:
+        """Linear luminance (H, W) float32 at time ``t`` (pose from the trajectory by default).
+
+        ``spp`` overrides the renderer's samples per pixel (a perfect square) for this call.
+        """
+        spp = self.spp if spp is None else int(spp)
+        if spp < 1 or math.isqrt(spp) ** 2 != spp:
+            raise ValueError(f"spp must be a perfect square >= 1, got {spp}")
         self._set_state(t, pose)
-        image = self._mi.render(self._scene, seed=self.seed, spp=self.spp)
+        image = self._mi.render(self._scene, seed=self.seed, spp=spp)
         return np.array(image, dtype=np.float32).reshape(self.camera.height, self.camera.width)
 
     def depth(self, t: float, pose: np.ndarray | None = None) -> np.ndarray:

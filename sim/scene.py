@@ -62,10 +62,14 @@ class RenderParams:
         Samples per pixel (a perfect square: the sampler is stratified). Default 16.
     pose_rate : float
         Rate of the written ``groundtruth.txt``, Hz (>= 200). Default 1000.
+    event_spp : int
+        Samples per pixel of the renders that drive the event camera (a perfect square; there
+        are hundreds to thousands of them per second). Default 4.
     """
 
     spp: int = 16
     pose_rate: float = 1000.0
+    event_spp: int = 4
 
 
 @dataclass(frozen=True)
@@ -379,14 +383,18 @@ def _parse_frames(ctx: _Ctx, raw: Any) -> FrameParams:
 def _parse_render(ctx: _Ctx, raw: Any) -> RenderParams:
     key = "[render]"
     table = ctx.table(raw, key)
-    ctx.keys(table, key, set(), {"spp", "pose_rate"})
-    spp = _get(ctx, table, key, "spp", lambda c, v, k: _integer(c, v, k, minimum=1), 16)
-    if math.isqrt(spp) ** 2 != spp:
-        raise ctx.fail(f"{key}.spp", f"expected a perfect square (stratified sampler), got {spp}")
+    ctx.keys(table, key, set(), {"spp", "pose_rate", "event_spp"})
+    counts = {}
+    for name, default in (("spp", 16), ("event_spp", 4)):
+        value = _get(ctx, table, key, name, lambda c, v, k: _integer(c, v, k, minimum=1), default)
+        if math.isqrt(value) ** 2 != value:
+            raise ctx.fail(f"{key}.{name}",
+                           f"expected a perfect square (stratified sampler), got {value}")
+        counts[name] = value
     pose_rate = _get(ctx, table, key, "pose_rate", _number, 1000.0)
     if pose_rate < 200:
         raise ctx.fail(f"{key}.pose_rate", f"expected at least 200 Hz, got {pose_rate}")
-    return RenderParams(spp=spp, pose_rate=pose_rate)
+    return RenderParams(spp=counts["spp"], pose_rate=pose_rate, event_spp=counts["event_spp"])
 
 
 def _orientation(ctx: _Ctx, table: Mapping[str, Any], key: str, position: np.ndarray):

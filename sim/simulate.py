@@ -2,8 +2,9 @@
 
 Stages, in order: camera calibration -> ground-truth poses (``groundtruth.txt`` at the scene's
 ``pose_rate``) -> standard-camera frames (renders averaged over the exposure, camera response,
-noise) and the exact depth at each frame time -> indexes and ``sequence.json``. Events are
-the next stage (``events.txt`` / ``events.h5``); ``sequence.json`` has an ``events`` entry for it.
+noise) and the exact depth at each frame time -> events: the event emulator driven by renders at
+adaptively chosen times (:mod:`sim.sampling`), streamed to ``events.h5`` and ``events.txt`` ->
+indexes and ``sequence.json``.
 
 Everything is written into ``<out>.partial`` and renamed to ``<out>`` only when complete.
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 
 import platform
 import time
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from importlib import metadata
 from pathlib import Path
@@ -21,9 +23,12 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from sim.camera import write_calib
+from sim.eventio import H5EventWriter, TextEventWriter
+from sim.events import EventEmulator, EventParams
 from sim.exr import write_depth
 from sim.frames import auto_gain, exposure_sample_times, frame_times, luminance_to_frame
 from sim.render import Renderer
+from sim.sampling import SamplingParams, SamplingStats, adaptive_samples
 from sim.scene import Scene
 from sim.sequence import atomic_output_dir, frame_name, write_index, write_sequence_json
 from sim.trajectory import sample_times, write_trajectory
@@ -43,6 +48,10 @@ class SimulationResult:
         Number of standard-camera frames (and depth maps).
     n_renders : int
         Number of luminance renders (frames x exposure samples).
+    n_events : int or None
+        Number of events written (None when events were not simulated).
+    event_renders : int
+        Renders made for the event camera (refined intervals included).
     variant : str
         Mitsuba variant used.
     timings : dict
@@ -54,6 +63,8 @@ class SimulationResult:
     n_renders: int
     variant: str
     timings: dict
+    n_events: int | None = None
+    event_renders: int = 0
 
 
 def _versions() -> dict[str, str]:
@@ -69,7 +80,9 @@ def _versions() -> dict[str, str]:
 
 def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
              spp: int | None = None, variant: str | None = None, overwrite: bool = False,
-             progress: bool = True) -> SimulationResult:
+             progress: bool = True, events: EventParams | None = None,
+             sampling: SamplingParams | None = None, with_events: bool = True,
+             event_formats: tuple[str, ...] = ("h5", "txt")) -> SimulationResult:
     """Render a scene into a sequence folder.
 
     Parameters
@@ -88,6 +101,14 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         Replace an existing non-empty ``out`` (only once the new one is complete).
     progress : bool
         Show a progress bar.
+    events : EventParams, optional
+        The event camera (default: the ``ideal`` preset, C = 0.2, seeded with the scene seed).
+    sampling : SamplingParams, optional
+        Adaptive sampling of the renders that drive the event camera.
+    with_events : bool
+        Simulate the event camera (default True).
+    event_formats : tuple of {"h5", "txt"}
+        Files to write the events to (``events.h5``, ``events.txt``).
 
     Returns
     -------
@@ -112,7 +133,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         raise ValueError(f"duration {duration} s is too short for one frame at {params.rate} Hz "
                          f"with a {params.exposure} s exposure")
     out = Path(out)
-    timings = {"setup": 0.0, "render": 0.0, "depth": 0.0, "write": 0.0}
+    timings = {"setup": 0.0, "render": 0.0, "depth": 0.0, "write": 0.0, "event_render": 0.0,
+               "emulate": 0.0, "event_write": 0.0}
     start = time.perf_counter()
     renderer = Renderer(scene, spp=spp, variant=variant)
     rng = np.random.default_rng(scene.seed)
@@ -144,6 +166,10 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
             timings["render"] += tock - tick
             timings["depth"] += tack - tock
             timings["write"] += time.perf_counter() - tack
+        event_info = None
+        if with_events:
+            event_info = _simulate_events(scene, renderer, tmp, duration, events, sampling,
+                                          event_formats, progress, timings)
         write_index(tmp / "images.txt", times, image_names)
         write_index(tmp / "depthmaps.txt", times, depth_names)
         cam = scene.camera
@@ -162,10 +188,94 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                        "pose_rate": scene.render.pose_rate, "renders": len(times)
                        * params.exposure_samples},
             "depth": {"kind": "z", "units": "m", "at": "pixel centres, frame mid-exposure times"},
-            "events": None,
+            "events": event_info,
             "software": _versions(),
             "timings_s": {k: round(v, 3) for k, v in timings.items()},
         })
     timings["total"] = time.perf_counter() - start
     return SimulationResult(out, len(times), len(times) * params.exposure_samples,
-                            renderer.variant, timings)
+                            renderer.variant, timings,
+                            event_info["count"] if event_info else None,
+                            event_info["renders"] if event_info else 0)
+
+
+def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, duration: float,
+                     params: EventParams | None, sampling: SamplingParams | None,
+                     formats: tuple[str, ...], progress: bool, timings: dict) -> dict:
+    """Drive the emulator with adaptive renders over [0, duration]; stream the events out."""
+    params = params or EventParams(seed=scene.seed)
+    sampling = sampling or SamplingParams()
+    unknown = set(formats) - {"h5", "txt"}
+    if unknown or not formats:
+        raise ValueError(f"event formats must be among h5, txt; got {formats}")
+    cam = scene.camera
+    emulator = EventEmulator((cam.height, cam.width), params)
+    stats = SamplingStats()
+    count = on = 0
+    contrast = min(params.contrast_on, params.contrast_off)
+    fast = _FastRenderer(renderer, scene.render.event_spp)
+    bar = tqdm(total=round(duration, 6), desc=f"events {scene.name}", unit="s",
+               disable=not progress, bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
+               "[{elapsed}<{remaining}{postfix}]")
+    with ExitStack() as stack:
+        stack.callback(bar.close)
+        writers = []
+        if "h5" in formats:
+            writers.append(stack.enter_context(
+                H5EventWriter(folder / "events.h5", cam.width, cam.height)))
+        if "txt" in formats:
+            writers.append(stack.enter_context(TextEventWriter(folder / "events.txt")))
+        tick = time.perf_counter()
+        for sample in adaptive_samples(fast, 0.0, duration, contrast, params.log_eps, sampling,
+                                       stats):
+            tock = time.perf_counter()
+            timings["event_render"] += tock - tick
+            if emulator.time_ns is None:
+                emulator.start(sample.log, sample.t)
+                chunk = None
+            else:
+                chunk = emulator.advance(sample.log, sample.t, sample.luminance)
+            tack = time.perf_counter()
+            timings["emulate"] += tack - tock
+            if chunk is not None and len(chunk):
+                for writer in writers:
+                    writer.write(chunk)
+                count += len(chunk)
+                on += int(np.count_nonzero(chunk["p"] > 0))
+            tick = time.perf_counter()
+            timings["event_write"] += tick - tack
+            bar.n = round(sample.t, 6)
+            bar.set_postfix_str(f"{count} events, {stats.renders} renders", refresh=False)
+            bar.update(0)
+    noise = params.noise
+    return {
+        "count": count,
+        "on": on,
+        "off": count - on,
+        "files": [f"events.{fmt}" for fmt in formats],
+        "contrast_on": params.contrast_on,
+        "contrast_off": params.contrast_off,
+        "log_eps": params.log_eps,
+        "seed": params.seed,
+        "noise": asdict(noise),
+        "sampling": asdict(sampling),
+        "renders": stats.renders,
+        "samples": stats.accepted,
+        "refined_intervals": stats.refined,
+        "intervals_at_max_rate": stats.at_max_rate,
+        "event_spp": scene.render.event_spp,
+    }
+
+
+class _FastRenderer:
+    """The renderer with the event camera's samples per pixel (depth unchanged)."""
+
+    def __init__(self, renderer: Renderer, spp: int):
+        self._renderer, self._spp = renderer, spp
+        self.scene, self.camera = renderer.scene, renderer.camera
+
+    def luminance(self, t: float) -> np.ndarray:
+        return self._renderer.luminance(t, spp=self._spp)
+
+    def depth(self, t: float) -> np.ndarray:
+        return self._renderer.depth(t)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from fusion.cli import main
+from sim.eventio import read_events
 from sim.exr import read_depth
 from sim.scene import parse_scene
 from sim.sequence import load_sequence
@@ -61,8 +62,22 @@ def test_sequence_folder_has_the_conventions_layout(tiny_run):
     np.testing.assert_allclose(depth, 1.0, atol=1e-5)              # the poster is 1 m ahead
     assert seq.camera.fx == 60.0 and seq.camera.fy == 45.0
     meta = json.loads((out / "sequence.json").read_text())
-    assert meta["seed"] == 3 and meta["events"] is None and "mitsuba" in meta["software"]
+    assert meta["seed"] == 3 and "mitsuba" in meta["software"]
     assert meta["frames"]["count"] == result.n_frames
+
+
+def test_events_are_written_in_both_formats_and_agree(tiny_run):
+    scene, result = tiny_run
+    out = result.out
+    from_h5 = read_events(out / "events.h5", 64, 48)
+    from_txt = read_events(out / "events.txt", 64, 48)
+    np.testing.assert_array_equal(from_h5, from_txt)
+    meta = json.loads((out / "sequence.json").read_text())["events"]
+    assert meta["count"] == len(from_h5) == result.n_events > 50
+    assert meta["on"] + meta["off"] == meta["count"] and meta["on"] == int((from_h5["p"] > 0).sum())
+    assert meta["renders"] >= meta["samples"] > 30                  # >= 100 Hz over 0.3 s
+    assert from_h5["t"][0] > 0 and from_h5["t"][-1] <= 0.3e9
+    assert meta["sampling"]["lam"] == 0.5 and meta["noise"]["shot_noise_rate"] == 0
 
 
 def test_groundtruth_is_dense_and_matches_the_trajectory(tiny_run):
@@ -108,6 +123,34 @@ def test_cli_simulate_and_scenes(tiny_scene_file, tmp_path, capsys):
     assert "--overwrite" in capsys.readouterr().err
     assert main(["simulate", "no_such_scene", "--out", str(tmp_path / "x")]) == 2
     assert "built-in" in capsys.readouterr().err
+
+
+def test_cli_events_stats_and_convert(tiny_run, tmp_path, capsys):
+    _, result = tiny_run
+    png = tmp_path / "frame.png"
+    assert main(["events", str(result.out), "--stats", "--out", str(png)]) == 0
+    printed = capsys.readouterr().out
+    assert f"count                    {result.n_events}" in printed and "on_fraction" in printed
+    assert cv2.imread(str(png)).shape == (48, 64, 3)
+    h5, txt = tmp_path / "copy.h5", tmp_path / "copy.txt"
+    assert main(["convert", str(result.out / "events.txt"), str(h5)]) == 0
+    assert main(["convert", str(h5), str(txt)]) == 0
+    assert txt.read_bytes() == (result.out / "events.txt").read_bytes()
+    assert main(["events", str(tmp_path), "--stats"]) == 2
+    assert "images.txt" in capsys.readouterr().err
+
+
+def test_cli_simulate_with_event_options(tiny_scene_file, tmp_path):
+    out = tmp_path / "noisy"
+    assert main(["simulate", str(tiny_scene_file), "--out", str(out), "--duration", "0.1",
+                 "--noise", "realistic", "--contrast", "0.3", "--event-format", "h5",
+                 "--quiet"]) == 0
+    meta = json.loads((out / "sequence.json").read_text())["events"]
+    assert meta["contrast_on"] == 0.3 and meta["noise"]["shot_noise_rate"] > 0
+    assert (out / "events.h5").is_file() and not (out / "events.txt").exists()
+    assert main(["simulate", str(tiny_scene_file), "--out", str(tmp_path / "none"),
+                 "--duration", "0.1", "--no-events", "--quiet"]) == 0
+    assert not (tmp_path / "none" / "events.h5").exists()
 
 
 def test_console_script_runs_in_a_fresh_process():
