@@ -42,6 +42,7 @@ test: setup
 
 bench: setup
 	$(BIN)/python benchmarks/bench_render.py
+	$(BIN)/python benchmarks/bench_events.py
 
 lint: setup
 	$(BIN)/ruff check .

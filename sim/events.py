@@ -111,6 +111,7 @@ def log_intensity(luminance: np.ndarray, eps: float = 1e-3) -> np.ndarray:
 
 @numba.njit(cache=True, parallel=True)
 def _count_rows(L0, L1, ref, c_on, c_off):  # pragma: no cover - compiled
+    """Events per row; -1 for a row holding a non-finite level."""
     height, width = L1.shape
     counts = np.zeros(height, dtype=np.int64)
     for y in numba.prange(height):
@@ -118,6 +119,9 @@ def _count_rows(L0, L1, ref, c_on, c_off):  # pragma: no cover - compiled
         for x in range(width):
             r = ref[y, x]
             v = L1[y, x]
+            if not math.isfinite(v):
+                n = -1
+                break
             if v >= r + c_on[y, x]:
                 n += int(math.floor((v - r) / c_on[y, x]))
             elif v <= r - c_off[y, x]:
@@ -214,11 +218,11 @@ class EventEmulator:
         """The (filtered) log intensity of the last sample, (H, W) float64."""
         return self._L
 
-    def _check(self, L: np.ndarray, name: str) -> np.ndarray:
+    def _check(self, L: np.ndarray, name: str, finite: bool = True) -> np.ndarray:
         L = np.ascontiguousarray(L, dtype=np.float64)
         if L.shape != self.shape:
             raise ValueError(f"{name} must have shape {self.shape}, got {L.shape}")
-        if not np.all(np.isfinite(L)):
+        if finite and not np.all(np.isfinite(L)):
             raise ValueError(f"{name} has non-finite values; expected log intensities")
         return L
 
@@ -250,14 +254,20 @@ class EventEmulator:
         """
         if self.ref is None:
             raise ValueError("call start() before advance()")
-        L1 = self._check(L1, "L1")
+        L1 = self._check(L1, "L1", finite=False)       # the counting kernel checks finiteness
         t1_ns = int(round(t1 * 1e9))
         if t1_ns <= self._t:
             raise ValueError(f"samples must go forward in time: t1 = {t1} s is not after "
                              f"{self._t / 1e9} s")
+        if (t1_ns - self._t) * self.shape[0] * self.shape[1] >= 2**62:
+            raise ValueError(f"interval of {(t1_ns - self._t) / 1e9} s is too long for one step "
+                             "at this sensor size; add samples in between")
         noise = self.params.noise
         dt_ns = t1_ns - self._t
-        Y = np.exp(L1) if luminance is None else np.asarray(luminance, dtype=np.float64)
+        needs_light = noise.cutoff_hz > 0 or noise.shot_noise_rate > 0
+        Y = None
+        if needs_light:
+            Y = np.exp(L1) if luminance is None else np.asarray(luminance, dtype=np.float64)
         raw = L1
         if noise.cutoff_hz > 0:
             L1 = lowpass_ramp_step(self._L, self._raw, raw, dt_ns * 1e-9, Y, noise)
@@ -274,6 +284,8 @@ class EventEmulator:
 
     def _crossings(self, L0, L1, t0_ns: int, dt_ns: int) -> np.ndarray:
         counts = _count_rows(L0, L1, self.ref, self.c_on, self.c_off)
+        if np.any(counts < 0):
+            raise ValueError("L1 has non-finite values; expected log intensities")
         total = int(counts.sum())
         offsets = np.zeros(len(counts), dtype=np.int64)
         np.cumsum(counts[:-1], out=offsets[1:])
@@ -285,7 +297,12 @@ class EventEmulator:
         refractory = int(round(self.params.noise.refractory_period * 1e9))
         _write_rows(L0, L1, self.ref, self.c_on, self.c_off, self._last_t, offsets, t0_ns,
                     float(dt_ns), refractory, t, x, y, p, keep)
-        order = np.argsort(t, kind="stable")
+        # Time order, ties in pixel order: sort on (t - t0) * pixels + pixel index. The key is
+        # unique unless one pixel fires twice in the same nanosecond, so the fast (unstable)
+        # sort gives the stable order; it fits int64 for intervals up to ~9e18 / (H W) ns.
+        pixels = self.shape[0] * self.shape[1]
+        key = (t - t0_ns) * pixels + (y.astype(np.int64) * self.shape[1] + x)
+        order = np.argsort(key)
         if refractory > 0:
             order = order[keep[order]]
         events = np.empty(len(order), EVENT_DTYPE)

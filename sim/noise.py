@@ -598,8 +598,11 @@ def shot_noise_rate_map(luminance: np.ndarray, params: NoiseParams) -> np.ndarra
         with ``k = shot_noise_bright_factor``: ``shot_noise_rate`` at and above the reference
         intensity, ``shot_noise_rate / k`` in the dark (v2e's law, see the module docstring).
     """
-    params = _check_params(params)
-    luminance = _check_luminance(luminance)
+    return _shot_rate(_check_luminance(luminance), _check_params(params))
+
+
+def _shot_rate(luminance: np.ndarray, params: NoiseParams) -> np.ndarray:
+    """The law of :func:`shot_noise_rate_map` on already-checked values of any shape."""
     u = np.clip(luminance / params.shot_noise_intensity_ref, 0.0, 1.0)
     inverse_k = 1.0 / params.shot_noise_bright_factor
     return params.shot_noise_rate * (inverse_k - (inverse_k - 1.0) * u)
@@ -609,10 +612,12 @@ def background_events(t0_ns: int, t1_ns: int, luminance: np.ndarray, params: Noi
                       rng: np.random.Generator) -> np.ndarray:
     """Background-activity (shot-noise) events of the interval ``[t0_ns, t1_ns)``.
 
-    Each pixel draws a Poisson number of events with mean ``rate(Y) * dt``
-    (:func:`shot_noise_rate_map`), at times uniform in the interval, each ON or OFF with
-    probability 1/2 (v2e splits the rate equally). Vectorised: one Poisson draw per pixel,
-    then per event; no Python loop over pixels.
+    Each pixel fires a Poisson process of rate ``rate(Y)`` (:func:`shot_noise_rate_map`), at
+    times uniform in the interval, each event ON or OFF with probability 1/2 (v2e splits the
+    rate equally). Drawn by thinning, so that the cost follows the number of events, not of
+    pixels: candidates at the highest rate (the dark rate) land uniformly over pixels and time,
+    and each is kept with probability rate(pixel) / highest rate. That is exact for Poisson
+    processes, and only the candidates' pixels need their luminance looked at.
 
     Parameters
     ----------
@@ -622,7 +627,8 @@ def background_events(t0_ns: int, t1_ns: int, luminance: np.ndarray, params: Noi
         Luminance over the interval (use the newer render's).
     params : NoiseParams
     rng : numpy.random.Generator
-        Draw order: per-pixel counts, then times, then polarities.
+        Draw order: the candidate count, their pixels, the acceptance draws, then times,
+        then polarities.
 
     Returns
     -------
@@ -632,12 +638,17 @@ def background_events(t0_ns: int, t1_ns: int, luminance: np.ndarray, params: Noi
     """
     t0_ns, t1_ns = _check_interval(t0_ns, t1_ns)
     rng = _check_rng(rng)
-    rates = shot_noise_rate_map(luminance, params)
+    params = _check_params(params)
+    luminance = _check_luminance(luminance)
     if t1_ns == t0_ns or params.shot_noise_rate == 0:
         return np.empty(0, _EVENT_DTYPE)
-    counts = rng.poisson(rates.ravel() * ((t1_ns - t0_ns) * 1e-9))
-    flat_index = np.arange(counts.size, dtype=np.int64)
-    return _poisson_events(t0_ns, t1_ns, flat_index, counts, rates.shape, True, rng)
+    n_pixels = luminance.size
+    top_rate = params.shot_noise_rate / params.shot_noise_bright_factor
+    n_candidates = rng.poisson(top_rate * n_pixels * ((t1_ns - t0_ns) * 1e-9))
+    candidates = np.sort(rng.integers(0, n_pixels, size=n_candidates, dtype=np.int64))
+    keep = rng.random(n_candidates) * top_rate < _shot_rate(luminance.ravel()[candidates], params)
+    flat_index, counts = np.unique(candidates[keep], return_counts=True)
+    return _poisson_events(t0_ns, t1_ns, flat_index, counts, luminance.shape, True, rng)
 
 
 def hot_pixel_mask(shape: tuple[int, int], fraction: float, rng: np.random.Generator
