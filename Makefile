@@ -5,6 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO_SCENE ?= slider_close
 DEMO_OUT ?= runs/demo
+DEMO_DURATION ?= 1.0
 
 .PHONY: setup llvm demo test bench lint clean
 
@@ -35,7 +36,7 @@ llvm:
 
 demo: setup
 	$(BIN)/evfuse scenes
-	$(BIN)/evfuse simulate $(DEMO_SCENE) --out $(DEMO_OUT) --overwrite
+	$(BIN)/evfuse simulate $(DEMO_SCENE) --out $(DEMO_OUT) --duration $(DEMO_DURATION) --overwrite
 
 test: setup
 	$(BIN)/python -m pytest -q

@@ -6,6 +6,9 @@ reused (no reload, no recompilation).
 
 - Luminance: Mitsuba's ``direct`` integrator with point, spot and directional lights only, a
   stratified sampler and a fixed seed, a box pixel filter (each pixel integrates its own square).
+  Bitmap textures are area-averaged to about one texel per pixel footprint at the object's
+  closest approach (Mitsuba's bitmap has no mipmaps; finer texels alias under point sampling and
+  make renders flicker under sub-pixel motion).
   With lights that need no sampling, the only random draws are the sub-pixel positions, which
   the fixed seed freezes: the same pose gives bit-identical images and there is no frame-to-frame
   flicker for the event emulator to see. Interreflections are not simulated.
@@ -85,14 +88,72 @@ def _heightfield_mesh(name: str, obj: SceneObject):
     return mesh
 
 
-def _shape_dicts(index: int, obj: SceneObject, seed: int) -> dict[str, dict]:
+def _texture_extent(obj: SceneObject) -> tuple[float, float] | None:
+    """Smallest world size (m) one repeat of the texture spans along u and v; None if unknown.
+
+    A box maps the whole texture onto every face, so its smallest side bounds the texel size.
+    """
+    p = obj.params
+    if obj.shape in ("rectangle", "heightfield"):
+        width, height = p["size"]
+    elif obj.shape == "box":
+        width = height = min(p["size"])
+    elif obj.shape == "sphere":
+        width, height = 2 * np.pi * p["radius"], np.pi * p["radius"]
+    elif obj.shape == "cylinder":
+        width, height = 2 * np.pi * p["radius"], p["height"]
+    else:
+        return None
+    su, sv = obj.material.texture_scale
+    return width / su, height / sv
+
+
+def _half_extents(obj: SceneObject) -> np.ndarray:
+    """Half sizes of the object's bounding box in its local frame, metres."""
+    p = obj.params
+    if obj.shape == "rectangle":
+        return np.array([p["size"][0] / 2, p["size"][1] / 2, 0.0])
+    if obj.shape == "box":
+        return np.asarray(p["size"]) / 2
+    if obj.shape == "cylinder":
+        return np.array([p["radius"], p["radius"], p["height"] / 2])
+    if obj.shape == "heightfield":
+        return np.array([p["size"][0] / 2, p["size"][1] / 2, p["amplitude"]])
+    return np.zeros(3)
+
+
+def _max_texels(obj: SceneObject, scene: Scene) -> tuple[float, float] | None:
+    """Texels worth keeping: about one per pixel footprint where the camera comes closest.
+
+    The closest approach is the distance from the camera centre (200 times along the
+    trajectory) to the object's bounding box (sphere: to its surface), at least 1 cm; object
+    motion is ignored.
+    """
+    extent = _texture_extent(obj)
+    if extent is None:
+        return None
+    traj = scene.trajectory
+    times = np.linspace(max(traj.t_start, 0.0), min(traj.t_end, scene.duration), 200)
+    local = (traj.pose(times)[:, :3, 3] - obj.center) @ obj.rotation
+    if obj.shape == "sphere":
+        gaps = np.linalg.norm(local, axis=1) - obj.params["radius"]
+    else:
+        gaps = np.linalg.norm(np.maximum(np.abs(local) - _half_extents(obj), 0.0), axis=1)
+    nearest = max(float(gaps.min()), 0.01)
+    footprint = nearest / max(scene.camera.fx, scene.camera.fy)       # metres per pixel
+    return extent[0] / footprint, extent[1] / footprint
+
+
+def _shape_dicts(index: int, obj: SceneObject, scene: Scene) -> dict[str, dict]:
     """Mitsuba plugin dictionaries of one object (several for a capped cylinder)."""
     from sim.textures import mitsuba_texture
 
     material = obj.material
+    seed = scene.seed
     if material.texture is not None:
         reflectance = mitsuba_texture(material.texture, material.texture_scale, seed + index,
-                                      flip_v=obj.shape in ("rectangle", "cylinder"))
+                                      flip_v=obj.shape in ("rectangle", "cylinder"),
+                                      max_texels=_max_texels(obj, scene))
     else:
         reflectance = {"type": "rgb", "value": list(material.color)}
     bsdf = {"type": "twosided", "material": {"type": "diffuse", "reflectance": reflectance}}
@@ -218,7 +279,7 @@ class Renderer:
         self._moving: list[tuple[SceneObject, str, str, np.ndarray]] = []
         shape_keys: list[tuple[SceneObject, str]] = []
         for i, obj in enumerate(scene.objects):
-            shapes = _shape_dicts(i, obj, scene.seed)
+            shapes = _shape_dicts(i, obj, scene)
             description.update(shapes)
             shape_keys += [(obj, key) for key in shapes]
         self._mi, self._dr = mi, dr

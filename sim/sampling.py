@@ -8,12 +8,13 @@ times the log-intensity gradient (brightness constancy, dL/dt = -grad L . flow).
 a shadow, a specular change the prediction cannot see), the interval is halved and rendered
 again, down to the maximum rate. Minimum and maximum sampling rates bound the interval.
 
-Refinement stops early when it no longer helps. A pixel is rendered from a fixed set of
-sub-pixel samples, so its luminance steps whenever an edge crosses one of them: that step does
-not shrink when the interval does. After each halving, a violating pixel whose change shrank
-(by at least ``1 - SHRINK``) is changing continuously and keeps the refinement going; once the
-only violations left are steps, the (already halved) sample is accepted. Such a sample has
-``bound_met`` False and ``refined`` True.
+Refinement stops when it no longer helps. A pixel is rendered from a fixed set of sub-pixel
+samples, so its luminance steps whenever an edge crosses one of them, and a step does not shrink
+when the interval does. When an interval breaks the bound, its midpoint is rendered: a violating
+pixel whose change splits between the two halves (the first half holds between ``SPLIT`` and
+``1 - SPLIT`` of it) is changing continuously, and the first half is refined further; if every
+violating pixel changed in one half only (steps), both halves are kept (no render is wasted)
+and sampling goes on. Such samples have ``refined`` True and may have ``bound_met`` False.
 """
 
 from __future__ import annotations
@@ -29,8 +30,10 @@ from sim.camera import Camera
 __all__ = ["Sample", "SamplingParams", "SamplingStats", "adaptive_samples", "log_rate_bound",
            "motion_field"]
 
-SHRINK = 0.75
-"""A change that halving the interval reduced below this fraction counts as continuous."""
+MARGIN = 0.75
+"""The prediction aims at MARGIN * lam * C: a slight underestimate then costs no refinement."""
+SPLIT = 0.25
+"""A violating change is continuous when its first half holds between SPLIT and 1 - SPLIT of it."""
 
 
 @dataclass(frozen=True)
@@ -88,8 +91,9 @@ class SamplingStats:
     """Counts of an adaptive run (filled while iterating).
 
     ``renders`` counts every render (rejected ones too), ``accepted`` the samples yielded,
-    ``refined`` the halvings, ``steps`` the accepted samples whose remaining violations were
-    sub-pixel-sample steps, ``at_max_rate`` those that still broke the bound at the maximum rate.
+    ``refined`` the midpoint renders, ``steps`` the intervals whose only violations were
+    sub-pixel-sample steps, ``at_max_rate`` the samples that still broke the bound at the
+    maximum rate.
     """
 
     renders: int = 0
@@ -131,10 +135,31 @@ def motion_field(camera: Camera, depth: np.ndarray, v_cam: np.ndarray, w_cam: np
     return np.where(seen, du, 0.0), np.where(seen, dv, 0.0)
 
 
+def _one_sided_gradient(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|d/du| and |d/dv| as the larger of the two one-sided differences at each pixel."""
+    grad_u = np.zeros_like(image)
+    grad_v = np.zeros_like(image)
+    du = np.abs(np.diff(image, axis=1))
+    dv = np.abs(np.diff(image, axis=0))
+    grad_u[:, :-1] = du
+    grad_u[:, 1:] = np.maximum(grad_u[:, 1:], du)
+    grad_v[:-1] = dv
+    grad_v[1:] = np.maximum(grad_v[1:], dv)
+    return grad_u, grad_v
+
+
 def log_rate_bound(log: np.ndarray, flow_u: np.ndarray, flow_v: np.ndarray) -> float:
-    """Largest predicted |dL/dt| over the pixels (1/s), from brightness constancy."""
-    grad_v, grad_u = np.gradient(log)
-    return float(np.max(np.abs(grad_u * flow_u + grad_v * flow_v)))
+    """Largest predicted |dL/dt| over the pixels (1/s), from brightness constancy.
+
+    The gradient of L along each axis is the larger one-sided difference, so that an edge one
+    pixel wide counts with its full slope (a central difference would halve it). On the dark
+    side of a sharp edge the prediction can still fall short (log is steep near 0); the check
+    after the render catches that. (A bound computed on linear luminance divided by the
+    pixel's level never falls short, but forces far higher rates near shadows and black ink:
+    measured 3x more renders on complex_staircase, 30 % fewer on slider_close.)
+    """
+    grad_u, grad_v = _one_sided_gradient(np.asarray(log, dtype=np.float64))
+    return float(np.max(grad_u * np.abs(flow_u) + grad_v * np.abs(flow_v)))
 
 
 def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: float,
@@ -181,30 +206,37 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
         v_cam, w_cam = trajectory.camera_velocity(t)
         flow_u, flow_v = motion_field(renderer.camera, renderer.depth(t), v_cam, w_cam)
         rate = log_rate_bound(log, flow_u, flow_v)
-        dt = dt_max if rate == 0 else min(dt_max, max(dt_min, bound / rate))
+        dt = dt_max if rate == 0 else min(dt_max, max(dt_min, MARGIN * bound / rate))
         t_next = min(t + dt, t1)
         lum_next, log_next = render(t_next)
         change = np.abs(log_next - log)
         refined = False
-        violating = change > bound
-        while violating.any() and t_next - t > dt_min * (1 + 1e-9):
-            t_half = t + max(dt_min, (t_next - t) / 2)
+        tail: tuple | None = None                      # a second half kept after a step
+        while True:
+            violating = change > bound
+            if not violating.any() or t_next - t < 2 * dt_min * (1 - 1e-9):
+                break
+            t_half = t + (t_next - t) / 2
             lum_half, log_half = render(t_half)
-            change_half = np.abs(log_half - log)
+            first = np.abs(log_half - log)
             stats.refined += 1
             refined = True
-            continuous = violating & (change_half < SHRINK * change)
-            t_next, lum_next, log_next, change = t_half, lum_half, log_half, change_half
-            violating = change > bound
-            if not (violating & continuous).any():
-                stats.steps += bool(violating.any())
+            share = first[violating] / change[violating]
+            if not np.any((share > SPLIT) & (share < 1 - SPLIT)):
+                stats.steps += 1                       # steps only: keep both halves
+                tail = (t_next, lum_next, log_next, float(np.max(np.abs(log_next - log_half))))
+                t_next, lum_next, log_next, change = t_half, lum_half, log_half, first
                 break
-        largest = float(change.max())
-        met = largest <= bound
-        if not met and t_next - t <= dt_min * (1 + 1e-9):
-            stats.at_max_rate += 1
-        stats.accepted += 1
-        t, luminance, log = t_next, lum_next, log_next
-        yield Sample(t, luminance, log, largest, met, refined)
+            t_next, lum_next, log_next, change = t_half, lum_half, log_half, first
+        for t_s, lum_s, log_s, largest in ((t_next, lum_next, log_next, float(change.max())),
+                                           tail):
+            met = largest <= bound
+            if not met and t_s - t < 2 * dt_min * (1 - 1e-9):
+                stats.at_max_rate += 1
+            stats.accepted += 1
+            t, luminance, log = t_s, lum_s, log_s
+            yield Sample(t, luminance, log, largest, met, refined)
+            if tail is None:
+                break
         if math.isclose(t, t1, rel_tol=0, abs_tol=1e-12):
             break

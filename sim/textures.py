@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SKIMAGE_IMAGES", "PAPER_RANGE", "srgb_to_linear", "texture_image", "mitsuba_texture"]
+__all__ = ["SKIMAGE_IMAGES", "PAPER_RANGE", "srgb_to_linear", "texture_image", "mitsuba_texture",
+           "prefilter"]
 
 SKIMAGE_IMAGES = (
     "astronaut", "brick", "camera", "coffee", "chelsea", "coins", "grass", "gravel", "moon",
@@ -119,8 +120,35 @@ def texture_image(spec: Mapping[str, Any], seed: int = 0) -> np.ndarray:
                      "shapes")
 
 
+def prefilter(image: np.ndarray, max_texels: tuple[float, float] | None) -> np.ndarray:
+    """Area-average a texture down to at most ``max_texels`` (u, v) texels, as a mipmap does.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, C) float32 ndarray
+    max_texels : (float, float) or None
+        Most texels worth keeping along u (width) and v (height); None keeps the image.
+
+    Returns
+    -------
+    float32 ndarray
+        The image, or its area-averaged reduction (never enlarged).
+    """
+    if max_texels is None:
+        return image
+    import cv2
+
+    height, width = image.shape[:2]
+    new_w = int(min(width, max(8, round(max_texels[0]))))
+    new_h = int(min(height, max(8, round(max_texels[1]))))
+    if (new_w, new_h) == (width, height):
+        return image
+    return cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_AREA).astype(np.float32)
+
+
 def mitsuba_texture(spec: Mapping[str, Any], scale: tuple[float, float], seed: int, *,
-                    flip_v: bool = False) -> dict:
+                    flip_v: bool = False,
+                    max_texels: tuple[float, float] | None = None) -> dict:
     """Mitsuba texture dictionary for a material's texture spec.
 
     Parameters
@@ -135,6 +163,11 @@ def mitsuba_texture(spec: Mapping[str, Any], scale: tuple[float, float], seed: i
     flip_v : bool
         Use v -> 1 - v, for shapes whose v grows upwards (Mitsuba's rectangle and cylinder) so
         that the image's top row is at the top of the object.
+    max_texels : (float, float), optional
+        Texels along u and v beyond which the bitmap is area-averaged down (see
+        :func:`prefilter`): Mitsuba's bitmap texture has no mipmaps, and a texture much finer
+        than a pixel's footprint aliases under point sampling, making renders flicker as the
+        camera moves by a fraction of a pixel.
 
     Returns
     -------
@@ -155,7 +188,7 @@ def mitsuba_texture(spec: Mapping[str, Any], scale: tuple[float, float], seed: i
             "color1": {"type": "rgb", "value": [float(spec.get("color1", 0.85))] * 3},
             "to_uv": to_uv,
         }
-    image = texture_image(spec, seed)
+    image = prefilter(texture_image(spec, seed), max_texels)
     if image.ndim == 2:
         image = np.repeat(image[..., None], 3, axis=2)
     return {
