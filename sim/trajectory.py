@@ -406,6 +406,15 @@ class _TimedTrajectory(Trajectory):
         """float, seconds: the last time."""
         return float(self.times[-1])
 
+    def _store_samples(self) -> tuple[np.ndarray, np.ndarray]:
+        """Validate ``times`` and ``poses``, store them read-only, and return them."""
+        poses = _poses_array(self.poses, "poses")
+        times = _keyframe_times(self.times, len(poses), "times")
+        poses.setflags(write=False)
+        object.__setattr__(self, "times", times)
+        object.__setattr__(self, "poses", poses)
+        return times, poses
+
     def _span(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Index j of the interval [times[j], times[j+1]] holding each t, and t - times[j]."""
         j = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
@@ -450,11 +459,7 @@ class SplineTrajectory(_TimedTrajectory):
     poses: np.ndarray
 
     def __post_init__(self) -> None:
-        poses = _poses_array(self.poses, "poses")
-        times = _keyframe_times(self.times, len(poses), "times")
-        poses.setflags(write=False)
-        object.__setattr__(self, "times", times)
-        object.__setattr__(self, "poses", poses)
+        times, poses = self._store_samples()
         n = len(times)
         m = n + 2
         knots = np.concatenate([[times[0]] * 3, times, [times[-1]] * 3])
@@ -615,11 +620,7 @@ class SampledTrajectory(_TimedTrajectory):
     poses: np.ndarray
 
     def __post_init__(self) -> None:
-        poses = _poses_array(self.poses, "poses")
-        times = _keyframe_times(self.times, len(poses), "times")
-        poses.setflags(write=False)
-        object.__setattr__(self, "times", times)
-        object.__setattr__(self, "poses", poses)
+        times, poses = self._store_samples()
         twists = se3_log(invert_pose(poses[:-1]) @ poses[1:])
         object.__setattr__(self, "_twists", twists)
         object.__setattr__(self, "_rates", twists / np.diff(times)[:, None])
