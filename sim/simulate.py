@@ -268,7 +268,8 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, duration: f
         "sampling": asdict(sampling),
         "renders": stats.renders,
         "samples": stats.accepted,
-        "refined_intervals": stats.refined,
+        "midpoint_renders": stats.refined,
+        "step_intervals": stats.steps,
         "intervals_at_max_rate": stats.at_max_rate,
         "event_spp": scene.render.event_spp,
     }
