@@ -1,0 +1,318 @@
+"""Event-based multi-view stereo (EMVS): a disparity space image from events and poses.
+
+Rebecq, Gallego, Mueggler, Scaramuzza, "EMVS: Event-Based Multi-View Stereo", IJCV 2018; the
+reference implementation is uzh-rpg/rpg_emvs. Events are back-projected as rays from the event
+camera's centre into a volume of depth planes in front of a reference view (the disparity space
+image, DSI); each ray votes for the voxels it crosses, and the ray density peaks where edges are.
+
+For an event with undistorted normalised coordinates (x, y) seen from camera centre C (in the
+reference camera frame) along direction d = R (x, y, 1), the ray meets the plane Z = z at
+reference-image coordinates::
+
+    x_ref(z) = a_x + b_x / z,    a_x = d_x / d_z,    b_x = C_x - C_z a_x    (likewise for y)
+
+i.e. an affine function of the inverse depth: the per-plane scale and offset of the EMVS paper
+(its eq. 15 maps the point on the farthest plane to the others the same way). Votes are bilinear.
+Planes are uniform in inverse depth. Events share the pose of their packet's middle event
+(packets of 1024, as rpg_emvs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numba
+import numpy as np
+
+from sim.camera import Camera
+from sim.se3 import invert_pose
+
+__all__ = ["DSIParams", "DepthMapParams", "depth_planes", "disparity_space_image",
+           "masked_median", "ray_coefficients", "semidense_depth"]
+
+
+@dataclass(frozen=True)
+class DSIParams:
+    """Geometry of the disparity space image.
+
+    Attributes
+    ----------
+    min_depth, max_depth : float, metres
+        Range of the depth planes (0 < min < max).
+    planes : int
+        Number of depth planes, uniform in inverse depth (default 100).
+    packet_size : int
+        Events sharing one pose (default 1024, as rpg_emvs).
+    """
+
+    min_depth: float
+    max_depth: float
+    planes: int = 100
+    packet_size: int = 1024
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.min_depth) and np.isfinite(self.max_depth)
+                and 0 < self.min_depth < self.max_depth):
+            raise ValueError(f"depth range must satisfy 0 < min_depth < max_depth, got "
+                             f"[{self.min_depth}, {self.max_depth}] m")
+        if self.planes < 2:
+            raise ValueError(f"planes must be >= 2, got {self.planes}")
+        if self.packet_size < 1:
+            raise ValueError(f"packet_size must be >= 1, got {self.packet_size}")
+
+
+def depth_planes(params: DSIParams) -> np.ndarray:
+    """Depths of the planes, (planes,) float64 metres, uniform in inverse depth, near to far."""
+    inverse = np.linspace(1.0 / params.min_depth, 1.0 / params.max_depth, params.planes)
+    return 1.0 / inverse
+
+
+def ray_coefficients(xy: np.ndarray, T_ref_event: np.ndarray) -> np.ndarray:
+    """Coefficients (a_x, b_x, a_y, b_y) of the rays of events in the reference view.
+
+    Parameters
+    ----------
+    xy : (N, 2) float ndarray
+        Undistorted normalised coordinates of the events in their own camera.
+    T_ref_event : (N, 4, 4) or (4, 4) float ndarray
+        Pose of the event camera in the reference camera frame.
+
+    Returns
+    -------
+    (N, 4) float64 ndarray
+        The ray meets plane Z = z at x = a_x + b_x / z, y = a_y + b_y / z (normalised
+        reference coordinates). Rays with d_z <= 0 (pointing away) get NaN.
+    """
+    T = np.asarray(T_ref_event, dtype=np.float64)
+    xy = np.asarray(xy, dtype=np.float64)
+    rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
+    R = T[..., :3, :3]
+    C = T[..., :3, 3]
+    d = np.einsum("...ij,...j->...i", R, rays) if R.ndim == 3 else rays @ R.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a_x = np.where(d[:, 2] > 0, d[:, 0] / d[:, 2], np.nan)
+        a_y = np.where(d[:, 2] > 0, d[:, 1] / d[:, 2], np.nan)
+    C = np.broadcast_to(C, (len(xy), 3))
+    return np.stack([a_x, C[:, 0] - C[:, 2] * a_x, a_y, C[:, 1] - C[:, 2] * a_y], axis=1)
+
+
+@numba.njit(cache=True, parallel=True)
+def _packet_coefficients(xy, rotations, centres, packet_size):  # pragma: no cover - compiled
+    n = xy.shape[0]
+    out = np.empty((n, 4))
+    for i in numba.prange(n):
+        j = i // packet_size
+        x = xy[i, 0]
+        y = xy[i, 1]
+        dx = rotations[j, 0, 0] * x + rotations[j, 0, 1] * y + rotations[j, 0, 2]
+        dy = rotations[j, 1, 0] * x + rotations[j, 1, 1] * y + rotations[j, 1, 2]
+        dz = rotations[j, 2, 0] * x + rotations[j, 2, 1] * y + rotations[j, 2, 2]
+        if dz <= 0.0:
+            out[i, 0] = np.nan
+            out[i, 1] = np.nan
+            out[i, 2] = np.nan
+            out[i, 3] = np.nan
+            continue
+        a_x = dx / dz
+        a_y = dy / dz
+        out[i, 0] = a_x
+        out[i, 1] = centres[j, 0] - centres[j, 2] * a_x
+        out[i, 2] = a_y
+        out[i, 3] = centres[j, 1] - centres[j, 2] * a_y
+    return out
+
+
+_CHUNK = 2048
+"""Events voted per pass over the planes: their coefficients stay in cache for all planes."""
+
+
+@numba.njit(cache=True, parallel=True)
+def _vote(coeffs, inv_depth, fx, fy, cx, cy, dsi):  # pragma: no cover - compiled
+    planes, height, width = dsi.shape
+    n = coeffs.shape[0]
+    for start in range(0, n, _CHUNK):
+        stop = min(start + _CHUNK, n)
+        for k in numba.prange(planes):               # one thread owns each plane: no races
+            w = inv_depth[k]
+            for i in range(start, stop):
+                a_x = coeffs[i, 0]
+                if a_x != a_x:                       # NaN: ray pointing away
+                    continue
+                u = fx * (a_x + coeffs[i, 1] * w) + cx
+                v = fy * (coeffs[i, 2] + coeffs[i, 3] * w) + cy
+                if not (u >= 0.0 and v >= 0.0 and u <= width - 1 and v <= height - 1):
+                    continue
+                u0 = int(u)
+                v0 = int(v)
+                fu = u - u0
+                fv = v - v0
+                u1 = min(u0 + 1, width - 1)
+                v1 = min(v0 + 1, height - 1)
+                dsi[k, v0, u0] += (1.0 - fu) * (1.0 - fv)
+                dsi[k, v0, u1] += fu * (1.0 - fv)
+                dsi[k, v1, u0] += (1.0 - fu) * fv
+                dsi[k, v1, u1] += fu * fv
+
+
+def disparity_space_image(xy: np.ndarray, times: np.ndarray, trajectory, T_world_ref: np.ndarray,
+                          camera: Camera, params: DSIParams,
+                          dsi: np.ndarray | None = None) -> np.ndarray:
+    """Accumulate events into a DSI anchored at a reference view.
+
+    Parameters
+    ----------
+    xy : (N, 2) float ndarray
+        Undistorted normalised coordinates of the events (see ``Camera.undistort``).
+    times : (N,) float ndarray, seconds
+        Event times (sorted), inside the trajectory's range.
+    trajectory : sim.trajectory.Trajectory
+        ``T_world_camera(t)`` of the event camera.
+    T_world_ref : (4, 4) ndarray
+        Pose of the reference view.
+    camera : Camera
+        The reference view's virtual camera (its intrinsics and size; no distortion is applied).
+    params : DSIParams
+    dsi : (planes, H, W) float32 ndarray, optional
+        Accumulate into this volume (for streaming windows); default a new zero volume.
+
+    Returns
+    -------
+    (planes, H, W) float32 ndarray
+        Ray counts (bilinear votes) per voxel; plane k at ``depth_planes(params)[k]``.
+    """
+    xy = np.asarray(xy, dtype=np.float64)
+    times = np.asarray(times, dtype=np.float64)
+    if xy.ndim != 2 or xy.shape[1] != 2 or times.shape != (len(xy),):
+        raise ValueError(f"xy must be (N, 2) and times (N,), got {xy.shape} and {times.shape}")
+    shape = (params.planes, camera.height, camera.width)
+    if dsi is None:
+        dsi = np.zeros(shape, dtype=np.float32)
+    elif dsi.shape != shape or dsi.dtype != np.float32:
+        raise ValueError(f"dsi must be a float32 array of shape {shape}, got {dsi.dtype} "
+                         f"{dsi.shape}")
+    if len(xy) == 0:
+        return dsi
+    n_packets = -(-len(xy) // params.packet_size)
+    middle = np.minimum(np.arange(n_packets) * params.packet_size + params.packet_size // 2,
+                        len(xy) - 1)
+    T_ref_world = invert_pose(np.asarray(T_world_ref, dtype=np.float64))
+    T_ref_event = T_ref_world @ trajectory.pose(times[middle])          # (packets, 4, 4)
+    coeffs = _packet_coefficients(np.ascontiguousarray(xy),
+                                  np.ascontiguousarray(T_ref_event[:, :3, :3]),
+                                  np.ascontiguousarray(T_ref_event[:, :3, 3]), params.packet_size)
+    inv_depth = 1.0 / depth_planes(params)
+    _vote(coeffs, inv_depth, camera.fx, camera.fy, camera.cx, camera.cy, dsi)
+    return dsi
+
+
+@dataclass(frozen=True)
+class DepthMapParams:
+    """Extraction of the semi-dense depth map from a DSI (rpg_emvs's options and defaults).
+
+    Attributes
+    ----------
+    kernel : int
+        Block size of the adaptive threshold (odd, default 5; the paper used 15 on the sliders).
+    c : float
+        A pixel is kept when its 8-bit confidence exceeds the Gaussian-weighted local mean by
+        more than ``c`` (default 5; the paper used 7 on the sliders).
+    median : int
+        Size of the median filter of the depth inside the mask (odd, default 5; 1 = off).
+    border : int
+        Pixels cleared along the image border (default 1).
+    """
+
+    kernel: int = 5
+    c: float = 5.0
+    median: int = 5
+    border: int = 1
+
+    def __post_init__(self) -> None:
+        if self.kernel < 3 or self.kernel % 2 == 0:
+            raise ValueError(f"kernel must be an odd integer >= 3, got {self.kernel}")
+        if self.median < 1 or self.median % 2 == 0:
+            raise ValueError(f"median must be an odd integer >= 1, got {self.median}")
+        if self.border < 0:
+            raise ValueError(f"border must be >= 0, got {self.border}")
+
+
+@numba.njit(cache=True)
+def _masked_median(values, mask, half):  # pragma: no cover - compiled
+    height, width = values.shape
+    out = values.copy()
+    window = np.empty((2 * half + 1) ** 2, dtype=values.dtype)
+    for y in range(height):
+        for x in range(width):
+            if not mask[y, x]:
+                continue
+            n = 0
+            for yy in range(max(0, y - half), min(height, y + half + 1)):
+                for xx in range(max(0, x - half), min(width, x + half + 1)):
+                    if mask[yy, xx]:
+                        window[n] = values[yy, xx]
+                        n += 1
+            out[y, x] = np.median(window[:n])
+    return out
+
+
+def masked_median(values: np.ndarray, mask: np.ndarray, size: int) -> np.ndarray:
+    """Median of each masked pixel over the masked pixels of its size x size window.
+
+    Parameters
+    ----------
+    values : (H, W) float ndarray
+    mask : (H, W) bool ndarray
+    size : int, odd
+
+    Returns
+    -------
+    (H, W) ndarray of the values' dtype; unmasked pixels are returned unchanged.
+    """
+    if size <= 1:
+        return np.array(values, copy=True)
+    return _masked_median(np.ascontiguousarray(values), np.ascontiguousarray(mask, dtype=bool),
+                          size // 2)
+
+
+def semidense_depth(dsi: np.ndarray, planes: np.ndarray, params: DepthMapParams | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Semi-dense depth, confidence and mask from a DSI, as rpg_emvs extracts them.
+
+    Depth per pixel is the depth of the plane with most votes and confidence that count; a
+    pixel is kept where the confidence, normalised to 8 bits, exceeds its Gaussian-weighted local
+    mean by more than ``c`` (OpenCV's adaptive threshold); the depth is then median-filtered
+    inside the mask and the border cleared.
+
+    Parameters
+    ----------
+    dsi : (planes, H, W) float ndarray
+    planes : (planes,) float ndarray, metres
+    params : DepthMapParams, optional
+
+    Returns
+    -------
+    depth : (H, W) float32 ndarray, metres, 0 outside the mask
+    confidence : (H, W) float32 ndarray, votes of the best plane
+    mask : (H, W) bool ndarray
+    """
+    params = params or DepthMapParams()
+    dsi = np.asarray(dsi)
+    if dsi.ndim != 3 or len(planes) != dsi.shape[0]:
+        raise ValueError(f"dsi must be (planes, H, W) with {len(planes)} planes, got "
+                         f"{dsi.shape}")
+    best = np.argmax(dsi, axis=0)
+    confidence = np.take_along_axis(dsi, best[None], axis=0)[0].astype(np.float32)
+    depth = np.asarray(planes, dtype=np.float32)[best]
+    top = float(confidence.max())
+    if top <= 0:
+        return np.zeros_like(depth), confidence, np.zeros(depth.shape, bool)
+    confidence_8bit = np.round(confidence * (255.0 / top)).astype(np.uint8)
+    mask = cv2.adaptiveThreshold(confidence_8bit, 1, cv2.ADAPTIVE_THRESH_GAUSSIAN_C,
+                                 cv2.THRESH_BINARY, params.kernel, -params.c).astype(bool)
+    if params.border:
+        b = params.border
+        mask[:b], mask[-b:], mask[:, :b], mask[:, -b:] = False, False, False, False
+    depth = masked_median(depth, mask, params.median)
+    depth[~mask] = 0.0
+    return depth.astype(np.float32), confidence, mask

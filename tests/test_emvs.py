@@ -1,0 +1,116 @@
+"""EMVS disparity space image: rays, planes, and depth recovered from synthetic events."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusion.emvs import DSIParams, depth_planes, disparity_space_image, ray_coefficients
+from sim.camera import Camera
+from sim.se3 import make_pose, so3_exp
+from sim.trajectory import LinearTrajectory
+
+
+def test_planes_are_uniform_in_inverse_depth():
+    z = depth_planes(DSIParams(0.5, 4.0, planes=8))
+    assert z[0] == pytest.approx(0.5) and z[-1] == pytest.approx(4.0)
+    np.testing.assert_allclose(np.diff(1 / z), np.diff(1 / z)[0])
+
+
+@pytest.mark.parametrize("low, high", [(0.0, 1.0), (2.0, 1.0), (-1.0, 3.0), (1.0, np.inf)])
+def test_bad_depth_range_is_refused(low, high):
+    with pytest.raises(ValueError, match="depth range"):
+        DSIParams(low, high)
+
+
+def test_ray_meets_each_plane_where_geometry_says():
+    rng = np.random.default_rng(0)
+    T = make_pose(so3_exp([0.05, -0.1, 0.02]), [0.1, -0.05, 0.2])
+    xy = rng.uniform(-0.4, 0.4, (20, 2))
+    coeffs = ray_coefficients(xy, T)
+    for z in (0.7, 1.3, 3.0):
+        d = np.concatenate([xy, np.ones((20, 1))], 1) @ T[:3, :3].T
+        s = (z - T[2, 3]) / d[:, 2]
+        point = T[:3, 3] + s[:, None] * d                 # on the plane Z = z, ref frame
+        np.testing.assert_allclose(coeffs[:, 0] + coeffs[:, 1] / z, point[:, 0] / z, atol=1e-12)
+        np.testing.assert_allclose(coeffs[:, 2] + coeffs[:, 3] / z, point[:, 1] / z, atol=1e-12)
+
+
+def test_events_of_known_points_come_back_at_their_depth():
+    """Analytic events of 3-D points seen along a trajectory peak at the right plane.
+
+    The baseline (1 m) makes one plane step move a ray by at least ~1 px at the ends of the
+    trajectory, so that planes can be told apart at all.
+    """
+    camera = Camera(80, 60, 70.0, 65.0, 39.5, 29.5)
+    rng = np.random.default_rng(1)
+    n_points = 25
+    depth = rng.uniform(0.8, 2.5, n_points)
+    uv_ref = np.stack([rng.uniform(15, 65, n_points), rng.uniform(12, 48, n_points)], 1)
+    points = camera.backproject(uv_ref, depth)            # reference frame = world at t = 0.5
+    trajectory = LinearTrajectory(np.array([-0.5, -0.05, 0.0]), np.array([1.0, 0.1, 0.0]),
+                                  np.eye(3))
+    T_world_ref = trajectory.pose(0.5)
+    points_world = points + T_world_ref[:3, 3]
+    times = np.linspace(0.0, 1.0, 400)
+    xy, t_all = [], []
+    for t in times:
+        T = trajectory.pose(t)
+        local = (points_world - T[:3, 3]) @ T[:3, :3]
+        xy.append(local[:, :2] / local[:, 2:3])
+        t_all.append(np.full(n_points, t))
+    xy, t_all = np.concatenate(xy), np.concatenate(t_all)
+    params = DSIParams(0.6, 3.0, planes=30, packet_size=n_points)
+    dsi = disparity_space_image(xy, t_all, trajectory, T_world_ref, camera, params)
+    assert dsi.shape == (30, 60, 80) and dsi.dtype == np.float32
+    # One vote per event per plane, except where a ray leaves the view.
+    assert 0.5 * len(xy) * params.planes < dsi.sum() <= len(xy) * params.planes * (1 + 1e-5)
+    planes = depth_planes(params)
+    inv = 1 / planes
+    spacing = abs(inv[1] - inv[0])
+    for (u, v), z in zip(uv_ref, depth, strict=True):
+        iu, iv = int(u), int(v)                       # the 2x2 pixels the point's votes share
+        window = dsi[:, iv:iv + 2, iu:iu + 2].sum(axis=(1, 2))
+        best = planes[int(np.argmax(window))]
+        assert abs(1 / best - 1 / z) <= spacing, (z, best)
+
+
+def test_empty_input_and_shapes():
+    camera = Camera(8, 6, 5.0, 5.0, 3.5, 2.5)
+    params = DSIParams(1.0, 2.0, planes=4)
+    traj = LinearTrajectory(np.zeros(3), np.zeros(3), np.eye(3))
+    dsi = disparity_space_image(np.empty((0, 2)), np.empty(0), traj, np.eye(4), camera, params)
+    assert dsi.shape == (4, 6, 8) and not dsi.any()
+    with pytest.raises(ValueError, match="xy must be"):
+        disparity_space_image(np.zeros((3, 3)), np.zeros(3), traj, np.eye(4), camera, params)
+
+
+def test_semidense_depth_keeps_the_peaks_and_their_plane():
+    from fusion.emvs import DepthMapParams, semidense_depth
+
+    planes = depth_planes(DSIParams(0.5, 3.0, planes=20))
+    rng = np.random.default_rng(4)
+    dsi = rng.uniform(0, 2, (20, 40, 50)).astype(np.float32)    # background clutter
+    edge_rows = np.arange(5, 35)
+    dsi[7, edge_rows, 20] = 60.0                                  # a vertical edge at plane 7
+    dsi[12, 18, 5:45] = 60.0                                      # a horizontal one at plane 12
+    depth, confidence, mask = semidense_depth(dsi, planes, DepthMapParams(kernel=5, c=5,
+                                                                          median=5))
+    assert mask[edge_rows[1:-1], 20].all() and mask[18, 6:44].all()
+    assert mask.sum() < 0.1 * mask.size                          # the clutter is dropped
+    np.testing.assert_allclose(depth[10:17, 20], planes[7], rtol=1e-6)
+    np.testing.assert_allclose(depth[18, 25:40], planes[12], rtol=1e-6)
+    assert np.all(depth[~mask] == 0) and confidence.max() == pytest.approx(60.0)
+    assert not mask[0].any() and not mask[:, -1].any()             # border cleared
+
+
+def test_masked_median_removes_an_outlier_but_only_uses_masked_neighbours():
+    from fusion.emvs import masked_median
+
+    values = np.full((7, 7), 2.0)
+    values[3, 3] = 9.0                                            # outlier on the edge
+    values[:, 0] = 100.0                                          # unmasked junk
+    mask = np.zeros((7, 7), bool)
+    mask[3, 1:6] = True
+    out = masked_median(values, mask, 5)
+    assert out[3, 3] == 2.0 and out[3, 1] == 2.0 and out[0, 0] == 100.0
