@@ -1,0 +1,85 @@
+"""evfuse map: semi-dense maps of simulated and real sequences."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from fusion.cli import main
+from sim.exr import read_depth
+from sim.scene import parse_scene
+from sim.simulate import simulate
+from tests.conftest import scene_text
+
+WALL = """
+[[objects]]
+name = "wall"
+type = "rectangle"
+center = [0.0, 1.0, 0.0]
+size = [6.0, 6.0]
+[objects.material]
+texture_scale = [6.0, 6.0]
+texture = { type = "shapes", resolution = 256, count = 30, min_size = 10, max_size = 40 }
+"""
+FAST = ('[trajectory]\ntype = "linear"\nposition = [-0.15, 0.0, 0.0]\n'
+        "velocity = [1.0, 0.0, 0.0]\nlook_at = [-0.15, 1.0, 0.0]\n")
+
+
+@pytest.fixture(scope="module")
+def plane_sequence(tmp_path_factory):
+    extra = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 4\n"
+    scene = parse_scene(scene_text(WALL, trajectory=FAST, duration=0.3, extra=extra))
+    out = tmp_path_factory.mktemp("seq") / "plane"
+    return simulate(scene, out, progress=False).out
+
+
+def test_map_of_a_plane_comes_back_at_its_depth(plane_sequence, tmp_path):
+    out = tmp_path / "map"
+    assert main(["map", str(plane_sequence), "--out", str(out), "--min-depth", "0.5",
+                 "--max-depth", "3", "--planes", "30", "--quiet"]) == 0
+    for name in ("semidense_depth.exr", "confidence.exr", "mask.png", "overlay.png", "map.ply",
+                 "map.json"):
+        assert (out / name).is_file(), name
+    meta = json.loads((out / "map.json").read_text())
+    depth = read_depth(out / "semidense_depth.exr")
+    assert meta["N1"] == int(np.count_nonzero(depth)) > 30
+    planes = 1 / np.linspace(1 / 0.5, 1 / 3.0, 30)
+    spacing = abs(1 / planes[1] - 1 / planes[0])
+    assert abs(1 / np.median(depth[depth > 0]) - 1.0) <= spacing   # the wall is 1 m away
+    errors = meta["errors"]
+    assert errors["points"] == meta["N1"] and errors["median_cm"] < 100 * 0.1
+    mask = cv2.imread(str(out / "mask.png"), cv2.IMREAD_GRAYSCALE)
+    assert np.array_equal(mask > 0, depth > 0)
+    header = (out / "map.ply").read_bytes()[:400].decode("ascii", "replace")
+    assert f"element vertex {meta['N1']}" in header and "T_world_ref" in header
+
+
+def test_real_ecd_slider_map(ecd_slider, tmp_path):
+    out = tmp_path / "real"
+    assert main(["map", str(ecd_slider), "--out", str(out), "--min-depth", "0.47",
+                 "--max-depth", "2.4", "--quiet"]) == 0
+    meta = json.loads((out / "map.json").read_text())
+    assert meta["events_dropped_before_poses"] == 3251             # before the first pose
+    assert meta["events_used"] == 50000 - 3251
+    depth = read_depth(out / "semidense_depth.exr")
+    assert meta["N1"] == int(np.count_nonzero(depth)) > 200
+    assert depth[depth > 0].min() >= 0.47 - 1e-6 and depth.max() <= 2.4 + 1e-6
+    assert "errors" not in meta                                  # no dense ground truth
+
+
+def test_bad_map_input_is_refused_before_work(plane_sequence, tmp_path, capsys):
+    cases = [
+        (["--min-depth", "2", "--max-depth", "1"], "depth range"),
+        (["--min-depth", "-1", "--max-depth", "1"], "depth range"),
+        (["--t0", "5", "--t1", "6"], "outside the poses"),
+        (["--t0", "0.2", "--t1", "0.1"], "empty time window"),
+        (["--planes", "1000000"], "GiB"),
+    ]
+    for extra, message in cases:
+        code = main(["map", str(plane_sequence), "--out", str(tmp_path / "x"), "--quiet",
+                     *extra])
+        assert code == 2 and message in capsys.readouterr().err, extra
+    assert main(["map", str(tmp_path / "nowhere"), "--out", str(tmp_path / "y")]) == 2
