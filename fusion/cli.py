@@ -84,13 +84,13 @@ def _cmd_events(args: argparse.Namespace) -> int:
 def _cmd_map(args: argparse.Namespace) -> int:
     from fusion.emvs import DepthMapParams, DSIParams
     from fusion.mapping import MapParams, map_sequence, write_map
+    from sim.sequence import check_output_dir
 
     params = MapParams(
         dsi=DSIParams(args.min_depth, args.max_depth, planes=args.planes),
         depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
         t0=args.t0, t1=args.t1, ref_time=args.ref_time)
-    if Path(args.out).exists() and any(Path(args.out).iterdir()) and not args.overwrite:
-        raise ValueError(f"{args.out} exists and is not empty; use --overwrite to replace it")
+    check_output_dir(args.out, args.overwrite)                  # fail before the long work
     result = map_sequence(args.sequence, params, progress=not args.quiet)
     out = write_map(result, args.sequence, args.out, params, overwrite=args.overwrite)
     info = result.info

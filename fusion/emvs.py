@@ -76,7 +76,7 @@ def ray_coefficients(xy: np.ndarray, T_ref_event: np.ndarray) -> np.ndarray:
     xy : (N, 2) float ndarray
         Undistorted normalised coordinates of the events in their own camera.
     T_ref_event : (N, 4, 4) or (4, 4) float ndarray
-        Pose of the event camera in the reference camera frame.
+        Pose of the event camera in the reference camera frame (one per event, or shared).
 
     Returns
     -------
@@ -84,17 +84,13 @@ def ray_coefficients(xy: np.ndarray, T_ref_event: np.ndarray) -> np.ndarray:
         The ray meets plane Z = z at x = a_x + b_x / z, y = a_y + b_y / z (normalised
         reference coordinates). Rays with d_z <= 0 (pointing away) get NaN.
     """
+    xy = np.ascontiguousarray(xy, dtype=np.float64)
     T = np.asarray(T_ref_event, dtype=np.float64)
-    xy = np.asarray(xy, dtype=np.float64)
-    rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
-    R = T[..., :3, :3]
-    C = T[..., :3, 3]
-    d = np.einsum("...ij,...j->...i", R, rays) if R.ndim == 3 else rays @ R.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a_x = np.where(d[:, 2] > 0, d[:, 0] / d[:, 2], np.nan)
-        a_y = np.where(d[:, 2] > 0, d[:, 1] / d[:, 2], np.nan)
-    C = np.broadcast_to(C, (len(xy), 3))
-    return np.stack([a_x, C[:, 0] - C[:, 2] * a_x, a_y, C[:, 1] - C[:, 2] * a_y], axis=1)
+    shared = T.ndim == 2
+    T = T[None] if shared else T
+    return _packet_coefficients(xy, np.ascontiguousarray(T[:, :3, :3]),
+                                np.ascontiguousarray(T[:, :3, 3]),
+                                max(len(xy), 1) if shared else 1)
 
 
 @numba.njit(cache=True, parallel=True)

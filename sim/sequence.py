@@ -30,8 +30,8 @@ import numpy as np
 if TYPE_CHECKING:
     from sim.camera import Camera
 
-__all__ = ["Sequence", "atomic_output_dir", "frame_name", "load_sequence", "read_index",
-           "read_sequence_json", "write_index", "write_sequence_json"]
+__all__ = ["Sequence", "atomic_output_dir", "check_output_dir", "frame_name", "load_sequence",
+           "read_index", "read_sequence_json", "write_index", "write_sequence_json"]
 
 PARTIAL_SUFFIX = ".partial"
 """Suffix of the folder a sequence is written into before it is complete."""
@@ -46,7 +46,10 @@ def _is_nonempty_dir(path: Path) -> bool:
         return any(True for _ in entries)
 
 
-def _check_target(out: Path, overwrite: bool) -> None:
+def check_output_dir(out: str | Path, overwrite: bool = False) -> None:
+    """Raise ValueError if :func:`atomic_output_dir` would refuse ``out`` (call it early, before
+    long work, to fail fast)."""
+    out = Path(out)
     if not out.exists() and not out.is_symlink():
         return
     if not out.is_dir() or out.is_symlink():
@@ -91,7 +94,7 @@ def atomic_output_dir(out: str | Path, overwrite: bool = False) -> Iterator[Path
     out = Path(out)
     if not out.name:
         raise ValueError(f"output path {str(out)!r} has no folder name")
-    _check_target(out, overwrite)
+    check_output_dir(out, overwrite)
     out.parent.mkdir(parents=True, exist_ok=True)
     partial = out.with_name(out.name + PARTIAL_SUFFIX)
     if partial.is_symlink() or partial.is_file():
@@ -100,7 +103,7 @@ def atomic_output_dir(out: str | Path, overwrite: bool = False) -> Iterator[Path
         shutil.rmtree(partial)
     partial.mkdir()
     yield partial
-    _check_target(out, overwrite)
+    check_output_dir(out, overwrite)
     old = None
     if out.exists():
         old = out.with_name(f"{out.name}.old-{uuid.uuid4().hex[:12]}")
