@@ -92,7 +92,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
         t0=args.t0, t1=args.t1, ref_time=args.ref_time)
     check_output_dir(args.out, args.overwrite)                  # fail before the long work
     result = map_sequence(args.sequence, params, progress=not args.quiet)
-    out = write_map(result, args.sequence, args.out, params, overwrite=args.overwrite)
+    out = write_map(result, args.out, params, overwrite=args.overwrite)
     info = result.info
     line = (f"N1 = {result.n1} map points from {info['events_used']} events "
             f"({info['events_dropped_before_poses'] + info['events_dropped_after_poses']} "

@@ -84,6 +84,7 @@ class MapResult:
     t_ref : float, seconds
     T_world_ref : (4, 4) ndarray
     info : dict, counts, window, timings and, with ground truth, ``errors``
+    sequence : Sequence, the sequence folder it was built from
     """
 
     depth: np.ndarray
@@ -93,6 +94,7 @@ class MapResult:
     t_ref: float
     T_world_ref: np.ndarray
     info: dict
+    sequence: Sequence
 
     @property
     def n1(self) -> int:
@@ -250,7 +252,7 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
         "outlier_radius_m": radius, "outliers_removed": int((~inlier).sum()),
         "timings": timings,
     }
-    result = MapResult(depth, confidence, mask, camera, t_ref, T_world_ref, info)
+    result = MapResult(depth, confidence, mask, camera, t_ref, T_world_ref, info, sequence)
     truth = _ground_truth_depth(sequence, t_ref, T_world_ref)
     if truth is not None:
         info["errors"] = map_errors(depth, truth)
@@ -280,11 +282,11 @@ def _write_ply(path: Path, points: np.ndarray, T_world_ref: np.ndarray) -> None:
         handle.write(np.ascontiguousarray(points, dtype="<f4").tobytes())
 
 
-def write_map(result: MapResult, folder: str | Path, out: str | Path, params: MapParams,
+def write_map(result: MapResult, out: str | Path, params: MapParams,
               overwrite: bool = False) -> Path:
     """Write ``semidense_depth.exr``, ``confidence.exr``, ``mask.png``, ``overlay.png``,
     ``map.ply`` and ``map.json`` into ``out`` (atomically)."""
-    sequence = load_sequence(folder)
+    sequence = result.sequence
     with atomic_output_dir(out, overwrite=overwrite) as tmp:
         write_depth(tmp / "semidense_depth.exr", result.depth)
         write_exr_channels(tmp / "confidence.exr", {"Y": result.confidence})
@@ -302,7 +304,7 @@ def write_map(result: MapResult, folder: str | Path, out: str | Path, params: Ma
             "N1": result.n1,
             "t_ref": result.t_ref,
             "T_world_ref": result.T_world_ref.tolist(),
-            "sequence": str(Path(folder).resolve()),
+            "sequence": str(Path(sequence.folder).resolve()),
             "params": {"dsi": asdict(params.dsi), "depth": asdict(params.depth),
                        "t0": params.t0, "t1": params.t1, "ref_time": params.ref_time,
                        "outlier_radius": params.outlier_radius,

@@ -31,7 +31,13 @@ from sim.frames import auto_gain, exposure_sample_times, frame_times, luminance_
 from sim.render import Renderer
 from sim.sampling import SamplingParams, SamplingStats, adaptive_samples
 from sim.scene import Scene
-from sim.sequence import atomic_output_dir, frame_name, write_index, write_sequence_json
+from sim.sequence import (
+    atomic_output_dir,
+    check_output_dir,
+    frame_name,
+    write_index,
+    write_sequence_json,
+)
 from sim.trajectory import sample_times, write_trajectory
 
 __all__ = ["SimulationResult", "simulate"]
@@ -134,6 +140,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         raise ValueError(f"duration {duration} s is too short for one frame at {params.rate} Hz "
                          f"with a {params.exposure} s exposure")
     out = Path(out)
+    check_output_dir(out, overwrite)                  # refuse before loading the renderer
     timings = {"setup": 0.0, "render": 0.0, "depth": 0.0, "write": 0.0, "event_render": 0.0,
                "emulate": 0.0, "event_write": 0.0}
     start = time.perf_counter()
