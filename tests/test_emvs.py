@@ -114,3 +114,58 @@ def test_masked_median_removes_an_outlier_but_only_uses_masked_neighbours():
     mask[3, 1:6] = True
     out = masked_median(values, mask, 5)
     assert out[3, 3] == 2.0 and out[3, 1] == 2.0 and out[0, 0] == 100.0
+
+
+def _reference_votes(xy, T_ref_event, camera, params):
+    """Bilinear votes one event and one plane at a time, in float64 (no sorting, no chunks)."""
+    planes = depth_planes(params)
+    dsi = np.zeros((params.planes, camera.height, camera.width))
+    for (x, y) in xy:
+        d = T_ref_event[:3, :3] @ np.array([x, y, 1.0])
+        if d[2] <= 0:
+            continue
+        for k, z in enumerate(planes):
+            s = (z - T_ref_event[2, 3]) / d[2]
+            p = T_ref_event[:3, 3] + s * d
+            u = camera.fx * p[0] / z + camera.cx
+            v = camera.fy * p[1] / z + camera.cy
+            if not (0 <= u <= camera.width - 1 and 0 <= v <= camera.height - 1):
+                continue
+            c, r = min(int(u), camera.width - 2), min(int(v), camera.height - 2)
+            fu, fv = u - c, v - r
+            dsi[k, r, c] += (1 - fu) * (1 - fv)
+            dsi[k, r, c + 1] += fu * (1 - fv)
+            dsi[k, r + 1, c] += (1 - fu) * fv
+            dsi[k, r + 1, c + 1] += fu * fv
+    return dsi
+
+
+def test_votes_match_a_per_event_reference_on_any_number_of_threads():
+    """The compiled kernel (float32, events sorted by row, chunked, one thread per plane) gives
+    the votes of the textbook loop, including rays that leave the view, rays pointing away and
+    a ray landing exactly on the last column and row."""
+    import numba
+
+    camera = Camera(31, 23, 20.0, 18.0, 15.0, 11.0)
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-1.2, 1.2, (3000, 2))                   # a third of them leave the view
+    T = make_pose(so3_exp([0.02, 0.03, -0.01]), [0.04, -0.02, 0.01])
+    params = DSIParams(0.5, 2.0, planes=7, packet_size=4096)
+    trajectory = LinearTrajectory(T[:3, 3], np.zeros(3), T[:3, :3])
+    expected = _reference_votes(xy, T, camera, params)
+    threads = numba.get_num_threads()
+    try:
+        for n in sorted({1, threads}):
+            numba.set_num_threads(n)
+            dsi = disparity_space_image(xy, np.zeros(len(xy)), trajectory, np.eye(4), camera,
+                                        params)
+            np.testing.assert_allclose(dsi, expected, atol=2e-4)
+    finally:
+        numba.set_num_threads(threads)
+    # The last column and row: a ray along the optical axis of a camera whose principal point
+    # is the far corner votes its whole weight into that corner.
+    corner = Camera(8, 6, 5.0, 5.0, 7.0, 5.0)
+    still = LinearTrajectory(np.zeros(3), np.zeros(3), np.eye(3))
+    dsi = disparity_space_image(np.array([[0.0, 0.0], [0.0, 0.0]]), np.zeros(2), still,
+                                np.eye(4), corner, DSIParams(1.0, 2.0, planes=3))
+    assert dsi[:, 5, 7].tolist() == [2.0, 2.0, 2.0] and dsi.sum() == 6.0

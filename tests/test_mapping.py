@@ -83,3 +83,12 @@ def test_bad_map_input_is_refused_before_work(plane_sequence, tmp_path, capsys):
                      *extra])
         assert code == 2 and message in capsys.readouterr().err, extra
     assert main(["map", str(tmp_path / "nowhere"), "--out", str(tmp_path / "y")]) == 2
+
+
+def test_window_inside_the_poses_without_events_is_refused(ecd_slider, tmp_path, capsys):
+    """The prefix's events end at 0.174 s while its poses run to 3.4 s."""
+    out = tmp_path / "none"
+    assert main(["map", str(ecd_slider), "--out", str(out), "--t0", "1.0", "--t1", "2.0",
+                 "--min-depth", "0.47", "--max-depth", "2.4", "--quiet"]) == 2
+    assert "no events in the window [1.0, 2.0] s" in capsys.readouterr().err
+    assert not out.exists() and not list(tmp_path.glob("none*"))
