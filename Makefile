@@ -44,6 +44,7 @@ test: setup
 bench: setup
 	$(BIN)/python benchmarks/bench_render.py
 	$(BIN)/python benchmarks/bench_events.py
+	$(BIN)/python benchmarks/bench_emvs.py
 
 lint: setup
 	$(BIN)/ruff check .
