@@ -31,7 +31,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     events = EventParams.preset(args.noise, contrast=args.contrast, seed=scene.seed)
     sampling = SamplingParams(lam=args.lam, min_rate=args.min_rate, max_rate=args.max_rate)
     formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
-    result = simulate(scene, args.out, duration=args.duration, spp=args.spp,
+    result = simulate(scene, args.out, duration=args.duration, start=args.start, spp=args.spp,
                       variant=args.variant, overwrite=args.overwrite, progress=not args.quiet,
                       events=events, sampling=sampling, with_events=not args.no_events,
                       event_formats=formats)
@@ -148,6 +148,8 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("--out", required=True, help="sequence folder to write")
     simulate.add_argument("--duration", type=float, default=None,
                           help="seconds to simulate (default: the scene's duration)")
+    simulate.add_argument("--start", type=float, default=0.0,
+                          help="time of the scene's trajectory to start at, s (default 0)")
     simulate.add_argument("--seed", type=int, default=None,
                           help="seed of every random draw (default: the scene's seed)")
     simulate.add_argument("--spp", type=int, default=None,

@@ -86,7 +86,8 @@ def _versions() -> dict[str, str]:
 
 
 def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
-             spp: int | None = None, variant: str | None = None, overwrite: bool = False,
+             start: float = 0.0, spp: int | None = None, variant: str | None = None,
+             overwrite: bool = False,
              progress: bool = True, events: EventParams | None = None,
              sampling: SamplingParams | None = None, with_events: bool = True,
              event_formats: tuple[str, ...] = ("h5", "txt")) -> SimulationResult:
@@ -99,7 +100,11 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     out : str or Path
         Sequence folder to create.
     duration : float, optional
-        Seconds to simulate from t = 0, default the scene's duration.
+        Seconds to simulate from ``start``, default the scene's duration minus ``start``.
+    start : float, seconds
+        Time of the trajectory at which the simulation begins (default 0): frames, poses and
+        events cover ``[start, start + duration]``; the event camera starts there without
+        history, as a real one switched on at that time.
     spp : int, optional
         Samples per pixel (a perfect square), default the scene's ``render.spp``.
     variant : str, optional
@@ -127,15 +132,19 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         A duration that is not positive or not covered by the trajectory, or an existing ``out``
         without ``overwrite``.
     """
-    duration = float(scene.duration if duration is None else duration)
+    start = float(start)
+    duration = float(scene.duration - start if duration is None else duration)
     traj = scene.trajectory
+    if not np.isfinite(start):
+        raise ValueError(f"start must be a finite time in seconds, got {start}")
     if not duration > 0:
         raise ValueError(f"duration must be positive, got {duration}")
-    if not (traj.t_start <= 0.0 and duration <= traj.t_end):
+    end = start + duration
+    if not (traj.t_start <= start and end <= traj.t_end + 1e-9):
         raise ValueError(f"the trajectory covers [{traj.t_start}, {traj.t_end}] s, which does not "
-                         f"contain the simulated [0, {duration}] s")
+                         f"contain the simulated [{start}, {end}] s")
     params = scene.frames
-    times = frame_times(duration, params)
+    times = start + frame_times(duration, params)
     if len(times) == 0:
         raise ValueError(f"duration {duration} s is too short for one frame at {params.rate} Hz "
                          f"with a {params.exposure} s exposure")
@@ -143,13 +152,13 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     check_output_dir(out, overwrite)                  # refuse before loading the renderer
     timings = {"setup": 0.0, "render": 0.0, "depth": 0.0, "write": 0.0, "event_render": 0.0,
                "emulate": 0.0, "event_write": 0.0}
-    start = time.perf_counter()
+    clock = time.perf_counter()
     renderer = Renderer(scene, spp=spp, variant=variant)
     rng = np.random.default_rng(scene.seed)
-    timings["setup"] = time.perf_counter() - start
+    timings["setup"] = time.perf_counter() - clock
     with atomic_output_dir(out, overwrite=overwrite) as tmp:
         write_calib(tmp / "calib.txt", scene.camera)
-        pose_times = sample_times(0.0, duration, scene.render.pose_rate)
+        pose_times = sample_times(start, end, scene.render.pose_rate)
         write_trajectory(tmp / "groundtruth.txt", pose_times, traj.pose(pose_times))
         (tmp / "images").mkdir()
         (tmp / "depth").mkdir()
@@ -176,7 +185,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
             timings["write"] += time.perf_counter() - tack
         event_info = None
         if with_events:
-            event_info = _simulate_events(scene, renderer, tmp, duration, events, sampling,
+            event_info = _simulate_events(scene, renderer, tmp, start, end, events, sampling,
                                           event_formats, progress, timings)
         write_index(tmp / "images.txt", times, image_names)
         write_index(tmp / "depthmaps.txt", times, depth_names)
@@ -186,6 +195,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
             "scene": {"name": scene.name, "description": scene.description,
                       "source": str(scene.source) if scene.source else None,
                       "toml": scene.text},
+            "start": start,
             "duration": duration,
             "seed": scene.seed,
             "camera": {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy,
@@ -200,17 +210,17 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
             "software": _versions(),
             "timings_s": {k: round(v, 3) for k, v in timings.items()},
         })
-    timings["total"] = time.perf_counter() - start
+    timings["total"] = time.perf_counter() - clock
     return SimulationResult(out, len(times), len(times) * params.exposure_samples,
                             renderer.variant, timings,
                             event_info["count"] if event_info else None,
                             event_info["renders"] if event_info else 0)
 
 
-def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, duration: float,
+def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: float, end: float,
                      params: EventParams | None, sampling: SamplingParams | None,
                      formats: tuple[str, ...], progress: bool, timings: dict) -> dict:
-    """Drive the emulator with adaptive renders over [0, duration]; stream the events out."""
+    """Drive the emulator with adaptive renders over [start, end]; stream the events out."""
     params = params or EventParams(seed=scene.seed)
     sampling = sampling or SamplingParams()
     unknown = set(formats) - {"h5", "txt"}
@@ -222,7 +232,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, duration: f
     count = on = 0
     contrast = min(params.contrast_on, params.contrast_off)
     fast = _FastRenderer(renderer, scene.render.event_spp)
-    bar = tqdm(total=round(duration, 6), desc=f"events {scene.name}", unit="s",
+    bar = tqdm(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
                disable=not progress, bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
                "[{elapsed}<{remaining}{postfix}]")
     with ExitStack() as stack:
@@ -240,7 +250,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, duration: f
         if "txt" in formats:
             writers.append(stack.enter_context(TextEventWriter(folder / "events.txt")))
         tick = time.perf_counter()
-        for sample in adaptive_samples(fast, 0.0, duration, contrast, params.log_eps, sampling,
+        for sample in adaptive_samples(fast, start, end, contrast, params.log_eps, sampling,
                                        stats):
             tock = time.perf_counter()
             timings["event_render"] += tock - tick
@@ -258,7 +268,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, duration: f
                 on += int(np.count_nonzero(chunk["p"] > 0))
             tick = time.perf_counter()
             timings["event_write"] += tick - tack
-            bar.n = round(sample.t, 6)
+            bar.n = round(sample.t - start, 6)
             bar.set_postfix_str(f"{count} events, {stats.renders} renders", refresh=False)
             bar.update(0)
     noise = params.noise

@@ -174,3 +174,27 @@ def test_exposure_averages_renders_into_motion_blur(tmp_path):
         sharpness[samples] = (np.diff(frame.astype(float), axis=1) ** 2).mean()
     # 1 m/s across a plane 1 m away with fx = 60: 2.4 px of blur in a 40 ms exposure.
     assert sharpness[8] < 0.6 * sharpness[1]
+
+
+def test_a_late_start_covers_only_its_window_and_matches_the_full_run(tiny_run, tmp_path):
+    """simulate(start=0.1): frames, depth, poses and events lie in [0.1, 0.3] s, and a frame's
+    exact depth there equals the full run's at the same time."""
+    scene, full = tiny_run
+    late = simulate(scene, tmp_path / "late", start=0.1, duration=0.2, progress=False)
+    seq, ref = load_sequence(late.out), load_sequence(full.out)
+    assert seq.image_times[0] >= 0.1 and seq.image_times[-1] <= 0.3
+    common = np.intersect1d(np.round(seq.image_times, 9), np.round(ref.image_times, 9))
+    assert len(common) >= 3
+    k, j = (int(np.argmin(abs(s.image_times - common[0]))) for s in (seq, ref))
+    np.testing.assert_array_equal(read_depth(seq.depth_paths[k]), read_depth(ref.depth_paths[j]))
+    poses = read_trajectory(seq.groundtruth_path)
+    assert poses.t_start == pytest.approx(0.1) and poses.t_end == pytest.approx(0.3)
+    assert json.loads((late.out / "sequence.json").read_text())["start"] == 0.1
+    faster = MOVING.replace("0.2, 0.0, 0.0", "1.0, 0.0, 0.0")
+    fast = parse_scene(scene_text(OBJECTS, trajectory=faster, duration=0.3, extra=FRAMES))
+    moved = simulate(fast, tmp_path / "fast", start=0.1, duration=0.2, progress=False)
+    events = read_events(moved.out / "events.h5")
+    assert len(events) > 100 and events["t"][0] >= 100_000_000
+    assert events["t"][-1] <= 300_000_000
+    with pytest.raises(ValueError, match="start must be a finite time"):
+        simulate(scene, tmp_path / "nan", start=float("nan"), progress=False)
