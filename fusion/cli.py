@@ -87,7 +87,8 @@ def _cmd_map(args: argparse.Namespace) -> int:
     from sim.sequence import check_output_dir
 
     params = MapParams(
-        dsi=DSIParams(args.min_depth, args.max_depth, planes=args.planes),
+        dsi=DSIParams(0.2 if args.min_depth is None else args.min_depth,
+                      5.0 if args.max_depth is None else args.max_depth, planes=args.planes),
         depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
         t0=args.t0, t1=args.t1, ref_time=args.ref_time)
     check_output_dir(args.out, args.overwrite)                  # fail before the long work
@@ -103,6 +104,120 @@ def _cmd_map(args: argparse.Namespace) -> int:
                  f"cm, {100 * e['within_1pct']:.1f} % within 1 %")
     print(line)
     print(f"written to {out}")
+    return 0
+
+
+def _dense_params(args: argparse.Namespace):
+    from fusion.dense import DenseParams
+    from fusion.filling import FillParams, SelectionParams
+    from fusion.segmentation import SegmentationParams
+
+    return DenseParams(
+        segmentation=SegmentationParams(args.threshold, args.min_region),
+        selection=SelectionParams(args.ring, args.min_ring_ratio, args.max_inside_ratio),
+        fill=FillParams(args.weighting, sigma=args.sigma, scale=args.scale))
+
+
+def _cmd_fill(args: argparse.Namespace) -> int:
+    from fusion.dense import fill_frame, fill_map, write_fill
+    from sim.camera import read_calib
+    from sim.exr import read_depth
+    from sim.sequence import check_output_dir
+
+    params = _dense_params(args)
+    single = (args.frame, args.sparse_depth, args.calib)
+    if args.map is not None and any(single):
+        raise ValueError("give either a map folder or --frame, --sparse-depth and --calib")
+    check_output_dir(args.out, args.overwrite)
+    if args.map is not None:
+        result = fill_map(args.map, params)
+    elif all(single):
+        frame = _read_gray(args.frame)
+        camera = read_calib(args.calib, frame.shape[1], frame.shape[0])
+        truth = read_depth(args.truth) if args.truth else None
+        result = fill_frame(frame, read_depth(args.sparse_depth), camera, params, truth,
+                            info={"frame": str(args.frame), "sparse_depth": str(args.sparse_depth)})
+    else:
+        raise ValueError("give a map folder, or all of --frame, --sparse-depth and --calib")
+    out = write_fill(result, args.out, params, overwrite=args.overwrite)
+    info = result.info
+    line = (f"N1 = {info['N1']}, N2 = {info['N2']} ({info['regions_filled']} of "
+            f"{info['regions']} regions filled), beta = {info['beta']:.4f}")
+    if "errors" in info:
+        e = info["errors"]
+        line += (f"; MAE map {e['map']['overall']['mae_cm']:.2f} cm, filled "
+                 f"{e['filled']['overall']['mae_cm']:.2f} cm, all "
+                 f"{e['all']['overall']['mae_cm']:.2f} cm")
+    print(line)
+    print(f"written to {out}")
+    return 0
+
+
+def _read_gray(path):
+    """A gray 8-bit image, or a ValueError naming the file."""
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise ValueError(f"{path}: not a readable image")
+    return image
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from fusion.emvs import DepthMapParams
+    from fusion.pipeline import RunParams, run_pipeline
+
+    params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
+                       max_depth=args.max_depth, planes=args.planes,
+                       depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
+                       dense=_dense_params(args), spp=args.spp, seed=args.seed)
+    report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,
+                          progress=not args.quiet)
+    _print_report(report, Path(args.out))
+    return 0
+
+
+def _print_report(report: dict, out: Path) -> None:
+    mae = report["mae_cm"]
+    rows = [("events", f"{report['events']:,}"), ("N1 (map points)", f"{report['N1']:,}"),
+            ("N2 (after filling)", f"{report['N2']:,}"), ("beta", f"{report['beta']:.4f}")]
+    if mae is None:
+        rows.append(("errors", "no ground truth (real data): not scored"))
+    else:
+        rows += [("MAE event map", f"{mae['map']:.2f} cm"),
+                 ("MAE filled pixels", f"{mae['filled']:.2f} cm"),
+                 ("MAE dense map", f"{mae['all']:.2f} cm")]
+    width = max(len(k) for k, _ in rows)
+    print()
+    for key, value in rows:
+        print(f"  {key:<{width}}  {value}")
+    print(f"\noverview: {out / 'overview.png'}\nFigure 2: {out / 'fill' / 'figure.png'}\n"
+          f"point cloud: {out / 'fill' / 'dense.ply'}\nwritten to {out}")
+
+
+def _cmd_show(args: argparse.Namespace) -> int:
+    import cv2
+
+    from fusion.pipeline import draw_overview
+
+    image = draw_overview(args.run_folder)
+    out = Path(args.out) if args.out else Path(args.run_folder) / "overview.png"
+    if not cv2.imwrite(str(out), image):
+        raise OSError(f"cannot write {out}")
+    print(f"written to {out}")
+    return 0
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from fusion.reproduce import ReproduceParams, reproduce
+
+    tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
+    scenes = tuple(s.strip() for s in args.scenes.split(",")) if args.scenes else None
+    params = ReproduceParams(window=args.window, tables=tables, scenes=scenes)
+    report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
+                       progress=not args.quiet)
+    print(f"{len(report['rows'])} windows in {report['total_s'] / 60:.1f} min")
+    print(f"written to {Path(args.out) / 'report.md'}")
     return 0
 
 
@@ -125,6 +240,40 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     convert_events(args.src, args.dst, width=width, height=height)
     print(f"converted {args.src} to {args.dst}")
     return 0
+
+
+def _add_map_options(parser: argparse.ArgumentParser, depth_help: str) -> None:
+    parser.add_argument("--t0", type=float, default=None, help="window start, s")
+    parser.add_argument("--t1", type=float, default=None, help="window end, s")
+    parser.add_argument("--min-depth", type=float, default=None,
+                        help=f"nearest DSI plane, m ({depth_help})")
+    parser.add_argument("--max-depth", type=float, default=None,
+                        help=f"farthest DSI plane, m ({depth_help})")
+    parser.add_argument("--planes", type=int, default=100, help="depth planes (default 100)")
+    parser.add_argument("--kernel", type=int, default=5,
+                        help="adaptive threshold block size, odd (default 5; paper sliders 15)")
+    parser.add_argument("--c", type=float, default=5.0,
+                        help="adaptive threshold constant (default 5; paper sliders 7)")
+    parser.add_argument("--median", type=int, default=5, help="median filter size (default 5)")
+
+
+def _add_dense_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--threshold", type=float, default=3.0,
+                        help="region growing threshold, gray levels (default 3)")
+    parser.add_argument("--min-region", type=int, default=None,
+                        help="smallest region kept, pixels (default max(20, Res / 1000))")
+    parser.add_argument("--ring", type=int, default=3,
+                        help="ring around a region where its map points are counted, px (3)")
+    parser.add_argument("--min-ring-ratio", type=float, default=0.30,
+                        help="ring map points per contour pixel needed to fill (0.30)")
+    parser.add_argument("--max-inside-ratio", type=float, default=0.05,
+                        help="map points inside per region pixel allowed (0.05)")
+    parser.add_argument("--weighting", choices=("idw", "gaussian", "exponential"),
+                        default="idw", help="interpolation weights (default idw)")
+    parser.add_argument("--sigma", type=float, default=5.0,
+                        help="Gaussian weights' sigma, px (5)")
+    parser.add_argument("--scale", type=float, default=5.0,
+                        help="exponential weights' decay length, px (5)")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -196,21 +345,67 @@ def _parser() -> argparse.ArgumentParser:
                     "simulated sequences).")
     mapping.add_argument("sequence", help="sequence folder (simulated or ECD)")
     mapping.add_argument("--out", required=True, help="folder to write the map into")
-    mapping.add_argument("--t0", type=float, default=None, help="window start, s")
-    mapping.add_argument("--t1", type=float, default=None, help="window end, s")
     mapping.add_argument("--ref-time", type=float, default=None,
                          help="reference view time, s (default: the middle of the window)")
-    mapping.add_argument("--min-depth", type=float, default=0.2, help="nearest plane, m")
-    mapping.add_argument("--max-depth", type=float, default=5.0, help="farthest plane, m")
-    mapping.add_argument("--planes", type=int, default=100, help="depth planes (default 100)")
-    mapping.add_argument("--kernel", type=int, default=5,
-                         help="adaptive threshold block size (default 5)")
-    mapping.add_argument("--c", type=float, default=5.0,
-                         help="adaptive threshold constant (default 5)")
-    mapping.add_argument("--median", type=int, default=5, help="median filter size (default 5)")
+    _add_map_options(mapping, depth_help="default 0.2 and 5")
     mapping.add_argument("--overwrite", action="store_true")
     mapping.add_argument("--quiet", action="store_true", help="no progress bar")
     mapping.set_defaults(run=_cmd_map)
+
+    fill = sub.add_parser(
+        "fill", help="fill a semi-dense map into a dense one with the standard frame",
+        description="Segment the standard frame nearest the map's reference view by region "
+                    "growing, fill the regions bounded by map points, score the result "
+                    "(against the exact depth for a simulated sequence). Writes "
+                    "dense_depth.exr, segments.png, filled_mask.png, figure.png, dense.ply, "
+                    "fill.json (and error.png with ground truth).")
+    fill.add_argument("map", nargs="?", default=None, help="folder written by evfuse map")
+    fill.add_argument("--frame", default=None, help="any gray frame (instead of a map)")
+    fill.add_argument("--sparse-depth", default=None,
+                      help="EXR z-depth of the map points in that frame's pixels, 0 = none")
+    fill.add_argument("--calib", default=None, help="calib.txt of that frame's camera")
+    fill.add_argument("--truth", default=None, help="EXR exact depth of that frame, to score")
+    fill.add_argument("--out", required=True, help="folder to write")
+    _add_dense_options(fill)
+    fill.add_argument("--overwrite", action="store_true")
+    fill.set_defaults(run=_cmd_fill)
+
+    run = sub.add_parser(
+        "run", help="simulate (or read), map, fill and score in one go",
+        description="SOURCE is a built-in scene, a scene .toml file (simulated over the window "
+                    "into OUT/sequence) or a sequence folder (simulated or a real ECD "
+                    "recording). Writes map/, fill/, overview.png and report.json into OUT.")
+    run.add_argument("source", help="scene name, scene file or sequence folder")
+    run.add_argument("--out", required=True, help="run folder to write")
+    _add_map_options(run, depth_help="default: from the exact depth of a simulated "
+                                      "sequence, else 0.2 and 5")
+    run.add_argument("--spp", type=int, default=None, help="samples per pixel (scenes)")
+    run.add_argument("--seed", type=int, default=None, help="simulation seed (scenes)")
+    _add_dense_options(run)
+    run.add_argument("--overwrite", action="store_true")
+    run.add_argument("--quiet", action="store_true", help="no progress bars")
+    run.set_defaults(run=_cmd_run)
+
+    show = sub.add_parser("show", help="re-draw the overview of a run from its saved results")
+    show.add_argument("run_folder", metavar="RUN", help="folder written by evfuse run")
+    show.add_argument("--out", default=None, help="PNG to write (default RUN/overview.png)")
+    show.set_defaults(run=_cmd_show)
+
+    repro = sub.add_parser(
+        "reproduce", help="the paper's three tables (and complex surfaces) on the twin scenes",
+        description="Simulates short windows of the twin scenes (cached in --cache), maps, "
+                    "fills and scores them, and writes report.md with the paper's numbers "
+                    "beside ours, report.json, figures/ and runs/.")
+    repro.add_argument("--out", required=True, help="report folder to write")
+    repro.add_argument("--cache", default=None,
+                       help="folder of simulated windows, re-used (default OUT-cache)")
+    repro.add_argument("--window", type=float, default=0.2, help="window length, s (0.2)")
+    repro.add_argument("--tables", default="1,2,3,complex",
+                       help="tables to make, among 1,2,3,complex (default all)")
+    repro.add_argument("--scenes", default=None, help="only these scenes (comma-separated)")
+    repro.add_argument("--overwrite", action="store_true")
+    repro.add_argument("--quiet", action="store_true", help="no progress bar")
+    repro.set_defaults(run=_cmd_reproduce)
 
     convert = sub.add_parser("convert", help="convert events between ECD text and HDF5",
                              description="Convert events.txt (ECD) <-> events.h5 (DSEC layout), "

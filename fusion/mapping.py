@@ -14,6 +14,7 @@ table.
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -30,6 +31,8 @@ from fusion.emvs import (
     disparity_space_image,
     semidense_depth,
 )
+from fusion.figures import depth_colours
+from fusion.pointcloud import write_ply
 from sim.camera import Camera
 from sim.eventio import iter_event_chunks
 from sim.exr import read_depth, write_depth, write_exr_channels
@@ -271,17 +274,6 @@ def _reference_image(sequence: Sequence, t_ref: float) -> np.ndarray:
     return image
 
 
-def _write_ply(path: Path, points: np.ndarray, T_world_ref: np.ndarray) -> None:
-    pose = " ".join(f"{v:.9g}" for v in T_world_ref.ravel())
-    header = ("ply\nformat binary_little_endian 1.0\n"
-              f"comment T_world_ref (row-major 4x4) {pose}\n"
-              f"element vertex {len(points)}\nproperty float x\nproperty float y\n"
-              "property float z\nend_header\n")
-    with open(path, "wb") as handle:
-        handle.write(header.encode("ascii"))
-        handle.write(np.ascontiguousarray(points, dtype="<f4").tobytes())
-
-
 def write_map(result: MapResult, out: str | Path, params: MapParams,
               overwrite: bool = False) -> Path:
     """Write ``semidense_depth.exr``, ``confidence.exr``, ``mask.png``, ``overlay.png``,
@@ -291,20 +283,16 @@ def write_map(result: MapResult, out: str | Path, params: MapParams,
         write_depth(tmp / "semidense_depth.exr", result.depth)
         write_exr_channels(tmp / "confidence.exr", {"Y": result.confidence})
         cv2.imwrite(str(tmp / "mask.png"), result.mask.astype(np.uint8) * 255)
-        overlay = cv2.cvtColor(_reference_image(sequence, result.t_ref), cv2.COLOR_GRAY2BGR)
-        if result.mask.any():
-            d = result.depth[result.mask]
-            lo, hi = float(d.min()), float(d.max())
-            scaled = np.clip((result.depth - lo) / max(hi - lo, 1e-9), 0, 1)
-            colours = cv2.applyColorMap((255 * (1 - scaled)).astype(np.uint8), cv2.COLORMAP_JET)
-            overlay[result.mask] = colours[result.mask]
+        overlay = depth_colours(result.depth, base=_reference_image(sequence, result.t_ref))
         cv2.imwrite(str(tmp / "overlay.png"), overlay)
-        _write_ply(tmp / "map.ply", result.points(), result.T_world_ref)
+        write_ply(tmp / "map.ply", result.points(), result.T_world_ref)
         document = {
             "N1": result.n1,
             "t_ref": result.t_ref,
             "T_world_ref": result.T_world_ref.tolist(),
-            "sequence": str(Path(sequence.folder).resolve()),
+            # relative to this folder (its .partial sibling has the same relation), so that a
+            # run folder can be moved whole
+            "sequence": os.path.relpath(Path(sequence.folder).resolve(), tmp.resolve()),
             "params": {"dsi": asdict(params.dsi), "depth": asdict(params.depth),
                        "t0": params.t0, "t1": params.t1, "ref_time": params.ref_time,
                        "outlier_radius": params.outlier_radius,

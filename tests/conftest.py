@@ -33,3 +33,29 @@ def ecd_slider() -> Path:
     if not ECD_SLIDER.is_dir():
         pytest.skip(f"{ECD_SLIDER} is absent")
     return ECD_SLIDER
+
+
+WALL = """
+[[objects]]
+name = "wall"
+type = "rectangle"
+center = [0.0, 1.0, 0.0]
+size = [6.0, 6.0]
+[objects.material]
+texture_scale = [6.0, 6.0]
+texture = { type = "shapes", resolution = 256, count = 30, min_size = 10, max_size = 40 }
+"""
+FAST = ('[trajectory]\ntype = "linear"\nposition = [-0.15, 0.0, 0.0]\n'
+        "velocity = [1.0, 0.0, 0.0]\nlook_at = [-0.15, 1.0, 0.0]\n")
+
+
+@pytest.fixture(scope="session")
+def plane_sequence(tmp_path_factory):
+    """A 64x48 camera sliding 0.3 m past a fronto-parallel textured wall 1 m away."""
+    from sim.scene import parse_scene
+    from sim.simulate import simulate
+
+    extra = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 4\n"
+    scene = parse_scene(scene_text(WALL, trajectory=FAST, duration=0.3, extra=extra))
+    out = tmp_path_factory.mktemp("seq") / "plane"
+    return simulate(scene, out, progress=False).out

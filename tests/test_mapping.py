@@ -6,34 +6,9 @@ import json
 
 import cv2
 import numpy as np
-import pytest
 
 from fusion.cli import main
 from sim.exr import read_depth
-from sim.scene import parse_scene
-from sim.simulate import simulate
-from tests.conftest import scene_text
-
-WALL = """
-[[objects]]
-name = "wall"
-type = "rectangle"
-center = [0.0, 1.0, 0.0]
-size = [6.0, 6.0]
-[objects.material]
-texture_scale = [6.0, 6.0]
-texture = { type = "shapes", resolution = 256, count = 30, min_size = 10, max_size = 40 }
-"""
-FAST = ('[trajectory]\ntype = "linear"\nposition = [-0.15, 0.0, 0.0]\n'
-        "velocity = [1.0, 0.0, 0.0]\nlook_at = [-0.15, 1.0, 0.0]\n")
-
-
-@pytest.fixture(scope="module")
-def plane_sequence(tmp_path_factory):
-    extra = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 4\n"
-    scene = parse_scene(scene_text(WALL, trajectory=FAST, duration=0.3, extra=extra))
-    out = tmp_path_factory.mktemp("seq") / "plane"
-    return simulate(scene, out, progress=False).out
 
 
 def test_map_of_a_plane_comes_back_at_its_depth(plane_sequence, tmp_path):

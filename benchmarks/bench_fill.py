@@ -1,0 +1,136 @@
+"""Time of map filling's three stages: ``segment_regions``, ``select_regions``, ``fill_regions``.
+
+At 240x180, 640x480 and 1280x720, on 1 and 2 numba threads, the median of several repeats of each
+stage (and of the three together) on a synthetic, piecewise-planar input: a frame with a shaded,
+slanted background plane and a dozen rectangles and discs of other gray levels (fronto-parallel
+planes, one of them textured with a fine checker, as a poster would be), mild sensor noise, and a
+semi-dense map like EMVS's: the pixels within 1 px of the objects' outlines, 80 % of them kept, at
+their plane's depth with 1 % noise (about 2k map points at 240x180). The target for the three
+stages together on one core at 240x180 with 2-5k map points is 50 ms. Every weighting is timed
+for the fill. Results are printed and written to ``benchmarks/results/bench_fill.json``.
+
+Run: ``.venv/bin/python benchmarks/bench_fill.py [--repeats N]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numba
+import numpy as np
+
+from fusion.filling import (
+    WEIGHTINGS,
+    FillParams,
+    fill_regions,
+    filling_score,
+    select_regions,
+)
+from fusion.segmentation import segment_regions
+
+RESULTS = Path(__file__).resolve().parent / "results"
+SIZES = ((240, 180), (640, 480), (1280, 720))
+
+
+def synthetic_input(width: int, height: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """A piecewise-planar frame and its semi-dense map on the outlines of its objects.
+
+    Returns
+    -------
+    frame : (H, W) uint8 ndarray, gray levels
+    sparse_depth : (H, W) float32 ndarray, metres, 0 where no map point
+    """
+    rng = np.random.default_rng(seed)
+    s = width / 240.0                                   # shapes scale with the image
+    y, x = np.mgrid[:height, :width]
+    gray = 60.0 + 40.0 * x / width + 20.0 * y / height  # smooth shading: <= 1 level per pixel
+    depth = 1.0 / (1 / 4.0 + 0.05 * (x / width - 0.5))  # slanted background plane, ~4 m
+    objects = np.zeros((height, width), np.int32)
+    for i in range(12):
+        level = rng.uniform(120, 240)
+        z = rng.uniform(1.0, 3.0)
+        cx, cy = rng.uniform(0.1, 0.9) * width, rng.uniform(0.1, 0.9) * height
+        if i % 3 == 2:
+            r = rng.uniform(8, 22) * s
+            inside = (x - cx) ** 2 + (y - cy) ** 2 <= r * r
+        else:
+            hw, hh = rng.uniform(8, 30, 2) * s
+            inside = (np.abs(x - cx) <= hw) & (np.abs(y - cy) <= hh)
+        gray[inside] = level
+        if i == 0:                                      # a textured object: many small regions
+            checker = ((x // max(1, round(2 * s))) + (y // max(1, round(2 * s)))) % 2
+            gray[inside] = level - 60 * checker[inside]
+        depth[inside] = z
+        objects[inside] = i + 1
+    frame = np.clip(np.round(gray + rng.normal(0.0, 0.6, gray.shape)), 0, 255).astype(np.uint8)
+    outline = np.zeros_like(objects, dtype=bool)
+    outline[:, 1:] |= objects[:, 1:] != objects[:, :-1]
+    outline[1:, :] |= objects[1:, :] != objects[:-1, :]
+    outline = cv2.dilate(outline.astype(np.uint8), np.ones((2, 2), np.uint8)).astype(bool)
+    keep = outline & (rng.random(outline.shape) < 0.8)
+    sparse = np.where(keep, depth * (1 + 0.01 * rng.standard_normal(depth.shape)), 0.0)
+    return frame, sparse.astype(np.float32)
+
+
+def _median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def main(argv=None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=7)
+    args = parser.parse_args(argv)
+    default_threads = numba.get_num_threads()
+    rows = []
+    for width, height in SIZES:
+        frame, sparse = synthetic_input(width, height)
+        labels = segment_regions(frame)                # compile and warm up
+        regions = select_regions(labels, sparse)
+        for weighting in WEIGHTINGS:
+            fill_regions(labels, sparse, regions, FillParams(weighting=weighting))
+        dense = fill_regions(labels, sparse, regions)
+        n1, n2 = int((sparse > 0).sum()), int((dense > 0).sum())
+        for threads in (1, 2):
+            numba.set_num_threads(min(threads, default_threads))
+            row = {"size": f"{width}x{height}", "threads": min(threads, default_threads),
+                   "map_points": n1, "regions": regions.n_regions,
+                   "selected": int(regions.selected.sum()), "n2": n2,
+                   "beta": filling_score(n1, n2, width * height),
+                   "segment_ms": 1e3 * _median_time(lambda f=frame: segment_regions(f),
+                                                    args.repeats),
+                   "select_ms": 1e3 * _median_time(
+                       lambda lab=labels, sp=sparse: select_regions(lab, sp), args.repeats)}
+            for weighting in WEIGHTINGS:
+                fill = FillParams(weighting=weighting)
+                row[f"fill_{weighting}_ms"] = 1e3 * _median_time(
+                    lambda lab=labels, sp=sparse, reg=regions, p=fill: fill_regions(lab, sp,
+                                                                                    reg, p),
+                    args.repeats)
+            row["total_idw_ms"] = row["segment_ms"] + row["select_ms"] + row["fill_idw_ms"]
+            rows.append(row)
+    numba.set_num_threads(default_threads)
+    print(f"\nMap filling, median of {args.repeats} runs (ms)")
+    print(f"  {'size':>9} thr  points regions sel   beta   segment  select  fill idw  "
+          f"gauss   expo  total(idw)")
+    for r in rows:
+        print(f"  {r['size']:>9} {r['threads']:>3} {r['map_points']:>7} {r['regions']:>7} "
+              f"{r['selected']:>3} {r['beta']:6.3f} {r['segment_ms']:9.2f} {r['select_ms']:7.2f} "
+              f"{r['fill_idw_ms']:9.2f} {r['fill_gaussian_ms']:6.2f} "
+              f"{r['fill_exponential_ms']:6.2f} {r['total_idw_ms']:11.2f}")
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "bench_fill.json").write_text(json.dumps(rows, indent=2))
+    print(f"written to {RESULTS / 'bench_fill.json'}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,282 @@
+"""``evfuse run``: simulate (or read) a sequence, map it, fill the map, score it, draw it.
+
+The one place where the stages are wired together::
+
+    scene  --simulate-->  sequence/  --map-->  map/  --fill-->  fill/  -->  overview.png,
+                                                                            report.json
+
+A real recording (an Event-Camera Dataset folder) or an existing simulated sequence folder is read
+where it is; a scene (a built-in name or a ``.toml`` file) is simulated into ``<out>/sequence``
+over the time window only. Everything is written into ``<out>.partial`` and renamed to ``<out>``
+when complete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from fusion.dense import DenseParams, _finite, fill_map, write_fill
+from fusion.emvs import DepthMapParams, DSIParams
+from fusion.figures import depth_colours, label_colours, panel_grid
+from fusion.mapping import MapParams, map_sequence, write_map
+from fusion.scoring import error_image
+from sim.eventio import event_frame, read_window
+from sim.exr import read_depth
+from sim.sequence import atomic_output_dir, check_output_dir, load_sequence
+
+__all__ = ["RunParams", "draw_overview", "is_sequence_folder", "run_pipeline"]
+
+DEFAULT_WINDOW = 1.0
+"""Seconds of a scene simulated and mapped when no window is given."""
+
+
+@dataclass(frozen=True)
+class RunParams:
+    """Parameters of ``evfuse run``.
+
+    Attributes
+    ----------
+    t0, t1 : float or None, seconds
+        Time window. For a scene, default ``[0, min(1, duration)]``; for a folder, all events.
+    min_depth, max_depth : float or None, metres
+        Depth range of the DSI. For a scene, default: the exact depth of the frame at the
+        reference view, widened by 20 % each way; for a folder, 0.2 to 5 m unless given.
+    planes : int
+        DSI planes (100).
+    depth : DepthMapParams
+        Semi-dense extraction (kernel 5, c 5, median 5).
+    dense : DenseParams
+        Segmentation, selection and filling (the paper's defaults).
+    spp : int or None
+        Samples per pixel of the simulated frames (default: the scene's).
+    seed : int or None
+        Seed of the simulation (default: the scene's).
+    """
+
+    t0: float | None = None
+    t1: float | None = None
+    min_depth: float | None = None
+    max_depth: float | None = None
+    planes: int = 100
+    depth: DepthMapParams = field(default_factory=DepthMapParams)
+    dense: DenseParams = field(default_factory=DenseParams)
+    spp: int | None = None
+    seed: int | None = None
+
+
+def is_sequence_folder(source: str | Path) -> bool:
+    """True for a folder with the layout of CONVENTIONS.md (``calib.txt`` and ``images.txt``)."""
+    path = Path(source)
+    return path.is_dir() and (path / "calib.txt").is_file()
+
+
+def _frame_nearest(sequence, t: float) -> float:
+    return float(sequence.image_times[int(np.argmin(np.abs(sequence.image_times - t)))])
+
+
+def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None = None,
+                 overwrite: bool = False, progress: bool = True) -> dict:
+    """Run simulate -> map -> fill -> score on a scene or a sequence folder.
+
+    Parameters
+    ----------
+    source : str or Path
+        A built-in scene name, a scene ``.toml`` file, or a sequence folder (simulated or ECD).
+    out : str or Path
+        Run folder to create: ``sequence/`` (scenes only), ``map/``, ``fill/``,
+        ``overview.png``, ``report.json``.
+    params : RunParams, optional
+    overwrite : bool
+        Replace an existing ``out`` once the new one is complete.
+    progress : bool
+        Progress bars.
+
+    Returns
+    -------
+    dict
+        The content of ``report.json``.
+    """
+    params = params or RunParams()
+    out = Path(out)
+    check_output_dir(out, overwrite)
+    clock = time.perf_counter()
+    timings: dict[str, float] = {}
+    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+        if is_sequence_folder(source):
+            sequence_folder = Path(source)
+            simulated_here = False
+            t0, t1 = params.t0, params.t1
+        else:
+            sequence_folder, t0, t1 = _simulate_window(source, tmp / "sequence", params,
+                                                       progress, timings)
+            simulated_here = True
+        sequence = load_sequence(sequence_folder)
+        if sequence.groundtruth_path is None:
+            raise ValueError(f"{sequence_folder}: no groundtruth.txt (the camera poses are "
+                             "needed to map)")
+        middle = _window_middle(sequence, t0, t1)
+        t_ref = _frame_nearest(sequence, middle)
+        low, high, range_from = _depth_range(sequence, t_ref, params)
+        map_params = MapParams(DSIParams(low, high, planes=params.planes), params.depth,
+                               t0=t0, t1=t1, ref_time=t_ref)
+        tick = time.perf_counter()
+        mapped = map_sequence(sequence_folder, map_params, progress=progress)
+        write_map(mapped, tmp / "map", map_params)
+        timings["map_s"] = time.perf_counter() - tick
+        tick = time.perf_counter()
+        filled = fill_map(tmp / "map", params.dense)
+        write_fill(filled, tmp / "fill", params.dense)
+        timings["fill_s"] = time.perf_counter() - tick
+        info = filled.info
+        errors = info.get("errors")
+        report = {
+            "source": str(source),
+            "sequence": os.path.relpath(Path(sequence_folder).resolve(), tmp.resolve()),
+            "simulated": simulated_here,
+            "window_s": mapped.info["window_s"],
+            "t_ref": t_ref,
+            "t_frame": info["t_frame"],
+            "depth_range_m": [low, high],
+            "depth_range_from": range_from,
+            "events": mapped.info["events_used"],
+            "events_dropped": (mapped.info["events_dropped_before_poses"]
+                               + mapped.info["events_dropped_after_poses"]),
+            "N1": info["N1"], "N2": info["N2"], "Res": info["Res"], "beta": info["beta"],
+            "ground_truth": errors is not None,
+            "mae_cm": None if errors is None else {
+                "map": errors["map"]["overall"]["mae_cm"],
+                "filled": errors["filled"]["overall"]["mae_cm"],
+                "all": errors["all"]["overall"]["mae_cm"]},
+            "map_errors_at_reference": mapped.info.get("errors"),
+            "files": {"overview": "overview.png", "map": "map/", "fill": "fill/",
+                      "figure": "fill/figure.png", "point_cloud": "fill/dense.ply"},
+        }
+        cv2.imwrite(str(tmp / "overview.png"), draw_overview(tmp, report))
+        timings["total_s"] = time.perf_counter() - clock
+        report["timings"] = timings
+        (tmp / "report.json").write_text(json.dumps(_finite(report), indent=2, sort_keys=True))
+    return report
+
+
+def _simulate_window(source, folder: Path, params: RunParams, progress: bool, timings: dict):
+    from scenes import resolve_scene
+    from sim.scene import load_scene
+    from sim.simulate import simulate
+
+    scene = load_scene(resolve_scene(source), seed=params.seed)
+    t0 = 0.0 if params.t0 is None else float(params.t0)
+    t1 = min(t0 + DEFAULT_WINDOW, scene.duration) if params.t1 is None else float(params.t1)
+    if not t1 > t0:
+        raise ValueError(f"empty time window [{t0}, {t1}] s")
+    if t0 < 0 or t1 > scene.duration + 1e-9:
+        raise ValueError(f"time window [{t0}, {t1}] s is outside the scene {scene.name} "
+                         f"[0, {scene.duration}] s")
+    tick = time.perf_counter()
+    simulate(scene, folder, start=t0, duration=t1 - t0, spp=params.spp, progress=progress)
+    timings["simulate_s"] = time.perf_counter() - tick
+    return folder, t0, t1
+
+
+def _window_middle(sequence, t0: float | None, t1: float | None) -> float:
+    from sim.trajectory import read_trajectory
+
+    trajectory = read_trajectory(sequence.groundtruth_path)
+    lo = trajectory.t_start if t0 is None else max(t0, trajectory.t_start)
+    hi = trajectory.t_end if t1 is None else min(t1, trajectory.t_end)
+    if t0 is None or t1 is None:
+        from fusion.mapping import _event_span
+
+        events_path = sequence.events_h5 or sequence.events_txt
+        if events_path is not None:
+            first, last = _event_span(events_path, sequence.camera)
+            lo = max(lo, first) if t0 is None else lo
+            hi = min(hi, last) if t1 is None else hi
+    if not hi > lo:
+        raise ValueError(f"time window [{t0}, {t1}] s does not overlap the poses "
+                         f"[{trajectory.t_start}, {trajectory.t_end}] s and the events")
+    return 0.5 * (lo + hi)
+
+
+def _depth_range(sequence, t_ref: float, params: RunParams) -> tuple[float, float, str]:
+    if params.min_depth is not None and params.max_depth is not None:
+        return params.min_depth, params.max_depth, "given"
+    if sequence.depth_paths:
+        k = int(np.argmin(np.abs(sequence.depth_times - t_ref)))
+        depth = read_depth(sequence.depth_paths[k])
+        valid = depth[depth > 0]
+        if valid.size:
+            low = params.min_depth or float(valid.min()) / 1.2
+            high = params.max_depth or float(valid.max()) * 1.2
+            return low, high, "exact depth of the reference frame, widened by 20 %"
+    return params.min_depth or 0.2, params.max_depth or 5.0, "default 0.2-5 m"
+
+
+def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndarray:
+    """The overview of a run, from its saved files: frame, events, semi-dense map, segmentation,
+    dense map and, with ground truth, the error of the dense map.
+
+    Parameters
+    ----------
+    run_folder : str or Path
+        A folder written by :func:`run_pipeline` (or its ``.partial`` while it is written).
+    report : dict, optional
+        Its ``report.json`` (default: read from the folder).
+
+    Returns
+    -------
+    (H', W', 3) uint8 ndarray, BGR
+    """
+    run_folder = Path(run_folder)
+    if report is None:
+        path = run_folder / "report.json"
+        if not path.is_file():
+            raise ValueError(f"{run_folder}: no report.json (not a folder written by evfuse run)")
+        report = json.loads(path.read_text())
+    fill_meta = json.loads((run_folder / "fill" / "fill.json").read_text())
+    sequence = load_sequence(run_folder / report["sequence"])
+    frame = cv2.imread(str(sequence.folder / fill_meta["frame"]), cv2.IMREAD_GRAYSCALE)
+    if frame is None:
+        raise ValueError(f"cannot read the frame {sequence.folder / fill_meta['frame']}")
+    semidense = read_depth(run_folder / "map" / "semidense_depth.exr")
+    dense = read_depth(run_folder / "fill" / "dense_depth.exr")
+    labels = cv2.imread(str(run_folder / "fill" / "segments.png"), cv2.IMREAD_UNCHANGED)
+    if labels is None:
+        raise ValueError(f"cannot read {run_folder / 'fill' / 'segments.png'}")
+    filled_mask = cv2.imread(str(run_folder / "fill" / "filled_mask.png"), cv2.IMREAD_GRAYSCALE)
+    selected = np.zeros(int(labels.max()) + 1, bool)
+    selected[np.unique(labels[(filled_mask > 0) & (labels > 0)])] = True
+    t = float(report["t_frame"])
+    width, height = frame.shape[1], frame.shape[0]
+    events_path = sequence.events_h5 or sequence.events_txt
+    events = read_window(events_path, int(round((t - 0.01) * 1e9)), int(round((t + 0.01) * 1e9)))
+    events_image = cv2.cvtColor(event_frame(events, width, height), cv2.COLOR_RGB2BGR)
+    valid = dense[dense > 0]
+    lo_hi = ((float(np.percentile(valid, 1)), float(np.percentile(valid, 99))) if valid.size
+             else (None, None))
+    panels = [cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR), events_image,
+              depth_colours(semidense, *lo_hi), label_colours(labels, highlight=selected),
+              depth_colours(dense, *lo_hi)]
+    titles = [f"frame at {t:.3f} s", f"events +-10 ms ({len(events)})",
+              f"semi-dense map (N1 = {report['N1']})", "segmentation (filled in colour)",
+              f"dense map (N2 = {report['N2']}, beta {report['beta']:.3f})"]
+    truth = None
+    if sequence.depth_paths:
+        k = int(np.argmin(np.abs(sequence.depth_times - t)))
+        if abs(float(sequence.depth_times[k]) - t) < 1e-6:
+            truth = read_depth(sequence.depth_paths[k])
+    if truth is not None:
+        error = np.abs(dense - truth)[(dense > 0) & (truth > 0)]
+        top = float(np.percentile(error, 99)) if error.size else 0.0
+        panels.append(error_image(dense, truth, max_error=top if top > 0 else None))
+        titles.append(f"|error| of the dense map, 0-{100 * top:.2f} cm")
+    else:
+        panels.append(np.full_like(panels[0], 255))
+        titles.append("no ground truth (real data)")
+    return panel_grid(panels, titles, columns=3)

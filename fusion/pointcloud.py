@@ -1,0 +1,86 @@
+"""Point clouds as binary PLY: float32 x, y, z in a camera frame, that frame's world pose in a
+header comment, optional per-point colours and a per-point source flag."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["read_ply", "write_ply"]
+
+
+def write_ply(path: str | Path, points: np.ndarray, T_world_frame: np.ndarray,
+              colours: np.ndarray | None = None, source: np.ndarray | None = None,
+              frame_name: str = "T_world_ref") -> None:
+    """Write a binary little-endian PLY.
+
+    Parameters
+    ----------
+    path : str or Path
+    points : (N, 3) float ndarray, metres, in the camera frame of the view
+    T_world_frame : (4, 4) ndarray
+        World pose of that frame, written row-major in the comment ``<frame_name> ...``.
+    colours : (N, 3) uint8 ndarray, BGR, optional
+        Written as ``red``, ``green``, ``blue`` properties.
+    source : (N,) uint8 ndarray, optional
+        Written as a ``source`` property (e.g. 0 = event map point, 1 = filled).
+    frame_name : str
+        Name of the pose in the comment.
+    """
+    points = np.asarray(points, dtype="<f4").reshape(-1, 3)
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4")]
+    if colours is not None:
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    if source is not None:
+        fields += [("source", "u1")]
+    record = np.empty(len(points), dtype=fields)
+    record["x"], record["y"], record["z"] = points.T
+    if colours is not None:
+        colours = np.asarray(colours, np.uint8).reshape(-1, 3)
+        record["blue"], record["green"], record["red"] = colours.T
+    if source is not None:
+        record["source"] = np.asarray(source, np.uint8)
+    pose = " ".join(f"{v:.9g}" for v in np.asarray(T_world_frame, dtype=np.float64).ravel())
+    types = {"<f4": "float", "u1": "uchar"}
+    header = ["ply", "format binary_little_endian 1.0",
+              f"comment {frame_name} (row-major 4x4) {pose}", f"element vertex {len(points)}"]
+    header += [f"property {types[t]} {name}" for name, t in fields]
+    header.append("end_header\n")
+    with open(path, "wb") as handle:
+        handle.write("\n".join(header).encode("ascii"))
+        handle.write(record.tobytes())
+
+
+def read_ply(path: str | Path) -> tuple[np.ndarray, dict]:
+    """Read a PLY written by :func:`write_ply`.
+
+    Returns
+    -------
+    record : (N,) structured ndarray with the vertex properties
+    header : dict
+        ``pose`` ((4, 4) ndarray or None) and ``comment`` (the pose's name).
+    """
+    data = Path(path).read_bytes()
+    end = data.find(b"end_header\n")
+    if not data.startswith(b"ply\n") or end < 0:
+        raise ValueError(f"{path}: not a PLY file (no 'ply' / 'end_header')")
+    lines = data[:end].decode("ascii").splitlines()
+    if "format binary_little_endian 1.0" not in lines:
+        raise ValueError(f"{path}: only binary little-endian PLY is read")
+    fields, count, pose, name = [], None, None, None
+    types = {"float": "<f4", "uchar": "u1"}
+    for line in lines:
+        words = line.split()
+        if words[:2] == ["element", "vertex"]:
+            count = int(words[2])
+        elif words[0] == "property":
+            if words[1] not in types:
+                raise ValueError(f"{path}: unsupported property type {words[1]!r}")
+            fields.append((words[2], types[words[1]]))
+        elif words[0] == "comment" and len(words) == 20 and words[2] == "(row-major":
+            name, pose = words[1], np.array([float(v) for v in words[4:]]).reshape(4, 4)
+    if count is None:
+        raise ValueError(f"{path}: no 'element vertex' line")
+    record = np.frombuffer(data, dtype=fields, count=count, offset=end + len(b"end_header\n"))
+    return record, {"pose": pose, "comment": name}

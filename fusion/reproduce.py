@@ -1,0 +1,351 @@
+"""``evfuse reproduce``: the paper's three experiments on our twin scenes, as a Markdown report.
+
+* Table 1: boxes / dynamic / poster / shapes 6-DoF: N1, N2, N2/N1, beta, and our errors.
+* Table 2: the four slider sequences, six windows each: absolute error of the maps (cm).
+* Table 3: the three weightings (inverse distance, Gaussian, exponential) on the sliders.
+* A table on the complex-surface scenes: beta and errors per weighting, inside regions and near
+  true depth discontinuities.
+
+Each row is one simulated window: the scene is simulated over the window only (cached in
+``cache/`` so that a second or interrupted run re-uses every finished simulation), mapped at the
+frame nearest the window's middle, filled and scored against the exact depth. To fit the whole
+report in well under 30 minutes on 2 cores the windows are short (0.2 s on the sliders, 0.5 s
+elsewhere, instead of the paper's 1 s) and the event camera's renders are cheaper than the
+defaults of ``evfuse simulate`` (1 sample per pixel instead of 4, sampling bound lam = 1.0
+instead of 0.5); the report says so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from fusion.dense import DenseParams, _finite, fill_map, write_fill
+from fusion.emvs import DepthMapParams, DSIParams
+from fusion.filling import FillParams
+from fusion.mapping import MapParams, map_sequence, write_map
+from sim.exr import read_depth
+from sim.sequence import atomic_output_dir, check_output_dir, load_sequence
+
+__all__ = ["PAPER", "ReproduceParams", "reproduce"]
+
+TABLE1_SCENES = ("boxes_6dof", "dynamic_6dof", "poster_6dof", "shapes_6dof")
+SLIDERS = ("slider_close", "slider_far", "slider_hdr_close", "slider_hdr_far")
+COMPLEX = ("complex_sphere", "complex_cylinder", "complex_slanted_plane", "complex_staircase",
+           "complex_heightfield")
+WEIGHTINGS = ("idw", "gaussian", "exponential")
+
+PAPER = {
+    "table1": {"boxes_6dof": {"N1": 2289, "N2": 10489, "beta": 0.1898},
+               "dynamic_6dof": {"beta": 0.1587}, "poster_6dof": {"beta": 0.3377},
+               "shapes_6dof": {"beta": 0.0274}},
+    "table2_range_cm": (0.5, 2.3),
+}
+"""The paper's figures that this project holds (N1 and N2 of the other Table 1 rows, and the
+per-window values of Tables 2 and 3, are not in the project's materials)."""
+
+
+@dataclass(frozen=True)
+class ReproduceParams:
+    """Settings of ``evfuse reproduce``.
+
+    Attributes
+    ----------
+    window : float, seconds
+        Length of the slider windows (default 0.2; the paper used 1 s).
+    long_window : float, seconds
+        Length of the Table 1 and complex-surface windows (default 0.5): the hand-held 6-DoF
+        camera moves ~0.12 m/s, and 0.2 s (2.4 cm) leaves too little parallax at 1-3 m.
+    table1_start : float, seconds
+        Start of the Table 1 windows (default 2.0).
+    slider_windows : int
+        Windows per slider (default 6, one in each second of the sequence, centred in it).
+    complex_start : float, seconds
+        Start of the complex-surface windows (default 1.0).
+    event_spp : int
+        Samples per pixel of the event camera's renders (default 1).
+    lam : float
+        Sampling bound of the event camera's renders, a fraction of C (default 1.0).
+    tables : tuple of str
+        Which tables to make, among "1", "2", "3", "complex" (default all).
+    scenes : tuple of str or None
+        Only these scenes (default all of each table).
+    """
+
+    window: float = 0.2
+    long_window: float = 0.5
+    table1_start: float = 2.0
+    slider_windows: int = 6
+    complex_start: float = 1.0
+    event_spp: int = 1
+    lam: float = 1.0
+    tables: tuple[str, ...] = ("1", "2", "3", "complex")
+    scenes: tuple[str, ...] | None = None
+    dense: DenseParams = field(default_factory=DenseParams)
+
+    def __post_init__(self) -> None:
+        if not (self.window > 0 and self.long_window > 0):
+            raise ValueError(f"windows must be positive, got {self.window} and "
+                             f"{self.long_window} s")
+        unknown = set(self.tables) - {"1", "2", "3", "complex"}
+        if unknown:
+            raise ValueError(f"unknown tables {sorted(unknown)}: choose among 1, 2, 3, complex")
+
+
+def _jobs(params: ReproduceParams) -> list[dict]:
+    """Every (scene, window) to simulate, with the tables it serves."""
+    jobs = []
+    keep = (lambda name: True) if params.scenes is None else (lambda name: name in params.scenes)
+    if "1" in params.tables:
+        jobs += [{"scene": s, "t0": params.table1_start, "length": params.long_window,
+                  "table": "1", "slider": False} for s in TABLE1_SCENES if keep(s)]
+    if "2" in params.tables or "3" in params.tables:
+        for s in SLIDERS:
+            if keep(s):
+                jobs += [{"scene": s, "t0": k + 0.5 - params.window / 2,
+                          "length": params.window, "table": "2", "slider": True, "k": k}
+                         for k in range(params.slider_windows)]
+    if "complex" in params.tables:
+        jobs += [{"scene": s, "t0": params.complex_start, "length": params.long_window,
+                  "table": "complex", "slider": False} for s in COMPLEX if keep(s)]
+    return jobs
+
+
+def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
+    """The cached simulation of a job's window (simulated when missing)."""
+    from scenes import resolve_scene
+    from sim.sampling import SamplingParams
+    from sim.scene import load_scene
+    from sim.simulate import simulate
+
+    folder = cache / (f"{job['scene']}_{job['t0']:.3f}_{job['length']:.3f}_spp"
+                      f"{params.event_spp}_lam{params.lam}")
+    if (folder / "sequence.json").is_file():
+        return folder
+    scene = load_scene(resolve_scene(job["scene"]))
+    scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render,
+                                                                   event_spp=params.event_spp))
+    if job["t0"] + job["length"] > scene.duration:
+        raise ValueError(f"{job['scene']} lasts {scene.duration} s: no window at {job['t0']} s")
+    simulate(scene, folder, start=job["t0"], duration=job["length"], progress=False,
+             sampling=SamplingParams(lam=params.lam), overwrite=True)
+    return folder
+
+
+def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams) -> dict:
+    """Map one window and fill it with each weighting; the figures it needs, its numbers."""
+    sequence = load_sequence(sequence_folder)
+    t_mid = job["t0"] + job["length"] / 2
+    k = int(np.argmin(np.abs(sequence.image_times - t_mid)))
+    t_ref = float(sequence.image_times[k])
+    truth = read_depth(sequence.depth_paths[k])
+    valid = truth[truth > 0]
+    low, high = float(valid.min()) / 1.2, float(valid.max()) * 1.2
+    depth = DepthMapParams(kernel=15, c=7.0) if job["slider"] else DepthMapParams()
+    map_params = MapParams(DSIParams(low, high), depth, t0=job["t0"],
+                           t1=job["t0"] + job["length"], ref_time=t_ref)
+    name = f"{job['scene']}_{job['t0']:.2f}"
+    mapped = map_sequence(sequence_folder, map_params, progress=False)
+    write_map(mapped, out / name / "map", map_params, overwrite=True)
+    row = {"scene": job["scene"], "table": job["table"], "window_s": [job["t0"],
+           job["t0"] + job["length"]], "t_ref": t_ref, "depth_range_m": [low, high],
+           "events": mapped.info["events_used"], "map_errors": mapped.info.get("errors"),
+           "fills": {}}
+    if "k" in job:
+        row["k"] = job["k"]
+    weightings = WEIGHTINGS if job["table"] in ("2", "complex") else ("idw",)
+    if job["table"] == "2" and "3" not in params.tables:
+        weightings = ("idw",)
+    for weighting in weightings:
+        dense = dataclasses.replace(params.dense, fill=FillParams(
+            weighting, sigma=params.dense.fill.sigma, scale=params.dense.fill.scale))
+        filled = fill_map(out / name / "map", dense)
+        write_fill(filled, out / name / f"fill_{weighting}", dense, overwrite=True)
+        info = filled.info
+        row["fills"][weighting] = {k: info[k] for k in ("N1", "N2", "Res", "beta",
+                                                         "N2_over_N1", "regions",
+                                                         "regions_filled")}
+        row["fills"][weighting]["errors"] = info.get("errors")
+    return row
+
+
+def reproduce(out: str | Path, params: ReproduceParams | None = None,
+              cache: str | Path | None = None, overwrite: bool = False,
+              progress: bool = True) -> dict:
+    """Run the paper's experiments on the twin scenes and write ``report.md`` + figures.
+
+    Parameters
+    ----------
+    out : str or Path
+        Report folder: ``report.md``, ``report.json``, ``figures/``, ``runs/`` (every map and
+        fill).
+    params : ReproduceParams, optional
+    cache : str or Path, optional
+        Folder of the simulated windows, re-used across runs (default ``<out>-cache``).
+    overwrite : bool
+    progress : bool
+
+    Returns
+    -------
+    dict
+        The content of ``report.json``.
+    """
+    params = params or ReproduceParams()
+    out = Path(out)
+    check_output_dir(out, overwrite)
+    cache = Path(cache) if cache is not None else out.with_name(out.name + "-cache")
+    cache.mkdir(parents=True, exist_ok=True)
+    jobs = _jobs(params)
+    if not jobs:
+        raise ValueError("nothing to reproduce: no scene of the chosen tables was selected")
+    clock = time.perf_counter()
+    rows = []
+    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+        bar = tqdm(jobs, desc="reproduce", unit="window", disable=not progress)
+        for job in bar:
+            bar.set_postfix_str(f"{job['scene']} [{job['t0']:.2f} s]")
+            tick = time.perf_counter()
+            folder = _simulated(job, params, cache)
+            simulated = time.perf_counter() - tick
+            row = _row(job, folder, tmp / "runs", params)
+            row["seconds"] = {"simulate (0 when cached)": simulated,
+                              "map_fill": time.perf_counter() - tick - simulated}
+            rows.append(row)
+        (tmp / "figures").mkdir()
+        figures = _copy_figures(rows, tmp)
+        report = {"settings": {**dataclasses.asdict(params), "cache": str(cache)},
+                  "paper": PAPER, "rows": rows, "figures": figures,
+                  "total_s": time.perf_counter() - clock}
+        (tmp / "report.json").write_text(json.dumps(_finite(report), indent=2))
+        (tmp / "report.md").write_text(_markdown(report, params))
+    return report
+
+
+def _copy_figures(rows: list[dict], tmp: Path) -> dict:
+    """One Figure 2 per scene (its first window, inverse distance weights) into figures/."""
+    figures, seen = {}, set()
+    for row in rows:
+        if row["scene"] in seen:
+            continue
+        seen.add(row["scene"])
+        source = tmp / "runs" / f"{row['scene']}_{row['window_s'][0]:.2f}" / "fill_idw"
+        target = tmp / "figures" / f"{row['scene']}.png"
+        shutil.copyfile(source / "figure.png", target)
+        figures[row["scene"]] = f"figures/{row['scene']}.png"
+    return figures
+
+
+def _f(value, digits: int = 2) -> str:
+    return "-" if value is None or (isinstance(value, float) and not np.isfinite(value)) \
+        else f"{value:.{digits}f}"
+
+
+def _mae(errors: dict | None, kind: str, where: str = "overall") -> float | None:
+    return None if errors is None else errors[kind][where]["mae_cm"]
+
+
+def _markdown(report: dict, params: ReproduceParams) -> str:
+    rows = report["rows"]
+    lines = ["# evfuse reproduce: the paper's experiments on the twin scenes", "",
+             f"Windows of {params.window} s on the sliders (the paper: 1 s) and "
+             f"{params.long_window} s on the 6-DoF and complex scenes; event camera "
+             f"renders at {params.event_spp} sample(s) per pixel with sampling bound lam = "
+             f"{params.lam} (evfuse simulate's defaults: 4 and 0.5), so that the whole report "
+             "runs in minutes. Every window is simulated over itself only, mapped at the frame "
+             "nearest its middle (DSI of 100 planes over the exact depth range widened by 20 %; "
+             "adaptive threshold 15 / 7 on the sliders as the paper, 5 / 5 elsewhere), filled "
+             "with the paper's defaults and scored against the exact depth of that frame. "
+             f"Total {report['total_s'] / 60:.1f} min.", ""]
+    table1 = [r for r in rows if r["table"] == "1"]
+    if table1:
+        lines += ["## Table 1: filling on the 6-DoF scenes", "",
+                  "| scene | window (s) | N1 | N2 | N2/N1 | beta | paper N1 | paper N2 | "
+                  "paper beta | MAE map (cm) | MAE filled (cm) | MAE all (cm) |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for r in table1:
+            f = r["fills"]["idw"]
+            p = PAPER["table1"].get(r["scene"], {})
+            e = f["errors"]
+            lines.append(
+                f"| {r['scene']} | {r['window_s'][0]:.2f}-{r['window_s'][1]:.2f} | {f['N1']} | "
+                f"{f['N2']} | {_f(f['N2_over_N1'])} | {f['beta']:.4f} | {p.get('N1', '-')} | "
+                f"{p.get('N2', '-')} | {p.get('beta', '-')} | {_f(_mae(e, 'map'))} | "
+                f"{_f(_mae(e, 'filled'))} | {_f(_mae(e, 'all'))} |")
+        lines += ["", "The paper's N1 and N2 are from a real DAVIS240C on its own windows; ours "
+                  "come from noiseless simulated twins on short windows, so the counts are "
+                  "comparable in size, not equal. beta = (N2 - N1) / (Res + N1 / Res), "
+                  "Res = 43,200.", ""]
+    table2 = [r for r in rows if r["table"] == "2"]
+    if table2:
+        lines += ["## Table 2: absolute depth error on the sliders (cm)", "",
+                  "MAE of the dense map (map points and filled pixels, inverse distance "
+                  "weights) per window; in brackets the semi-dense event map alone. The paper "
+                  f"reports {PAPER['table2_range_cm'][0]}-{PAPER['table2_range_cm'][1]} cm "
+                  "on the real sequences (its per-window values are not in this project's "
+                  "materials).", ""]
+        scenes = list(dict.fromkeys(r["scene"] for r in table2))
+        n = max(r.get("k", 0) for r in table2) + 1
+        lines += ["| sequence | " + " | ".join(f"w{k + 1}" for k in range(n)) + " | mean |",
+                  "|---|" + "---|" * (n + 1)]
+        for s in scenes:
+            cells, values = [], []
+            for r in sorted((r for r in table2 if r["scene"] == s), key=lambda r: r["k"]):
+                e = r["fills"]["idw"]["errors"]
+                all_, map_ = _mae(e, "all"), _mae(e, "map")
+                values.append(all_)
+                cells.append(f"{_f(all_)} ({_f(map_)})")
+            finite = [v for v in values if v is not None and np.isfinite(v)]
+            mean = float(np.mean(finite)) if finite else None
+            lines.append(f"| {s} | " + " | ".join(cells) + f" | {_f(mean)} |")
+        lines.append("")
+        if "3" in params.tables:
+            lines += ["## Table 3: the three weightings on the sliders", "",
+                      "Mean over the windows of each slider: MAE of the filled pixels and of "
+                      "the whole dense map (cm), and beta.", "",
+                      "| sequence | weighting | MAE filled (cm) | MAE all (cm) | beta |",
+                      "|---|---|---|---|---|"]
+            for s in scenes:
+                for w in WEIGHTINGS:
+                    sel = [r["fills"][w] for r in table2 if r["scene"] == s and w in r["fills"]]
+                    if not sel:
+                        continue
+                    filled = _nanmean([_mae(f["errors"], "filled") for f in sel])
+                    all_ = _nanmean([_mae(f["errors"], "all") for f in sel])
+                    beta = _nanmean([f["beta"] for f in sel])
+                    lines.append(f"| {s} | {w} | {_f(filled)} | {_f(all_)} | {beta:.4f} |")
+            lines.append("")
+    complex_rows = [r for r in rows if r["table"] == "complex"]
+    if complex_rows:
+        lines += ["## Complex surfaces: how far from real is the filling?", "",
+                  "The paper notes that its filling is \"not real if the surface is complex\". "
+                  "MAE (cm) of the filled pixels inside regions and within 3 px of a true "
+                  "depth discontinuity, and the share of filled pixels within 5 % of the true "
+                  "depth (delta < 1.05).", "",
+                  "| scene | weighting | beta | MAE filled, interior | MAE filled, band | "
+                  "filled within 5 % | MAE map |", "|---|---|---|---|---|---|---|"]
+        for r in complex_rows:
+            for w, f in r["fills"].items():
+                e = f["errors"]
+                within = None if e is None else e["filled"]["overall"]["delta_1.05"]
+                lines.append(
+                    f"| {r['scene']} | {w} | {f['beta']:.4f} | "
+                    f"{_f(_mae(e, 'filled', 'interior'))} | {_f(_mae(e, 'filled', 'band'))} | "
+                    f"{_f(None if within is None else 100 * within, 1)} % | "
+                    f"{_f(_mae(e, 'map'))} |")
+        lines.append("")
+    lines += ["## Figures (the paper's Figure 2, one window per scene)", ""]
+    for scene, path in report["figures"].items():
+        lines += [f"### {scene}", "", f"![{scene}]({path})", ""]
+    return "\n".join(lines)
+
+
+def _nanmean(values) -> float | None:
+    finite = [v for v in values if v is not None and np.isfinite(v)]
+    return float(np.mean(finite)) if finite else None

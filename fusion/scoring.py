@@ -1,0 +1,169 @@
+"""Errors of a depth map against the exact depth, and images that show where they are.
+
+The metrics are the usual ones of depth estimation (Eigen et al., NeurIPS 2014; the KITTI depth
+benchmark): mean and root-mean-square absolute error, mean absolute relative error, mean error of
+the inverse depth, and the share of pixels within a ratio of the truth (delta < 1.25, 1.05, 1.01).
+They are evaluated where both maps have a depth; completeness says how much of the truth has one.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ["DELTAS", "depth_errors", "discontinuity_band", "error_image"]
+
+DELTAS = (1.25, 1.05, 1.01)
+"""Ratio thresholds of the delta accuracies, ``max(d / gt, gt / d) < delta``."""
+
+
+def _check_depth(name: str, depth) -> np.ndarray:
+    depth = np.asarray(depth)
+    if depth.ndim != 2:
+        raise ValueError(f"{name} must be an (H, W) depth map, got shape {depth.shape}")
+    if not (np.issubdtype(depth.dtype, np.floating) or np.issubdtype(depth.dtype, np.integer)):
+        raise ValueError(f"{name} must hold depths in metres, got dtype {depth.dtype}")
+    depth = depth.astype(np.float64)
+    bad = ~np.isfinite(depth)
+    if bad.any():
+        raise ValueError(f"{name} must be finite metres (0 = no depth), found {int(bad.sum())} "
+                         f"NaN or infinite pixels")
+    if (depth < 0).any():
+        raise ValueError(f"{name} must be >= 0 metres (0 = no depth), found "
+                         f"{int((depth < 0).sum())} negative pixels")
+    return depth
+
+
+def _check_pair(depth, gt, mask) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    depth = _check_depth("depth", depth)
+    gt = _check_depth("gt", gt)
+    if depth.shape != gt.shape:
+        raise ValueError(f"depth has shape {depth.shape} but gt has shape {gt.shape}: expected "
+                         f"the same (H, W)")
+    if mask is None:
+        mask = np.ones(gt.shape, bool)
+    else:
+        mask = np.asarray(mask)
+        if mask.shape != gt.shape:
+            raise ValueError(f"mask has shape {mask.shape} but gt has shape {gt.shape}: "
+                             f"expected the same (H, W)")
+        mask = mask.astype(bool)
+    return depth, gt, mask
+
+
+def depth_errors(depth: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None) -> dict:
+    """Errors of a depth map against the exact depth.
+
+    Evaluated on the pixels where ``depth > 0``, ``gt > 0`` and ``mask``.
+
+    Parameters
+    ----------
+    depth : (H, W) float ndarray, metres, 0 where unknown
+    gt : (H, W) float ndarray, metres, 0 where no surface
+    mask : (H, W) bool ndarray, optional
+        Region to evaluate (e.g. :func:`discontinuity_band` or its complement); default all.
+
+    Returns
+    -------
+    dict
+        ``n`` (int, pixels evaluated); ``mae_cm``, ``rmse_cm`` (centimetres); ``abs_rel``
+        (mean ``|d - gt| / gt``); ``imae_per_m`` (mean ``|1/d - 1/gt|``, 1/m); ``delta_1.25``,
+        ``delta_1.05``, ``delta_1.01`` (shares of pixels with ``max(d/gt, gt/d) <`` the
+        threshold); ``completeness`` (share of the pixels of the mask with ``gt > 0`` that have
+        ``d > 0``). With nothing to evaluate, ``n`` is 0 and the other values are NaN
+        (``completeness`` is 0.0 when the mask holds some truth but ``d`` has none there).
+
+    Raises
+    ------
+    ValueError
+        If the shapes differ or a depth is NaN, infinite or negative.
+    """
+    depth, gt, mask = _check_pair(depth, gt, mask)
+    truth = mask & (gt > 0)
+    both = truth & (depth > 0)
+    n = int(both.sum())
+    completeness = n / int(truth.sum()) if truth.any() else float("nan")
+    keys = ("mae_cm", "rmse_cm", "abs_rel", "imae_per_m") + tuple(f"delta_{t}" for t in DELTAS)
+    if n == 0:
+        return {"n": 0, **dict.fromkeys(keys, float("nan")), "completeness": completeness}
+    d = depth[both]
+    g = gt[both]
+    err = np.abs(d - g)
+    ratio = np.maximum(d / g, g / d)
+    values = [100.0 * err.mean(), 100.0 * np.sqrt(np.mean(err ** 2)), np.mean(err / g),
+              np.mean(np.abs(1.0 / d - 1.0 / g))] + [np.mean(ratio < t) for t in DELTAS]
+    return {"n": n, **{k: float(v) for k, v in zip(keys, values, strict=True)},
+            "completeness": float(completeness)}
+
+
+def discontinuity_band(gt: np.ndarray, width: int = 3, jump: float = 0.05) -> np.ndarray:
+    """Pixels near a depth discontinuity of the exact depth, where filling is hardest.
+
+    A discontinuity is a pair of 4-neighbours whose depths differ by more than ``jump`` times
+    the smaller (a relative jump: a step of 5 cm at 1 m is as visible as 20 cm at 4 m, and the
+    depth of a slanted plane changes by far less between neighbours), or of which exactly one has a
+    depth (a silhouette against empty space). The band is both pixels of every such pair and every
+    pixel within Chebyshev distance ``width`` of one of them (a dilation by a ``2 width + 1``
+    square). A step between columns 4 and 5 with ``width = 3`` gives columns 1 to 8.
+
+    Parameters
+    ----------
+    gt : (H, W) float ndarray, metres, 0 where no surface
+    width : int, pixels, >= 0
+    jump : float, > 0
+        Relative depth jump (default 0.05).
+
+    Returns
+    -------
+    (H, W) bool ndarray
+    """
+    gt = _check_depth("gt", gt)
+    if int(width) != width or width < 0:
+        raise ValueError(f"width must be an integer >= 0 pixels, got {width}")
+    if not (np.isfinite(jump) and jump > 0):
+        raise ValueError(f"jump must be a finite relative depth step > 0, got {jump}")
+    pair = np.zeros(gt.shape, bool)
+    for a, b, sa, sb in (
+        (gt[:, 1:], gt[:, :-1], (slice(None), slice(1, None)), (slice(None), slice(None, -1))),
+        (gt[1:, :], gt[:-1, :], (slice(1, None), slice(None)), (slice(None, -1), slice(None))),
+    ):
+        valid_a, valid_b = a > 0, b > 0
+        step = valid_a & valid_b & (np.abs(a - b) > jump * np.minimum(a, b))
+        edge = step | (valid_a != valid_b)
+        pair[sa] |= edge
+        pair[sb] |= edge
+    if width == 0:
+        return pair
+    kernel = np.ones((2 * int(width) + 1, 2 * int(width) + 1), np.uint8)
+    return cv2.dilate(pair.astype(np.uint8), kernel).astype(bool)
+
+
+def error_image(depth: np.ndarray, gt: np.ndarray, max_error: float | None = None) -> np.ndarray:
+    """Absolute depth error as a colour image: turbo colour map, black where not evaluable.
+
+    Parameters
+    ----------
+    depth : (H, W) float ndarray, metres, 0 where unknown
+    gt : (H, W) float ndarray, metres, 0 where no surface
+    max_error : float, metres, optional
+        Error shown in the last colour (red); larger errors are clipped to it. Default: the
+        largest error of the image, so that the scale is the image's own (write it beside).
+
+    Returns
+    -------
+    (H, W, 3) uint8 ndarray, BGR
+        For ``cv2.imwrite``: 0 m dark blue through green to ``max_error`` red; black where
+        ``depth`` or ``gt`` is 0.
+    """
+    depth, gt, _ = _check_pair(depth, gt, None)
+    both = (depth > 0) & (gt > 0)
+    err = np.where(both, np.abs(depth - gt), 0.0)
+    if max_error is None:
+        max_error = float(err.max()) if both.any() else 0.0
+    elif not (np.isfinite(max_error) and max_error > 0):
+        raise ValueError(f"max_error must be a finite number > 0 metres, got {max_error}")
+    scaled = err / max_error if max_error > 0 else np.zeros_like(err)
+    levels = np.round(255.0 * np.clip(scaled, 0.0, 1.0)).astype(np.uint8)
+    image = cv2.applyColorMap(levels, cv2.COLORMAP_TURBO)
+    image[~both] = 0
+    return image

@@ -1,0 +1,149 @@
+"""evfuse fill / run / show / reproduce: the stages wired together, on arrays, a simulated plane
+and the real ECD prefix."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from fusion.cli import main
+from fusion.dense import DenseParams, densify, fill_frame, project_map
+from fusion.filling import filling_score
+from fusion.pointcloud import read_ply
+from sim.camera import Camera, write_calib
+from sim.exr import read_depth, write_depth, write_exr_channels
+from sim.se3 import make_pose
+
+
+def test_project_map_is_the_identity_at_the_reference_view_and_shifts_with_parallax():
+    camera = Camera(40, 30, 35.0, 30.0, 19.5, 14.5)
+    depth = np.zeros((30, 40), np.float32)
+    depth[10, 5:35] = 2.0
+    depth[20, 8] = 1.0
+    same = project_map(depth, camera, np.eye(4), camera, np.eye(4))
+    np.testing.assert_array_equal(same, depth)
+    # The frame's camera 8/35 m to the right: a point at Z moves left by fx * tx / Z pixels.
+    moved = project_map(depth, camera, np.eye(4), camera, make_pose(np.eye(3), [8 / 35, 0, 0]))
+    np.testing.assert_array_equal(moved[10], np.r_[np.zeros(1), np.full(30, 2.0),
+                                                   np.zeros(9)])             # 4 px at 2 m
+    assert moved[20, 0] == 1.0 and np.count_nonzero(moved) == 31             # 8 px at 1 m
+
+
+def _two_patch_scene():
+    """A 40x30 frame: background 100 with a 12x10 square of 160; map points on the square's
+    one-pixel outer ring at 2 m (the square is a plane 2 m away), and a few far points on the
+    background's edge."""
+    frame = np.full((30, 40), 100, np.uint8)
+    frame[10:20, 14:26] = 160
+    sparse = np.zeros((30, 40), np.float32)
+    sparse[9, 13:27] = sparse[20, 13:27] = 2.0
+    sparse[9:21, 13] = sparse[9:21, 26] = 2.0
+    return frame, sparse
+
+
+def test_a_square_bounded_by_map_points_is_filled_with_their_depth():
+    frame, sparse = _two_patch_scene()
+    labels, regions, dense, timings = densify(frame, sparse)
+    square = labels[15, 20]
+    assert regions.selected[square] and (labels[10:20, 14:26] == square).all()
+    np.testing.assert_array_equal(dense[10:20, 14:26], 2.0)
+    assert np.count_nonzero(dense) == np.count_nonzero(sparse) + 120
+    assert set(timings) == {"segment_s", "select_s", "fill_s"}
+
+
+def test_fill_of_any_frame_through_the_command_line(tmp_path, capsys):
+    frame, sparse = _two_patch_scene()
+    cv2.imwrite(str(tmp_path / "f.png"), frame)
+    write_depth(tmp_path / "d.exr", sparse)
+    truth = np.full((30, 40), 3.0, np.float32)
+    truth[10:20, 14:26] = 2.0
+    write_depth(tmp_path / "t.exr", truth)
+    write_calib(tmp_path / "calib.txt", Camera(40, 30, 35.0, 30.0, 19.5, 14.5))
+    out = tmp_path / "out"
+    assert main(["fill", "--frame", str(tmp_path / "f.png"), "--sparse-depth",
+                 str(tmp_path / "d.exr"), "--calib", str(tmp_path / "calib.txt"), "--truth",
+                 str(tmp_path / "t.exr"), "--out", str(out)]) == 0
+    for name in ("dense_depth.exr", "segments.png", "filled_mask.png", "figure.png",
+                 "dense.ply", "fill.json", "error.png"):
+        assert (out / name).is_file(), name
+    meta = json.loads((out / "fill.json").read_text())
+    dense = read_depth(out / "dense_depth.exr")
+    assert meta["N1"] == np.count_nonzero(sparse) and meta["N2"] == np.count_nonzero(dense)
+    assert meta["Res"] == 1200 and meta["beta"] == pytest.approx(
+        filling_score(meta["N1"], meta["N2"], 1200))
+    errors = meta["errors"]
+    assert errors["filled"]["interior"]["mae_cm"] == 0.0             # the square, exactly 2 m
+    assert errors["filled"]["overall"]["n"] == 120
+    record, header = read_ply(out / "dense.ply")
+    assert len(record) == meta["N2"] and (record["source"] == 1).sum() == 120
+    assert header["comment"] == "T_world_frame"
+    filled = cv2.imread(str(out / "filled_mask.png"), cv2.IMREAD_GRAYSCALE)
+    assert (filled > 0).sum() == 120
+    assert "N1 = 48, N2 = 168" in capsys.readouterr().out
+
+
+def test_bad_fill_input_gives_one_clear_line(tmp_path, capsys):
+    frame, sparse = _two_patch_scene()
+    cv2.imwrite(str(tmp_path / "f.png"), frame)
+    write_depth(tmp_path / "small.exr", sparse[:20])
+    write_depth(tmp_path / "empty.exr", np.zeros_like(sparse))
+    bad = sparse.copy()
+    bad[0, 0] = np.nan
+    write_exr_channels(tmp_path / "nan.exr", {"Z": bad})            # write_depth refuses NaN
+    write_calib(tmp_path / "calib.txt", Camera(40, 30, 35.0, 30.0, 19.5, 14.5))
+    base = ["fill", "--frame", str(tmp_path / "f.png"), "--calib", str(tmp_path / "calib.txt")]
+    for k, (depth, message) in enumerate([("small.exr", "must be the same size"),
+                                          ("empty.exr", "no map point"),
+                                          ("nan.exr", "NaN")]):
+        code = main([*base, "--sparse-depth", str(tmp_path / depth), "--out",
+                     str(tmp_path / f"o{k}")])
+        err = capsys.readouterr().err
+        assert code == 2 and message in err and "Traceback" not in err, (depth, err)
+        assert not (tmp_path / f"o{k}").exists()
+    assert main(["fill", str(tmp_path / "nomap"), "--out", str(tmp_path / "o9")]) == 2
+    assert "no map.json" in capsys.readouterr().err
+
+
+def test_fill_of_a_simulated_plane_map_is_scored_against_exact_depth(plane_sequence, tmp_path):
+    mapped, out = tmp_path / "map", tmp_path / "fill"
+    assert main(["map", str(plane_sequence), "--out", str(mapped), "--min-depth", "0.5",
+                 "--max-depth", "3", "--planes", "30", "--quiet"]) == 0
+    assert main(["fill", str(mapped), "--out", str(out)]) == 0
+    meta = json.loads((out / "fill.json").read_text())
+    assert meta["N2"] >= meta["N1"] > 30 and 0 <= meta["beta"] < 1
+    errors = meta["errors"]
+    assert errors["map"]["overall"]["n"] == meta["N1"]
+    assert errors["filled"]["overall"]["n"] == meta["N2"] - meta["N1"] > 0
+    # The wall is flat: filling it from its own map points adds no error of its own.
+    assert errors["filled"]["overall"]["mae_cm"] <= 1.1 * errors["map"]["overall"]["mae_cm"]
+    assert errors["all"]["overall"]["completeness"] > errors["map"]["overall"]["completeness"]
+    assert meta["frame"].startswith("images/") and meta["sequence"]
+
+
+def test_run_on_the_real_ecd_prefix_and_show_redraws_it(ecd_slider, tmp_path, capsys):
+    out = tmp_path / "real"
+    assert main(["run", str(ecd_slider), "--out", str(out), "--min-depth", "0.47",
+                 "--max-depth", "2.4", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "no ground truth" in printed and str(out / "overview.png") in printed
+    report = json.loads((out / "report.json").read_text())
+    assert report["ground_truth"] is False and report["mae_cm"] is None
+    assert report["events"] == 50000 - 3251 and report["N2"] >= report["N1"] > 200
+    assert report["depth_range_from"] == "given"
+    for name in ("map/map.json", "fill/fill.json", "fill/figure.png", "overview.png"):
+        assert (out / name).is_file(), name
+    fill = json.loads((out / "fill" / "fill.json").read_text())
+    assert fill["camera"]["distortion"][0] == pytest.approx(-0.138592767408)   # undistorting
+    before = cv2.imread(str(out / "overview.png"))
+    (out / "overview.png").unlink()
+    assert main(["show", str(out)]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(out / "overview.png")), before)
+
+
+def test_fill_frame_refuses_a_calibration_of_another_size():
+    frame, sparse = _two_patch_scene()
+    with pytest.raises(ValueError, match="calibration is for 41x30"):
+        fill_frame(frame, sparse, Camera(41, 30, 35.0, 30.0, 19.5, 14.5), DenseParams())

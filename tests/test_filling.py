@@ -1,0 +1,321 @@
+"""Map filling: the paper's filling score, region selection, weightings and interpolation."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from fusion.filling import (
+    WEIGHTINGS,
+    FillParams,
+    SelectionParams,
+    exponential_weights,
+    fill_regions,
+    filling_score,
+    gaussian_weights,
+    inverse_distance_weights,
+    select_regions,
+)
+from fusion.segmentation import SegmentationParams, segment_regions
+
+RES_DAVIS = 240 * 180
+
+
+# --------------------------------------------------------------------------- filling score
+
+def test_filling_score_reproduces_table_1():
+    """boxes_6dof in the paper's Table 1: N1 2289, N2 10489 at 240x180 -> beta 0.1898.
+
+    The other three rows' beta (dynamic 0.1587, poster 0.3377, shapes 0.0274) are known here
+    but not their N1 and N2, so only this row can be reproduced from its counts.
+    """
+    assert round(filling_score(2289, 10489, RES_DAVIS), 4) == 0.1898
+    assert filling_score(2289, 10489, RES_DAVIS) == pytest.approx(8200 / (43200 + 2289 / 43200))
+
+
+def test_filling_score_extremes_and_bad_counts():
+    assert filling_score(100, 100, 1000) == 0.0
+    assert filling_score(0, 1000, 1000) == 1.0
+    with pytest.raises(ValueError, match="n1 <= n2"):
+        filling_score(10, 5, 100)
+    with pytest.raises(ValueError, match="res must be"):
+        filling_score(1, 2, 0)
+
+
+# --------------------------------------------------------------------------- weightings
+
+def test_weightings_by_hand():
+    d = np.array([0.0, 0.5, 1.0, 2.0, 4.0, 5.0])
+    np.testing.assert_allclose(inverse_distance_weights(d), [1, 1, 1, 0.5, 0.25, 0.2])
+    np.testing.assert_allclose(gaussian_weights(d, sigma=5.0),
+                               np.exp(-np.array([0, 0.25, 1, 4, 16, 25]) / 50.0))
+    assert gaussian_weights(5.0, sigma=5.0) == pytest.approx(np.exp(-0.5))
+    np.testing.assert_allclose(exponential_weights(d, scale=5.0),
+                               np.exp(-np.array([0, 0.1, 0.2, 0.4, 0.8, 1.0])))
+    assert exponential_weights(5.0, scale=5.0) == pytest.approx(np.exp(-1.0))
+
+
+@pytest.mark.parametrize("weights", [inverse_distance_weights, gaussian_weights,
+                                     exponential_weights])
+def test_weightings_refuse_negative_or_nan_distances(weights):
+    with pytest.raises(ValueError, match="distances must be finite and >= 0"):
+        weights(np.array([1.0, -1.0]))
+    with pytest.raises(ValueError, match="distances must be finite and >= 0"):
+        weights(np.array([np.nan]))
+
+
+def _one_pixel_between_two_points(width=4):
+    """Pixel (0, 1) is region 1; map points at x = 0 (1 m, 1 px away) and x = 3 (2 m, 2 px)."""
+    labels = np.zeros((1, width), np.int32)
+    labels[0, 1] = 1
+    sparse = np.zeros((1, width), np.float32)
+    sparse[0, 0], sparse[0, 3] = 1.0, 2.0
+    return labels, sparse
+
+
+@pytest.mark.parametrize("weighting, expected", [
+    ("idw", (1 * 1 + 0.5 * 2) / 1.5),
+    ("gaussian", (np.exp(-1 / 50) * 1 + np.exp(-4 / 50) * 2) / (np.exp(-1 / 50)
+                                                                  + np.exp(-4 / 50))),
+    ("exponential", (np.exp(-1 / 5) * 1 + np.exp(-2 / 5) * 2) / (np.exp(-1 / 5)
+                                                                 + np.exp(-2 / 5))),
+])
+def test_tiny_fill_matches_hand_computed_weighted_mean(weighting, expected):
+    labels, sparse = _one_pixel_between_two_points()
+    regions = select_regions(labels, sparse)
+    assert regions.selected.tolist() == [False, True]
+    dense = fill_regions(labels, sparse, regions, FillParams(weighting=weighting))
+    assert dense.dtype == np.float32
+    assert dense[0, 1] == pytest.approx(expected, rel=1e-6)
+    np.testing.assert_array_equal(dense[0, [0, 2, 3]], [1.0, 0.0, 2.0])   # map points kept
+
+
+def test_points_beyond_the_ring_are_not_used():
+    labels, sparse = _one_pixel_between_two_points(width=8)
+    sparse[0, 5] = 100.0                                # 4 px from the region: outside the ring
+    dense = fill_regions(labels, sparse, select_regions(labels, sparse))
+    assert dense[0, 1] == pytest.approx(4 / 3, rel=1e-6)
+    assert dense[0, 5] == 100.0
+    wide = select_regions(labels, sparse, SelectionParams(ring=4))
+    assert wide.ring_events[1] == 3
+    assert fill_regions(labels, sparse, wide)[0, 1] == pytest.approx(
+        (1 * 1 + 0.5 * 2 + 0.25 * 100) / 1.75, rel=1e-6)
+
+
+def test_points_inside_the_region_are_used_and_kept():
+    labels = np.zeros((1, 30), np.int32)
+    labels[0, 1:29] = 1                                 # area 28, contour 2 (x = 1 and x = 28)
+    sparse = np.zeros((1, 30), np.float32)
+    sparse[0, [0, 10, 29]] = [1.0, 2.0, 3.0]            # one inside: 1 < 5 % of 28 = 1.4
+    regions = select_regions(labels, sparse)
+    assert (regions.area[1], regions.contour[1], regions.ring_events[1],
+            regions.inside_events[1], regions.selected[1]) == (28, 2, 2, 1, True)
+    dense = fill_regions(labels, sparse, regions)
+    x = np.arange(30.0)
+    points, depths = np.array([0.0, 10.0, 29.0]), np.array([1.0, 2.0, 3.0])
+    w = 1.0 / np.maximum(np.abs(x[:, None] - points[None]), 1.0)
+    expected = (w * depths).sum(1) / w.sum(1)
+    expected[[0, 10, 29]] = depths
+    np.testing.assert_allclose(dense[0], expected, rtol=1e-6)
+
+
+# --------------------------------------------------------------------------- planes
+
+def _square_bounded_by_points(depth=1.7, size=10, pad=6):
+    """Region 2, a size x size square in region 1, with every pixel of its 1-px ring a map point."""
+    n = size + 2 * pad
+    labels = np.ones((n, n), np.int32)
+    labels[pad:pad + size, pad:pad + size] = 2
+    sparse = np.zeros((n, n), np.float32)
+    sparse[pad - 1:pad + size + 1, pad - 1:pad + size + 1] = depth
+    sparse[pad:pad + size, pad:pad + size] = 0.0
+    return labels, sparse, (slice(pad, pad + size), slice(pad, pad + size))
+
+
+@pytest.mark.parametrize("weighting", WEIGHTINGS)
+def test_fronto_parallel_plane_is_filled_with_its_depth(weighting):
+    labels, sparse, square = _square_bounded_by_points()
+    regions = select_regions(labels, sparse)
+    assert regions.selected[2]
+    dense = fill_regions(labels, sparse, regions, FillParams(weighting=weighting))
+    assert (dense[square] == np.float32(1.7)).all()
+
+
+def test_plane_from_a_frame_is_segmented_selected_and_filled():
+    """End to end: a square of another gray level, map points on its outline at 2.5 m."""
+    frame = np.full((40, 50), 80, np.uint8)
+    frame[10:30, 15:40] = 160
+    labels = segment_regions(frame)
+    outline = cv2.dilate((labels == 2).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
+    outline &= labels != 2
+    sparse = np.where(outline, 2.5, 0.0).astype(np.float32)
+    regions = select_regions(labels, sparse)
+    assert regions.selected.tolist() == [False, False, True]   # the outside has no ring
+    dense = fill_regions(labels, sparse, regions)
+    assert (dense[10:30, 15:40] == 2.5).all()
+    assert (dense[outline] == 2.5).all() and (dense[(labels == 1) & ~outline] == 0).all()
+    n1, n2 = int((sparse > 0).sum()), int((dense > 0).sum())
+    assert n2 - n1 == 20 * 25
+
+
+def test_selection_rules_at_their_edges():
+    """10 x 10 square: area 100, contour 36; ring rule '>=', inside rule '<'."""
+    labels, sparse, square = _square_bounded_by_points()
+    ring_pixels = np.argwhere(sparse > 0)
+    params = SelectionParams(min_ring_ratio=0.5)                     # needs 18 of 36
+    few = np.zeros_like(sparse)
+    few[tuple(ring_pixels[:18].T)] = 1.7
+    stats = select_regions(labels, few, params)
+    assert (stats.area[2], stats.contour[2], stats.ring_events[2]) == (100, 36, 18)
+    assert stats.selected[2]
+    few[tuple(ring_pixels[17])] = 0.0
+    assert not select_regions(labels, few, params).selected[2]
+    inside = sparse.copy()
+    inside[square][[1, 3, 5, 7], 4] = 1.7                            # 4 < 5 % of 100
+    assert select_regions(labels, inside).selected[2]
+    inside[square][8, 8] = 1.7                                       # 5 is not < 5
+    stats = select_regions(labels, inside)
+    assert stats.inside_events[2] == 5 and not stats.selected[2]
+
+
+def test_decimal_ratios_act_as_written():
+    """0.07 x 100 is 7.000000000000001 in float64; 7 points out of 100 must be 7 %."""
+    labels = np.ones((9, 110), np.int32)
+    labels[4, 5:105] = 2                                # a line: area 100, contour 100
+    sparse = np.zeros((9, 110), np.float32)
+    sparse[3, 10:80:10] = 1.0                           # 7 points on its ring
+    stats = select_regions(labels, sparse, SelectionParams(min_ring_ratio=0.07))
+    assert (stats.area[2], stats.contour[2], stats.ring_events[2]) == (100, 100, 7)
+    assert stats.selected[2]
+    sparse[4, 10:80:10] = 1.0                           # and 7 inside: 7 is not < 7 %
+    stats = select_regions(labels, sparse, SelectionParams(min_ring_ratio=0.07,
+                                                           max_inside_ratio=0.07))
+    assert stats.inside_events[2] == 7 and not stats.selected[2]
+
+
+def test_region_with_too_few_ring_points_or_too_many_inside_is_not_filled():
+    labels, sparse, square = _square_bounded_by_points()
+    sparse_few = np.zeros_like(sparse)
+    sparse_few[5, 5:8] = 1.7                                         # 3 of 36 < 30 %
+    regions = select_regions(labels, sparse_few)
+    assert not regions.selected[2]
+    np.testing.assert_array_equal(fill_regions(labels, sparse_few, regions), sparse_few)
+    crowded = sparse.copy()
+    crowded[square][::2, ::2] = 1.7                                  # 25 of 100 inside
+    regions = select_regions(labels, crowded)
+    assert not regions.selected[2]
+    np.testing.assert_array_equal(fill_regions(labels, crowded, regions), crowded)
+
+
+def test_region_covering_the_image_is_never_selected():
+    labels = np.ones((6, 6), np.int32)
+    sparse = np.zeros((6, 6), np.float32)
+    sparse[0, 0] = 1.0
+    stats = select_regions(labels, sparse)
+    assert stats.contour[1] == 0 and not stats.selected[1]
+
+
+def test_fill_agrees_with_a_brute_force_reference():
+    """Random regions and points against an independent NumPy implementation of the definitions:
+    ring = dilation by a (2 r + 1) square minus the region; weights over ring and inside points."""
+    rng = np.random.default_rng(4)
+    frame = cv2.resize(rng.integers(0, 6, (6, 8)).astype(np.uint8) * 40, (48, 36),
+                       interpolation=cv2.INTER_NEAREST)
+    labels = segment_regions(frame, SegmentationParams(min_region=1))
+    edges = cv2.Canny(frame, 10, 30) > 0
+    edges = cv2.dilate(edges.astype(np.uint8), np.ones((2, 2), np.uint8)) > 0
+    sparse = np.where(edges & (rng.random(edges.shape) < 0.7),
+                      rng.uniform(1.0, 4.0, edges.shape), 0.0).astype(np.float32)
+    sparse[rng.random(edges.shape) < 0.01] = 2.0                     # a few inside points
+    params = SelectionParams(ring=2, min_ring_ratio=1.2, max_inside_ratio=0.35)  # 6x6 cells
+    stats = select_regions(labels, sparse, params)
+    assert 3 <= stats.selected.sum() <= stats.n_regions - 3       # some filled, some not
+    dense = fill_regions(labels, sparse, stats, FillParams(weighting="exponential", scale=4.0))
+    expected = sparse.astype(np.float64).copy()
+    yy, xx = np.mgrid[:labels.shape[0], :labels.shape[1]]
+    kernel = np.ones((5, 5), np.uint8)
+    for lab in range(1, labels.max() + 1):
+        region = labels == lab
+        ring = (cv2.dilate(region.astype(np.uint8), kernel) > 0) & ~region
+        assert stats.ring_events[lab] == (ring & (sparse > 0)).sum()
+        assert stats.inside_events[lab] == (region & (sparse > 0)).sum()
+        if not stats.selected[lab]:
+            continue
+        points = (ring | region) & (sparse > 0)
+        py, px, pd = yy[points], xx[points], sparse[points].astype(np.float64)
+        fill = region & (sparse == 0)
+        d = np.hypot(yy[fill][:, None] - py[None], xx[fill][:, None] - px[None])
+        w = np.exp(-d / 4.0)
+        expected[fill] = (w * pd).sum(1) / w.sum(1)
+    np.testing.assert_allclose(dense, expected, rtol=1e-6)
+
+
+def test_gaussian_weights_far_from_every_point_do_not_underflow():
+    """Points at x = 0 (1 m) and x = 1 (2 m); pixel x is x and x - 1 px away, so its depth is
+    (1 + 2 r) / (1 + r) = 2 - 1 / (1 + r), r = exp((2 x - 1) / 50): even where both weights,
+    exp(-x^2 / 50), are 0.0 in float64 (x > ~190)."""
+    labels = np.zeros((1, 300), np.int32)
+    labels[0, 2:] = 1
+    sparse = np.zeros((1, 300), np.float32)
+    sparse[0, :2] = [1.0, 2.0]
+    regions = select_regions(labels, sparse)
+    dense = fill_regions(labels, sparse, regions, FillParams(weighting="gaussian", sigma=5.0))
+    x = np.arange(2, 300)
+    np.testing.assert_allclose(dense[0, 2:], 2.0 - 1.0 / (1.0 + np.exp((2 * x - 1) / 50.0)),
+                               rtol=1e-6)
+    assert gaussian_weights(299.0) == 0.0 and gaussian_weights(298.0) == 0.0
+
+
+# --------------------------------------------------------------------------- bad input
+
+def test_frame_and_sparse_depth_of_different_sizes_are_refused():
+    labels = segment_regions(np.zeros((10, 12), np.uint8))
+    with pytest.raises(ValueError, match=r"sparse_depth has shape \(10, 13\) but the labels"):
+        select_regions(labels, np.ones((10, 13), np.float32))
+
+
+def test_empty_map_is_refused():
+    labels, sparse, _ = _square_bounded_by_points()
+    regions = select_regions(labels, sparse)
+    with pytest.raises(ValueError, match="no map points"):
+        select_regions(labels, np.zeros_like(sparse))
+    with pytest.raises(ValueError, match="no map points"):
+        fill_regions(labels, np.zeros_like(sparse), regions)
+
+
+@pytest.mark.parametrize("value, message", [(np.nan, "NaN or infinite"),
+                                            (np.inf, "NaN or infinite"),
+                                            (-1.0, "negative")])
+def test_bad_depths_are_refused(value, message):
+    labels, sparse, _ = _square_bounded_by_points()
+    regions = select_regions(labels, sparse)
+    sparse[0, 0] = value
+    with pytest.raises(ValueError, match=message):
+        select_regions(labels, sparse)
+    with pytest.raises(ValueError, match=message):
+        fill_regions(labels, sparse, regions)
+
+
+def test_statistics_of_other_labels_are_refused():
+    labels, sparse, _ = _square_bounded_by_points()
+    regions = select_regions(labels, sparse)
+    more = labels.copy()
+    more[0, 0] = 3
+    with pytest.raises(ValueError, match="compute them with select_regions"):
+        fill_regions(more, sparse, regions)
+    chosen = replace(regions, selected=np.array([False, True, True]))  # a choice of one's own
+    assert fill_regions(labels, sparse, chosen).min() > 0
+
+
+def test_bad_parameters_are_refused():
+    with pytest.raises(ValueError, match="weighting must be one of idw, gaussian, exponential"):
+        FillParams(weighting="nearest")
+    with pytest.raises(ValueError, match="sigma must be"):
+        FillParams(sigma=0.0)
+    with pytest.raises(ValueError, match="ring must be an integer >= 1"):
+        SelectionParams(ring=0)
+    with pytest.raises(ValueError, match="min_ring_ratio must be"):
+        SelectionParams(min_ring_ratio=-0.1)
