@@ -1,1 +1,59 @@
-"""Event and frame fusion: consumers of sequence folders (mapping, filling, scoring)."""
+"""evfuse's fusion pipeline: consumers of sequence folders.
+
+Stages, each a set of pure functions on arrays with a frozen dataclass of parameters:
+
+* :mod:`fusion.emvs` -- the disparity space image and the semi-dense depth (EMVS),
+* :mod:`fusion.segmentation` -- region growing on the standard frame,
+* :mod:`fusion.filling` -- region selection, weighted filling and the filling score,
+* :mod:`fusion.scoring` -- errors against exact depth.
+
+Wired together by :mod:`fusion.mapping` (``evfuse map``), :mod:`fusion.dense` (``evfuse fill``),
+:mod:`fusion.pipeline` (``evfuse run``) and :mod:`fusion.reproduce` (``evfuse reproduce``); the
+command line (:mod:`fusion.cli`) only parses arguments and calls these.
+"""
+
+from fusion.dense import (
+    DenseParams,
+    DenseResult,
+    dense_errors,
+    densify,
+    fill_frame,
+    fill_map,
+    project_map,
+    write_fill,
+)
+from fusion.emvs import (
+    DepthMapParams,
+    DSIParams,
+    depth_planes,
+    disparity_space_image,
+    semidense_depth,
+)
+from fusion.filling import (
+    FillParams,
+    RegionStats,
+    SelectionParams,
+    exponential_weights,
+    fill_regions,
+    filling_score,
+    gaussian_weights,
+    inverse_distance_weights,
+    select_regions,
+)
+from fusion.mapping import MapParams, MapResult, map_sequence, write_map
+from fusion.pipeline import RunParams, draw_overview, run_pipeline
+from fusion.pointcloud import read_ply, write_ply
+from fusion.reproduce import ReproduceParams, reproduce
+from fusion.scoring import depth_errors, discontinuity_band, error_image
+from fusion.segmentation import SegmentationParams, segment_regions
+
+__all__ = [
+    "DSIParams", "DenseParams", "DenseResult", "DepthMapParams", "FillParams", "MapParams",
+    "MapResult", "RegionStats", "ReproduceParams", "RunParams", "SegmentationParams",
+    "SelectionParams", "dense_errors", "densify", "depth_errors", "depth_planes",
+    "discontinuity_band", "disparity_space_image", "draw_overview", "error_image",
+    "exponential_weights", "fill_frame", "fill_map", "fill_regions", "filling_score",
+    "gaussian_weights", "inverse_distance_weights", "map_sequence", "project_map", "read_ply",
+    "reproduce", "run_pipeline", "segment_regions", "select_regions", "semidense_depth",
+    "write_fill", "write_map", "write_ply",
+]

@@ -52,6 +52,7 @@ def test_bad_map_input_is_refused_before_work(plane_sequence, tmp_path, capsys):
         (["--t0", "5", "--t1", "6"], "outside the poses"),
         (["--t0", "0.2", "--t1", "0.1"], "empty time window"),
         (["--planes", "1000000"], "GiB"),
+        (["--min-depth", "2", "--max-depth", "5"], "does not contain the scene: 0 %"),
     ]
     for extra, message in cases:
         code = main(["map", str(plane_sequence), "--out", str(tmp_path / "x"), "--quiet",
@@ -67,3 +68,13 @@ def test_window_inside_the_poses_without_events_is_refused(ecd_slider, tmp_path,
                  "--min-depth", "0.47", "--max-depth", "2.4", "--quiet"]) == 2
     assert "no events in the window [1.0, 2.0] s" in capsys.readouterr().err
     assert not out.exists() and not list(tmp_path.glob("none*"))
+
+
+def test_a_depth_range_beyond_a_real_scene_is_refused(ecd_slider, tmp_path, capsys):
+    """No exact depth here: the map's points pile up on the nearest planes instead."""
+    out = tmp_path / "far"
+    assert main(["map", str(ecd_slider), "--out", str(out), "--min-depth", "3",
+                 "--max-depth", "8", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "does not seem to contain the scene" in err and "nearer than" in err
+    assert not out.exists()

@@ -1,0 +1,103 @@
+"""evfuse run end to end on a tiny scene, and one clear line for every kind of bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from fusion.cli import main
+from sim.exr import read_depth
+from tests.conftest import FAST, WALL, scene_text
+
+EXTRA = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 4\n"
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("run")
+    scene = folder / "wall.toml"
+    scene.write_text(scene_text(WALL, trajectory=FAST, duration=0.3, extra=EXTRA))
+    out = folder / "out"
+    code = main(["run", str(scene), "--t0", "0.0", "--t1", "0.3", "--out", str(out), "--quiet"])
+    return code, out
+
+
+def test_run_writes_every_promised_file_with_consistent_figures(tiny_run, capsys):
+    code, out = tiny_run
+    assert code == 0
+    for name in ("sequence/sequence.json", "sequence/events.h5", "map/semidense_depth.exr",
+                 "map/confidence.exr", "map/mask.png", "map/overlay.png", "map/map.ply",
+                 "map/map.json", "fill/dense_depth.exr", "fill/segments.png",
+                 "fill/filled_mask.png", "fill/figure.png", "fill/dense.ply", "fill/fill.json",
+                 "fill/error.png", "overview.png", "report.json"):
+        assert (out / name).is_file(), name
+    assert not out.with_name("out.partial").exists()
+    report = json.loads((out / "report.json").read_text())
+    fill = json.loads((out / "fill" / "fill.json").read_text())
+    mapped = json.loads((out / "map" / "map.json").read_text())
+    assert report["N1"] == fill["N1"] and report["N2"] == fill["N2"]
+    assert mapped["N1"] == np.count_nonzero(read_depth(out / "map" / "semidense_depth.exr"))
+    assert fill["N2"] == np.count_nonzero(read_depth(out / "fill" / "dense_depth.exr"))
+    assert report["N2"] >= report["N1"] > 0 and 0 <= report["beta"] < 1
+    assert report["ground_truth"] and report["simulated"]
+    for value in report["mae_cm"].values():
+        assert math.isfinite(value)
+    assert report["depth_range_from"].startswith("exact depth")
+    low, high = report["depth_range_m"]
+    assert low < 1.0 < high                                        # the wall is 1 m away
+    overview = cv2.imread(str(out / "overview.png"))
+    assert overview is not None and overview.shape[1] >= 3 * 64
+
+
+def test_show_redraws_the_same_overview(tiny_run, tmp_path):
+    _, out = tiny_run
+    target = tmp_path / "again.png"
+    assert main(["show", str(out), "--out", str(target)]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(target)), cv2.imread(str(out / "overview.png")))
+
+
+def test_a_run_is_never_overwritten_silently(tiny_run, capsys):
+    _, out = tiny_run
+    before = (out / "report.json").read_bytes()
+    assert main(["run", str(out / "sequence"), "--out", str(out), "--quiet"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert (out / "report.json").read_bytes() == before
+
+
+BAD_TOML = 'name = "x"\nduration = [1.0\n'
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["map", "{tmp}/missing", "--out", "{tmp}/o"], "does not exist"),
+    (["run", "{tmp}/missing", "--out", "{tmp}/o"], "no such scene file"),
+    (["fill", "{tmp}/missing", "--out", "{tmp}/o"], "no map.json"),
+    (["show", "{tmp}/missing"], "no report.json"),
+    (["simulate", "{tmp}/bad.toml", "--out", "{tmp}/o"], "bad.toml"),
+    (["events", "{tmp}/badevents", "--stats"], "events.txt:2: x 'three'"),
+    (["map", "{tmp}/badevents", "--out", "{tmp}/o", "--t0", "0", "--t1", "0.2", "--quiet"],
+     "events.txt:2: x 'three'"),
+])
+def test_bad_input_gives_one_line_and_exit_status_2(argv, message, tmp_path, capsys,
+                                                     plane_sequence):
+    (tmp_path / "bad.toml").write_text(BAD_TOML)
+    bad = tmp_path / "badevents"                         # a sequence with a broken events.txt
+    bad.mkdir()
+    for name in ("calib.txt", "images.txt", "groundtruth.txt"):
+        (bad / name).write_bytes((plane_sequence / name).read_bytes())
+    (bad / "images").symlink_to(plane_sequence / "images")
+    (bad / "events.txt").write_text("0.001 3 4 1\n0.002 three 4 0\n")
+    code = main([a.format(tmp=tmp_path) for a in argv])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0] and "Traceback" not in err, err
+    assert lines[0].startswith(f"evfuse {argv[0]}: error: ")
+
+
+def test_debug_shows_the_traceback(tmp_path):
+    with pytest.raises(ValueError, match="does not exist"):
+        main(["--debug", "map", str(tmp_path / "missing"), "--out", str(tmp_path / "o")])
