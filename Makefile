@@ -1,11 +1,13 @@
-# evfuse: `make demo` sets up and renders the default scene; `make test` sets up and runs the tests.
+# evfuse: `make demo` sets up and runs the whole pipeline (simulate, map, fill, score) on the
+# default scene; `make test` sets up and runs the tests.
 SHELL := /bin/bash
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 DEMO_SCENE ?= slider_close
 DEMO_OUT ?= runs/demo
-DEMO_DURATION ?= 1.0
+DEMO_T0 ?= 0.0
+DEMO_T1 ?= 0.5
 
 .PHONY: setup llvm demo test bench lint clean
 
@@ -34,9 +36,9 @@ llvm:
 	  echo "No LLVM >= 16 found. Run 'sudo apt-get install libllvm19' for fast rendering; until then evfuse renders on scalar_rgb (much slower)"; \
 	fi
 
+# Replaces $(DEMO_OUT) (only once the new run is complete).
 demo: setup
-	$(BIN)/evfuse scenes
-	$(BIN)/evfuse simulate $(DEMO_SCENE) --out $(DEMO_OUT) --duration $(DEMO_DURATION) --overwrite
+	$(BIN)/evfuse run $(DEMO_SCENE) --t0 $(DEMO_T0) --t1 $(DEMO_T1) --out $(DEMO_OUT) --overwrite
 
 test: setup
 	$(BIN)/python -m pytest -q
@@ -45,6 +47,7 @@ bench: setup
 	$(BIN)/python benchmarks/bench_render.py
 	$(BIN)/python benchmarks/bench_events.py
 	$(BIN)/python benchmarks/bench_emvs.py
+	$(BIN)/python benchmarks/bench_fill.py
 
 lint: setup
 	$(BIN)/ruff check .
