@@ -53,6 +53,7 @@ def _events_file(folder: Path) -> Path:
 def _cmd_events(args: argparse.Namespace) -> int:
     import cv2
 
+    from fusion.figures import write_image
     from sim.eventio import event_frame, event_stats, read_events
     from sim.sequence import load_sequence
 
@@ -74,9 +75,7 @@ def _cmd_events(args: argparse.Namespace) -> int:
     if args.window is not None and len(events):
         t_end = int(events["t"][0] + args.window * 1e9)
         window = events[events["t"] < t_end]
-    if not cv2.imwrite(str(out), cv2.cvtColor(event_frame(window, width, height),
-                                              cv2.COLOR_RGB2BGR)):
-        raise OSError(f"cannot write {out}")
+    write_image(out, cv2.cvtColor(event_frame(window, width, height), cv2.COLOR_RGB2BGR))
     print(f"event frame of {len(window)} events written to {out}")
     return 0
 
@@ -196,14 +195,12 @@ def _print_report(report: dict, out: Path) -> None:
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
-    import cv2
-
+    from fusion.figures import write_image
     from fusion.pipeline import draw_overview
 
     image = draw_overview(args.run_folder)
     out = Path(args.out) if args.out else Path(args.run_folder) / "overview.png"
-    if not cv2.imwrite(str(out), image):
-        raise OSError(f"cannot write {out}")
+    write_image(out, image)
     print(f"written to {out}")
     return 0
 
@@ -237,6 +234,8 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
             camera = load_sequence(folder).camera
             width, height = camera.width, camera.height
+    if Path(args.dst).exists() and not args.overwrite:
+        raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
     convert_events(args.src, args.dst, width=width, height=height)
     print(f"converted {args.src} to {args.dst}")
     return 0
@@ -412,6 +411,7 @@ def _parser() -> argparse.ArgumentParser:
                                          "streaming. The format follows the file suffix.")
     convert.add_argument("src", help="events.txt or events.h5")
     convert.add_argument("dst", help="events.h5 or events.txt")
+    convert.add_argument("--overwrite", action="store_true", help="replace an existing DST")
     convert.add_argument("--sensor", default=None,
                          help="sensor size WxH for HDF5 output (default: from the sequence "
                               "folder of SRC)")

@@ -6,10 +6,13 @@ computes a result, so every figure can be re-drawn from the files a run saved.
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import cv2
 import numpy as np
 
-__all__ = ["depth_colours", "label_colours", "panel_grid", "point_cloud_view"]
+__all__ = ["depth_colours", "label_colours", "panel_grid", "point_cloud_view", "write_image"]
 
 _NO_VALUE = (40, 40, 40)
 """Colour of pixels without a depth (dark grey, so that black texture stays readable)."""
@@ -152,3 +155,25 @@ def panel_grid(images: list[np.ndarray], titles: list[str], columns: int = 3,
         cv2.putText(canvas, title, (x0 + 6, y0 + 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
                     (0, 0, 0), 1, cv2.LINE_AA)
     return canvas
+
+
+def write_image(path: str | Path, image: np.ndarray) -> Path:
+    """Write an image atomically: to ``.<name>.partial<ext>`` beside it, then renamed.
+
+    Parameters
+    ----------
+    path : str or Path
+        Target file; its extension chooses the format (``.png``).
+    image : (H, W) or (H, W, 3) uint8 ndarray, BGR
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    partial = path.with_name(f".{path.stem}.partial{path.suffix}")
+    if not cv2.imwrite(str(partial), image):
+        partial.unlink(missing_ok=True)
+        raise OSError(f"cannot write {path}")
+    os.replace(partial, path)
+    return path

@@ -24,7 +24,7 @@ import numpy as np
 
 from fusion.dense import DenseParams, _finite, fill_map, write_fill
 from fusion.emvs import DepthMapParams, DSIParams
-from fusion.figures import depth_colours, label_colours, panel_grid
+from fusion.figures import depth_colours, label_colours, panel_grid, write_image
 from fusion.mapping import MapParams, map_sequence, write_map
 from fusion.scoring import error_image
 from sim.eventio import event_frame, read_window
@@ -158,7 +158,7 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
             "files": {"overview": "overview.png", "map": "map/", "fill": "fill/",
                       "figure": "fill/figure.png", "point_cloud": "fill/dense.ply"},
         }
-        cv2.imwrite(str(tmp / "overview.png"), draw_overview(tmp, report))
+        write_image(tmp / "overview.png", draw_overview(tmp, report))
         timings["total_s"] = time.perf_counter() - clock
         report["timings"] = timings
         (tmp / "report.json").write_text(json.dumps(_finite(report), indent=2, sort_keys=True))

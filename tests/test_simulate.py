@@ -136,6 +136,11 @@ def test_cli_events_stats_and_convert(tiny_run, tmp_path, capsys):
     assert main(["convert", str(result.out / "events.txt"), str(h5)]) == 0
     assert main(["convert", str(h5), str(txt)]) == 0
     assert txt.read_bytes() == (result.out / "events.txt").read_bytes()
+    capsys.readouterr()
+    assert main(["convert", str(h5), str(txt)]) == 2                 # never silently replaced
+    assert "add --overwrite" in capsys.readouterr().err
+    assert main(["convert", str(h5), str(txt), "--overwrite"]) == 0
+    assert not [p for p in tmp_path.iterdir() if "partial" in p.name]
     assert main(["events", str(tmp_path), "--stats"]) == 2
     assert "images.txt" in capsys.readouterr().err
 
