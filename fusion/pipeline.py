@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +30,7 @@ from fusion.mapping import MapParams, map_sequence, write_map
 from fusion.scoring import error_image
 from sim.eventio import event_frame, read_window
 from sim.exr import read_depth
-from sim.sequence import atomic_output_dir, check_output_dir, load_sequence
+from sim.sequence import PARTIAL_SUFFIX, atomic_output_dir, check_output_dir, load_sequence
 
 __all__ = ["RunParams", "draw_overview", "is_sequence_folder", "run_pipeline"]
 
@@ -106,6 +107,15 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
     params = params or RunParams()
     out = Path(out)
     check_output_dir(out, overwrite)
+    try:
+        return _run(source, out, params, overwrite, progress)
+    except ValueError:
+        # Bad input (found after the run folder was started): nothing worth keeping.
+        shutil.rmtree(out.with_name(out.name + PARTIAL_SUFFIX), ignore_errors=True)
+        raise
+
+
+def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) -> dict:
     clock = time.perf_counter()
     timings: dict[str, float] = {}
     with atomic_output_dir(out, overwrite=overwrite) as tmp:

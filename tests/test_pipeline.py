@@ -101,3 +101,17 @@ def test_bad_input_gives_one_line_and_exit_status_2(argv, message, tmp_path, cap
 def test_debug_shows_the_traceback(tmp_path):
     with pytest.raises(ValueError, match="does not exist"):
         main(["--debug", "map", str(tmp_path / "missing"), "--out", str(tmp_path / "o")])
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--t0", "10", "--t1", "11"], "does not overlap the poses"),
+    (["--t0", "1", "--t1", "2"], "no events in the window [1.0, 2.0] s"),
+    (["--min-depth", "3", "--max-depth", "8"], "does not seem to contain the scene"),
+])
+def test_bad_runs_on_the_real_recording_leave_nothing_behind(argv, message, ecd_slider, tmp_path,
+                                                             capsys):
+    out = tmp_path / "run"
+    assert main(["run", str(ecd_slider), "--out", str(out), "--quiet", *argv]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
