@@ -210,7 +210,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     scenes = tuple(s.strip() for s in args.scenes.split(",")) if args.scenes else None
-    params = ReproduceParams(window=args.window, tables=tables, scenes=scenes)
+    params = ReproduceParams(window=args.window, long_window=args.long_window, tables=tables,
+                             scenes=scenes)
     report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
                        progress=not args.quiet)
     print(f"{len(report['rows'])} windows in {report['total_s'] / 60:.1f} min")
@@ -398,7 +399,10 @@ def _parser() -> argparse.ArgumentParser:
     repro.add_argument("--out", required=True, help="report folder to write")
     repro.add_argument("--cache", default=None,
                        help="folder of simulated windows, re-used (default OUT-cache)")
-    repro.add_argument("--window", type=float, default=0.2, help="window length, s (0.2)")
+    repro.add_argument("--window", type=float, default=0.2,
+                       help="slider window length, s (0.2)")
+    repro.add_argument("--long-window", type=float, default=0.5,
+                       help="6-DoF and complex-surface window length, s (0.5)")
     repro.add_argument("--tables", default="1,2,3,complex",
                        help="tables to make, among 1,2,3,complex (default all)")
     repro.add_argument("--scenes", default=None, help="only these scenes (comma-separated)")

@@ -214,7 +214,11 @@ def reproduce(out: str | Path, params: ReproduceParams | None = None,
             tick = time.perf_counter()
             folder = _simulated(job, params, cache)
             simulated = time.perf_counter() - tick
-            row = _row(job, folder, tmp / "runs", params)
+            try:
+                row = _row(job, folder, tmp / "runs", params)
+            except ValueError as exc:            # e.g. a map with too little parallax
+                row = {"scene": job["scene"], "table": job["table"], "failed": str(exc),
+                       "window_s": [job["t0"], job["t0"] + job["length"]]}
             row["seconds"] = {"simulate (0 when cached)": simulated,
                               "map_fill": time.perf_counter() - tick - simulated}
             rows.append(row)
@@ -232,7 +236,7 @@ def _copy_figures(rows: list[dict], tmp: Path) -> dict:
     """One Figure 2 per scene (its first window, inverse distance weights) into figures/."""
     figures, seen = {}, set()
     for row in rows:
-        if row["scene"] in seen:
+        if row["scene"] in seen or "failed" in row:
             continue
         seen.add(row["scene"])
         source = tmp / "runs" / f"{row['scene']}_{row['window_s'][0]:.2f}" / "fill_idw"
@@ -252,7 +256,8 @@ def _mae(errors: dict | None, kind: str, where: str = "overall") -> float | None
 
 
 def _markdown(report: dict, params: ReproduceParams) -> str:
-    rows = report["rows"]
+    failed = [r for r in report["rows"] if "failed" in r]
+    rows = [r for r in report["rows"] if "failed" not in r]
     lines = ["# evfuse reproduce: the paper's experiments on the twin scenes", "",
              f"Windows of {params.window} s on the sliders (the paper: 1 s) and "
              f"{params.long_window} s on the 6-DoF and complex scenes; event camera "
@@ -339,6 +344,11 @@ def _markdown(report: dict, params: ReproduceParams) -> str:
                     f"{_f(_mae(e, 'filled', 'interior'))} | {_f(_mae(e, 'filled', 'band'))} | "
                     f"{_f(None if within is None else 100 * within, 1)} % | "
                     f"{_f(_mae(e, 'map'))} |")
+        lines.append("")
+    if failed:
+        lines += ["## Windows that could not be mapped", ""]
+        lines += [f"- {r['scene']} [{r['window_s'][0]:.2f}, {r['window_s'][1]:.2f}] s: "
+                  f"{r['failed']}" for r in failed]
         lines.append("")
     lines += ["## Figures (the paper's Figure 2, one window per scene)", ""]
     for scene, path in report["figures"].items():
