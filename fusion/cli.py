@@ -34,7 +34,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     result = simulate(scene, args.out, duration=args.duration, start=args.start, spp=args.spp,
                       variant=args.variant, overwrite=args.overwrite, progress=not args.quiet,
                       events=events, sampling=sampling, with_events=not args.no_events,
-                      event_formats=formats)
+                      event_formats=formats, resume=args.resume)
     what = f"{result.n_frames} frames and depth maps ({result.n_renders} renders)"
     if result.n_events is not None:
         what += f", {result.n_events} events ({result.event_renders} renders)"
@@ -324,7 +324,12 @@ def _parser() -> argparse.ArgumentParser:
                           help="event files to write: h5, txt or both (default h5,txt)")
     simulate.add_argument("--no-events", action="store_true",
                           help="render frames and depth only")
-    simulate.set_defaults(run=_cmd_simulate)
+    simulate.add_argument("--resume", action="store_true",
+                          help="continue an interrupted run of the same command from the "
+                               "checkpoint it left in OUT.partial (the result is the same as an "
+                               "uninterrupted run's)")
+    simulate.set_defaults(run=_cmd_simulate,
+                          interrupted="resume with the same command plus --resume")
 
     events = sub.add_parser("events", help="statistics and an event frame of a sequence's events")
     events.add_argument("sequence", help="sequence folder with events.h5 or events.txt")
@@ -446,8 +451,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"evfuse {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"evfuse {args.command}: interrupted; no complete output was written",
-              file=sys.stderr)
+        hint = getattr(args, "interrupted", "no complete output was written")
+        print(f"evfuse {args.command}: interrupted; {hint}", file=sys.stderr)
         return 130
 
 

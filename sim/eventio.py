@@ -219,6 +219,7 @@ class _StreamingWriter:
     count: int
     _last_t: int | None
     _closed: bool
+    _format: str
     _width: int | None = None
     _height: int | None = None
 
@@ -246,6 +247,53 @@ class _StreamingWriter:
         if int(events["t"][0]) < 0:
             raise ValueError(f"{source}: t = {int(events['t'][0])} ns is negative; expected "
                              "times >= 0 on disk")
+
+    def checkpoint(self) -> dict:
+        """Put every event written so far on disk and say where the file stands.
+
+        The file stays open and writing goes on. After an interruption (the ``.partial`` file is
+        left), a new writer of the same path given this as ``resume`` continues exactly here.
+
+        Returns
+        -------
+        dict
+            JSON-able: ``format`` (``"txt"`` or ``"h5"``), ``count`` (events written),
+            ``last_t`` (ns of the last event, or None) and what the format needs to continue.
+
+        Raises
+        ------
+        ValueError
+            The writer is closed.
+        """
+        if self._closed:
+            raise ValueError(f"{self.path}: checkpoint() after close(); expected an open writer")
+        return {"format": self._format, "count": self.count, "last_t": self._last_t,
+                **self._sync()}
+
+    def _reopen(self, resume: dict, keys: tuple[str, ...]) -> None:
+        """Check a :meth:`checkpoint`, restore the counts and find the file to continue."""
+        if not isinstance(resume, dict) or resume.get("format") != self._format:
+            got = resume.get("format") if isinstance(resume, dict) else type(resume).__name__
+            raise ValueError(f"{self.path}: resume must be a checkpoint() of a {self._format} "
+                             f"event writer, got {got!r}")
+        missing = [key for key in ("count", "last_t", *keys) if key not in resume]
+        if missing:
+            raise ValueError(f"{self.path}: the checkpoint lacks {', '.join(missing)}; expected "
+                             f"a dict from {type(self).__name__}.checkpoint()")
+        if not self.partial.exists() and self.path.is_file():
+            os.replace(self.path, self.partial)      # closed after the checkpoint: reopen it
+        if not self.partial.is_file():
+            raise ValueError(f"{self.partial}: no such file to resume; expected the file the "
+                             "checkpointed writer left")
+        self.count = int(resume["count"])
+        self._last_t = None if resume["last_t"] is None else int(resume["last_t"])
+
+    def _too_short(self, what: str, has: int, needs: int) -> ValueError:
+        return ValueError(f"{self.partial} holds {has} {what}, fewer than the {needs} the "
+                          "checkpoint counted; expected the file the checkpointed writer left")
+
+    def _sync(self) -> dict:  # pragma: no cover - overridden
+        raise NotImplementedError
 
     def _finish(self) -> None:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -560,6 +608,16 @@ class TextEventWriter(_StreamingWriter):
         The file to write. It is written as ``<path>.partial`` and renamed to ``path``
         (replacing an existing file) by a successful :meth:`close`; an exception inside the
         ``with`` block leaves only the ``.partial`` file.
+    resume : dict, optional
+        A :meth:`checkpoint` of an interrupted writer of the same path: its ``.partial`` file
+        (or ``path``, if it was closed after the checkpoint) is cut back to the checkpoint's
+        size and appended to.
+
+    Raises
+    ------
+    ValueError
+        ``resume`` is not a text writer's checkpoint, or the file to resume is missing or
+        shorter than the checkpoint says.
 
     Examples
     --------
@@ -568,10 +626,24 @@ class TextEventWriter(_StreamingWriter):
     ...         writer.write(chunk)
     """
 
-    def __init__(self, path: str | Path) -> None:
+    _format = "txt"
+
+    def __init__(self, path: str | Path, *, resume: dict | None = None) -> None:
         self._begin(path)
-        self._handle = self.partial.open("wb")
         self._buffer = np.empty(0, np.uint8)
+        if resume is None:
+            self._handle = self.partial.open("wb")
+            return
+        self._reopen(resume, ("size",))
+        size = int(resume["size"])
+        handle = self.partial.open("r+b")
+        has = handle.seek(0, os.SEEK_END)
+        if has < size:
+            handle.close()
+            raise self._too_short("bytes", has, size)
+        handle.truncate(size)
+        handle.seek(size)
+        self._handle = handle
 
     def write(self, events: np.ndarray) -> None:
         """Append a chunk of events.
@@ -598,6 +670,11 @@ class TextEventWriter(_StreamingWriter):
         if events.size:
             self.count += events.size
             self._last_t = int(events["t"][-1])
+
+    def _sync(self) -> dict:
+        self._handle.flush()
+        os.fsync(self._handle.fileno())
+        return {"size": self._handle.tell()}
 
     def _finish(self) -> None:
         self._handle.close()
@@ -659,16 +736,27 @@ class H5EventWriter(_StreamingWriter):
         must not come after the first event nor leave more than :data:`MAX_EMPTY_MS` empty
         milliseconds before it. Two consecutive events may not be more than
         :data:`MAX_EMPTY_MS` ms apart either.
+    resume : dict, optional
+        A :meth:`checkpoint` of an interrupted writer of the same path (and the same
+        ``t_offset_us``): its ``.partial`` file (or ``path``, if it was closed after the
+        checkpoint) is reopened, its datasets cut back to the checkpoint's lengths, and
+        writing goes on from there. The datasets then hold exactly what one uninterrupted
+        writer would have written (``ms_to_idx`` does not depend on where blocks were cut).
 
     Raises
     ------
     ValueError
-        Bad sensor size or chunk size; from :meth:`write`, a chunk out of order, outside the
-        sensor, before ``t_offset``, or too far after it or after the previous event.
+        Bad sensor size or chunk size; ``resume`` is not an HDF5 writer's checkpoint, or its file
+        is missing, unreadable or shorter than the checkpoint says; from :meth:`write`, a chunk
+        out of order, outside the sensor, before ``t_offset``, or too far after it or after the
+        previous event.
     """
 
+    _format = "h5"
+    _STATE = ("stored", "next_ms", "last_ms", "t_offset_us")
+
     def __init__(self, path: str | Path, width: int, height: int, chunk_size: int = 2**16,
-                 t_offset_us: int | None = None) -> None:
+                 t_offset_us: int | None = None, *, resume: dict | None = None) -> None:
         path = Path(path)
         if width is None or height is None:
             raise ValueError(f"{path}: an events.h5 needs the sensor size; expected width and "
@@ -691,6 +779,13 @@ class H5EventWriter(_StreamingWriter):
         self._stored = 0       # events appended to the datasets
         self._next_ms = 0      # first ms_to_idx entry not yet written
         self._last_ms = 0      # relative millisecond of the last event accepted
+        if resume is None:
+            self._create(h5py)
+        else:
+            self._resume(h5py, resume)
+
+    def _create(self, h5py: Any) -> None:
+        chunk_size = self.chunk_size
         self._file = h5py.File(self.partial, "w")
         compression = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
         group = self._file.create_group("events")
@@ -706,6 +801,50 @@ class H5EventWriter(_StreamingWriter):
         self._ms_to_idx = self._file.create_dataset(
             "ms_to_idx", shape=(0,), maxshape=(None,), dtype=np.int64,
             chunks=(min(chunk_size, 2**14),), **compression)
+
+    def _resume(self, h5py: Any, resume: dict) -> None:
+        self._reopen(resume, self._STATE)
+        stored, next_ms = int(resume["stored"]), int(resume["next_ms"])
+        try:
+            self._file = h5py.File(self.partial, "r+")
+        except OSError as exc:
+            raise ValueError(f"{self.partial}: cannot reopen as HDF5 ({exc}); expected the file "
+                             "the checkpointed writer left") from None
+        try:
+            names = ("t", "x", "y", "p", "t_ns_rem")
+            missing = [key for key in (*(f"events/{n}" for n in names), "ms_to_idx")
+                       if key not in self._file]
+            if missing:
+                raise ValueError(f"{self.partial}: no dataset {', '.join(missing)}; expected the "
+                                 "file the checkpointed writer left")
+            self._datasets = {name: self._file[f"events/{name}"] for name in names}
+            self._ms_to_idx = self._file["ms_to_idx"]
+            for dataset, length, what in [*((d, stored, f"events in {d.name}")
+                                            for d in self._datasets.values()),
+                                          (self._ms_to_idx, next_ms, "ms_to_idx entries")]:
+                if dataset.shape[0] < length:
+                    raise self._too_short(what, dataset.shape[0], length)
+                dataset.resize((length,))
+            if "t_offset" in self._file:          # written by a close() after the checkpoint
+                del self._file["t_offset"]
+        except BaseException:
+            self._file.close()
+            raise
+        self._stored, self._next_ms, self._last_ms = stored, next_ms, int(resume["last_ms"])
+        offset = resume["t_offset_us"]
+        if offset is not None:
+            if not self._auto_offset and int(offset) != self.t_offset_us:
+                self._file.close()
+                raise ValueError(f"{self.path}: the checkpoint's t_offset_us = {offset} differs "
+                                 f"from the given {self.t_offset_us}; expected the same offset "
+                                 "(or None)")
+            self.t_offset_us = int(offset)
+
+    def _sync(self) -> dict:
+        self._flush()
+        self._file.flush()
+        return {"stored": self._stored, "next_ms": self._next_ms, "last_ms": self._last_ms,
+                "t_offset_us": self.t_offset_us}
 
     def _offset_for(self, first_t_ns: int) -> int:
         first_ms = first_t_ns // 1_000_000

@@ -218,6 +218,56 @@ class EventEmulator:
         """The (filtered) log intensity of the last sample, (H, W) float64."""
         return self._L
 
+    def get_state(self) -> dict:
+        """Everything the emulator carries from one sample to the next, as copies.
+
+        Returns
+        -------
+        dict
+            ``time_ns`` (int or None before :meth:`start`), ``rng`` (the generator's
+            ``bit_generator.state``, a JSON-able dict) and, after :meth:`start`, the (H, W)
+            arrays ``ref`` (float64 references), ``level`` (float64 filtered log intensity of
+            the last sample), ``raw`` (float64 unfiltered log intensity of the last sample) and
+            ``last_t`` (int64 ns of each pixel's last event). The threshold, hot-pixel and leak
+            maps are not included: they follow from ``params`` alone.
+        """
+        state: dict = {"time_ns": self._t, "rng": self._rng.bit_generator.state}
+        if self.ref is not None:
+            state.update(ref=self.ref.copy(), level=np.array(self._L, dtype=np.float64),
+                         raw=np.array(self._raw, dtype=np.float64), last_t=self._last_t.copy())
+        return state
+
+    def set_state(self, state: dict) -> None:
+        """Continue from a state returned by :meth:`get_state` of an emulator with the same
+        shape and parameters; the events that follow are exactly those it would have given.
+
+        Raises
+        ------
+        ValueError
+            A key is missing, or an array does not have the sensor's shape.
+        """
+        missing = [key for key in ("time_ns", "rng") if key not in state]
+        if state.get("time_ns") is not None:
+            missing += [key for key in ("ref", "level", "raw", "last_t") if key not in state]
+        if missing:
+            raise ValueError(f"emulator state lacks {', '.join(missing)}; expected a dict from "
+                             "EventEmulator.get_state()")
+        if state["time_ns"] is None:
+            arrays = {}
+        else:
+            arrays = {key: np.array(state[key], dtype=np.int64 if key == "last_t" else np.float64)
+                      for key in ("ref", "level", "raw", "last_t")}
+        for key, value in arrays.items():
+            if value.shape != self.shape:
+                raise ValueError(f"emulator state: {key} has shape {value.shape}; expected the "
+                                 f"sensor's {self.shape}")
+        self._rng.bit_generator.state = state["rng"]
+        self._t = None if state["time_ns"] is None else int(state["time_ns"])
+        self.ref = arrays.get("ref")
+        self._L, self._raw = arrays.get("level"), arrays.get("raw")
+        if "last_t" in arrays:
+            self._last_t = arrays["last_t"]
+
     def _check(self, L: np.ndarray, name: str, finite: bool = True) -> np.ndarray:
         L = np.ascontiguousarray(L, dtype=np.float64)
         if L.shape != self.shape:

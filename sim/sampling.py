@@ -76,6 +76,10 @@ class Sample:
         max_change <= lam * C.
     refined : bool
         The interval was shortened after the render at the predicted time broke the bound.
+    tail_pending : bool
+        The second half of the same interval (kept after a step, see the module docstring)
+        is the next sample. Sampling can be continued from a sample (``after`` of
+        :func:`adaptive_samples`) only when this is False.
     """
 
     t: float
@@ -84,6 +88,7 @@ class Sample:
     max_change: float
     bound_met: bool
     refined: bool = False
+    tail_pending: bool = False
 
 
 @dataclass
@@ -163,8 +168,8 @@ def log_rate_bound(log: np.ndarray, flow_u: np.ndarray, flow_v: np.ndarray) -> f
 
 
 def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: float,
-                     params: SamplingParams | None = None, stats: SamplingStats | None = None
-                     ) -> Iterator[Sample]:
+                     params: SamplingParams | None = None, stats: SamplingStats | None = None,
+                     after: Sample | None = None) -> Iterator[Sample]:
     """Render samples from t0 to t1 (both included) at adaptively chosen times.
 
     Parameters
@@ -179,6 +184,11 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
     params : SamplingParams, optional
     stats : SamplingStats, optional
         Filled with counts while iterating (renders, refinements).
+    after : Sample, optional
+        Continue an earlier run from this sample, which it yielded (with ``tail_pending``
+        False): it is not rendered or yielded again, and the samples that follow are exactly
+        those the earlier run would have yielded next (renders are deterministic in time).
+        Pass that run's ``stats`` (as they were after the sample) to keep counting.
 
     Yields
     ------
@@ -186,7 +196,20 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
         In increasing time; consecutive samples differ by at most ``lam * C`` per pixel, unless
         the interval was refined (down to the maximum rate, or until only sub-pixel-sample steps
         broke the bound); ``bound_met`` and ``refined`` say which.
+
+    Raises
+    ------
+    ValueError
+        ``after`` has a pending tail, or its time is outside [t0, t1] (on the first ``next``).
     """
+    if after is not None:
+        if after.tail_pending:
+            raise ValueError(f"cannot continue sampling from the sample at t = {after.t} s: the "
+                             "second half of its interval is pending; expected a sample with "
+                             "tail_pending False")
+        if not t0 <= after.t <= t1:
+            raise ValueError(f"cannot continue sampling from t = {after.t} s; expected a sample "
+                             f"in [{t0}, {t1}] s")
     params = params or SamplingParams()
     stats = stats if stats is not None else SamplingStats()
     trajectory = renderer.scene.trajectory
@@ -198,10 +221,15 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
         luminance = renderer.luminance(t)
         return luminance, np.log(luminance.astype(np.float64) + log_eps)
 
-    t = float(t0)
-    luminance, log = render(t)
-    stats.accepted += 1
-    yield Sample(t, luminance, log, 0.0, True)
+    if after is None:
+        t = float(t0)
+        luminance, log = render(t)
+        stats.accepted += 1
+        yield Sample(t, luminance, log, 0.0, True)
+    else:
+        t, log = float(after.t), np.asarray(after.log, dtype=np.float64)
+        if math.isclose(t, t1, rel_tol=0, abs_tol=1e-12):
+            return
     while t < t1:
         v_cam, w_cam = trajectory.camera_velocity(t)
         flow_u, flow_v = motion_field(renderer.camera, renderer.depth(t), v_cam, w_cam)
@@ -228,15 +256,15 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
                 t_next, lum_next, log_next, change = t_half, lum_half, log_half, first
                 break
             t_next, lum_next, log_next, change = t_half, lum_half, log_half, first
-        for t_s, lum_s, log_s, largest in ((t_next, lum_next, log_next, float(change.max())),
-                                           tail):
+        kept = [(t_next, lum_next, log_next, float(change.max()))]
+        if tail is not None:
+            kept.append(tail)
+        for k, (t_s, lum_s, log_s, largest) in enumerate(kept):
             met = largest <= bound
             if not met and t_s - t < 2 * dt_min * (1 - 1e-9):
                 stats.at_max_rate += 1
             stats.accepted += 1
-            t, luminance, log = t_s, lum_s, log_s
-            yield Sample(t, luminance, log, largest, met, refined)
-            if tail is None:
-                break
+            t, log = t_s, log_s
+            yield Sample(t, lum_s, log, largest, met, refined, tail_pending=k + 1 < len(kept))
         if math.isclose(t, t1, rel_tol=0, abs_tol=1e-12):
             break

@@ -31,7 +31,8 @@ if TYPE_CHECKING:
     from sim.camera import Camera
 
 __all__ = ["Sequence", "atomic_output_dir", "check_output_dir", "frame_name", "load_sequence",
-           "read_index", "read_sequence_json", "write_index", "write_sequence_json"]
+           "partial_dir", "read_index", "read_sequence_json", "write_index",
+           "write_sequence_json"]
 
 PARTIAL_SUFFIX = ".partial"
 """Suffix of the folder a sequence is written into before it is complete."""
@@ -60,8 +61,15 @@ def check_output_dir(out: str | Path, overwrite: bool = False) -> None:
                          "(overwrite=True) to replace it, or choose another path")
 
 
+def partial_dir(out: str | Path) -> Path:
+    """The folder :func:`atomic_output_dir` writes ``out`` into: ``<out>.partial``."""
+    out = Path(out)
+    return out.with_name(out.name + PARTIAL_SUFFIX)
+
+
 @contextmanager
-def atomic_output_dir(out: str | Path, overwrite: bool = False) -> Iterator[Path]:
+def atomic_output_dir(out: str | Path, overwrite: bool = False, *,
+                      resume: bool = False) -> Iterator[Path]:
     """Write a folder under a temporary name and rename it into place when complete.
 
     Parameters
@@ -72,12 +80,16 @@ def atomic_output_dir(out: str | Path, overwrite: bool = False) -> Iterator[Path
         Replace an existing non-empty ``out``. The old folder is removed only once the new one
         is complete: it is renamed aside, the new one renamed in, then the old one deleted.
         An existing empty folder is replaced without ``overwrite``.
+    resume : bool
+        Keep the ``.partial`` folder an earlier, interrupted run left, with its contents, for
+        the body to continue (it is created if there is none). The body must check that what
+        it holds is what it expects.
 
     Yields
     ------
     Path
-        A fresh, empty folder ``<out.parent>/<out.name>.partial`` to write into. A stale one
-        from an earlier failed run is removed first.
+        The folder ``<out.parent>/<out.name>.partial`` to write into: fresh and empty (a
+        stale one from an earlier failed run is removed first) unless ``resume``.
 
     Raises
     ------
@@ -87,8 +99,9 @@ def atomic_output_dir(out: str | Path, overwrite: bool = False) -> Iterator[Path
 
     Notes
     -----
-    If the body raises, the ``.partial`` folder is left for inspection (its name cannot be
-    mistaken for a complete result), ``out`` is untouched, and the exception propagates.
+    If the body raises, the ``.partial`` folder is left for inspection or for a run with
+    ``resume`` to continue (its name cannot be mistaken for a complete result), ``out`` is
+    untouched, and the exception propagates.
     ``out`` itself is never seen half-written.
     """
     out = Path(out)
@@ -96,12 +109,12 @@ def atomic_output_dir(out: str | Path, overwrite: bool = False) -> Iterator[Path
         raise ValueError(f"output path {str(out)!r} has no folder name")
     check_output_dir(out, overwrite)
     out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(out.name + PARTIAL_SUFFIX)
+    partial = partial_dir(out)
     if partial.is_symlink() or partial.is_file():
         partial.unlink()
-    elif partial.exists():
+    elif partial.exists() and not resume:
         shutil.rmtree(partial)
-    partial.mkdir()
+    partial.mkdir(exist_ok=resume)
     yield partial
     check_output_dir(out, overwrite)
     old = None

@@ -7,10 +7,28 @@ adaptively chosen times (:mod:`sim.sampling`), streamed to ``events.h5`` and ``e
 indexes and ``sequence.json``.
 
 Everything is written into ``<out>.partial`` and renamed to ``<out>`` only when complete.
+
+An interrupted run can be resumed (``simulate(..., resume=True)``, ``evfuse simulate --resume``)
+and gives the same files as an uninterrupted one. Three things make that possible:
+
+- Every frame is written atomically (a temporary name, then a rename) and draws its noise from
+  its own generator, ``default_rng([seed, FRAME_NOISE_STREAM, index])``: a frame whose files
+  exist is complete, and any frame can be made alone.
+- Renders are deterministic in time (a fixed sampler seed), so the event stage can go on from
+  any sample at which the sampler, the emulator and the writers were saved.
+- ``<out>.partial/.checkpoint/`` holds what a resumed run needs (see :class:`_Checkpoint`):
+  the run's identity (scene text, seed, times, parameters, software), the frames' gain and the
+  event stage's state, saved at a sample boundary every :data:`CHECKPOINT_SECONDS` of wall
+  time or :data:`CHECKPOINT_SAMPLES` samples, whichever comes first. It is removed before the
+  folder is renamed into place.
 """
 
 from __future__ import annotations
 
+import hashlib
+import io
+import json
+import os
 import platform
 import time
 from contextlib import ExitStack
@@ -27,20 +45,39 @@ from sim.camera import write_calib
 from sim.eventio import H5EventWriter, TextEventWriter
 from sim.events import EventEmulator, EventParams
 from sim.exr import write_depth
-from sim.frames import auto_gain, exposure_sample_times, frame_times, luminance_to_frame
+from sim.frames import (
+    FrameParams,
+    auto_gain,
+    exposure_sample_times,
+    frame_times,
+    luminance_to_frame,
+)
 from sim.render import Renderer
-from sim.sampling import SamplingParams, SamplingStats, adaptive_samples
+from sim.sampling import Sample, SamplingParams, SamplingStats, adaptive_samples
 from sim.scene import Scene
 from sim.sequence import (
     atomic_output_dir,
     check_output_dir,
     frame_name,
+    partial_dir,
     write_index,
     write_sequence_json,
 )
 from sim.trajectory import sample_times, write_trajectory
 
-__all__ = ["SimulationResult", "simulate"]
+__all__ = ["CHECKPOINT_SAMPLES", "CHECKPOINT_SECONDS", "SimulationResult", "simulate"]
+
+CHECKPOINT_SECONDS = 1.0
+"""Wall-clock seconds between two checkpoints of the event stage."""
+CHECKPOINT_SAMPLES = 1000
+"""Most event-camera samples between two checkpoints of the event stage, however fast."""
+CHECKPOINT_FOLDER = ".checkpoint"
+"""Folder of ``<out>.partial`` that holds the state a resumed run continues from."""
+FRAME_NOISE_STREAM = 1
+"""Frame ``k`` draws its noise from ``np.random.default_rng([seed, FRAME_NOISE_STREAM, k])``."""
+
+_CHECKPOINT_FORMAT = "evfuse checkpoint 1"
+_EMULATOR_ARRAYS = ("ref", "level", "raw", "last_t")
 
 
 @dataclass(frozen=True)
@@ -62,7 +99,7 @@ class SimulationResult:
     variant : str
         Mitsuba variant used.
     timings : dict
-        Seconds spent per stage.
+        Seconds spent per stage (by this call: a resumed run counts only what it did).
     """
 
     out: Path
@@ -90,7 +127,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
              overwrite: bool = False,
              progress: bool = True, events: EventParams | None = None,
              sampling: SamplingParams | None = None, with_events: bool = True,
-             event_formats: tuple[str, ...] = ("h5", "txt")) -> SimulationResult:
+             event_formats: tuple[str, ...] = ("h5", "txt"),
+             resume: bool = False) -> SimulationResult:
     """Render a scene into a sequence folder.
 
     Parameters
@@ -121,6 +159,13 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         Simulate the event camera (default True).
     event_formats : tuple of {"h5", "txt"}
         Files to write the events to (``events.h5``, ``events.txt``).
+    resume : bool
+        Continue the interrupted run that left ``<out>.partial``, from its last checkpoint:
+        frames already written are kept, the event stage goes on from its last saved sample.
+        The run must have had the same scene text, seed, times, parameters, variant and
+        software versions; the files come out the same as an uninterrupted run's
+        (``sequence.json`` apart from its timings). Without ``resume``, a stale
+        ``<out>.partial`` is discarded.
 
     Returns
     -------
@@ -130,7 +175,14 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     ------
     ValueError
         A duration that is not positive or not covered by the trajectory, or an existing ``out``
-        without ``overwrite``.
+        without ``overwrite``. With ``resume``: a complete ``out`` (without ``overwrite``), no
+        ``<out>.partial`` or no checkpoint in it, or a checkpoint of a run with other inputs
+        (the message names them).
+
+    Notes
+    -----
+    If interrupted (KeyboardInterrupt or any exception), ``<out>.partial`` is left with its
+    last checkpoint in ``.checkpoint/``.
     """
     start = float(start)
     duration = float(scene.duration - start if duration is None else duration)
@@ -148,45 +200,37 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     if len(times) == 0:
         raise ValueError(f"duration {duration} s is too short for one frame at {params.rate} Hz "
                          f"with a {params.exposure} s exposure")
+    events = events or EventParams(seed=scene.seed)
+    sampling = sampling or SamplingParams()
+    event_formats = tuple(event_formats)
+    unknown = set(event_formats) - {"h5", "txt"}
+    if with_events and (unknown or not event_formats):
+        raise ValueError(f"event formats must be among h5, txt; got {event_formats}")
     out = Path(out)
-    check_output_dir(out, overwrite)                  # refuse before loading the renderer
+    identity = _identity(scene, start, duration, spp, events if with_events else None, sampling,
+                         event_formats)
+    if resume:                                        # refuse before loading the renderer
+        _check_resumable(out, overwrite, identity)
+    else:
+        check_output_dir(out, overwrite)
     timings = {"setup": 0.0, "render": 0.0, "depth": 0.0, "write": 0.0, "event_render": 0.0,
-               "emulate": 0.0, "event_write": 0.0}
+               "emulate": 0.0, "event_write": 0.0, "checkpoint": 0.0}
     clock = time.perf_counter()
     renderer = Renderer(scene, spp=spp, variant=variant)
-    rng = np.random.default_rng(scene.seed)
+    identity["variant"] = renderer.variant
     timings["setup"] = time.perf_counter() - clock
-    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+    with atomic_output_dir(out, overwrite=overwrite, resume=resume) as tmp:
+        checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
         write_calib(tmp / "calib.txt", scene.camera)
         pose_times = sample_times(start, end, scene.render.pose_rate)
         write_trajectory(tmp / "groundtruth.txt", pose_times, traj.pose(pose_times))
-        (tmp / "images").mkdir()
-        (tmp / "depth").mkdir()
-        gain = params.gain
-        image_names, depth_names = [], []
-        bar = tqdm(times, desc=f"simulate {scene.name}", unit="frame", disable=not progress)
-        for index, t in enumerate(bar):
-            tick = time.perf_counter()
-            exposure = [renderer.luminance(ts) for ts in exposure_sample_times(t, params)]
-            luminance = np.mean(exposure, axis=0, dtype=np.float64).astype(np.float32)
-            tock = time.perf_counter()
-            depth = renderer.depth(t)
-            tack = time.perf_counter()
-            if gain is None:
-                gain = auto_gain(luminance)
-            frame = luminance_to_frame(luminance, gain, params, rng)
-            image_names.append(frame_name(index, "png"))
-            depth_names.append(frame_name(index, "exr"))
-            if not cv2.imwrite(str(tmp / image_names[-1]), frame):
-                raise OSError(f"cannot write {tmp / image_names[-1]}")
-            write_depth(tmp / depth_names[-1], depth)
-            timings["render"] += tock - tick
-            timings["depth"] += tack - tock
-            timings["write"] += time.perf_counter() - tack
-        event_info = None
-        if with_events:
+        gain, image_names, depth_names = _simulate_frames(scene, renderer, tmp, times,
+                                                          checkpoint, progress, timings)
+        event_info = checkpoint.events_done
+        if with_events and event_info is None:
             event_info = _simulate_events(scene, renderer, tmp, start, end, events, sampling,
-                                          event_formats, progress, timings)
+                                          event_formats, checkpoint, progress, timings)
+            checkpoint.set_events_done(event_info)
         write_index(tmp / "images.txt", times, image_names)
         write_index(tmp / "depthmaps.txt", times, depth_names)
         cam = scene.camera
@@ -206,30 +250,92 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                        "pose_rate": scene.render.pose_rate, "renders": len(times)
                        * params.exposure_samples},
             "depth": {"kind": "z", "units": "m", "at": "pixel centres, frame mid-exposure times"},
-            "events": event_info,
+            "events": event_info if with_events else None,
             "software": _versions(),
             "timings_s": {k: round(v, 3) for k, v in timings.items()},
         })
+        checkpoint.remove()
     timings["total"] = time.perf_counter() - clock
     return SimulationResult(out, len(times), len(times) * params.exposure_samples,
                             renderer.variant, timings,
-                            event_info["count"] if event_info else None,
-                            event_info["renders"] if event_info else 0)
+                            event_info["count"] if with_events else None,
+                            event_info["renders"] if with_events else 0)
 
+
+# --- standard-camera frames --------------------------------------------------------------------
+
+def _exposure(renderer: Renderer, t: float, params: FrameParams) -> np.ndarray:
+    """The luminance a frame integrates: its exposure renders averaged, (H, W) float32."""
+    exposure = [renderer.luminance(ts) for ts in exposure_sample_times(t, params)]
+    return np.mean(exposure, axis=0, dtype=np.float64).astype(np.float32)
+
+
+def _simulate_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.ndarray,
+                     checkpoint: _Checkpoint, progress: bool, timings: dict
+                     ) -> tuple[float, list[str], list[str]]:
+    """Write every frame and depth map that is not on disk yet; return the gain and names."""
+    params = scene.frames
+    (folder / "images").mkdir(exist_ok=True)
+    (folder / "depth").mkdir(exist_ok=True)
+    gain = params.gain if params.gain is not None else checkpoint.gain
+    image_names = [frame_name(index, "png") for index in range(len(times))]
+    depth_names = [frame_name(index, "exr") for index in range(len(times))]
+    bar = tqdm(times, desc=f"simulate {scene.name}", unit="frame", disable=not progress)
+    for index, t in enumerate(bar):
+        image, depth_map = folder / image_names[index], folder / depth_names[index]
+        if image.is_file() and depth_map.is_file():       # written atomically: complete
+            continue
+        tick = time.perf_counter()
+        luminance = _exposure(renderer, t, params)
+        tock = time.perf_counter()
+        depth = renderer.depth(t)
+        tack = time.perf_counter()
+        if gain is None:
+            first = luminance if index == 0 else _exposure(renderer, times[0], params)
+            gain = auto_gain(first)
+            checkpoint.set_gain(gain)                     # before the first frame is written
+        rng = np.random.default_rng([scene.seed, FRAME_NOISE_STREAM, index])
+        frame = luminance_to_frame(luminance, gain, params, rng)
+        ok, png = cv2.imencode(".png", frame)
+        if not ok:
+            raise OSError(f"cannot encode {image} as PNG")
+        _write_atomically(image, png.tobytes())
+        partial = depth_map.with_name(depth_map.name + ".tmp")
+        write_depth(partial, depth)
+        os.replace(partial, depth_map)
+        timings["render"] += tock - tick
+        timings["depth"] += tack - tock
+        timings["write"] += time.perf_counter() - tack
+    if gain is None:                   # every frame was on disk, but the gain was not saved
+        gain = auto_gain(_exposure(renderer, times[0], params))
+    return gain, image_names, depth_names
+
+
+# --- events ------------------------------------------------------------------------------------
 
 def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: float, end: float,
-                     params: EventParams | None, sampling: SamplingParams | None,
-                     formats: tuple[str, ...], progress: bool, timings: dict) -> dict:
-    """Drive the emulator with adaptive renders over [start, end]; stream the events out."""
-    params = params or EventParams(seed=scene.seed)
-    sampling = sampling or SamplingParams()
-    unknown = set(formats) - {"h5", "txt"}
-    if unknown or not formats:
-        raise ValueError(f"event formats must be among h5, txt; got {formats}")
+                     params: EventParams, sampling: SamplingParams, formats: tuple[str, ...],
+                     checkpoint: _Checkpoint, progress: bool, timings: dict) -> dict:
+    """Drive the emulator with adaptive renders over [start, end]; stream the events out.
+
+    Continues from the checkpoint's event state when there is one, and saves that state at
+    sample boundaries (see :data:`CHECKPOINT_SECONDS`, :data:`CHECKPOINT_SAMPLES`).
+    """
     cam = scene.camera
     emulator = EventEmulator((cam.height, cam.width), params)
     stats = SamplingStats()
     count = on = 0
+    after: Sample | None = None
+    positions: dict = {}
+    saved = checkpoint.load_events()
+    if saved is not None:
+        arrays, state = saved
+        emulator.set_state({**state["emulator"],
+                            **{key: arrays[f"emulator_{key}"] for key in _EMULATOR_ARRAYS}})
+        stats = SamplingStats(**state["stats"])
+        count, on, positions = state["count"], state["on"], state["writers"]
+        after = Sample(luminance=arrays["sample_luminance"], log=arrays["sample_log"],
+                       **state["sample"])
     contrast = min(params.contrast_on, params.contrast_off)
     fast = _FastRenderer(renderer, scene.render.event_spp)
     bar = tqdm(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
@@ -243,15 +349,17 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
         threads = numba.get_num_threads()
         numba.set_num_threads(1)
         stack.callback(numba.set_num_threads, threads)
-        writers = []
+        writers: dict[str, H5EventWriter | TextEventWriter] = {}
         if "h5" in formats:
-            writers.append(stack.enter_context(
-                H5EventWriter(folder / "events.h5", cam.width, cam.height)))
+            writers["h5"] = stack.enter_context(H5EventWriter(
+                folder / "events.h5", cam.width, cam.height, resume=positions.get("h5")))
         if "txt" in formats:
-            writers.append(stack.enter_context(TextEventWriter(folder / "events.txt")))
+            writers["txt"] = stack.enter_context(TextEventWriter(
+                folder / "events.txt", resume=positions.get("txt")))
+        since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()
         for sample in adaptive_samples(fast, start, end, contrast, params.log_eps, sampling,
-                                       stats):
+                                       stats, after=after):
             tock = time.perf_counter()
             timings["event_render"] += tock - tick
             if emulator.time_ns is None:
@@ -262,12 +370,20 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
             tack = time.perf_counter()
             timings["emulate"] += tack - tock
             if chunk is not None and len(chunk):
-                for writer in writers:
+                for writer in writers.values():
                     writer.write(chunk)
                 count += len(chunk)
                 on += int(np.count_nonzero(chunk["p"] > 0))
             tick = time.perf_counter()
             timings["event_write"] += tick - tack
+            since += 1
+            # Only where the sampler can be restarted from this sample (no tail pending).
+            if not sample.tail_pending and (since >= CHECKPOINT_SAMPLES
+                                            or tick - saved_at >= CHECKPOINT_SECONDS):
+                checkpoint.save_events(sample, emulator, stats, count, on, writers)
+                since, saved_at = 0, time.perf_counter()
+                timings["checkpoint"] += saved_at - tick
+                tick = saved_at
             bar.n = round(sample.t - start, 6)
             bar.set_postfix_str(f"{count} events, {stats.renders} renders", refresh=False)
             bar.update(0)
@@ -304,3 +420,196 @@ class _FastRenderer:
 
     def depth(self, t: float) -> np.ndarray:
         return self._renderer.depth(t)
+
+
+# --- checkpoints -------------------------------------------------------------------------------
+
+def _identity(scene: Scene, start: float, duration: float, spp: int | None,
+              events: EventParams | None, sampling: SamplingParams,
+              formats: tuple[str, ...]) -> dict:
+    """What decides a run's output, as JSON values (the variant is added once it is known).
+
+    The scene enters by its TOML text (hashed) and the parsed parts a caller may replace;
+    files the text refers to (image textures, meshes) are not read.
+    """
+    identity = {
+        "scene_toml_sha256": hashlib.sha256(scene.text.encode("utf-8")).hexdigest(),
+        "scene": {"duration": scene.duration, "camera": asdict(scene.camera),
+                  "frames": asdict(scene.frames), "render": asdict(scene.render)},
+        "seed": scene.seed,
+        "start": start,
+        "duration": duration,
+        "spp": int(spp if spp is not None else scene.render.spp),
+        "events": None if events is None else {"params": asdict(events),
+                                               "sampling": asdict(sampling),
+                                               "formats": list(formats)},
+        "software": _versions(),
+    }
+    return json.loads(json.dumps(identity))           # tuples -> lists, as read back
+
+
+def _fingerprint(identity: dict) -> str:
+    return hashlib.sha256(json.dumps(identity, sort_keys=True).encode("utf-8")).hexdigest()
+
+
+def _flatten(value: object, prefix: str = "") -> dict:
+    if not isinstance(value, dict):
+        return {prefix: value}
+    flat: dict = {}
+    for key, item in value.items():
+        flat.update(_flatten(item, f"{prefix}.{key}" if prefix else str(key)))
+    return flat
+
+
+def _differences(saved: dict, current: dict, skip: tuple[str, ...] = ()) -> list[str]:
+    """``key (saved value in the checkpoint, current value now)`` for every key that differs."""
+    old, new = _flatten(saved), _flatten(current)
+    missing = "(none)"
+    return [f"{key} ({str(old.get(key, missing))[:40]} in the checkpoint, "
+            f"{str(new.get(key, missing))[:40]} now)"
+            for key in sorted(set(old) | set(new))
+            if key.split(".")[0] not in skip and old.get(key, missing) != new.get(key, missing)]
+
+
+def _write_atomically(path: Path, data: bytes) -> None:
+    """Write ``path`` under a temporary name and rename it into place: never half-written."""
+    partial = path.with_name(path.name + ".tmp")
+    with partial.open("wb") as handle:
+        handle.write(data)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(partial, path)
+
+
+def _check_resumable(out: Path, overwrite: bool, identity: dict) -> None:
+    """Raise ValueError unless ``<out>.partial`` holds a checkpoint of a run like this one."""
+    if out.is_dir() and not out.is_symlink() and any(out.iterdir()) and not overwrite:
+        raise ValueError(f"output folder {out} is already complete; there is nothing to resume "
+                         "(add --overwrite (overwrite=True) to continue an interrupted run that "
+                         "replaces it)")
+    check_output_dir(out, overwrite)
+    partial = partial_dir(out)
+    if not partial.is_dir():
+        raise ValueError(f"there is no interrupted run of {out} to resume ({partial} does not "
+                         "exist); run without --resume (resume=False) to start one")
+    saved = _Checkpoint.read(partial / CHECKPOINT_FOLDER)["identity"]
+    differences = _differences(saved, identity, skip=("variant",))
+    if differences:
+        raise ValueError(_mismatch(partial, differences))
+
+
+def _mismatch(partial: Path, differences: list[str]) -> str:
+    return (f"{partial} was left by a run with other inputs: {'; '.join(differences)}; expected "
+            "the same scene, seed, times, parameters and software to resume (or run without "
+            "--resume to start again)")
+
+
+class _Checkpoint:
+    """The state of an unfinished simulation, in ``<out>.partial/.checkpoint/``.
+
+    ``checkpoint.json`` holds ``format``, the run's ``identity`` (see :func:`_identity`) and
+    its SHA-256 ``fingerprint``, the frames' ``gain`` once known (saved before the first frame
+    is written) and the event stage's ``events`` summary once it is done. ``events.npz`` holds
+    the event stage's last saved state: the arrays ``sample_luminance``, ``sample_log`` (the
+    sampler's last sample) and ``emulator_ref``, ``emulator_level``, ``emulator_raw``,
+    ``emulator_last_t`` (see :meth:`EventEmulator.get_state`), and under ``state`` the JSON
+    text of the sample's time and flags, the emulator's time and generator state, the sampling
+    counters, the event counts and each writer's :meth:`checkpoint`. Both files are written
+    under a temporary name and renamed over the old one.
+
+    Parameters
+    ----------
+    folder : Path
+        The ``.checkpoint`` folder.
+    identity : dict
+        This run's identity, variant included.
+    resume : bool
+        Read the folder (its identity must match) rather than start a new one.
+    """
+
+    def __init__(self, folder: Path, identity: dict, resume: bool) -> None:
+        self.folder = folder
+        fingerprint = _fingerprint(identity)
+        if resume:
+            self.data = self.read(folder)
+            if self.data["fingerprint"] != fingerprint:
+                differences = _differences(self.data["identity"], identity)
+                raise ValueError(_mismatch(folder.parent, differences or ["fingerprint"]))
+        else:
+            folder.mkdir()
+            self.data = {"format": _CHECKPOINT_FORMAT, "fingerprint": fingerprint,
+                         "identity": identity, "gain": None, "events": None}
+            self._save()
+
+    @staticmethod
+    def read(folder: Path) -> dict:
+        """The contents of ``checkpoint.json``, or a ValueError saying what is wrong."""
+        path = folder / "checkpoint.json"
+        if not path.is_file():
+            raise ValueError(f"{folder.parent} holds no checkpoint ({path} does not exist): the "
+                             "run stopped before its first one; run without --resume "
+                             "(resume=False) to start again")
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path}:{exc.lineno}: invalid JSON: {exc.msg}") from None
+        if not isinstance(data, dict) or data.get("format") != _CHECKPOINT_FORMAT:
+            got = data.get("format") if isinstance(data, dict) else type(data).__name__
+            raise ValueError(f"{path}: format {got!r}; expected {_CHECKPOINT_FORMAT!r}")
+        return data
+
+    def _save(self) -> None:
+        text = json.dumps(self.data, sort_keys=True, indent=1, allow_nan=False)
+        _write_atomically(self.folder / "checkpoint.json", text.encode("utf-8"))
+
+    @property
+    def gain(self) -> float | None:
+        """The frames' automatic gain, once the first frame has fixed it."""
+        return self.data["gain"]
+
+    def set_gain(self, gain: float) -> None:
+        self.data["gain"] = float(gain)
+        self._save()
+
+    @property
+    def events_done(self) -> dict | None:
+        """The event stage's summary (``sequence.json``'s ``events``) once it is complete."""
+        return self.data["events"]
+
+    def set_events_done(self, info: dict) -> None:
+        self.data["events"] = json.loads(json.dumps(info))
+        self._save()
+
+    def save_events(self, sample: Sample, emulator: EventEmulator, stats: SamplingStats,
+                    count: int, on: int, writers: dict) -> None:
+        """Save the event stage after ``sample`` (which has no pending tail)."""
+        emulator_state = emulator.get_state()
+        arrays = {f"emulator_{key}": emulator_state.pop(key) for key in _EMULATOR_ARRAYS}
+        state = {"sample": {"t": sample.t, "max_change": sample.max_change,
+                            "bound_met": sample.bound_met, "refined": sample.refined},
+                 "emulator": emulator_state, "stats": asdict(stats), "count": count, "on": on,
+                 "writers": {fmt: writer.checkpoint() for fmt, writer in writers.items()}}
+        buffer = io.BytesIO()
+        np.savez(buffer, sample_luminance=sample.luminance, sample_log=sample.log,
+                 state=np.array(json.dumps(state)), **arrays)
+        _write_atomically(self.folder / "events.npz", buffer.getvalue())
+
+    def load_events(self) -> tuple[dict, dict] | None:
+        """The arrays and state saved by :meth:`save_events`, or None if there are none."""
+        path = self.folder / "events.npz"
+        if not path.is_file():
+            return None
+        try:
+            with np.load(path) as saved:
+                arrays = {key: saved[key] for key in saved.files if key != "state"}
+                state = json.loads(str(saved["state"]))
+        except (OSError, ValueError, KeyError) as exc:
+            raise ValueError(f"{path}: cannot read the event checkpoint ({exc}); run without "
+                             "--resume (resume=False) to start again") from None
+        return arrays, state
+
+    def remove(self) -> None:
+        """Delete the folder, ``checkpoint.json`` last (until then a resume still works)."""
+        for path in sorted(self.folder.iterdir(), key=lambda p: p.name == "checkpoint.json"):
+            path.unlink()
+        self.folder.rmdir()
