@@ -440,7 +440,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     -------
     int
         Exit status: 0 on success, 2 for bad input (one line on standard error, no traceback
-        unless ``--debug``), 130 when interrupted.
+        unless ``--debug``), 1 for an unexpected error (also one line), 130 when interrupted.
     """
     args = _parser().parse_args(argv)
     try:
@@ -454,6 +454,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         hint = getattr(args, "interrupted", "no complete output was written")
         print(f"evfuse {args.command}: interrupted; {hint}", file=sys.stderr)
         return 130
+    except Exception as exc:                      # a bug or an unforeseen failure: still one line
+        if args.debug:
+            raise
+        print(f"evfuse {args.command}: unexpected error: {type(exc).__name__}: {exc} (run with "
+              "--debug for the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

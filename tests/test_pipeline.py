@@ -115,3 +115,17 @@ def test_bad_runs_on_the_real_recording_leave_nothing_behind(argv, message, ecd_
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_unexpected_failure_is_still_one_line(tiny_run, monkeypatch, capsys):
+    import fusion.pipeline
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("disk on fire")
+
+    _, out = tiny_run
+    monkeypatch.setattr(fusion.pipeline, "draw_overview", broken)
+    assert main(["show", str(out), "--out", str(out.parent / "x.png")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["evfuse show: unexpected error: RuntimeError: disk on fire (run with --debug "
+                   "for the traceback)"]
