@@ -33,6 +33,7 @@ from fusion.filling import (
     filling_score,
     select_regions,
 )
+from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
 from fusion.scoring import depth_errors, discontinuity_band, error_image
 from fusion.segmentation import SegmentationParams, segment_regions
@@ -391,25 +392,5 @@ def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
         for key in ("map", "sequence"):             # relative to this folder, as in map.json
             if key in document:
                 document[key] = os.path.relpath(Path(document[key]).resolve(), tmp.resolve())
-        (tmp / "fill.json").write_text(json.dumps(_finite(document), indent=2, sort_keys=True,
-                                                  default=_json_value))
+        (tmp / "fill.json").write_text(to_json(document))
     return Path(out)
-
-
-def _finite(value):
-    """NaN (a metric with nothing to evaluate) as null: strict JSON has no NaN."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(v) for v in value]
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
-
-
-def _json_value(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value)}")

@@ -13,7 +13,6 @@ table.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from dataclasses import asdict, dataclass, field
@@ -32,6 +31,7 @@ from fusion.emvs import (
     semidense_depth,
 )
 from fusion.figures import depth_colours
+from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
 from sim.camera import Camera
 from sim.eventio import iter_event_chunks
@@ -354,5 +354,5 @@ def write_map(result: MapResult, out: str | Path, params: MapParams,
                        "cy": result.camera.cy},
             **result.info,
         }
-        (tmp / "map.json").write_text(json.dumps(document, indent=2, sort_keys=True))
+        (tmp / "map.json").write_text(to_json(document))
     return Path(out)

@@ -23,9 +23,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fusion.dense import DenseParams, _finite, fill_map, write_fill
+from fusion.dense import DenseParams, fill_map, write_fill
 from fusion.emvs import DepthMapParams, DSIParams
 from fusion.figures import depth_colours, label_colours, panel_grid, write_image
+from fusion.jsonio import to_json
 from fusion.mapping import MapParams, map_sequence, write_map
 from fusion.scoring import error_image
 from sim.eventio import event_frame, read_window
@@ -171,7 +172,7 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
         write_image(tmp / "overview.png", draw_overview(tmp, report))
         timings["total_s"] = time.perf_counter() - clock
         report["timings"] = timings
-        (tmp / "report.json").write_text(json.dumps(_finite(report), indent=2, sort_keys=True))
+        (tmp / "report.json").write_text(to_json(report))
     return report
 
 

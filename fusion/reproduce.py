@@ -18,7 +18,6 @@ instead of 0.5); the report says so.
 from __future__ import annotations
 
 import dataclasses
-import json
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -27,9 +26,10 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from fusion.dense import DenseParams, _finite, fill_map, write_fill
+from fusion.dense import DenseParams, fill_map, write_fill
 from fusion.emvs import DepthMapParams, DSIParams
 from fusion.filling import FillParams
+from fusion.jsonio import to_json
 from fusion.mapping import MapParams, map_sequence, write_map
 from sim.exr import read_depth
 from sim.sequence import atomic_output_dir, check_output_dir, load_sequence
@@ -227,7 +227,7 @@ def reproduce(out: str | Path, params: ReproduceParams | None = None,
         report = {"settings": {**dataclasses.asdict(params), "cache": str(cache)},
                   "paper": PAPER, "rows": rows, "figures": figures,
                   "total_s": time.perf_counter() - clock}
-        (tmp / "report.json").write_text(json.dumps(_finite(report), indent=2))
+        (tmp / "report.json").write_text(to_json(report))
         (tmp / "report.md").write_text(_markdown(report, params))
     return report
 
