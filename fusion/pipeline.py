@@ -186,9 +186,6 @@ def _simulate_window(source, folder: Path, params: RunParams, progress: bool, ti
     t1 = min(t0 + DEFAULT_WINDOW, scene.duration) if params.t1 is None else float(params.t1)
     if not t1 > t0:
         raise ValueError(f"empty time window [{t0}, {t1}] s")
-    if t0 < 0 or t1 > scene.duration + 1e-9:
-        raise ValueError(f"time window [{t0}, {t1}] s is outside the scene {scene.name} "
-                         f"[0, {scene.duration}] s")
     tick = time.perf_counter()
     simulate(scene, folder, start=t0, duration=t1 - t0, spp=params.spp, progress=progress)
     timings["simulate_s"] = time.perf_counter() - tick

@@ -174,7 +174,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     Raises
     ------
     ValueError
-        A duration that is not positive or not covered by the trajectory, or an existing ``out``
+        A duration that is not positive, a window ``[start, start + duration]`` outside the
+        scene (its duration, and its trajectory's valid range), or an existing ``out``
         without ``overwrite``. With ``resume``: a complete ``out`` (without ``overwrite``), no
         ``<out>.partial`` or no checkpoint in it, or a checkpoint of a run with other inputs
         (the message names them).
@@ -192,9 +193,10 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     if not duration > 0:
         raise ValueError(f"duration must be positive, got {duration}")
     end = start + duration
-    if not (traj.t_start <= start and end <= traj.t_end + 1e-9):
-        raise ValueError(f"the trajectory covers [{traj.t_start}, {traj.t_end}] s, which does not "
-                         f"contain the simulated [{start}, {end}] s")
+    lo, hi = max(0.0, traj.t_start), min(scene.duration, traj.t_end)
+    if not (lo <= start and end <= hi + 1e-9):
+        raise ValueError(f"time window [{start}, {end}] s is outside the scene {scene.name}, "
+                         f"which covers [{lo}, {hi}] s (its duration and trajectory)")
     params = scene.frames
     times = start + frame_times(duration, params)
     if len(times) == 0:

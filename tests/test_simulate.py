@@ -203,3 +203,19 @@ def test_a_late_start_covers_only_its_window_and_matches_the_full_run(tiny_run, 
     assert events["t"][-1] <= 300_000_000
     with pytest.raises(ValueError, match="start must be a finite time"):
         simulate(scene, tmp_path / "nan", start=float("nan"), progress=False)
+
+
+@pytest.mark.parametrize("start, duration", [(0.25, 0.1), (1.0, 0.2), (-0.1, 0.2)])
+def test_a_window_outside_the_scene_is_refused_before_rendering(tiny_run, tmp_path, capsys,
+                                                                start, duration):
+    """The tiny scene lasts 0.3 s: a linear trajectory goes on for ever, the scene does not."""
+    scene, _ = tiny_run
+    with pytest.raises(ValueError, match=r"outside the scene test, which covers \[0.0, 0.3\] s"):
+        simulate(scene, tmp_path / "late", start=start, duration=duration, progress=False)
+    assert not (tmp_path / "late").exists() and not (tmp_path / "late.partial").exists()
+    code = main(["simulate", "slider_close", "--start", "100", "--duration", "1", "--out",
+                 str(tmp_path / "cli")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "[100.0, 101.0] s is outside the scene slider_close" in err[0]
+    assert list(tmp_path.iterdir()) == []
