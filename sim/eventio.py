@@ -722,7 +722,9 @@ class H5EventWriter(_StreamingWriter):
     ----------
     path : str or Path
         The file to write, written as ``<path>.partial`` and renamed to ``path`` (replacing an
-        existing file) by a successful :meth:`close`.
+        existing file) by a successful :meth:`close`, which first rewrites it in one pass, so
+        that the file's bytes depend only on what was written (not on checkpoints or a resume:
+        the same events give the same bytes). Packing costs about as much again as writing.
     width, height : int
         Sensor size in pixels; every event must lie inside it.
     chunk_size : int
@@ -784,23 +786,29 @@ class H5EventWriter(_StreamingWriter):
         else:
             self._resume(h5py, resume)
 
+    _EVENT_FIELDS = (("t", np.int64), ("x", np.uint16), ("y", np.uint16), ("p", np.uint8),
+                     ("t_ns_rem", np.uint16))
+
     def _create(self, h5py: Any) -> None:
-        chunk_size = self.chunk_size
         self._file = h5py.File(self.partial, "w")
+        self._datasets, self._ms_to_idx = self._layout(self._file, 0, 0)
+
+    def _layout(self, file: Any, events: int, ms_entries: int) -> tuple[dict, Any]:
+        """Create the datasets of the layout in ``file``, ``events`` and ``ms_entries`` long."""
         compression = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
-        group = self._file.create_group("events")
-        self._datasets = {
-            name: group.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dtype,
-                                       chunks=(chunk_size,), **compression)
-            for name, dtype in (("t", np.int64), ("x", np.uint16), ("y", np.uint16),
-                                ("p", np.uint8), ("t_ns_rem", np.uint16))
+        group = file.create_group("events")
+        datasets = {
+            name: group.create_dataset(name, shape=(events,), maxshape=(None,), dtype=dtype,
+                                       chunks=(self.chunk_size,), **compression)
+            for name, dtype in self._EVENT_FIELDS
         }
-        self._datasets["t_ns_rem"].attrs["description"] = (
+        datasets["t_ns_rem"].attrs["description"] = (
             "evfuse extension (DSEC readers ignore it): t_ns % 1000, the sub-microsecond part; "
             "t_ns = (events/t + t_offset) * 1000 + events/t_ns_rem")
-        self._ms_to_idx = self._file.create_dataset(
-            "ms_to_idx", shape=(0,), maxshape=(None,), dtype=np.int64,
-            chunks=(min(chunk_size, 2**14),), **compression)
+        ms_to_idx = file.create_dataset(
+            "ms_to_idx", shape=(ms_entries,), maxshape=(None,), dtype=np.int64,
+            chunks=(min(self.chunk_size, 2**14),), **compression)
+        return datasets, ms_to_idx
 
     def _resume(self, h5py: Any, resume: dict) -> None:
         self._reopen(resume, self._STATE)
@@ -935,13 +943,37 @@ class H5EventWriter(_StreamingWriter):
         try:
             self._flush()
             self._append(self._ms_to_idx, np.array([self._stored], dtype=np.int64))
-            offset = 0 if self.t_offset_us is None else self.t_offset_us
-            self._file.create_dataset("t_offset", data=np.int64(offset))
-            self._file.attrs["t_offset"] = np.int64(offset)
-            self._file.attrs["width"] = np.int64(self._width)
-            self._file.attrs["height"] = np.int64(self._height)
         finally:
             self._file.close()
+        self._pack()
+
+    def _pack(self) -> None:
+        """Rewrite the finished ``.partial`` file in one sequential pass.
+
+        Where blocks were appended (a :meth:`checkpoint` appends what is buffered) and what an
+        interrupted run wrote past its checkpoint leave their traces in an HDF5 file's layout;
+        the packed file's bytes depend on its contents only, so that a resumed run and an
+        uninterrupted one write the same bytes, and the same seed gives the same file.
+        """
+        h5py = _import_h5py()
+        packed = self.partial.with_name(self.partial.name + ".pack")
+        offset = np.int64(0 if self.t_offset_us is None else self.t_offset_us)
+        block = self.chunk_size * max(1, 2**20 // self.chunk_size)
+        try:
+            with h5py.File(self.partial, "r") as source, h5py.File(packed, "w") as target:
+                ms_to_idx = source["ms_to_idx"]
+                datasets, target_ms = self._layout(target, self._stored, ms_to_idx.shape[0])
+                pairs = [(source[f"events/{name}"], datasets[name]) for name in datasets]
+                for src, dst in [*pairs, (ms_to_idx, target_ms)]:
+                    for start in range(0, src.shape[0], block):
+                        dst[start:start + block] = src[start:start + block]
+                target.create_dataset("t_offset", data=offset)
+                target.attrs["t_offset"] = offset
+                target.attrs["width"] = np.int64(self._width)
+                target.attrs["height"] = np.int64(self._height)
+            os.replace(packed, self.partial)
+        finally:
+            packed.unlink(missing_ok=True)
 
     def _abort(self) -> None:
         self._file.close()
