@@ -24,7 +24,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fusion.figures import depth_colours, label_colours, panel_grid, point_cloud_view
+from fusion.figures import (
+    depth_colours,
+    depth_legend,
+    depth_range,
+    label_colours,
+    panel_grid,
+    point_cloud_view,
+)
 from fusion.filling import (
     FillParams,
     RegionStats,
@@ -329,7 +336,8 @@ def _figure(result: DenseResult, params: DenseParams) -> np.ndarray:
     raw = segment_regions(result.frame, SegmentationParams(params.segmentation.threshold, 1))
     points, colours, _ = _cloud(result)
     size = (result.frame.shape[1], result.frame.shape[0])
-    lo_hi = _depth_range(result.dense)
+    lo_hi = depth_range(result.dense)
+    legend = depth_legend(*lo_hi) if lo_hi[0] is not None else None
     panels = [
         depth_colours(result.sparse, *lo_hi, base=result.frame),
         label_colours(raw),
@@ -343,14 +351,8 @@ def _figure(result: DenseResult, params: DenseParams) -> np.ndarray:
               f"(c) valid regions ({result.regions.n_regions})",
               f"(d) regions to fill ({int(result.regions.selected.sum())})",
               f"(e) range image (N2 = {result.n2})", "(f) point cloud: events red, filled green"]
-    return panel_grid(panels, titles, columns=3)
-
-
-def _depth_range(depth: np.ndarray) -> tuple[float | None, float | None]:
-    valid = depth[depth > 0]
-    if valid.size == 0:
-        return None, None
-    return float(np.percentile(valid, 1)), float(np.percentile(valid, 99))
+    return panel_grid(panels, titles, columns=3,
+                      legends=[legend, None, None, None, legend, None])
 
 
 def _cloud(result: DenseResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

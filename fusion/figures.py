@@ -7,12 +7,16 @@ computes a result, so every figure can be re-drawn from the files a run saved.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-__all__ = ["depth_colours", "label_colours", "panel_grid", "point_cloud_view", "write_image"]
+from fusion.scoring import error_image
+
+__all__ = ["Legend", "depth_colours", "depth_legend", "depth_range", "error_legend",
+           "label_colours", "panel_grid", "point_cloud_view", "write_image"]
 
 _NO_VALUE = (40, 40, 40)
 """Colour of pixels without a depth (dark grey, so that black texture stays readable)."""
@@ -49,6 +53,76 @@ def depth_colours(depth: np.ndarray, lo: float | None = None, hi: float | None =
     colours = cv2.applyColorMap((255 * (1 - scaled)).astype(np.uint8), cv2.COLORMAP_JET)
     out[valid] = colours[valid]
     return out
+
+
+@dataclass(frozen=True)
+class Legend:
+    """A colour bar drawn under a panel by :func:`panel_grid`.
+
+    Attributes
+    ----------
+    colours : (N, 3) uint8 ndarray, BGR
+        The colour scale from its low end (left) to its high end (right).
+    low, high : str
+        Labels written at the two ends, with units (``"0.23 m"``).
+    """
+
+    colours: np.ndarray
+    low: str
+    high: str
+
+
+def depth_range(depth: np.ndarray) -> tuple[float, float] | tuple[None, None]:
+    """The 1st and 99th percentiles of the valid depths: a colour scale that outliers do not
+    squash.
+
+    Parameters
+    ----------
+    depth : (H, W) float ndarray, metres, 0 where none
+
+    Returns
+    -------
+    (lo, hi) : floats, metres, or (None, None) when no pixel has a depth
+    """
+    valid = np.asarray(depth)[np.asarray(depth) > 0]
+    if valid.size == 0:
+        return None, None
+    return float(np.percentile(valid, 1)), float(np.percentile(valid, 99))
+
+
+def depth_legend(lo: float, hi: float) -> Legend:
+    """The legend of :func:`depth_colours` over ``[lo, hi]`` metres (near red, far blue).
+
+    Parameters
+    ----------
+    lo, hi : float, metres, > 0
+
+    Returns
+    -------
+    Legend
+        256 colours, made by :func:`depth_colours` itself, so that the bar is the scale the
+        panel used.
+    """
+    ramp = depth_colours(np.linspace(lo, hi, 256)[None, :], lo, hi)[0]
+    return Legend(ramp, f"{lo:.3g} m", f"{hi:.3g} m")
+
+
+def error_legend(max_error: float) -> Legend:
+    """The legend of :func:`fusion.scoring.error_image` with ``max_error``, labelled in cm.
+
+    Parameters
+    ----------
+    max_error : float, metres, > 0
+        The error shown in the last colour.
+
+    Returns
+    -------
+    Legend
+        256 colours, made by ``error_image`` itself (errors 0 to ``max_error``).
+    """
+    errors = np.linspace(0.0, max_error, 256)[None, :]
+    ramp = error_image(1.0 + errors, np.ones_like(errors), max_error=max_error)[0]
+    return Legend(ramp, "0 cm", f"{100 * max_error:.3g} cm")
 
 
 def label_colours(labels: np.ndarray, highlight: np.ndarray | None = None) -> np.ndarray:
@@ -118,9 +192,17 @@ def point_cloud_view(points: np.ndarray, colours: np.ndarray, size: tuple[int, i
     return image
 
 
+_TITLE_H = 26
+"""Height of a panel's title line, pixels."""
+_LEGEND_H = 22
+"""Height of the colour-bar line under the panels of a grid that has legends, pixels."""
+
+
 def panel_grid(images: list[np.ndarray], titles: list[str], columns: int = 3,
-               scale: float | None = None) -> np.ndarray:
-    """Images side by side in a grid, each with its title above it.
+               scale: float | None = None,
+               legends: list[Legend | None] | None = None) -> np.ndarray:
+    """Images side by side in a grid, each with its title above it and, optionally, a colour
+    bar under it.
 
     Parameters
     ----------
@@ -129,32 +211,58 @@ def panel_grid(images: list[np.ndarray], titles: list[str], columns: int = 3,
     columns : int
     scale : float, optional
         Resize factor of every panel (default: so that a panel is at least 320 px wide).
+    legends : list of Legend or None, optional
+        One per image: the colour bar drawn under it (None: none). When any is given, every
+        row of the grid gets a legend line.
 
     Returns
     -------
-    (rows * (h + title), columns * w, 3) uint8 ndarray, BGR
+    (rows * (title + h [+ legend]), columns * w, 3) uint8 ndarray, BGR
     """
-    if len(images) != len(titles) or not images:
-        raise ValueError(f"need one title per image, got {len(images)} images and "
-                         f"{len(titles)} titles")
+    legends = [None] * len(images) if legends is None else list(legends)
+    if len(images) != len(titles) or len(images) != len(legends) or not images:
+        raise ValueError(f"need one title and one legend (or None) per image, got "
+                         f"{len(images)} images, {len(titles)} titles, {len(legends)} legends")
     height, width = images[0].shape[:2]
     scale = scale or max(1.0, 320.0 / width)
     w, h = int(round(width * scale)), int(round(height * scale))
-    title_h = 26
+    legend_h = _LEGEND_H if any(legend is not None for legend in legends) else 0
+    row_h = _TITLE_H + h + legend_h
     rows = -(-len(images) // columns)
-    canvas = np.full((rows * (h + title_h), columns * w, 3), 255, np.uint8)
-    for k, (image, title) in enumerate(zip(images, titles, strict=True)):
+    canvas = np.full((rows * row_h, columns * w, 3), 255, np.uint8)
+    for k, (image, title, legend) in enumerate(zip(images, titles, legends, strict=True)):
         if image.shape[:2] != (height, width):
             image = cv2.resize(image, (width, height), interpolation=cv2.INTER_NEAREST)
         if image.ndim == 2:
             image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
         tile = cv2.resize(image, (w, h), interpolation=cv2.INTER_NEAREST)
         r, c = divmod(k, columns)
-        y0, x0 = r * (h + title_h), c * w
-        canvas[y0 + title_h:y0 + title_h + h, x0:x0 + w] = tile
+        y0, x0 = r * row_h, c * w
+        canvas[y0 + _TITLE_H:y0 + _TITLE_H + h, x0:x0 + w] = tile
         cv2.putText(canvas, title, (x0 + 6, y0 + 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
                     (0, 0, 0), 1, cv2.LINE_AA)
+        if legend is not None:
+            _draw_legend(canvas[y0 + _TITLE_H + h:y0 + row_h, x0:x0 + w], legend)
     return canvas
+
+
+def _draw_legend(strip: np.ndarray, legend: Legend) -> None:
+    """Draw ``low [colour bar] high`` into a white (legend_h, w, 3) strip, in place."""
+    font, size = cv2.FONT_HERSHEY_SIMPLEX, 0.4
+    (low_w, text_h), _ = cv2.getTextSize(legend.low, font, size, 1)
+    (high_w, _), _ = cv2.getTextSize(legend.high, font, size, 1)
+    height, width = strip.shape[:2]
+    baseline = (height + text_h) // 2
+    cv2.putText(strip, legend.low, (6, baseline), font, size, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(strip, legend.high, (width - 6 - high_w, baseline), font, size, (0, 0, 0), 1,
+                cv2.LINE_AA)
+    left, right = 6 + low_w + 8, width - 6 - high_w - 8
+    if right - left < 8:
+        return
+    bar = cv2.resize(np.asarray(legend.colours, np.uint8)[None, :, :], (right - left, 1),
+                     interpolation=cv2.INTER_NEAREST)
+    top = (height - 10) // 2
+    strip[top:top + 10, left:right] = bar
 
 
 def write_image(path: str | Path, image: np.ndarray) -> Path:

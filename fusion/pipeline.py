@@ -25,9 +25,19 @@ import numpy as np
 
 from fusion.dense import DenseParams, fill_map, write_fill
 from fusion.emvs import DepthMapParams, DSIParams
-from fusion.figures import depth_colours, label_colours, panel_grid, write_image
+from fusion.figures import (
+    depth_colours,
+    depth_legend,
+    depth_range,
+    error_legend,
+    label_colours,
+    panel_grid,
+    point_cloud_view,
+    write_image,
+)
 from fusion.jsonio import to_json
 from fusion.mapping import MapParams, map_sequence, write_map
+from fusion.pointcloud import read_ply
 from fusion.scoring import error_image
 from sim.eventio import event_frame, read_window
 from sim.exr import read_depth
@@ -228,7 +238,8 @@ def _depth_range(sequence, t_ref: float, params: RunParams) -> tuple[float, floa
 
 def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndarray:
     """The overview of a run, from its saved files: frame, events, semi-dense map, segmentation,
-    dense map and, with ground truth, the error of the dense map.
+    dense map, with ground truth the exact depth and the error of the dense map, and the
+    point cloud; depth and error panels carry their colour scale.
 
     Parameters
     ----------
@@ -265,15 +276,18 @@ def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndar
     events_path = sequence.events_h5 or sequence.events_txt
     events = read_window(events_path, int(round((t - 0.01) * 1e9)), int(round((t + 0.01) * 1e9)))
     events_image = cv2.cvtColor(event_frame(events, width, height), cv2.COLOR_RGB2BGR)
-    valid = dense[dense > 0]
-    lo_hi = ((float(np.percentile(valid, 1)), float(np.percentile(valid, 99))) if valid.size
-             else (None, None))
+    lo_hi = depth_range(dense)
+    legend = depth_legend(*lo_hi) if lo_hi[0] is not None else None
+    cloud, _ = read_ply(run_folder / "fill" / "dense.ply")
+    points = np.stack([cloud["x"], cloud["y"], cloud["z"]], 1)
+    colours = np.stack([cloud["blue"], cloud["green"], cloud["red"]], 1)
     panels = [cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR), events_image,
               depth_colours(semidense, *lo_hi), label_colours(labels, highlight=selected),
               depth_colours(dense, *lo_hi)]
     titles = [f"frame at {t:.3f} s", f"events +-10 ms ({len(events)})",
               f"semi-dense map (N1 = {report['N1']})", "segmentation (filled in colour)",
               f"dense map (N2 = {report['N2']}, beta {report['beta']:.3f})"]
+    legends = [None, None, legend, None, legend]
     truth = None
     if sequence.depth_paths:
         k = int(np.argmin(np.abs(sequence.depth_times - t)))
@@ -282,9 +296,11 @@ def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndar
     if truth is not None:
         error = np.abs(dense - truth)[(dense > 0) & (truth > 0)]
         top = float(np.percentile(error, 99)) if error.size else 0.0
-        panels.append(error_image(dense, truth, max_error=top if top > 0 else None))
-        titles.append(f"|error| of the dense map, 0-{100 * top:.2f} cm")
-    else:
-        panels.append(np.full_like(panels[0], 255))
-        titles.append("no ground truth (real data)")
-    return panel_grid(panels, titles, columns=3)
+        top = top if top > 0 else 1e-3
+        panels += [depth_colours(truth, *lo_hi), error_image(dense, truth, max_error=top)]
+        titles += ["exact depth", "|error| of the dense map"]
+        legends += [legend, error_legend(top)]
+    panels.append(point_cloud_view(points, colours, (width, height)))
+    titles.append("point cloud: events red, filled green")
+    legends.append(None)
+    return panel_grid(panels, titles, columns=4 if truth is not None else 3, legends=legends)

@@ -138,6 +138,7 @@ def test_run_on_the_real_ecd_prefix_and_show_redraws_it(ecd_slider, tmp_path, ca
     fill = json.loads((out / "fill" / "fill.json").read_text())
     assert fill["camera"]["distortion"][0] == pytest.approx(-0.138592767408)   # undistorting
     before = cv2.imread(str(out / "overview.png"))
+    assert before.shape == (2 * (26 + 240 + 22), 3 * 320, 3)   # no exact depth, no error panel
     (out / "overview.png").unlink()
     assert main(["show", str(out)]) == 0
     np.testing.assert_array_equal(cv2.imread(str(out / "overview.png")), before)

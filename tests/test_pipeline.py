@@ -50,7 +50,9 @@ def test_run_writes_every_promised_file_with_consistent_figures(tiny_run, capsys
     low, high = report["depth_range_m"]
     assert low < 1.0 < high                                        # the wall is 1 m away
     overview = cv2.imread(str(out / "overview.png"))
-    assert overview is not None and overview.shape[1] >= 3 * 64
+    # frame, events, map, segmentation / dense, exact depth, error, point cloud: 4 x 2 panels of
+    # 320 px (64 px scaled by 5) under 26-px titles, with a 22-px colour-bar line each row
+    assert overview.shape == (2 * (26 + 5 * 48 + 22), 4 * 320, 3)
 
 
 def test_show_redraws_the_same_overview(tiny_run, tmp_path):
