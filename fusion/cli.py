@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -428,6 +430,15 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a job scheduler's time limit), taken down the path of Ctrl-C: files
+    are closed, ``.partial`` outputs and checkpoints stay, and the user is told how to resume."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``evfuse`` command line.
 
@@ -440,9 +451,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     -------
     int
         Exit status: 0 on success, 2 for bad input (one line on standard error, no traceback
-        unless ``--debug``), 1 for an unexpected error (also one line), 130 when interrupted.
+        unless ``--debug``), 1 for an unexpected error (also one line), 130 when interrupted
+        (Ctrl-C) and 143 when terminated (SIGTERM), both with one line that says what is left.
     """
     args = _parser().parse_args(argv)
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main_thread else None
     try:
         return args.run(args)
     except (ValueError, OSError) as exc:
@@ -450,16 +464,21 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"evfuse {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, _Terminated)
         hint = getattr(args, "interrupted", "no complete output was written")
-        print(f"evfuse {args.command}: interrupted; {hint}", file=sys.stderr)
-        return 130
+        print(f"evfuse {args.command}: {'terminated' if terminated else 'interrupted'}; {hint}",
+              file=sys.stderr)
+        return 143 if terminated else 130
     except Exception as exc:                      # a bug or an unforeseen failure: still one line
         if args.debug:
             raise
         print(f"evfuse {args.command}: unexpected error: {type(exc).__name__}: {exc} (run with "
               "--debug for the traceback)", file=sys.stderr)
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

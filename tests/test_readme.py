@@ -24,3 +24,15 @@ def test_the_readme_demo_command_is_the_makefile_demo():
     assert "$(BIN)/evfuse run $(DEMO_SCENE) --t0 $(DEMO_T0) --t1 $(DEMO_T1)" in makefile
     assert "DEMO_SCENE ?= slider_close" in makefile and "DEMO_T1 ?= 0.5" in makefile
     assert "evfuse run slider_close --t0 0 --t1 0.5 --out runs/demo" in " ".join(README.split())
+
+
+def test_every_name_the_readme_python_example_imports_exists():
+    blocks = re.findall(r"```python\n(.*?)```", README, flags=re.S)
+    assert blocks
+    imports = re.findall(r"^from (\w+) import (?:\(([^)]*)\)|(.+)$)", blocks[0], flags=re.M)
+    assert {module for module, _, _ in imports} == {"scenes", "sim", "fusion"}
+    assert sum(len((g or s).split(",")) for _, g, s in imports) > 12
+    for module, grouped, single in imports:
+        package = __import__(module)
+        for name in (n.strip() for n in (grouped or single).split(",") if n.strip()):
+            assert hasattr(package, name), f"README imports {name} from {module}"

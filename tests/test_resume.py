@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
+import signal
 from dataclasses import asdict
 from pathlib import Path
 
@@ -221,6 +223,34 @@ def test_cli_resume(tmp_path, capsys, monkeypatch):
     assert json.loads((out / "sequence.json").read_text())["frames"]["count"] == 2
     assert main([*args, "--resume"]) == 2
     assert "already complete" in capsys.readouterr().err
+
+
+def test_cli_sigterm_is_an_interruption_that_resumes_to_the_same_files(tmp_path, capsys,
+                                                                      monkeypatch):
+    scene_file = tmp_path / "checker.toml"
+    scene_file.write_text(TEXT)
+    args = ["simulate", str(scene_file), "--duration", "0.06", "--quiet", "--out"]
+    assert main([*args, str(tmp_path / "whole")]) == 0
+    calls = []
+
+    def terminated_at_the_third_render(renderer, t, pose=None, spp=None):
+        calls.append(t)
+        if len(calls) == 3:
+            os.kill(os.getpid(), signal.SIGTERM)      # as `kill PID` or a scheduler would
+        return _REAL_LUMINANCE(renderer, t, pose, spp)
+
+    monkeypatch.setattr(Renderer, "luminance", terminated_at_the_third_render)
+    before = signal.getsignal(signal.SIGTERM)
+    out = tmp_path / "cut"
+    capsys.readouterr()
+    assert main([*args, str(out)]) == 143
+    assert capsys.readouterr().err == ("evfuse simulate: terminated; resume with the same "
+                                       "command plus --resume\n")
+    assert len(calls) == 3 and not out.exists() and (tmp_path / "cut.partial").is_dir()
+    assert signal.getsignal(signal.SIGTERM) is before          # the handler was put back
+    monkeypatch.undo()
+    assert main([*args, str(out), "--resume"]) == 0
+    _assert_same_sequence(tmp_path / "whole", out)
 
 
 # --- the pieces ------------------------------------------------------------------------------
