@@ -439,6 +439,27 @@ def _raise_terminated(signum: int, frame: object) -> None:
     raise _Terminated
 
 
+def _interruption(exc: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C or SIGTERM behind ``exc``, if any: raised inside a Python callback of
+    Mitsuba's renderer, it comes out wrapped in Dr.Jit's RuntimeError (as its ``__cause__``)."""
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return None
+
+
+def _interrupted(args: argparse.Namespace, exc: KeyboardInterrupt) -> int:
+    terminated = isinstance(exc, _Terminated)
+    hint = getattr(args, "interrupted", "no complete output was written")
+    print(f"evfuse {args.command}: {'terminated' if terminated else 'interrupted'}; {hint}",
+          file=sys.stderr)
+    return 143 if terminated else 130
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``evfuse`` command line.
 
@@ -465,12 +486,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"evfuse {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
-        terminated = isinstance(exc, _Terminated)
-        hint = getattr(args, "interrupted", "no complete output was written")
-        print(f"evfuse {args.command}: {'terminated' if terminated else 'interrupted'}; {hint}",
-              file=sys.stderr)
-        return 143 if terminated else 130
+        return _interrupted(args, exc)
     except Exception as exc:                      # a bug or an unforeseen failure: still one line
+        interruption = _interruption(exc)
+        if interruption is not None:
+            return _interrupted(args, interruption)
         if args.debug:
             raise
         print(f"evfuse {args.command}: unexpected error: {type(exc).__name__}: {exc} (run with "

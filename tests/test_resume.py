@@ -253,6 +253,36 @@ def test_cli_sigterm_is_an_interruption_that_resumes_to_the_same_files(tmp_path,
     _assert_same_sequence(tmp_path / "whole", out)
 
 
+@pytest.mark.parametrize("signal_name, status", [("SIGINT", 130), ("SIGTERM", 143)])
+def test_an_interruption_inside_the_renderer_is_still_an_interruption(tmp_path, capsys,
+                                                                      monkeypatch, signal_name,
+                                                                      status):
+    """Ctrl-C or SIGTERM inside Mitsuba's render reaches us wrapped in Dr.Jit's RuntimeError."""
+    scene_file = tmp_path / "checker.toml"
+    scene_file.write_text(TEXT)
+    signum = getattr(signal, signal_name)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    def render_op_with_a_signal(renderer, t, pose=None, spp=None):
+        try:
+            os.kill(os.getpid(), signum)
+            raise AssertionError("the signal handler did not raise")
+        except KeyboardInterrupt as exc:
+            raise RuntimeError("drjit.custom(<mitsuba.python.util._RenderOp>): error while "
+                               "performing a custom differentiable operation.") from exc
+
+    monkeypatch.setattr(Renderer, "luminance", render_op_with_a_signal)
+    try:
+        code = main(["simulate", str(scene_file), "--duration", "0.06", "--quiet", "--out",
+                     str(tmp_path / "cut")])
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    word = "terminated" if signal_name == "SIGTERM" else "interrupted"
+    assert (code, capsys.readouterr().err) == (
+        status, f"evfuse simulate: {word}; resume with the same command plus --resume\n")
+    assert (tmp_path / "cut.partial" / ".checkpoint").is_dir()
+
+
 # --- the pieces ------------------------------------------------------------------------------
 
 class _StaticView:
