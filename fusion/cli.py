@@ -427,6 +427,9 @@ def _parser() -> argparse.ArgumentParser:
                          help="sensor size WxH for HDF5 output (default: from the sequence "
                               "folder of SRC)")
     convert.set_defaults(run=_cmd_convert)
+    for command in sub.choices.values():         # --debug after the command works too
+        command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                             help="show tracebacks on errors")
     return parser
 
 

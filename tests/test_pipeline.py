@@ -100,9 +100,11 @@ def test_bad_input_gives_one_line_and_exit_status_2(argv, message, tmp_path, cap
     assert lines[0].startswith(f"evfuse {argv[0]}: error: ")
 
 
-def test_debug_shows_the_traceback(tmp_path):
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_debug_shows_the_traceback(tmp_path, where):
+    argv = ["map", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]
     with pytest.raises(ValueError, match="does not exist"):
-        main(["--debug", "map", str(tmp_path / "missing"), "--out", str(tmp_path / "o")])
+        main(["--debug", *argv] if where == "before" else [*argv, "--debug"])
 
 
 @pytest.mark.parametrize("argv, message", [
