@@ -83,19 +83,21 @@ def _cmd_events(args: argparse.Namespace) -> int:
 
 
 def _cmd_map(args: argparse.Namespace) -> int:
-    from fusion.emvs import DepthMapParams, DSIParams
-    from fusion.mapping import MapParams, map_sequence, write_map
+    from fusion.emvs import DepthMapParams
+    from fusion.pipeline import map_window
     from sim.sequence import check_output_dir
 
-    params = MapParams(
-        dsi=DSIParams(0.2 if args.min_depth is None else args.min_depth,
-                      5.0 if args.max_depth is None else args.max_depth, planes=args.planes),
-        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
-        t0=args.t0, t1=args.t1, ref_time=args.ref_time)
     check_output_dir(args.out, args.overwrite)                  # fail before the long work
-    result = map_sequence(args.sequence, params, progress=not args.quiet)
-    out = write_map(result, args.out, params, overwrite=args.overwrite)
+    result, params = map_window(
+        args.sequence, args.out, args.t0, args.t1, ref_time=args.ref_time,
+        min_depth=args.min_depth, max_depth=args.max_depth,
+        oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
+        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
+        overwrite=args.overwrite, progress=not args.quiet)
+    out = Path(args.out)
     info = result.info
+    dsi = params.dsi_range
+    print(f"DSI depth range {dsi.min_depth:g}-{dsi.max_depth:g} m ({dsi.source})")
     line = (f"N1 = {result.n1} map points from {info['events_used']} events "
             f"({info['events_dropped_before_poses'] + info['events_dropped_after_poses']} "
             f"outside the poses dropped), reference at {result.t_ref:.6f} s")
@@ -120,7 +122,8 @@ def _dense_params(args: argparse.Namespace):
 
 
 def _cmd_fill(args: argparse.Namespace) -> int:
-    from fusion.dense import fill_frame, fill_map, write_fill
+    from fusion.dense import fill_frame, write_fill
+    from fusion.pipeline import fill_window
     from sim.camera import read_calib
     from sim.exr import read_depth
     from sim.sequence import check_output_dir
@@ -131,16 +134,17 @@ def _cmd_fill(args: argparse.Namespace) -> int:
         raise ValueError("give either a map folder or --frame, --sparse-depth and --calib")
     check_output_dir(args.out, args.overwrite)
     if args.map is not None:
-        result = fill_map(args.map, params)
+        result = fill_window(args.map, args.out, params, overwrite=args.overwrite)
     elif all(single):
         frame = _read_gray(args.frame)
         camera = read_calib(args.calib, frame.shape[1], frame.shape[0])
         truth = read_depth(args.truth) if args.truth else None
         result = fill_frame(frame, read_depth(args.sparse_depth), camera, params, truth,
                             info={"frame": str(args.frame), "sparse_depth": str(args.sparse_depth)})
+        write_fill(result, args.out, params, overwrite=args.overwrite)
     else:
         raise ValueError("give a map folder, or all of --frame, --sparse-depth and --calib")
-    out = write_fill(result, args.out, params, overwrite=args.overwrite)
+    out = Path(args.out)
     info = result.info
     line = (f"N1 = {info['N1']}, N2 = {info['N2']} ({info['regions_filled']} of "
             f"{info['regions']} regions filled), beta = {info['beta']:.4f}")
@@ -169,7 +173,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.pipeline import RunParams, run_pipeline
 
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
-                       max_depth=args.max_depth, planes=args.planes,
+                       max_depth=args.max_depth,
+                       oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
                        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
                        dense=_dense_params(args), spp=args.spp, seed=args.seed)
     report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,
@@ -244,13 +249,20 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_map_options(parser: argparse.ArgumentParser, depth_help: str) -> None:
+def _add_map_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--t0", type=float, default=None, help="window start, s")
     parser.add_argument("--t1", type=float, default=None, help="window end, s")
     parser.add_argument("--min-depth", type=float, default=None,
-                        help=f"nearest DSI plane, m ({depth_help})")
+                        help="nearest DSI plane, m (default: the near end of the working range "
+                             "the scene file declares, else 0.2 m)")
     parser.add_argument("--max-depth", type=float, default=None,
-                        help=f"farthest DSI plane, m ({depth_help})")
+                        help="farthest DSI plane, m (default: the far end of the working range "
+                             "the scene file declares, else 5 m)")
+    parser.add_argument("--depth-range", choices=("auto", "oracle"), default="auto",
+                        help="auto (default): --min-depth/--max-depth, else the scene's declared "
+                             "range, else 0.2-5 m, never the exact depth; oracle: the exact "
+                             "depth at the reference view widened by 20 %% (simulated sequences "
+                             "only; every output then says it used the answer)")
     parser.add_argument("--planes", type=int, default=100, help="depth planes (default 100)")
     parser.add_argument("--kernel", type=int, default=5,
                         help="adaptive threshold block size, odd (default 5; paper sliders 15)")
@@ -353,8 +365,9 @@ def _parser() -> argparse.ArgumentParser:
     mapping.add_argument("sequence", help="sequence folder (simulated or ECD)")
     mapping.add_argument("--out", required=True, help="folder to write the map into")
     mapping.add_argument("--ref-time", type=float, default=None,
-                         help="reference view time, s (default: the middle of the window)")
-    _add_map_options(mapping, depth_help="default 0.2 and 5")
+                         help="reference view time, s (default: the standard frame nearest the "
+                              "middle of the window, the frame the map is filled with)")
+    _add_map_options(mapping)
     mapping.add_argument("--overwrite", action="store_true")
     mapping.add_argument("--quiet", action="store_true", help="no progress bar")
     mapping.set_defaults(run=_cmd_map)
@@ -384,8 +397,7 @@ def _parser() -> argparse.ArgumentParser:
                     "recording). Writes map/, fill/, overview.png and report.json into OUT.")
     run.add_argument("source", help="scene name, scene file or sequence folder")
     run.add_argument("--out", required=True, help="run folder to write")
-    _add_map_options(run, depth_help="default: from the exact depth of a simulated "
-                                      "sequence, else 0.2 and 5")
+    _add_map_options(run)
     run.add_argument("--spp", type=int, default=None, help="samples per pixel (scenes)")
     run.add_argument("--seed", type=int, default=None, help="simulation seed (scenes)")
     _add_dense_options(run)

@@ -325,6 +325,9 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None) -> Dense
         if abs(float(sequence.depth_times[j]) - t_frame) < 1e-6:
             truth = read_depth(sequence.depth_paths[j])
     info = {"map": str(map_folder.resolve()), "map_N1": int(np.count_nonzero(depth_ref)),
+            # an oracle DSI range (the exact depth) makes every figure downstream an oracle's
+            "oracle": bool(meta.get("oracle", False)),
+            "depth_range_from": meta.get("depth_range_from", "given"),
             "sequence": str(Path(sequence.folder).resolve()),
             "frame": os.path.relpath(sequence.image_paths[k], sequence.folder),
             "t_frame": t_frame, "t_ref": t_ref, "T_world_frame": T_world_frame.tolist()}

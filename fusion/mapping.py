@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from tqdm.auto import tqdm
 
+from fusion.dsi_range import DSIRange
 from fusion.emvs import (
     DepthMapParams,
     DSIParams,
@@ -68,6 +69,9 @@ class MapParams:
         when the exact depth is known (a simulated sequence: at least half of it must lie in the
         range), and after extraction when more than 30 % of the map points sit on the two
         planes at either end of the range.
+    dsi_range : DSIRange or None
+        Where the DSI's depth range came from (:func:`fusion.dsi_range.resolve_dsi_range`),
+        recorded in ``map.json``; None: given by the caller.
     """
 
     dsi: DSIParams
@@ -78,6 +82,7 @@ class MapParams:
     outlier_radius: float = 0.05
     outlier_neighbours: int = 3
     check_depth_range: bool = True
+    dsi_range: DSIRange | None = None
 
 
 @dataclass
@@ -338,8 +343,11 @@ def write_map(result: MapResult, out: str | Path, params: MapParams,
         overlay = depth_colours(result.depth, base=_reference_image(sequence, result.t_ref))
         cv2.imwrite(str(tmp / "overlay.png"), overlay)
         write_ply(tmp / "map.ply", result.points(), result.T_world_ref)
+        dsi_range = params.dsi_range or DSIRange(params.dsi.min_depth, params.dsi.max_depth,
+                                                 "given")
         document = {
             "N1": result.n1,
+            **dsi_range.as_dict(),
             "t_ref": result.t_ref,
             "T_world_ref": result.T_world_ref.tolist(),
             # relative to this folder (its .partial sibling has the same relation), so that a

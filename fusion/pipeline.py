@@ -23,7 +23,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fusion.dense import DenseParams, fill_map, write_fill
+from fusion.dense import DenseParams, DenseResult, fill_map, write_fill
+from fusion.dsi_range import resolve_dsi_range
 from fusion.emvs import DepthMapParams, DSIParams
 from fusion.figures import (
     depth_colours,
@@ -36,14 +37,15 @@ from fusion.figures import (
     write_image,
 )
 from fusion.jsonio import to_json
-from fusion.mapping import MapParams, map_sequence, write_map
+from fusion.mapping import MapParams, MapResult, map_sequence, write_map
 from fusion.pointcloud import read_ply
 from fusion.scoring import error_image
 from sim.eventio import event_frame, read_window
 from sim.exr import read_depth
 from sim.sequence import PARTIAL_SUFFIX, atomic_output_dir, check_output_dir, load_sequence
 
-__all__ = ["RunParams", "draw_overview", "is_sequence_folder", "run_pipeline"]
+__all__ = ["RunParams", "draw_overview", "fill_window", "is_sequence_folder", "map_window",
+           "run_pipeline"]
 
 DEFAULT_WINDOW = 1.0
 """Seconds of a scene simulated and mapped when no window is given."""
@@ -58,8 +60,11 @@ class RunParams:
     t0, t1 : float or None, seconds
         Time window. For a scene, default ``[0, min(1, duration)]``; for a folder, all events.
     min_depth, max_depth : float or None, metres
-        Depth range of the DSI. For a scene, default: the exact depth of the frame at the
-        reference view, widened by 20 % each way; for a folder, 0.2 to 5 m unless given.
+        Depth range of the DSI. Default: the working range the scene file declares, else
+        0.2 to 5 m (:func:`fusion.dsi_range.resolve_dsi_range`); never the exact depth.
+    oracle_depth_range : bool
+        Opt in to the exact depth of the reference view, widened by 20 %, as the DSI's range
+        (``--depth-range oracle``); every output then says so.
     planes : int
         DSI planes (100).
     depth : DepthMapParams
@@ -76,6 +81,7 @@ class RunParams:
     t1: float | None = None
     min_depth: float | None = None
     max_depth: float | None = None
+    oracle_depth_range: bool = False
     planes: int = 100
     depth: DepthMapParams = field(default_factory=DepthMapParams)
     dense: DenseParams = field(default_factory=DenseParams)
@@ -91,6 +97,65 @@ def is_sequence_folder(source: str | Path) -> bool:
 
 def _frame_nearest(sequence, t: float) -> float:
     return float(sequence.image_times[int(np.argmin(np.abs(sequence.image_times - t)))])
+
+
+def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = None,
+               t1: float | None = None, *, ref_time: float | None = None,
+               min_depth: float | None = None, max_depth: float | None = None,
+               oracle_depth_range: bool = False, planes: int = 100,
+               depth: DepthMapParams | None = None, overwrite: bool = False,
+               progress: bool = True) -> tuple[MapResult, MapParams]:
+    """The map stage as ``evfuse map`` and ``evfuse run`` both run it: reference view, DSI
+    range, EMVS, files.
+
+    The reference view defaults to the standard frame nearest the middle of the window (the
+    frame the map is filled with); the DSI's range comes from
+    :func:`fusion.dsi_range.resolve_dsi_range` (the user's bounds, the scene's declared range,
+    or 0.2-5 m; the exact depth only with ``oracle_depth_range``).
+
+    Parameters
+    ----------
+    sequence_folder : str or Path
+    out : str or Path
+        Map folder to write (:func:`fusion.mapping.write_map`).
+    t0, t1 : float or None, seconds
+        Event window (default: the data's span).
+    ref_time : float or None, seconds
+        Reference view (default: the frame nearest the middle of the window).
+    min_depth, max_depth : float or None, metres
+    oracle_depth_range : bool
+    planes : int
+    depth : DepthMapParams, optional
+    overwrite : bool
+    progress : bool
+
+    Returns
+    -------
+    MapResult, MapParams
+    """
+    sequence = load_sequence(sequence_folder)
+    if sequence.groundtruth_path is None:
+        raise ValueError(f"{sequence_folder}: no groundtruth.txt (the camera poses are "
+                         "needed to map)")
+    if ref_time is None:
+        middle = _window_middle(sequence, t0, t1)
+        ref_time = _frame_nearest(sequence, middle) if len(sequence.image_times) else middle
+    dsi_range = resolve_dsi_range(sequence, min_depth, max_depth, oracle_depth_range, ref_time)
+    params = MapParams(DSIParams(dsi_range.min_depth, dsi_range.max_depth, planes=planes),
+                       depth or DepthMapParams(), t0=t0, t1=t1, ref_time=ref_time,
+                       dsi_range=dsi_range)
+    mapped = map_sequence(sequence_folder, params, progress=progress)
+    write_map(mapped, out, params, overwrite=overwrite)
+    return mapped, params
+
+
+def fill_window(map_folder: str | Path, out: str | Path, params: DenseParams | None = None,
+                overwrite: bool = False) -> DenseResult:
+    """The fill stage as ``evfuse fill`` and ``evfuse run`` both run it: fill, score, files."""
+    params = params or DenseParams()
+    filled = fill_map(map_folder, params)
+    write_fill(filled, out, params, overwrite=overwrite)
+    return filled
 
 
 def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None = None,
@@ -138,22 +203,14 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
             sequence_folder, t0, t1 = _simulate_window(source, tmp / "sequence", params,
                                                        progress, timings)
             simulated_here = True
-        sequence = load_sequence(sequence_folder)
-        if sequence.groundtruth_path is None:
-            raise ValueError(f"{sequence_folder}: no groundtruth.txt (the camera poses are "
-                             "needed to map)")
-        middle = _window_middle(sequence, t0, t1)
-        t_ref = _frame_nearest(sequence, middle)
-        low, high, range_from = _depth_range(sequence, t_ref, params)
-        map_params = MapParams(DSIParams(low, high, planes=params.planes), params.depth,
-                               t0=t0, t1=t1, ref_time=t_ref)
         tick = time.perf_counter()
-        mapped = map_sequence(sequence_folder, map_params, progress=progress)
-        write_map(mapped, tmp / "map", map_params)
+        mapped, map_params = map_window(
+            sequence_folder, tmp / "map", t0, t1, min_depth=params.min_depth,
+            max_depth=params.max_depth, oracle_depth_range=params.oracle_depth_range,
+            planes=params.planes, depth=params.depth, progress=progress)
         timings["map_s"] = time.perf_counter() - tick
         tick = time.perf_counter()
-        filled = fill_map(tmp / "map", params.dense)
-        write_fill(filled, tmp / "fill", params.dense)
+        filled = fill_window(tmp / "map", tmp / "fill", params.dense)
         timings["fill_s"] = time.perf_counter() - tick
         info = filled.info
         errors = info.get("errors")
@@ -162,10 +219,9 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
             "sequence": os.path.relpath(Path(sequence_folder).resolve(), tmp.resolve()),
             "simulated": simulated_here,
             "window_s": mapped.info["window_s"],
-            "t_ref": t_ref,
+            "t_ref": mapped.t_ref,
             "t_frame": info["t_frame"],
-            "depth_range_m": [low, high],
-            "depth_range_from": range_from,
+            **map_params.dsi_range.as_dict(),
             "events": mapped.info["events_used"],
             "events_dropped": (mapped.info["events_dropped_before_poses"]
                                + mapped.info["events_dropped_after_poses"]),
@@ -220,20 +276,6 @@ def _window_middle(sequence, t0: float | None, t1: float | None) -> float:
         raise ValueError(f"time window [{t0}, {t1}] s does not overlap the poses "
                          f"[{trajectory.t_start}, {trajectory.t_end}] s and the events")
     return 0.5 * (lo + hi)
-
-
-def _depth_range(sequence, t_ref: float, params: RunParams) -> tuple[float, float, str]:
-    if params.min_depth is not None and params.max_depth is not None:
-        return params.min_depth, params.max_depth, "given"
-    if sequence.depth_paths:
-        k = int(np.argmin(np.abs(sequence.depth_times - t_ref)))
-        depth = read_depth(sequence.depth_paths[k])
-        valid = depth[depth > 0]
-        if valid.size:
-            low = params.min_depth or float(valid.min()) / 1.2
-            high = params.max_depth or float(valid.max()) * 1.2
-            return low, high, "exact depth of the reference frame, widened by 20 %"
-    return params.min_depth or 0.2, params.max_depth or 5.0, "default 0.2-5 m"
 
 
 def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndarray:

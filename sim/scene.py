@@ -213,6 +213,11 @@ class Scene:
         The file it was read from (textures and meshes are relative to its folder).
     text : str
         The TOML text it was parsed from.
+    depth_range : (float, float) or None, metres
+        The rig's declared working depth range (top-level ``depth_range``): the range of the
+        DSI that ``evfuse map`` / ``run`` / ``reproduce`` use for this scene's sequences unless
+        the user gives one. A declaration, as a person setting up the rig would choose it (as
+        rpg_emvs's configs declare one per sequence), never computed from the exact depth.
     """
 
     name: str
@@ -227,6 +232,7 @@ class Scene:
     objects: tuple[SceneObject, ...]
     source: Path | None = None
     text: str = ""
+    depth_range: tuple[float, float] | None = None
 
     @property
     def base_dir(self) -> Path:
@@ -331,6 +337,13 @@ def _get(ctx, table, key, name, convert: Callable, default=None):
 # --------------------------------------------------------------------------------------------
 
 _CAMERA_FIELDS = ("width", "height", "fx", "fy", "cx", "cy")
+
+
+def _depth_range(ctx: _Ctx, value: Any, key: str) -> tuple[float, float]:
+    low, high = _vector(ctx, value, key, 2, positive=True)
+    if not low < high:
+        raise ctx.fail(key, f"expected [near, far] metres with near < far, got {_show(value)}")
+    return float(low), float(high)
 
 
 def _parse_camera(ctx: _Ctx, raw: Any) -> Camera:
@@ -680,7 +693,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{source}: not valid TOML: {exc}") from None
     top_required = {"duration", "camera", "trajectory", "objects"}
-    top_optional = {"name", "description", "seed", "frames", "render", "lights"}
+    top_optional = {"name", "description", "seed", "frames", "render", "lights", "depth_range"}
     ctx.keys(raw, "top level", top_required, top_optional)
     name = _get(ctx, raw, "", "name", _string, source_path.stem if source_path else "scene")
     description = _get(ctx, raw, "", "description", _string, "")
@@ -689,6 +702,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
         raise SceneError(f"{source}: seed: expected an integer >= 0, got {seed!r}")
     seed = file_seed if seed is None else seed
+    depth_range = _get(ctx, raw, "", "depth_range", _depth_range)
     camera = _parse_camera(ctx, raw["camera"])
     frames = _parse_frames(ctx, raw.get("frames", {}))
     render = _parse_render(ctx, raw.get("render", {}))
@@ -711,7 +725,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     if duplicate is not None:
         raise ctx.fail("[[objects]]", f"object name {duplicate!r} is used twice")
     return Scene(name, description, duration, seed, camera, frames, render, trajectory, lights,
-                 objects, source_path, text)
+                 objects, source_path, text, depth_range)
 
 
 def load_scene(path: str | Path, *, seed: int | None = None) -> Scene:

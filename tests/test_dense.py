@@ -132,7 +132,8 @@ def test_run_on_the_real_ecd_prefix_and_show_redraws_it(ecd_slider, tmp_path, ca
     report = json.loads((out / "report.json").read_text())
     assert report["ground_truth"] is False and report["mae_cm"] is None
     assert report["events"] == 50000 - 3251 and report["N2"] >= report["N1"] > 200
-    assert report["depth_range_from"] == "given"
+    assert report["depth_range_from"] == "given (--min-depth, --max-depth)"
+    assert report["oracle"] is False
     for name in ("map/map.json", "fill/fill.json", "fill/figure.png", "overview.png"):
         assert (out / name).is_file(), name
     fill = json.loads((out / "fill" / "fill.json").read_text())

@@ -13,7 +13,8 @@ from fusion.cli import main
 from sim.exr import read_depth
 from tests.conftest import FAST, WALL, scene_text
 
-EXTRA = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 4\n"
+EXTRA = ("depth_range = [0.4, 2.5]\n"
+         "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 4\n")
 
 
 @pytest.fixture(scope="module")
@@ -46,13 +47,60 @@ def test_run_writes_every_promised_file_with_consistent_figures(tiny_run, capsys
     assert report["ground_truth"] and report["simulated"]
     for value in report["mae_cm"].values():
         assert math.isfinite(value)
-    assert report["depth_range_from"].startswith("exact depth")
-    low, high = report["depth_range_m"]
-    assert low < 1.0 < high                                        # the wall is 1 m away
+    # Blind by default: the DSI's range is the scene file's declaration, not the exact depth.
+    assert report["depth_range_from"] == "scene file (declared working range)"
+    assert report["depth_range_m"] == [0.4, 2.5] and report["oracle"] is False
+    assert mapped["oracle"] is False and fill["oracle"] is False
     overview = cv2.imread(str(out / "overview.png"))
     # frame, events, map, segmentation / dense, exact depth, error, point cloud: 4 x 2 panels of
     # 320 px (64 px scaled by 5) under 26-px titles, with a 22-px colour-bar line each row
     assert overview.shape == (2 * (26 + 5 * 48 + 22), 4 * 320, 3)
+
+
+def test_run_and_map_then_fill_give_the_same_numbers(tiny_run, tmp_path, capsys):
+    """One wiring: `evfuse run` is `evfuse map` + `evfuse fill` with the same arguments."""
+    _, out = tiny_run
+    report = json.loads((out / "report.json").read_text())
+    window = ["--t0", "0.0", "--t1", "0.3"]
+    assert main(["map", str(out / "sequence"), "--out", str(tmp_path / "map"), "--quiet",
+                 *window]) == 0
+    assert main(["fill", str(tmp_path / "map"), "--out", str(tmp_path / "fill")]) == 0
+    assert "scene file (declared working range)" in capsys.readouterr().out
+    mapped = json.loads((tmp_path / "map" / "map.json").read_text())
+    fill = json.loads((tmp_path / "fill" / "fill.json").read_text())
+    assert mapped["t_ref"] == report["t_ref"]
+    assert mapped["depth_range_m"] == report["depth_range_m"]
+    for key in ("N1", "N2", "beta"):
+        assert fill[key] == report[key], key
+    np.testing.assert_array_equal(read_depth(tmp_path / "fill" / "dense_depth.exr"),
+                                  read_depth(out / "fill" / "dense_depth.exr"))
+    assert fill["errors"] == json.loads((out / "fill" / "fill.json").read_text())["errors"]
+
+
+def test_the_oracle_range_is_opt_in_and_every_output_says_so(tiny_run, tmp_path, capsys):
+    _, out = tiny_run
+    run = tmp_path / "oracle"
+    assert main(["run", str(out / "sequence"), "--out", str(run), "--t0", "0.0", "--t1", "0.3",
+                 "--depth-range", "oracle", "--quiet"]) == 0
+    report = json.loads((run / "report.json").read_text())
+    assert report["oracle"] is True and report["depth_range_from"].startswith("oracle")
+    low, high = report["depth_range_m"]
+    assert 1.0 / 1.2 - 0.05 < low < 1.0 < high < 1.25 * 1.2       # the wall, 1-1.2 m away
+    for name in ("map/map.json", "fill/fill.json"):
+        assert json.loads((run / name).read_text())["oracle"] is True, name
+    capsys.readouterr()
+    assert main(["map", str(out / "sequence"), "--out", str(tmp_path / "m"), "--depth-range",
+                 "oracle", "--min-depth", "0.5", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "drop --min-depth/--max-depth" in err[0]
+
+
+def test_the_oracle_range_is_refused_on_a_real_recording(ecd_slider, tmp_path, capsys):
+    assert main(["run", str(ecd_slider), "--out", str(tmp_path / "o"), "--depth-range",
+                 "oracle", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs the exact depth of a simulated sequence" in err[0]
+    assert not (tmp_path / "o").exists()
 
 
 def test_show_redraws_the_same_overview(tiny_run, tmp_path):

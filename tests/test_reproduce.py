@@ -19,10 +19,14 @@ def test_reproduce_table_1_and_complex_on_one_scene_each(tmp_path, capsys):
     text = (out / "report.md").read_text()
     assert "## Table 1" in text and "| shapes_6dof |" in text and "0.0274" in text
     assert "## Complex surfaces" in text and "## Table 2" not in text
+    assert "## DSI depth ranges" in text and "| shapes_6dof | 0.4-3 | scene file" in text
     for row in rows.values():
         if "failed" in row:
             assert f"{row['scene']} [" in text
             continue
+        # Blind: the DSI's range is each scene file's declared working range.
+        assert row["oracle"] is False
+        assert row["depth_range_from"] == "scene file (declared working range)"
         for fill in row["fills"].values():
             assert fill["N2"] >= fill["N1"] > 0 and 0 <= fill["beta"] < 1
         assert (out / report["figures"][row["scene"]]).is_file()

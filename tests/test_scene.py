@@ -8,7 +8,7 @@ import pytest
 from scenes import builtin_scenes, describe_scenes, resolve_scene
 from sim.render import Renderer
 from sim.scene import SceneError, load_scene, parse_scene
-from tests.conftest import scene_text
+from tests.conftest import WALL, scene_text
 
 BOX = """
 [[objects]]
@@ -56,6 +56,26 @@ def test_invalid_toml_and_missing_file(tmp_path):
         load_scene(tmp_path / "absent.toml")
 
 
+@pytest.mark.parametrize("value, message", [
+    ("[0.5]", "expected a list of 2 positive numbers"),
+    ("[2.0, 0.5]", "near < far"),
+    ("[0.0, 2.0]", "expected a list of 2 positive numbers"),
+    ('"near"', "expected a list of 2 positive numbers"),
+])
+def test_declared_depth_range_is_checked(value, message, tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text(scene_text(WALL).replace("seed = 3\n", f"seed = 3\ndepth_range = {value}\n"))
+    with pytest.raises(SceneError, match=rf"s.toml: depth_range: .*{message}"):
+        load_scene(path)
+
+
+def test_declared_depth_range_is_read(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text(scene_text(WALL).replace("seed = 3\n", "seed = 3\ndepth_range = [0.5, 3]\n"))
+    assert load_scene(path).depth_range == (0.5, 3.0)
+    assert parse_scene(scene_text(WALL)).depth_range is None
+
+
 def test_other_sections_are_checked(tmp_path):
     assert "[trajectory].type" in _error(
         scene_text(BOX).replace('type = "linear"', 'type = "teleport"'), tmp_path)
@@ -93,6 +113,9 @@ def test_every_builtin_scene_loads_and_renders_one_frame(name):
     hit = view.depth > 0
     assert hit.mean() > 0.95, "a built-in scene fills the view"
     assert np.percentile(np.log(view.luminance[hit] + 1e-6), 99) > -8
+    # The rig's declared working range (the DSI's default range) holds what the camera sees.
+    near, far = scene.depth_range
+    assert near < view.depth[hit].min() and view.depth[hit].max() < far
 
 
 def test_slider_twins_have_the_papers_geometry():
