@@ -49,7 +49,7 @@ def test_bad_map_input_is_refused_before_work(plane_sequence, tmp_path, capsys):
     cases = [
         (["--min-depth", "2", "--max-depth", "1"], "depth range"),
         (["--min-depth", "-1", "--max-depth", "1"], "depth range"),
-        (["--t0", "5", "--t1", "6"], "outside the poses"),
+        (["--t0", "5", "--t1", "6"], "the poses [0.0, 0.3] s"),
         (["--t0", "0.2", "--t1", "0.1"], "empty time window"),
         (["--planes", "1000000"], "GiB"),
         (["--min-depth", "2", "--max-depth", "5"], "does not contain the scene: 0 %"),
