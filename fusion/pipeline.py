@@ -137,6 +137,8 @@ def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = 
     if sequence.groundtruth_path is None:
         raise ValueError(f"{sequence_folder}: no groundtruth.txt (the camera poses are "
                          "needed to map)")
+    if t0 is not None and t1 is not None and not t0 < t1:
+        raise ValueError(f"empty time window [{t0}, {t1}] s: expected --t0 < --t1")
     if ref_time is None:
         middle = _window_middle(sequence, t0, t1)
         ref_time = _frame_nearest(sequence, middle) if len(sequence.image_times) else middle
