@@ -1,7 +1,8 @@
 """Figures drawn from results: depth in colour, segmentations, point clouds, panels.
 
-Everything returns 8-bit BGR images (``cv2.imwrite`` writes them as they are); nothing here
-computes a result, so every figure can be re-drawn from the files a run saved.
+Everything returns 8-bit BGR images (``cv2.imwrite`` writes them as they are), with the legend or
+caption that reads them; nothing here computes a result, so every figure can be re-drawn from
+the files a run saved.
 """
 
 from __future__ import annotations
@@ -319,6 +320,8 @@ def _draw_axes(image: np.ndarray, project, centre: np.ndarray, length: float) ->
         (text_w, text_h), _ = cv2.getTextSize(name, cv2.FONT_HERSHEY_SIMPLEX, font_size, 1)
         label = (int(round(end[0] + 4 * direction[0] - text_w / 2 + text_w / 2 * direction[0])),
                  int(round(end[1] + 4 * direction[1] + text_h / 2 + text_h / 2 * direction[1])))
+        label = (min(max(label[0], 0), width - text_w - 1),           # inside the image
+                 min(max(label[1], text_h + 1), height - 2))
         cv2.putText(image, name, label, cv2.FONT_HERSHEY_SIMPLEX, font_size, colour, 1,
                     cv2.LINE_8)
 
