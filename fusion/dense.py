@@ -25,9 +25,11 @@ import cv2
 import numpy as np
 
 from fusion.figures import (
+    add_header,
     depth_colours,
     depth_legend,
     depth_range,
+    error_panel,
     label_colours,
     panel_grid,
     point_cloud_view,
@@ -42,7 +44,7 @@ from fusion.filling import (
 )
 from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
-from fusion.scoring import depth_errors, discontinuity_band, error_image
+from fusion.scoring import depth_errors, discontinuity_band
 from fusion.segmentation import SegmentationParams, segment_regions
 from sim.camera import Camera
 from sim.exr import read_depth, write_depth
@@ -336,26 +338,45 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None) -> Dense
 
 def _figure(result: DenseResult, params: DenseParams) -> np.ndarray:
     """The paper's Figure 2 for one frame, as one image of six panels."""
+    panels, titles, legends, header = _figure_panels(result, params)
+    return add_header(panel_grid(panels, titles, columns=3, legends=legends), header)
+
+
+def _figure_panels(result: DenseResult, params: DenseParams
+                   ) -> tuple[list[np.ndarray], list[str], list, list[str]]:
+    """The panels of Figure 2, their titles, their legends (the depth scale spans the exact
+    depth where there is one, and both maps) and the header lines (the oracle warning)."""
     raw = segment_regions(result.frame, SegmentationParams(params.segmentation.threshold, 1))
     points, colours, _ = _cloud(result)
     size = (result.frame.shape[1], result.frame.shape[0])
-    lo_hi = depth_range(result.dense)
+    lo_hi = depth_range(result.truth, result.sparse, result.dense)
     legend = depth_legend(*lo_hi) if lo_hi[0] is not None else None
+    view, caption = point_cloud_view(points, colours, size)
     panels = [
         depth_colours(result.sparse, *lo_hi, base=result.frame),
         label_colours(raw),
         label_colours(result.labels),
         label_colours(result.labels, highlight=result.regions.selected),
         depth_colours(result.dense, *lo_hi),
-        point_cloud_view(points, colours, size),
+        view,
     ]
-    titles = [f"(a) frame + {result.n1} projected events",
+    titles = [f"(a) frame + {int(np.count_nonzero(result.sparse))} projected map points",
               f"(b) raw segmentation ({int(raw.max())})",
               f"(c) valid regions ({result.regions.n_regions})",
               f"(d) regions to fill ({int(result.regions.selected.sum())})",
-              f"(e) range image (N2 = {result.n2})", "(f) point cloud: events red, filled green"]
-    return panel_grid(panels, titles, columns=3,
-                      legends=[legend, None, None, None, legend, None])
+              f"(e) range image (N2 = {int(np.count_nonzero(result.dense))})",
+              "(f) point cloud: map points red, filled green"]
+    header = (["DSI depth range from the exact depth (oracle): not a blind result"]
+              if result.info.get("oracle") else [])
+    return panels, titles, [legend, None, None, None, legend, caption], header
+
+
+def _error_figure(result: DenseResult) -> np.ndarray:
+    """``error.png``: |error| of the dense map with its legend (scale in cm, no value, no
+    surface); needs ``result.truth``."""
+    image, legend = error_panel(result.dense, result.truth)
+    return panel_grid([image], ["|error| of the dense map (map points and filled)"], columns=1,
+                      legends=[legend])
 
 
 def _cloud(result: DenseResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -385,7 +406,7 @@ def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
         pose = result.T_world_frame if result.T_world_frame is not None else np.eye(4)
         write_ply(tmp / "dense.ply", points, pose, colours, source, frame_name="T_world_frame")
         if result.truth is not None:
-            cv2.imwrite(str(tmp / "error.png"), error_image(result.dense, result.truth))
+            cv2.imwrite(str(tmp / "error.png"), _error_figure(result))
         document = {"params": params.as_dict(),
                     "camera": {"width": result.camera.width, "height": result.camera.height,
                                "fx": result.camera.fx, "fy": result.camera.fy,

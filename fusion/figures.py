@@ -1,7 +1,8 @@
 """Figures drawn from results: depth in colour, segmentations, point clouds, panels.
 
-Everything returns 8-bit BGR images (``cv2.imwrite`` writes them as they are); nothing here
-computes a result, so every figure can be re-drawn from the files a run saved.
+Everything returns 8-bit BGR images (``cv2.imwrite`` writes them as they are), with the legend or
+caption that reads them; nothing here computes a result, so every figure can be re-drawn from
+the files a run saved.
 """
 
 from __future__ import annotations
@@ -13,10 +14,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fusion.scoring import error_image
+from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
 
-__all__ = ["Legend", "depth_colours", "depth_legend", "depth_range", "error_legend",
-           "label_colours", "panel_grid", "point_cloud_view", "write_image"]
+__all__ = ["Caption", "Legend", "add_header", "depth_colours", "depth_legend", "depth_range",
+           "error_legend", "error_panel", "label_colours", "panel_grid", "point_cloud_view",
+           "write_image"]
 
 _NO_VALUE = (40, 40, 40)
 """Colour of pixels without a depth (dark grey, so that black texture stays readable)."""
@@ -65,29 +67,52 @@ class Legend:
         The colour scale from its low end (left) to its high end (right).
     low, high : str
         Labels written at the two ends, with units (``"0.23 m"``).
+    keys : tuple of (str, (B, G, R)) pairs
+        Colours outside the scale, each drawn as a swatch with its meaning after the bar
+        (``("no value", (200, 200, 200))``).
     """
 
     colours: np.ndarray
     low: str
     high: str
+    keys: tuple[tuple[str, tuple[int, int, int]], ...] = ()
 
 
-def depth_range(depth: np.ndarray) -> tuple[float, float] | tuple[None, None]:
-    """The 1st and 99th percentiles of the valid depths: a colour scale that outliers do not
-    squash.
+@dataclass(frozen=True)
+class Caption:
+    """A line of text drawn under a panel by :func:`panel_grid`, in place of a colour bar."""
+
+    text: str
+
+
+def depth_range(*depths: np.ndarray | None) -> tuple[float, float] | tuple[None, None]:
+    """The full range of the valid depths of all the maps given: one colour scale that clips
+    none of them.
+
+    Pass the exact depth beside the estimated maps where there is one, so that the scale covers
+    the whole scene and not only what the maps found (a map that misses the far wall would
+    otherwise draw the wall at the scale's far end, as if it were that near).
 
     Parameters
     ----------
-    depth : (H, W) float ndarray, metres, 0 where none
+    *depths : (H, W) float ndarrays, metres, 0 where none; None entries are skipped
 
     Returns
     -------
-    (lo, hi) : floats, metres, or (None, None) when no pixel has a depth
+    (lo, hi) : floats, metres, the smallest and largest depth > 0 of them all, or
+        (None, None) when no pixel of any has a depth
     """
-    valid = np.asarray(depth)[np.asarray(depth) > 0]
-    if valid.size == 0:
+    lo, hi = np.inf, -np.inf
+    for depth in depths:
+        if depth is None:
+            continue
+        valid = np.asarray(depth, dtype=np.float64)
+        valid = valid[valid > 0]
+        if valid.size:
+            lo, hi = min(lo, float(valid.min())), max(hi, float(valid.max()))
+    if lo > hi:
         return None, None
-    return float(np.percentile(valid, 1)), float(np.percentile(valid, 99))
+    return lo, hi
 
 
 def depth_legend(lo: float, hi: float) -> Legend:
@@ -107,22 +132,57 @@ def depth_legend(lo: float, hi: float) -> Legend:
     return Legend(ramp, f"{lo:.3g} m", f"{hi:.3g} m")
 
 
-def error_legend(max_error: float) -> Legend:
-    """The legend of :func:`fusion.scoring.error_image` with ``max_error``, labelled in cm.
+def error_legend(max_error: float, clipped: bool = False) -> Legend:
+    """The legend of :func:`fusion.scoring.error_image` with ``max_error``, labelled in cm, with
+    the two colours that are not errors: no value, and an estimate where there is no surface.
 
     Parameters
     ----------
     max_error : float, metres, > 0
         The error shown in the last colour.
+    clipped : bool
+        Some errors are larger and drawn in the last colour too: the high end reads
+        ``">= X cm"``.
 
     Returns
     -------
     Legend
-        256 colours, made by ``error_image`` itself (errors 0 to ``max_error``).
+        256 colours, made by ``error_image`` itself (errors 0 to ``max_error``), and the keys
+        ``no value`` and ``no surface``.
     """
     errors = np.linspace(0.0, max_error, 256)[None, :]
     ramp = error_image(1.0 + errors, np.ones_like(errors), max_error=max_error)[0]
-    return Legend(ramp, "0 cm", f"{100 * max_error:.3g} cm")
+    high = f"{100 * max_error:.3g} cm"
+    return Legend(ramp, "0 cm", (">= " if clipped else "") + high,
+                  keys=(("no value", ERROR_NO_VALUE), ("no surface", ERROR_NO_SURFACE)))
+
+
+ERROR_PERCENTILE = 99.0
+"""Percentile of the errors at which :func:`error_panel` ends its scale (outliers clipped)."""
+
+
+def error_panel(depth: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, Legend]:
+    """|depth - truth| in colour, with its legend: the scale ends at the 99th percentile of the
+    errors (the larger ones drawn in its last colour, the legend says ``>=``).
+
+    Parameters
+    ----------
+    depth : (H, W) float ndarray, metres, 0 where no estimate
+    truth : (H, W) float ndarray, metres, 0 where no surface
+
+    Returns
+    -------
+    image : (H, W, 3) uint8 ndarray, BGR, from :func:`fusion.scoring.error_image`
+    legend : Legend, from :func:`error_legend`
+    """
+    depth = np.asarray(depth, dtype=np.float64)
+    truth = np.asarray(truth, dtype=np.float64)
+    both = (depth > 0) & (truth > 0)
+    errors = np.abs(depth - truth)[both]
+    top = float(np.percentile(errors, ERROR_PERCENTILE)) if errors.size else 0.0
+    top = top if top > 0 else 1e-3                 # all exact (or none): a 1-mm scale
+    clipped = bool((errors > top).any())
+    return error_image(depth, truth, max_error=top), error_legend(top, clipped)
 
 
 def label_colours(labels: np.ndarray, highlight: np.ndarray | None = None) -> np.ndarray:
@@ -150,46 +210,120 @@ def label_colours(labels: np.ndarray, highlight: np.ndarray | None = None) -> np
     return palette[labels]
 
 
+AXIS_COLOURS = ((255, 255, 255), (0, 255, 255), (255, 255, 0))
+"""BGR of the x, y, z axes drawn by :func:`point_cloud_view`: white, yellow, cyan (the points are
+red and green)."""
+
+
+def _round_length(length: float) -> float:
+    """The largest 1, 2 or 5 times a power of ten that is <= ``length`` (> 0)."""
+    power = 10.0 ** np.floor(np.log10(length))
+    return float(max(m * power for m in (1.0, 2.0, 5.0) if m * power <= length * (1 + 1e-9)))
+
+
+def _metres(length: float) -> str:
+    return f"{length:g} m" if length >= 1 else f"{100 * length:g} cm"
+
+
+def _side(angle: float, positive: str, negative: str) -> str:
+    return f"{abs(angle):g} deg {positive if angle >= 0 else negative}"
+
+
 def point_cloud_view(points: np.ndarray, colours: np.ndarray, size: tuple[int, int],
-                     yaw_deg: float = 35.0, pitch_deg: float = -20.0) -> np.ndarray:
-    """The points seen by a virtual camera turned around their centre, z-buffered splats.
+                     left_deg: float = 30.0, above_deg: float = 20.0, axes: bool = True
+                     ) -> tuple[np.ndarray, Caption]:
+    """The points seen by a virtual camera looking at their centre from beside the camera that
+    took them, z-buffered splats, with the camera frame's axes drawn at the centre.
+
+    The virtual camera stands 3 spreads (the 75th percentile of the points' distances to their
+    median) from the median, turned ``left_deg`` to the left of the reference camera (about its
+    y axis) and ``above_deg`` above it, and looks at the median; its image keeps the reference
+    camera's "down" (+y) downwards. With both angles 0 it sees what the reference camera sees.
+    The axes are arrows along the reference camera's +x (right), +y (down) and +z (forward)
+    from the median, labelled x, y, z, of a round length in metres (1, 2 or 5 times a power of
+    ten, between half the spread and the spread), which the caption states with the viewpoint.
 
     Parameters
     ----------
     points : (N, 3) float ndarray, metres, camera frame of the reference view
     colours : (N, 3) uint8 ndarray, BGR
     size : (width, height) of the image, pixels
-    yaw_deg, pitch_deg : float, degrees
-        Rotation of the virtual view about the vertical and horizontal axes through the centre.
+    left_deg, above_deg : float, degrees
+        Viewpoint: to the left of (negative: right of) and above (negative: below) the
+        reference camera's view of the centre.
+    axes : bool
+        Draw the axes (colours :data:`AXIS_COLOURS`).
 
     Returns
     -------
-    (height, width, 3) uint8 ndarray, BGR (black background)
+    image : (height, width, 3) uint8 ndarray, BGR (black background)
+    caption : Caption
+        ``"seen from 30 deg left, 20 deg above the camera; axes 10 cm"``, for the line under
+        the panel.
     """
     width, height = size
     image = np.zeros((height, width, 3), np.uint8)
+    view = f"seen from {_side(left_deg, 'left', 'right')}, {_side(above_deg, 'above', 'below')}"
     points = np.asarray(points, dtype=np.float64)
     if len(points) == 0:
-        return image
+        return image, Caption(f"{view} the camera; no points")
     centre = np.median(points, axis=0)
-    spread = np.percentile(np.linalg.norm(points - centre, axis=1), 75) + 1e-9
-    yaw, pitch = np.radians(yaw_deg), np.radians(pitch_deg)
-    r_yaw = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
-    r_pitch = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)],
-                        [0, np.sin(pitch), np.cos(pitch)]])
-    local = (points - centre) @ (r_pitch @ r_yaw).T / spread
-    z = local[:, 2] + 3.0                                  # the virtual camera 3 spreads away
-    ahead = z > 0.1
-    focal = 1.1 * min(width, height)
-    u = np.round(focal * local[:, 0] / np.where(ahead, z, 1) + width / 2).astype(np.int64)
-    v = np.round(focal * local[:, 1] / np.where(ahead, z, 1) + height / 2).astype(np.int64)
+    spread = float(np.percentile(np.linalg.norm(points - centre, axis=1), 75)) + 1e-9
+    left, above = np.radians(left_deg), np.radians(above_deg)
+    # From the centre to the eye: behind the centre (-z), to the left (-x), above (-y).
+    to_eye = np.array([-np.sin(left) * np.cos(above), -np.sin(above),
+                       -np.cos(left) * np.cos(above)])
+    forward = -to_eye
+    right = np.cross([0.0, 1.0, 0.0], forward)
+    right = right / np.linalg.norm(right) if np.linalg.norm(right) > 1e-9 else np.array([1.0, 0, 0])
+    down = np.cross(forward, right)
+    rotation = np.stack([right, down, forward])         # rows: the virtual camera's axes
+    eye = centre + 3.0 * spread * to_eye
+    focal = 1.1 * min(width, height)                    # pixels: a spread at the centre is
+                                                        # 1.1 / 3 of the image's smaller side
+
+    def project(p):
+        local = (np.atleast_2d(p) - eye) @ rotation.T
+        z = local[:, 2]
+        ahead = z > 0.1 * spread
+        zz = np.where(ahead, z, 1.0)
+        return focal * local[:, 0] / zz + width / 2, focal * local[:, 1] / zz + height / 2, z, ahead
+
+    u, v, z, ahead = project(points)
+    u, v = np.round(u).astype(np.int64), np.round(v).astype(np.int64)
     inside = ahead & (u >= 1) & (u < width - 1) & (v >= 1) & (v < height - 1)
-    order = np.argsort(-z[inside])                         # far first, near drawn over them
+    order = np.argsort(-z[inside])                      # far first, near drawn over them
     u, v, c = u[inside][order], v[inside][order], np.asarray(colours)[inside][order]
-    for du in (-1, 0):                                     # 2x2 splats
+    for du in (-1, 0):                                  # 2x2 splats
         for dv in (-1, 0):
             image[v + dv, u + du] = c
-    return image
+    length = _round_length(spread)
+    if axes:
+        _draw_axes(image, project, centre, length)
+    return image, Caption(f"{view} the camera; axes {_metres(length)}")
+
+
+def _draw_axes(image: np.ndarray, project, centre: np.ndarray, length: float) -> None:
+    """Arrows of ``length`` metres along +x, +y, +z from ``centre``, labelled, in place."""
+    height, width = image.shape[:2]
+    u0, v0, _, ahead0 = project(centre)
+    font_size = max(0.3, min(width, height) / 400)
+    for axis, (name, colour) in enumerate(zip("xyz", AXIS_COLOURS, strict=True)):
+        u1, v1, _, ahead1 = project(centre + length * np.eye(3)[axis])
+        if not (ahead0[0] and ahead1[0]):
+            continue
+        start = (int(round(u0[0])), int(round(v0[0])))
+        end = (int(round(u1[0])), int(round(v1[0])))
+        cv2.arrowedLine(image, start, end, colour, 1, cv2.LINE_8, tipLength=0.25)
+        direction = np.array([end[0] - start[0], end[1] - start[1]], np.float64)
+        direction /= max(float(np.linalg.norm(direction)), 1e-9)
+        (text_w, text_h), _ = cv2.getTextSize(name, cv2.FONT_HERSHEY_SIMPLEX, font_size, 1)
+        label = (int(round(end[0] + 4 * direction[0] - text_w / 2 + text_w / 2 * direction[0])),
+                 int(round(end[1] + 4 * direction[1] + text_h / 2 + text_h / 2 * direction[1])))
+        label = (min(max(label[0], 0), width - text_w - 1),           # inside the image
+                 min(max(label[1], text_h + 1), height - 2))
+        cv2.putText(image, name, label, cv2.FONT_HERSHEY_SIMPLEX, font_size, colour, 1,
+                    cv2.LINE_8)
 
 
 _TITLE_H = 26
@@ -200,20 +334,21 @@ _LEGEND_H = 22
 
 def panel_grid(images: list[np.ndarray], titles: list[str], columns: int = 3,
                scale: float | None = None,
-               legends: list[Legend | None] | None = None) -> np.ndarray:
+               legends: list[Legend | Caption | None] | None = None) -> np.ndarray:
     """Images side by side in a grid, each with its title above it and, optionally, a colour
-    bar under it.
+    bar or a caption under it.
 
     Parameters
     ----------
     images : list of (H, W) or (H, W, 3) uint8 ndarrays, all the same size
     titles : list of str
+        Written in a smaller font where they would not fit the panel's width.
     columns : int
     scale : float, optional
         Resize factor of every panel (default: so that a panel is at least 320 px wide).
-    legends : list of Legend or None, optional
-        One per image: the colour bar drawn under it (None: none). When any is given, every
-        row of the grid gets a legend line.
+    legends : list of Legend, Caption or None, optional
+        One per image: the colour bar or the line of text drawn under it (None: none). When
+        any is given, every row of the grid gets a legend line.
 
     Returns
     -------
@@ -239,30 +374,82 @@ def panel_grid(images: list[np.ndarray], titles: list[str], columns: int = 3,
         r, c = divmod(k, columns)
         y0, x0 = r * row_h, c * w
         canvas[y0 + _TITLE_H:y0 + _TITLE_H + h, x0:x0 + w] = tile
-        cv2.putText(canvas, title, (x0 + 6, y0 + 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
-                    (0, 0, 0), 1, cv2.LINE_AA)
-        if legend is not None:
-            _draw_legend(canvas[y0 + _TITLE_H + h:y0 + row_h, x0:x0 + w], legend)
+        cv2.putText(canvas, title, (x0 + 6, y0 + 18), cv2.FONT_HERSHEY_SIMPLEX,
+                    _fitting_size(title, 0.5, w - 12), (0, 0, 0), 1, cv2.LINE_AA)
+        strip = canvas[y0 + _TITLE_H + h:y0 + row_h, x0:x0 + w]
+        if isinstance(legend, Caption):
+            cv2.putText(strip, legend.text, (6, (legend_h + 8) // 2), cv2.FONT_HERSHEY_SIMPLEX,
+                        _fitting_size(legend.text, 0.4, w - 12), (0, 0, 0), 1, cv2.LINE_AA)
+        elif legend is not None:
+            _draw_legend(strip, legend)
     return canvas
 
 
+def _fitting_size(text: str, size: float, width: int, smallest: float = 0.3) -> float:
+    """The largest font scale <= ``size`` (down to ``smallest``) at which ``text`` fits
+    ``width`` pixels in OpenCV's simplex font."""
+    text_w = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, size, 1)[0][0]
+    return size if text_w <= width else max(smallest, size * width / text_w)
+
+
 def _draw_legend(strip: np.ndarray, legend: Legend) -> None:
-    """Draw ``low [colour bar] high`` into a white (legend_h, w, 3) strip, in place."""
+    """Draw ``low [colour bar] high  [ ] key ...`` into a white (legend_h, w, 3) strip, in
+    place; the keys come first, the bar gets what is left (none below 8 px)."""
     font, size = cv2.FONT_HERSHEY_SIMPLEX, 0.4
-    (low_w, text_h), _ = cv2.getTextSize(legend.low, font, size, 1)
-    (high_w, _), _ = cv2.getTextSize(legend.high, font, size, 1)
     height, width = strip.shape[:2]
+    (_, text_h), _ = cv2.getTextSize("0", font, size, 1)
     baseline = (height + text_h) // 2
+    right = width - 6
+    for name, colour in reversed(legend.keys):          # right-aligned, in their order
+        (name_w, _), _ = cv2.getTextSize(name, font, size, 1)
+        cv2.putText(strip, name, (right - name_w, baseline), font, size, (0, 0, 0), 1,
+                    cv2.LINE_AA)
+        right -= name_w + 4 + 10
+        top = (height - 10) // 2
+        strip[top:top + 10, right:right + 10] = colour
+        cv2.rectangle(strip, (right, top), (right + 9, top + 9), (0, 0, 0), 1)
+        right -= 10
+    (low_w, _), _ = cv2.getTextSize(legend.low, font, size, 1)
+    (high_w, _), _ = cv2.getTextSize(legend.high, font, size, 1)
     cv2.putText(strip, legend.low, (6, baseline), font, size, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(strip, legend.high, (width - 6 - high_w, baseline), font, size, (0, 0, 0), 1,
+    cv2.putText(strip, legend.high, (right - high_w, baseline), font, size, (0, 0, 0), 1,
                 cv2.LINE_AA)
-    left, right = 6 + low_w + 8, width - 6 - high_w - 8
+    left, right = 6 + low_w + 8, right - high_w - 8
     if right - left < 8:
         return
     bar = cv2.resize(np.asarray(legend.colours, np.uint8)[None, :, :], (right - left, 1),
                      interpolation=cv2.INTER_NEAREST)
     top = (height - 10) // 2
     strip[top:top + 10, left:right] = bar
+
+
+_HEADER_LINE_H = 24
+"""Height of a line of :func:`add_header`, pixels."""
+
+
+def add_header(image: np.ndarray, lines: list[str], colour: tuple[int, int, int] = (0, 0, 200)
+               ) -> np.ndarray:
+    """The image under a white header of text lines (a warning that belongs to every panel).
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8 ndarray, BGR
+    lines : list of str
+        One header line each (none: the image as it is).
+    colour : (B, G, R)
+        Of the text (default dark red).
+
+    Returns
+    -------
+    (H + 24 len(lines), W, 3) uint8 ndarray, BGR
+    """
+    if not lines:
+        return image
+    header = np.full((_HEADER_LINE_H * len(lines), image.shape[1], 3), 255, np.uint8)
+    for k, line in enumerate(lines):
+        cv2.putText(header, line, (6, _HEADER_LINE_H * k + 17), cv2.FONT_HERSHEY_SIMPLEX,
+                    _fitting_size(line, 0.55, image.shape[1] - 12), colour, 1, cv2.LINE_AA)
+    return np.vstack([header, image])
 
 
 def write_image(path: str | Path, image: np.ndarray) -> Path:

@@ -31,7 +31,7 @@ from fusion.emvs import (
     disparity_space_image,
     semidense_depth,
 )
-from fusion.figures import depth_colours
+from fusion.figures import add_header, depth_colours, depth_legend, depth_range, panel_grid
 from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
 from sim.camera import Camera
@@ -348,6 +348,21 @@ def _reference_image(sequence: Sequence, t_ref: float) -> np.ndarray:
     return image
 
 
+def _overlay(result: MapResult) -> np.ndarray:
+    """``overlay.png``: the map points over the frame nearest the reference time, coloured on
+    the map's own full depth range, with the colour bar and, for a DSI range taken from the exact
+    depth (``info["oracle"]``), a header saying so."""
+    lo_hi = depth_range(result.depth)
+    overlay = depth_colours(result.depth, *lo_hi,
+                            base=_reference_image(result.sequence, result.t_ref))
+    legend = depth_legend(*lo_hi) if lo_hi[0] is not None else None
+    grid = panel_grid([overlay], [f"map at {result.t_ref:.3f} s (N1 = {result.n1})"], columns=1,
+                      legends=[legend])
+    header = (["DSI depth range from the exact depth (oracle)"] if result.info.get("oracle")
+              else [])
+    return add_header(grid, header)
+
+
 def write_map(result: MapResult, out: str | Path, params: MapParams,
               overwrite: bool = False) -> Path:
     """Write ``semidense_depth.exr``, ``confidence.exr``, ``mask.png``, ``overlay.png``,
@@ -357,8 +372,7 @@ def write_map(result: MapResult, out: str | Path, params: MapParams,
         write_depth(tmp / "semidense_depth.exr", result.depth)
         write_exr_channels(tmp / "confidence.exr", {"Y": result.confidence})
         cv2.imwrite(str(tmp / "mask.png"), result.mask.astype(np.uint8) * 255)
-        overlay = depth_colours(result.depth, base=_reference_image(sequence, result.t_ref))
-        cv2.imwrite(str(tmp / "overlay.png"), overlay)
+        cv2.imwrite(str(tmp / "overlay.png"), _overlay(result))
         write_ply(tmp / "map.ply", result.points(), result.T_world_ref)
         dsi_range = params.dsi_range or DSIRange(params.dsi.min_depth, params.dsi.max_depth,
                                                  "given")

@@ -27,10 +27,11 @@ from fusion.dense import DenseParams, DenseResult, fill_map, write_fill
 from fusion.dsi_range import resolve_dsi_range
 from fusion.emvs import DepthMapParams, DSIParams
 from fusion.figures import (
+    add_header,
     depth_colours,
     depth_legend,
     depth_range,
-    error_legend,
+    error_panel,
     label_colours,
     panel_grid,
     point_cloud_view,
@@ -39,7 +40,6 @@ from fusion.figures import (
 from fusion.jsonio import to_json
 from fusion.mapping import MapParams, MapResult, map_sequence, write_map
 from fusion.pointcloud import read_ply
-from fusion.scoring import error_image
 from sim.eventio import event_frame, read_window
 from sim.exr import read_depth
 from sim.sequence import PARTIAL_SUFFIX, atomic_output_dir, check_output_dir, load_sequence
@@ -283,7 +283,12 @@ def _window_middle(sequence, t0: float | None, t1: float | None) -> float:
 def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndarray:
     """The overview of a run, from its saved files: frame, events, semi-dense map, segmentation,
     dense map, with ground truth the exact depth and the error of the dense map, and the
-    point cloud; depth and error panels carry their colour scale.
+    point cloud; depth and error panels carry their colour scale, the point cloud its viewpoint
+    and axes. A run whose DSI range came from the exact depth (``report["oracle"]``) says so in
+    a header line above the panels.
+
+    The depth panels share one scale: the full range of the exact depth and of both maps where
+    there is an exact depth, else of the maps (:func:`fusion.figures.depth_range`).
 
     Parameters
     ----------
@@ -295,6 +300,22 @@ def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndar
     Returns
     -------
     (H', W', 3) uint8 ndarray, BGR
+    """
+    panels, titles, legends, header = _overview_panels(run_folder, report)
+    grid = panel_grid(panels, titles, columns=4 if len(panels) > 6 else 3, legends=legends)
+    return add_header(grid, header)
+
+
+def _overview_panels(run_folder: str | Path, report: dict | None = None
+                    ) -> tuple[list[np.ndarray], list[str], list, list[str]]:
+    """The panels of :func:`draw_overview`, before they are laid out.
+
+    Returns
+    -------
+    panels : list of (H, W, 3) uint8 ndarrays, BGR
+    titles : list of str
+    legends : list of Legend, Caption or None, one per panel
+    header : list of str, lines above the grid (the oracle warning, or none)
     """
     run_folder = Path(run_folder)
     if report is None:
@@ -320,31 +341,36 @@ def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndar
     events_path = sequence.events_h5 or sequence.events_txt
     events = read_window(events_path, int(round((t - 0.01) * 1e9)), int(round((t + 0.01) * 1e9)))
     events_image = cv2.cvtColor(event_frame(events, width, height), cv2.COLOR_RGB2BGR)
-    lo_hi = depth_range(dense)
-    legend = depth_legend(*lo_hi) if lo_hi[0] is not None else None
-    cloud, _ = read_ply(run_folder / "fill" / "dense.ply")
-    points = np.stack([cloud["x"], cloud["y"], cloud["z"]], 1)
-    colours = np.stack([cloud["blue"], cloud["green"], cloud["red"]], 1)
-    panels = [cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR), events_image,
-              depth_colours(semidense, *lo_hi), label_colours(labels, highlight=selected),
-              depth_colours(dense, *lo_hi)]
-    titles = [f"frame at {t:.3f} s", f"events +-10 ms ({len(events)})",
-              f"semi-dense map (N1 = {report['N1']})", "segmentation (filled in colour)",
-              f"dense map (N2 = {report['N2']}, beta {report['beta']:.3f})"]
-    legends = [None, None, legend, None, legend]
     truth = None
     if sequence.depth_paths:
         k = int(np.argmin(np.abs(sequence.depth_times - t)))
         if abs(float(sequence.depth_times[k]) - t) < 1e-6:
             truth = read_depth(sequence.depth_paths[k])
+    lo_hi = depth_range(truth, semidense, dense)
+    legend = depth_legend(*lo_hi) if lo_hi[0] is not None else None
+    cloud, _ = read_ply(run_folder / "fill" / "dense.ply")
+    points = np.stack([cloud["x"], cloud["y"], cloud["z"]], 1)
+    colours = np.stack([cloud["blue"], cloud["green"], cloud["red"]], 1)
+    n1 = report["N1"]
+    in_frame = report.get("N1_in_frame")
+    map_title = (f"semi-dense map (N1 = {n1})" if in_frame is None
+                 else f"semi-dense map (N1 = {n1}, {in_frame} in the frame)")
+    panels = [cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR), events_image,
+              depth_colours(semidense, *lo_hi), label_colours(labels, highlight=selected),
+              depth_colours(dense, *lo_hi)]
+    titles = [f"frame at {t:.3f} s", f"events +-10 ms ({len(events)})", map_title,
+              "segmentation (filled in colour)",
+              f"dense map (N2 = {report['N2']}, beta {report['beta']:.3f})"]
+    legends = [None, None, legend, None, legend]
     if truth is not None:
-        error = np.abs(dense - truth)[(dense > 0) & (truth > 0)]
-        top = float(np.percentile(error, 99)) if error.size else 0.0
-        top = top if top > 0 else 1e-3
-        panels += [depth_colours(truth, *lo_hi), error_image(dense, truth, max_error=top)]
+        error, error_key = error_panel(dense, truth)
+        panels += [depth_colours(truth, *lo_hi), error]
         titles += ["exact depth", "|error| of the dense map"]
-        legends += [legend, error_legend(top)]
-    panels.append(point_cloud_view(points, colours, (width, height)))
-    titles.append("point cloud: events red, filled green")
-    legends.append(None)
-    return panel_grid(panels, titles, columns=4 if truth is not None else 3, legends=legends)
+        legends += [legend, error_key]
+    view, caption = point_cloud_view(points, colours, (width, height))
+    panels.append(view)
+    titles.append("point cloud: map points red, filled green")
+    legends.append(caption)
+    header = (["DSI depth range from the exact depth (oracle): not a blind result"]
+              if report.get("oracle") else [])
+    return panels, titles, legends, header

@@ -11,7 +11,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["DELTAS", "depth_errors", "discontinuity_band", "error_image"]
+__all__ = ["DELTAS", "ERROR_NO_SURFACE", "ERROR_NO_VALUE", "depth_errors", "discontinuity_band",
+           "error_image"]
 
 DELTAS = (1.25, 1.05, 1.01)
 """Ratio thresholds of the delta accuracies, ``max(d / gt, gt / d) < delta``."""
@@ -138,8 +139,18 @@ def discontinuity_band(gt: np.ndarray, width: int = 3, jump: float = 0.05) -> np
     return cv2.dilate(pair.astype(np.uint8), kernel).astype(bool)
 
 
+ERROR_NO_VALUE = (200, 200, 200)
+"""BGR of :func:`error_image` where there is no error to show (no estimate, or neither estimate
+nor surface): a light grey, at least 139 (of 255) in Euclidean distance from every turbo level, so
+that it never reads as an error (black would, as turbo's cold end is nearly black)."""
+
+ERROR_NO_SURFACE = (255, 0, 255)
+"""BGR of :func:`error_image` where there is an estimate but no surface (exact depth 0): an error
+of unbounded size, in magenta, which turbo never produces."""
+
+
 def error_image(depth: np.ndarray, gt: np.ndarray, max_error: float | None = None) -> np.ndarray:
-    """Absolute depth error as a colour image: turbo colour map, black where not evaluable.
+    """Absolute depth error as a colour image: turbo colour map, two colours no error takes.
 
     Parameters
     ----------
@@ -152,8 +163,9 @@ def error_image(depth: np.ndarray, gt: np.ndarray, max_error: float | None = Non
     Returns
     -------
     (H, W, 3) uint8 ndarray, BGR
-        For ``cv2.imwrite``: 0 m dark blue through green to ``max_error`` red; black where
-        ``depth`` or ``gt`` is 0.
+        For ``cv2.imwrite``: 0 m dark blue through green to ``max_error`` red where both depths
+        are > 0; :data:`ERROR_NO_SURFACE` (magenta) where ``depth > 0`` and ``gt`` is 0;
+        :data:`ERROR_NO_VALUE` (light grey) where ``depth`` is 0.
     """
     depth, gt, _ = _check_pair(depth, gt, None)
     both = (depth > 0) & (gt > 0)
@@ -165,5 +177,6 @@ def error_image(depth: np.ndarray, gt: np.ndarray, max_error: float | None = Non
     scaled = err / max_error if max_error > 0 else np.zeros_like(err)
     levels = np.round(255.0 * np.clip(scaled, 0.0, 1.0)).astype(np.uint8)
     image = cv2.applyColorMap(levels, cv2.COLORMAP_TURBO)
-    image[~both] = 0
+    image[~both] = ERROR_NO_VALUE
+    image[(depth > 0) & (gt == 0)] = ERROR_NO_SURFACE
     return image

@@ -2,19 +2,26 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
+from fusion.dense import DenseParams, _figure_panels, fill_frame, write_fill
 from fusion.figures import (
+    AXIS_COLOURS,
+    Caption,
     Legend,
+    add_header,
     depth_colours,
     depth_legend,
     depth_range,
     error_legend,
+    error_panel,
     panel_grid,
     point_cloud_view,
 )
-from fusion.scoring import error_image
+from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
+from sim.camera import Camera
 
 
 def test_depth_legend_runs_from_the_colour_of_lo_to_the_colour_of_hi():
@@ -38,13 +45,91 @@ def test_error_legend_is_the_scale_of_error_image():
     assert (legend.low, legend.high) == ("0 cm", "2 cm")
 
 
-def test_depth_range_ignores_the_outlying_percent_and_empty_maps():
-    depth = np.zeros((10, 100))
-    depth[0] = np.linspace(1.0, 2.0, 100)
-    depth[1, 0] = 50.0                                    # one outlier of 101 valid pixels
-    lo, hi = depth_range(depth)
-    assert 1.0 <= lo < 1.05 and 1.95 < hi <= 2.0
+def test_depth_range_spans_every_map_given_and_the_exact_depth_beyond_them():
+    estimate = np.zeros((10, 100))
+    estimate[0] = np.linspace(1.0, 1.2, 100)              # the map found 1.0-1.2 m
+    truth = np.zeros((10, 100))
+    truth[:5] = np.linspace(0.8, 1.73, 100)               # the scene reaches 1.73 m
+    assert depth_range(estimate) == (1.0, 1.2)
+    assert depth_range(truth, estimate) == (0.8, 1.73)
+    estimate[1, 0] = 2.5                                  # an estimate beyond the truth: kept
+    assert depth_range(None, truth, estimate) == (0.8, 2.5)
     assert depth_range(np.zeros((3, 3))) == (None, None)
+    assert depth_range(None) == (None, None)
+
+
+def _plane_frame(truth_far: float):
+    """A square bounded by map points at 2 m on a 40x30 frame, and an exact depth of 2 m with a
+    far strip at ``truth_far`` metres and a column of sky (0) under one of the map points."""
+    frame = np.full((30, 40), 100, np.uint8)
+    frame[10:20, 14:26] = 160
+    sparse = np.zeros((30, 40), np.float32)
+    sparse[9, 13:27] = sparse[20, 13:27] = 2.0
+    sparse[9:21, 13] = sparse[9:21, 26] = 2.0
+    truth = np.full((30, 40), 2.0, np.float32)
+    truth[:, 30:] = truth_far
+    truth[:, 13] = 0.0                                     # no surface under map points
+    return fill_frame(frame, sparse, Camera(40, 30, 35.0, 30.0, 19.5, 14.5), DenseParams(),
+                      truth=truth)
+
+
+def test_figure_2_depth_scale_covers_the_exact_depth_beyond_the_maps():
+    result = _plane_frame(truth_far=3.5)
+    assert result.dense.max() == 2.0                      # the maps hold 2 m only
+    panels, titles, legends, header = _figure_panels(result, DenseParams())
+    assert (legends[0].low, legends[0].high) == ("2 m", "3.5 m")
+    assert legends[4] is legends[0]                        # (a) and (e) share it
+    assert titles[0] == f"(a) frame + {np.count_nonzero(result.sparse)} projected map points"
+    assert isinstance(legends[5], Caption) and "deg left" in legends[5].text
+    assert header == []
+    oracle = fill_frame(result.frame, result.sparse, result.camera, DenseParams(),
+                        truth=result.truth, info={"oracle": True})
+    assert "oracle" in _figure_panels(oracle, DenseParams())[3][0]
+
+
+def test_no_error_colour_is_taken_by_no_value_or_no_surface():
+    turbo = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[None], cv2.COLORMAP_TURBO)[0]
+    for colour in (ERROR_NO_VALUE, ERROR_NO_SURFACE):
+        distance = np.linalg.norm(turbo.astype(float) - colour, axis=1)
+        assert distance.min() > 100, colour               # far from every level, not only unequal
+    # turbo's cold end is nearly black: black must not mean "no value"
+    assert np.linalg.norm(turbo[0].astype(float)) < 100
+    depth = np.array([[1.0, 1.5, 0.0, 2.0, 0.0]])
+    gt = np.array([[1.0, 1.0, 1.0, 0.0, 0.0]])
+    image = error_image(depth, gt)
+    assert tuple(image[0, 2]) == ERROR_NO_VALUE           # no estimate
+    assert tuple(image[0, 4]) == ERROR_NO_VALUE           # neither estimate nor surface
+    assert tuple(image[0, 3]) == ERROR_NO_SURFACE         # an estimate where there is nothing
+
+
+def test_error_panel_scale_ends_at_the_99th_percentile_and_says_so():
+    truth = np.ones((1, 200))
+    depth = truth + np.r_[np.linspace(0.0, 0.02, 199), 1.0][None, :]   # one 1-m outlier
+    image, legend = error_panel(depth, truth)
+    top = np.percentile(np.abs(depth - truth), 99)
+    assert legend.high == f">= {100 * top:.3g} cm" and legend.low == "0 cm"
+    np.testing.assert_array_equal(image[0, -1], legend.colours[-1])     # the outlier: last colour
+    assert [name for name, _ in legend.keys] == ["no value", "no surface"]
+    assert dict(legend.keys) == {"no value": ERROR_NO_VALUE, "no surface": ERROR_NO_SURFACE}
+    exact = error_panel(truth, truth)[1]                  # nothing clipped: no ">="
+    assert not exact.high.startswith(">=")
+
+
+def test_error_png_has_its_legend_and_shows_no_value_and_no_surface(tmp_path):
+    result = _plane_frame(truth_far=2.0)
+    write_fill(result, tmp_path / "fill", DenseParams())
+    image = cv2.imread(str(tmp_path / "fill" / "error.png"))
+    assert image.shape[0] > result.dense.shape[0] and image.shape[1] >= 320
+    panel, legend = error_panel(result.dense, result.truth)
+    expected = panel_grid([panel], ["x"], columns=1, legends=[legend])
+    strip = image[-22:]                                    # the legend line, drawn
+    np.testing.assert_array_equal(strip, expected[-22:])
+    assert (strip == ERROR_NO_VALUE).all(axis=2).sum() >= 64          # its two swatches
+    assert (strip == ERROR_NO_SURFACE).all(axis=2).sum() >= 64
+    tile = image[26:-22]
+    assert (tile == ERROR_NO_SURFACE).all(axis=2).any()   # map points over the sky column
+    assert (tile == ERROR_NO_VALUE).all(axis=2).any()     # pixels not filled
+    assert not (tile == 0).all(axis=2).any()              # nothing black
 
 
 def test_panel_grid_draws_each_legend_under_its_panel_only():
@@ -72,12 +157,67 @@ def test_panel_grid_draws_each_legend_under_its_panel_only():
 def test_point_cloud_view_puts_the_centre_in_the_middle_and_near_over_far():
     points = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
     colours = np.array([[0, 0, 255]] * 3, np.uint8)
-    image = point_cloud_view(points, colours, (64, 48), yaw_deg=0.0, pitch_deg=0.0)
+    image, _ = point_cloud_view(points, colours, (64, 48), left_deg=0.0, above_deg=0.0,
+                                axes=False)
     lit = np.argwhere(image.any(axis=2))
     assert len(lit) == 4 and np.abs(lit.mean(axis=0) - [23.5, 31.5]).max() <= 0.5
     # Two points on the view axis: the nearer one (blue) covers the farther one (green).
     points = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0], [0.5, 0.0, 1.5], [-0.5, 0.0, 1.5]])
     colours = np.array([[255, 0, 0], [0, 255, 0], [0, 0, 255], [0, 0, 255]], np.uint8)
-    image = point_cloud_view(points, colours, (64, 48), yaw_deg=0.0, pitch_deg=0.0)
+    image, _ = point_cloud_view(points, colours, (64, 48), left_deg=0.0, above_deg=0.0,
+                                axes=False)
     assert (image == [255, 0, 0]).all(axis=2).any()
     assert not (image == [0, 255, 0]).all(axis=2).any()
+
+
+def _axis_points(marked: int):
+    """Six points 0.3 m along +-x, +-y, +-z around (0, 0, 2) (index 0-2: +x, +y, +z; 3-5: the
+    minus ones), all red but ``marked`` blue and its opposite green."""
+    points = np.vstack([0.3 * np.eye(3), -0.3 * np.eye(3)]) + [0.0, 0.0, 2.0]
+    colours = np.full((6, 3), [0, 0, 255], np.uint8)
+    colours[marked] = [255, 0, 0]
+    colours[(marked + 3) % 6] = [0, 255, 0]
+    return points, colours
+
+
+def _pixel_of(image, colour):
+    return np.argwhere((image == colour).all(axis=2)).mean(axis=0)[::-1]     # (u, v)
+
+
+def test_point_cloud_view_from_the_left_sees_forward_on_its_left_and_up_above():
+    # From 90 deg left, level, looking along +x (y down): +z is on the viewer's left, -y up.
+    size = (160, 120)
+    centre = np.array([size[0] / 2, size[1] / 2])
+    for marked, (du_sign, dv_sign) in ((2, (-1, 0)), (5, (1, 0)), (4, (0, -1)), (1, (0, 1))):
+        image, _ = point_cloud_view(*_axis_points(marked), size, left_deg=90.0, above_deg=0.0,
+                                    axes=False)
+        du, dv = _pixel_of(image, [255, 0, 0]) - centre
+        for d, sign in ((du, du_sign), (dv, dv_sign)):
+            assert (d < -10) if sign < 0 else (d > 10) if sign > 0 else abs(d) < 3, marked
+
+
+def test_point_cloud_view_draws_each_axis_on_the_side_of_points_along_it():
+    # The median is (0, 0, 2), the spread 0.3 m, the axes 20 cm (the round length below the
+    # spread).
+    size = (200, 150)
+    for axis in range(3):
+        points, colours = _axis_points(axis)
+        image, caption = point_cloud_view(points, colours, size)
+        assert caption.text == "seen from 30 deg left, 20 deg above the camera; axes 20 cm"
+        plain, _ = point_cloud_view(points, colours, size, axes=False)
+        plus, minus = _pixel_of(plain, [255, 0, 0]), _pixel_of(plain, [0, 255, 0])
+        arrow = (image == AXIS_COLOURS[axis]).all(axis=2) & ~(image == plain).all(axis=2)
+        assert arrow.sum() >= 5, "xyz"[axis]
+        tip = np.argwhere(arrow).mean(axis=0)[::-1] - 0.5 * (plus + minus)
+        assert np.dot(plus - minus, tip) > 0, "xyz"[axis]
+    _, caption = point_cloud_view(points, colours, size, left_deg=-15.0, above_deg=-5.0)
+    assert caption.text.startswith("seen from 15 deg right, 5 deg below the camera")
+
+
+def test_add_header_puts_lines_above_and_leaves_the_image_as_it_is():
+    image = np.full((30, 400, 3), 90, np.uint8)
+    assert add_header(image, []) is image
+    out = add_header(image, ["DSI depth range from the exact depth (oracle)"])
+    assert out.shape == (24 + 30, 400, 3)
+    np.testing.assert_array_equal(out[24:], image)
+    assert (out[:24] != 255).any()                          # the text is drawn

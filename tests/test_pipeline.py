@@ -110,6 +110,42 @@ def test_show_redraws_the_same_overview(tiny_run, tmp_path):
     np.testing.assert_array_equal(cv2.imread(str(target)), cv2.imread(str(out / "overview.png")))
 
 
+def test_overview_scales_cover_the_exact_depth_and_titles_name_each_count(tiny_run):
+    from fusion.figures import Caption
+    from fusion.pipeline import _overview_panels, draw_overview
+    from sim.sequence import load_sequence
+
+    _, out = tiny_run
+    report = json.loads((out / "report.json").read_text())
+    sequence = load_sequence(out / "sequence")
+    k = int(np.argmin(np.abs(sequence.depth_times - report["t_frame"])))
+    assert sequence.depth_times[k] == pytest.approx(report["t_frame"], abs=1e-9)
+    truth = read_depth(sequence.depth_paths[k])
+    maps = [read_depth(out / "map" / "semidense_depth.exr"),
+            read_depth(out / "fill" / "dense_depth.exr")]
+    lo = min(float(d[d > 0].min()) for d in [truth, *maps])
+    hi = max(float(d[d > 0].max()) for d in [truth, *maps])
+    assert hi >= float(truth.max()) and lo <= float(truth[truth > 0].min())
+    panels, titles, legends, header = _overview_panels(out, report)
+    for k in (2, 4, 5):                          # semi-dense, dense, exact: one shared scale
+        assert (legends[k].low, legends[k].high) == (f"{lo:.3g} m", f"{hi:.3g} m"), titles[k]
+    assert titles[6] == "|error| of the dense map"
+    assert [name for name, _ in legends[6].keys] == ["no value", "no surface"]
+    assert legends[6].high.endswith(" cm")
+    assert isinstance(legends[7], Caption) and "deg left" in legends[7].text
+    assert header == [] and titles[2] == f"semi-dense map (N1 = {report['N1']})"
+    renamed = {**report, "N1": 2570, "N1_in_frame": 2541, "oracle": True}
+    _, titles, _, header = _overview_panels(out, renamed)
+    assert titles[2] == "semi-dense map (N1 = 2570, 2541 in the frame)"
+    assert len(header) == 1 and "exact depth (oracle)" in header[0]
+    plain, marked = draw_overview(out, report), draw_overview(out, {**report, "oracle": True})
+    assert marked.shape[0] == plain.shape[0] + 24      # the header line, above the same panels
+    np.testing.assert_array_equal(marked[24:], plain)
+    assert (marked[:24] != 255).any()
+    overlay = cv2.imread(str(out / "map" / "overlay.png"))      # the map with its colour bar
+    assert overlay.shape == (26 + 5 * 48 + 22, 320, 3)
+
+
 def test_a_run_is_never_overwritten_silently(tiny_run, capsys):
     _, out = tiny_run
     before = (out / "report.json").read_bytes()

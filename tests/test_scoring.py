@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from fusion import scoring
 from fusion.scoring import depth_errors, discontinuity_band, error_image
 
 GT = np.array([[1.0, 2.0, 4.0, 2.0]])
@@ -100,7 +101,8 @@ def test_error_image_colours():
     gt = np.array([[1.0, 1.0, 1.0, 0.0]])
     image = error_image(depth, gt)
     assert image.shape == (1, 4, 3) and image.dtype == np.uint8
-    assert (image[0, 2:] == 0).all()                    # not evaluable: black
+    assert (image[0, 2] == scoring.ERROR_NO_VALUE).all()        # no estimate: not an error
+    assert (image[0, 3] == scoring.ERROR_NO_SURFACE).all()      # an estimate, no surface
     blue, _, red = image[0, 0].astype(int)              # no error: the cold end (BGR)
     assert blue > red
     blue, _, red = image[0, 1].astype(int)              # largest error: the hot end
