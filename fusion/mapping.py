@@ -321,6 +321,8 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     timings["depth_map_s"] = time.perf_counter() - tick
     timings["total_s"] = time.perf_counter() - start
     info = {
+        **(params.dsi_range or DSIRange(params.dsi.min_depth, params.dsi.max_depth,
+                                        "given")).as_dict(),
         "events_used": used, "events_dropped_before_poses": dropped_before,
         "events_dropped_after_poses": dropped_after, "window_s": [t0, t1],
         "dsi_mev_per_s": used / dsi_time / 1e6 if dsi_time > 0 else None,
@@ -374,11 +376,8 @@ def write_map(result: MapResult, out: str | Path, params: MapParams,
         cv2.imwrite(str(tmp / "mask.png"), result.mask.astype(np.uint8) * 255)
         cv2.imwrite(str(tmp / "overlay.png"), _overlay(result))
         write_ply(tmp / "map.ply", result.points(), result.T_world_ref)
-        dsi_range = params.dsi_range or DSIRange(params.dsi.min_depth, params.dsi.max_depth,
-                                                 "given")
         document = {
             "N1": result.n1,
-            **dsi_range.as_dict(),
             "t_ref": result.t_ref,
             "T_world_ref": result.T_world_ref.tolist(),
             # relative to this folder (its .partial sibling has the same relation), so that a

@@ -88,6 +88,9 @@ def test_the_oracle_range_is_opt_in_and_every_output_says_so(tiny_run, tmp_path,
     assert 1.0 / 1.2 - 0.05 < low < 1.0 < high < 1.25 * 1.2       # the wall, 1-1.2 m away
     for name in ("map/map.json", "fill/fill.json"):
         assert json.loads((run / name).read_text())["oracle"] is True, name
+    for name in ("map/overlay.png", "fill/figure.png", "overview.png"):     # a header line
+        oracle, blind = (cv2.imread(str(f / name)).shape for f in (run, out))
+        assert oracle[0] > blind[0] and oracle[1] == blind[1], name
     capsys.readouterr()
     assert main(["map", str(out / "sequence"), "--out", str(tmp_path / "m"), "--depth-range",
                  "oracle", "--min-depth", "0.5", "--quiet"]) == 2
