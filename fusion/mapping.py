@@ -140,10 +140,9 @@ def _ground_truth_depth(sequence: Sequence, t_ref: float, pose: np.ndarray) -> n
     """Exact depth of the reference view for a simulated sequence, else None."""
     meta = sequence.metadata or {}
     toml = (meta.get("scene") or {}).get("toml")
-    if sequence.depth_times is not None:
-        k = int(np.argmin(np.abs(sequence.depth_times - t_ref)))
-        if abs(sequence.depth_times[k] - t_ref) < 1e-9:
-            return read_depth(sequence.depth_paths[k])
+    k = sequence.nearest_depth(t_ref)
+    if k is not None:
+        return read_depth(sequence.depth_paths[k])
     if not toml:
         return None
     from sim.render import Renderer
@@ -316,7 +315,7 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
 
 def _reference_image(sequence: Sequence, t_ref: float) -> np.ndarray:
     """The standard frame nearest to the reference time, undistorted, gray (H, W) uint8."""
-    k = int(np.argmin(np.abs(sequence.image_times - t_ref)))
+    k = sequence.nearest_frame(t_ref)
     image = cv2.imread(str(sequence.image_paths[k]), cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise ValueError(f"cannot read {sequence.image_paths[k]}")

@@ -14,6 +14,7 @@ when complete.
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import time
@@ -90,7 +91,7 @@ def is_sequence_folder(source: str | Path) -> bool:
 
 
 def _frame_nearest(sequence, t: float) -> float:
-    return float(sequence.image_times[int(np.argmin(np.abs(sequence.image_times - t)))])
+    return float(sequence.image_times[sequence.nearest_frame(t)])
 
 
 def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None = None,
@@ -226,7 +227,7 @@ def _depth_range(sequence, t_ref: float, params: RunParams) -> tuple[float, floa
     if params.min_depth is not None and params.max_depth is not None:
         return params.min_depth, params.max_depth, "given"
     if sequence.depth_paths:
-        k = int(np.argmin(np.abs(sequence.depth_times - t_ref)))
+        k = sequence.nearest_depth(t_ref, tolerance=math.inf)
         depth = read_depth(sequence.depth_paths[k])
         valid = depth[depth > 0]
         if valid.size:
@@ -290,8 +291,8 @@ def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndar
     legends = [None, None, legend, None, legend]
     truth = None
     if sequence.depth_paths:
-        k = int(np.argmin(np.abs(sequence.depth_times - t)))
-        if abs(float(sequence.depth_times[k]) - t) < 1e-6:
+        k = sequence.nearest_depth(t)
+        if k is not None:
             truth = read_depth(sequence.depth_paths[k])
     if truth is not None:
         error = np.abs(dense - truth)[(dense > 0) & (truth > 0)]

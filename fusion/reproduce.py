@@ -143,7 +143,7 @@ def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams) -
     """Map one window and fill it with each weighting; the figures it needs, its numbers."""
     sequence = load_sequence(sequence_folder)
     t_mid = job["t0"] + job["length"] / 2
-    k = int(np.argmin(np.abs(sequence.image_times - t_mid)))
+    k = sequence.nearest_frame(t_mid)
     t_ref = float(sequence.image_times[k])
     truth = read_depth(sequence.depth_paths[k])
     valid = truth[truth > 0]
