@@ -91,7 +91,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
         dsi=DSIParams(0.2 if args.min_depth is None else args.min_depth,
                       5.0 if args.max_depth is None else args.max_depth, planes=args.planes),
         depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
-        t0=args.t0, t1=args.t1, ref_time=args.ref_time)
+        t0=args.t0, t1=args.t1, ref_time=args.ref_time, clip_window=args.clip_window)
     check_output_dir(args.out, args.overwrite)                  # fail before the long work
     result = map_sequence(args.sequence, params, progress=not args.quiet)
     out = write_map(result, args.out, params, overwrite=args.overwrite)
@@ -171,7 +171,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
                        max_depth=args.max_depth, planes=args.planes,
                        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
-                       dense=_dense_params(args), spp=args.spp, seed=args.seed)
+                       dense=_dense_params(args), spp=args.spp, seed=args.seed,
+                       clip_window=args.clip_window)
     report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,
                           progress=not args.quiet)
     _print_report(report, Path(args.out))
@@ -247,6 +248,9 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 def _add_map_options(parser: argparse.ArgumentParser, depth_help: str) -> None:
     parser.add_argument("--t0", type=float, default=None, help="window start, s")
     parser.add_argument("--t1", type=float, default=None, help="window end, s")
+    parser.add_argument("--clip-window", action="store_true",
+                        help="map the part of --t0/--t1 that the events and poses cover "
+                             "(recorded in map.json) instead of refusing a window past them")
     parser.add_argument("--min-depth", type=float, default=None,
                         help=f"nearest DSI plane, m ({depth_help})")
     parser.add_argument("--max-depth", type=float, default=None,

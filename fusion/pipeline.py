@@ -71,6 +71,9 @@ class RunParams:
         Samples per pixel of the simulated frames (default: the scene's).
     seed : int or None
         Seed of the simulation (default: the scene's).
+    clip_window : bool
+        Map the part of ``[t0, t1]`` that a folder's events and poses cover instead of refusing
+        a window that reaches past them (``MapParams.clip_window``; default False).
     """
 
     t0: float | None = None
@@ -82,6 +85,7 @@ class RunParams:
     dense: DenseParams = field(default_factory=DenseParams)
     spp: int | None = None
     seed: int | None = None
+    clip_window: bool = False
 
 
 def is_sequence_folder(source: str | Path) -> bool:
@@ -143,11 +147,11 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
         if sequence.groundtruth_path is None:
             raise ValueError(f"{sequence_folder}: no groundtruth.txt (the camera poses are "
                              "needed to map)")
-        middle = _window_middle(sequence, t0, t1)
+        middle = _window_middle(sequence, t0, t1, params.clip_window)
         t_ref = _frame_nearest(sequence, middle)
         low, high, range_from = _depth_range(sequence, t_ref, params)
         map_params = MapParams(DSIParams(low, high, planes=params.planes), params.depth,
-                               t0=t0, t1=t1, ref_time=t_ref)
+                               t0=t0, t1=t1, ref_time=t_ref, clip_window=params.clip_window)
         tick = time.perf_counter()
         mapped = map_sequence(sequence_folder, map_params, progress=progress)
         write_map(mapped, tmp / "map", map_params)
@@ -163,6 +167,8 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
             "sequence": os.path.relpath(Path(sequence_folder).resolve(), tmp.resolve()),
             "simulated": simulated_here,
             "window_s": mapped.info["window_s"],
+            "window_requested_s": mapped.info["window_requested_s"],
+            "window_clipped": mapped.info["window_clipped"],
             "t_ref": t_ref,
             "t_frame": info["t_frame"],
             "depth_range_m": [low, high],
@@ -203,24 +209,11 @@ def _simulate_window(source, folder: Path, params: RunParams, progress: bool, ti
     return folder, t0, t1
 
 
-def _window_middle(sequence, t0: float | None, t1: float | None) -> float:
-    from sim.trajectory import read_trajectory
+def _window_middle(sequence, t0: float | None, t1: float | None, clip: bool) -> float:
+    """The middle of the window that ``evfuse map`` will use (checked by the same function)."""
+    from fusion.mapping import time_window
 
-    trajectory = read_trajectory(sequence.groundtruth_path)
-    lo = trajectory.t_start if t0 is None else max(t0, trajectory.t_start)
-    hi = trajectory.t_end if t1 is None else min(t1, trajectory.t_end)
-    if t0 is None or t1 is None:
-        from fusion.mapping import _event_span
-
-        events_path = sequence.events_h5 or sequence.events_txt
-        if events_path is not None:
-            first, last = _event_span(events_path, sequence.camera)
-            lo = max(lo, first) if t0 is None else lo
-            hi = min(hi, last) if t1 is None else hi
-    if not hi > lo:
-        raise ValueError(f"time window [{t0}, {t1}] s does not overlap the poses "
-                         f"[{trajectory.t_start}, {trajectory.t_end}] s and the events")
-    return 0.5 * (lo + hi)
+    return time_window(sequence, t0, t1, clip=clip).t_ref
 
 
 def _depth_range(sequence, t_ref: float, params: RunParams) -> tuple[float, float, str]:
