@@ -36,7 +36,7 @@ from fusion.pointcloud import write_ply
 from sim.camera import Camera
 from sim.eventio import iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
-from sim.sequence import Sequence, atomic_output_dir, load_sequence
+from sim.sequence import EXACT_TIME_S, Sequence, atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
 
 __all__ = ["MapParams", "MapResult", "TimeWindow", "map_sequence", "radius_outliers",
@@ -171,7 +171,8 @@ class TimeWindow:
     t0, t1 : float, seconds
         The window used: the one asked for within the events' and the poses' spans.
     clipped : bool
-        ``[t0, t1]`` is narrower than a bound that was asked for.
+        ``[t0, t1]`` is narrower than a bound that was asked for (by more than
+        :data:`sim.sequence.EXACT_TIME_S`: a bound that close to the data's is kept as asked).
     t_ref : float, seconds
         The reference view: the one asked for, else the middle of ``[t0, t1]``.
     events_span, poses_span : (float, float), seconds
@@ -250,7 +251,8 @@ def time_window(sequence: Sequence, t0: float | None = None, t1: float | None = 
     asked = f"time window [{a:g}, {b:g}] s"
     if not a < b:
         raise ValueError(f"empty {asked}; expected --t0 < --t1")
-    used = (max(a, lo), min(b, hi))
+    # a bound within EXACT_TIME_S of the data's is the same instant (float round-off of t0 + length)
+    used = (a if a >= lo - EXACT_TIME_S else lo, b if b <= hi + EXACT_TIME_S else hi)
     if not used[0] < used[1]:
         raise ValueError(f"{asked} lies outside the data ({data}); choose --t0/--t1 within "
                          f"{_span((lo, hi))}")
@@ -259,7 +261,7 @@ def time_window(sequence: Sequence, t0: float | None = None, t1: float | None = 
         raise ValueError(f"{asked} reaches {past:.3g} s past the data ({data}); choose "
                          f"--t0/--t1 within {_span((lo, hi))}, or add --clip-window to map "
                          f"{_span(used)}")
-    clipped = (t0 is not None and used[0] > t0) or (t1 is not None and used[1] < t1)
+    clipped = (t0 is not None and used[0] != a) or (t1 is not None and used[1] != b)
     t_ref = 0.5 * (used[0] + used[1]) if ref_time is None else float(ref_time)
     if not poses[0] <= t_ref <= poses[1]:
         raise ValueError(f"reference time {t_ref} s is outside the poses {_span(poses)}; choose "

@@ -177,6 +177,7 @@ def test_time_window_checks_once_for_map_and_run(plane_sequence):
     assert window.events_span == (0.0, 0.3) and window.poses_span == (0.0, 0.3)
     assert time_window(sequence).requested == (None, None)           # the data's span
     assert (time_window(sequence).t0, time_window(sequence).t1) == (0.0, 0.3)
+    assert time_window(sequence, 0.1, 0.1 + 0.2).clipped is False    # 0.30000000000000004
     assert _window_middle(sequence, 0.1, 0.5, True) == pytest.approx(0.2)
     with pytest.raises(ValueError, match=r"reaches 0\.2 s past the data"):
         _window_middle(sequence, 0.1, 0.5, False)
