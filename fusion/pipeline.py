@@ -37,7 +37,7 @@ from fusion.figures import (
     write_image,
 )
 from fusion.jsonio import to_json
-from fusion.mapping import MapParams, map_sequence, write_map
+from fusion.mapping import MapParams, map_sequence, time_window, write_map
 from fusion.pointcloud import read_ply
 from fusion.scoring import error_image
 from sim.eventio import event_frame, read_window
@@ -211,8 +211,6 @@ def _simulate_window(source, folder: Path, params: RunParams, progress: bool, ti
 
 def _window_middle(sequence, t0: float | None, t1: float | None, clip: bool) -> float:
     """The middle of the window that ``evfuse map`` will use (checked by the same function)."""
-    from fusion.mapping import time_window
-
     return time_window(sequence, t0, t1, clip=clip).t_ref
 
 
