@@ -93,7 +93,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
         min_depth=args.min_depth, max_depth=args.max_depth,
         oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
         depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
-        overwrite=args.overwrite, progress=not args.quiet)
+        clip_window=args.clip_window, overwrite=args.overwrite, progress=not args.quiet)
     out = Path(args.out)
     info = result.info
     dsi = params.dsi_range
@@ -176,7 +176,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
                        max_depth=args.max_depth,
                        oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
                        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
-                       dense=_dense_params(args), spp=args.spp, seed=args.seed)
+                       dense=_dense_params(args), spp=args.spp, seed=args.seed,
+                       clip_window=args.clip_window)
     report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,
                           progress=not args.quiet)
     _print_report(report, Path(args.out))
@@ -252,6 +253,9 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 def _add_map_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--t0", type=float, default=None, help="window start, s")
     parser.add_argument("--t1", type=float, default=None, help="window end, s")
+    parser.add_argument("--clip-window", action="store_true",
+                        help="map the part of --t0/--t1 that the events and poses cover "
+                             "(recorded in map.json) instead of refusing a window past them")
     parser.add_argument("--min-depth", type=float, default=None,
                         help="nearest DSI plane, m (default: the near end of the working range "
                              "the scene file declares, else 0.2 m)")

@@ -304,7 +304,7 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None) -> Dense
     sequence = load_sequence(sequence_folder)
     if len(sequence.image_times) == 0:
         raise ValueError(f"{sequence_folder}: no standard frames (images.txt) to fill with")
-    k = int(np.argmin(np.abs(sequence.image_times - t_ref)))
+    k = sequence.nearest_frame(t_ref)
     t_frame = float(sequence.image_times[k])
     frame = cv2.imread(str(sequence.image_paths[k]), cv2.IMREAD_GRAYSCALE)
     if frame is None:
@@ -322,10 +322,9 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None) -> Dense
         raise ValueError(f"{map_folder}: no map point lands in the frame at {t_frame} s "
                          f"(N1 = {int(np.count_nonzero(depth_ref))} in the map)")
     truth = None
-    if sequence.depth_paths is not None and len(sequence.depth_paths):
-        j = int(np.argmin(np.abs(sequence.depth_times - t_frame)))
-        if abs(float(sequence.depth_times[j]) - t_frame) < 1e-6:
-            truth = read_depth(sequence.depth_paths[j])
+    j = sequence.nearest_depth(t_frame)
+    if j is not None:
+        truth = read_depth(sequence.depth_paths[j])
     info = {"map": str(map_folder.resolve()), "map_N1": int(np.count_nonzero(depth_ref)),
             # an oracle DSI range (the exact depth) makes every figure downstream an oracle's
             "oracle": bool(meta.get("oracle", False)),

@@ -85,8 +85,7 @@ def _oracle(sequence: Sequence, t_ref: float | None) -> DSIRange:
         raise ValueError("--depth-range oracle needs the reference time")
     from sim.exr import read_depth
 
-    k = int(np.argmin(np.abs(np.asarray(sequence.depth_times) - t_ref)))
-    depth = read_depth(sequence.depth_paths[k])
+    depth = read_depth(sequence.depth_paths[sequence.nearest_depth(t_ref, tolerance=np.inf)])
     valid = depth[depth > 0]
     if valid.size == 0:
         raise ValueError(f"--depth-range oracle: the exact depth at {t_ref:.6f} s in {where} "

@@ -35,12 +35,13 @@ from fusion.figures import add_header, depth_colours, depth_legend, depth_range,
 from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
 from sim.camera import Camera
-from sim.eventio import iter_event_chunks
+from sim.eventio import iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
-from sim.sequence import Sequence, atomic_output_dir, load_sequence
+from sim.sequence import EXACT_TIME_S, Sequence, atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
 
-__all__ = ["MapParams", "MapResult", "map_sequence", "radius_outliers", "write_map"]
+__all__ = ["MapParams", "MapResult", "TimeWindow", "map_sequence", "radius_outliers",
+           "time_window", "write_map"]
 
 DSI_MEMORY_LIMIT = 8 * 2**30
 """Largest DSI (bytes) accepted before any work is done: a third of the 24 GiB machine."""
@@ -57,9 +58,14 @@ class MapParams:
     depth : DepthMapParams
         Adaptive threshold, median filter, border.
     t0, t1 : float or None, seconds
-        Event window (default: from the first to the last event, within the poses).
+        Event window (default: from the first to the last event, within the poses). A window
+        that reaches past the events or the poses is refused (see :func:`time_window`) unless
+        ``clip_window``.
     ref_time : float or None, seconds
         Reference view (default: the middle of the window).
+    clip_window : bool
+        Map the part of ``[t0, t1]`` that the events and the poses cover instead of refusing
+        a window that reaches past them (default False); ``map.json`` records both windows.
     outlier_radius : float, metres
         Radius outlier removal: a point needs ``outlier_neighbours`` others within this radius,
         scaled by the median depth when that is below 1 m (0.05 m at 1 m, as rpg_emvs).
@@ -79,6 +85,7 @@ class MapParams:
     t0: float | None = None
     t1: float | None = None
     ref_time: float | None = None
+    clip_window: bool = False
     outlier_radius: float = 0.05
     outlier_neighbours: int = 3
     check_depth_range: bool = True
@@ -141,14 +148,149 @@ def _event_span(path: Path, sensor: Camera) -> tuple[float, float]:
     return first * 1e-9, last * 1e-9
 
 
+WINDOW_SLACK_S = 1e-3
+"""How far (s) a window asked for may reach past the data and still be used without
+``clip_window`` (it is then clipped, and recorded as clipped): the first and last events of a
+real recording only bound when it started and ended, by the time between two events (about
+10 us on the ECD slider, at 300 events per ms), far below a millisecond."""
+REF_TOLERANCE_SHARE = 0.1
+"""The reference view needs events of the window within this share of the window's length of
+it (or within :data:`REF_TOLERANCE_MIN_S`, whichever is wider)."""
+REF_TOLERANCE_MIN_S = 0.025
+"""Smallest neighbourhood (s) of the reference view searched for events: half the frame
+interval of a 20 Hz camera, so that the frame nearest to any time of the window is never
+refused for being between two frames."""
+REF_MIN_EVENTS = 100
+"""Fewest events of the window that must lie near the reference view (a map made of events
+seen only from far away is not a map of that view)."""
+
+
+@dataclass(frozen=True)
+class TimeWindow:
+    """The event window of a map: as asked for, and as used.
+
+    Attributes
+    ----------
+    requested : (float or None, float or None), seconds
+        ``t0``, ``t1`` as asked for (None where left to the default, the data's span).
+    t0, t1 : float, seconds
+        The window used: the one asked for within the events' and the poses' spans.
+    clipped : bool
+        ``[t0, t1]`` is narrower than a bound that was asked for (by more than
+        :data:`sim.sequence.EXACT_TIME_S`: a bound that close to the data's is kept as asked).
+    t_ref : float, seconds
+        The reference view: the one asked for, else the middle of ``[t0, t1]``.
+    events_span, poses_span : (float, float), seconds
+        What the data covers: the events (a simulated sequence's simulated interval from its
+        ``sequence.json``, else the first and last event) and the poses (``groundtruth.txt``).
+    """
+
+    requested: tuple[float | None, float | None]
+    t0: float
+    t1: float
+    clipped: bool
+    t_ref: float
+    events_span: tuple[float, float]
+    poses_span: tuple[float, float]
+
+
+def _events_span(sequence: Sequence, events_path: Path) -> tuple[float, float]:
+    """The time the events cover (s): a simulated sequence's whole simulated interval (the event
+    camera watched all of it, quiet or not), else the first and last event."""
+    meta = sequence.metadata or {}
+    start, duration = meta.get("start"), meta.get("duration")
+    if isinstance(start, int | float) and isinstance(duration, int | float) and duration > 0:
+        return float(start), float(start) + float(duration)
+    return _event_span(events_path, sequence.camera)
+
+
+def _span(span: tuple[float, float]) -> str:
+    return f"[{span[0]:.6f}, {span[1]:.6f}] s"
+
+
+def time_window(sequence: Sequence, t0: float | None = None, t1: float | None = None, *,
+                ref_time: float | None = None, clip: bool = False) -> TimeWindow:
+    """Check an event window against the data, once for ``evfuse map`` and ``evfuse run``.
+
+    Parameters
+    ----------
+    sequence : Sequence
+        With ``groundtruth.txt`` and an event file.
+    t0, t1 : float or None, seconds
+        The window asked for; None: the data's span (from the first to the last event within
+        the poses). Without ``t0``, ``t1`` and ``ref_time`` nothing is refused but an empty
+        overlap of events and poses.
+    ref_time : float or None, seconds
+        The reference view (default: the middle of the window used).
+    clip : bool
+        Clip a window that reaches past the data to the part the data covers, instead of
+        refusing it.
+
+    Returns
+    -------
+    TimeWindow
+
+    Raises
+    ------
+    ValueError
+        One line naming the window, the events' span, the poses' span and the flag to change:
+        a window that reaches more than :data:`WINDOW_SLACK_S` past the events or the poses
+        (without ``clip``), one that does not overlap them at all, an empty one, a reference
+        view outside the poses, or one with fewer than :data:`REF_MIN_EVENTS` events of the
+        window within ``max(REF_TOLERANCE_SHARE * length, REF_TOLERANCE_MIN_S)`` of it.
+    """
+    if sequence.groundtruth_path is None:
+        raise ValueError(f"{sequence.folder}: no groundtruth.txt (the camera poses are needed)")
+    events_path = sequence.events_h5 or sequence.events_txt
+    if events_path is None:
+        raise ValueError(f"{sequence.folder}: no events.h5 or events.txt")
+    trajectory = read_trajectory(sequence.groundtruth_path)
+    poses = (float(trajectory.t_start), float(trajectory.t_end))
+    events = _events_span(sequence, events_path)
+    data = f"events {_span(events)}, poses {_span(poses)}"
+    lo, hi = max(events[0], poses[0]), min(events[1], poses[1])
+    if not hi > lo:
+        raise ValueError(f"{sequence.folder}: the events and the poses do not overlap ({data})")
+    a = lo if t0 is None else float(t0)
+    b = hi if t1 is None else float(t1)
+    asked = f"time window [{a:g}, {b:g}] s"
+    if not a < b:
+        raise ValueError(f"empty {asked}; expected --t0 < --t1")
+    # a bound within EXACT_TIME_S of the data's is the same instant (float round-off of t0 + length)
+    used = (a if a >= lo - EXACT_TIME_S else lo, b if b <= hi + EXACT_TIME_S else hi)
+    if not used[0] < used[1]:
+        raise ValueError(f"{asked} lies outside the data ({data}); choose --t0/--t1 within "
+                         f"{_span((lo, hi))}")
+    past = max(lo - a, b - hi)
+    if past > WINDOW_SLACK_S and not clip:
+        raise ValueError(f"{asked} reaches {past:.3g} s past the data ({data}); choose "
+                         f"--t0/--t1 within {_span((lo, hi))}, or add --clip-window to map "
+                         f"{_span(used)}")
+    clipped = (t0 is not None and used[0] != a) or (t1 is not None and used[1] != b)
+    t_ref = 0.5 * (used[0] + used[1]) if ref_time is None else float(ref_time)
+    if not poses[0] <= t_ref <= poses[1]:
+        raise ValueError(f"reference time {t_ref} s is outside the poses {_span(poses)}; choose "
+                         "--ref-time within them")
+    if t0 is not None or t1 is not None or ref_time is not None:
+        half = max(REF_TOLERANCE_SHARE * (used[1] - used[0]), REF_TOLERANCE_MIN_S)
+        near = (max(t_ref - half, used[0]), min(t_ref + half, used[1]))
+        count = len(read_window(events_path, int(round(near[0] * 1e9)),
+                                int(round(near[1] * 1e9)))) if near[1] > near[0] else 0
+        if count < REF_MIN_EVENTS:
+            raise ValueError(f"the reference view at {t_ref:.6f} s has {count} events of the "
+                             f"window {_span(used)} within {1e3 * half:.0f} ms of it (at least "
+                             f"{REF_MIN_EVENTS} needed; {data}); move --t0/--t1 (or --ref-time)"
+                             " to where the events are")
+    return TimeWindow((t0, t1), used[0], used[1], clipped, t_ref, events, poses)
+
+
 def _ground_truth_depth(sequence: Sequence, t_ref: float, pose: np.ndarray) -> np.ndarray | None:
     """Exact depth of the reference view for a simulated sequence, else None."""
     meta = sequence.metadata or {}
     toml = (meta.get("scene") or {}).get("toml")
-    if sequence.depth_times is not None:
-        k = int(np.argmin(np.abs(sequence.depth_times - t_ref)))
-        if abs(sequence.depth_times[k] - t_ref) < 1e-9:
-            return read_depth(sequence.depth_paths[k])
+    k = sequence.nearest_depth(t_ref)
+    if k is not None:
+        return read_depth(sequence.depth_paths[k])
     if not toml:
         return None
     from sim.render import Renderer
@@ -254,22 +396,9 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
         raise ValueError(f"a {sensor.width}x{sensor.height}x{params.dsi.planes} DSI needs "
                          f"{dsi_bytes / 2**30:.1f} GiB, more than the {limit:.0f} GiB allowed: "
                          "use fewer --planes")
-    if params.t0 is None or params.t1 is None:
-        first, last = _event_span(events_path, sensor)
-        t0 = max(first, trajectory.t_start) if params.t0 is None else params.t0
-        t1 = min(last, trajectory.t_end) if params.t1 is None else params.t1
-    else:
-        t0, t1 = params.t0, params.t1
-    if not t0 < t1:
-        raise ValueError(f"empty time window [{t0}, {t1}] s")
-    if t1 <= trajectory.t_start or t0 >= trajectory.t_end:
-        raise ValueError(f"time window [{t0}, {t1}] s lies outside the poses "
-                         f"[{trajectory.t_start}, {trajectory.t_end}] s")
-    lo, hi = max(t0, trajectory.t_start), min(t1, trajectory.t_end)
-    t_ref = 0.5 * (lo + hi) if params.ref_time is None else params.ref_time
-    if not trajectory.t_start <= t_ref <= trajectory.t_end:
-        raise ValueError(f"reference time {t_ref} s is outside the poses "
-                         f"[{trajectory.t_start}, {trajectory.t_end}] s")
+    window = time_window(sequence, params.t0, params.t1, ref_time=params.ref_time,
+                         clip=params.clip_window)
+    t0, t1, t_ref = window.t0, window.t1, window.t_ref
     T_world_ref = trajectory.pose(t_ref)
     truth = _ground_truth_depth(sequence, t_ref, T_world_ref)
     if truth is not None and params.check_depth_range:
@@ -278,9 +407,11 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     lut = sensor.normalized_pixel_centres()            # undistorted (X/Z, Y/Z) of each pixel
     dsi = np.zeros((params.dsi.planes, sensor.height, sensor.width), np.float32)
     used = dropped_before = dropped_after = 0
-    # Without an explicit window every event is read, so that those outside the poses are counted.
-    t0_ns = None if params.t0 is None else int(round(t0 * 1e9))
-    t1_ns = None if params.t1 is None else int(round(t1 * 1e9))
+    # Without an explicit window every event is read, so that those outside the poses are counted;
+    # with one, the events of the window asked for (those outside the poses are dropped and
+    # counted likewise, leaving the window used).
+    t0_ns = None if params.t0 is None else int(round(params.t0 * 1e9))
+    t1_ns = None if params.t1 is None else int(round(params.t1 * 1e9))
     timings["setup_s"] = time.perf_counter() - start
     timings["dsi_compile_s"] = _compile_dsi(trajectory, T_world_ref, t_ref, camera, params.dsi)
     tick = time.perf_counter()
@@ -325,6 +456,7 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
                                         "given")).as_dict(),
         "events_used": used, "events_dropped_before_poses": dropped_before,
         "events_dropped_after_poses": dropped_after, "window_s": [t0, t1],
+        "window_requested_s": list(window.requested), "window_clipped": window.clipped,
         "dsi_mev_per_s": used / dsi_time / 1e6 if dsi_time > 0 else None,
         "dsi_timing": DSI_TIMING,
         "outlier_radius_m": radius, "outliers_removed": int((~inlier).sum()),
@@ -340,7 +472,7 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
 
 def _reference_image(sequence: Sequence, t_ref: float) -> np.ndarray:
     """The standard frame nearest to the reference time, undistorted, gray (H, W) uint8."""
-    k = int(np.argmin(np.abs(sequence.image_times - t_ref)))
+    k = sequence.nearest_frame(t_ref)
     image = cv2.imread(str(sequence.image_paths[k]), cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise ValueError(f"cannot read {sequence.image_paths[k]}")
@@ -385,6 +517,7 @@ def write_map(result: MapResult, out: str | Path, params: MapParams,
             "sequence": os.path.relpath(Path(sequence.folder).resolve(), tmp.resolve()),
             "params": {"dsi": asdict(params.dsi), "depth": asdict(params.depth),
                        "t0": params.t0, "t1": params.t1, "ref_time": params.ref_time,
+                       "clip_window": params.clip_window,
                        "outlier_radius": params.outlier_radius,
                        "outlier_neighbours": params.outlier_neighbours},
             "camera": {"width": result.camera.width, "height": result.camera.height,

@@ -38,7 +38,7 @@ from fusion.figures import (
     write_image,
 )
 from fusion.jsonio import to_json
-from fusion.mapping import MapParams, MapResult, map_sequence, write_map
+from fusion.mapping import MapParams, MapResult, map_sequence, time_window, write_map
 from fusion.pointcloud import read_ply
 from sim.eventio import event_frame, read_window
 from sim.exr import read_depth
@@ -75,6 +75,9 @@ class RunParams:
         Samples per pixel of the simulated frames (default: the scene's).
     seed : int or None
         Seed of the simulation (default: the scene's).
+    clip_window : bool
+        Map the part of ``[t0, t1]`` that a folder's events and poses cover instead of refusing
+        a window that reaches past them (``MapParams.clip_window``; default False).
     """
 
     t0: float | None = None
@@ -87,6 +90,7 @@ class RunParams:
     dense: DenseParams = field(default_factory=DenseParams)
     spp: int | None = None
     seed: int | None = None
+    clip_window: bool = False
 
 
 def is_sequence_folder(source: str | Path) -> bool:
@@ -96,15 +100,15 @@ def is_sequence_folder(source: str | Path) -> bool:
 
 
 def _frame_nearest(sequence, t: float) -> float:
-    return float(sequence.image_times[int(np.argmin(np.abs(sequence.image_times - t)))])
+    return float(sequence.image_times[sequence.nearest_frame(t)])
 
 
 def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = None,
                t1: float | None = None, *, ref_time: float | None = None,
                min_depth: float | None = None, max_depth: float | None = None,
                oracle_depth_range: bool = False, planes: int = 100,
-               depth: DepthMapParams | None = None, overwrite: bool = False,
-               progress: bool = True) -> tuple[MapResult, MapParams]:
+               depth: DepthMapParams | None = None, clip_window: bool = False,
+               overwrite: bool = False, progress: bool = True) -> tuple[MapResult, MapParams]:
     """The map stage as ``evfuse map`` and ``evfuse run`` both run it: reference view, DSI
     range, EMVS, files.
 
@@ -126,6 +130,9 @@ def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = 
     oracle_depth_range : bool
     planes : int
     depth : DepthMapParams, optional
+    clip_window : bool
+        Map the part of ``[t0, t1]`` the events and poses cover instead of refusing a window
+        past them (recorded in ``map.json``).
     overwrite : bool
     progress : bool
 
@@ -137,15 +144,13 @@ def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = 
     if sequence.groundtruth_path is None:
         raise ValueError(f"{sequence_folder}: no groundtruth.txt (the camera poses are "
                          "needed to map)")
-    if t0 is not None and t1 is not None and not t0 < t1:
-        raise ValueError(f"empty time window [{t0}, {t1}] s: expected --t0 < --t1")
     if ref_time is None:
-        middle = _window_middle(sequence, t0, t1)
+        middle = time_window(sequence, t0, t1, clip=clip_window).t_ref
         ref_time = _frame_nearest(sequence, middle) if len(sequence.image_times) else middle
     dsi_range = resolve_dsi_range(sequence, min_depth, max_depth, oracle_depth_range, ref_time)
     params = MapParams(DSIParams(dsi_range.min_depth, dsi_range.max_depth, planes=planes),
                        depth or DepthMapParams(), t0=t0, t1=t1, ref_time=ref_time,
-                       dsi_range=dsi_range)
+                       clip_window=clip_window, dsi_range=dsi_range)
     mapped = map_sequence(sequence_folder, params, progress=progress)
     write_map(mapped, out, params, overwrite=overwrite)
     return mapped, params
@@ -209,7 +214,8 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
         mapped, map_params = map_window(
             sequence_folder, tmp / "map", t0, t1, min_depth=params.min_depth,
             max_depth=params.max_depth, oracle_depth_range=params.oracle_depth_range,
-            planes=params.planes, depth=params.depth, progress=progress)
+            planes=params.planes, depth=params.depth, clip_window=params.clip_window,
+            progress=progress)
         timings["map_s"] = time.perf_counter() - tick
         tick = time.perf_counter()
         filled = fill_window(tmp / "map", tmp / "fill", params.dense)
@@ -221,6 +227,8 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
             "sequence": os.path.relpath(Path(sequence_folder).resolve(), tmp.resolve()),
             "simulated": simulated_here,
             "window_s": mapped.info["window_s"],
+            "window_requested_s": mapped.info["window_requested_s"],
+            "window_clipped": mapped.info["window_clipped"],
             "t_ref": mapped.t_ref,
             "t_frame": info["t_frame"],
             **map_params.dsi_range.as_dict(),
@@ -258,26 +266,6 @@ def _simulate_window(source, folder: Path, params: RunParams, progress: bool, ti
     simulate(scene, folder, start=t0, duration=t1 - t0, spp=params.spp, progress=progress)
     timings["simulate_s"] = time.perf_counter() - tick
     return folder, t0, t1
-
-
-def _window_middle(sequence, t0: float | None, t1: float | None) -> float:
-    from sim.trajectory import read_trajectory
-
-    trajectory = read_trajectory(sequence.groundtruth_path)
-    lo = trajectory.t_start if t0 is None else max(t0, trajectory.t_start)
-    hi = trajectory.t_end if t1 is None else min(t1, trajectory.t_end)
-    if t0 is None or t1 is None:
-        from fusion.mapping import _event_span
-
-        events_path = sequence.events_h5 or sequence.events_txt
-        if events_path is not None:
-            first, last = _event_span(events_path, sequence.camera)
-            lo = max(lo, first) if t0 is None else lo
-            hi = min(hi, last) if t1 is None else hi
-    if not hi > lo:
-        raise ValueError(f"time window [{t0}, {t1}] s does not overlap the poses "
-                         f"[{trajectory.t_start}, {trajectory.t_end}] s and the events")
-    return 0.5 * (lo + hi)
 
 
 def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndarray:
@@ -343,8 +331,8 @@ def _overview_panels(run_folder: str | Path, report: dict | None = None
     events_image = cv2.cvtColor(event_frame(events, width, height), cv2.COLOR_RGB2BGR)
     truth = None
     if sequence.depth_paths:
-        k = int(np.argmin(np.abs(sequence.depth_times - t)))
-        if abs(float(sequence.depth_times[k]) - t) < 1e-6:
+        k = sequence.nearest_depth(t)
+        if k is not None:
             truth = read_depth(sequence.depth_paths[k])
     lo_hi = depth_range(truth, semidense, dense)
     legend = depth_legend(*lo_hi) if lo_hi[0] is not None else None

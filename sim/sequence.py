@@ -30,14 +30,19 @@ import numpy as np
 if TYPE_CHECKING:
     from sim.camera import Camera
 
-__all__ = ["Sequence", "atomic_output_dir", "check_output_dir", "frame_name", "load_sequence",
-           "partial_dir", "read_index", "read_sequence_json", "write_index",
+__all__ = ["EXACT_TIME_S", "Sequence", "atomic_output_dir", "check_output_dir", "frame_name",
+           "load_sequence", "partial_dir", "read_index", "read_sequence_json", "write_index",
            "write_sequence_json"]
 
 PARTIAL_SUFFIX = ".partial"
 """Suffix of the folder a sequence is written into before it is complete."""
 
 _FRAME_FOLDERS = {"png": "images", "exr": "depth"}
+
+EXACT_TIME_S = 1e-6
+"""Two times this close (s) are the same instant: index files hold whole nanoseconds, and a
+time that went through float arithmetic (a window's middle, a JSON round trip) is off by far
+less than a microsecond; frames are never closer than that."""
 
 
 # --- atomic output ---------------------------------------------------------------------------
@@ -369,6 +374,58 @@ class Sequence:
     events_txt: Path | None
     events_h5: Path | None
     metadata: dict | None
+
+    def nearest_frame(self, t: float) -> int:
+        """Index of the standard frame nearest to time ``t``.
+
+        Parameters
+        ----------
+        t : float, seconds
+
+        Returns
+        -------
+        int
+            Index into ``image_times`` / ``image_paths``; on a tie (``t`` half-way between two
+            frames) the earlier frame.
+
+        Raises
+        ------
+        ValueError
+            ``images.txt`` lists no frames, or ``t`` is not finite.
+        """
+        if not math.isfinite(t):
+            raise ValueError(f"{self.folder}: nearest frame to t = {t!r}; expected a finite "
+                             "time in seconds")
+        if len(self.image_times) == 0:
+            raise ValueError(f"{self.folder / 'images.txt'} lists no frames; expected at least "
+                             "one standard frame")
+        return int(np.argmin(np.abs(self.image_times - t)))
+
+    def nearest_depth(self, t: float, tolerance: float = EXACT_TIME_S) -> int | None:
+        """Index of the depth map at time ``t``, if there is one within ``tolerance``.
+
+        Parameters
+        ----------
+        t : float, seconds
+        tolerance : float, seconds
+            Largest distance between ``t`` and the depth map's time (default
+            :data:`EXACT_TIME_S`: the same instant); ``math.inf`` for the nearest whatever its
+            distance.
+
+        Returns
+        -------
+        int or None
+            Index into ``depth_times`` / ``depth_paths`` of the nearest depth map (the earlier
+            on a tie), or None when the sequence has no depth maps (a real recording) or the
+            nearest is farther than ``tolerance``.
+        """
+        if not math.isfinite(t):
+            raise ValueError(f"{self.folder}: nearest depth map to t = {t!r}; expected a finite "
+                             "time in seconds")
+        if self.depth_times is None or len(self.depth_times) == 0:
+            return None
+        k = int(np.argmin(np.abs(self.depth_times - t)))
+        return k if abs(float(self.depth_times[k]) - t) <= tolerance else None
 
 
 def _size_from_metadata(path: Path, metadata: dict) -> tuple[int, int] | None:

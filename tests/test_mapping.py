@@ -6,6 +6,7 @@ import json
 
 import cv2
 import numpy as np
+import pytest
 
 from fusion.cli import main
 from sim.exr import read_depth
@@ -49,7 +50,7 @@ def test_bad_map_input_is_refused_before_work(plane_sequence, tmp_path, capsys):
     cases = [
         (["--min-depth", "2", "--max-depth", "1"], "depth range"),
         (["--min-depth", "-1", "--max-depth", "1"], "depth range"),
-        (["--t0", "5", "--t1", "6"], "the poses [0.0, 0.3] s"),
+        (["--t0", "5", "--t1", "6"], "lies outside the data"),
         (["--t0", "0.2", "--t1", "0.1"], "empty time window"),
         (["--planes", "1000000"], "GiB"),
         (["--min-depth", "2", "--max-depth", "5"], "does not contain the scene: 0 %"),
@@ -66,7 +67,7 @@ def test_window_inside_the_poses_without_events_is_refused(ecd_slider, tmp_path,
     out = tmp_path / "none"
     assert main(["map", str(ecd_slider), "--out", str(out), "--t0", "1.0", "--t1", "2.0",
                  "--min-depth", "0.47", "--max-depth", "2.4", "--quiet"]) == 2
-    assert "no events in the window [1.0, 2.0] s" in capsys.readouterr().err
+    assert "time window [1, 2] s lies outside the data" in capsys.readouterr().err
     assert not out.exists() and not list(tmp_path.glob("none*"))
 
 
@@ -78,3 +79,104 @@ def test_a_depth_range_beyond_a_real_scene_is_refused(ecd_slider, tmp_path, caps
     err = capsys.readouterr().err
     assert "does not seem to contain the scene" in err and "nearer than" in err
     assert not out.exists()
+
+
+# --- the event window against the data (issue 11, item 3) -------------------------------------
+# Facts of the real prefix, from its text files: the first pose at 0.022291582 s
+# (groundtruth.txt), the events from 0.003811 s to 0.174156 s (events.txt), 3251 events before
+# the first pose. The simulated plane sequence covers [0, 0.3] s (events and poses).
+
+def _one_error_line(capsys) -> str:
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def test_a_window_past_the_real_events_is_refused_or_clipped_on_request(ecd_slider, tmp_path,
+                                                                        capsys):
+    common = ["--min-depth", "0.47", "--max-depth", "2.4", "--quiet"]
+    out = tmp_path / "past"
+    assert main(["map", str(ecd_slider), "--out", str(out), "--t0", "0", "--t1", "1.0",
+                 *common]) == 2
+    line = _one_error_line(capsys)
+    assert line.startswith("evfuse map: error: time window [0, 1] s reaches 0.826 s past")
+    for part in ("events [0.003811, 0.174156] s", "poses [0.022292, 3.402486] s",
+                 "--t0/--t1 within [0.022292, 0.174156] s", "--clip-window"):
+        assert part in line, part
+    assert not list(tmp_path.iterdir())
+    clipped, whole = tmp_path / "clipped", tmp_path / "whole"
+    assert main(["map", str(ecd_slider), "--out", str(clipped), "--t0", "0", "--t1", "1.0",
+                 "--clip-window", *common]) == 0
+    assert main(["map", str(ecd_slider), "--out", str(whole), *common]) == 0
+    meta = json.loads((clipped / "map.json").read_text())
+    assert meta["window_requested_s"] == [0.0, 1.0] and meta["window_clipped"] is True
+    np.testing.assert_allclose(meta["window_s"], [0.022291582, 0.174156], atol=1e-9)
+    assert meta["params"]["clip_window"] is True
+    assert meta["events_used"] == 50000 - 3251 and meta["events_dropped_before_poses"] == 3251
+    assert meta["t_ref"] == pytest.approx(0.5 * (0.022291582 + 0.174156), abs=1e-9)
+    # the clipped window is the data's whole span: the same map as without a window
+    default = json.loads((whole / "map.json").read_text())
+    assert default["window_s"] == meta["window_s"] and default["window_clipped"] is False
+    assert default["window_requested_s"] == [None, None]
+    np.testing.assert_array_equal(read_depth(clipped / "semidense_depth.exr"),
+                                  read_depth(whole / "semidense_depth.exr"))
+    assert meta["N1"] == default["N1"] > 200
+
+
+def test_a_reference_view_without_events_near_it_is_refused(ecd_slider, tmp_path, capsys):
+    """A reference at 1 s lies inside the poses but 0.83 s after the last event."""
+    assert main(["map", str(ecd_slider), "--out", str(tmp_path / "o"), "--t0", "0.05", "--t1",
+                 "0.15", "--ref-time", "1.0", "--quiet"]) == 2
+    line = _one_error_line(capsys)
+    assert "reference view at 1.000000 s has 0 events of the window [0.050000, 0.150000] s" in line
+    assert "--ref-time" in line
+
+
+def test_a_window_past_a_simulated_sequence_is_refused(plane_sequence, tmp_path, capsys):
+    out = tmp_path / "past"
+    assert main(["map", str(plane_sequence), "--out", str(out), "--t0", "0.1", "--t1", "0.5",
+                 "--quiet"]) == 2
+    line = _one_error_line(capsys)
+    assert line.startswith("evfuse map: error: time window [0.1, 0.5] s reaches 0.2 s past")
+    for part in ("events [0.000000, 0.300000] s", "poses [0.000000, 0.300000] s",
+                 "--clip-window to map [0.100000, 0.300000] s"):
+        assert part in line, part
+    assert not list(tmp_path.iterdir())
+    # a window on the last frame at 0.3 s but with no event near it: refused as well
+    assert main(["map", str(plane_sequence), "--out", str(out), "--t0", "0.0", "--t1", "0.05",
+                 "--ref-time", "0.3", "--quiet"]) == 2
+    assert "reference view at 0.300000 s has 0 events" in _one_error_line(capsys)
+
+
+@pytest.mark.parametrize("argv, used, clipped", [
+    (["--t0", "0.05", "--t1", "0.25"], [0.05, 0.25], False),         # inside: used as asked
+    (["--t0", "0.1", "--t1", "0.5", "--clip-window"], [0.1, 0.3], True),
+    (["--t0", "0.1", "--t1", "0.3005"], [0.1, 0.3], True),            # within WINDOW_SLACK_S
+])
+def test_map_json_records_the_window_used(argv, used, clipped, plane_sequence, tmp_path):
+    out = tmp_path / "map"
+    assert main(["map", str(plane_sequence), "--out", str(out), "--min-depth", "0.5",
+                 "--max-depth", "3", "--planes", "30", "--quiet", *argv]) == 0
+    meta = json.loads((out / "map.json").read_text())
+    np.testing.assert_allclose(meta["window_s"], used, atol=1e-12)
+    assert meta["window_requested_s"] == [float(argv[1]), float(argv[3])]
+    assert meta["window_clipped"] is clipped
+    assert meta["t_ref"] == pytest.approx(0.5 * sum(used), abs=1e-12)
+
+
+def test_time_window_checks_once_for_map_and_run(plane_sequence):
+    from fusion.mapping import time_window
+    from sim.sequence import load_sequence
+
+    sequence = load_sequence(plane_sequence)
+    window = time_window(sequence, 0.1, 0.2)
+    assert (window.t0, window.t1, window.clipped) == (0.1, 0.2, False)
+    assert window.t_ref == pytest.approx(0.15, abs=1e-15)
+    assert window.events_span == (0.0, 0.3) and window.poses_span == (0.0, 0.3)
+    assert time_window(sequence).requested == (None, None)           # the data's span
+    assert (time_window(sequence).t0, time_window(sequence).t1) == (0.0, 0.3)
+    assert time_window(sequence, 0.1, 0.1 + 0.2).clipped is False    # 0.30000000000000004
+    assert time_window(sequence, 0.1, 0.5, clip=True).t_ref == pytest.approx(0.2)
+    with pytest.raises(ValueError, match=r"reaches 0\.2 s past the data"):
+        time_window(sequence, 0.1, 0.5, clip=False)

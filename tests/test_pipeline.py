@@ -106,6 +106,16 @@ def test_the_oracle_range_is_refused_on_a_real_recording(ecd_slider, tmp_path, c
     assert not (tmp_path / "o").exists()
 
 
+def test_report_records_the_window_asked_for_and_used(tiny_run):
+    """The scene was simulated over exactly [0, 0.3] s: nothing to clip."""
+    _, out = tiny_run
+    report = json.loads((out / "report.json").read_text())
+    mapped = json.loads((out / "map" / "map.json").read_text())
+    assert report["window_requested_s"] == report["window_s"] == [0.0, 0.3]
+    assert report["window_clipped"] is False
+    assert mapped["window_s"] == report["window_s"] and mapped["window_clipped"] is False
+
+
 def test_show_redraws_the_same_overview(tiny_run, tmp_path):
     _, out = tiny_run
     target = tmp_path / "again.png"
@@ -195,8 +205,10 @@ def test_debug_shows_the_traceback(tmp_path, where):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--t0", "10", "--t1", "11"], "does not overlap the poses"),
-    (["--t0", "1", "--t1", "2"], "no events in the window [1.0, 2.0] s"),
+    (["--t0", "10", "--t1", "11"], "time window [10, 11] s lies outside the data"),
+    (["--t0", "1", "--t1", "2"], "time window [1, 2] s lies outside the data"),
+    (["--t0", "0", "--t1", "1", "--min-depth", "0.47", "--max-depth", "2.4"],
+     "time window [0, 1] s reaches 0.826 s past the data"),
     (["--min-depth", "3", "--max-depth", "8"], "does not seem to contain the scene"),
 ])
 def test_bad_runs_on_the_real_recording_leave_nothing_behind(argv, message, ecd_slider, tmp_path,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import cv2
 import numpy as np
@@ -303,3 +304,29 @@ def test_load_sequence_on_the_real_ecd_folder(ecd_slider):
     assert seq.depth_times is None and seq.depth_paths is None and seq.metadata is None
     assert seq.groundtruth_path == ecd_slider / "groundtruth.txt"
     assert seq.events_txt == ecd_slider / "events.txt" and seq.events_h5 is None
+
+
+def test_nearest_frame_and_depth_map(tmp_path):
+    """Frames at 0.005 + i / 24 s: the nearest by hand, ties to the earlier frame."""
+    root = tmp_path / "sim"
+    times = _ecd_like_folder(root, n=3)
+    seq = load_sequence(root)
+    assert seq.nearest_depth(times[0]) is None                     # no depth maps: real data
+    assert [seq.nearest_frame(t) for t in (-5.0, 0.0, 0.03, 0.06, 0.07, 9.0)] == [0, 0, 1, 1, 2, 2]
+    assert seq.nearest_frame(0.5 * (times[0] + times[1])) == 0     # half-way: the earlier
+    (root / "depth").mkdir()
+    names = [frame_name(i, "exr") for i in range(3)]
+    for name in names:
+        write_depth(root / name, np.ones((48, 64), np.float32))
+    write_index(root / "depthmaps.txt", times, names)
+    seq = load_sequence(root)
+    assert seq.nearest_depth(float(times[1])) == 1
+    assert seq.nearest_depth(float(times[1]) + 0.5e-6) == 1        # within EXACT_TIME_S
+    assert seq.nearest_depth(float(times[1]) + 0.01) is None       # not the same instant
+    assert seq.nearest_depth(float(times[1]) + 0.01, tolerance=math.inf) == 1
+    with pytest.raises(ValueError, match="finite"):
+        seq.nearest_frame(float("nan"))
+    (root / "images.txt").write_text("")
+    write_sequence_json(root / "sequence.json", {"camera": {"width": 64, "height": 48}})
+    with pytest.raises(ValueError, match=r"images\.txt lists no frames"):
+        load_sequence(root).nearest_frame(0.0)
