@@ -10,6 +10,7 @@ import pytest
 
 from fusion.cli import main
 from sim.exr import read_depth
+from sim.sequence import load_sequence
 
 
 def test_map_of_a_plane_comes_back_at_its_depth(plane_sequence, tmp_path):
@@ -114,7 +115,11 @@ def test_a_window_past_the_real_events_is_refused_or_clipped_on_request(ecd_slid
     np.testing.assert_allclose(meta["window_s"], [0.022291582, 0.174156], atol=1e-9)
     assert meta["params"]["clip_window"] is True
     assert meta["events_used"] == 50000 - 3251 and meta["events_dropped_before_poses"] == 3251
-    assert meta["t_ref"] == pytest.approx(0.5 * (0.022291582 + 0.174156), abs=1e-9)
+    # the reference view: the frame nearest the middle of the window used (as evfuse run)
+    sequence = load_sequence(ecd_slider)
+    middle = 0.5 * (0.022291582 + 0.174156)
+    assert meta["t_ref"] == sequence.image_times[sequence.nearest_frame(middle)]
+    assert abs(meta["t_ref"] - middle) < 0.5 * np.diff(sequence.image_times).max()
     # the clipped window is the data's whole span: the same map as without a window
     default = json.loads((whole / "map.json").read_text())
     assert default["window_s"] == meta["window_s"] and default["window_clipped"] is False
@@ -162,7 +167,8 @@ def test_map_json_records_the_window_used(argv, used, clipped, plane_sequence, t
     np.testing.assert_allclose(meta["window_s"], used, atol=1e-12)
     assert meta["window_requested_s"] == [float(argv[1]), float(argv[3])]
     assert meta["window_clipped"] is clipped
-    assert meta["t_ref"] == pytest.approx(0.5 * sum(used), abs=1e-12)
+    sequence = load_sequence(plane_sequence)                     # the frame nearest the middle
+    assert meta["t_ref"] == sequence.image_times[sequence.nearest_frame(0.5 * sum(used))]
 
 
 def test_time_window_checks_once_for_map_and_run(plane_sequence):
