@@ -204,6 +204,10 @@ def _print_report(report: dict, out: Path) -> None:
     print()
     for key, value in rows:
         print(f"  {key:<{width}}  {value}")
+    if summary is not None:
+        print("  (MAE on the pixels with both depths; completeness: share of the pixels with "
+              "exact depth that have one; precision: share of the points within 5 % / 1 % of "
+              "the exact surface, none where there is no surface)")
     print(f"\noverview: {out / 'overview.png'}\nFigure 2: {out / 'fill' / 'figure.png'}\n"
           f"point cloud: {out / 'fill' / 'dense.ply'}\nwritten to {out}")
 
