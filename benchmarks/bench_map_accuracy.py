@@ -65,12 +65,16 @@ def main(argv=None) -> dict:
         maes = [r.get("mae_cm", float("nan")) for r in rows]
         print(f"{name:>13} " + " ".join(f"{m:>6.2f}" for m in maes)
               + f" {sum(maes) / len(maes):>6.2f}")
-    print("\nPer window: N1, median error (cm), share within 1 % / 5 % of the true depth")
+    print("\nPer window: N1, median error (cm), completeness, precision (share of the N1 points "
+          "within 1 % / 5 % of the exact surface; none where there is no surface)")
+    nan = float("nan")
     for name, rows in report["windows"].items():
         for r in rows:
-            print(f"{name:>13} {r['window']}  N1 {r['N1']:>6}  median {r.get('median_cm', 0):.2f}"
-                  f"  within 1 % {100 * r.get('within_1pct', 0):5.1f} %  within 5 % "
-                  f"{100 * r.get('within_5pct', 0):5.1f} %  events {r['events']}")
+            print(f"{name:>13} {r['window']}  N1 {r['N1']:>6}  median "
+                  f"{r.get('median_cm', nan):.2f}  completeness "
+                  f"{100 * r.get('completeness', nan):5.1f} %  precision 1 % "
+                  f"{100 * r.get('precision_1pct', nan):5.1f} %  5 % "
+                  f"{100 * r.get('precision_5pct', nan):5.1f} %  events {r['events']}")
     for name, t in report["timing_2s"].items():
         print(f"{name}: 2-second window mapped in {t['wall_s']:.1f} s ({t['events']} events, "
               f"DSI {t['dsi_mev_per_s']:.2f} Mev/s)")

@@ -102,9 +102,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
             f"({info['events_dropped_before_poses'] + info['events_dropped_after_poses']} "
             f"outside the poses dropped), reference at {result.t_ref:.6f} s")
     if "errors" in info and info["errors"].get("points"):
-        e = info["errors"]
-        line += (f"; against exact depth: MAE {e['mae_cm']:.2f} cm, median {e['median_cm']:.2f} "
-                 f"cm, {100 * e['within_1pct']:.1f} % within 1 %")
+        line += f"; against exact depth: {_error_line(info['errors'])}"
     print(line)
     print(f"written to {out}")
     return 0
@@ -146,14 +144,14 @@ def _cmd_fill(args: argparse.Namespace) -> int:
         raise ValueError("give a map folder, or all of --frame, --sparse-depth and --calib")
     out = Path(args.out)
     info = result.info
-    line = (f"N1 = {info['N1']}, N2 = {info['N2']} ({info['regions_filled']} of "
-            f"{info['regions']} regions filled), beta = {info['beta']:.4f}")
+    line = (f"N1 = {info['N1']} ({info['N1_in_frame']} in the frame), N2 = {info['N2']} "
+            f"({info['regions_filled']} of {info['regions']} regions filled), "
+            f"beta = {info['beta']:.4f}")
+    print(line)
     if "errors" in info:
         e = info["errors"]
-        line += (f"; MAE map {e['map']['overall']['mae_cm']:.2f} cm, filled "
-                 f"{e['filled']['overall']['mae_cm']:.2f} cm, all "
-                 f"{e['all']['overall']['mae_cm']:.2f} cm")
-    print(line)
+        for name, key in (("map points", "map"), ("filled pixels", "filled"), ("dense map", "all")):
+            print(f"  {name}: {_error_line(e[key]['overall'])}")
     print(f"written to {out}")
     return 0
 
@@ -184,20 +182,38 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _error_line(e: dict | None) -> str:
+    """One line of errors with the coverage they were measured on (a depth_errors dict)."""
+    if e is None:
+        return "not scored (no exact depth in this view)"
+    if not e.get("points"):
+        return "no point to score"
+    mae = "no point on a surface" if not e["n"] else f"MAE {e['mae_cm']:.2f} cm on {e['n']:,} px"
+    return (f"{mae} (completeness {100 * e['completeness']:.1f} %), precision "
+            f"{100 * e['precision_5pct']:.1f} % within 5 % / {100 * e['precision_1pct']:.1f} % "
+            f"within 1 % of {e['points']:,} points ({e['no_surface']:,} off any surface)")
+
+
 def _print_report(report: dict, out: Path) -> None:
-    mae = report["mae_cm"]
+    summary = report.get("errors_summary")
     rows = [("events", f"{report['events']:,}"), ("N1 (map points)", f"{report['N1']:,}"),
+            ("N1 in the frame", f"{report['N1_in_frame']:,}"),
             ("N2 (after filling)", f"{report['N2']:,}"), ("beta", f"{report['beta']:.4f}")]
-    if mae is None:
+    if summary is None:
         rows.append(("errors", "no ground truth (real data): not scored"))
     else:
-        rows += [("MAE event map", f"{mae['map']:.2f} cm"),
-                 ("MAE filled pixels", f"{mae['filled']:.2f} cm"),
-                 ("MAE dense map", f"{mae['all']:.2f} cm")]
+        rows += [("event map", _error_line(summary["map"])),
+                 ("map in the frame", _error_line(summary["map_in_frame"])),
+                 ("filled pixels", _error_line(summary["filled"])),
+                 ("dense map", _error_line(summary["all"]))]
     width = max(len(k) for k, _ in rows)
     print()
     for key, value in rows:
         print(f"  {key:<{width}}  {value}")
+    if summary is not None:
+        print("  (MAE on the pixels with both depths; completeness: share of the pixels with "
+              "exact depth that have one; precision: share of the points within 5 % / 1 % of "
+              "the exact surface, none where there is no surface)")
     print(f"\noverview: {out / 'overview.png'}\nFigure 2: {out / 'fill' / 'figure.png'}\n"
           f"point cloud: {out / 'fill' / 'dense.ply'}\nwritten to {out}")
 

@@ -97,7 +97,8 @@ class DenseResult:
     camera : Camera, the frame's camera (with its distortion)
     T_world_frame : (4, 4) ndarray or None
     truth : (H, W) float32 ndarray or None, exact depth of the frame
-    info : dict, N1, N2, Res, beta, timings, frame, and ``errors`` with a truth
+    info : dict, N1, N1_in_frame, N2, Res, beta, beta_counts, timings, frame, and ``errors``
+        with a truth
     """
 
     frame: np.ndarray
@@ -111,13 +112,13 @@ class DenseResult:
     info: dict
 
     @property
-    def n1(self) -> int:
-        """Map points in the frame (non-zero pixels of the event image)."""
+    def n1_in_frame(self) -> int:
+        """Map points that land in the frame (non-zero pixels of the event image)."""
         return int(np.count_nonzero(self.sparse))
 
     @property
     def n2(self) -> int:
-        """Map points plus filled pixels."""
+        """Map points in the frame plus filled pixels (non-zero pixels of the dense map)."""
         return int(np.count_nonzero(self.dense))
 
 
@@ -207,9 +208,11 @@ def dense_errors(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray, band:
     Returns
     -------
     dict
-        ``{"map" | "filled" | "all": {"overall" | "band" | "interior": depth_errors(...)}}``;
+        ``{"map" | "filled" | "all": {"overall" | "band" | "interior": depth_errors(...)}}``
+        (:func:`fusion.scoring.depth_errors`, the same definitions as ``map.json``'s):
         completeness is the share of the pixels with a true depth that have a depth of that
-        kind.
+        kind; ``points`` and the precisions count every point of that kind, those where the
+        exact depth is 0 (no surface) included.
     """
     sparse = np.asarray(sparse, np.float32)
     dense = np.asarray(dense, np.float32)
@@ -225,8 +228,8 @@ def dense_errors(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray, band:
 
 def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                params: DenseParams | None = None, truth: np.ndarray | None = None,
-               T_world_frame: np.ndarray | None = None, info: dict | None = None
-               ) -> DenseResult:
+               T_world_frame: np.ndarray | None = None, info: dict | None = None,
+               n1: int | None = None) -> DenseResult:
     """Fill any frame from its event image (the ``--frame --sparse-depth`` form of the command).
 
     Parameters
@@ -238,10 +241,18 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     truth : (H, W) float ndarray, metres, optional: the exact depth, to score against
     T_world_frame : (4, 4) ndarray, optional: written into the point cloud
     info : dict, optional: extra entries for ``fill.json``
+    n1 : int, optional
+        ``N1``, the map's points before projection (``map.json``'s); default the non-zero pixels
+        of ``sparse``.
 
     Returns
     -------
     DenseResult
+        ``info`` holds the counts: ``N1`` (map points), ``N1_in_frame`` (non-zero pixels of
+        ``sparse``), ``N2`` (non-zero pixels of the dense map: ``N1_in_frame`` plus the filled
+        pixels), ``Res`` (pixels of the frame), ``beta`` (the filling score
+        ``(N2 - N1_in_frame) / (Res + N1_in_frame / Res)``) and ``beta_counts`` (which counts
+        it used), ``N2_over_N1_in_frame``.
     """
     params = params or DenseParams()
     start = time.perf_counter()
@@ -250,12 +261,19 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                          f"is {np.shape(frame)[1]}x{np.shape(frame)[0]}")
     sparse = np.asarray(sparse, np.float32)
     labels, regions, dense, timings = densify(frame, sparse, params)
-    n1, n2 = int(np.count_nonzero(sparse)), int(np.count_nonzero(dense))
+    in_frame, n2 = int(np.count_nonzero(sparse)), int(np.count_nonzero(dense))
+    if n1 is None:
+        n1 = in_frame
+    elif isinstance(n1, bool) or int(n1) != n1 or n1 < in_frame:
+        raise ValueError(f"n1 must be the map's point count, an integer >= the {in_frame} points "
+                         f"in the frame, got {n1!r}")
     res = int(frame.shape[0] * frame.shape[1])
     timings["total_s"] = time.perf_counter() - start
     document = {
-        "N1": n1, "N2": n2, "Res": res, "beta": filling_score(n1, n2, res),
-        "N2_over_N1": n2 / n1 if n1 else None,
+        "N1": int(n1), "N1_in_frame": in_frame, "N2": n2, "Res": res,
+        "beta": filling_score(in_frame, n2, res),
+        "beta_counts": "(N2 - N1_in_frame) / (Res + N1_in_frame / Res)",
+        "N2_over_N1_in_frame": n2 / in_frame if in_frame else None,
         "regions": int(regions.n_regions), "regions_filled": int(regions.selected.sum()),
         "timings": timings, **(info or {}),
     }
@@ -325,14 +343,15 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None) -> Dense
     j = sequence.nearest_depth(t_frame)
     if j is not None:
         truth = read_depth(sequence.depth_paths[j])
-    info = {"map": str(map_folder.resolve()), "map_N1": int(np.count_nonzero(depth_ref)),
+    info = {"map": str(map_folder.resolve()),
             # an oracle DSI range (the exact depth) makes every figure downstream an oracle's
             "oracle": bool(meta.get("oracle", False)),
             "depth_range_from": meta.get("depth_range_from", "given"),
             "sequence": str(Path(sequence.folder).resolve()),
             "frame": os.path.relpath(sequence.image_paths[k], sequence.folder),
             "t_frame": t_frame, "t_ref": t_ref, "T_world_frame": T_world_frame.tolist()}
-    return fill_frame(frame, sparse, camera, params, truth, T_world_frame, info)
+    return fill_frame(frame, sparse, camera, params, truth, T_world_frame, info,
+                      n1=int(np.count_nonzero(depth_ref)))
 
 
 def _figure(result: DenseResult, params: DenseParams) -> np.ndarray:
@@ -359,7 +378,7 @@ def _figure_panels(result: DenseResult, params: DenseParams
         depth_colours(result.dense, *lo_hi),
         view,
     ]
-    titles = [f"(a) frame + {int(np.count_nonzero(result.sparse))} projected map points",
+    titles = [f"(a) frame + {result.n1_in_frame} projected map points",
               f"(b) raw segmentation ({int(raw.max())})",
               f"(c) valid regions ({result.regions.n_regions})",
               f"(d) regions to fill ({int(result.regions.selected.sum())})",

@@ -3,7 +3,10 @@
 Reads a sequence folder (simulated, or a real Event-Camera Dataset folder), streams the events
 of a time window into a disparity space image at a reference view, extracts the semi-dense depth
 (:mod:`fusion.emvs`), removes radius outliers from the point cloud and, when the sequence was
-simulated, scores the map against the exact depth of the reference view.
+simulated, scores the map against the exact depth of the reference view with
+:func:`fusion.scoring.depth_errors` (errors, completeness and precision), the exact depth taken in
+the map's own pixel grid: rendered in the undistorted virtual camera when the sensor has
+distortion (``depth/`` holds the sensor's distorted pixels).
 
 The reference view's virtual camera uses the sensor's intrinsics without distortion (rpg_emvs
 re-centres the principal point; evfuse keeps the sensor's, so that the map lines up with the
@@ -15,7 +18,7 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -34,6 +37,7 @@ from fusion.emvs import (
 from fusion.figures import add_header, depth_colours, depth_legend, depth_range, panel_grid
 from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
+from fusion.scoring import depth_errors
 from sim.camera import Camera
 from sim.eventio import iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
@@ -71,10 +75,10 @@ class MapParams:
         scaled by the median depth when that is below 1 m (0.05 m at 1 m, as rpg_emvs).
     outlier_neighbours : int
     check_depth_range : bool
-        Refuse a depth range that does not contain the scene (default True): before any work
-        when the exact depth is known (a simulated sequence: at least half of it must lie in the
-        range), and after extraction when more than 30 % of the map points sit on the two
-        planes at either end of the range.
+        Refuse a depth range that does not contain the scene (default True): when more than
+        30 % of the map points sit on the two planes at either end of the range, and, for a
+        simulated sequence, when its scoring finds less than half of the exact depth in the
+        range (checked after the map is made: no stage but the scoring reads the exact depth).
     dsi_range : DSIRange or None
         Where the DSI's depth range came from (:func:`fusion.dsi_range.resolve_dsi_range`),
         recorded in ``map.json``; None: given by the caller.
@@ -105,6 +109,7 @@ class MapResult:
     t_ref : float, seconds
     T_world_ref : (4, 4) ndarray
     info : dict, counts, window, timings and, with ground truth, ``errors``
+        (:func:`fusion.scoring.depth_errors` in the map's undistorted pixel grid)
     sequence : Sequence, the sequence folder it was built from
     """
 
@@ -284,11 +289,32 @@ def time_window(sequence: Sequence, t0: float | None = None, t1: float | None = 
     return TimeWindow((t0, t1), used[0], used[1], clipped, t_ref, events, poses)
 
 
-def _ground_truth_depth(sequence: Sequence, t_ref: float, pose: np.ndarray) -> np.ndarray | None:
-    """Exact depth of the reference view for a simulated sequence, else None."""
+def _ground_truth_depth(sequence: Sequence, t_ref: float, pose: np.ndarray,
+                        camera: Camera) -> np.ndarray | None:
+    """Exact depth of the reference view in the map's own pixel grid, or None without a scene.
+
+    The map lives in ``camera``, the reference view's undistorted virtual camera. The exact
+    depth written in ``depth/`` is in the sensor's pixels: it is used only when the sensor is
+    that same camera (no distortion) and a depth map was written at ``t_ref`` exactly. Otherwise
+    (lens distortion, or no depth map at that time) the scene of ``sequence.json`` is rendered in
+    ``camera`` at ``t_ref`` and ``pose``: an exact z-depth at the centres of the map's pixels,
+    never an interpolation of the distorted one.
+
+    Parameters
+    ----------
+    sequence : Sequence
+    t_ref : float, seconds
+    pose : (4, 4) ndarray, T_world_ref
+    camera : Camera, the reference view's virtual camera (no distortion)
+
+    Returns
+    -------
+    (H, W) float32 ndarray, metres, 0 where no surface; or None (a real recording)
+    """
     meta = sequence.metadata or {}
     toml = (meta.get("scene") or {}).get("toml")
-    k = sequence.nearest_depth(t_ref)
+    same_grid = sequence.camera == camera
+    k = sequence.nearest_depth(t_ref) if same_grid else None
     if k is not None:
         return read_depth(sequence.depth_paths[k])
     if not toml:
@@ -297,7 +323,7 @@ def _ground_truth_depth(sequence: Sequence, t_ref: float, pose: np.ndarray) -> n
     from sim.scene import parse_scene
 
     source = (meta.get("scene") or {}).get("source") or "<sequence.json>"
-    scene = parse_scene(toml, source, seed=meta.get("seed"))
+    scene = replace(parse_scene(toml, source, seed=meta.get("seed")), camera=camera)
     return Renderer(scene, spp=1).depth(t_ref, pose=pose)
 
 
@@ -341,19 +367,6 @@ def _check_no_pile_up(depths: np.ndarray, planes: np.ndarray, dsi: DSIParams) ->
                          f"contain the scene: {100 * share:.0f} % of the map points lie on the "
                          f"planes at its ends (the scene is probably {where} that range); "
                          "set --min-depth/--max-depth around it")
-
-
-def map_errors(depth: np.ndarray, truth: np.ndarray) -> dict:
-    """Errors of map points against the exact depth (where both exist)."""
-    both = (depth > 0) & (truth > 0)
-    if not both.any():
-        return {"points": 0}
-    err = np.abs(depth[both].astype(np.float64) - truth[both])
-    rel = err / truth[both]
-    return {"points": int(both.sum()), "mae_cm": 100 * float(err.mean()),
-            "median_cm": 100 * float(np.median(err)), "rmse_cm": 100 * float(np.sqrt(
-                np.mean(err ** 2))), "within_1pct": float(np.mean(rel <= 0.01)),
-            "within_5pct": float(np.mean(rel <= 0.05))}
 
 
 DSI_TIMING = ("excludes compilation: the DSI kernels are compiled (or loaded from numba's "
@@ -400,9 +413,6 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
                          clip=params.clip_window)
     t0, t1, t_ref = window.t0, window.t1, window.t_ref
     T_world_ref = trajectory.pose(t_ref)
-    truth = _ground_truth_depth(sequence, t_ref, T_world_ref)
-    if truth is not None and params.check_depth_range:
-        _check_range_contains(truth, params.dsi)
     camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
     lut = sensor.normalized_pixel_centres()            # undistorted (X/Z, Y/Z) of each pixel
     dsi = np.zeros((params.dsi.planes, sensor.height, sensor.width), np.float32)
@@ -462,12 +472,16 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
         "outlier_radius_m": radius, "outliers_removed": int((~inlier).sum()),
         "timings": timings,
     }
+    # Scoring, the only step that reads the exact depth (a simulated sequence's), and only after
+    # the map is made: a range that misses the scene is refused with the scene's true span.
+    truth = _ground_truth_depth(sequence, t_ref, T_world_ref, camera)
+    if truth is not None and params.check_depth_range:
+        _check_range_contains(truth, params.dsi)
     if params.check_depth_range:
         _check_no_pile_up(depth[mask], planes, params.dsi)
-    result = MapResult(depth, confidence, mask, camera, t_ref, T_world_ref, info, sequence)
     if truth is not None:
-        info["errors"] = map_errors(depth, truth)
-    return result
+        info["errors"] = depth_errors(depth, truth)
+    return MapResult(depth, confidence, mask, camera, t_ref, T_world_ref, info, sequence)
 
 
 def _reference_image(sequence: Sequence, t_ref: float) -> np.ndarray:

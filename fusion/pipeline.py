@@ -222,6 +222,7 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
         timings["fill_s"] = time.perf_counter() - tick
         info = filled.info
         errors = info.get("errors")
+        summary = _errors_summary(mapped.info.get("errors"), errors)
         report = {
             "source": str(source),
             "sequence": os.path.relpath(Path(sequence_folder).resolve(), tmp.resolve()),
@@ -235,12 +236,12 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
             "events": mapped.info["events_used"],
             "events_dropped": (mapped.info["events_dropped_before_poses"]
                                + mapped.info["events_dropped_after_poses"]),
-            "N1": info["N1"], "N2": info["N2"], "Res": info["Res"], "beta": info["beta"],
+            "N1": info["N1"], "N1_in_frame": info["N1_in_frame"], "N2": info["N2"],
+            "Res": info["Res"], "beta": info["beta"], "beta_counts": info["beta_counts"],
             "ground_truth": errors is not None,
-            "mae_cm": None if errors is None else {
-                "map": errors["map"]["overall"]["mae_cm"],
-                "filled": errors["filled"]["overall"]["mae_cm"],
-                "all": errors["all"]["overall"]["mae_cm"]},
+            "errors_summary": summary,
+            "mae_cm": None if summary is None else {
+                k: None if v is None else v["mae_cm"] for k, v in summary.items()},
             "map_errors_at_reference": mapped.info.get("errors"),
             "files": {"overview": "overview.png", "map": "map/", "fill": "fill/",
                       "figure": "fill/figure.png", "point_cloud": "fill/dense.ply"},
@@ -250,6 +251,41 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
         report["timings"] = timings
         (tmp / "report.json").write_text(to_json(report))
     return report
+
+
+SUMMARY_KEYS = ("mae_cm", "n", "completeness", "points", "no_surface", "precision_5pct",
+                "precision_1pct")
+"""The figures of each :func:`fusion.scoring.depth_errors` block kept in ``errors_summary``."""
+
+
+def _errors_summary(map_errors: dict | None, fill_errors: dict | None) -> dict | None:
+    """Each MAE of a run with the coverage it was measured on, for ``report.json``.
+
+    Parameters
+    ----------
+    map_errors : dict or None
+        ``map.json``'s ``errors``: the N1 map points in the reference view's own grid.
+    fill_errors : dict or None
+        ``fill.json``'s ``errors`` (:func:`fusion.dense.dense_errors`), in the frame's pixels.
+
+    Returns
+    -------
+    dict or None
+        ``{"map" | "map_in_frame" | "filled" | "all": {key: value}}`` with the keys of
+        :data:`SUMMARY_KEYS`: ``map`` is the event map at the reference view (None without its
+        exact depth), ``map_in_frame`` its N1_in_frame points in the frame, ``filled`` the filled
+        pixels, ``all`` the dense map. None without any exact depth (a real recording).
+    """
+    if map_errors is None and fill_errors is None:
+        return None
+
+    def pick(errors: dict | None) -> dict | None:
+        return None if errors is None else {k: errors[k] for k in SUMMARY_KEYS}
+
+    fill = fill_errors or {}
+    return {"map": pick(map_errors),
+            **{name: pick(fill.get(key, {}).get("overall"))
+               for name, key in (("map_in_frame", "map"), ("filled", "filled"), ("all", "all"))}}
 
 
 def _simulate_window(source, folder: Path, params: RunParams, progress: bool, timings: dict):

@@ -172,8 +172,9 @@ def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams) -
             weighting, sigma=params.dense.fill.sigma, scale=params.dense.fill.scale))
         info = fill_window(out / name / "map", out / name / f"fill_{weighting}", dense,
                            overwrite=True).info
-        row["fills"][weighting] = {k: info[k] for k in ("N1", "N2", "Res", "beta",
-                                                         "N2_over_N1", "regions",
+        row["fills"][weighting] = {k: info[k] for k in ("N1", "N1_in_frame", "N2", "Res",
+                                                         "beta", "beta_counts",
+                                                         "N2_over_N1_in_frame", "regions",
                                                          "regions_filled")}
         row["fills"][weighting]["errors"] = info.get("errors")
     return row
@@ -275,21 +276,25 @@ def _markdown(report: dict, params: ReproduceParams) -> str:
     table1 = [r for r in rows if r["table"] == "1"]
     if table1:
         lines += ["## Table 1: filling on the 6-DoF scenes", "",
-                  "| scene | window (s) | N1 | N2 | N2/N1 | beta | paper N1 | paper N2 | "
-                  "paper beta | MAE map (cm) | MAE filled (cm) | MAE all (cm) |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "| scene | window (s) | N1 | N1 in frame | N2 | N2 / N1 in frame | beta | "
+                  "paper N1 | paper N2 | paper beta | MAE map (cm) | MAE filled (cm) | "
+                  "MAE all (cm) |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in table1:
             f = r["fills"]["idw"]
             p = PAPER["table1"].get(r["scene"], {})
             e = f["errors"]
             lines.append(
                 f"| {r['scene']} | {r['window_s'][0]:.2f}-{r['window_s'][1]:.2f} | {f['N1']} | "
-                f"{f['N2']} | {_f(f['N2_over_N1'])} | {f['beta']:.4f} | {p.get('N1', '-')} | "
+                f"{f['N1_in_frame']} | {f['N2']} | {_f(f['N2_over_N1_in_frame'])} | "
+                f"{f['beta']:.4f} | {p.get('N1', '-')} | "
                 f"{p.get('N2', '-')} | {p.get('beta', '-')} | {_f(_mae(e, 'map'))} | "
                 f"{_f(_mae(e, 'filled'))} | {_f(_mae(e, 'all'))} |")
         lines += ["", "The paper's N1 and N2 are from a real DAVIS240C on its own windows; ours "
                   "come from noiseless simulated twins on short windows, so the counts are "
-                  "comparable in size, not equal. beta = (N2 - N1) / (Res + N1 / Res), "
+                  "comparable in size, not equal. N1 counts the map's points, N1 in frame those "
+                  "that land in the frame after projection; beta = (N2 - N1 in frame) / "
+                  "(Res + N1 in frame / Res), "
                   "Res = 43,200.", ""]
     table2 = [r for r in rows if r["table"] == "2"]
     if table2:

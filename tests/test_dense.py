@@ -71,9 +71,12 @@ def test_fill_of_any_frame_through_the_command_line(tmp_path, capsys):
         assert (out / name).is_file(), name
     meta = json.loads((out / "fill.json").read_text())
     dense = read_depth(out / "dense_depth.exr")
-    assert meta["N1"] == np.count_nonzero(sparse) and meta["N2"] == np.count_nonzero(dense)
+    # the --sparse-depth form: the map is the given sparse depth, all of it in the frame
+    assert meta["N1"] == meta["N1_in_frame"] == np.count_nonzero(sparse)
+    assert meta["N2"] == np.count_nonzero(dense)
     assert meta["Res"] == 1200 and meta["beta"] == pytest.approx(
-        filling_score(meta["N1"], meta["N2"], 1200))
+        filling_score(meta["N1_in_frame"], meta["N2"], 1200))
+    assert meta["beta_counts"] == "(N2 - N1_in_frame) / (Res + N1_in_frame / Res)"
     errors = meta["errors"]
     assert errors["filled"]["interior"]["mae_cm"] == 0.0             # the square, exactly 2 m
     assert errors["filled"]["overall"]["n"] == 120
@@ -82,7 +85,11 @@ def test_fill_of_any_frame_through_the_command_line(tmp_path, capsys):
     assert header["comment"] == "T_world_frame"
     filled = cv2.imread(str(out / "filled_mask.png"), cv2.IMREAD_GRAYSCALE)
     assert (filled > 0).sum() == 120
-    assert "N1 = 48, N2 = 168" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "N1 = 48 (48 in the frame), N2 = 168" in printed
+    # every printed error carries its coverage: the filled square is 120 of the 1200 true pixels
+    assert ("filled pixels: MAE 0.00 cm on 120 px (completeness 10.0 %), precision 100.0 % "
+            "within 5 %") in printed
 
 
 def test_bad_fill_input_gives_one_clear_line(tmp_path, capsys):
@@ -113,10 +120,17 @@ def test_fill_of_a_simulated_plane_map_is_scored_against_exact_depth(plane_seque
                  "--max-depth", "3", "--planes", "30", "--quiet"]) == 0
     assert main(["fill", str(mapped), "--out", str(out)]) == 0
     meta = json.loads((out / "fill.json").read_text())
-    assert meta["N2"] >= meta["N1"] > 30 and 0 <= meta["beta"] < 1
+    map_meta = json.loads((mapped / "map.json").read_text())
+    assert meta["N1"] == map_meta["N1"] >= meta["N1_in_frame"] > 30
+    assert meta["N2"] >= meta["N1_in_frame"] and 0 <= meta["beta"] < 1
+    assert meta["beta"] == pytest.approx(filling_score(meta["N1_in_frame"], meta["N2"],
+                                                       meta["Res"]))
     errors = meta["errors"]
-    assert errors["map"]["overall"]["n"] == meta["N1"]
-    assert errors["filled"]["overall"]["n"] == meta["N2"] - meta["N1"] > 0
+    assert errors["map"]["overall"]["points"] == meta["N1_in_frame"]
+    assert errors["filled"]["overall"]["points"] == meta["N2"] - meta["N1_in_frame"] > 0
+    # one definition per name: the map's and the fill's error blocks have the same keys
+    assert set(errors["map"]["overall"]) == set(map_meta["errors"])
+    assert not any(key.startswith("within") for key in map_meta["errors"])
     # The wall is flat: filling it from its own map points adds no error of its own.
     assert errors["filled"]["overall"]["mae_cm"] <= 1.1 * errors["map"]["overall"]["mae_cm"]
     assert errors["all"]["overall"]["completeness"] > errors["map"]["overall"]["completeness"]
@@ -131,9 +145,12 @@ def test_run_on_the_real_ecd_prefix_and_show_redraws_it(ecd_slider, tmp_path, ca
     assert "no ground truth" in printed and str(out / "overview.png") in printed
     report = json.loads((out / "report.json").read_text())
     assert report["ground_truth"] is False and report["mae_cm"] is None
-    assert report["events"] == 50000 - 3251 and report["N2"] >= report["N1"] > 200
     assert report["depth_range_from"] == "given (--min-depth, --max-depth)"
     assert report["oracle"] is False
+    assert report["events"] == 50000 - 3251 and report["N2"] >= report["N1_in_frame"] > 200
+    assert report["errors_summary"] is None
+    mapped = json.loads((out / "map" / "map.json").read_text())
+    assert report["N1"] == mapped["N1"] >= report["N1_in_frame"]
     for name in ("map/map.json", "fill/fill.json", "fill/figure.png", "overview.png"):
         assert (out / name).is_file(), name
     fill = json.loads((out / "fill" / "fill.json").read_text())
@@ -149,3 +166,20 @@ def test_fill_frame_refuses_a_calibration_of_another_size():
     frame, sparse = _two_patch_scene()
     with pytest.raises(ValueError, match="calibration is for 41x30"):
         fill_frame(frame, sparse, Camera(41, 30, 35.0, 30.0, 19.5, 14.5), DenseParams())
+
+
+def test_n1_is_the_map_and_n1_in_frame_what_lands_in_it():
+    """100 map points of which the 48 of the square's ring land in the frame: beta, N2 and the
+    errors use the 48, N1 stays the map's 100."""
+    frame, sparse = _two_patch_scene()
+    camera = Camera(40, 30, 35.0, 30.0, 19.5, 14.5)
+    result = fill_frame(frame, sparse, camera, n1=100)
+    info = result.info
+    assert result.n1_in_frame == info["N1_in_frame"] == 48 and info["N1"] == 100
+    assert info["N2"] == result.n2 == 48 + 120 and info["Res"] == 1200
+    assert info["beta"] == pytest.approx(120 / (1200 + 48 / 1200))     # not with 100
+    assert info["N2_over_N1_in_frame"] == pytest.approx(168 / 48)
+    assert "N2_over_N1" not in info and "map_N1" not in info
+    assert fill_frame(frame, sparse, camera).info["N1"] == 48            # default: the sparse
+    with pytest.raises(ValueError, match="n1 must be the map's point count"):
+        fill_frame(frame, sparse, camera, n1=47)

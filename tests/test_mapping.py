@@ -186,3 +186,69 @@ def test_time_window_checks_once_for_map_and_run(plane_sequence):
     assert time_window(sequence, 0.1, 0.5, clip=True).t_ref == pytest.approx(0.2)
     with pytest.raises(ValueError, match=r"reaches 0\.2 s past the data"):
         time_window(sequence, 0.1, 0.5, clip=False)
+
+
+# A box whose front face is 1 m ahead (x in [-0.4, 0.4] m, height in [-0.3, 0.3] m) before a
+# wall at 2 m, seen by a 64x48 camera with a DAVIS240C-like barrel distortion.
+BOX_BEFORE_WALL = """
+[[objects]]
+name = "wall"
+type = "rectangle"
+center = [0.0, 2.0, 0.0]
+size = [8.0, 8.0]
+[[objects]]
+name = "box"
+type = "box"
+center = [0.0, 1.2, 0.0]
+size = [0.8, 0.4, 0.6]
+"""
+DISTORTED = ("[camera]\nwidth = 64\nheight = 48\nfx = 60.0\nfy = 45.0\ncx = 30.3\ncy = 22.7\n"
+             "distortion = [-0.35, 0.1, 0.0, 0.0, 0.0]\n")
+
+
+def _box_depth(camera) -> np.ndarray:
+    """The exact z-depth of BOX_BEFORE_WALL at the pixel centres of an undistorted camera."""
+    u, v = np.meshgrid(np.arange(camera.width), np.arange(camera.height))
+    x, y = (u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy
+    # the face's edges are 0.2 px or more from any pixel centre: no rounding question
+    assert np.abs(np.abs(x) - 0.4).min() * camera.fx > 0.15
+    assert np.abs(np.abs(y) - 0.3).min() * camera.fy > 0.15
+    return np.where((np.abs(x) < 0.4) & (np.abs(y) < 0.3), 1.0, 2.0)
+
+
+def test_map_is_scored_in_its_own_undistorted_grid(tmp_path):
+    """A perfect map (the analytic depth of the undistorted view) scores 0 against the exact
+    depth the mapping uses, but not against the distorted depth/ of the same time."""
+    from fusion.mapping import _ground_truth_depth
+    from fusion.scoring import depth_errors
+    from sim.camera import Camera
+    from sim.scene import parse_scene
+    from sim.sequence import load_sequence
+    from sim.simulate import simulate
+    from sim.trajectory import read_trajectory
+    from tests.conftest import scene_text
+
+    extra = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 1\n"
+    scene = parse_scene(scene_text(BOX_BEFORE_WALL, camera=DISTORTED, duration=0.05,
+                                   extra=extra))
+    folder = simulate(scene, tmp_path / "seq", progress=False, with_events=False).out
+    sequence = load_sequence(folder)
+    sensor = sequence.camera
+    assert sensor.has_distortion
+    camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
+    t = float(sequence.depth_times[0])
+    pose = read_trajectory(sequence.groundtruth_path).pose(t)
+    perfect = _box_depth(camera)
+    edges = np.zeros(perfect.shape, bool)                      # both sides of each depth step
+    edges[:, 1:] |= perfect[:, 1:] != perfect[:, :-1]
+    edges[:, :-1] |= perfect[:, 1:] != perfect[:, :-1]
+    edges[1:, :] |= perfect[1:, :] != perfect[:-1, :]
+    edges[:-1, :] |= perfect[1:, :] != perfect[:-1, :]
+    truth = _ground_truth_depth(sequence, t, pose, camera)
+    distorted = read_depth(sequence.depth_paths[0])            # the sensor's pixels
+    for name, semidense in (("all pixels", perfect), ("edge pixels", np.where(edges, perfect, 0))):
+        right = depth_errors(semidense, truth)
+        assert right["n"] == right["points"] == np.count_nonzero(semidense), name
+        assert right["mae_cm"] < 1e-3 and right["precision_1pct"] == 1.0, name
+        wrong = depth_errors(semidense, distorted)
+        assert wrong["mae_cm"] > 1.0 and wrong["precision_1pct"] < 0.99, name   # the old grid

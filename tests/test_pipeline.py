@@ -40,10 +40,13 @@ def test_run_writes_every_promised_file_with_consistent_figures(tiny_run, capsys
     report = json.loads((out / "report.json").read_text())
     fill = json.loads((out / "fill" / "fill.json").read_text())
     mapped = json.loads((out / "map" / "map.json").read_text())
-    assert report["N1"] == fill["N1"] and report["N2"] == fill["N2"]
+    # N1 is the map's count everywhere; N1_in_frame the points projected into the frame
+    assert report["N1"] == fill["N1"] == mapped["N1"] >= report["N1_in_frame"]
+    assert report["N1_in_frame"] == fill["N1_in_frame"] and report["N2"] == fill["N2"]
     assert mapped["N1"] == np.count_nonzero(read_depth(out / "map" / "semidense_depth.exr"))
     assert fill["N2"] == np.count_nonzero(read_depth(out / "fill" / "dense_depth.exr"))
-    assert report["N2"] >= report["N1"] > 0 and 0 <= report["beta"] < 1
+    assert report["N2"] >= report["N1_in_frame"] > 0 and 0 <= report["beta"] < 1
+    assert report["beta_counts"] == fill["beta_counts"]
     assert report["ground_truth"] and report["simulated"]
     for value in report["mae_cm"].values():
         assert math.isfinite(value)
@@ -51,6 +54,19 @@ def test_run_writes_every_promised_file_with_consistent_figures(tiny_run, capsys
     assert report["depth_range_from"] == "scene file (declared working range)"
     assert report["depth_range_m"] == [0.4, 2.5] and report["oracle"] is False
     assert mapped["oracle"] is False and fill["oracle"] is False
+    # every MAE carries its coverage, taken from the map's and the fill's own error blocks
+    summary = report["errors_summary"]
+    assert set(summary) == {"map", "map_in_frame", "filled", "all"} == set(report["mae_cm"])
+    for name, block in (("map", mapped["errors"]), ("map_in_frame", fill["errors"]["map"]),
+                        ("filled", fill["errors"]["filled"]), ("all", fill["errors"]["all"])):
+        block = block.get("overall", block)
+        for key in ("mae_cm", "n", "completeness", "points", "precision_5pct", "precision_1pct"):
+            assert summary[name][key] == block[key], (name, key)
+        assert report["mae_cm"][name] == block["mae_cm"]
+    assert summary["map"]["points"] == mapped["N1"]
+    assert summary["map_in_frame"]["points"] == report["N1_in_frame"]
+    assert summary["all"]["points"] == report["N2"]
+    assert 0 < summary["map"]["completeness"] < summary["all"]["completeness"] <= 1
     overview = cv2.imread(str(out / "overview.png"))
     # frame, events, map, segmentation / dense, exact depth, error, point cloud: 4 x 2 panels of
     # 320 px (64 px scaled by 5) under 26-px titles, with a 22-px colour-bar line each row
@@ -114,6 +130,27 @@ def test_report_records_the_window_asked_for_and_used(tiny_run):
     assert report["window_requested_s"] == report["window_s"] == [0.0, 0.3]
     assert report["window_clipped"] is False
     assert mapped["window_s"] == report["window_s"] and mapped["window_clipped"] is False
+
+
+def test_the_printed_summary_gives_each_error_with_its_coverage(tiny_run, capsys):
+    from fusion.cli import _print_report
+
+    _, out = tiny_run
+    report = json.loads((out / "report.json").read_text())
+    _print_report(report, out)
+    printed = capsys.readouterr().out
+    for label, key in (("event map", "map"), ("map in the frame", "map_in_frame"),
+                       ("filled pixels", "filled"), ("dense map", "all")):
+        e = report["errors_summary"][key]
+        line = next(row for row in printed.splitlines() if row.strip().startswith(label))
+        assert f"MAE {e['mae_cm']:.2f} cm on {e['n']:,} px" in line, line
+        assert f"(completeness {100 * e['completeness']:.1f} %)" in line, line
+        assert f"precision {100 * e['precision_5pct']:.1f} % within 5 %" in line, line
+        assert f"of {e['points']:,} points" in line, line
+    rows = {row.strip().rsplit("  ", 1)[0].strip(): row.split()[-1] for row in printed.splitlines()
+            if row.startswith("  N")}
+    assert rows["N1 (map points)"] == f"{report['N1']:,}"
+    assert rows["N1 in the frame"] == f"{report['N1_in_frame']:,}"
 
 
 def test_show_redraws_the_same_overview(tiny_run, tmp_path):

@@ -28,7 +28,8 @@ def test_reproduce_table_1_and_complex_on_one_scene_each(tmp_path, capsys):
         assert row["oracle"] is False
         assert row["depth_range_from"] == "scene file (declared working range)"
         for fill in row["fills"].values():
-            assert fill["N2"] >= fill["N1"] > 0 and 0 <= fill["beta"] < 1
+            assert fill["N2"] >= fill["N1_in_frame"] > 0 and 0 <= fill["beta"] < 1
+            assert fill["N1"] >= fill["N1_in_frame"]
         assert (out / report["figures"][row["scene"]]).is_file()
     assert len(rows["complex_slanted_plane"].get("fills", {"a": 0, "b": 0, "c": 0})) == 3
     # A second run re-uses the cached simulations.

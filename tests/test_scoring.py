@@ -41,10 +41,53 @@ def test_pixels_without_truth_are_not_evaluated():
 
 def test_nothing_to_evaluate_gives_nan_not_an_error():
     e = depth_errors(np.zeros((2, 2)), np.ones((2, 2)))
-    assert e["n"] == 0 and e["completeness"] == 0.0
-    assert all(math.isnan(v) for k, v in e.items() if k not in ("n", "completeness"))
+    assert e["n"] == 0 and e["completeness"] == 0.0 and e["points"] == e["no_surface"] == 0
+    counts = ("n", "completeness", "points", "no_surface")
+    assert all(math.isnan(v) for k, v in e.items() if k not in counts)
     e = depth_errors(np.ones((2, 2)), np.zeros((2, 2)))
     assert e["n"] == 0 and math.isnan(e["completeness"])
+    # four points in front of no surface: none is precise
+    assert e["points"] == e["no_surface"] == 4 and e["precision_5pct"] == 0.0
+
+
+def test_precision_by_hand():
+    # errors 10 %, 0 %, 25 % where there is a surface; 3 % and 0.5 % are within 5 %, 1 %
+    gt = np.array([[1.0, 2.0, 4.0, 2.0, 1.0, 2.0]])
+    depth = np.array([[1.1, 2.0, 5.0, 0.0, 1.03, 2.01]])
+    e = depth_errors(depth, gt)
+    assert e["points"] == e["n"] == 5 and e["no_surface"] == 0
+    assert e["precision_5pct"] == pytest.approx(3 / 5)        # 2.0, 1.03, 2.01
+    assert e["precision_1pct"] == pytest.approx(2 / 5)        # 2.0, 2.01
+    assert e["median_cm"] == pytest.approx(3.0)               # of 10, 0, 100, 3, 1 cm
+
+
+def test_points_in_front_of_no_surface_lose_precision_not_accuracy():
+    """The sky costs precision: MAE, n and completeness are measured where there is a surface."""
+    gt = np.zeros((4, 6))
+    gt[:, :3] = 2.0                                           # a wall on the left, sky on the right
+    map_ = np.zeros((4, 6))
+    map_[:, 0] = 2.0                                          # exact points on the wall
+    map_[:, 1] = 2.03                                         # 1.5 % off: within 5 %, not 1 %
+    clean = depth_errors(map_, gt)
+    sky = map_.copy()
+    sky[:, 4] = 3.0                                           # four points floating in the sky
+    dirty = depth_errors(sky, gt)
+    for key in ("n", "mae_cm", "rmse_cm", "median_cm", "completeness", "delta_1.01"):
+        assert dirty[key] == clean[key], key
+    assert clean["points"] == 8 and clean["no_surface"] == 0
+    assert dirty["points"] == 12 and dirty["no_surface"] == 4
+    assert clean["precision_5pct"] == 1.0 and clean["precision_1pct"] == pytest.approx(0.5)
+    assert dirty["precision_5pct"] == pytest.approx(8 / 12)
+    assert dirty["precision_1pct"] == pytest.approx(4 / 12)
+    assert clean["completeness"] == pytest.approx(8 / 12)     # 2 of the wall's 3 columns
+
+
+def test_precision_counts_only_the_points_of_the_mask():
+    gt = np.array([[1.0, 0.0, 1.0, 0.0]])
+    depth = np.array([[1.0, 1.0, 1.5, 1.0]])
+    e = depth_errors(depth, gt, np.array([[True, True, False, False]]))
+    assert (e["points"], e["no_surface"], e["n"]) == (2, 1, 1)
+    assert e["precision_5pct"] == pytest.approx(1 / 2)
 
 
 @pytest.mark.parametrize("depth, gt, mask, message", [
