@@ -183,7 +183,8 @@ def test_overview_scales_cover_the_exact_depth_and_titles_name_each_count(tiny_r
     assert [name for name, _ in legends[6].keys] == ["no value", "no surface"]
     assert legends[6].high.endswith(" cm")
     assert isinstance(legends[7], Caption) and "deg left" in legends[7].text
-    assert header == [] and titles[2] == f"semi-dense map (N1 = {report['N1']})"
+    assert header == [] and titles[2] == (f"semi-dense map (N1 = {report['N1']}, "
+                                          f"{report['N1_in_frame']} in the frame)")
     renamed = {**report, "N1": 2570, "N1_in_frame": 2541, "oracle": True}
     _, titles, _, header = _overview_panels(out, renamed)
     assert titles[2] == "semi-dense map (N1 = 2570, 2541 in the frame)"
