@@ -21,7 +21,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
-from tqdm.auto import tqdm
 
 from fusion.dsi_range import DSIRange
 from fusion.emvs import (
@@ -37,6 +36,7 @@ from fusion.pointcloud import write_ply
 from sim.camera import Camera
 from sim.eventio import iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
+from sim.progress import progress as progress_stage
 from sim.sequence import EXACT_TIME_S, Sequence, atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
 
@@ -416,7 +416,7 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     timings["dsi_compile_s"] = _compile_dsi(trajectory, T_world_ref, t_ref, camera, params.dsi)
     tick = time.perf_counter()
     dsi_time = 0.0
-    bar = tqdm(desc="map: events", unit="ev", disable=not progress)
+    bar = progress_stage(desc="map", unit="ev", noun="events", enabled=progress)
     for chunk in iter_event_chunks(events_path, 10**6, t0_ns, t1_ns, width=sensor.width,
                                    height=sensor.height):
         t = chunk["t"] * 1e-9
