@@ -11,6 +11,20 @@ from pathlib import Path
 
 __all__ = ["main"]
 
+PLAUSIBLE_DEPTH_M = 100.0
+"""Largest depth bound (--min-depth, --max-depth) accepted, metres: beyond it the bound is taken
+for millimetres (the ECD's 0.47-2.4 m written 470-2400) and refused. Event-based mapping over a
+window's baseline (centimetres to metres) resolves no depth out there anyway."""
+
+
+def _check_depth_flags(args: argparse.Namespace) -> None:
+    """Refuse depth bounds that are implausible in metres, before any work."""
+    for flag, value in (("--min-depth", args.min_depth), ("--max-depth", args.max_depth)):
+        if value is not None and value > PLAUSIBLE_DEPTH_M:
+            raise ValueError(f"depths are in metres: {flag} {value:g} looks like millimetres "
+                             f"({value / 1000:g} m?); bounds above {PLAUSIBLE_DEPTH_M:g} m are "
+                             "refused")
+
 
 def _cmd_scenes(args: argparse.Namespace) -> int:
     from scenes import describe_scenes
@@ -87,6 +101,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
     from fusion.pipeline import map_window
     from sim.sequence import check_output_dir
 
+    _check_depth_flags(args)
     check_output_dir(args.out, args.overwrite)                  # fail before the long work
     result, params = map_window(
         args.sequence, args.out, args.t0, args.t1, ref_time=args.ref_time,
@@ -172,6 +187,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.emvs import DepthMapParams
     from fusion.pipeline import RunParams, run_pipeline
 
+    _check_depth_flags(args)
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
                        max_depth=args.max_depth,
                        oracle_depth_range=args.depth_range == "oracle", planes=args.planes,

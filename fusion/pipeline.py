@@ -192,9 +192,13 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
     check_output_dir(out, overwrite)
     try:
         return _run(source, out, params, overwrite, progress)
-    except ValueError:
-        # Bad input (found after the run folder was started): nothing worth keeping.
-        shutil.rmtree(out.with_name(out.name + PARTIAL_SUFFIX), ignore_errors=True)
+    except ValueError as exc:
+        # Bad input (found after the run folder was started): nothing worth keeping. The
+        # message must not send the user to the folder deleted here: it names the run folder.
+        partial = out.with_name(out.name + PARTIAL_SUFFIX)
+        shutil.rmtree(partial, ignore_errors=True)
+        if len(exc.args) == 1 and isinstance(exc.args[0], str):
+            exc.args = (exc.args[0].replace(str(partial), str(out)),)
         raise
 
 

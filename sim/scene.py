@@ -736,7 +736,12 @@ def load_scene(path: str | Path, *, seed: int | None = None) -> Scene:
     SceneError
         The file is missing or unreadable, or its content is invalid.
     """
+    from sim.sequence import describe_data_file
+
     path = Path(path)
+    what = describe_data_file(path) if path.suffix.lower() != ".toml" else None
+    if what is not None:
+        raise SceneError(f"{path} is {what}, not a scene file (TOML); expected a .toml scene")
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
