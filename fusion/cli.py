@@ -70,14 +70,19 @@ def _cmd_events(args: argparse.Namespace) -> int:
     import cv2
 
     from fusion.figures import write_image
-    from sim.eventio import event_frame, event_stats, read_events
+    from sim.eventio import check_time_units, event_frame, event_stats, read_events
     from sim.sequence import load_sequence
+    from sim.trajectory import read_trajectory
 
     folder = Path(args.sequence)
     sequence = load_sequence(folder)
     width, height = sequence.camera.width, sequence.camera.height
     path = _events_file(folder)
     events = read_events(path, width, height)
+    if len(events) and sequence.groundtruth_path is not None:      # times in the wrong unit
+        poses = read_trajectory(sequence.groundtruth_path)
+        check_time_units(path, events["t"][0] * 1e-9, events["t"][-1] * 1e-9, poses.t_start,
+                         poses.t_end)
     if not args.stats:
         print(f"{path}: {len(events)} events (add --stats for statistics)")
         return 0

@@ -34,7 +34,7 @@ from fusion.figures import add_header, depth_colours, depth_legend, depth_range,
 from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
 from sim.camera import Camera
-from sim.eventio import iter_event_chunks, read_window
+from sim.eventio import check_time_units, event_time_span, iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
 from sim.progress import progress as progress_stage
 from sim.sequence import EXACT_TIME_S, Sequence, atomic_output_dir, load_sequence
@@ -137,15 +137,8 @@ def radius_outliers(points: np.ndarray, radius: float, neighbours: int) -> np.nd
 
 
 def _event_span(path: Path, sensor: Camera) -> tuple[float, float]:
-    """First and last event times (s), by one streaming pass over the file."""
-    first = last = None
-    for chunk in iter_event_chunks(path, 10**6, width=sensor.width, height=sensor.height):
-        if len(chunk):
-            first = chunk["t"][0] if first is None else first
-            last = chunk["t"][-1]
-    if first is None:
-        raise ValueError(f"{path}: the file holds no events")
-    return first * 1e-9, last * 1e-9
+    """First and last event times (s): an HDF5 file's two ends, a text file's streaming pass."""
+    return event_time_span(path, width=sensor.width, height=sensor.height)
 
 
 WINDOW_SLACK_S = 1e-3
@@ -247,6 +240,7 @@ def time_window(sequence: Sequence, t0: float | None = None, t1: float | None = 
     trajectory = read_trajectory(sequence.groundtruth_path)
     poses = (float(trajectory.t_start), float(trajectory.t_end))
     events = _events_span(sequence, events_path)
+    check_time_units(events_path, *events, *poses)           # events/t in ns, say, named as such
     data = f"events {_span(events)}, poses {_span(poses)}"
     lo, hi = max(events[0], poses[0]), min(events[1], poses[1])
     if not hi > lo:
@@ -437,6 +431,9 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     timings["events_s"] = time.perf_counter() - tick
     timings["dsi_s"] = dsi_time
     if used == 0:
+        if events_path.suffix == ".txt":           # not checked yet: the span takes a pass
+            check_time_units(events_path, *_event_span(events_path, sensor),
+                             trajectory.t_start, trajectory.t_end)
         raise ValueError(f"{events_path}: no events in the window [{t0}, {t1}] s covered by "
                          f"the poses [{trajectory.t_start}, {trajectory.t_end}] s")
     tick = time.perf_counter()
