@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 import threading
@@ -43,6 +44,16 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from sim.scene import load_scene
     from sim.simulate import simulate
 
+    # Said in the flags' terms, before the dataclasses would say it in their fields' names.
+    if not (math.isfinite(args.contrast) and args.contrast > 0):
+        raise ValueError(f"--contrast {args.contrast:g}: expected a contrast threshold > 0 (log "
+                         "intensity units, e.g. 0.2)")
+    if not 0 < args.lam <= 1:
+        raise ValueError(f"--lambda {args.lam:g}: expected a fraction of the contrast threshold "
+                         "in (0, 1]")
+    if not 0 < args.min_rate <= args.max_rate:
+        raise ValueError(f"--min-rate {args.min_rate:g} and --max-rate {args.max_rate:g}: "
+                         "expected 0 < --min-rate <= --max-rate (Hz)")
     scene = load_scene(resolve_scene(args.scene), seed=args.seed)
     events = EventParams.preset(args.noise, contrast=args.contrast, seed=scene.seed)
     sampling = SamplingParams(lam=args.lam, min_rate=args.min_rate, max_rate=args.max_rate)
