@@ -1115,10 +1115,11 @@ def check_time_units(path: str | Path, first_s: float, last_s: float, t_start: f
     """Refuse events whose times are in another unit than their format stores, judged by poses.
 
     Events whose span overlaps the poses ``[t_start, t_end]`` over less than
-    :data:`UNIT_OVERLAP` of it, but would lie at least half inside them read in another unit
-    (DSEC ``events.h5`` stores microseconds; ECD ``events.txt``, seconds), were written in that
-    unit: a mapping over them could only fail later with a less telling message. (Real events
-    recorded more than 100 times longer than their poses would be refused too.)
+    :data:`UNIT_OVERLAP` of it and is more than :data:`UNIT_SLACK` times longer (or shorter)
+    than theirs, but would lie at least half inside them read in another unit (DSEC
+    ``events.h5`` stores microseconds; ECD ``events.txt``, seconds), were written in that unit:
+    a mapping over them could only fail later with a less telling message. Events merely
+    outside the poses, with a span like theirs, are left to the window checks.
 
     Parameters
     ----------
@@ -1146,9 +1147,12 @@ def check_time_units(path: str | Path, first_s: float, last_s: float, t_start: f
     if inside(first_s, last_s) >= UNIT_OVERLAP:
         return
     stored = "microseconds" if _kind(path) == "h5" else "seconds"
+    ratio = (last_s - first_s) / max(t_end - t_start, 1e-9)      # events' span / poses'
     for unit, size in _UNITS.items():
         factor = size / _UNITS[stored]
         if unit == stored or inside(first_s * factor, last_s * factor) < 0.5:
+            continue
+        if not (ratio > UNIT_SLACK if factor < 1 else ratio < 1 / UNIT_SLACK):
             continue
         field = "events/t" if stored == "microseconds" else "the times"
         layout = "DSEC layout stores microseconds" if stored == "microseconds" else \
