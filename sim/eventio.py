@@ -1154,10 +1154,10 @@ def check_time_units(path: str | Path, first_s: float, last_s: float, t_start: f
             continue
         if not (ratio > UNIT_SLACK if factor < 1 else ratio < 1 / UNIT_SLACK):
             continue
-        field = "events/t" if stored == "microseconds" else "the times"
+        field = "events/t looks" if stored == "microseconds" else "the times look"
         layout = "DSEC layout stores microseconds" if stored == "microseconds" else \
             "ECD text stores seconds"
-        raise ValueError(f"{path}: {field} looks like {unit} (events at {first_s:.4g}-"
+        raise ValueError(f"{path}: {field} like {unit} (events at {first_s:.4g}-"
                          f"{last_s:.4g} s against {t_start:.4g}-{t_end:.4g} s of poses); "
                          f"{layout}")
 
