@@ -389,7 +389,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                 timings["checkpoint"] += saved_at - tick
                 tick = saved_at
             bar.n = round(sample.t - start, 6)
-            bar.set_postfix_str(f"{count} events, {stats.renders} renders", refresh=False)
+            bar.set_postfix_str(f"{count:,} events, {stats.renders:,} renders", refresh=False)
             bar.update(0)
     noise = params.noise
     return {
