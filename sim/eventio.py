@@ -1027,18 +1027,33 @@ class _H5Source:
 
         ``ms_to_idx`` has one entry per millisecond up to the last event's (DSEC: its length is
         the recording's in ms), so the last ``events/t`` (relative µs) over 1000 must be about
-        its length: more than :data:`UNIT_SLACK` times it (and a second) off is a unit mismatch.
+        its length: more than :data:`UNIT_SLACK` times it (and a second) off is a mismatch, named
+        as a unit when it is about a factor of 1000 (or 10^6), else described as it is.
         """
         if self.ms_to_idx is None or self.size == 0 or self.ms_to_idx.shape[0] < 2:
             return
-        span_s = float(self.t[-1]) * 1e-6
+
+        def agree(a: float, b: float) -> bool:
+            return abs(a - b) <= 1.0 or 1 / UNIT_SLACK <= a / b <= UNIT_SLACK
+
+        last_s = float(self.t[-1]) * 1e-6
         index_s = self.ms_to_idx.shape[0] * 1e-3
-        if abs(span_s - index_s) <= 1.0 or 1 / UNIT_SLACK <= span_s / index_s <= UNIT_SLACK:
+        if last_s <= 0 or agree(last_s, index_s):
             return
-        unit = _unit_name(span_s / index_s, "microseconds")
+        span_s = last_s - float(self.t[0]) * 1e-6
+        unit = _unit_name(last_s / index_s, "microseconds")
         self.file.close()
-        raise ValueError(f"{self.path}: events/t looks like {unit} (span {span_s:.4g} s against "
-                         f"{index_s:.4g} s of ms_to_idx); DSEC layout stores microseconds")
+        if agree(span_s, index_s):
+            raise ValueError(f"{self.path}: ms_to_idx covers {index_s:.4g} s from the first "
+                             f"event, but events/t runs to {last_s:.4g} s after t_offset; DSEC "
+                             "layout indexes ms_to_idx from t_offset (events/t // 1000)")
+        if unit is None:
+            raise ValueError(f"{self.path}: events/t runs to {last_s:.4g} s but ms_to_idx "
+                             f"{index_s:.4g} s; DSEC layout stores microseconds, with one "
+                             "ms_to_idx entry per millisecond")
+        raise ValueError(f"{self.path}: events/t looks like {unit} (span {last_s:.4g} s from "
+                         f"t_offset against {index_s:.4g} s of ms_to_idx); DSEC layout stores "
+                         "microseconds")
 
     def _size_attr(self, name: str) -> int | None:
         value = self.file.attrs.get(name)
@@ -1102,12 +1117,14 @@ class _H5Source:
 _UNITS = {"seconds": 1.0, "milliseconds": 1e-3, "microseconds": 1e-6, "nanoseconds": 1e-9}
 
 
-def _unit_name(ratio: float, stored: str) -> str:
-    """The unit nearest to ``stored`` times ``1 / ratio``: what times read as ``stored`` but
-    ``ratio`` times too long (or short) were written in."""
+def _unit_name(ratio: float, stored: str) -> str | None:
+    """The unit within a factor 10 of ``stored`` times ``1 / ratio`` (what times read as
+    ``stored`` but ``ratio`` times too long or short were written in), else None."""
+    if not ratio > 0:
+        return None
     scale = _UNITS[stored] / ratio
     name = min(_UNITS, key=lambda unit: abs(np.log10(_UNITS[unit] / scale)))
-    return name if abs(np.log10(_UNITS[name] / scale)) < 1 else f"another unit ({ratio:.3g}x)"
+    return name if abs(np.log10(_UNITS[name] / scale)) < 1 and name != stored else None
 
 
 def check_time_units(path: str | Path, first_s: float, last_s: float, t_start: float,

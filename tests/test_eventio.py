@@ -544,10 +544,20 @@ def test_an_h5_in_nanoseconds_is_refused_against_its_ms_to_idx(tmp_path):
                  lambda: convert_events(path, tmp_path / "out.txt")):
         with pytest.raises(ValueError) as info:
             call()
-        assert str(info.value) == (f"{path}: events/t looks like nanoseconds (span 200 s against "
-                                   "0.202 s of ms_to_idx); DSEC layout stores microseconds")
+        assert str(info.value) == (f"{path}: events/t looks like nanoseconds (span 200 s from "
+                                   "t_offset against 0.202 s of ms_to_idx); DSEC layout stores "
+                                   "microseconds")
     path = _dsec_file(tmp_path / "ms.h5", t_us // 1000 + 5000, 5202)   # 5-5.2 s in ms
     with pytest.raises(ValueError, match="events/t looks like milliseconds"):
+        read_events(path)
+    # absolute microseconds with an ms_to_idx counted from the first event, not from t_offset
+    path = _dsec_file(tmp_path / "abs.h5", t_us + 1_600_000_000_000_000)
+    with pytest.raises(ValueError, match=r"ms_to_idx covers 0.202 s from the first event, but "
+                                         r"events/t runs to 1.6e\+09 s after t_offset"):
+        read_events(path)
+    path = _dsec_file(tmp_path / "odd.h5", t_us * 37)           # no unit is 37 times another
+    with pytest.raises(ValueError, match=r"events/t runs to 7.4 s but ms_to_idx 0.202 s; DSEC "
+                                         "layout stores microseconds"):
         read_events(path)
 
 
