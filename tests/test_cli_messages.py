@@ -141,8 +141,8 @@ def test_a_default_window_is_printed_as_used_never_as_none(tmp_path, capsys):
     code = main(["run", str(folder), "--out", str(tmp_path / "o"), "--min-depth", "0.5",
                  "--max-depth", "2", "--quiet"])
     line = _one_line(capsys, code, "run")
-    assert "None" not in line and "time window [5." in line and "events' span" in line
-    assert "does not overlap the poses [0.0, 1.0] s" in line
+    assert "None" not in line and "do not overlap (events [5.0" in line
+    assert "poses [0.000000, 1.000000] s" in line and "nanoseconds" not in line
 
 
 # --- f. flags named as typed ------------------------------------------------------------------
