@@ -42,6 +42,7 @@ from fusion.mapping import MapParams, MapResult, map_sequence, time_window, writ
 from fusion.pointcloud import read_ply
 from sim.eventio import event_frame, read_window
 from sim.exr import read_depth
+from sim.progress import progress as progress_stage
 from sim.sequence import PARTIAL_SUFFIX, atomic_output_dir, check_output_dir, load_sequence
 
 __all__ = ["RunParams", "draw_overview", "fill_window", "is_sequence_folder", "map_window",
@@ -222,7 +223,11 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
             progress=progress)
         timings["map_s"] = time.perf_counter() - tick
         tick = time.perf_counter()
+        stage = progress_stage(desc="fill", unit="region", noun="regions filled",
+                               enabled=progress)
         filled = fill_window(tmp / "map", tmp / "fill", params.dense)
+        stage.update(filled.info["regions_filled"])
+        stage.close()
         timings["fill_s"] = time.perf_counter() - tick
         info = filled.info
         errors = info.get("errors")

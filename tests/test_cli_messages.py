@@ -3,6 +3,8 @@ progress that does not flood a log (item 7): one line on standard error, exit st
 
 from __future__ import annotations
 
+import re
+
 import cv2
 import h5py
 import numpy as np
@@ -160,20 +162,21 @@ def test_simulate_flags_are_named_as_typed(flags, message, tmp_path, capsys):
 
 # --- item 7: progress on a terminal only ------------------------------------------------------
 
-def test_a_short_simulate_logs_one_line_per_stage_and_no_carriage_return(tmp_path, capsys):
+def test_a_short_run_logs_one_line_per_stage_and_no_carriage_return(tmp_path, capsys):
     scene = tmp_path / "wall.toml"
     extra = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n"
-    scene.write_text(scene_text(WALL, trajectory=FAST, duration=0.1, extra=extra))
-    assert main(["simulate", str(scene), "--out", str(tmp_path / "seq"), "--spp", "1",
-                 "--event-format", "h5"]) == 0
+    scene.write_text(scene_text(WALL, trajectory=FAST, duration=0.2, extra=extra))
+    assert main(["run", str(scene), "--out", str(tmp_path / "run"), "--spp", "1"]) == 0
     err = capsys.readouterr().err
     assert "\r" not in err
     lines = err.strip().splitlines()
-    frames = [x for x in lines if x.startswith("simulate test: ")]
-    events = [x for x in lines if x.startswith("events test: ")]
-    assert len(frames) == 1 and frames[0].startswith("simulate test: 2 frames in "), err
-    assert len(events) == 1 and events[0].startswith("events test: 0.100 s simulated, "), err
-    assert " events, " in events[0] and " renders in " in events[0]
+    for start in ("simulate test: 4 frames in ", "events test: 0.200 s simulated, ",
+                  "map: ", "fill: "):
+        assert sum(line.startswith(start) for line in lines) == 1, (start, err)
+    events = next(line for line in lines if line.startswith("events test: "))
+    assert " events, " in events and " renders in " in events
+    assert re.search(r"^map: [\d,]+ events in \d+\.\d s$", err, re.M), err
+    assert re.search(r"^fill: \d+ regions filled in \d+\.\d s$", err, re.M), err
     assert main(["simulate", str(scene), "--out", str(tmp_path / "quiet"), "--spp", "1",
                  "--event-format", "h5", "--quiet"]) == 0
     err = capsys.readouterr().err
