@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 import threading
@@ -10,6 +11,20 @@ from collections.abc import Sequence
 from pathlib import Path
 
 __all__ = ["main"]
+
+PLAUSIBLE_DEPTH_M = 100.0
+"""Largest depth bound (--min-depth, --max-depth) accepted, metres: beyond it the bound is taken
+for millimetres (the ECD's 0.47-2.4 m written 470-2400) and refused. Event-based mapping over a
+window's baseline (centimetres to metres) resolves no depth out there anyway."""
+
+
+def _check_depth_flags(args: argparse.Namespace) -> None:
+    """Refuse depth bounds that are implausible in metres, before any work."""
+    for flag, value in (("--min-depth", args.min_depth), ("--max-depth", args.max_depth)):
+        if value is not None and value > PLAUSIBLE_DEPTH_M:
+            raise ValueError(f"depths are in metres: {flag} {value:g} looks like millimetres "
+                             f"({value / 1000:g} m?); bounds above {PLAUSIBLE_DEPTH_M:g} m are "
+                             "refused")
 
 
 def _cmd_scenes(args: argparse.Namespace) -> int:
@@ -29,6 +44,16 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from sim.scene import load_scene
     from sim.simulate import simulate
 
+    # Said in the flags' terms, before the dataclasses would say it in their fields' names.
+    if not (math.isfinite(args.contrast) and args.contrast > 0):
+        raise ValueError(f"--contrast {args.contrast:g}: expected a contrast threshold > 0 (log "
+                         "intensity units, e.g. 0.2)")
+    if not 0 < args.lam <= 1:
+        raise ValueError(f"--lambda {args.lam:g}: expected a fraction of the contrast threshold "
+                         "in (0, 1]")
+    if not 0 < args.min_rate <= args.max_rate:
+        raise ValueError(f"--min-rate {args.min_rate:g} and --max-rate {args.max_rate:g}: "
+                         "expected 0 < --min-rate <= --max-rate (Hz)")
     scene = load_scene(resolve_scene(args.scene), seed=args.seed)
     events = EventParams.preset(args.noise, contrast=args.contrast, seed=scene.seed)
     sampling = SamplingParams(lam=args.lam, min_rate=args.min_rate, max_rate=args.max_rate)
@@ -56,14 +81,19 @@ def _cmd_events(args: argparse.Namespace) -> int:
     import cv2
 
     from fusion.figures import write_image
-    from sim.eventio import event_frame, event_stats, read_events
+    from sim.eventio import check_time_units, event_frame, event_stats, read_events
     from sim.sequence import load_sequence
+    from sim.trajectory import read_trajectory
 
     folder = Path(args.sequence)
     sequence = load_sequence(folder)
     width, height = sequence.camera.width, sequence.camera.height
     path = _events_file(folder)
     events = read_events(path, width, height)
+    if len(events) and sequence.groundtruth_path is not None:      # times in the wrong unit
+        poses = read_trajectory(sequence.groundtruth_path)
+        check_time_units(path, events["t"][0] * 1e-9, events["t"][-1] * 1e-9, poses.t_start,
+                         poses.t_end)
     if not args.stats:
         print(f"{path}: {len(events)} events (add --stats for statistics)")
         return 0
@@ -87,6 +117,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
     from fusion.pipeline import map_window
     from sim.sequence import check_output_dir
 
+    _check_depth_flags(args)
     check_output_dir(args.out, args.overwrite)                  # fail before the long work
     result, params = map_window(
         args.sequence, args.out, args.t0, args.t1, ref_time=args.ref_time,
@@ -170,6 +201,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.emvs import DepthMapParams
     from fusion.pipeline import RunParams, run_pipeline
 
+    _check_depth_flags(args)
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
                        max_depth=args.max_depth,
                        oracle_depth_range=args.depth_range == "oracle", planes=args.planes,

@@ -24,7 +24,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
-from tqdm.auto import tqdm
 
 from fusion.dsi_range import DSIRange
 from fusion.emvs import (
@@ -39,8 +38,9 @@ from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
 from fusion.scoring import depth_errors
 from sim.camera import Camera
-from sim.eventio import iter_event_chunks, read_window
+from sim.eventio import check_time_units, event_time_span, iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
+from sim.progress import progress as progress_stage
 from sim.sequence import EXACT_TIME_S, Sequence, atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
 
@@ -142,15 +142,8 @@ def radius_outliers(points: np.ndarray, radius: float, neighbours: int) -> np.nd
 
 
 def _event_span(path: Path, sensor: Camera) -> tuple[float, float]:
-    """First and last event times (s), by one streaming pass over the file."""
-    first = last = None
-    for chunk in iter_event_chunks(path, 10**6, width=sensor.width, height=sensor.height):
-        if len(chunk):
-            first = chunk["t"][0] if first is None else first
-            last = chunk["t"][-1]
-    if first is None:
-        raise ValueError(f"{path}: the file holds no events")
-    return first * 1e-9, last * 1e-9
+    """First and last event times (s): an HDF5 file's two ends, a text file's streaming pass."""
+    return event_time_span(path, width=sensor.width, height=sensor.height)
 
 
 WINDOW_SLACK_S = 1e-3
@@ -252,6 +245,7 @@ def time_window(sequence: Sequence, t0: float | None = None, t1: float | None = 
     trajectory = read_trajectory(sequence.groundtruth_path)
     poses = (float(trajectory.t_start), float(trajectory.t_end))
     events = _events_span(sequence, events_path)
+    check_time_units(events_path, *events, *poses)           # events/t in ns, say, named as such
     data = f"events {_span(events)}, poses {_span(poses)}"
     lo, hi = max(events[0], poses[0]), min(events[1], poses[1])
     if not hi > lo:
@@ -426,7 +420,7 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     timings["dsi_compile_s"] = _compile_dsi(trajectory, T_world_ref, t_ref, camera, params.dsi)
     tick = time.perf_counter()
     dsi_time = 0.0
-    bar = tqdm(desc="map: events", unit="ev", disable=not progress)
+    bar = progress_stage(desc="map", unit="ev", noun="events", enabled=progress)
     for chunk in iter_event_chunks(events_path, 10**6, t0_ns, t1_ns, width=sensor.width,
                                    height=sensor.height):
         t = chunk["t"] * 1e-9

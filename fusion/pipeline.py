@@ -42,6 +42,7 @@ from fusion.mapping import MapParams, MapResult, map_sequence, time_window, writ
 from fusion.pointcloud import read_ply
 from sim.eventio import event_frame, read_window
 from sim.exr import read_depth
+from sim.progress import progress as progress_stage
 from sim.sequence import PARTIAL_SUFFIX, atomic_output_dir, check_output_dir, load_sequence
 
 __all__ = ["RunParams", "draw_overview", "fill_window", "is_sequence_folder", "map_window",
@@ -192,9 +193,13 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
     check_output_dir(out, overwrite)
     try:
         return _run(source, out, params, overwrite, progress)
-    except ValueError:
-        # Bad input (found after the run folder was started): nothing worth keeping.
-        shutil.rmtree(out.with_name(out.name + PARTIAL_SUFFIX), ignore_errors=True)
+    except ValueError as exc:
+        # Bad input (found after the run folder was started): nothing worth keeping. The
+        # message must not send the user to the folder deleted here: it names the run folder.
+        partial = out.with_name(out.name + PARTIAL_SUFFIX)
+        shutil.rmtree(partial, ignore_errors=True)
+        if len(exc.args) == 1 and isinstance(exc.args[0], str):
+            exc.args = (exc.args[0].replace(str(partial), str(out)),)
         raise
 
 
@@ -218,7 +223,11 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
             progress=progress)
         timings["map_s"] = time.perf_counter() - tick
         tick = time.perf_counter()
+        stage = progress_stage(desc="fill", unit="region", noun="regions filled",
+                               enabled=progress)
         filled = fill_window(tmp / "map", tmp / "fill", params.dense)
+        stage.update(filled.info["regions_filled"])
+        stage.close()
         timings["fill_s"] = time.perf_counter() - tick
         info = filled.info
         errors = info.get("errors")

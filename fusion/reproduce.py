@@ -24,13 +24,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from fusion.dense import DenseParams
 from fusion.emvs import DepthMapParams
 from fusion.filling import FillParams
 from fusion.jsonio import to_json
 from fusion.pipeline import fill_window, map_window
+from sim.progress import progress as progress_stage
 from sim.sequence import atomic_output_dir, check_output_dir
 
 __all__ = ["PAPER", "ReproduceParams", "reproduce"]
@@ -212,7 +212,8 @@ def reproduce(out: str | Path, params: ReproduceParams | None = None,
     clock = time.perf_counter()
     rows = []
     with atomic_output_dir(out, overwrite=overwrite) as tmp:
-        bar = tqdm(jobs, desc="reproduce", unit="window", disable=not progress)
+        bar = progress_stage(jobs, desc="reproduce", unit="window", noun="windows",
+                             enabled=progress)
         for job in bar:
             bar.set_postfix_str(f"{job['scene']} [{job['t0']:.2f} s]")
             tick = time.perf_counter()

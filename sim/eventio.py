@@ -52,6 +52,8 @@ __all__ = [
     "PARTIAL_SUFFIX",
     "TextEventWriter",
     "check_events",
+    "check_time_units",
+    "event_time_span",
     "convert_events",
     "event_frame",
     "event_stats",
@@ -70,6 +72,14 @@ PARTIAL_SUFFIX = ".partial"
 MAX_EMPTY_MS = 10**7
 """Most consecutive empty milliseconds (about 2.8 hours: 80 MB of ``ms_to_idx``) an ``events.h5``
 may have before its first event or between two events; see :class:`H5EventWriter`."""
+
+UNIT_SLACK = 10.0
+"""Factor by which two time spans that should agree may differ before the times are taken to be
+in another unit (the units confused differ by 1000 or more)."""
+
+UNIT_OVERLAP = 0.01
+"""Share of the events' time span that must overlap the poses for :func:`check_time_units` to
+take their unit as right; below it, another unit that puts them inside the poses is named."""
 
 _NS_PER_S = 1_000_000_000
 _MAX_COORD = 65535
@@ -1010,6 +1020,40 @@ class _H5Source:
             self.t_offset_us = int(self.file.attrs.get("t_offset", 0))
         self.width = self._size_attr("width")
         self.height = self._size_attr("height")
+        self._check_ms_to_idx()
+
+    def _check_ms_to_idx(self) -> None:
+        """Refuse ``events/t`` in another unit than ``ms_to_idx`` says (nanoseconds, typically).
+
+        ``ms_to_idx`` has one entry per millisecond up to the last event's (DSEC: its length is
+        the recording's in ms), so the last ``events/t`` (relative µs) over 1000 must be about
+        its length: more than :data:`UNIT_SLACK` times it (and a second) off is a mismatch, named
+        as a unit when it is about a factor of 1000 (or 10^6), else described as it is.
+        """
+        if self.ms_to_idx is None or self.size == 0 or self.ms_to_idx.shape[0] < 2:
+            return
+
+        def agree(a: float, b: float) -> bool:
+            return abs(a - b) <= 1.0 or 1 / UNIT_SLACK <= a / b <= UNIT_SLACK
+
+        last_s = float(self.t[-1]) * 1e-6
+        index_s = self.ms_to_idx.shape[0] * 1e-3
+        if last_s <= 0 or agree(last_s, index_s):
+            return
+        span_s = last_s - float(self.t[0]) * 1e-6
+        unit = _unit_name(last_s / index_s, "microseconds")
+        self.file.close()
+        if agree(span_s, index_s):
+            raise ValueError(f"{self.path}: ms_to_idx covers {index_s:.4g} s from the first "
+                             f"event, but events/t runs to {last_s:.4g} s after t_offset; DSEC "
+                             "layout indexes ms_to_idx from t_offset (events/t // 1000)")
+        if unit is None:
+            raise ValueError(f"{self.path}: events/t runs to {last_s:.4g} s but ms_to_idx "
+                             f"{index_s:.4g} s; DSEC layout stores microseconds, with one "
+                             "ms_to_idx entry per millisecond")
+        raise ValueError(f"{self.path}: events/t looks like {unit} (span {last_s:.4g} s from "
+                         f"t_offset against {index_s:.4g} s of ms_to_idx); DSEC layout stores "
+                         "microseconds")
 
     def _size_attr(self, name: str) -> int | None:
         value = self.file.attrs.get(name)
@@ -1066,6 +1110,102 @@ class _H5Source:
         events["y"] = self.y[start:stop]
         events["p"] = np.where(p == 1, 1, -1)
         return events
+
+
+# --- time units --------------------------------------------------------------------------------
+
+_UNITS = {"seconds": 1.0, "milliseconds": 1e-3, "microseconds": 1e-6, "nanoseconds": 1e-9}
+
+
+def _unit_name(ratio: float, stored: str) -> str | None:
+    """The unit within a factor 10 of ``stored`` times ``1 / ratio`` (what times read as
+    ``stored`` but ``ratio`` times too long or short were written in), else None."""
+    if not ratio > 0:
+        return None
+    scale = _UNITS[stored] / ratio
+    name = min(_UNITS, key=lambda unit: abs(np.log10(_UNITS[unit] / scale)))
+    return name if abs(np.log10(_UNITS[name] / scale)) < 1 and name != stored else None
+
+
+def check_time_units(path: str | Path, first_s: float, last_s: float, t_start: float,
+                     t_end: float) -> None:
+    """Refuse events whose times are in another unit than their format stores, judged by poses.
+
+    Events whose span overlaps the poses ``[t_start, t_end]`` over less than
+    :data:`UNIT_OVERLAP` of it and is more than :data:`UNIT_SLACK` times longer (or shorter)
+    than theirs, but would lie at least half inside them read in another unit (DSEC
+    ``events.h5`` stores microseconds; ECD ``events.txt``, seconds), were written in that unit:
+    a mapping over them could only fail later with a less telling message. Events merely
+    outside the poses, with a span like theirs, are left to the window checks.
+
+    Parameters
+    ----------
+    path : str or Path
+        The event file (its suffix gives the stored unit).
+    first_s, last_s : float, seconds
+        First and last event time as read.
+    t_start, t_end : float, seconds
+        Time span of the poses (``groundtruth.txt``).
+
+    Raises
+    ------
+    ValueError
+        ``"{path}: events/t looks like nanoseconds (events at 3.81-174 s against 0.0223-3.4 s
+        of poses); DSEC layout stores microseconds"`` and the like.
+    """
+    path = Path(path)
+
+    def inside(a: float, b: float) -> float:
+        """Share of [a, b] inside the poses (1 or 0 for a single instant)."""
+        if b <= a:
+            return float(t_start <= a <= t_end)
+        return max(0.0, min(b, t_end) - max(a, t_start)) / (b - a)
+
+    if inside(first_s, last_s) >= UNIT_OVERLAP:
+        return
+    stored = "microseconds" if _kind(path) == "h5" else "seconds"
+    ratio = (last_s - first_s) / max(t_end - t_start, 1e-9)      # events' span / poses'
+    for unit, size in _UNITS.items():
+        factor = size / _UNITS[stored]
+        if unit == stored or inside(first_s * factor, last_s * factor) < 0.5:
+            continue
+        if not (ratio > UNIT_SLACK if factor < 1 else ratio < 1 / UNIT_SLACK):
+            continue
+        field = "events/t looks" if stored == "microseconds" else "the times look"
+        layout = "DSEC layout stores microseconds" if stored == "microseconds" else \
+            "ECD text stores seconds"
+        raise ValueError(f"{path}: {field} like {unit} (events at {first_s:.4g}-"
+                         f"{last_s:.4g} s against {t_start:.4g}-{t_end:.4g} s of poses); "
+                         f"{layout}")
+
+
+def event_time_span(path: str | Path, width: int | None = None,
+                    height: int | None = None) -> tuple[float, float]:
+    """First and last event time of a file, seconds (an HDF5 file: read at its two ends).
+
+    Raises
+    ------
+    ValueError
+        The file holds no events, or as :func:`iter_event_chunks`.
+    """
+    path = Path(path)
+    if _kind(path) == "h5" and path.is_file():
+        source = _H5Source(path)
+        try:
+            if source.size:
+                return (int(source.read(0, 1)["t"][0]) * 1e-9,
+                        int(source.read(source.size - 1, source.size)["t"][0]) * 1e-9)
+        finally:
+            source.close()
+        raise ValueError(f"{path}: the file holds no events")
+    first = last = None
+    for chunk in iter_event_chunks(path, 10**6, width=width, height=height):
+        if len(chunk):
+            first = chunk["t"][0] if first is None else first
+            last = chunk["t"][-1]
+    if first is None:
+        raise ValueError(f"{path}: the file holds no events")
+    return int(first) * 1e-9, int(last) * 1e-9
 
 
 # --- reading ---------------------------------------------------------------------------------

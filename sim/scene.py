@@ -47,6 +47,16 @@ class SceneError(ValueError):
     """A scene file that cannot be used; the message names the file and the key."""
 
 
+MAX_OBJECT_SIZE_M = 1000.0
+"""Largest size, radius or height of an object accepted in a scene file, metres. A scene written
+in millimetres (a 1.2 m poster as 1200) is refused instead of being simulated 1000 times too big.
+"""
+MAX_NEAREST_SURFACE_M = 100.0
+"""Farthest the nearest object's surface may stay from the camera over the whole trajectory,
+metres (meshes and object motion aside). No scene for event-based depth is seen from beyond
+100 m only; a scene in millimetres (a poster 231 mm away written 231) is refused."""
+
+
 # --------------------------------------------------------------------------------------------
 # Parsed scene
 # --------------------------------------------------------------------------------------------
@@ -366,7 +376,8 @@ def _parse_camera(ctx: _Ctx, raw: Any) -> Camera:
     for name in _CAMERA_FIELDS:
         if name in table:
             conv = _integer if name in ("width", "height") else _number
-            extra = {"minimum": 1} if name in ("width", "height") else {}
+            extra = ({"minimum": 1} if name in ("width", "height")
+                     else {"positive": True} if name in ("fx", "fy") else {})
             values[name] = conv(ctx, table[name], f"{key}.{name}", **extra)
     if "distortion" in table:
         distortion = tuple(_vector(ctx, table["distortion"], f"{key}.distortion", 5))
@@ -386,11 +397,23 @@ def _parse_frames(ctx: _Ctx, raw: Any) -> FrameParams:
         if name == "exposure_samples":
             values[name] = _integer(ctx, item, f"{key}.{name}", minimum=1)
         else:
-            values[name] = _number(ctx, item, f"{key}.{name}")
+            nonneg = name in ("full_well", "read_noise")
+            values[name] = _number(ctx, item, f"{key}.{name}", positive=not nonneg,
+                                   nonneg=nonneg)
+    # The one constraint between two keys, said in the file's own terms (given or default).
+    defaults = FrameParams()
+    rate = values.get("rate", defaults.rate)
+    exposure = values.get("exposure", defaults.exposure)
+    if exposure > 1.0 / rate:
+        given = "" if "exposure" in values else " (the default)"
+        rate_given = "" if "rate" in values else ", the default"
+        raise ctx.fail(f"{key} exposure = {exposure:g}{given}",
+                       f"must be at most the frame interval 1/rate = {1.0 / rate:.4g} s (rate = "
+                       f"{rate:g} Hz{rate_given})")
     try:
         return FrameParams(**values)
-    except ValueError as exc:
-        raise ctx.fail(key, str(exc)) from None
+    except ValueError as exc:                       # name the TOML key, not the dataclass field
+        raise ctx.fail(key, str(exc).replace("FrameParams.", f"{key} ")) from None
 
 
 def _parse_render(ctx: _Ctx, raw: Any) -> RenderParams:
@@ -663,6 +686,64 @@ def _parse_object(ctx: _Ctx, raw: Any, key: str, base_dir: Path) -> SceneObject:
     return SceneObject(name, shape, center, rotation, params, material, motion)
 
 
+def _half_extents(obj: SceneObject) -> np.ndarray | None:
+    """Half sizes (3,) of the object's bounding box in its local frame, metres; None (mesh)."""
+    p = obj.params
+    if obj.shape == "rectangle":
+        return np.array([p["size"][0] / 2, p["size"][1] / 2, 0.0])
+    if obj.shape == "box":
+        return np.asarray(p["size"]) / 2
+    if obj.shape == "sphere":
+        return np.full(3, p["radius"])
+    if obj.shape == "cylinder":
+        return np.array([p["radius"], p["radius"], p["height"] / 2])
+    if obj.shape == "heightfield":
+        return np.array([p["size"][0] / 2, p["size"][1] / 2, p["amplitude"]])
+    return None
+
+
+def _check_metres(ctx: _Ctx, objects: tuple[SceneObject, ...], trajectory: Trajectory,
+                  duration: float) -> None:
+    """Refuse a scene whose lengths are implausible in metres (written in millimetres).
+
+    Bounds: :data:`MAX_OBJECT_SIZE_M` on every ``size``, ``radius`` and ``height``, and
+    :data:`MAX_NEAREST_SURFACE_M` on the distance from the camera (at 100 times over
+    ``[0, duration]``) to the nearest object's bounding box (meshes are skipped: their size is
+    in their file; object motion is ignored).
+    """
+    for i, obj in enumerate(objects):
+        for name in ("size", "radius", "height"):
+            if name not in obj.params:
+                continue
+            value = np.atleast_1d(obj.params[name])
+            if value.max() > MAX_OBJECT_SIZE_M:
+                shown = obj.params[name]
+                shown = [float(v) for v in shown] if np.ndim(shown) else float(shown)
+                raise ctx.fail(f"[[objects]][{i}].{name} = {shown}",
+                               f"scenes are in metres: {value.max():g} m is larger than the "
+                               f"{MAX_OBJECT_SIZE_M:g} m an object may measure (millimetres?)")
+    times = np.linspace(max(trajectory.t_start, 0.0), min(trajectory.t_end, duration), 100)
+    positions = trajectory.pose(times)[:, :3, 3]
+    nearest, which = np.inf, None
+    for i, obj in enumerate(objects):
+        half = _half_extents(obj)
+        if half is None:
+            continue
+        local = (positions - obj.center) @ obj.rotation
+        if obj.shape == "sphere":
+            gaps = np.linalg.norm(local, axis=1) - obj.params["radius"]
+        else:
+            gaps = np.linalg.norm(np.maximum(np.abs(local) - half, 0.0), axis=1)
+        if gaps.min() < nearest:
+            nearest, which = float(gaps.min()), i
+    if which is not None and nearest > MAX_NEAREST_SURFACE_M:
+        obj = objects[which]
+        raise ctx.fail(f"[[objects]][{which}].center = {[float(v) for v in obj.center]}",
+                       f"scenes are in metres: the nearest object, {obj.name!r}, comes no "
+                       f"nearer than {nearest:.4g} m to the camera, beyond the "
+                       f"{MAX_NEAREST_SURFACE_M:g} m allowed (millimetres?)")
+
+
 def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None = None) -> Scene:
     """Parse and validate the TOML text of a scene.
 
@@ -724,6 +805,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     duplicate = next((n for n in names if names.count(n) > 1), None)
     if duplicate is not None:
         raise ctx.fail("[[objects]]", f"object name {duplicate!r} is used twice")
+    _check_metres(ctx, objects, trajectory, duration)
     return Scene(name, description, duration, seed, camera, frames, render, trajectory, lights,
                  objects, source_path, text, depth_range)
 
@@ -736,7 +818,12 @@ def load_scene(path: str | Path, *, seed: int | None = None) -> Scene:
     SceneError
         The file is missing or unreadable, or its content is invalid.
     """
+    from sim.sequence import describe_data_file
+
     path = Path(path)
+    what = describe_data_file(path) if path.suffix.lower() != ".toml" else None
+    if what is not None:
+        raise SceneError(f"{path} is {what}, not a scene file (TOML); expected a .toml scene")
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:

@@ -30,9 +30,14 @@ import numpy as np
 if TYPE_CHECKING:
     from sim.camera import Camera
 
-__all__ = ["EXACT_TIME_S", "Sequence", "atomic_output_dir", "check_output_dir", "frame_name",
-           "load_sequence", "partial_dir", "read_index", "read_sequence_json", "write_index",
+__all__ = ["EXACT_TIME_S", "SEQUENCE_FOLDER_NEEDS", "Sequence", "atomic_output_dir",
+           "check_output_dir", "describe_data_file", "frame_name", "load_sequence",
+           "partial_dir", "read_index", "read_sequence_json", "write_index",
            "write_sequence_json"]
+
+SEQUENCE_FOLDER_NEEDS = ("calib.txt (one line 'fx fy cx cy k1 k2 p1 p2 k3'), images.txt with "
+                         "images/, groundtruth.txt (poses) and events.txt or events.h5")
+"""What a sequence folder needs to be mapped (CONVENTIONS.md), as the messages say it."""
 
 PARTIAL_SUFFIX = ".partial"
 """Suffix of the folder a sequence is written into before it is complete."""
@@ -333,6 +338,58 @@ def read_sequence_json(path: str | Path) -> dict:
     return data
 
 
+# --- what a file is ---------------------------------------------------------------------------
+
+_SEQUENCE_FILES = {
+    "calib.txt": "the calibration of a sequence folder",
+    "images.txt": "the frame index of a sequence folder",
+    "depthmaps.txt": "the depth-map index of a sequence folder",
+    "groundtruth.txt": "the poses of a sequence folder",
+    "imu.txt": "the IMU readings of a sequence folder",
+    "sequence.json": "the metadata of a sequence folder",
+}
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def describe_data_file(path: str | Path) -> str | None:
+    """What a file of the project's data formats is, by its name and first bytes; else None.
+
+    Used to say "this is an event file" instead of a parser's complaint when such a file is
+    given where a scene file is expected.
+
+    Parameters
+    ----------
+    path : str or Path
+        An existing file.
+
+    Returns
+    -------
+    str or None
+        e.g. ``"an event file (HDF5, DSEC layout)"``, ``"an event file (ECD text, t x y p)"``,
+        ``"the poses of a sequence folder"``; None for anything else (a scene file among them).
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as handle:
+            head = handle.read(4096)
+    except OSError:
+        return None
+    if head.startswith(_HDF5_SIGNATURE) or path.suffix.lower() in (".h5", ".hdf5"):
+        return "an event file (HDF5, DSEC layout)"
+    if path.name in _SEQUENCE_FILES:
+        return _SEQUENCE_FILES[path.name]
+    for line in head.decode("utf-8", errors="replace").splitlines():
+        fields = line.split()
+        if not fields or fields[0].startswith("#"):
+            continue
+        try:
+            [float(f) for f in fields]
+        except ValueError:
+            return None
+        return "an event file (ECD text, t x y p)" if len(fields) == 4 else None
+    return None
+
+
 # --- a whole sequence ------------------------------------------------------------------------
 
 @dataclass(frozen=True, eq=False)
@@ -473,8 +530,8 @@ def load_sequence(folder: str | Path) -> Sequence:
         raise ValueError(f"sequence folder {folder} does not exist or is not a folder")
     for required in ("calib.txt", "images.txt"):
         if not (folder / required).is_file():
-            raise ValueError(f"sequence folder {folder} has no {required}; expected the "
-                             "layout of CONVENTIONS.md (calib.txt, images.txt, images/, ...)")
+            raise ValueError(f"sequence folder {folder} has no {required}; a sequence folder "
+                             f"needs {SEQUENCE_FOLDER_NEEDS}")
     image_times, image_names = read_index(folder / "images.txt")
     image_paths = tuple(folder / name for name in image_names)
 

@@ -39,7 +39,6 @@ from pathlib import Path
 import cv2
 import numba
 import numpy as np
-from tqdm.auto import tqdm
 
 from sim.camera import write_calib
 from sim.eventio import H5EventWriter, TextEventWriter
@@ -52,6 +51,7 @@ from sim.frames import (
     frame_times,
     luminance_to_frame,
 )
+from sim.progress import progress as progress_stage
 from sim.render import Renderer
 from sim.sampling import Sample, SamplingParams, SamplingStats, adaptive_samples
 from sim.scene import Scene
@@ -282,7 +282,8 @@ def _simulate_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.n
     gain = params.gain if params.gain is not None else checkpoint.gain
     image_names = [frame_name(index, "png") for index in range(len(times))]
     depth_names = [frame_name(index, "exr") for index in range(len(times))]
-    bar = tqdm(times, desc=f"simulate {scene.name}", unit="frame", disable=not progress)
+    bar = progress_stage(times, desc=f"simulate {scene.name}", unit="frame", noun="frames",
+                         enabled=progress)
     for index, t in enumerate(bar):
         image, depth_map = folder / image_names[index], folder / depth_names[index]
         if image.is_file() and depth_map.is_file():       # written atomically: complete
@@ -340,9 +341,10 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                        **state["sample"])
     contrast = min(params.contrast_on, params.contrast_off)
     fast = _FastRenderer(renderer, scene.render.event_spp)
-    bar = tqdm(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
-               disable=not progress, bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
-               "[{elapsed}<{remaining}{postfix}]")
+    bar = progress_stage(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
+                         noun="s simulated", enabled=progress,
+                         bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
+                                    "[{elapsed}<{remaining}{postfix}]")
     with ExitStack() as stack:
         stack.callback(bar.close)
         # Dr.Jit's worker threads stay busy between renders, and numba's parallel regions then
@@ -387,7 +389,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                 timings["checkpoint"] += saved_at - tick
                 tick = saved_at
             bar.n = round(sample.t - start, 6)
-            bar.set_postfix_str(f"{count} events, {stats.renders} renders", refresh=False)
+            bar.set_postfix_str(f"{count:,} events, {stats.renders:,} renders", refresh=False)
             bar.update(0)
     noise = params.noise
     return {

@@ -520,3 +520,61 @@ def test_throughput_of_5_million_events(tmp_path):
                     f"{n / (end - middle) / 1e6:6.2f} M ev/s, {path.stat().st_size / n:5.1f} "
                     "bytes/event")
     print("\n" + "\n".join(rows))
+
+
+# --- times in the wrong unit (issue 11, item 6) ------------------------------------------------
+
+def _dsec_file(path, t, entries=202):
+    """A DSEC-layout file holding ``t`` as events/t (whatever its unit) and an ms_to_idx of
+    ``entries`` (what the true times need: the last one's ms + 2)."""
+    n = len(t)
+    with h5py.File(path, "w") as f:
+        f["events/t"] = np.asarray(t, np.int64)
+        f["events/x"] = f["events/y"] = np.zeros(n, np.uint16)
+        f["events/p"] = np.ones(n, np.uint8)
+        f["ms_to_idx"] = np.zeros(entries, np.int64)
+    return path
+
+
+def test_an_h5_in_nanoseconds_is_refused_against_its_ms_to_idx(tmp_path):
+    t_us = np.array([1_000, 100_000, 200_000])                 # 0.001-0.2 s in microseconds
+    read_events(_dsec_file(tmp_path / "good.h5", t_us))
+    path = _dsec_file(tmp_path / "ns.h5", t_us * 1000)          # the same times in nanoseconds
+    for call in (lambda: read_events(path), lambda: read_window(path, 0, 10**9),
+                 lambda: convert_events(path, tmp_path / "out.txt")):
+        with pytest.raises(ValueError) as info:
+            call()
+        assert str(info.value) == (f"{path}: events/t looks like nanoseconds (span 200 s from "
+                                   "t_offset against 0.202 s of ms_to_idx); DSEC layout stores "
+                                   "microseconds")
+    path = _dsec_file(tmp_path / "ms.h5", t_us // 1000 + 5000, 5202)   # 5-5.2 s in ms
+    with pytest.raises(ValueError, match="events/t looks like milliseconds"):
+        read_events(path)
+    # absolute microseconds with an ms_to_idx counted from the first event, not from t_offset
+    path = _dsec_file(tmp_path / "abs.h5", t_us + 1_600_000_000_000_000)
+    with pytest.raises(ValueError, match=r"ms_to_idx covers 0.202 s from the first event, but "
+                                         r"events/t runs to 1.6e\+09 s after t_offset"):
+        read_events(path)
+    path = _dsec_file(tmp_path / "odd.h5", t_us * 37)           # no unit is 37 times another
+    with pytest.raises(ValueError, match=r"events/t runs to 7.4 s but ms_to_idx 0.202 s; DSEC "
+                                         "layout stores microseconds"):
+        read_events(path)
+
+
+def test_times_in_another_unit_are_named_against_the_poses(tmp_path):
+    from sim.eventio import check_time_units
+
+    h5 = tmp_path / "events.h5"
+    # nanoseconds read as microseconds: 0.004-0.174 s become 3.8-174 s, poses 0.02-3.4 s
+    with pytest.raises(ValueError) as info:
+        check_time_units(h5, 3.811, 174.156, 0.0223, 3.4025)
+    assert str(info.value) == (f"{h5}: events/t looks like nanoseconds (events at 3.811-174.2 s "
+                               "against 0.0223-3.402 s of poses); DSEC layout stores microseconds")
+    with pytest.raises(ValueError, match="events/t looks like milliseconds"):
+        check_time_units(h5, 0.005, 0.0052, 4.0, 6.0)     # 5-5.2 s written in milliseconds
+    with pytest.raises(ValueError, match="the times look like nanoseconds .* ECD text stores "
+                                         "seconds"):
+        check_time_units(tmp_path / "events.txt", 1e8, 9e8, 0.0, 1.0)
+    check_time_units(h5, 0.0038, 0.174, 0.0223, 3.4)    # the real prefix: overlaps, accepted
+    check_time_units(h5, 0.0, 60.0, 0.0, 3.0)           # poses for 5 % of the events: accepted
+    check_time_units(h5, 5.0, 6.0, 0.0, 1.0)            # merely outside, same span: not a unit

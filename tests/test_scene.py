@@ -232,3 +232,60 @@ def test_mesh_file_errors_name_the_key(tmp_path):
     (tmp_path / "quad.stl").write_text("solid")
     objects = objects.replace("absent.obj", "quad.stl")
     assert ".obj or .ply" in _error(scene_text(objects), tmp_path)
+
+
+# --- lengths in metres, and [frames] messages in the file's own keys (issue 11, item 6) -------
+
+def _wall_at(distance: float, size: float = 6.0) -> str:
+    return (f'[[objects]]\nname = "wall"\ntype = "rectangle"\ncenter = [0.0, {distance}, 0.0]\n'
+            f"size = [{size}, {size}]\n")
+
+
+def test_a_scene_in_millimetres_is_refused_naming_the_key(tmp_path):
+    from sim.scene import MAX_NEAREST_SURFACE_M, MAX_OBJECT_SIZE_M
+
+    # slider_close written in millimetres: poster 231 mm in front, 1200 x 600 mm.
+    message = _error(scene_text(_wall_at(231.0, size=60.0)), tmp_path)
+    assert "scenes are in metres" in message and "[[objects]][0].center" in message
+    assert "231 m" in message and f"{MAX_NEAREST_SURFACE_M:g} m" in message
+    message = _error(scene_text(_wall_at(231.0, size=1200.0)), tmp_path)
+    assert "scenes are in metres" in message and "[[objects]][0].size" in message
+    assert "1200 m" in message and f"{MAX_OBJECT_SIZE_M:g} m" in message
+    sphere = ('[[objects]]\nname = "ball"\ntype = "sphere"\ncenter = [0.0, 900.0, 0.0]\n'
+              "radius = 300.0\n")
+    message = _error(scene_text(sphere), tmp_path)
+    assert "[[objects]][0].center" in message and "'ball'" in message and "600 m" in message
+
+
+def test_the_metres_bound_is_the_documented_one():
+    """The wall's plane is exactly d from the camera: refused just beyond the bound only."""
+    from sim.scene import MAX_NEAREST_SURFACE_M
+
+    parse_scene(scene_text(_wall_at(0.9 * MAX_NEAREST_SURFACE_M)))            # accepted
+    with pytest.raises(SceneError, match="scenes are in metres"):
+        parse_scene(scene_text(_wall_at(1.1 * MAX_NEAREST_SURFACE_M)))
+    # a far wall does not count when something else is near
+    parse_scene(scene_text(BOX + _wall_at(1.1 * MAX_NEAREST_SURFACE_M)))
+
+
+def test_frame_errors_name_the_toml_key_not_the_dataclass(tmp_path):
+    message = _error(scene_text(BOX, extra="[frames]\nexposure = 0.5\n"), tmp_path)
+    assert "[frames] exposure = 0.5: must be at most the frame interval" in message
+    assert "0.04167 s" in message and "24 Hz" in message and "FrameParams" not in message
+    message = _error(scene_text(BOX, extra="[frames]\nrate = 500.0\n"), tmp_path)
+    assert "[frames] exposure = 0.005 (the default)" in message and "0.002 s" in message
+    for key, value in (("rate", "-1.0"), ("gamma", "0.0"), ("gain", "0.0"),
+                       ("read_noise", "-2.0"), ("full_well", "-1.0")):
+        message = _error(scene_text(BOX, extra=f"[frames]\n{key} = {value}\n"), tmp_path)
+        assert f"[frames].{key}" in message and "FrameParams" not in message, message
+
+
+def test_an_event_file_given_as_a_scene_is_named_as_one(tmp_path):
+    events = tmp_path / "events.txt"
+    events.write_text("0.003811000 96 133 0\n0.003820001 127 171 0\n")
+    with pytest.raises(SceneError, match="is an event file .ECD text") as info:
+        load_scene(events)
+    assert "not valid TOML" not in str(info.value)
+    (tmp_path / "events.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(100))
+    with pytest.raises(SceneError, match="is an event file .HDF5"):
+        load_scene(tmp_path / "events.h5")
