@@ -5,14 +5,14 @@
 the frame, form an *event image*: a sparse depth map, one depth per pixel (the nearest point where
 several land on one pixel), 0 elsewhere. Then:
 
-1. **Selection.** A region is filled when the map points around it are many and those inside it
-   few: at least ``min_ring_ratio`` x its contour length (default 30 %) of pixels holding a map
-   point in the ``ring``-pixel ring around it (default 3), and fewer than ``max_inside_ratio`` x its
-   area (default 5 %) inside it. Many points inside mean texture or a surface that is not smooth,
-   where the region is not one surface.
+1. **Selection.** A region is filled when the map points around its contour are many and those
+   inside it few: at least ``min_ring_ratio`` x its contour length (default 30 %) of pixels holding
+   a map point in its ``ring``-pixel band (default 3), and fewer than ``max_inside_ratio`` x its
+   area (default 5 %) inside it, away from the band. Many points inside mean texture or a surface
+   that is not smooth, where the region is not one surface.
 2. **Filling.** Each pixel ``p`` of a selected region gets the normalised weighted mean
    ``lambda * sum_k w(d_k) D(m_k)``, ``lambda = 1 / sum_k w(d_k)``, of the depths ``D(m_k)`` of
-   *all* the region's map points ``m_k`` (those of its ring and those inside it), ``d_k`` the
+   *all* the region's map points ``m_k`` (those of its band and those inside it), ``d_k`` the
    Euclidean pixel distance from ``p`` to ``m_k``; pixels holding a map point keep its depth.
 3. **Score.** The filling score beta compares the filled pixels with the image size.
 
@@ -20,9 +20,19 @@ Definitions chosen here, where the paper leaves a choice:
 
 * **Contour** of a region: its pixels with a 4-neighbour of another label (0 included) inside the
   image (:func:`fusion.segmentation.region_contours`); its length is their number.
-* **Ring** of a region: the pixels outside it within Chebyshev distance ``ring`` of one of its
-  pixels, i.e. its dilation by a ``(2 ring + 1)``-pixel square minus the region itself. The ring
-  may cross other regions and ignored (label 0) pixels; it stops at the image border.
+* **Ring** (band) of a region ``r``: the pixels within Chebyshev distance ``ring`` of one of its
+  contour pixels, on *both* sides of the contour, inside ``r`` and outside it. The paper counts the
+  projected events "in the 3-pixel ring of the region" because the DSI's discretisation puts them
+  near the contour, not on it, and on either side: a map point counts in ``r``'s ring when it
+  lies in this band, wherever it lands. The band may cross other regions and ignored (label 0)
+  pixels; it stops at the image border. Its outer half is exactly the dilation of ``r`` by a
+  ``(2 ring + 1)``-pixel square minus ``r``: a pixel ``p`` outside ``r`` within ``ring`` of a
+  pixel of ``r`` is within ``ring`` of a contour pixel, where a 4-path from that pixel to ``p``
+  inside ``p``'s ``(2 ring + 1)`` square leaves ``r``.
+* **Inside** points of ``r``: its map points that are *not* in its band. A region no wider than
+  ``2 ring + 1`` pixels lies entirely in its band and never has inside points.
+* **Points of a region** (those that interpolate it, step 2): the map points of its band and of
+  its interior, i.e. of its dilation by a ``(2 ring + 1)``-pixel square.
 * A region without a contour (one covering the whole image) is never selected: nothing bounds it.
 
 Weights are a function of the pixel distance only, so they are tabulated once per call over the
@@ -125,12 +135,14 @@ class SelectionParams:
     Attributes
     ----------
     ring : int, pixels
-        Width of the ring around a region where its bounding map points are counted (default 3).
+        Half-width of the band on both sides of a region's contour where its bounding map points
+        are counted (default 3, the paper's "3-pixel ring").
     min_ring_ratio : float
-        A region needs at least this many ring pixels holding a map point per contour pixel
-        (default 0.30).
+        A region needs at least this many band pixels holding a map point per contour pixel
+        (default 0.30, the paper's "30 % of the contour length").
     max_inside_ratio : float
-        A region needs fewer map points inside it than this share of its area (default 0.05).
+        A region needs fewer map points inside it (off its band) than this share of its area
+        (default 0.05, the paper's "5 % of the region size").
     """
 
     ring: int = 3
@@ -195,14 +207,15 @@ class RegionStats:
     contour : (K + 1,) int64 ndarray, pixels
         Contour length: pixels with a 4-neighbour of another label (0 for index 0).
     ring_events : (K + 1,) int64 ndarray
-        Pixels of the ring holding a map point (0 for index 0).
+        Pixels of the band (both sides of the contour) holding a map point (0 for index 0).
     inside_events : (K + 1,) int64 ndarray
-        Pixels of the region holding a map point.
+        Pixels of the region off its band holding a map point (index 0: every map point on an
+        ignored pixel).
     selected : (K + 1,) bool ndarray
         Regions to fill (never index 0).
     ring : int, pixels
-        Ring width the counts were made with; :func:`fill_regions` interpolates from the map
-        points of the same ring.
+        Band half-width the counts were made with; :func:`fill_regions` interpolates from the
+        map points of the same band and of the region.
     """
 
     area: np.ndarray
@@ -249,7 +262,8 @@ def _check_inputs(labels, sparse_depth) -> tuple[np.ndarray, np.ndarray]:
 
 
 @numba.njit(cache=True)
-def _count_events(labels, ev_y, ev_x, n_labels, ring):  # pragma: no cover - compiled
+def _count_events(labels, contour_labels, ev_y, ev_x, n_labels, ring):  # pragma: no cover
+    """Map points in each region's band (within ``ring`` of a contour pixel) and off it inside."""
     height, width = labels.shape
     ring_events = np.zeros(n_labels, np.int64)
     inside = np.zeros(n_labels, np.int64)
@@ -257,16 +271,15 @@ def _count_events(labels, ev_y, ev_x, n_labels, ring):  # pragma: no cover - com
     for k in range(ev_y.shape[0]):
         y = ev_y[k]
         x = ev_x[k]
-        own = labels[y, x]
-        inside[own] += 1
-        seen[own] = k
         for yy in range(max(0, y - ring), min(height, y + ring + 1)):
             for xx in range(max(0, x - ring), min(width, x + ring + 1)):
-                lab = labels[yy, xx]
-                if seen[lab] != k:
+                lab = contour_labels[yy, xx]           # 0 off every contour
+                if lab != 0 and seen[lab] != k:
                     seen[lab] = k
                     ring_events[lab] += 1
-    ring_events[0] = 0
+        own = labels[y, x]
+        if seen[own] != k:                             # label 0 has no contour: always counted
+            inside[own] += 1
     return ring_events, inside
 
 
@@ -276,7 +289,8 @@ def select_regions(labels: np.ndarray, sparse_depth: np.ndarray,
 
     Region ``r`` is selected when ``contour[r] > 0``,
     ``ring_events[r] >= min_ring_ratio * contour[r]`` and
-    ``inside_events[r] < max_inside_ratio * area[r]`` (see the module's definitions).
+    ``inside_events[r] < max_inside_ratio * area[r]``, the ring being the band of half-width
+    ``params.ring`` on both sides of the contour (see the module's definitions).
 
     Parameters
     ----------
@@ -299,9 +313,12 @@ def select_regions(labels: np.ndarray, sparse_depth: np.ndarray,
     labels, sparse = _check_inputs(labels, sparse_depth)
     n_labels = int(labels.max()) + 1
     ev_y, ev_x = np.nonzero(sparse > 0)
-    ring_events, inside = _count_events(labels, ev_y, ev_x, n_labels, int(params.ring))
+    on_contour = region_contours(labels)
+    contour_labels = np.where(on_contour, labels, 0).astype(np.int32)
+    ring_events, inside = _count_events(labels, contour_labels, ev_y, ev_x, n_labels,
+                                        int(params.ring))
     area = np.bincount(labels.ravel(), minlength=n_labels).astype(np.int64)
-    contour = np.bincount(labels[region_contours(labels)], minlength=n_labels).astype(np.int64)
+    contour = np.bincount(labels[on_contour], minlength=n_labels).astype(np.int64)
     # Products rounded to 1e-9 so that decimal ratios act as written (0.07 x 100 is 7, not 7 + ulp).
     selected = ((contour > 0) & (ring_events >= np.round(params.min_ring_ratio * contour, 9))
                 & (inside < np.round(params.max_inside_ratio * area, 9)))
@@ -314,7 +331,11 @@ def select_regions(labels: np.ndarray, sparse_depth: np.ndarray,
 
 @numba.njit(cache=True)
 def _region_events(labels, ev_y, ev_x, selected, ring):  # pragma: no cover - compiled
-    """Events of each selected region (inside it or in its ring), as CSR: start, index."""
+    """Events of each selected region (in its band or inside it), as CSR: start, index.
+
+    The band and the region together are the region's dilation by a ``(2 ring + 1)`` square (see
+    the module's definitions), so a point belongs to every selected label in its square.
+    """
     height, width = labels.shape
     n_labels = selected.shape[0]
     start = np.zeros(n_labels + 1, np.int64)
@@ -483,8 +504,9 @@ def fill_regions(labels: np.ndarray, sparse_depth: np.ndarray, regions: RegionSt
 
     Each pixel of a selected region without a map point gets
     ``sum_k w(d_k) D(m_k) / sum_k w(d_k)`` over every map point ``m_k`` inside the region or in
-    its ``regions.ring``-pixel ring, ``d_k`` the Euclidean pixel distance and ``w`` the weighting
-    of ``params``. Sums run in float64 over all the points (no neighbourhood truncation).
+    its band of half-width ``regions.ring`` (both sides of its contour), ``d_k`` the Euclidean
+    pixel distance and ``w`` the weighting of ``params``. Sums run in float64 over all the
+    points (no neighbourhood truncation).
 
     Parameters
     ----------
