@@ -38,8 +38,9 @@ Definitions chosen here, where the paper leaves a choice:
 Weights are a function of the pixel distance only, so they are tabulated once per call over the
 integer offsets ``(dy, dx)`` with the public weighting functions, and the interpolation sums every
 map point of the region, without truncation. Where the sum of a pixel's weights underflows in
-float64 (Gaussian weights, sigma = 5, beyond ~180 px from every map point), the pixel is
-recomputed in the log domain, relative to its largest weight: the same normalised mean.
+float64 (Gaussian weights, sigma = 5, beyond ~180 px from every map point; the paper's
+exponential ``exp(-d)`` beyond ~640 px), the pixel is recomputed in the log domain, relative to
+its largest weight: the same normalised mean.
 """
 
 from __future__ import annotations
@@ -92,7 +93,9 @@ def inverse_distance_weights(d) -> np.ndarray:
 
 
 def gaussian_weights(d, sigma: float = 5.0) -> np.ndarray:
-    """Gaussian weights ``exp(-d^2 / (2 sigma^2))``.
+    """Gaussian weights ``exp(-d^2 / (2 sigma^2))``, the paper's with ``sigma`` 5 px.
+
+    The paper's factor ``1 / (sqrt(2 pi) sigma)`` is left out: it cancels in the normalised mean.
 
     Parameters
     ----------
@@ -109,13 +112,14 @@ def gaussian_weights(d, sigma: float = 5.0) -> np.ndarray:
     return np.exp(-(d * d) / (2.0 * sigma * sigma))
 
 
-def exponential_weights(d, scale: float = 5.0) -> np.ndarray:
-    """Exponential weights ``exp(-d / scale)``.
+def exponential_weights(d, scale: float = 1.0) -> np.ndarray:
+    """Exponential weights ``exp(-d / scale)``; the paper's are ``exp(-d)`` (``scale`` 1 px).
 
     Parameters
     ----------
     d : array_like of float, pixels, >= 0
     scale : float, pixels, > 0
+        Decay length (default 1, the paper's).
 
     Returns
     -------
@@ -167,17 +171,19 @@ class FillParams:
     Attributes
     ----------
     weighting : str
-        ``"idw"`` (:func:`inverse_distance_weights`, default), ``"gaussian"``
+        ``"idw"`` (:func:`inverse_distance_weights`, default: the first of the paper's Table 3,
+        which finds the errors insensitive to the choice), ``"gaussian"``
         (:func:`gaussian_weights`) or ``"exponential"`` (:func:`exponential_weights`).
     sigma : float, pixels
-        Standard deviation of the Gaussian weights (default 5).
+        Standard deviation of the Gaussian weights (default 5, the paper's).
     scale : float, pixels
-        Decay length of the exponential weights (default 5).
+        Decay length of the exponential weights, ``exp(-d / scale)`` (default 1: the paper's
+        ``exp(-d)``).
     """
 
     weighting: str = "idw"
     sigma: float = 5.0
-    scale: float = 5.0
+    scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.weighting not in WEIGHTINGS:

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fusion.cli import main
 from fusion.filling import (
     WEIGHTINGS,
     FillParams,
@@ -26,14 +27,17 @@ RES_DAVIS = 240 * 180
 
 # --------------------------------------------------------------------------- filling score
 
-def test_filling_score_reproduces_table_1():
-    """boxes_6dof in the paper's Table 1: N1 2289, N2 10489 at 240x180 -> beta 0.1898.
-
-    The other three rows' beta (dynamic 0.1587, poster 0.3377, shapes 0.0274) are known here
-    but not their N1 and N2, so only this row can be reproduced from its counts.
-    """
-    assert round(filling_score(2289, 10489, RES_DAVIS), 4) == 0.1898
-    assert filling_score(2289, 10489, RES_DAVIS) == pytest.approx(8200 / (43200 + 2289 / 43200))
+@pytest.mark.parametrize("sequence, n1, n2, beta", [
+    ("boxes_6dof", 2289, 10489, 0.1898),
+    ("dynamic_6dof", 2270, 9125, 0.1587),
+    ("poster_6dof", 4748, 19338, 0.3377),
+    ("shapes_6dof", 954, 2137, 0.0274),
+])
+def test_filling_score_reproduces_table_1(sequence, n1, n2, beta):
+    """Every row of the paper's Table 1 (../shared/paper/README.md): its N1 and N2 at the
+    DAVIS240C's 240 x 180 = 43,200 pixels give its beta to the 4 decimals it prints."""
+    assert round(filling_score(n1, n2, RES_DAVIS), 4) == beta
+    assert filling_score(n1, n2, RES_DAVIS) == pytest.approx((n2 - n1) / (43200 + n1 / 43200))
 
 
 def test_filling_score_extremes_and_bad_counts():
@@ -58,6 +62,46 @@ def test_weightings_by_hand():
     assert exponential_weights(5.0, scale=5.0) == pytest.approx(np.exp(-1.0))
 
 
+def test_default_weightings_are_the_papers():
+    """The paper: w = exp(-d) (d in px), Gaussian sigma = 5 px (its 1 / (sqrt(2 pi) sigma)
+    cancels in the normalised mean)."""
+    d = np.array([0.0, 0.5, 1.0, 2.0, 7.5])
+    np.testing.assert_allclose(exponential_weights(d), np.exp(-d))
+    np.testing.assert_allclose(gaussian_weights(d), np.exp(-d ** 2 / 50.0))
+    assert (FillParams().weighting, FillParams().sigma, FillParams().scale) == ("idw", 5.0, 1.0)
+    np.testing.assert_allclose(FillParams(weighting="exponential").weights()(d), np.exp(-d))
+
+
+def test_fill_options_say_their_defaults_and_where_they_come_from(capsys):
+    """Each of fill's options names its default, the same as the parameters' dataclasses (the
+    one place defaults live), and whether it is the paper's or ours."""
+    from fusion.cli import _parser
+    from fusion.segmentation import SegmentationParams
+
+    with pytest.raises(SystemExit):
+        main(["fill", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    fill = FillParams()
+    selection = SelectionParams()
+    expected = {"threshold": SegmentationParams().threshold, "ring": selection.ring,
+                "min_ring_ratio": selection.min_ring_ratio,
+                "max_inside_ratio": selection.max_inside_ratio,
+                "weighting": fill.weighting, "sigma": fill.sigma, "scale": fill.scale,
+                "min_region": SegmentationParams().min_region}
+    for command in ("fill", "run"):
+        sub = next(a for a in _parser()._actions if a.dest == "command").choices[command]
+        actions = {a.dest: a for a in sub._actions}
+        for dest, value in expected.items():
+            action = actions[dest]
+            assert action.default == value, (command, dest)
+            assert "(default" in action.help and ("paper's" in action.help
+                                                  or "ours" in action.help), (command, dest)
+            shown = f"{value:g}" if isinstance(value, float) else str(value)
+            if value is not None:
+                assert f"default {shown}" in action.help.replace("0.30", "0.3"), (dest, shown)
+    assert "(default 1, the paper's exp(-d))" in text
+
+
 @pytest.mark.parametrize("weights", [inverse_distance_weights, gaussian_weights,
                                      exponential_weights])
 def test_weightings_refuse_negative_or_nan_distances(weights):
@@ -80,8 +124,7 @@ def _one_pixel_between_two_points(width=4):
     ("idw", (1 * 1 + 0.5 * 2) / 1.5),
     ("gaussian", (np.exp(-1 / 50) * 1 + np.exp(-4 / 50) * 2) / (np.exp(-1 / 50)
                                                                   + np.exp(-4 / 50))),
-    ("exponential", (np.exp(-1 / 5) * 1 + np.exp(-2 / 5) * 2) / (np.exp(-1 / 5)
-                                                                 + np.exp(-2 / 5))),
+    ("exponential", (np.exp(-1) * 1 + np.exp(-2) * 2) / (np.exp(-1) + np.exp(-2))),
 ])
 def test_tiny_fill_matches_hand_computed_weighted_mean(weighting, expected):
     labels, sparse = _one_pixel_between_two_points()
@@ -362,6 +405,20 @@ def test_gaussian_weights_far_from_every_point_do_not_underflow():
     np.testing.assert_allclose(dense[0, 2:], 2.0 - 1.0 / (1.0 + np.exp((2 * x - 1) / 50.0)),
                                rtol=1e-6)
     assert gaussian_weights(299.0) == 0.0 and gaussian_weights(298.0) == 0.0
+
+
+def test_exponential_weights_far_from_every_point_do_not_underflow():
+    """Points at x = 0 (1 m) and x = 1 (2 m), the paper's exp(-d): pixel x >= 1 weighs them
+    exp(-x) and exp(-(x - 1)), so its depth is (1 + 2 e) / (1 + e) at every x, even where both
+    weights are 0.0 in float64 (x > ~745)."""
+    labels = np.zeros((1, 1000), np.int32)
+    labels[0, 2:] = 1
+    sparse = np.zeros((1, 1000), np.float32)
+    sparse[0, :2] = [1.0, 2.0]
+    dense = fill_regions(labels, sparse, select_regions(labels, sparse),
+                         FillParams(weighting="exponential"))
+    np.testing.assert_allclose(dense[0, 2:], (1 + 2 * np.e) / (1 + np.e), rtol=1e-6)
+    assert exponential_weights(999.0) == 0.0
 
 
 # --------------------------------------------------------------------------- bad input
