@@ -54,12 +54,10 @@ import numpy as np
 
 from fusion.segmentation import region_contours
 
-__all__ = ["FillParams", "RegionStats", "SelectionParams", "exponential_weights",
+__all__ = ["WEIGHTINGS", "FillParams", "RegionStats", "SelectionParams", "Weighting",
+           "exponential_weights",
            "fill_regions", "filling_score", "gaussian_weights", "inverse_distance_weights",
            "select_regions"]
-
-WEIGHTINGS = ("idw", "gaussian", "exponential")
-"""Names accepted by ``FillParams.weighting``."""
 
 _UNDERFLOW = 1e-280
 """Sum of weights below which a pixel is recomputed in the log domain."""
@@ -130,6 +128,68 @@ def exponential_weights(d, scale: float = 1.0) -> np.ndarray:
     return np.exp(-_distances(d) / scale)
 
 
+@numba.njit(cache=True)
+def _log_weight(d2, code, parameter):  # pragma: no cover - compiled
+    """log w of a squared pixel distance ``d2``: the log form of the weighting ``code``."""
+    if code == 1:                                      # Gaussian, sigma = parameter
+        return -d2 / (2.0 * parameter * parameter)
+    if code == 2:                                      # exponential, scale = parameter
+        return -np.sqrt(d2) / parameter
+    return -0.5 * np.log(max(d2, 1.0))                 # inverse distance
+
+
+@numba.njit(cache=True)
+def _log_weights(d2, code, parameter):  # pragma: no cover - compiled
+    out = np.empty(d2.shape[0])
+    for i in range(d2.shape[0]):
+        out[i] = _log_weight(d2[i], code, parameter)
+    return out
+
+
+@dataclass(frozen=True)
+class Weighting:
+    """A weighting of the pixel distance, in the two forms the filling uses.
+
+    :meth:`weights` (the public functions above) fills the tabulated weights; :meth:`log_weights`
+    (compiled, as the filling's log-domain kernel calls it) recomputes the pixels where the sum
+    of the weights underflows. ``log_weights == log(weights)`` for every weighting (tested).
+
+    Attributes
+    ----------
+    name : str
+        Its name in ``FillParams.weighting`` and ``--weighting``.
+    function : callable
+        The linear form, ``function(d, *parameter)``.
+    parameter : str or None
+        The ``FillParams`` attribute holding its length (``"sigma"``, ``"scale"``) or None.
+    code : int
+        Selects its log form in the compiled kernels.
+    """
+
+    name: str
+    function: Callable[..., np.ndarray]
+    parameter: str | None
+    code: int
+
+    def weights(self, d, parameter: float | None = None) -> np.ndarray:
+        """``w(d)``: float64 ndarray of d's shape (d in pixels, >= 0)."""
+        return self.function(d) if self.parameter is None else self.function(d, parameter)
+
+    def log_weights(self, d, parameter: float | None = None) -> np.ndarray:
+        """``log w(d)``: float64 ndarray of d's shape, finite where ``w(d)`` underflows."""
+        d = _distances(d)
+        if self.parameter is not None:
+            self.function(0.0, parameter)              # the same checks of the parameter
+        value = 0.0 if parameter is None else float(parameter)
+        return _log_weights((d * d).ravel(), self.code, value).reshape(d.shape)
+
+
+WEIGHTINGS = {w.name: w for w in (Weighting("idw", inverse_distance_weights, None, 0),
+                                  Weighting("gaussian", gaussian_weights, "sigma", 1),
+                                  Weighting("exponential", exponential_weights, "scale", 2))}
+"""The weightings by name, as ``FillParams.weighting`` accepts them (iterates over the names)."""
+
+
 # --------------------------------------------------------------------------- parameters
 
 @dataclass(frozen=True)
@@ -194,13 +254,15 @@ class FillParams:
         if not (np.isfinite(self.scale) and self.scale > 0):
             raise ValueError(f"scale must be a finite number > 0 pixels, got {self.scale}")
 
+    @property
+    def length(self) -> float | None:
+        """The chosen weighting's length parameter, pixels (None for ``idw``)."""
+        name = WEIGHTINGS[self.weighting].parameter
+        return None if name is None else float(getattr(self, name))
+
     def weights(self) -> Callable[[np.ndarray], np.ndarray]:
         """The weighting as a function of the pixel distance, ``w(d)``."""
-        if self.weighting == "gaussian":
-            return partial(gaussian_weights, sigma=self.sigma)
-        if self.weighting == "exponential":
-            return partial(exponential_weights, scale=self.scale)
-        return inverse_distance_weights
+        return partial(WEIGHTINGS[self.weighting].weights, parameter=self.length)
 
 
 @dataclass(frozen=True, eq=False)
@@ -458,15 +520,6 @@ def _fill_runs(run_y, run_x0, run_len, run_label, start, reg_y, reg_x, reg_d, ta
                 out[y, x0 + i] = np.nan                # recomputed in the log domain
 
 
-@numba.njit(cache=True)
-def _log_weight(d, kind, parameter):  # pragma: no cover - compiled
-    if kind == 1:
-        return -(d * d) / (2.0 * parameter * parameter)
-    if kind == 2:
-        return -d / parameter
-    return -np.log(max(d, 1.0))
-
-
 @numba.njit(cache=True, fastmath=True)
 def _nearest_d2(y, x, reg_y, reg_x):  # pragma: no cover - compiled
     nearest = np.inf
@@ -478,7 +531,7 @@ def _nearest_d2(y, x, reg_y, reg_x):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, parallel=True)
-def _fill_log_domain(pix_y, pix_x, labels, start, reg_y, reg_x, reg_d, kind, parameter,
+def _fill_log_domain(pix_y, pix_x, labels, start, reg_y, reg_x, reg_d, code, parameter,
                      out):  # pragma: no cover - compiled
     """Normalised weighted means relative to each pixel's largest weight (its nearest point)."""
     for p in numba.prange(pix_y.shape[0]):
@@ -487,16 +540,12 @@ def _fill_log_domain(pix_y, pix_x, labels, start, reg_y, reg_x, reg_d, kind, par
         lab = labels[pix_y[p], pix_x[p]]
         lo = start[lab]
         hi = start[lab + 1]
-        top = _log_weight(np.sqrt(_nearest_d2(y, x, reg_y[lo:hi], reg_x[lo:hi])), kind,
-                          parameter)
+        top = _log_weight(_nearest_d2(y, x, reg_y[lo:hi], reg_x[lo:hi]), code, parameter)
         num = 0.0
         den = 0.0
         for j in range(lo, hi):
             d2 = (y - reg_y[j]) ** 2 + (x - reg_x[j]) ** 2
-            if kind == 1:
-                log_w = -d2 / (2.0 * parameter * parameter)
-            else:
-                log_w = _log_weight(np.sqrt(d2), kind, parameter)
+            log_w = _log_weight(d2, code, parameter)
             if log_w - top > -750.0:                   # exp() of less is 0.0 in float64
                 w = np.exp(log_w - top)
                 num += w * reg_d[j]
@@ -566,10 +615,10 @@ def fill_regions(labels: np.ndarray, sparse_depth: np.ndarray, regions: RegionSt
                sparse, out, _UNDERFLOW)
     pix_y, pix_x = np.nonzero(np.isnan(out))
     if len(pix_y):
-        kind = WEIGHTINGS.index(params.weighting)
-        parameter = params.sigma if params.weighting == "gaussian" else params.scale
+        length = params.length
         _fill_log_domain(pix_y, pix_x, labels, start, reg_y.astype(np.float64),
-                         reg_x.astype(np.float64), reg_d, kind, float(parameter), out)
+                         reg_x.astype(np.float64), reg_d, WEIGHTINGS[params.weighting].code,
+                         0.0 if length is None else length, out)
     return out
 
 

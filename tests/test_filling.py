@@ -72,6 +72,24 @@ def test_default_weightings_are_the_papers():
     np.testing.assert_allclose(FillParams(weighting="exponential").weights()(d), np.exp(-d))
 
 
+@pytest.mark.parametrize("name, length", [("idw", None), ("gaussian", 5.0), ("gaussian", 2.0),
+                                          ("exponential", 1.0), ("exponential", 4.0)])
+def test_each_weighting_knows_its_linear_and_log_forms(name, length):
+    """The log form the filling falls back on where sums underflow is the log of the linear
+    form, where that is representable, and finite beyond (d up to 2,000 px)."""
+    weighting = WEIGHTINGS[name]
+    d = np.array([0.0, 0.3, 1.0, 1.5, 7.0, 40.0])
+    np.testing.assert_allclose(weighting.log_weights(d, length),
+                               np.log(weighting.weights(d, length)), rtol=1e-12, atol=1e-12)
+    far = np.array([[150.0, 800.0, 2000.0]])
+    assert weighting.log_weights(far, length).shape == (1, 3)
+    assert np.isfinite(weighting.log_weights(far, length)).all()
+    params = FillParams(weighting=name, **({} if length is None else
+                                           {weighting.parameter: length}))
+    assert params.length == length
+    np.testing.assert_array_equal(params.weights()(d), weighting.weights(d, length))
+
+
 def test_fill_options_say_their_defaults_and_where_they_come_from(capsys):
     """Each of fill's options names its default, the same as the parameters' dataclasses (the
     one place defaults live), and whether it is the paper's or ours."""
