@@ -325,21 +325,29 @@ def _add_map_options(parser: argparse.ArgumentParser) -> None:
 
 def _add_dense_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threshold", type=float, default=3.0,
-                        help="region growing threshold, gray levels (default 3)")
+                        help="region growing threshold, gray levels (default 3, the paper's)")
     parser.add_argument("--min-region", type=int, default=None,
-                        help="smallest region kept, pixels (default max(20, Res / 1000))")
+                        help="smallest region kept, pixels (default max(20, Res / 1000), ours: "
+                             "the paper ignores 'small regions' without a size)")
     parser.add_argument("--ring", type=int, default=3,
-                        help="ring around a region where its map points are counted, px (3)")
+                        help="half-width of the band on both sides of a region's contour where "
+                             "its map points are counted, px (default 3, the paper's "
+                             "'3-pixel ring')")
     parser.add_argument("--min-ring-ratio", type=float, default=0.30,
-                        help="ring map points per contour pixel needed to fill (0.30)")
+                        help="band map points per contour pixel needed to fill (default 0.30, "
+                             "the paper's '30 %% of the contour length')")
     parser.add_argument("--max-inside-ratio", type=float, default=0.05,
-                        help="map points inside per region pixel allowed (0.05)")
+                        help="map points inside, off the band, per region pixel allowed "
+                             "(default 0.05, the paper's '5 %% of the region size')")
     parser.add_argument("--weighting", choices=("idw", "gaussian", "exponential"),
-                        default="idw", help="interpolation weights (default idw)")
+                        default="idw",
+                        help="interpolation weights (default idw, the first of the paper's "
+                             "Table 3, which finds the errors insensitive to it)")
     parser.add_argument("--sigma", type=float, default=5.0,
-                        help="Gaussian weights' sigma, px (5)")
-    parser.add_argument("--scale", type=float, default=5.0,
-                        help="exponential weights' decay length, px (5)")
+                        help="Gaussian weights' sigma, px (default 5, the paper's)")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="exponential weights' decay length, px: exp(-d / scale) "
+                             "(default 1, the paper's exp(-d))")
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -5,14 +5,14 @@
 the frame, form an *event image*: a sparse depth map, one depth per pixel (the nearest point where
 several land on one pixel), 0 elsewhere. Then:
 
-1. **Selection.** A region is filled when the map points around it are many and those inside it
-   few: at least ``min_ring_ratio`` x its contour length (default 30 %) of pixels holding a map
-   point in the ``ring``-pixel ring around it (default 3), and fewer than ``max_inside_ratio`` x its
-   area (default 5 %) inside it. Many points inside mean texture or a surface that is not smooth,
-   where the region is not one surface.
+1. **Selection.** A region is filled when the map points around its contour are many and those
+   inside it few: at least ``min_ring_ratio`` x its contour length (default 30 %) of pixels holding
+   a map point in its ``ring``-pixel band (default 3), and fewer than ``max_inside_ratio`` x its
+   area (default 5 %) inside it, away from the band. Many points inside mean texture or a surface
+   that is not smooth, where the region is not one surface.
 2. **Filling.** Each pixel ``p`` of a selected region gets the normalised weighted mean
    ``lambda * sum_k w(d_k) D(m_k)``, ``lambda = 1 / sum_k w(d_k)``, of the depths ``D(m_k)`` of
-   *all* the region's map points ``m_k`` (those of its ring and those inside it), ``d_k`` the
+   *all* the region's map points ``m_k`` (those of its band and those inside it), ``d_k`` the
    Euclidean pixel distance from ``p`` to ``m_k``; pixels holding a map point keep its depth.
 3. **Score.** The filling score beta compares the filled pixels with the image size.
 
@@ -20,16 +20,27 @@ Definitions chosen here, where the paper leaves a choice:
 
 * **Contour** of a region: its pixels with a 4-neighbour of another label (0 included) inside the
   image (:func:`fusion.segmentation.region_contours`); its length is their number.
-* **Ring** of a region: the pixels outside it within Chebyshev distance ``ring`` of one of its
-  pixels, i.e. its dilation by a ``(2 ring + 1)``-pixel square minus the region itself. The ring
-  may cross other regions and ignored (label 0) pixels; it stops at the image border.
+* **Ring** (band) of a region ``r``: the pixels within Chebyshev distance ``ring`` of one of its
+  contour pixels, on *both* sides of the contour, inside ``r`` and outside it. The paper counts the
+  projected events "in the 3-pixel ring of the region" because the DSI's discretisation puts them
+  near the contour, not on it, and on either side: a map point counts in ``r``'s ring when it
+  lies in this band, wherever it lands. The band may cross other regions and ignored (label 0)
+  pixels; it stops at the image border. Its outer half is exactly the dilation of ``r`` by a
+  ``(2 ring + 1)``-pixel square minus ``r``: a pixel ``p`` outside ``r`` within ``ring`` of a
+  pixel of ``r`` is within ``ring`` of a contour pixel, where a 4-path from that pixel to ``p``
+  inside ``p``'s ``(2 ring + 1)`` square leaves ``r``.
+* **Inside** points of ``r``: its map points that are *not* in its band. A region no wider than
+  ``2 ring + 1`` pixels lies entirely in its band and never has inside points.
+* **Points of a region** (those that interpolate it, step 2): the map points of its band and of
+  its interior, i.e. of its dilation by a ``(2 ring + 1)``-pixel square.
 * A region without a contour (one covering the whole image) is never selected: nothing bounds it.
 
 Weights are a function of the pixel distance only, so they are tabulated once per call over the
 integer offsets ``(dy, dx)`` with the public weighting functions, and the interpolation sums every
 map point of the region, without truncation. Where the sum of a pixel's weights underflows in
-float64 (Gaussian weights, sigma = 5, beyond ~180 px from every map point), the pixel is
-recomputed in the log domain, relative to its largest weight: the same normalised mean.
+float64 (Gaussian weights, sigma = 5, beyond ~180 px from every map point; the paper's
+exponential ``exp(-d)`` beyond ~640 px), the pixel is recomputed in the log domain, relative to
+its largest weight: the same normalised mean.
 """
 
 from __future__ import annotations
@@ -43,12 +54,10 @@ import numpy as np
 
 from fusion.segmentation import region_contours
 
-__all__ = ["FillParams", "RegionStats", "SelectionParams", "exponential_weights",
+__all__ = ["WEIGHTINGS", "FillParams", "RegionStats", "SelectionParams", "Weighting",
+           "exponential_weights",
            "fill_regions", "filling_score", "gaussian_weights", "inverse_distance_weights",
            "select_regions"]
-
-WEIGHTINGS = ("idw", "gaussian", "exponential")
-"""Names accepted by ``FillParams.weighting``."""
 
 _UNDERFLOW = 1e-280
 """Sum of weights below which a pixel is recomputed in the log domain."""
@@ -82,7 +91,9 @@ def inverse_distance_weights(d) -> np.ndarray:
 
 
 def gaussian_weights(d, sigma: float = 5.0) -> np.ndarray:
-    """Gaussian weights ``exp(-d^2 / (2 sigma^2))``.
+    """Gaussian weights ``exp(-d^2 / (2 sigma^2))``, the paper's with ``sigma`` 5 px.
+
+    The paper's factor ``1 / (sqrt(2 pi) sigma)`` is left out: it cancels in the normalised mean.
 
     Parameters
     ----------
@@ -99,13 +110,14 @@ def gaussian_weights(d, sigma: float = 5.0) -> np.ndarray:
     return np.exp(-(d * d) / (2.0 * sigma * sigma))
 
 
-def exponential_weights(d, scale: float = 5.0) -> np.ndarray:
-    """Exponential weights ``exp(-d / scale)``.
+def exponential_weights(d, scale: float = 1.0) -> np.ndarray:
+    """Exponential weights ``exp(-d / scale)``; the paper's are ``exp(-d)`` (``scale`` 1 px).
 
     Parameters
     ----------
     d : array_like of float, pixels, >= 0
     scale : float, pixels, > 0
+        Decay length (default 1, the paper's).
 
     Returns
     -------
@@ -114,6 +126,68 @@ def exponential_weights(d, scale: float = 5.0) -> np.ndarray:
     if not (np.isfinite(scale) and scale > 0):
         raise ValueError(f"scale must be a finite number > 0 pixels, got {scale}")
     return np.exp(-_distances(d) / scale)
+
+
+@numba.njit(cache=True)
+def _log_weight(d2, code, parameter):  # pragma: no cover - compiled
+    """log w of a squared pixel distance ``d2``: the log form of the weighting ``code``."""
+    if code == 1:                                      # Gaussian, sigma = parameter
+        return -d2 / (2.0 * parameter * parameter)
+    if code == 2:                                      # exponential, scale = parameter
+        return -np.sqrt(d2) / parameter
+    return -0.5 * np.log(max(d2, 1.0))                 # inverse distance
+
+
+@numba.njit(cache=True)
+def _log_weights(d2, code, parameter):  # pragma: no cover - compiled
+    out = np.empty(d2.shape[0])
+    for i in range(d2.shape[0]):
+        out[i] = _log_weight(d2[i], code, parameter)
+    return out
+
+
+@dataclass(frozen=True)
+class Weighting:
+    """A weighting of the pixel distance, in the two forms the filling uses.
+
+    :meth:`weights` (the public functions above) fills the tabulated weights; :meth:`log_weights`
+    (compiled, as the filling's log-domain kernel calls it) recomputes the pixels where the sum
+    of the weights underflows. ``log_weights == log(weights)`` for every weighting (tested).
+
+    Attributes
+    ----------
+    name : str
+        Its name in ``FillParams.weighting`` and ``--weighting``.
+    function : callable
+        The linear form, ``function(d, *parameter)``.
+    parameter : str or None
+        The ``FillParams`` attribute holding its length (``"sigma"``, ``"scale"``) or None.
+    code : int
+        Selects its log form in the compiled kernels.
+    """
+
+    name: str
+    function: Callable[..., np.ndarray]
+    parameter: str | None
+    code: int
+
+    def weights(self, d, parameter: float | None = None) -> np.ndarray:
+        """``w(d)``: float64 ndarray of d's shape (d in pixels, >= 0)."""
+        return self.function(d) if self.parameter is None else self.function(d, parameter)
+
+    def log_weights(self, d, parameter: float | None = None) -> np.ndarray:
+        """``log w(d)``: float64 ndarray of d's shape, finite where ``w(d)`` underflows."""
+        d = _distances(d)
+        if self.parameter is not None:
+            self.function(0.0, parameter)              # the same checks of the parameter
+        value = 0.0 if parameter is None else float(parameter)
+        return _log_weights((d * d).ravel(), self.code, value).reshape(d.shape)
+
+
+WEIGHTINGS = {w.name: w for w in (Weighting("idw", inverse_distance_weights, None, 0),
+                                  Weighting("gaussian", gaussian_weights, "sigma", 1),
+                                  Weighting("exponential", exponential_weights, "scale", 2))}
+"""The weightings by name, as ``FillParams.weighting`` accepts them (iterates over the names)."""
 
 
 # --------------------------------------------------------------------------- parameters
@@ -125,12 +199,14 @@ class SelectionParams:
     Attributes
     ----------
     ring : int, pixels
-        Width of the ring around a region where its bounding map points are counted (default 3).
+        Half-width of the band on both sides of a region's contour where its bounding map points
+        are counted (default 3, the paper's "3-pixel ring").
     min_ring_ratio : float
-        A region needs at least this many ring pixels holding a map point per contour pixel
-        (default 0.30).
+        A region needs at least this many band pixels holding a map point per contour pixel
+        (default 0.30, the paper's "30 % of the contour length").
     max_inside_ratio : float
-        A region needs fewer map points inside it than this share of its area (default 0.05).
+        A region needs fewer map points inside it (off its band) than this share of its area
+        (default 0.05, the paper's "5 % of the region size").
     """
 
     ring: int = 3
@@ -155,17 +231,19 @@ class FillParams:
     Attributes
     ----------
     weighting : str
-        ``"idw"`` (:func:`inverse_distance_weights`, default), ``"gaussian"``
+        ``"idw"`` (:func:`inverse_distance_weights`, default: the first of the paper's Table 3,
+        which finds the errors insensitive to the choice), ``"gaussian"``
         (:func:`gaussian_weights`) or ``"exponential"`` (:func:`exponential_weights`).
     sigma : float, pixels
-        Standard deviation of the Gaussian weights (default 5).
+        Standard deviation of the Gaussian weights (default 5, the paper's).
     scale : float, pixels
-        Decay length of the exponential weights (default 5).
+        Decay length of the exponential weights, ``exp(-d / scale)`` (default 1: the paper's
+        ``exp(-d)``).
     """
 
     weighting: str = "idw"
     sigma: float = 5.0
-    scale: float = 5.0
+    scale: float = 1.0
 
     def __post_init__(self) -> None:
         if self.weighting not in WEIGHTINGS:
@@ -176,13 +254,15 @@ class FillParams:
         if not (np.isfinite(self.scale) and self.scale > 0):
             raise ValueError(f"scale must be a finite number > 0 pixels, got {self.scale}")
 
+    @property
+    def length(self) -> float | None:
+        """The chosen weighting's length parameter, pixels (None for ``idw``)."""
+        name = WEIGHTINGS[self.weighting].parameter
+        return None if name is None else float(getattr(self, name))
+
     def weights(self) -> Callable[[np.ndarray], np.ndarray]:
         """The weighting as a function of the pixel distance, ``w(d)``."""
-        if self.weighting == "gaussian":
-            return partial(gaussian_weights, sigma=self.sigma)
-        if self.weighting == "exponential":
-            return partial(exponential_weights, scale=self.scale)
-        return inverse_distance_weights
+        return partial(WEIGHTINGS[self.weighting].weights, parameter=self.length)
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,14 +275,15 @@ class RegionStats:
     contour : (K + 1,) int64 ndarray, pixels
         Contour length: pixels with a 4-neighbour of another label (0 for index 0).
     ring_events : (K + 1,) int64 ndarray
-        Pixels of the ring holding a map point (0 for index 0).
+        Pixels of the band (both sides of the contour) holding a map point (0 for index 0).
     inside_events : (K + 1,) int64 ndarray
-        Pixels of the region holding a map point.
+        Pixels of the region off its band holding a map point (index 0: every map point on an
+        ignored pixel).
     selected : (K + 1,) bool ndarray
         Regions to fill (never index 0).
     ring : int, pixels
-        Ring width the counts were made with; :func:`fill_regions` interpolates from the map
-        points of the same ring.
+        Band half-width the counts were made with; :func:`fill_regions` interpolates from the
+        map points of the same band and of the region.
     """
 
     area: np.ndarray
@@ -249,7 +330,8 @@ def _check_inputs(labels, sparse_depth) -> tuple[np.ndarray, np.ndarray]:
 
 
 @numba.njit(cache=True)
-def _count_events(labels, ev_y, ev_x, n_labels, ring):  # pragma: no cover - compiled
+def _count_events(labels, contour_labels, ev_y, ev_x, n_labels, ring):  # pragma: no cover
+    """Map points in each region's band (within ``ring`` of a contour pixel) and off it inside."""
     height, width = labels.shape
     ring_events = np.zeros(n_labels, np.int64)
     inside = np.zeros(n_labels, np.int64)
@@ -257,16 +339,15 @@ def _count_events(labels, ev_y, ev_x, n_labels, ring):  # pragma: no cover - com
     for k in range(ev_y.shape[0]):
         y = ev_y[k]
         x = ev_x[k]
-        own = labels[y, x]
-        inside[own] += 1
-        seen[own] = k
         for yy in range(max(0, y - ring), min(height, y + ring + 1)):
             for xx in range(max(0, x - ring), min(width, x + ring + 1)):
-                lab = labels[yy, xx]
-                if seen[lab] != k:
+                lab = contour_labels[yy, xx]           # 0 off every contour
+                if lab != 0 and seen[lab] != k:
                     seen[lab] = k
                     ring_events[lab] += 1
-    ring_events[0] = 0
+        own = labels[y, x]
+        if seen[own] != k:                             # label 0 has no contour: always counted
+            inside[own] += 1
     return ring_events, inside
 
 
@@ -276,7 +357,8 @@ def select_regions(labels: np.ndarray, sparse_depth: np.ndarray,
 
     Region ``r`` is selected when ``contour[r] > 0``,
     ``ring_events[r] >= min_ring_ratio * contour[r]`` and
-    ``inside_events[r] < max_inside_ratio * area[r]`` (see the module's definitions).
+    ``inside_events[r] < max_inside_ratio * area[r]``, the ring being the band of half-width
+    ``params.ring`` on both sides of the contour (see the module's definitions).
 
     Parameters
     ----------
@@ -299,9 +381,12 @@ def select_regions(labels: np.ndarray, sparse_depth: np.ndarray,
     labels, sparse = _check_inputs(labels, sparse_depth)
     n_labels = int(labels.max()) + 1
     ev_y, ev_x = np.nonzero(sparse > 0)
-    ring_events, inside = _count_events(labels, ev_y, ev_x, n_labels, int(params.ring))
+    on_contour = region_contours(labels)
+    contour_labels = np.where(on_contour, labels, 0).astype(np.int32)
+    ring_events, inside = _count_events(labels, contour_labels, ev_y, ev_x, n_labels,
+                                        int(params.ring))
     area = np.bincount(labels.ravel(), minlength=n_labels).astype(np.int64)
-    contour = np.bincount(labels[region_contours(labels)], minlength=n_labels).astype(np.int64)
+    contour = np.bincount(labels[on_contour], minlength=n_labels).astype(np.int64)
     # Products rounded to 1e-9 so that decimal ratios act as written (0.07 x 100 is 7, not 7 + ulp).
     selected = ((contour > 0) & (ring_events >= np.round(params.min_ring_ratio * contour, 9))
                 & (inside < np.round(params.max_inside_ratio * area, 9)))
@@ -314,7 +399,11 @@ def select_regions(labels: np.ndarray, sparse_depth: np.ndarray,
 
 @numba.njit(cache=True)
 def _region_events(labels, ev_y, ev_x, selected, ring):  # pragma: no cover - compiled
-    """Events of each selected region (inside it or in its ring), as CSR: start, index."""
+    """Events of each selected region (in its band or inside it), as CSR: start, index.
+
+    The band and the region together are the region's dilation by a ``(2 ring + 1)`` square (see
+    the module's definitions), so a point belongs to every selected label in its square.
+    """
     height, width = labels.shape
     n_labels = selected.shape[0]
     start = np.zeros(n_labels + 1, np.int64)
@@ -431,15 +520,6 @@ def _fill_runs(run_y, run_x0, run_len, run_label, start, reg_y, reg_x, reg_d, ta
                 out[y, x0 + i] = np.nan                # recomputed in the log domain
 
 
-@numba.njit(cache=True)
-def _log_weight(d, kind, parameter):  # pragma: no cover - compiled
-    if kind == 1:
-        return -(d * d) / (2.0 * parameter * parameter)
-    if kind == 2:
-        return -d / parameter
-    return -np.log(max(d, 1.0))
-
-
 @numba.njit(cache=True, fastmath=True)
 def _nearest_d2(y, x, reg_y, reg_x):  # pragma: no cover - compiled
     nearest = np.inf
@@ -451,7 +531,7 @@ def _nearest_d2(y, x, reg_y, reg_x):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, parallel=True)
-def _fill_log_domain(pix_y, pix_x, labels, start, reg_y, reg_x, reg_d, kind, parameter,
+def _fill_log_domain(pix_y, pix_x, labels, start, reg_y, reg_x, reg_d, code, parameter,
                      out):  # pragma: no cover - compiled
     """Normalised weighted means relative to each pixel's largest weight (its nearest point)."""
     for p in numba.prange(pix_y.shape[0]):
@@ -460,16 +540,12 @@ def _fill_log_domain(pix_y, pix_x, labels, start, reg_y, reg_x, reg_d, kind, par
         lab = labels[pix_y[p], pix_x[p]]
         lo = start[lab]
         hi = start[lab + 1]
-        top = _log_weight(np.sqrt(_nearest_d2(y, x, reg_y[lo:hi], reg_x[lo:hi])), kind,
-                          parameter)
+        top = _log_weight(_nearest_d2(y, x, reg_y[lo:hi], reg_x[lo:hi]), code, parameter)
         num = 0.0
         den = 0.0
         for j in range(lo, hi):
             d2 = (y - reg_y[j]) ** 2 + (x - reg_x[j]) ** 2
-            if kind == 1:
-                log_w = -d2 / (2.0 * parameter * parameter)
-            else:
-                log_w = _log_weight(np.sqrt(d2), kind, parameter)
+            log_w = _log_weight(d2, code, parameter)
             if log_w - top > -750.0:                   # exp() of less is 0.0 in float64
                 w = np.exp(log_w - top)
                 num += w * reg_d[j]
@@ -483,8 +559,9 @@ def fill_regions(labels: np.ndarray, sparse_depth: np.ndarray, regions: RegionSt
 
     Each pixel of a selected region without a map point gets
     ``sum_k w(d_k) D(m_k) / sum_k w(d_k)`` over every map point ``m_k`` inside the region or in
-    its ``regions.ring``-pixel ring, ``d_k`` the Euclidean pixel distance and ``w`` the weighting
-    of ``params``. Sums run in float64 over all the points (no neighbourhood truncation).
+    its band of half-width ``regions.ring`` (both sides of its contour), ``d_k`` the Euclidean
+    pixel distance and ``w`` the weighting of ``params``. Sums run in float64 over all the
+    points (no neighbourhood truncation).
 
     Parameters
     ----------
@@ -538,10 +615,10 @@ def fill_regions(labels: np.ndarray, sparse_depth: np.ndarray, regions: RegionSt
                sparse, out, _UNDERFLOW)
     pix_y, pix_x = np.nonzero(np.isnan(out))
     if len(pix_y):
-        kind = WEIGHTINGS.index(params.weighting)
-        parameter = params.sigma if params.weighting == "gaussian" else params.scale
+        length = params.length
         _fill_log_domain(pix_y, pix_x, labels, start, reg_y.astype(np.float64),
-                         reg_x.astype(np.float64), reg_d, kind, float(parameter), out)
+                         reg_x.astype(np.float64), reg_d, WEIGHTINGS[params.weighting].code,
+                         0.0 if length is None else length, out)
     return out
 
 

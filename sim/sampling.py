@@ -27,13 +27,27 @@ import numpy as np
 
 from sim.camera import Camera
 
-__all__ = ["Sample", "SamplingParams", "SamplingStats", "adaptive_samples", "log_rate_bound",
+__all__ = ["AT_MAX_RATE_NOTE", "AT_MAX_RATE_WARN_SHARE", "Sample", "SamplingParams",
+           "SamplingStats", "adaptive_samples", "log_rate_bound", "max_rate_warning",
            "motion_field"]
 
 MARGIN = 0.75
 """The prediction aims at MARGIN * lam * C: a slight underestimate then costs no refinement."""
 SPLIT = 0.25
 """A violating change is continuous when its first half holds between SPLIT and 1 - SPLIT of it."""
+AT_MAX_RATE_WARN_SHARE = 0.01
+"""Share of intervals still breaking the bound at the maximum rate above which
+:func:`max_rate_warning` warns: a few such intervals are sub-pixel-sample steps that happen to
+split (the checker scene of the tests has at most one in 200), more is a scene the rate cannot
+resolve."""
+AT_MAX_RATE_NOTE = (
+    "intervals_at_max_rate: sampling intervals (of samples - 1) that still changed some pixel's "
+    "log intensity by more than lam * C after being halved down to the maximum rate "
+    "(sampling.max_rate); the emulator interpolates across them, so their events are spread "
+    "over a change larger than the bound. Many of them mean a point light or specular "
+    "highlight, or a texture finer than the pixels; above 1 % of the intervals simulate says "
+    "so on stderr (max_rate_warning).")
+"""The sentence ``sequence.json`` writes beside ``intervals_at_max_rate``."""
 
 
 @dataclass(frozen=True)
@@ -106,6 +120,43 @@ class SamplingStats:
     refined: int = 0
     steps: int = 0
     at_max_rate: int = 0
+
+
+def max_rate_warning(at_max_rate: int, intervals: int, max_rate: float, bound: float,
+                     share: float = AT_MAX_RATE_WARN_SHARE) -> str | None:
+    """The line to print when too many intervals still break the bound at the maximum rate.
+
+    Parameters
+    ----------
+    at_max_rate : int
+        Intervals that broke the bound at the maximum rate (``SamplingStats.at_max_rate``).
+    intervals : int
+        Intervals sampled (accepted samples - 1).
+    max_rate : float, Hz
+        The maximum sampling rate.
+    bound : float, log units
+        The bound, ``lam * C``.
+    share : float
+        Warn when ``at_max_rate > share * intervals`` (default :data:`AT_MAX_RATE_WARN_SHARE`).
+
+    Returns
+    -------
+    str or None
+        One line naming the count, the share, the bound, the rate, the likely causes and the
+        remedies; None when there is nothing to say.
+    """
+    if not (0 <= at_max_rate <= intervals):
+        raise ValueError(f"expected 0 <= at_max_rate <= intervals, got {at_max_rate} of "
+                         f"{intervals}")
+    if intervals == 0 or at_max_rate <= share * intervals:
+        return None
+    percent = 100.0 * at_max_rate / intervals
+    rate = f"{max_rate / 1000:g} kHz" if max_rate >= 1000 else f"{max_rate:g} Hz"
+    return (f"{at_max_rate:,} of {intervals:,} intervals ({percent:.0f} %) still changed log "
+            f"intensity by more than lambda*C = {bound:g} at the maximum rate {rate}: a point "
+            f"light / specular highlight or texture too fine for the event camera's pixels; "
+            f"their events are interpolated across larger changes; raise --max-rate "
+            f"(SamplingParams.max_rate) or prefilter the texture")
 
 
 def motion_field(camera: Camera, depth: np.ndarray, v_cam: np.ndarray, w_cam: np.ndarray

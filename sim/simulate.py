@@ -30,6 +30,7 @@ import io
 import json
 import os
 import platform
+import sys
 import time
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
@@ -53,7 +54,14 @@ from sim.frames import (
 )
 from sim.progress import progress as progress_stage
 from sim.render import Renderer
-from sim.sampling import Sample, SamplingParams, SamplingStats, adaptive_samples
+from sim.sampling import (
+    AT_MAX_RATE_NOTE,
+    Sample,
+    SamplingParams,
+    SamplingStats,
+    adaptive_samples,
+    max_rate_warning,
+)
 from sim.scene import Scene
 from sim.sequence import (
     atomic_output_dir,
@@ -233,6 +241,9 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
             event_info = _simulate_events(scene, renderer, tmp, start, end, events, sampling,
                                           event_formats, checkpoint, progress, timings)
             checkpoint.set_events_done(event_info)
+        if with_events and event_info.get("sampling_warning"):
+            print(f"simulate {scene.name}: warning: {event_info['sampling_warning']}",
+                  file=sys.stderr, flush=True)
         write_index(tmp / "images.txt", times, image_names)
         write_index(tmp / "depthmaps.txt", times, depth_names)
         cam = scene.camera
@@ -408,6 +419,9 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
         "midpoint_renders": stats.refined,
         "step_intervals": stats.steps,
         "intervals_at_max_rate": stats.at_max_rate,
+        "intervals_at_max_rate_note": AT_MAX_RATE_NOTE,
+        "sampling_warning": max_rate_warning(stats.at_max_rate, max(stats.accepted - 1, 0),
+                                             sampling.max_rate, sampling.lam * contrast),
         "event_spp": scene.render.event_spp,
     }
 

@@ -34,13 +34,15 @@ def test_project_map_is_the_identity_at_the_reference_view_and_shifts_with_paral
 
 def _two_patch_scene():
     """A 40x30 frame: background 100 with a 12x10 square of 160; map points on the square's
-    one-pixel outer ring at 2 m (the square is a plane 2 m away), and a few far points on the
-    background's edge."""
+    one-pixel outer ring at 2 m (the square is a plane 2 m away), and 60 points of texture at
+    3 m on the background's top rows, off the square's band: 60 >= 5 % of its 1,080 pixels, so
+    the background, whose contour is the square's outline, is not filled from it."""
     frame = np.full((30, 40), 100, np.uint8)
     frame[10:20, 14:26] = 160
     sparse = np.zeros((30, 40), np.float32)
     sparse[9, 13:27] = sparse[20, 13:27] = 2.0
     sparse[9:21, 13] = sparse[9:21, 26] = 2.0
+    sparse[0:5:2, 0:40:2] = 3.0
     return frame, sparse
 
 
@@ -86,7 +88,7 @@ def test_fill_of_any_frame_through_the_command_line(tmp_path, capsys):
     filled = cv2.imread(str(out / "filled_mask.png"), cv2.IMREAD_GRAYSCALE)
     assert (filled > 0).sum() == 120
     printed = capsys.readouterr().out
-    assert "N1 = 48 (48 in the frame), N2 = 168" in printed
+    assert "N1 = 108 (108 in the frame), N2 = 228" in printed
     # every printed error carries its coverage: the filled square is 120 of the 1200 true pixels
     assert ("filled pixels: MAE 0.00 cm on 120 px (completeness 10.0 %), precision 100.0 % "
             "within 5 %") in printed

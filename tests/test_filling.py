@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fusion.cli import main
 from fusion.filling import (
     WEIGHTINGS,
     FillParams,
@@ -26,14 +27,17 @@ RES_DAVIS = 240 * 180
 
 # --------------------------------------------------------------------------- filling score
 
-def test_filling_score_reproduces_table_1():
-    """boxes_6dof in the paper's Table 1: N1 2289, N2 10489 at 240x180 -> beta 0.1898.
-
-    The other three rows' beta (dynamic 0.1587, poster 0.3377, shapes 0.0274) are known here
-    but not their N1 and N2, so only this row can be reproduced from its counts.
-    """
-    assert round(filling_score(2289, 10489, RES_DAVIS), 4) == 0.1898
-    assert filling_score(2289, 10489, RES_DAVIS) == pytest.approx(8200 / (43200 + 2289 / 43200))
+@pytest.mark.parametrize("sequence, n1, n2, beta", [
+    ("boxes_6dof", 2289, 10489, 0.1898),
+    ("dynamic_6dof", 2270, 9125, 0.1587),
+    ("poster_6dof", 4748, 19338, 0.3377),
+    ("shapes_6dof", 954, 2137, 0.0274),
+])
+def test_filling_score_reproduces_table_1(sequence, n1, n2, beta):
+    """Every row of the paper's Table 1 (../shared/paper/README.md): its N1 and N2 at the
+    DAVIS240C's 240 x 180 = 43,200 pixels give its beta to the 4 decimals it prints."""
+    assert round(filling_score(n1, n2, RES_DAVIS), 4) == beta
+    assert filling_score(n1, n2, RES_DAVIS) == pytest.approx((n2 - n1) / (43200 + n1 / 43200))
 
 
 def test_filling_score_extremes_and_bad_counts():
@@ -58,6 +62,64 @@ def test_weightings_by_hand():
     assert exponential_weights(5.0, scale=5.0) == pytest.approx(np.exp(-1.0))
 
 
+def test_default_weightings_are_the_papers():
+    """The paper: w = exp(-d) (d in px), Gaussian sigma = 5 px (its 1 / (sqrt(2 pi) sigma)
+    cancels in the normalised mean)."""
+    d = np.array([0.0, 0.5, 1.0, 2.0, 7.5])
+    np.testing.assert_allclose(exponential_weights(d), np.exp(-d))
+    np.testing.assert_allclose(gaussian_weights(d), np.exp(-d ** 2 / 50.0))
+    assert (FillParams().weighting, FillParams().sigma, FillParams().scale) == ("idw", 5.0, 1.0)
+    np.testing.assert_allclose(FillParams(weighting="exponential").weights()(d), np.exp(-d))
+
+
+@pytest.mark.parametrize("name, length", [("idw", None), ("gaussian", 5.0), ("gaussian", 2.0),
+                                          ("exponential", 1.0), ("exponential", 4.0)])
+def test_each_weighting_knows_its_linear_and_log_forms(name, length):
+    """The log form the filling falls back on where sums underflow is the log of the linear
+    form, where that is representable, and finite beyond (d up to 2,000 px)."""
+    weighting = WEIGHTINGS[name]
+    d = np.array([0.0, 0.3, 1.0, 1.5, 7.0, 40.0])
+    np.testing.assert_allclose(weighting.log_weights(d, length),
+                               np.log(weighting.weights(d, length)), rtol=1e-12, atol=1e-12)
+    far = np.array([[150.0, 800.0, 2000.0]])
+    assert weighting.log_weights(far, length).shape == (1, 3)
+    assert np.isfinite(weighting.log_weights(far, length)).all()
+    params = FillParams(weighting=name, **({} if length is None else
+                                           {weighting.parameter: length}))
+    assert params.length == length
+    np.testing.assert_array_equal(params.weights()(d), weighting.weights(d, length))
+
+
+def test_fill_options_say_their_defaults_and_where_they_come_from(capsys):
+    """Each of fill's options names its default, the same as the parameters' dataclasses (the
+    one place defaults live), and whether it is the paper's or ours."""
+    from fusion.cli import _parser
+    from fusion.segmentation import SegmentationParams
+
+    with pytest.raises(SystemExit):
+        main(["fill", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    fill = FillParams()
+    selection = SelectionParams()
+    expected = {"threshold": SegmentationParams().threshold, "ring": selection.ring,
+                "min_ring_ratio": selection.min_ring_ratio,
+                "max_inside_ratio": selection.max_inside_ratio,
+                "weighting": fill.weighting, "sigma": fill.sigma, "scale": fill.scale,
+                "min_region": SegmentationParams().min_region}
+    for command in ("fill", "run"):
+        sub = next(a for a in _parser()._actions if a.dest == "command").choices[command]
+        actions = {a.dest: a for a in sub._actions}
+        for dest, value in expected.items():
+            action = actions[dest]
+            assert action.default == value, (command, dest)
+            assert "(default" in action.help and ("paper's" in action.help
+                                                  or "ours" in action.help), (command, dest)
+            shown = f"{value:g}" if isinstance(value, float) else str(value)
+            if value is not None:
+                assert f"default {shown}" in action.help.replace("0.30", "0.3"), (dest, shown)
+    assert "(default 1, the paper's exp(-d))" in text
+
+
 @pytest.mark.parametrize("weights", [inverse_distance_weights, gaussian_weights,
                                      exponential_weights])
 def test_weightings_refuse_negative_or_nan_distances(weights):
@@ -80,8 +142,7 @@ def _one_pixel_between_two_points(width=4):
     ("idw", (1 * 1 + 0.5 * 2) / 1.5),
     ("gaussian", (np.exp(-1 / 50) * 1 + np.exp(-4 / 50) * 2) / (np.exp(-1 / 50)
                                                                   + np.exp(-4 / 50))),
-    ("exponential", (np.exp(-1 / 5) * 1 + np.exp(-2 / 5) * 2) / (np.exp(-1 / 5)
-                                                                 + np.exp(-2 / 5))),
+    ("exponential", (np.exp(-1) * 1 + np.exp(-2) * 2) / (np.exp(-1) + np.exp(-2))),
 ])
 def test_tiny_fill_matches_hand_computed_weighted_mean(weighting, expected):
     labels, sparse = _one_pixel_between_two_points()
@@ -153,8 +214,11 @@ def test_plane_from_a_frame_is_segmented_selected_and_filled():
     outline &= labels != 2
     sparse = np.where(outline, 2.5, 0.0).astype(np.float32)
     regions = select_regions(labels, sparse)
-    assert regions.selected.tolist() == [False, False, True]   # the outside has no ring
-    dense = fill_regions(labels, sparse, regions)
+    assert regions.selected[2]
+    # The outside's contour (the image border is none) is the outline itself, every pixel of it
+    # a map point in its band: by the paper's rule it is selected too. Fill the square alone.
+    assert regions.selected[1] and regions.ring_events[1] >= regions.contour[1]
+    dense = fill_regions(labels, sparse, replace(regions, selected=np.array([False, False, True])))
     assert (dense[10:30, 15:40] == 2.5).all()
     assert (dense[outline] == 2.5).all() and (dense[(labels == 1) & ~outline] == 0).all()
     n1, n2 = int((sparse > 0).sum()), int((dense > 0).sum())
@@ -162,23 +226,28 @@ def test_plane_from_a_frame_is_segmented_selected_and_filled():
 
 
 def test_selection_rules_at_their_edges():
-    """10 x 10 square: area 100, contour 36; ring rule '>=', inside rule '<'."""
-    labels, sparse, square = _square_bounded_by_points()
+    """20 x 20 square: area 100, contour 76; ring rule '>=', inside rule '<'. With ring 3 the
+    band covers the square's rows and columns 0-3 and 16-19: its inside is the 12 x 12 centre."""
+    labels, sparse, square = _square_bounded_by_points(size=20)
     ring_pixels = np.argwhere(sparse > 0)
-    params = SelectionParams(min_ring_ratio=0.5)                     # needs 18 of 36
+    params = SelectionParams(min_ring_ratio=0.5)                     # needs 38 of 76
     few = np.zeros_like(sparse)
-    few[tuple(ring_pixels[:18].T)] = 1.7
+    few[tuple(ring_pixels[:38].T)] = 1.7
     stats = select_regions(labels, few, params)
-    assert (stats.area[2], stats.contour[2], stats.ring_events[2]) == (100, 36, 18)
+    assert (stats.area[2], stats.contour[2], stats.ring_events[2]) == (400, 76, 38)
     assert stats.selected[2]
-    few[tuple(ring_pixels[17])] = 0.0
+    few[tuple(ring_pixels[37])] = 0.0
     assert not select_regions(labels, few, params).selected[2]
     inside = sparse.copy()
-    inside[square][[1, 3, 5, 7], 4] = 1.7                            # 4 < 5 % of 100
-    assert select_regions(labels, inside).selected[2]
-    inside[square][8, 8] = 1.7                                       # 5 is not < 5
+    centre = inside[square][4:16, 4:16]                              # a view: writes go through
+    centre.flat[:19] = 1.7                                           # 19 < 5 % of 400
+    inside[square][3, 10] = 1.7                                      # in the band: not inside
     stats = select_regions(labels, inside)
-    assert stats.inside_events[2] == 5 and not stats.selected[2]
+    assert stats.inside_events[2] == 19 and stats.ring_events[2] == 84 + 1
+    assert stats.selected[2]
+    centre.flat[19] = 1.7                                            # 20 is not < 20
+    stats = select_regions(labels, inside)
+    assert stats.inside_events[2] == 20 and not stats.selected[2]
 
 
 def test_decimal_ratios_act_as_written():
@@ -190,24 +259,106 @@ def test_decimal_ratios_act_as_written():
     stats = select_regions(labels, sparse, SelectionParams(min_ring_ratio=0.07))
     assert (stats.area[2], stats.contour[2], stats.ring_events[2]) == (100, 100, 7)
     assert stats.selected[2]
-    sparse[4, 10:80:10] = 1.0                           # and 7 inside: 7 is not < 7 %
-    stats = select_regions(labels, sparse, SelectionParams(min_ring_ratio=0.07,
-                                                           max_inside_ratio=0.07))
-    assert stats.inside_events[2] == 7 and not stats.selected[2]
+    labels, sparse, square = _square_bounded_by_points(size=10)     # area 100; with ring 1 the
+    sparse[square][2:8, 2:8].flat[:7] = 1.7                          # inside is the 6 x 6 centre
+    stats = select_regions(labels, sparse, SelectionParams(ring=1, max_inside_ratio=0.07))
+    assert stats.inside_events[2] == 7 and not stats.selected[2]     # 7 is not < 7 %
 
 
 def test_region_with_too_few_ring_points_or_too_many_inside_is_not_filled():
-    labels, sparse, square = _square_bounded_by_points()
+    labels, sparse, square = _square_bounded_by_points(size=20)
     sparse_few = np.zeros_like(sparse)
-    sparse_few[5, 5:8] = 1.7                                         # 3 of 36 < 30 %
+    sparse_few[5, 5:27] = 1.7                                        # 22 of 76 < 30 %
     regions = select_regions(labels, sparse_few)
-    assert not regions.selected[2]
-    np.testing.assert_array_equal(fill_regions(labels, sparse_few, regions), sparse_few)
+    assert regions.ring_events[2] == 22 and not regions.selected[2]
+    np.testing.assert_array_equal(fill_regions(labels, sparse_few, regions)[square],
+                                  sparse_few[square])
     crowded = sparse.copy()
-    crowded[square][::2, ::2] = 1.7                                  # 25 of 100 inside
+    crowded[square][::2, ::2] = 1.7                                  # 36 of them off the band
     regions = select_regions(labels, crowded)
-    assert not regions.selected[2]
-    np.testing.assert_array_equal(fill_regions(labels, crowded, regions), crowded)
+    assert regions.inside_events[2] == 36 and not regions.selected[2]   # 36 >= 5 % of 400
+    np.testing.assert_array_equal(fill_regions(labels, crowded, regions)[square],
+                                  crowded[square])
+
+
+# --------------------------------------------------------------------------- the band
+
+def _square_outline(n, top, size):
+    """Pixels of the outline of the size x size square whose top-left pixel is (top, top)."""
+    mask = np.zeros((n, n), bool)
+    mask[top:top + size, top:top + size] = True
+    mask[top + 1:top + size - 1, top + 1:top + size - 1] = False
+    return mask
+
+
+def _square_with_edge_points(size, offset, pad=8, depth=1.7):
+    """Region 2, a size x size square in region 1, map points on its outline moved ``offset`` px
+    outward (0: on its own contour pixels, -1: one pixel inside, +1: one pixel outside)."""
+    n = size + 2 * pad
+    labels = np.ones((n, n), np.int32)
+    labels[pad:pad + size, pad:pad + size] = 2
+    points = _square_outline(n, pad - offset, size + 2 * offset)
+    return labels, np.where(points, depth, 0.0).astype(np.float32)
+
+
+@pytest.mark.parametrize("side", ["on its contour", "one pixel outside", "half on each side"])
+def test_30_px_square_is_selected_wherever_its_edge_points_land(side):
+    """The paper counts the points in a 3-pixel ring because they land near the contour, on
+    either side: 116 points on the square's own contour pixels, 124 one pixel outward, or every
+    other one of each, all hold map points in the band and none inside."""
+    if side == "on its contour":
+        labels, sparse = _square_with_edge_points(30, 0)
+    elif side == "one pixel outside":
+        labels, sparse = _square_with_edge_points(30, +1)
+    else:
+        labels, on = _square_with_edge_points(30, 0)
+        _, out = _square_with_edge_points(30, +1)
+        parity = np.add.outer(np.arange(46), np.arange(46)) % 2
+        sparse = np.where(parity == 0, on, out)
+        assert 50 <= (on * (parity == 0) > 0).sum() <= 66            # about half on each side
+        assert 50 <= (out * (parity == 1) > 0).sum() <= 66
+    n_points = int((sparse > 0).sum())
+    stats = select_regions(labels, sparse)
+    assert (stats.area[2], stats.contour[2]) == (900, 116)
+    assert stats.ring_events[2] == n_points and stats.inside_events[2] == 0
+    assert stats.selected[2]
+    dense = fill_regions(labels, sparse, replace(stats, selected=np.array([False, False, True])))
+    assert (dense[8:38, 8:38] == np.float32(1.7)).all()             # a plane: filled exactly
+
+
+@pytest.mark.parametrize("size", [10, 30, 60, 100])
+@pytest.mark.parametrize("offset", [0, -1, -3])
+def test_squares_with_edge_points_on_the_inside_side_are_selected(size, offset):
+    """Edge points on the contour, one pixel in, or three (the band's inner edge): in the band,
+    not inside, whatever the square's size."""
+    labels, sparse = _square_with_edge_points(size, offset)
+    stats = select_regions(labels, sparse)
+    assert stats.ring_events[2] == (sparse > 0).sum() and stats.inside_events[2] == 0
+    assert stats.selected[2]
+    dense = fill_regions(labels, sparse, stats)
+    assert (dense[8:8 + size, 8:8 + size] == np.float32(1.7)).all()
+
+
+def test_band_is_ring_pixels_wide_on_the_inside():
+    """A point ``ring`` px inside the contour is in the band; one more pixel in, it is inside."""
+    labels, _ = _square_with_edge_points(30, 0)
+    for ring in (1, 3, 5):
+        for depth_in, in_band in ((ring, True), (ring + 1, False)):
+            sparse = np.zeros(labels.shape, np.float32)
+            sparse[8 + depth_in, 20] = 1.0                           # from the top edge, row 8
+            stats = select_regions(labels, sparse, SelectionParams(ring=ring))
+            assert (stats.ring_events[2], stats.inside_events[2]) == (int(in_band),
+                                                                      int(not in_band))
+
+
+def test_square_with_many_interior_points_is_still_rejected():
+    """Edge points on the contour (selected alone), plus 64 points every 3 px off the band:
+    64 >= 5 % of 900, textured, not one surface."""
+    labels, sparse = _square_with_edge_points(30, 0)
+    sparse[12:36:3, 12:36:3] = 2.0                         # rows/cols 12..33; the band ends at 11
+    stats = select_regions(labels, sparse)
+    assert stats.inside_events[2] == 64 and stats.ring_events[2] == 116
+    assert not stats.selected[2]
 
 
 def test_region_covering_the_image_is_never_selected():
@@ -220,7 +371,8 @@ def test_region_covering_the_image_is_never_selected():
 
 def test_fill_agrees_with_a_brute_force_reference():
     """Random regions and points against an independent NumPy implementation of the definitions:
-    ring = dilation by a (2 r + 1) square minus the region; weights over ring and inside points."""
+    contour = region pixels with a 4-neighbour of another label in the image, band = its
+    dilation by a (2 r + 1) square, inside = region off the band, weights over band and region."""
     rng = np.random.default_rng(4)
     frame = cv2.resize(rng.integers(0, 6, (6, 8)).astype(np.uint8) * 40, (48, 36),
                        interpolation=cv2.INTER_NEAREST)
@@ -229,24 +381,28 @@ def test_fill_agrees_with_a_brute_force_reference():
     edges = cv2.dilate(edges.astype(np.uint8), np.ones((2, 2), np.uint8)) > 0
     sparse = np.where(edges & (rng.random(edges.shape) < 0.7),
                       rng.uniform(1.0, 4.0, edges.shape), 0.0).astype(np.float32)
-    sparse[rng.random(edges.shape) < 0.01] = 2.0                     # a few inside points
-    params = SelectionParams(ring=2, min_ring_ratio=1.2, max_inside_ratio=0.35)  # 6x6 cells
+    sparse[rng.random(edges.shape) < 0.03] = 2.0                     # a few inside points
+    params = SelectionParams(ring=1, min_ring_ratio=1.2, max_inside_ratio=0.02)  # 6x6 cells
     stats = select_regions(labels, sparse, params)
     assert 3 <= stats.selected.sum() <= stats.n_regions - 3       # some filled, some not
+    assert (stats.inside_events[1:] > 0).sum() >= 3               # some with points inside
     dense = fill_regions(labels, sparse, stats, FillParams(weighting="exponential", scale=4.0))
     expected = sparse.astype(np.float64).copy()
     yy, xx = np.mgrid[:labels.shape[0], :labels.shape[1]]
-    kernel = np.ones((5, 5), np.uint8)
+    square = np.ones((3, 3), np.uint8)
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
     for lab in range(1, labels.max() + 1):
-        region = labels == lab
-        ring = (cv2.dilate(region.astype(np.uint8), kernel) > 0) & ~region
-        assert stats.ring_events[lab] == (ring & (sparse > 0)).sum()
-        assert stats.inside_events[lab] == (region & (sparse > 0)).sum()
+        region = (labels == lab).astype(np.uint8)
+        contour = (region > 0) & (cv2.erode(region, cross, borderType=cv2.BORDER_REPLICATE) == 0)
+        band = cv2.dilate(contour.astype(np.uint8), square) > 0
+        assert stats.contour[lab] == contour.sum()
+        assert stats.ring_events[lab] == (band & (sparse > 0)).sum()
+        assert stats.inside_events[lab] == ((region > 0) & ~band & (sparse > 0)).sum()
         if not stats.selected[lab]:
             continue
-        points = (ring | region) & (sparse > 0)
+        points = (band | (region > 0)) & (sparse > 0)
         py, px, pd = yy[points], xx[points], sparse[points].astype(np.float64)
-        fill = region & (sparse == 0)
+        fill = (region > 0) & (sparse == 0)
         d = np.hypot(yy[fill][:, None] - py[None], xx[fill][:, None] - px[None])
         w = np.exp(-d / 4.0)
         expected[fill] = (w * pd).sum(1) / w.sum(1)
@@ -267,6 +423,20 @@ def test_gaussian_weights_far_from_every_point_do_not_underflow():
     np.testing.assert_allclose(dense[0, 2:], 2.0 - 1.0 / (1.0 + np.exp((2 * x - 1) / 50.0)),
                                rtol=1e-6)
     assert gaussian_weights(299.0) == 0.0 and gaussian_weights(298.0) == 0.0
+
+
+def test_exponential_weights_far_from_every_point_do_not_underflow():
+    """Points at x = 0 (1 m) and x = 1 (2 m), the paper's exp(-d): pixel x >= 1 weighs them
+    exp(-x) and exp(-(x - 1)), so its depth is (1 + 2 e) / (1 + e) at every x, even where both
+    weights are 0.0 in float64 (x > ~745)."""
+    labels = np.zeros((1, 1000), np.int32)
+    labels[0, 2:] = 1
+    sparse = np.zeros((1, 1000), np.float32)
+    sparse[0, :2] = [1.0, 2.0]
+    dense = fill_regions(labels, sparse, select_regions(labels, sparse),
+                         FillParams(weighting="exponential"))
+    np.testing.assert_allclose(dense[0, 2:], (1 + 2 * np.e) / (1 + np.e), rtol=1e-6)
+    assert exponential_weights(999.0) == 0.0
 
 
 # --------------------------------------------------------------------------- bad input

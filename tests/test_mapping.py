@@ -34,7 +34,24 @@ def test_map_of_a_plane_comes_back_at_its_depth(plane_sequence, tmp_path):
     assert f"element vertex {meta['N1']}" in header and "T_world_ref" in header
 
 
-def test_real_ecd_slider_map(ecd_slider, tmp_path):
+# Windows of slider_depth's frame (sensor pixels, rows then columns) around objects whose order
+# in depth the frame shows by occlusion: the box covers the dartboard's lower-left corner, the
+# ball covers the box's lower-right corner. So: dartboard behind box behind ball.
+DARTBOARD = (slice(2, 75), slice(165, 228))
+BOX = (slice(62, 118), slice(124, 162))                         # above the ball
+BALL = (slice(126, 150), slice(145, 175))
+
+
+def _median_depth(depth, window):
+    values = depth[window]
+    values = values[values > 0]
+    assert len(values) >= 30, f"only {len(values)} map points in {window}"
+    return float(np.median(values))
+
+
+def test_real_ecd_slider_map_puts_the_objects_in_their_order(ecd_slider, tmp_path):
+    """The real recording has no dense ground truth, but its frame shows which object hides
+    which: the map must put the dartboard well behind the box and the ball before the box."""
     out = tmp_path / "real"
     assert main(["map", str(ecd_slider), "--out", str(out), "--min-depth", "0.47",
                  "--max-depth", "2.4", "--quiet"]) == 0
@@ -43,8 +60,38 @@ def test_real_ecd_slider_map(ecd_slider, tmp_path):
     assert meta["events_used"] == 50000 - 3251
     depth = read_depth(out / "semidense_depth.exr")
     assert meta["N1"] == int(np.count_nonzero(depth)) > 200
-    assert depth[depth > 0].min() >= 0.47 - 1e-6 and depth.max() <= 2.4 + 1e-6
     assert "errors" not in meta                                  # no dense ground truth
+    dartboard, box, ball = (_median_depth(depth, w) for w in (DARTBOARD, BOX, BALL))
+    assert dartboard > 1.5 * box                                  # a wall behind a desk
+    assert ball < 0.95 * box
+
+
+def test_real_ecd_slider_maps_of_two_half_windows_agree(ecd_slider, tmp_path):
+    """The two halves of the events (0.0223-0.0982 s, 0.0982-0.1742 s), mapped into the same
+    reference view (0.0982 s), see the scene from baselines of 2.1 and 2.4 cm on opposite
+    sides: where both have a point, their inverse depths must agree to within one pixel of
+    disparity over the shorter baseline (fx b |1/z_a - 1/z_b| < 1 px at the median, edges
+    being located to about a pixel), and both must put the dartboard behind the box."""
+    ref = 0.098224
+    maps = []
+    for k, (t0, t1) in enumerate([(0.0223, ref), (ref, 0.1742)]):
+        out = tmp_path / f"half{k}"
+        assert main(["map", str(ecd_slider), "--out", str(out), "--min-depth", "0.47",
+                     "--max-depth", "2.4", "--t0", str(t0), "--t1", str(t1), "--ref-time",
+                     str(ref), "--quiet"]) == 0
+        assert json.loads((out / "map.json").read_text())["t_ref"] == pytest.approx(ref)
+        maps.append(read_depth(out / "semidense_depth.exr"))
+    first, second = maps
+    both = (first > 0) & (second > 0)
+    assert both.sum() > 500
+    poses = np.loadtxt(ecd_slider / "groundtruth.txt")
+    x = np.interp([0.0223, ref, 0.1742], poses[:, 0], poses[:, 1])  # the slider moves along x
+    baseline = min(x[1] - x[0], x[2] - x[1])
+    fx = float((ecd_slider / "calib.txt").read_text().split()[0])
+    disparity = fx * baseline * np.abs(1 / first[both] - 1 / second[both])
+    assert np.median(disparity) < 1.0
+    for depth in maps:
+        assert _median_depth(depth, DARTBOARD) > 1.3 * _median_depth(depth, BOX)
 
 
 def test_bad_map_input_is_refused_before_work(plane_sequence, tmp_path, capsys):
