@@ -171,17 +171,17 @@ def test_fill_frame_refuses_a_calibration_of_another_size():
 
 
 def test_n1_is_the_map_and_n1_in_frame_what_lands_in_it():
-    """100 map points of which the 48 of the square's ring land in the frame: beta, N2 and the
-    errors use the 48, N1 stays the map's 100."""
+    """200 map points of which the 108 of the scene (48 on the square's ring, 60 on the
+    background) land in the frame: beta, N2 and the errors use the 108, N1 stays the map's 200."""
     frame, sparse = _two_patch_scene()
     camera = Camera(40, 30, 35.0, 30.0, 19.5, 14.5)
-    result = fill_frame(frame, sparse, camera, n1=100)
+    result = fill_frame(frame, sparse, camera, n1=200)
     info = result.info
-    assert result.n1_in_frame == info["N1_in_frame"] == 48 and info["N1"] == 100
-    assert info["N2"] == result.n2 == 48 + 120 and info["Res"] == 1200
-    assert info["beta"] == pytest.approx(120 / (1200 + 48 / 1200))     # not with 100
-    assert info["N2_over_N1_in_frame"] == pytest.approx(168 / 48)
+    assert result.n1_in_frame == info["N1_in_frame"] == 108 and info["N1"] == 200
+    assert info["N2"] == result.n2 == 108 + 120 and info["Res"] == 1200
+    assert info["beta"] == pytest.approx(120 / (1200 + 108 / 1200))     # not with 200
+    assert info["N2_over_N1_in_frame"] == pytest.approx(228 / 108)
     assert "N2_over_N1" not in info and "map_N1" not in info
-    assert fill_frame(frame, sparse, camera).info["N1"] == 48            # default: the sparse
+    assert fill_frame(frame, sparse, camera).info["N1"] == 108           # default: the sparse
     with pytest.raises(ValueError, match="n1 must be the map's point count"):
-        fill_frame(frame, sparse, camera, n1=47)
+        fill_frame(frame, sparse, camera, n1=107)
