@@ -299,8 +299,12 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
 
 def _add_map_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--t0", type=float, default=None, help="window start, s")
-    parser.add_argument("--t1", type=float, default=None, help="window end, s")
+    parser.add_argument("--t0", type=float, default=None,
+                        help="window start, s (default: where the events and the poses begin; "
+                             "for a scene, 0)")
+    parser.add_argument("--t1", type=float, default=None,
+                        help="window end, s (default: where the events or the poses end; for a "
+                             "scene, 1 s after --t0)")
     parser.add_argument("--clip-window", action="store_true",
                         help="map the part of --t0/--t1 that the events and poses cover "
                              "(recorded in map.json) instead of refusing a window past them")
@@ -315,12 +319,17 @@ def _add_map_options(parser: argparse.ArgumentParser) -> None:
                              "range, else 0.2-5 m, never the exact depth; oracle: the exact "
                              "depth at the reference view widened by 20 %% (simulated sequences "
                              "only; every output then says it used the answer)")
-    parser.add_argument("--planes", type=int, default=100, help="depth planes (default 100)")
+    parser.add_argument("--planes", type=int, default=100,
+                        help="depth planes, uniform in inverse depth (default 100, the paper's "
+                             "240x180x100 grid)")
     parser.add_argument("--kernel", type=int, default=5,
-                        help="adaptive threshold block size, odd (default 5; paper sliders 15)")
+                        help="adaptive threshold block size, odd (default 5, rpg_emvs's; the "
+                             "paper's sliders: 15)")
     parser.add_argument("--c", type=float, default=5.0,
-                        help="adaptive threshold constant (default 5; paper sliders 7)")
-    parser.add_argument("--median", type=int, default=5, help="median filter size (default 5)")
+                        help="adaptive threshold constant (default 5, rpg_emvs's; the paper's "
+                             "sliders: 7)")
+    parser.add_argument("--median", type=int, default=5,
+                        help="median filter size, px (default 5, rpg_emvs's)")
 
 
 def _add_dense_options(parser: argparse.ArgumentParser) -> None:

@@ -117,6 +117,7 @@ def test_error_panel_scale_ends_at_the_99th_percentile_and_says_so():
 
 def test_error_png_has_its_legend_and_shows_no_value_and_no_surface(tmp_path):
     result = _plane_frame(truth_far=2.0)
+    result.dense[:3, :3] = 0.0                             # a corner left unfilled: no value
     write_fill(result, tmp_path / "fill", DenseParams())
     image = cv2.imread(str(tmp_path / "fill" / "error.png"))
     assert image.shape[0] > result.dense.shape[0] and image.shape[1] >= 320
