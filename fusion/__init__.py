@@ -22,6 +22,7 @@ from fusion.dense import (
     project_map,
     write_fill,
 )
+from fusion.dsi_range import DSIRange, resolve_dsi_range
 from fusion.emvs import (
     DepthMapParams,
     DSIParams,
@@ -40,20 +41,20 @@ from fusion.filling import (
     inverse_distance_weights,
     select_regions,
 )
-from fusion.mapping import MapParams, MapResult, map_sequence, write_map
-from fusion.pipeline import RunParams, draw_overview, run_pipeline
+from fusion.mapping import MapParams, MapResult, TimeWindow, map_sequence, time_window, write_map
+from fusion.pipeline import RunParams, draw_overview, fill_window, map_window, run_pipeline
 from fusion.pointcloud import read_ply, write_ply
 from fusion.reproduce import ReproduceParams, reproduce
 from fusion.scoring import depth_errors, discontinuity_band, error_image
 from fusion.segmentation import SegmentationParams, segment_regions
 
 __all__ = [
-    "DSIParams", "DenseParams", "DenseResult", "DepthMapParams", "FillParams", "MapParams",
-    "MapResult", "RegionStats", "ReproduceParams", "RunParams", "SegmentationParams",
-    "SelectionParams", "dense_errors", "densify", "depth_errors", "depth_planes",
+    "DSIParams", "DSIRange", "DenseParams", "DenseResult", "DepthMapParams", "FillParams",
+    "MapParams", "MapResult", "RegionStats", "ReproduceParams", "RunParams", "SegmentationParams",
+    "SelectionParams", "TimeWindow", "dense_errors", "densify", "depth_errors", "depth_planes",
     "discontinuity_band", "disparity_space_image", "draw_overview", "error_image",
-    "exponential_weights", "fill_frame", "fill_map", "fill_regions", "filling_score",
-    "gaussian_weights", "inverse_distance_weights", "map_sequence", "project_map", "read_ply",
-    "reproduce", "run_pipeline", "segment_regions", "select_regions", "semidense_depth",
-    "write_fill", "write_map", "write_ply",
+    "exponential_weights", "fill_frame", "fill_map", "fill_window", "fill_regions",
+    "filling_score", "gaussian_weights", "inverse_distance_weights", "map_sequence", "map_window",
+    "project_map", "read_ply", "reproduce", "resolve_dsi_range", "run_pipeline", "segment_regions",
+    "select_regions", "semidense_depth", "time_window", "write_fill", "write_map", "write_ply",
 ]
