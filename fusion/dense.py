@@ -27,8 +27,7 @@ import numpy as np
 from fusion.figures import (
     add_header,
     depth_colours,
-    depth_legend,
-    depth_range,
+    depth_scale,
     error_panel,
     label_colours,
     panel_grid,
@@ -367,8 +366,9 @@ def _figure_panels(result: DenseResult, params: DenseParams
     raw = segment_regions(result.frame, SegmentationParams(params.segmentation.threshold, 1))
     points, colours, _ = _cloud(result)
     size = (result.frame.shape[1], result.frame.shape[0])
-    lo_hi = depth_range(result.truth, result.sparse, result.dense)
-    legend = depth_legend(*lo_hi) if lo_hi[0] is not None else None
+    scale = depth_scale(result.sparse, result.dense, truth=result.truth)
+    lo_hi = (scale.lo, scale.hi) if scale else (None, None)
+    legend = scale.legend() if scale else None
     view, caption = point_cloud_view(points, colours, size)
     panels = [
         depth_colours(result.sparse, *lo_hi, base=result.frame),

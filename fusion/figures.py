@@ -16,9 +16,9 @@ import numpy as np
 
 from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
 
-__all__ = ["Caption", "Legend", "add_header", "depth_colours", "depth_legend", "depth_range",
-           "error_legend", "error_panel", "label_colours", "panel_grid", "point_cloud_view",
-           "write_image"]
+__all__ = ["Caption", "DepthScale", "Legend", "add_header", "depth_colours", "depth_legend",
+           "depth_scale", "error_legend", "error_panel", "label_colours", "panel_grid",
+           "point_cloud_view", "write_image"]
 
 _NO_VALUE = (40, 40, 40)
 """Colour of pixels without a depth (dark grey, so that black texture stays readable)."""
@@ -85,42 +85,82 @@ class Caption:
     text: str
 
 
-def depth_range(*depths: np.ndarray | None) -> tuple[float, float] | tuple[None, None]:
-    """The full range of the valid depths of all the maps given: one colour scale that clips
-    none of them.
+MIN_SPAN_SHARE = 0.1
+"""A depth scale spans at least this share of its middle depth (a flat poster at 0.231 m gets
+0.219-0.243 m, so that a few centimetres of error still show as colour)."""
+MAP_PERCENTILES = (1.0, 99.0)
+"""Without an exact depth, the scale spans these percentiles of the maps' depths."""
 
-    Pass the exact depth beside the estimated maps where there is one, so that the scale covers
-    the whole scene and not only what the maps found (a map that misses the far wall would
-    otherwise draw the wall at the scale's far end, as if it were that near).
+
+@dataclass(frozen=True)
+class DepthScale:
+    """The shared colour scale of a figure's depth panels.
+
+    Attributes
+    ----------
+    lo, hi : float, metres
+        The depths drawn in the first (red) and last (blue) colour.
+    below, above : bool
+        Some depth of the maps lies nearer than ``lo`` / farther than ``hi`` and is drawn in the
+        end colour: the legend then reads "<= lo" / ">= hi".
+    source : str
+        ``"exact depth"`` or ``"maps, 1st-99th percentile"``: what the scale spans.
+    """
+
+    lo: float
+    hi: float
+    below: bool = False
+    above: bool = False
+    source: str = "exact depth"
+
+    def legend(self) -> Legend:
+        """:func:`depth_legend` of the scale, its ends marked where depths are clipped."""
+        return depth_legend(self.lo, self.hi, below=self.below, above=self.above)
+
+
+def depth_scale(*maps: np.ndarray | None, truth: np.ndarray | None = None) -> DepthScale | None:
+    """One colour scale for the depth panels of a figure: the scene's, not an outlier's.
+
+    With an exact depth the scale spans it (min to max of its surfaces), so that the panels read
+    as the scene and a map that misses the far wall does not pull the scale in; without one it
+    spans the 1st to 99th percentile of the maps' depths together (:data:`MAP_PERCENTILES`). It is
+    widened to at least :data:`MIN_SPAN_SHARE` of its middle depth (a flat scene would otherwise
+    have no span). Map depths outside it are drawn in the end colours, and the scale says so
+    (``below`` / ``above``), so the legend reads "<=" / ">=" there.
 
     Parameters
     ----------
-    *depths : (H, W) float ndarrays, metres, 0 where none; None entries are skipped
+    *maps : (H, W) float ndarrays, metres, 0 where none; None entries are skipped
+    truth : (H, W) float ndarray, metres, 0 where no surface, optional
 
     Returns
     -------
-    (lo, hi) : floats, metres, the smallest and largest depth > 0 of them all, or
-        (None, None) when no pixel of any has a depth
+    DepthScale, or None when neither the truth nor any map has a depth
     """
-    lo, hi = np.inf, -np.inf
-    for depth in depths:
-        if depth is None:
-            continue
-        valid = np.asarray(depth, dtype=np.float64)
-        valid = valid[valid > 0]
-        if valid.size:
-            lo, hi = min(lo, float(valid.min())), max(hi, float(valid.max()))
-    if lo > hi:
-        return None, None
-    return lo, hi
+    values = [np.asarray(m, np.float64)[np.asarray(m) > 0] for m in maps if m is not None]
+    values = np.concatenate(values) if values else np.zeros(0)
+    exact = None if truth is None else np.asarray(truth, np.float64)[np.asarray(truth) > 0]
+    if exact is not None and exact.size:
+        lo, hi, source = float(exact.min()), float(exact.max()), "exact depth"
+    elif values.size:
+        lo, hi = (float(v) for v in np.percentile(values, MAP_PERCENTILES))
+        source = "maps, 1st-99th percentile"
+    else:
+        return None
+    middle = 0.5 * (lo + hi)
+    if hi - lo < MIN_SPAN_SHARE * middle:
+        lo, hi = middle * (1 - 0.5 * MIN_SPAN_SHARE), middle * (1 + 0.5 * MIN_SPAN_SHARE)
+    return DepthScale(lo, hi, bool((values < lo).any()), bool((values > hi).any()), source)
 
 
-def depth_legend(lo: float, hi: float) -> Legend:
+def depth_legend(lo: float, hi: float, below: bool = False, above: bool = False) -> Legend:
     """The legend of :func:`depth_colours` over ``[lo, hi]`` metres (near red, far blue).
 
     Parameters
     ----------
     lo, hi : float, metres, > 0
+    below, above : bool
+        Depths beyond an end are drawn in its colour: label it "<= lo" / ">= hi".
 
     Returns
     -------
@@ -129,7 +169,8 @@ def depth_legend(lo: float, hi: float) -> Legend:
         panel used.
     """
     ramp = depth_colours(np.linspace(lo, hi, 256)[None, :], lo, hi)[0]
-    return Legend(ramp, f"{lo:.3g} m", f"{hi:.3g} m")
+    return Legend(ramp, f"{'<= ' if below else ''}{lo:.3g} m",
+                  f"{'>= ' if above else ''}{hi:.3g} m")
 
 
 def error_legend(max_error: float, clipped: bool = False) -> Legend:

@@ -33,7 +33,7 @@ from fusion.emvs import (
     disparity_space_image,
     semidense_depth,
 )
-from fusion.figures import add_header, depth_colours, depth_legend, depth_range, panel_grid
+from fusion.figures import add_header, depth_colours, depth_scale, panel_grid
 from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
 from fusion.scoring import depth_errors
@@ -492,12 +492,14 @@ def _reference_image(sequence: Sequence, t_ref: float) -> np.ndarray:
 
 def _overlay(result: MapResult) -> np.ndarray:
     """``overlay.png``: the map points over the frame nearest the reference time, coloured on
-    the map's own full depth range, with the colour bar and, for a DSI range taken from the exact
+    the map's own depths (1st-99th percentile, :func:`fusion.figures.depth_scale`; the map is
+    blind, so no exact depth here), with the colour bar and, for a DSI range taken from the exact
     depth (``info["oracle"]``), a header saying so."""
-    lo_hi = depth_range(result.depth)
+    scale = depth_scale(result.depth)
+    lo_hi = (scale.lo, scale.hi) if scale else (None, None)
     overlay = depth_colours(result.depth, *lo_hi,
                             base=_reference_image(result.sequence, result.t_ref))
-    legend = depth_legend(*lo_hi) if lo_hi[0] is not None else None
+    legend = scale.legend() if scale else None
     grid = panel_grid([overlay], [f"map at {result.t_ref:.3f} s (N1 = {result.n1})"], columns=1,
                       legends=[legend])
     header = (["DSI depth range from the exact depth (oracle)"] if result.info.get("oracle")

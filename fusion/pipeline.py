@@ -29,8 +29,7 @@ from fusion.emvs import DepthMapParams, DSIParams
 from fusion.figures import (
     add_header,
     depth_colours,
-    depth_legend,
-    depth_range,
+    depth_scale,
     error_panel,
     label_colours,
     panel_grid,
@@ -320,8 +319,9 @@ def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndar
     and axes. A run whose DSI range came from the exact depth (``report["oracle"]``) says so in
     a header line above the panels.
 
-    The depth panels share one scale: the full range of the exact depth and of both maps where
-    there is an exact depth, else of the maps (:func:`fusion.figures.depth_range`).
+    The depth panels share one scale: the exact depth's range where there is one, else the maps'
+    1st-99th percentile, its ends marked where map depths are clipped
+    (:func:`fusion.figures.depth_scale`).
 
     Parameters
     ----------
@@ -379,8 +379,9 @@ def _overview_panels(run_folder: str | Path, report: dict | None = None
         k = sequence.nearest_depth(t)
         if k is not None:
             truth = read_depth(sequence.depth_paths[k])
-    lo_hi = depth_range(truth, semidense, dense)
-    legend = depth_legend(*lo_hi) if lo_hi[0] is not None else None
+    scale = depth_scale(semidense, dense, truth=truth)
+    lo_hi = (scale.lo, scale.hi) if scale else (None, None)
+    legend = scale.legend() if scale else None
     cloud, _ = read_ply(run_folder / "fill" / "dense.ply")
     points = np.stack([cloud["x"], cloud["y"], cloud["z"]], 1)
     colours = np.stack([cloud["blue"], cloud["green"], cloud["red"]], 1)

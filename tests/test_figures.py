@@ -14,7 +14,7 @@ from fusion.figures import (
     add_header,
     depth_colours,
     depth_legend,
-    depth_range,
+    depth_scale,
     error_legend,
     error_panel,
     panel_grid,
@@ -45,17 +45,27 @@ def test_error_legend_is_the_scale_of_error_image():
     assert (legend.low, legend.high) == ("0 cm", "2 cm")
 
 
-def test_depth_range_spans_every_map_given_and_the_exact_depth_beyond_them():
+def test_depth_scale_spans_the_exact_depth_and_marks_what_it_clips():
     estimate = np.zeros((10, 100))
     estimate[0] = np.linspace(1.0, 1.2, 100)              # the map found 1.0-1.2 m
     truth = np.zeros((10, 100))
     truth[:5] = np.linspace(0.8, 1.73, 100)               # the scene reaches 1.73 m
-    assert depth_range(estimate) == (1.0, 1.2)
-    assert depth_range(truth, estimate) == (0.8, 1.73)
-    estimate[1, 0] = 2.5                                  # an estimate beyond the truth: kept
-    assert depth_range(None, truth, estimate) == (0.8, 2.5)
-    assert depth_range(np.zeros((3, 3))) == (None, None)
-    assert depth_range(None) == (None, None)
+    scale = depth_scale(estimate, truth=truth)             # the scene's scale, not the map's
+    assert (scale.lo, scale.hi, scale.below, scale.above) == (0.8, 1.73, False, False)
+    assert scale.source == "exact depth"
+    estimate[1, 0] = 2.5                                  # an outlier beyond the scene: clipped,
+    estimate[1, 1] = 0.3                                  # and one in front of it, and said so
+    scale = depth_scale(None, estimate, truth=truth)
+    assert (scale.lo, scale.hi, scale.below, scale.above) == (0.8, 1.73, True, True)
+    assert (scale.legend().low, scale.legend().high) == ("<= 0.8 m", ">= 1.73 m")
+    # without truth: the maps' 1st-99th percentile, so one outlier does not flatten the panels
+    maps_only = depth_scale(estimate)
+    assert maps_only.source.startswith("maps") and maps_only.above and maps_only.below
+    assert 0.99 < maps_only.lo < 1.01 and 1.19 < maps_only.hi < 1.21
+    # a flat scene (the slider's poster at 0.231 m) still gets a span of 10 % of its depth
+    flat = depth_scale(np.full((3, 3), 0.2), truth=np.full((3, 3), 0.231))
+    assert (round(flat.lo, 6), round(flat.hi, 6)) == (0.21945, 0.24255) and flat.below
+    assert depth_scale(np.zeros((3, 3))) is None and depth_scale(None) is None
 
 
 def _plane_frame(truth_far: float):
