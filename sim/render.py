@@ -108,20 +108,6 @@ def _texture_extent(obj: SceneObject) -> tuple[float, float] | None:
     return width / su, height / sv
 
 
-def _half_extents(obj: SceneObject) -> np.ndarray:
-    """Half sizes of the object's bounding box in its local frame, metres."""
-    p = obj.params
-    if obj.shape == "rectangle":
-        return np.array([p["size"][0] / 2, p["size"][1] / 2, 0.0])
-    if obj.shape == "box":
-        return np.asarray(p["size"]) / 2
-    if obj.shape == "cylinder":
-        return np.array([p["radius"], p["radius"], p["height"] / 2])
-    if obj.shape == "heightfield":
-        return np.array([p["size"][0] / 2, p["size"][1] / 2, p["amplitude"]])
-    return np.zeros(3)
-
-
 def _max_texels(obj: SceneObject, scene: Scene) -> tuple[float, float] | None:
     """Texels worth keeping: about one per pixel footprint where the camera comes closest.
 
@@ -134,11 +120,7 @@ def _max_texels(obj: SceneObject, scene: Scene) -> tuple[float, float] | None:
         return None
     traj = scene.trajectory
     times = np.linspace(max(traj.t_start, 0.0), min(traj.t_end, scene.duration), 200)
-    local = (traj.pose(times)[:, :3, 3] - obj.center) @ obj.rotation
-    if obj.shape == "sphere":
-        gaps = np.linalg.norm(local, axis=1) - obj.params["radius"]
-    else:
-        gaps = np.linalg.norm(np.maximum(np.abs(local) - _half_extents(obj), 0.0), axis=1)
+    gaps = obj.distance_to(traj.pose(times)[:, :3, 3])
     nearest = max(float(gaps.min()), 0.01)
     footprint = nearest / max(scene.camera.fx, scene.camera.fy)       # metres per pixel
     return extent[0] / footprint, extent[1] / footprint

@@ -172,6 +172,29 @@ class SceneObject:
         moved[:3, 3] = self.center + delta[:3, 3]
         return moved
 
+    def half_extents(self) -> np.ndarray:
+        """Half sizes (3,) of the bounding box in the object's local frame, metres (zeros for a
+        mesh, whose extent is only known once loaded)."""
+        p = self.params
+        if self.shape in ("rectangle", "heightfield"):
+            depth = p["amplitude"] if self.shape == "heightfield" else 0.0
+            return np.array([p["size"][0] / 2, p["size"][1] / 2, depth])
+        if self.shape == "box":
+            return np.asarray(p["size"], dtype=float) / 2
+        if self.shape == "sphere":
+            return np.full(3, float(p["radius"]))
+        if self.shape == "cylinder":
+            return np.array([p["radius"], p["radius"], p["height"] / 2])
+        return np.zeros(3)
+
+    def distance_to(self, points: np.ndarray) -> np.ndarray:
+        """Distance (N,) metres from world points (N, 3) to the object at rest: to its surface
+        for a sphere, to its bounding box otherwise (to its centre for a mesh); 0 inside."""
+        local = (np.asarray(points, dtype=float) - self.center) @ self.rotation
+        if self.shape == "sphere":
+            return np.maximum(np.linalg.norm(local, axis=1) - float(self.params["radius"]), 0.0)
+        return np.linalg.norm(np.maximum(np.abs(local) - self.half_extents(), 0.0), axis=1)
+
 
 @dataclass(frozen=True)
 class Light:
@@ -686,22 +709,6 @@ def _parse_object(ctx: _Ctx, raw: Any, key: str, base_dir: Path) -> SceneObject:
     return SceneObject(name, shape, center, rotation, params, material, motion)
 
 
-def _half_extents(obj: SceneObject) -> np.ndarray | None:
-    """Half sizes (3,) of the object's bounding box in its local frame, metres; None (mesh)."""
-    p = obj.params
-    if obj.shape == "rectangle":
-        return np.array([p["size"][0] / 2, p["size"][1] / 2, 0.0])
-    if obj.shape == "box":
-        return np.asarray(p["size"]) / 2
-    if obj.shape == "sphere":
-        return np.full(3, p["radius"])
-    if obj.shape == "cylinder":
-        return np.array([p["radius"], p["radius"], p["height"] / 2])
-    if obj.shape == "heightfield":
-        return np.array([p["size"][0] / 2, p["size"][1] / 2, p["amplitude"]])
-    return None
-
-
 def _check_metres(ctx: _Ctx, objects: tuple[SceneObject, ...], trajectory: Trajectory,
                   duration: float) -> None:
     """Refuse a scene whose lengths are implausible in metres (written in millimetres).
@@ -726,14 +733,9 @@ def _check_metres(ctx: _Ctx, objects: tuple[SceneObject, ...], trajectory: Traje
     positions = trajectory.pose(times)[:, :3, 3]
     nearest, which = np.inf, None
     for i, obj in enumerate(objects):
-        half = _half_extents(obj)
-        if half is None:
+        if obj.shape == "mesh":                     # its extent is unknown before loading
             continue
-        local = (positions - obj.center) @ obj.rotation
-        if obj.shape == "sphere":
-            gaps = np.linalg.norm(local, axis=1) - obj.params["radius"]
-        else:
-            gaps = np.linalg.norm(np.maximum(np.abs(local) - half, 0.0), axis=1)
+        gaps = obj.distance_to(positions)
         if gaps.min() < nearest:
             nearest, which = float(gaps.min()), i
     if which is not None and nearest > MAX_NEAREST_SURFACE_M:

@@ -289,3 +289,24 @@ def test_an_event_file_given_as_a_scene_is_named_as_one(tmp_path):
     (tmp_path / "events.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(100))
     with pytest.raises(SceneError, match="is an event file .HDF5"):
         load_scene(tmp_path / "events.h5")
+
+
+def test_distance_to_an_object_is_to_its_surface_or_bounding_box(tmp_path):
+    objects = """
+[[objects]]
+name = "box"
+type = "box"
+center = [0.0, 2.0, 0.0]
+size = [0.4, 0.2, 0.6]
+
+[[objects]]
+name = "ball"
+type = "sphere"
+center = [1.0, 3.0, 0.0]
+radius = 0.5
+"""
+    box, ball = parse_scene(scene_text(objects)).objects
+    points = np.array([[0.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.5, 2.0, 0.0], [1.0, 1.0, 0.0]])
+    # the box's near face is at y = 1.9; its side at x = 0.2
+    np.testing.assert_allclose(box.distance_to(points)[:3], [1.9, 0.0, 0.3])
+    np.testing.assert_allclose(ball.distance_to(points[3:]), [1.5])        # 2 m to the centre
