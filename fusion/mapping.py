@@ -141,11 +141,6 @@ def radius_outliers(points: np.ndarray, radius: float, neighbours: int) -> np.nd
     return counts - 1 >= neighbours
 
 
-def _event_span(path: Path, sensor: Camera) -> tuple[float, float]:
-    """First and last event times (s): an HDF5 file's two ends, a text file's streaming pass."""
-    return event_time_span(path, width=sensor.width, height=sensor.height)
-
-
 WINDOW_SLACK_S = 1e-3
 """How far (s) a window asked for may reach past the data and still be used without
 ``clip_window`` (it is then clipped, and recorded as clipped): the first and last events of a
@@ -199,7 +194,8 @@ def _events_span(sequence: Sequence, events_path: Path) -> tuple[float, float]:
     start, duration = meta.get("start"), meta.get("duration")
     if isinstance(start, int | float) and isinstance(duration, int | float) and duration > 0:
         return float(start), float(start) + float(duration)
-    return _event_span(events_path, sequence.camera)
+    return event_time_span(events_path, width=sequence.camera.width,
+                           height=sequence.camera.height)
 
 
 def _span(span: tuple[float, float]) -> str:

@@ -33,6 +33,7 @@ which names the first bad line (``file:line: ...``) and what was expected.
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 from collections.abc import Iterator
@@ -1198,6 +1199,15 @@ def event_time_span(path: str | Path, width: int | None = None,
         finally:
             source.close()
         raise ValueError(f"{path}: the file holds no events")
+    stat = path.stat()
+    return _text_time_span(str(path.resolve()), stat.st_size, stat.st_mtime_ns, width, height)
+
+
+@functools.lru_cache(maxsize=16)
+def _text_time_span(path: str, size: int, mtime_ns: int, width: int | None,
+                    height: int | None) -> tuple[float, float]:
+    """:func:`event_time_span` of a text file: one streaming pass, remembered per file version
+    (size and modification time), so that the window checks of map and run read it once."""
     first = last = None
     for chunk in iter_event_chunks(path, 10**6, width=width, height=height):
         if len(chunk):

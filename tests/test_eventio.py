@@ -578,3 +578,15 @@ def test_times_in_another_unit_are_named_against_the_poses(tmp_path):
     check_time_units(h5, 0.0038, 0.174, 0.0223, 3.4)    # the real prefix: overlaps, accepted
     check_time_units(h5, 0.0, 60.0, 0.0, 3.0)           # poses for 5 % of the events: accepted
     check_time_units(h5, 5.0, 6.0, 0.0, 1.0)            # merely outside, same span: not a unit
+
+
+def test_a_text_file_span_is_read_once_and_again_when_the_file_changes(tmp_path):
+    from sim.eventio import _text_time_span, event_time_span
+
+    path = tmp_path / "events.txt"
+    path.write_text("0.001 3 4 1\n0.002 5 6 0\n")
+    before = _text_time_span.cache_info().misses
+    assert event_time_span(path) == event_time_span(path) == (0.001, 0.002)
+    assert _text_time_span.cache_info().misses == before + 1          # one pass for both
+    path.write_text("0.001 3 4 1\n0.002 5 6 0\n0.0035 1 1 1\n")      # a new version: re-read
+    assert event_time_span(path) == (0.001, 0.0035)
