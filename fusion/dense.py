@@ -24,6 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from fusion.dsi_range import oracle_header
 from fusion.figures import (
     add_header,
     depth_colours,
@@ -382,10 +383,9 @@ def _figure_panels(result: DenseResult, params: DenseParams
               f"(b) raw segmentation ({int(raw.max())})",
               f"(c) valid regions ({result.regions.n_regions})",
               f"(d) regions to fill ({int(result.regions.selected.sum())})",
-              f"(e) range image (N2 = {int(np.count_nonzero(result.dense))})",
+              f"(e) range image (N2 = {result.n2})",
               "(f) point cloud: map points red, filled green"]
-    header = (["DSI depth range from the exact depth (oracle): not a blind result"]
-              if result.info.get("oracle") else [])
+    header = oracle_header(bool(result.info.get("oracle")))
     return panels, titles, [legend, None, None, None, legend, caption], header
 
 

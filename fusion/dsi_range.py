@@ -24,7 +24,8 @@ import numpy as np
 
 from sim.sequence import Sequence
 
-__all__ = ["DEFAULT_RANGE", "ORACLE_MARGIN", "DSIRange", "declared_range", "resolve_dsi_range"]
+__all__ = ["DEFAULT_RANGE", "ORACLE_MARGIN", "DSIRange", "declared_range", "oracle_header",
+           "resolve_dsi_range"]
 
 DEFAULT_RANGE = (0.2, 5.0)
 """Depth range (m) of the DSI when neither the user nor the scene gives one."""
@@ -57,6 +58,11 @@ class DSIRange:
         """The JSON entries every output of a map carries."""
         return {"depth_range_m": [self.min_depth, self.max_depth],
                 "depth_range_from": self.source, "oracle": self.oracle}
+
+
+def oracle_header(oracle: bool) -> list[str]:
+    """The line every figure of a result made with the oracle range carries (none otherwise)."""
+    return ["DSI depth range from the exact depth (oracle): not a blind result"] if oracle else []
 
 
 def declared_range(sequence: Sequence) -> tuple[float, float] | None:

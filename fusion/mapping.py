@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fusion.dsi_range import DSIRange
+from fusion.dsi_range import DSIRange, oracle_header
 from fusion.emvs import (
     DepthMapParams,
     DSIParams,
@@ -498,8 +498,7 @@ def _overlay(result: MapResult) -> np.ndarray:
     legend = scale.legend() if scale else None
     grid = panel_grid([overlay], [f"map at {result.t_ref:.3f} s (N1 = {result.n1})"], columns=1,
                       legends=[legend])
-    header = (["DSI depth range from the exact depth (oracle)"] if result.info.get("oracle")
-              else [])
+    header = oracle_header(bool(result.info.get("oracle")))
     return add_header(grid, header)
 
 

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from fusion.dense import DenseParams, DenseResult, fill_map, write_fill
-from fusion.dsi_range import resolve_dsi_range
+from fusion.dsi_range import oracle_header, resolve_dsi_range
 from fusion.emvs import DepthMapParams, DSIParams
 from fusion.figures import (
     add_header,
@@ -405,6 +405,5 @@ def _overview_panels(run_folder: str | Path, report: dict | None = None
     panels.append(view)
     titles.append("point cloud: map points red, filled green")
     legends.append(caption)
-    header = (["DSI depth range from the exact depth (oracle): not a blind result"]
-              if report.get("oracle") else [])
+    header = oracle_header(bool(report.get("oracle")))
     return panels, titles, legends, header
