@@ -1,0 +1,495 @@
+"""Per-pixel adaptive sampling of the event camera: each pixel renders at its own times.
+
+For a scene whose objects and lights do not move, a pixel's luminance at time t depends only on
+that pixel's rays from the camera pose at t. So instead of rendering whole frames at the rate the
+fastest pixel needs (:mod:`sim.sampling`), every pixel keeps its own time line:
+
+- Time advances in *blocks* of ``1 / min_rate`` seconds. A full frame is rendered at every block
+  boundary; it is a sample of every pixel (so no pixel is sampled more rarely than
+  ``min_rate``), and its log intensity and the exact depth there give the prediction for the
+  block that follows.
+- Prediction, per pixel: the motion field of the static scene (exact depth, the camera twist at
+  both ends of the block) times the one-sided log-intensity gradient (brightness constancy, as
+  :func:`sim.sampling.log_rate_bound` does for the whole image), dilated over the distance the
+  fastest image point travels during the block (an edge that is a few pixels away at the start
+  of the block arrives during it), and at least the pixel's net change over the block (which the
+  frame at the block's end already shows). A pixel whose rate is ``r`` gets
+  ``ceil(r B / (MARGIN lam C)) - 1`` evenly spaced samples inside the block (at most one per
+  ``1 / max_rate``). All these samples, each at its own time and pose, are traced in one launch.
+- Check, per pixel: every interval between two consecutive samples of a pixel whose log change
+  exceeds ``lam C`` gets its midpoint rendered (only that pixel), level by level, one launch per
+  level. The step rule of :mod:`sim.sampling` applies per interval: if the midpoint splits the
+  change (its first half holds between ``SPLIT`` and ``1 - SPLIT`` of it), the change is
+  continuous and both halves are checked again; otherwise it is a step of a sub-pixel sample,
+  which refinement cannot shrink, and the interval is left as it is. Intervals shorter than
+  ``2 / max_rate`` are not split (counted in ``at_max_rate``). No render is discarded.
+- The emulator then runs over every pixel's samples in time order (:class:`PixelEventEmulator`):
+  each crossing of ``ref +/- C`` between two samples of a pixel gets its own interpolated
+  timestamp, as in :class:`sim.events.EventEmulator` (the same threshold, leak, refractory and
+  photoreceptor low-pass models, each pixel with its own time step). Background and hot-pixel
+  events are drawn per block. All samples of a block lie in ``[t_b, t_e]`` and every pixel has a
+  sample at ``t_e``, so the block's events are final when it ends: they leave sorted by time, one
+  block at a time, in memory bounded by one block.
+
+Exactness: the emulator sees every pixel's luminance at the pixel's own sample times, so its
+interpolation error per interval is bounded by the change ``lam C`` the check enforces (except
+in the steps and ``at_max_rate`` intervals, which are counted), the same guarantee as frame
+sampling, per pixel.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Protocol
+
+import cv2
+import numba
+import numpy as np
+
+from sim.camera import Camera
+from sim.eventio import EVENT_DTYPE
+from sim.events import EventEmulator
+from sim.noise import background_events, hot_pixel_events, merge_events
+from sim.sampling import MARGIN, SPLIT, SamplingParams, motion_field
+
+__all__ = ["MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
+           "PixelSource", "pixel_blocks", "rate_map"]
+
+STEP_RULE = False
+MAX_DILATION = 64
+"""Largest radius (pixels) over which the predicted rate is spread within a block; faster image
+motion is left to the check (it then costs bisection renders, never accuracy)."""
+
+
+class PixelSource(Protocol):
+    """What the per-pixel sampler renders from (see :class:`sim.shader.EventShader`).
+
+    ``frame(t)`` must give, for each pixel, exactly the value ``luminance`` gives for that pixel
+    at ``t``.
+    """
+
+    camera: Camera
+
+    def frame(self, t: float) -> np.ndarray:
+        """Linear luminance (H, W) float32 of every pixel at time ``t`` (seconds)."""
+
+    def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """Linear luminance (N,) of flat pixel indices (N,) at their own times (N,) seconds."""
+
+    def depth(self, t: float) -> np.ndarray:
+        """Exact z-depth (H, W) in metres at pixel centres, 0 where nothing is seen."""
+
+    def camera_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The camera's (v, w) in the camera frame, m/s and rad/s."""
+
+
+@dataclass
+class PixelSamplingStats:
+    """Counts of a per-pixel run (filled while iterating).
+
+    Attributes
+    ----------
+    pixel_samples : int
+        Single-pixel renders between the frames (scheduled ones and midpoints).
+    midpoint_samples : int
+        Of those, the midpoints rendered because an interval broke the bound.
+    full_renders : int
+        Whole frames rendered at the block boundaries.
+    depth_renders : int
+        Exact-depth renders made for the prediction (one per block).
+    blocks : int
+        Blocks done.
+    intervals : int
+        Per-pixel intervals the emulator went through.
+    steps : int
+        Intervals left unsplit because their change was a sub-pixel-sample step.
+    at_max_rate : int
+        Intervals still breaking the bound at the maximum rate.
+    """
+
+    pixel_samples: int = 0
+    midpoint_samples: int = 0
+    full_renders: int = 0
+    depth_renders: int = 0
+    blocks: int = 0
+    intervals: int = 0
+    steps: int = 0
+    at_max_rate: int = 0
+
+
+@dataclass(frozen=True)
+class PixelBlock:
+    """One finished block.
+
+    Attributes
+    ----------
+    t : float, seconds
+        The block's end (every pixel has a sample there).
+    luminance : (H, W) float32 ndarray
+        The frame rendered at ``t``.
+    log : (H, W) float64 ndarray
+        ``log(luminance + log_eps)``.
+    events : (N,) EVENT_DTYPE ndarray
+        The block's events, sorted by time (ties in pixel order).
+    """
+
+    t: float
+    luminance: np.ndarray
+    log: np.ndarray
+    events: np.ndarray
+
+
+def rate_map(camera: Camera, log: np.ndarray, depth: np.ndarray,
+             twists: list[tuple[np.ndarray, np.ndarray]], seconds: float) -> np.ndarray:
+    """Predicted |dL/dt| of every pixel over a block, 1/s.
+
+    Parameters
+    ----------
+    camera : Camera
+    log : (H, W) array_like
+        Log intensity at the block's start.
+    depth : (H, W) array_like, metres
+        Exact depth at the block's start (0 where nothing is seen).
+    twists : list of (v, w)
+        Camera velocities (camera frame) at the times the block spans (its two ends).
+    seconds : float
+        The block's length.
+
+    Returns
+    -------
+    (H, W) float64 ndarray
+        The largest one-sided gradient times motion field over the twists, dilated by the
+        distance the fastest pixel moves in ``seconds`` (at most :data:`MAX_DILATION`).
+    """
+    from sim.sampling import _one_sided_gradient
+
+    grad_u, grad_v = _one_sided_gradient(np.asarray(log, dtype=np.float64))
+    rate = np.zeros_like(grad_u)
+    speed = 0.0
+    for v_cam, w_cam in twists:
+        with np.errstate(invalid="ignore"):
+            flow_u, flow_v = motion_field(camera, depth, v_cam, w_cam)
+        rate = np.maximum(rate, grad_u * np.abs(flow_u) + grad_v * np.abs(flow_v))
+        speed = max(speed, float(np.max(np.hypot(flow_u, flow_v), initial=0.0)))
+    radius = min(MAX_DILATION, math.ceil(speed * seconds))
+    if radius > 0:
+        kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+        rate = cv2.dilate(rate, kernel, borderType=cv2.BORDER_REPLICATE)
+    return rate
+
+
+# ------------------------------------------------------------------------------------------------
+# The emulator over per-pixel samples
+# ------------------------------------------------------------------------------------------------
+
+
+@numba.njit(cache=True)
+def _pixel_events(pix, t, L, Y, ref, level, raw, last_t, c_on, c_off, leak, normals,
+                  cutoff, refractory, write, out_t, out_pix, out_p):  # pragma: no cover
+    """Events of per-pixel samples sorted by (pixel, time); the first sample of each pixel is
+    its state at the block start. Counts only (and leaves the state alone) unless ``write``.
+
+    ``leak`` is (rate per pixel (P,), jitter); ``cutoff`` is (cutoff_hz, intensity_ref,
+    min_fraction) with cutoff_hz 0 for no filter.
+    """
+    leak_rates, leak_jitter = leak
+    cutoff_hz, intensity_ref, min_fraction = cutoff
+    n = 0
+    S = len(pix)
+    j = 0
+    k = 0                                   # interval index (the leak's normal draws)
+    while j < S:
+        p = pix[j]
+        r = ref[p]
+        lf = level[p]
+        la = raw[p]
+        ta = t[j]
+        last = last_t[p]
+        j += 1
+        while j < S and pix[j] == p:
+            tb = t[j]
+            lb = L[j]
+            dt = tb - ta
+            if cutoff_hz > 0.0:
+                fraction = Y[j] / intensity_ref
+                if fraction < min_fraction:
+                    fraction = min_fraction
+                elif fraction > 1.0:
+                    fraction = 1.0
+                x = 2.0 * math.pi * (dt * 1e-9) * (cutoff_hz * fraction)
+                one_minus_e = -math.expm1(-x)
+                e = 1.0 - one_minus_e
+                lf_new = e * lf + one_minus_e * lb + (lb - la) * (e - one_minus_e / x)
+            else:
+                lf_new = lb
+            if leak_rates.size:
+                jitter = 1.0 - leak_jitter * normals[k]
+                if jitter < 0.0:
+                    jitter = 0.0
+                r += -((dt * 1e-9) * leak_rates[p] * jitter * c_on[p])
+            if lf_new >= r + c_on[p]:
+                c = c_on[p]
+                count = int(math.floor((lf_new - r) / c))
+                sign = 1
+            elif lf_new <= r - c_off[p]:
+                c = -c_off[p]
+                count = int(math.floor((r - lf_new) / -c))
+                sign = -1
+            else:
+                count = 0
+                c = 0.0
+                sign = 0
+            slope = lf_new - lf
+            for i in range(1, count + 1):
+                target = r + i * c
+                frac = (target - lf) / slope if slope != 0.0 else 1.0
+                if frac < 0.0:
+                    frac = 0.0
+                elif frac > 1.0:
+                    frac = 1.0
+                te = ta + np.int64(round(frac * dt))
+                if refractory > 0 and te - last < refractory:
+                    continue
+                last = te
+                if write:
+                    out_t[n] = te
+                    out_pix[n] = p
+                    out_p[n] = sign
+                n += 1
+            r += count * c
+            lf, la, ta = lf_new, lb, tb
+            j += 1
+            k += 1
+        if write:
+            ref[p] = r
+            level[p] = lf
+            raw[p] = la
+            last_t[p] = last
+    return n
+
+
+class PixelEventEmulator(EventEmulator):
+    """:class:`~sim.events.EventEmulator` fed with per-pixel samples, a block at a time.
+
+    The same sensor (thresholds, hot pixels, leak rates drawn from the seed in the same order),
+    the same state (:meth:`get_state` / :meth:`set_state`) and the same models; only the
+    samples differ: each pixel has its own times. :meth:`start` sets the first frame.
+    """
+
+    def advance_samples(self, pixels: np.ndarray, times_ns: np.ndarray, levels: np.ndarray,
+                        luminance: np.ndarray, t_end_ns: int, end_luminance: np.ndarray
+                        ) -> np.ndarray:
+        """Process one block of per-pixel samples.
+
+        Parameters
+        ----------
+        pixels : (S,) int64 ndarray
+            Flat pixel index of each sample, sorted by pixel; within a pixel, ``times_ns``
+            increases. Each pixel's first sample is its sample at the block start (its state,
+            already processed) and its last one is at ``t_end_ns``.
+        times_ns : (S,) int64 ndarray, nanoseconds
+        levels : (S,) float64 ndarray
+            Unfiltered log intensity of each sample.
+        luminance : (S,) float64 ndarray
+            Linear luminance of each sample (sets the low-pass cutoff).
+        t_end_ns : int
+            The block's end.
+        end_luminance : (H, W) array_like
+            Luminance at the block's end (background-activity rates).
+
+        Returns
+        -------
+        (N,) EVENT_DTYPE ndarray
+            Events with block start < t <= block end (threshold crossings) and noise events in
+            [block start, block end), sorted by time, ties in pixel order.
+        """
+        if self.ref is None:
+            raise ValueError("call start() before advance_samples()")
+        noise = self.params.noise
+        t0_ns = self._t
+        shape = self.shape
+        n_pixels = shape[0] * shape[1]
+        if np.shares_memory(self._L, self._raw):       # start() sets both to the same array
+            self._L = self._L.copy()
+        ref, level, raw = self.ref.reshape(-1), self._L.reshape(-1), self._raw.reshape(-1)
+        last_t = self._last_t.reshape(-1)
+        if noise.leak_rate > 0:
+            intervals = len(pixels) - 1 - int(np.count_nonzero(pixels[1:] != pixels[:-1]))
+            normals = self._rng.standard_normal(intervals)
+            leak = (self.leak_rates.reshape(-1), float(noise.leak_jitter))
+        else:
+            normals = np.zeros(0)
+            leak = (np.zeros(0), 0.0)
+        cutoff = (float(noise.cutoff_hz), float(noise.cutoff_intensity_ref),
+                  float(noise.cutoff_min_fraction))
+        refractory = int(round(noise.refractory_period * 1e9))
+        c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
+        args = (pixels, times_ns, levels, luminance, ref, level, raw, last_t, c_on, c_off, leak,
+                normals, cutoff, refractory)
+        empty_t, empty_pix, empty_p = np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.int8)
+        total = _pixel_events(*args, False, empty_t, empty_pix, empty_p)
+        out_t, out_pix, out_p = np.empty(total, np.int64), np.empty(total, np.int64), \
+            np.empty(total, np.int8)
+        _pixel_events(*args, True, out_t, out_pix, out_p)
+        order = np.argsort((out_t - t0_ns) * n_pixels + out_pix)
+        events = np.empty(total, EVENT_DTYPE)
+        events["t"] = out_t[order]
+        events["y"], events["x"] = np.divmod(out_pix[order], shape[1])
+        events["p"] = out_p[order]
+        if noise.shot_noise_rate > 0:
+            events = merge_events(events, background_events(
+                t0_ns, t_end_ns, np.asarray(end_luminance, np.float64), noise, self._rng))
+        if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
+            events = merge_events(events, hot_pixel_events(t0_ns, t_end_ns, self.hot_mask,
+                                                           noise.hot_pixel_rate, self._rng))
+        self._t = int(t_end_ns)
+        return events
+
+
+# ------------------------------------------------------------------------------------------------
+# The scheduler
+# ------------------------------------------------------------------------------------------------
+
+
+def _intra_counts(rate: np.ndarray, block_ns: int, bound: float, dt_min_ns: int) -> np.ndarray:
+    """Samples each pixel needs strictly inside a block, from its predicted rate."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        wanted = np.ceil(rate * (block_ns * 1e-9) / (MARGIN * bound))
+    wanted = np.nan_to_num(wanted, nan=0.0, posinf=0.0)
+    most = max(block_ns // dt_min_ns, 1)
+    return (np.clip(wanted, 1, most) - 1).astype(np.int64)
+
+
+def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t1: float,
+                 contrast: float, log_eps: float, params: SamplingParams | None = None,
+                 stats: PixelSamplingStats | None = None,
+                 after: tuple[float, np.ndarray] | None = None) -> Iterator[PixelBlock]:
+    """Sample every pixel at its own times from t0 to t1 and emulate its events, block by block.
+
+    Parameters
+    ----------
+    source : PixelSource
+        Renders frames, single pixels at their own times, and exact depth.
+    emulator : PixelEventEmulator
+        Started here at ``t0`` (unless ``after``); its state moves with the blocks.
+    t0, t1 : float, seconds
+    contrast : float
+        The smallest contrast threshold C (log units).
+    log_eps : float
+        L = log(Y + log_eps).
+    params : SamplingParams, optional
+        ``lam``, and ``min_rate`` (blocks of ``1 / min_rate`` seconds, a frame at each
+        boundary) and ``max_rate`` (no pixel interval is split below ``2 / max_rate``).
+    stats : PixelSamplingStats, optional
+        Filled while iterating.
+    after : (float, ndarray), optional
+        Continue from the end of a block this function yielded: its time and its luminance
+        frame, with the emulator's state as it was after that block. The blocks that follow
+        are exactly those an uninterrupted run gives (renders are deterministic in time).
+
+    Yields
+    ------
+    PixelBlock
+        One per block, in time order; the first block starts at t0 (or ``after``).
+    """
+    params = params or SamplingParams()
+    stats = stats if stats is not None else PixelSamplingStats()
+    camera = source.camera
+    shape = (camera.height, camera.width)
+    n_pixels = shape[0] * shape[1]
+    bound = params.lam * contrast
+    block_ns = max(int(round(1e9 / params.min_rate)), 1)
+    dt_min_ns = max(int(round(1e9 / params.max_rate)), 1)
+    t0_ns, t1_ns = int(round(t0 * 1e9)), int(round(t1 * 1e9))
+
+    def log_of(luminance: np.ndarray) -> np.ndarray:
+        return np.log(np.asarray(luminance, dtype=np.float64) + log_eps)
+
+    if after is None:
+        t_b = t0_ns
+        lum_b = np.asarray(source.frame(t0), dtype=np.float32)
+        stats.full_renders += 1
+        log_b = log_of(lum_b)
+        emulator.start(log_b, t0)
+    else:
+        t_b = int(round(after[0] * 1e9))
+        lum_b = np.asarray(after[1], dtype=np.float32)
+        log_b = log_of(lum_b)
+    all_pixels = np.arange(n_pixels, dtype=np.int64)
+    while t_b < t1_ns:
+        t_e = min(t_b + block_ns, t1_ns)
+        if t1_ns - t_e < dt_min_ns:                 # no sliver of a block at the end
+            t_e = t1_ns
+        length = t_e - t_b
+        lum_e = np.asarray(source.frame(t_e * 1e-9), dtype=np.float32)
+        stats.full_renders += 1
+        log_e = log_of(lum_e)
+        depth = source.depth(t_b * 1e-9)
+        stats.depth_renders += 1
+        twists = [source.camera_velocity(t_b * 1e-9), source.camera_velocity(t_e * 1e-9)]
+        rate = rate_map(camera, log_b, depth, twists, length * 1e-9)
+        rate = np.maximum(rate, np.abs(log_e - log_b) / (length * 1e-9)).reshape(-1)
+        inner = _intra_counts(rate, length, bound, dt_min_ns)
+        # Every pixel: its block-start sample, `inner` evenly spaced samples, its block-end one.
+        counts = inner + 2
+        pix = np.repeat(all_pixels, counts)
+        first = np.zeros(n_pixels, np.int64)
+        np.cumsum(counts[:-1], out=first[1:])
+        position = np.arange(len(pix), dtype=np.int64) - first[pix]
+        times = t_b + (position * length) // (inner[pix] + 1)
+        levels = np.empty(len(pix))
+        lums = np.empty(len(pix))
+        start, end = first, first + counts - 1
+        levels[start], lums[start] = log_b.reshape(-1), lum_b.reshape(-1)
+        levels[end], lums[end] = log_e.reshape(-1), lum_e.reshape(-1)
+        middle = (position > 0) & (position <= inner[pix])
+        if middle.any():
+            values = np.asarray(source.luminance(pix[middle], times[middle] * 1e-9), np.float64)
+            lums[middle], levels[middle] = values, np.log(values + log_eps)
+            stats.pixel_samples += int(middle.sum())
+        pix, times, levels, lums = _refine(source, pix, times, levels, lums, bound, dt_min_ns,
+                                           log_eps, stats)
+        stats.intervals += len(pix) - n_pixels
+        events = emulator.advance_samples(pix, times, levels, lums, t_e, lum_e)
+        stats.blocks += 1
+        t_b, lum_b, log_b = t_e, lum_e, log_e
+        yield PixelBlock(t_e * 1e-9, lum_e, log_e, events)
+
+
+def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.ndarray,
+            lums: np.ndarray, bound: float, dt_min_ns: int, log_eps: float,
+            stats: PixelSamplingStats) -> tuple[np.ndarray, ...]:
+    """Split every interval of a pixel that breaks the bound at its midpoint, level by level."""
+    candidate = np.ones(len(pix), dtype=bool)        # the interval from sample j to j + 1
+    while True:
+        same = pix[1:] == pix[:-1]
+        change = np.abs(levels[1:] - levels[:-1])
+        violating = candidate[:-1] & same & (change > bound)
+        if not violating.any():
+            break
+        splittable = violating & (times[1:] - times[:-1] >= 2 * dt_min_ns)
+        stats.at_max_rate += int(np.count_nonzero(violating & ~splittable))
+        index = np.flatnonzero(splittable)
+        if index.size == 0:
+            break
+        mid_t = (times[index] + times[index + 1]) // 2
+        mid_lum = np.asarray(source.luminance(pix[index], mid_t * 1e-9), np.float64)
+        mid_level = np.log(mid_lum + log_eps)
+        stats.pixel_samples += index.size
+        stats.midpoint_samples += index.size
+        share = np.abs(mid_level - levels[index]) / change[index]
+        continuous = (share > SPLIT) & (share < 1 - SPLIT)
+        stats.steps += int(np.count_nonzero(~continuous))
+        if not STEP_RULE:
+            continuous[:] = True
+        candidate[:] = False
+        candidate[index[continuous]] = True           # first half: from sample j to the midpoint
+        at = index + 1
+        pix = np.insert(pix, at, pix[index])
+        times = np.insert(times, at, mid_t)
+        levels = np.insert(levels, at, mid_level)
+        lums = np.insert(lums, at, mid_lum)
+        candidate = np.insert(candidate, at, continuous)  # second half: midpoint to j + 1
+    return pix, times, levels, lums

@@ -1,0 +1,187 @@
+"""The per-pixel sampler (sim.pixel_sampling) on analytic sources: exact event times, no events
+from a static view, the bound on every interval, the same models as the frame emulator, and
+resuming from any block."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sim.camera import Camera
+from sim.events import EventEmulator, EventParams
+from sim.noise import noise_preset
+from sim.pixel_sampling import (
+    MAX_DILATION,
+    PixelEventEmulator,
+    PixelSamplingStats,
+    pixel_blocks,
+    rate_map,
+)
+from sim.sampling import SamplingParams
+
+C = 0.2
+EPS = 1e-3
+
+
+class Ramp:
+    """Log intensity of pixel (x, y): ``L0 + clip(s (t - x' / v), 0, A)``, x' = x + 0.1 y.
+
+    A ramp in log intensity sweeping along x: piecewise linear in time, so the emulator's
+    interpolation is exact wherever a sample interval does not straddle a kink. ``A`` is
+    5.7 C: the crossings of L0 + C ... L0 + 5 C lie inside the linear part, at least 0.3 C
+    from the kinks, more than the bound lam C = 0.1 away.
+    """
+
+    def __init__(self, width: int = 16, height: int = 3, slope: float = 200.0,
+                 speed: float = 400.0, still: bool = False) -> None:
+        self.camera = Camera(width=width, height=height, fx=20.0, fy=20.0, cx=width / 2,
+                             cy=height / 2)
+        self.slope, self.speed, self.still = slope, speed, still
+        self.top = 5.7 * C
+        self.base = np.log(0.2)
+        self.calls: list[int] = []
+
+    def level(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
+        x = pixels % self.camera.width + 0.1 * (pixels // self.camera.width)
+        if self.still:
+            times = np.zeros_like(times)
+        return self.base + np.clip(self.slope * (times - x / self.speed), 0.0, self.top)
+
+    def luminance(self, pixels, times):
+        pixels, times = np.asarray(pixels), np.asarray(times, dtype=np.float64)
+        self.calls.append(len(pixels))
+        return np.exp(self.level(pixels, times)) - EPS
+
+    def frame(self, t):
+        n = self.camera.width * self.camera.height
+        return self.luminance(np.arange(n), np.full(n, t)).reshape(self.camera.height, -1)
+
+    def depth(self, t):
+        return np.zeros((self.camera.height, self.camera.width))
+
+    def camera_velocity(self, t):
+        return np.zeros(3), np.zeros(3)
+
+
+def _run(source, t1=0.06, params=None, events=None, stats=None):
+    cam = source.camera
+    emulator = PixelEventEmulator((cam.height, cam.width), events or EventParams())
+    stats = stats if stats is not None else PixelSamplingStats()
+    blocks = list(pixel_blocks(source, emulator, 0.0, t1, C, EPS, params or SamplingParams(),
+                               stats))
+    return blocks, stats, emulator
+
+
+def test_a_log_ramp_fires_every_event_at_its_exact_time():
+    source = Ramp()
+    blocks, stats, _ = _run(source)
+    events = np.concatenate([b.events for b in blocks])
+    expected = []
+    for y in range(3):
+        for x in range(16):
+            start = (x + 0.1 * y) / source.speed
+            expected += [(round((start + i * C / source.slope) * 1e9), x, y) for i in range(1, 6)]
+    expected = np.array(sorted(expected))
+    got = np.stack([events["t"], events["x"], events["y"]], axis=1).astype(np.int64)
+    assert np.all(events["p"] == 1)
+    assert np.all(np.diff(events["t"]) >= 0)                      # in time order
+    assert len(got) == len(expected) == 240
+    order = np.lexsort((got[:, 0], got[:, 2], got[:, 1]))
+    order_expected = np.lexsort((expected[:, 0], expected[:, 2], expected[:, 1]))
+    assert np.abs(got[order] - expected[order_expected]).max() <= 1000      # 1 microsecond
+    assert stats.blocks == 6 and stats.full_renders == 7
+    # Each pixel rises over 5.7 C / 200 = 5.7 ms: it needs samples inside its blocks, the
+    # flat pixels (before and after the ramp) none.
+    assert 0 < stats.pixel_samples < 48 * 6 * 100
+
+
+def test_a_view_that_does_not_change_gives_no_events_and_no_pixel_samples():
+    blocks, stats, _ = _run(Ramp(still=True))
+    assert sum(len(b.events) for b in blocks) == 0
+    assert stats.pixel_samples == 0 and stats.full_renders == 7
+
+
+def test_every_interval_meets_the_bound_or_is_counted(monkeypatch):
+    intervals = []
+    real = PixelEventEmulator.advance_samples
+
+    def spy(self, pixels, times, levels, *args):
+        same = pixels[1:] == pixels[:-1]
+        intervals.append((np.abs(np.diff(levels))[same], np.diff(times)[same]))
+        return real(self, pixels, times, levels, *args)
+
+    monkeypatch.setattr(PixelEventEmulator, "advance_samples", spy)
+    params = SamplingParams(lam=0.5, min_rate=100.0, max_rate=1000.0)   # dt_min 1 ms
+    _, stats, _ = _run(Ramp(slope=400.0), params=params)
+    change = np.concatenate([c for c, _ in intervals])
+    length = np.concatenate([d for _, d in intervals])
+    broken = change > 0.5 * C
+    assert stats.intervals == len(change)
+    assert np.all(length[broken] < 2 * 1_000_000)                      # only at the max rate
+    assert stats.at_max_rate == np.count_nonzero(broken) > 0
+
+
+@pytest.mark.parametrize("preset", ["ideal", "realistic"])
+def test_fed_with_whole_frames_it_gives_the_frame_emulators_events(preset):
+    """One sample per pixel per block at common times: exactly EventEmulator's events."""
+    rng = np.random.default_rng(0)
+    shape = (9, 11)
+    params = EventParams(contrast_on=C, contrast_off=C, noise=noise_preset(preset), seed=5)
+    times = np.cumsum(rng.uniform(1e-4, 2e-3, 40))
+    walk = np.cumsum(rng.normal(0, 0.15, (40, *shape)), axis=0)
+    luminance = np.exp(walk) * 0.3
+    frame = EventEmulator(shape, params)
+    pixel = PixelEventEmulator(shape, params)
+    log = np.log(luminance + EPS)
+    frame.start(log[0], times[0])
+    pixel.start(log[0], times[0])
+    n = shape[0] * shape[1]
+    pixels = np.repeat(np.arange(n), 2)
+    for k in range(1, len(times)):
+        want = frame.advance(log[k], times[k], luminance[k])
+        t_ns = np.tile([round(times[k - 1] * 1e9), round(times[k] * 1e9)], n)
+        levels = np.stack([log[k - 1].ravel(), log[k].ravel()], axis=1).ravel()
+        lums = np.stack([luminance[k - 1].ravel(), luminance[k].ravel()], axis=1).ravel()
+        got = pixel.advance_samples(pixels, t_ns.astype(np.int64), levels, lums,
+                                    round(times[k] * 1e9), luminance[k])
+        np.testing.assert_array_equal(got, want)
+    state_frame, state_pixel = frame.get_state(), pixel.get_state()
+    np.testing.assert_array_equal(state_pixel["last_t"], state_frame["last_t"])
+    for key in ("ref", "level", "raw"):     # the compiled kernel may round the last bit apart
+        np.testing.assert_allclose(state_pixel[key], state_frame[key], rtol=0, atol=1e-12)
+
+
+def test_continuing_after_any_block_gives_the_same_blocks():
+    params = EventParams.preset("realistic", contrast=C, seed=2)
+    reference, _, _ = _run(Ramp(), events=params)
+    source = Ramp()
+    emulator = PixelEventEmulator((3, 16), params)
+    stats = PixelSamplingStats()
+    run = pixel_blocks(source, emulator, 0.0, 0.06, C, EPS, SamplingParams(), stats)
+    first = [next(run), next(run)]
+    state, saved_stats = emulator.get_state(), replace(stats)
+    resumed = PixelEventEmulator((3, 16), params)
+    resumed.set_state(state)
+    rest = list(pixel_blocks(Ramp(), resumed, 0.0, 0.06, C, EPS, SamplingParams(),
+                             saved_stats, after=(first[-1].t, first[-1].luminance)))
+    assert len(first) + len(rest) == len(reference)
+    for want, got in zip(reference, first + rest, strict=True):
+        assert want.t == got.t
+        np.testing.assert_array_equal(got.events, want.events)
+    assert saved_stats == _run(Ramp(), events=params)[1]
+
+
+def test_the_predicted_rate_spreads_over_the_distance_an_edge_travels():
+    camera = Camera(width=64, height=8, fx=50.0, fy=50.0, cx=32.0, cy=4.0)
+    log = np.zeros((8, 64))
+    log[:, 32:] = 1.0                                       # one vertical edge
+    depth = np.full((8, 64), 2.0)
+    v = np.array([-1.0, 0.0, 0.0])                          # the image moves at 25 px/s in +x
+    rate = rate_map(camera, log, depth, [(v, np.zeros(3))], 0.2)        # 5 px in a block
+    row = rate[4]
+    assert row[31] == pytest.approx(25.0) and row[32] == pytest.approx(25.0)
+    assert np.all(row[26:38] == pytest.approx(25.0)) and row[25] == row[38] == 0.0
+    far = rate_map(camera, log, depth, [(v * 100, np.zeros(3))], 0.2)   # 500 px: capped
+    assert np.count_nonzero(far[4]) == 64 and MAX_DILATION < 500
