@@ -45,6 +45,7 @@ test: setup
 
 bench: setup
 	$(BIN)/python benchmarks/bench_render.py
+	$(BIN)/python benchmarks/bench_shader.py
 	$(BIN)/python benchmarks/bench_events.py
 	$(BIN)/python benchmarks/bench_emvs.py
 	$(BIN)/python benchmarks/bench_fill.py

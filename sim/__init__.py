@@ -22,6 +22,7 @@ from sim.render import Renderer, RenderResult
 from sim.sampling import SamplingParams
 from sim.scene import Scene, SceneError, load_scene, parse_scene
 from sim.sequence import Sequence, load_sequence
+from sim.shader import EventShader
 from sim.simulate import SimulationResult, simulate
 from sim.trajectory import (
     HandheldTrajectory,
@@ -40,6 +41,7 @@ __all__ = [
     "Camera",
     "EventEmulator",
     "EventParams",
+    "EventShader",
     "H5EventWriter",
     "NoiseParams",
     "SamplingParams",

@@ -323,6 +323,18 @@ class Renderer:
             self._params.update()
         return pose
 
+    def set_time(self, t: float) -> None:
+        """Move the camera (to the trajectory's pose) and the moving objects to time ``t``.
+
+        For code that traces its own rays in :attr:`mitsuba_scene` (such as
+        :class:`sim.shader.EventShader`) and needs the objects where they are at ``t``.
+
+        Parameters
+        ----------
+        t : float, seconds
+        """
+        self._set_state(float(t), None)
+
     def luminance(self, t: float, pose: np.ndarray | None = None, spp: int | None = None
                   ) -> np.ndarray:
         """Linear luminance (H, W) float32 at time ``t`` (pose from the trajectory by default).

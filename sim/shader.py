@@ -1,0 +1,443 @@
+"""The event camera's luminance for chosen pixels at chosen times, each at its own camera pose.
+
+:class:`EventShader` renders any set of (pixel, time) samples of a scene with static geometry in
+one Dr.Jit launch, every sample seen from the camera pose at its own time: what a per-pixel event
+sampler needs, where :meth:`sim.render.Renderer.luminance` renders whole frames at one pose.
+
+Shading is the expected value of Mitsuba's ``direct`` integrator as :class:`~sim.render.Renderer`
+configures it (point, spot and directional lights, diffuse BSDFs, no interreflection), without its
+noise: ``mi.render`` picks ONE light at random per sub-sample (and weights it by the number of
+lights), which leaves a fixed pattern of light-selection noise; here every sub-sample adds the
+contribution of EVERY light, each with its own shadow ray. Missed rays give 0 (evfuse scenes have
+no environment light).
+
+Sub-pixel positions are a fixed stratified jittered pattern per pixel (``sqrt(spp) x sqrt(spp)``
+strata, jitter from ``numpy.random.default_rng(renderer.seed)``), the same at every time: the
+same pose gives bit-identical values, and a pixel's value is a continuous function of the pose.
+Their camera-frame ray directions (lens distortion inverted by :meth:`sim.camera.Camera.undistort`
+in float64) are computed once and stay on the device.
+
+A call is one launch (one per :data:`MAX_RAYS_PER_LAUNCH` rays for larger calls): one thread
+per sample, looping over its sub-samples.
+
+Poses come from a fine time grid of ``trajectory.pose`` (step at most ``pose_step``), linearly
+interpolated entry by entry (the 12 entries of ``[R | t]``) per sample in NumPy; the kernel
+normalises each world direction. The grid is evaluated lazily in blocks of
+:data:`POSE_BLOCK_NODES` nodes (a 60 s sequence at the default 10 us step has 6 million nodes;
+only the blocks that samples fall in are evaluated, and at most :data:`POSE_CACHE_BLOCKS` are
+kept), each block always from the same call, so that the same time always gets the same pose.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+
+import numpy as np
+
+from sim.camera import Camera
+from sim.render import Renderer
+from sim.trajectory import Trajectory
+
+__all__ = ["EventShader", "subsample_directions"]
+
+MAX_RAYS_PER_LAUNCH = 1 << 22
+"""Most rays (samples times spp) that one launch traces; larger calls are split into launches of
+whole samples, with identical results (each sample is shaded on its own)."""
+POSE_BLOCK_NODES = 4096
+"""Nodes of the pose grid evaluated together (one ``trajectory.pose`` call)."""
+POSE_CACHE_BLOCKS = 64
+"""Blocks of the pose grid kept in memory (64 x 4097 x 12 float64, 25 MB)."""
+POSE_BOUND_SAFETY = 4.0
+"""Factor on the second-difference estimate of the interpolation error: it covers a second
+derivative that peaks between nodes and a kink in the trajectory (a sampled trajectory's knot),
+where the error is up to 4 times the estimate from the neighbouring second differences."""
+
+
+def require_jit_variant(variant: str) -> None:
+    """Refuse a Mitsuba variant that cannot trace many rays in one launch.
+
+    Parameters
+    ----------
+    variant : str
+        A Mitsuba variant name, such as ``"llvm_ad_rgb"``.
+
+    Raises
+    ------
+    ValueError
+        For a variant that is not ``llvm_*`` or ``cuda_*`` (``scalar_rgb``).
+    """
+    if not variant.startswith(("llvm_", "cuda_")):
+        raise ValueError(f"EventShader needs a JIT Mitsuba variant (llvm_* or cuda_*), got "
+                         f"{variant}; render whole frames with Renderer.luminance instead")
+
+
+def subsample_directions(camera: Camera, spp: int, seed: int) -> np.ndarray:
+    """Camera-frame unit ray directions of a fixed stratified jittered pattern in every pixel.
+
+    Sub-sample ``k`` of a pixel lies in stratum ``(k % n, k // n)`` of the ``n x n`` grid over the
+    pixel's square (``n = sqrt(spp)``; pixel ``(u, v)`` covers ``[u - 0.5, u + 0.5) x
+    [v - 0.5, v + 0.5)``), at a uniform jitter within it.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera model (its distortion is inverted in float64).
+    spp : int
+        Sub-samples per pixel, a perfect square.
+    seed : int
+        Seed of ``numpy.random.default_rng`` that draws the jitter, shape ``(H * W, spp, 2)``.
+
+    Returns
+    -------
+    (H * W * spp, 3) float64 ndarray
+        Unit directions (x right, y down, z forward), sub-sample ``k`` of flat pixel ``p = y W + x``
+        at row ``p * spp + k``; ``(0, 0, 0)`` where the lens model cannot be inverted.
+    """
+    n = math.isqrt(spp)
+    strata = np.arange(spp)
+    jitter = np.random.default_rng(seed).random((camera.height * camera.width, spp, 2))
+    centres = camera.pixel_centres().reshape(-1, 1, 2)
+    offsets = (np.stack([strata % n, strata // n], axis=-1) + jitter) / n - 0.5
+    xy_d = (centres + offsets - [camera.cx, camera.cy]) / [camera.fx, camera.fy]
+    xy = camera.undistort(xy_d.reshape(-1, 2))
+    rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    rays[~np.all(np.isfinite(rays), axis=1)] = 0.0
+    return rays
+
+
+def _aligned(values: np.ndarray, dtype: type) -> np.ndarray:
+    """A copy of ``values`` (N,) as ``dtype`` in a 64-byte aligned buffer.
+
+    Dr.Jit's LLVM backend uses a contiguous NumPy array's memory without copying and compiles the
+    pointer's alignment into the kernel: arrays at varying alignments recompile the kernel.
+    """
+    itemsize = np.dtype(dtype).itemsize
+    buffer = np.empty(len(values) + 64 // itemsize, dtype=dtype)
+    start = (-buffer.ctypes.data % 64) // itemsize
+    out = buffer[start:start + len(values)]
+    out[:] = values
+    return out
+
+
+class _PoseGrid:
+    """``[R | t]`` of a trajectory on a uniform time grid, linearly interpolated.
+
+    The grid has ``count + 1`` nodes ``t0 + k (t1 - t0) / count``, ``count`` the smallest (at
+    least 2) that makes the step at most ``step``. Blocks of :data:`POSE_BLOCK_NODES` intervals
+    are evaluated when first needed and kept (at most :data:`POSE_CACHE_BLOCKS`) as (12, B + 1)
+    arrays, the 12 entries of ``[R | t]`` row by row.
+    """
+
+    def __init__(self, trajectory: Trajectory, t0: float, t1: float, step: float):
+        self.trajectory, self.t0, self.t1 = trajectory, t0, t1
+        self.count = max(2, math.ceil((t1 - t0) / step))
+        self.step = (t1 - t0) / self.count
+        self._blocks: OrderedDict[int, np.ndarray] = OrderedDict()
+        self._second: dict[int, tuple[float, float]] = {}
+
+    def _evaluate(self, block: int) -> np.ndarray:
+        """Nodes ``b B .. (b + 1) B`` of block ``b`` (fewer in the last one), (12, <= B + 1).
+
+        Records the block's largest second differences of R's entries and of t, from one
+        node more on each side so that every node of the block has one.
+        """
+        first = block * POSE_BLOCK_NODES
+        last = min(first + POSE_BLOCK_NODES, self.count)
+        lo, hi = max(first - 1, 0), min(last + 1, self.count)
+        times = np.minimum(self.t0 + np.arange(lo, hi + 1) * self.step, self.t1)
+        entries = self.trajectory.pose(times)[:, :3, :].reshape(-1, 12).T
+        second = np.abs(entries[:, 2:] - 2.0 * entries[:, 1:-1] + entries[:, :-2])
+        second = second.reshape(3, 4, -1)
+        self._second[block] = (float(second[:, :3].max()), float(second[:, 3].max()))
+        return np.ascontiguousarray(entries[:, first - lo:last + 1 - lo])
+
+    def _block(self, block: int) -> np.ndarray:
+        entries = self._blocks.get(block)
+        if entries is None:
+            entries = self._blocks[block] = self._evaluate(block)
+            if len(self._blocks) > POSE_CACHE_BLOCKS:
+                self._blocks.popitem(last=False)
+        else:
+            self._blocks.move_to_end(block)
+        return entries
+
+    def interpolate(self, times: np.ndarray) -> np.ndarray:
+        """(12, N) float64 entries of ``[R | t]`` (row by row) at times (N,) in ``[t0, t1]``."""
+        u = (times - self.t0) / self.step
+        node = np.clip(np.floor(u).astype(np.int64), 0, self.count - 1)
+        frac = np.clip(u - node, 0.0, 1.0)
+        block = node // POSE_BLOCK_NODES
+        out = np.empty((12, len(times)))
+        for b in np.unique(block):
+            sel = np.flatnonzero(block == b)
+            entries = self._block(int(b))
+            i = node[sel] - b * POSE_BLOCK_NODES
+            start = np.take(entries, i, axis=1)
+            delta = np.take(entries, i + 1, axis=1)
+            delta -= start
+            delta *= frac[sel]
+            delta += start
+            out[:, sel] = delta
+        return out
+
+    def error_bound(self) -> tuple[float, float]:
+        """Bounds on the interpolation error of R's entries and of t (metres), whole grid."""
+        for b in range((self.count - 1) // POSE_BLOCK_NODES + 1):
+            if b not in self._second:
+                self._evaluate(b)
+        rotation = max(r for r, _ in self._second.values())
+        translation = max(t for _, t in self._second.values())
+        return (POSE_BOUND_SAFETY * rotation / 8.0, POSE_BOUND_SAFETY * translation / 8.0)
+
+
+class EventShader:
+    """Linear luminance of chosen pixels at chosen times (static geometry), one Dr.Jit launch per
+    call.
+
+    Parameters
+    ----------
+    renderer : Renderer
+        Its loaded scene, camera and seed are used; it must run a JIT variant (``llvm_*`` or
+        ``cuda_*``).
+    spp : int
+        Sub-samples per pixel (a perfect square).
+    t0, t1 : float, seconds
+        The times that samples may have, ``t0 < t1`` within the trajectory's range.
+    pose_step : float, seconds
+        Largest step of the pose grid (default 10 us).
+
+    Notes
+    -----
+    Device memory: the sub-sample directions, ``12 H W spp`` bytes (2 MB at 240x180, spp 4).
+    A call is one launch of at most :data:`MAX_RAYS_PER_LAUNCH` primary rays (larger calls are
+    split), a frozen Dr.Jit function (``dr.freeze``): the first call traces the Python code and
+    compiles the kernel, later calls of any size replay it (about 3 ms less per call). Dr.Jit
+    records it once more for a size of 1, or one equal to the size of an array in the scene
+    (a mesh's vertex count, say): the same kernel, traced again once.
+
+    Examples
+    --------
+    >>> shader = EventShader(Renderer(scene), 4, t0=0.0, t1=scene.duration)   # doctest: +SKIP
+    >>> shader.luminance(np.array([0, 5]), np.array([0.1, 0.2]))              # doctest: +SKIP
+    array([0.31, 0.29], dtype=float32)
+    """
+
+    def __init__(self, renderer: Renderer, spp: int, *, t0: float, t1: float,
+                 pose_step: float = 1e-5):
+        require_jit_variant(renderer.variant)
+        spp = int(spp)
+        if spp < 1 or math.isqrt(spp) ** 2 != spp:
+            raise ValueError(f"spp must be a perfect square >= 1, got {spp}")
+        t0, t1, pose_step = float(t0), float(t1), float(pose_step)
+        trajectory = renderer.scene.trajectory
+        if not (trajectory.t_start <= t0 < t1 <= trajectory.t_end):
+            raise ValueError(f"expected t_start <= t0 < t1 <= t_end of the trajectory "
+                             f"[{trajectory.t_start}, {trajectory.t_end}] s, got t0 = {t0}, "
+                             f"t1 = {t1}")
+        if not (math.isfinite(pose_step) and pose_step > 0.0):
+            raise ValueError(f"pose_step must be a positive number of seconds, got {pose_step}")
+        import drjit as dr
+        import mitsuba as mi
+
+        self._mi, self._dr = mi, dr
+        self.renderer, self.spp, self.t0, self.t1 = renderer, spp, t0, t1
+        camera = renderer.camera
+        self.shape = (camera.height, camera.width)
+        self._poses = _PoseGrid(trajectory, t0, t1, pose_step)
+        rays = subsample_directions(camera, spp, renderer.seed).astype(np.float32)
+        self._directions = mi.Vector3f(*(rays[:, i] for i in range(3)))
+        self._samples_per_launch = max(1, MAX_RAYS_PER_LAUNCH // spp)
+
+        def trace(scene, directions, pixels, entries, zeros):
+            return _trace(scene, directions, pixels, entries, zeros, spp=spp)
+
+        self._trace = dr.freeze(trace)
+
+    # ----------------------------------------------------------------------------------------
+    @property
+    def pose_step(self) -> float:
+        """float, seconds: the step of the pose grid (at most the ``pose_step`` asked for)."""
+        return self._poses.step
+
+    @property
+    def pose_error_bound(self) -> float:
+        """float: largest deviation of any entry of the interpolated ``[R | t]`` (see
+        :meth:`pose`) from the trajectory's exact pose, at any time in ``[t0, t1]``.
+
+        Entries of R are dimensionless (an error of e in every entry turns a ray by at most 3 e
+        radians), entries of t are in metres. Linear interpolation between nodes ``h`` apart is
+        off by at most ``h^2 / 8 max|f''|``; ``h^2 f''`` is estimated by the grid's largest second
+        difference, times :data:`POSE_BOUND_SAFETY`. The first access evaluates the grid blocks
+        not seen yet (about 2 s per million nodes for a hand-held trajectory). The float32 pose
+        of the kernel (relative rounding 6e-8) comes on top.
+        """
+        return max(self._poses.error_bound())
+
+    def pose(self, times: np.ndarray) -> np.ndarray:
+        """The camera poses the shader renders at: the pose grid interpolated entry by entry.
+
+        Parameters
+        ----------
+        times : (N,) float64 ndarray, seconds
+            Within ``[t0, t1]``.
+
+        Returns
+        -------
+        (N, 4, 4) float64 ndarray
+            ``T_world_camera``, R not exactly orthonormal (off by at most
+            :attr:`pose_error_bound`; the kernel normalises each ray direction).
+        """
+        times = self._check_times(times)
+        poses = np.zeros((len(times), 4, 4))
+        poses[:, :3, :] = self._poses.interpolate(times).T.reshape(-1, 3, 4)
+        poses[:, 3, 3] = 1.0
+        return poses
+
+    def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """Linear luminance of pixels, each at its own time and camera pose.
+
+        Parameters
+        ----------
+        pixels : (N,) int ndarray
+            Flat pixel indices ``y W + x`` (duplicates allowed).
+        times : (N,) float64 ndarray, seconds
+            Within ``[t0, t1]``. In a scene with moving objects, all equal.
+
+        Returns
+        -------
+        (N,) float32 ndarray
+            Linear luminance, the mean over the pixel's ``spp`` sub-samples, in the units of
+            :meth:`Renderer.luminance`.
+
+        Raises
+        ------
+        ValueError
+            For pixels or times of the wrong shape or out of range, or different times in a
+            scene whose objects move (the shader traces static geometry only).
+        """
+        pixels = np.asarray(pixels)
+        times = self._check_times(times)
+        if pixels.shape != times.shape:
+            raise ValueError(f"expected pixels and times of the same shape (N,), got "
+                             f"{pixels.shape} and {times.shape}")
+        size = self.shape[0] * self.shape[1]
+        if len(pixels) and not np.issubdtype(pixels.dtype, np.integer):
+            raise ValueError(f"pixels must be integer flat indices y*W+x, got {pixels.dtype}")
+        if len(pixels) and (pixels.min() < 0 or pixels.max() >= size):
+            raise ValueError(f"pixels must be flat indices y*W+x in [0, {size}), got "
+                             f"[{pixels.min()}, {pixels.max()}]")
+        if len(pixels) == 0:
+            return np.zeros(0, dtype=np.float32)
+        if self.renderer.scene.is_dynamic:
+            if np.any(times != times[0]):
+                raise ValueError("objects move in this scene: EventShader.luminance takes one "
+                                 "time per call here (the shader traces static geometry)")
+            self.renderer.set_time(float(times[0]))
+        # Shaded in pixel order, so that neighbouring rays run side by side (scattered pixels
+        # run 1.5 times faster); each sample's value does not depend on the others.
+        order = np.argsort(pixels, kind="stable")
+        values = np.empty(len(pixels), dtype=np.float32)
+        values[order] = self._shade(pixels[order], self._poses.interpolate(times[order]))
+        return values
+
+    def frame(self, t: float) -> np.ndarray:
+        """Every pixel at time ``t``: the values of :meth:`luminance` for those pixels and time.
+
+        Parameters
+        ----------
+        t : float, seconds
+            Within ``[t0, t1]``; objects that move are moved to ``t``.
+
+        Returns
+        -------
+        (H, W) float32 ndarray
+            Linear luminance.
+        """
+        times = self._check_times(np.array([t], dtype=np.float64))
+        if self.renderer.scene.is_dynamic:
+            self.renderer.set_time(float(times[0]))
+        size = self.shape[0] * self.shape[1]
+        # One interpolation for every pixel: the pose luminance() computes for each sample at t.
+        entries = np.broadcast_to(self._poses.interpolate(times), (12, size))
+        return self._shade(np.arange(size), entries).reshape(self.shape)
+
+    # ----------------------------------------------------------------------------------------
+    def _check_times(self, times: np.ndarray) -> np.ndarray:
+        times = np.asarray(times, dtype=np.float64)
+        if times.ndim != 1:
+            raise ValueError(f"times must have shape (N,), got {times.shape}")
+        if not np.all((times >= self.t0) & (times <= self.t1)):
+            bad = times[~((times >= self.t0) & (times <= self.t1))][0]
+            raise ValueError(f"times must lie in [t0, t1] = [{self.t0}, {self.t1}] s of this "
+                             f"EventShader, got {bad}")
+        return times
+
+    def _shade(self, pixels: np.ndarray, entries: np.ndarray) -> np.ndarray:
+        """(N,) float32 luminance of flat pixels (N,) at poses (12, N), launch by launch."""
+        step = self._samples_per_launch
+        return np.concatenate([self._launch(pixels[i:i + step], entries[:, i:i + step])
+                               for i in range(0, len(pixels), step)])
+
+    def _launch(self, pixels: np.ndarray, entries: np.ndarray) -> np.ndarray:
+        mi, dr = self._mi, self._dr
+        pose = tuple(mi.Float(_aligned(row, np.float32)) for row in entries)
+        index = mi.UInt32(_aligned(pixels, np.uint32))
+        zeros = dr.zeros(mi.Float, len(pixels))
+        dr.make_opaque(index, zeros, *pose)          # sizes change per call, the kernel not
+        total = self._trace(self.renderer.mitsuba_scene, self._directions, index, pose, zeros)
+        return np.asarray(total, dtype=np.float32)
+
+
+def _trace(scene, directions, pixels, pose, zeros, *, spp: int):
+    """Mean luminance over the ``spp`` sub-samples of each (pixel, pose) sample.
+
+    One thread per sample loops over its sub-samples: primary ray, then for every emitter its
+    (delta) direction, a shadow ray and the BSDF times the emitter's weight; luminance summed in
+    sub-sample order.
+
+    Parameters
+    ----------
+    scene : mi.Scene
+    directions : mi.Vector3f, (H W spp,)
+        Camera-frame unit directions of the sub-samples (:func:`subsample_directions`).
+    pixels : mi.UInt32, (N,)
+        Flat pixel indices.
+    pose : tuple of 12 mi.Float, (N,) each
+        Entries of ``[R | t]`` row by row (``T_world_camera``, t in metres).
+    zeros : mi.Float, (N,)
+        The initial sums.
+
+    Returns
+    -------
+    mi.Float, (N,)
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    rotation = mi.Matrix3f(*(pose[4 * r + c] for r in range(3) for c in range(3)))
+    origin = mi.Point3f(pose[3], pose[7], pose[11])
+    first = pixels * spp
+    emitters = scene.emitters()
+    context = mi.BSDFContext()
+    centre = mi.Point2f(0.5, 0.5)                # delta lights ignore their sample
+
+    def body(k, total):
+        local = dr.gather(mi.Vector3f, directions, first + k)
+        valid = local.z > 0.0                    # (0, 0, 0): the lens model is not invertible
+        ray = mi.Ray3f(origin, dr.normalize(rotation @ local))
+        si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True, active=valid)
+        hit = valid & si.is_valid()
+        bsdf = si.bsdf()
+        rgb = mi.Color3f(0.0)
+        for emitter in emitters:
+            ds, weight = emitter.sample_direction(si, centre, hit)
+            lit = hit & (ds.pdf != 0.0)
+            lit &= ~scene.ray_test(si.spawn_ray_to(ds.p), lit)
+            value = bsdf.eval(context, si, si.to_local(ds.d), lit) * weight
+            rgb += dr.select(lit, value, 0.0)
+        return k + 1, total + mi.luminance(rgb)
+
+    _, total = dr.while_loop((mi.UInt32(0), zeros), lambda k, total: k < spp, body)
+    return total * (1.0 / spp)

@@ -1,0 +1,204 @@
+"""sim.shader: each sample at its own pose, against mi.render, against itself and against the
+trajectory's exact pose."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import sim.shader
+from scenes import resolve_scene
+from sim.render import Renderer
+from sim.scene import load_scene, parse_scene
+from sim.se3 import make_pose, so3_exp
+from sim.shader import EventShader, require_jit_variant
+from sim.trajectory import SampledTrajectory
+from tests.conftest import WALL, scene_text
+
+LENS = (-0.3, 0.08, 0.001, -0.002, 0.0)          # strong barrel distortion, as a DAVIS240C's
+
+SLIDING_BOX = """
+[[objects]]
+name = "box"
+type = "box"
+center = [-0.15, 0.6, 0.0]
+size = [0.2, 0.2, 0.2]
+material = { texture = { type = "checkerboard", squares = [4, 4], color0 = 0.1, color1 = 0.9 } }
+motion = { type = "linear", velocity = [0.4, 0.0, 0.0] }
+"""
+
+
+@pytest.fixture(scope="module")
+def boxes() -> Renderer:
+    """boxes_6dof at 48x36 through a distorting lens: two lights, textures, a turning camera."""
+    scene = load_scene(resolve_scene("boxes_6dof"))
+    camera = replace(scene.camera.with_resolution(48, 36), distortion=LENS)
+    return Renderer(replace(scene, camera=camera), spp=4)
+
+
+def _relative(a: np.ndarray, b: np.ndarray, where: np.ndarray) -> np.ndarray:
+    return np.abs(a - b)[where] / b[where]
+
+
+def test_frame_is_the_noise_free_expectation_of_mi_render(boxes):
+    """Against mi.render (the direct integrator, one light picked at random per sub-sample).
+
+    The scale of agreement is mi.render's own noise: the same render with another seed. A
+    noise-free expectation is closer to one noisy render than a second noisy render is (for
+    pure noise by 1/sqrt(2)); a half-pixel shift or a lens left out is 5 to 6 times further.
+    """
+    import mitsuba as mi
+
+    t = 2.0
+    ours = EventShader(boxes, 64, t0=0.0, t1=4.0).frame(t)
+    reference = boxes.luminance(t, spp=64)
+    other_seed = np.array(mi.render(boxes.mitsuba_scene, seed=boxes.seed + 1, spp=64))
+    other_seed = other_seed.reshape(reference.shape)
+    lit = reference > 0
+    assert lit.mean() > 0.95
+    assert ours.dtype == np.float32 and ours.shape == (36, 48)
+    assert abs(ours.mean() / reference.mean() - 1.0) < 0.01
+    noise = np.median(_relative(other_seed, reference, lit))
+    assert 0.002 < noise < 0.05                  # two lights: mi.render is noisy
+    assert np.median(_relative(ours, reference, lit)) < noise
+
+
+def test_luminance_equals_frame_bit_for_bit_for_any_subset(boxes):
+    shader = EventShader(boxes, 4, t0=0.0, t1=4.0)
+    t = 1.234
+    frame = shader.frame(t).ravel()
+    assert frame.std() > 0 and np.count_nonzero(frame) > 0.9 * frame.size
+    rng = np.random.default_rng(1)
+    for pixels in (rng.choice(frame.size, 300),                    # duplicates, any order
+                   rng.permutation(frame.size), np.array([17])):
+        values = shader.luminance(pixels, np.full(len(pixels), t))
+        assert values.dtype == np.float32
+        np.testing.assert_array_equal(values, frame[pixels])
+
+
+def test_each_sample_is_shaded_at_the_pose_of_its_own_time(boxes):
+    shader = EventShader(boxes, 4, t0=3.0, t1=3.5)
+    rng = np.random.default_rng(2)
+    moments = np.linspace(3.0, 3.5, 6)
+    times = rng.choice(moments, 2000)
+    pixels = rng.integers(0, 48 * 36, 2000)
+    values = shader.luminance(pixels, times)
+    frames = {t: shader.frame(t).ravel() for t in moments}
+    np.testing.assert_array_equal(values, [frames[t][p] for p, t in zip(pixels, times,
+                                                                          strict=True)])
+    # The camera turns: one frame for all would be wrong for most samples.
+    assert np.mean(values != frames[moments[0]][pixels]) > 0.5
+
+
+def _pose_errors(shader: EventShader, times: np.ndarray) -> np.ndarray:
+    exact = shader.renderer.scene.trajectory.pose(times)
+    return np.abs(shader.pose(times) - exact)[:, :3, :]
+
+
+@pytest.mark.parametrize("step", [1e-5, 2e-2])
+def test_pose_interpolation_stays_within_its_stated_bound(boxes, step):
+    shader = EventShader(boxes, 1, t0=20.0, t1=20.3, pose_step=step)
+    times = np.random.default_rng(3).uniform(20.0, 20.3, 20000)
+    errors = _pose_errors(shader, times)
+    bound = shader.pose_error_bound
+    assert errors.max() <= bound
+    assert bound <= 50 * errors.max()            # a bound, not a blanket
+    assert shader.pose_step <= step
+    if step == 1e-5:
+        assert bound < 1e-9                      # far below the kernel's float32 rounding
+
+
+def test_pose_bound_holds_across_the_kinks_of_a_sampled_trajectory():
+    """Geodesic pieces between motion-capture samples: the second derivative is a spike at
+    every sample, where linear interpolation is first-order only."""
+    rng = np.random.default_rng(4)
+    knots = np.arange(0.0, 0.3, 0.01)
+    poses = make_pose(so3_exp(rng.normal(0.0, 0.3, (len(knots), 3))),
+                      rng.normal(0.0, 0.05, (len(knots), 3)))
+    scene = parse_scene(scene_text(WALL))
+    scene = replace(scene, trajectory=SampledTrajectory(knots, poses))
+    shader = EventShader(Renderer(scene, spp=1), 1, t0=0.0, t1=0.29, pose_step=3e-3)
+    errors = _pose_errors(shader, rng.uniform(0.0, 0.29, 20000))
+    assert errors.max() <= shader.pose_error_bound <= 50 * errors.max()
+
+
+def test_a_static_camera_gives_the_same_values_at_every_time():
+    scene = parse_scene(scene_text(WALL))                 # linear trajectory, zero velocity
+    shader = EventShader(Renderer(scene, spp=1), 4, t0=0.0, t1=1.0)
+    first = shader.frame(0.1)
+    assert first.std() > 0
+    np.testing.assert_array_equal(shader.frame(0.9), first)
+    pixels = np.arange(first.size)
+    times = np.random.default_rng(5).uniform(0.0, 1.0, first.size)
+    np.testing.assert_array_equal(shader.luminance(pixels, times), first.ravel())
+
+
+def test_moving_objects_one_time_per_call_and_frames_follow_them():
+    """frame(t) moves the objects to t (the frame sampler's render); luminance() refuses mixed
+    times. One directional light: mi.render has no light-selection noise here."""
+    scene = parse_scene(scene_text(WALL + SLIDING_BOX))
+    renderer = Renderer(scene, spp=4)
+    shader = EventShader(renderer, 16, t0=0.0, t1=1.0)
+    with pytest.raises(ValueError, match="objects move in this scene.*one time per call"):
+        shader.luminance(np.array([0, 1]), np.array([0.2, 0.7]))
+    frames = {}
+    for t in (0.7, 0.0, 0.7):                    # there, back and there again
+        frames[t] = shader.frame(t)
+        reference = renderer.luminance(t, spp=64)
+        # Only sub-pixel sampling differs (4 % of the pixels, on the checkerboard's edges); a
+        # box left where it was would differ on the 30 % of the image it covers then and now.
+        close = _relative(frames[t], reference, reference > 0) < 0.05
+        assert close.mean() > 0.9, f"t = {t}: the box is not where mi.render has it"
+        pixels = np.arange(0, frames[t].size, 7)
+        np.testing.assert_array_equal(shader.luminance(pixels, np.full(len(pixels), t)),
+                                      frames[t].ravel()[pixels])
+    assert np.mean(frames[0.0] != frames[0.7]) > 0.2
+
+
+def test_calls_of_any_size_reuse_the_kernel_and_launches_change_nothing(boxes, monkeypatch):
+    import drjit as dr
+
+    shader = EventShader(boxes, 4, t0=0.0, t1=4.0)
+    rng = np.random.default_rng(6)
+    pixels, times = rng.integers(0, 48 * 36, 777), rng.uniform(0.0, 4.0, 777)
+    shader.luminance(pixels[:100], times[:100])
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        whole = shader.luminance(pixels, times)
+        shader.frame(2.5)
+        kernels = dr.kernel_history([dr.KernelType.JIT])
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert kernels and all(k["cache_hit"] for k in kernels), "a new size compiled a new kernel"
+    monkeypatch.setattr(sim.shader, "MAX_RAYS_PER_LAUNCH", 4 * 50)      # 16 launches
+    split = EventShader(boxes, 4, t0=0.0, t1=4.0)
+    np.testing.assert_array_equal(split.luminance(pixels, times), whole)
+
+
+def test_scalar_variant_is_refused_in_one_line():
+    with pytest.raises(ValueError, match=r"JIT Mitsuba variant .*got scalar_rgb") as info:
+        require_jit_variant("scalar_rgb")
+    assert "\n" not in str(info.value)
+    require_jit_variant("llvm_ad_rgb")
+    require_jit_variant("cuda_ad_rgb")
+
+
+def test_bad_inputs_are_refused_with_what_was_expected(boxes):
+    shader = EventShader(boxes, 4, t0=1.0, t1=2.0)
+    with pytest.raises(ValueError, match=r"flat indices y\*W\+x in \[0, 1728\), got \[0, 1728\]"):
+        shader.luminance(np.array([0, 1728]), np.array([1.5, 1.5]))
+    with pytest.raises(ValueError, match=r"\[t0, t1\] = \[1.0, 2.0\] s .*got 2.5"):
+        shader.luminance(np.array([0, 1]), np.array([1.5, 2.5]))
+    with pytest.raises(ValueError, match="same shape"):
+        shader.luminance(np.array([0, 1]), np.array([1.5]))
+    with pytest.raises(ValueError, match="integer flat indices"):
+        shader.luminance(np.array([0.0, 1.0]), np.array([1.5, 1.5]))
+    with pytest.raises(ValueError, match=r"\[t0, t1\]"):
+        shader.frame(0.5)
+    with pytest.raises(ValueError, match="perfect square"):
+        EventShader(boxes, 3, t0=1.0, t1=2.0)
+    with pytest.raises(ValueError, match="t0 < t1"):
+        EventShader(boxes, 4, t0=2.0, t1=2.0)
+    assert shader.luminance(np.zeros(0, dtype=np.int64), np.zeros(0)).shape == (0,)
