@@ -61,9 +61,12 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     result = simulate(scene, args.out, duration=args.duration, start=args.start, spp=args.spp,
                       variant=args.variant, overwrite=args.overwrite, progress=not args.quiet,
                       events=events, sampling=sampling, with_events=not args.no_events,
-                      event_formats=formats, resume=args.resume)
+                      event_formats=formats, resume=args.resume, sampler=args.sampler)
     what = f"{result.n_frames} frames and depth maps ({result.n_renders} renders)"
-    if result.n_events is not None:
+    if result.n_events is not None and result.sampler == "pixel":
+        what += (f", {result.n_events} events ({result.event_renders} frames and "
+                 f"{result.event_pixel_samples:,} pixel samples)")
+    elif result.n_events is not None:
         what += f", {result.n_events} events ({result.event_renders} renders)"
     print(f"wrote {what} with {result.variant} in {result.timings['total']:.1f} s to "
           f"{result.out}")
@@ -403,6 +406,11 @@ def _parser() -> argparse.ArgumentParser:
                           help="lowest render rate for the event camera, Hz (default 100)")
     simulate.add_argument("--max-rate", type=float, default=20000.0,
                           help="highest render rate for the event camera, Hz (default 20000)")
+    simulate.add_argument("--sampler", choices=("pixel", "frame"), default=None,
+                          help="how the event camera is sampled: pixel (each pixel at its own "
+                               "adaptive times; static scenes) or frame (whole frames at one "
+                               "adaptive rate) (default: pixel for static scenes on a JIT "
+                               "variant, else frame)")
     simulate.add_argument("--event-format", default="h5,txt",
                           help="event files to write: h5, txt or both (default h5,txt)")
     simulate.add_argument("--no-events", action="store_true",

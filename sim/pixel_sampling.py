@@ -78,6 +78,9 @@ class PixelSource(Protocol):
     def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
         """Linear luminance (N,) of flat pixel indices (N,) at their own times (N,) seconds."""
 
+    def subsamples(self, t: float) -> np.ndarray:
+        """Linear luminance of every sub-sample at ``t`` on the sub-sample grid (H n, W n)."""
+
     def depth(self, t: float) -> np.ndarray:
         """Exact z-depth (H, W) in metres at pixel centres, 0 where nothing is seen."""
 
@@ -96,7 +99,8 @@ class PixelSamplingStats:
     midpoint_samples : int
         Of those, the midpoints rendered because an interval broke the bound.
     full_renders : int
-        Whole frames rendered at the block boundaries.
+        Whole frames rendered: one at each block boundary, and every sub-sample of the frame at
+        each block's start (for the prediction).
     depth_renders : int
         Exact-depth renders made for the prediction (one per block).
     blocks : int
@@ -141,37 +145,61 @@ class PixelBlock:
     events: np.ndarray
 
 
-def rate_map(camera: Camera, log: np.ndarray, depth: np.ndarray,
-             twists: list[tuple[np.ndarray, np.ndarray]], seconds: float) -> np.ndarray:
+def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
+             twists: list[tuple[np.ndarray, np.ndarray]], seconds: float,
+             log_eps: float) -> np.ndarray:
     """Predicted |dL/dt| of every pixel over a block, 1/s.
+
+    A pixel's value is the mean of its sub-samples, and each sub-sample sees the scene at its
+    own point: a texture finer than the pixel changes the pixel's value faster than the
+    pixel-level gradient says. So the gradient is taken on the sub-sample grid, each
+    sub-sample's rate is its one-sided log gradient times the pixel's motion field, and the
+    pixel's rate is ``sum_s (Y_s + eps) |dL_s/dt| / (spp (mean Y + eps))``, a bound of
+    ``|d log(mean Y + eps) / dt|`` by the triangle inequality.
 
     Parameters
     ----------
     camera : Camera
-    log : (H, W) array_like
-        Log intensity at the block's start.
+    subsamples : (H n, W n) array_like
+        Linear luminance of every sub-sample at the block's start, laid out on the sub-sample
+        grid (:meth:`sim.shader.EventShader.subsamples`); ``n = 1`` for the pixels themselves.
     depth : (H, W) array_like, metres
         Exact depth at the block's start (0 where nothing is seen).
     twists : list of (v, w)
         Camera velocities (camera frame) at the times the block spans (its two ends).
     seconds : float
         The block's length.
+    log_eps : float
+        L = log(Y + log_eps).
 
     Returns
     -------
     (H, W) float64 ndarray
-        The largest one-sided gradient times motion field over the twists, dilated by the
-        distance the fastest pixel moves in ``seconds`` (at most :data:`MAX_DILATION`).
+        The largest predicted rate over the twists, dilated by the distance the fastest pixel
+        moves in ``seconds`` (at most :data:`MAX_DILATION`).
     """
     from sim.sampling import _one_sided_gradient
 
-    grad_u, grad_v = _one_sided_gradient(np.asarray(log, dtype=np.float64))
-    rate = np.zeros_like(grad_u)
+    height, width = camera.height, camera.width
+    luminance = np.asarray(subsamples, dtype=np.float64)
+    n = luminance.shape[0] // height
+    if luminance.shape != (height * n, width * n) or n < 1:
+        raise ValueError(f"subsamples must have shape (H n, W n) for the camera's {height}x"
+                         f"{width} pixels, got {luminance.shape}")
+    grad_u, grad_v = _one_sided_gradient(np.log(luminance + log_eps))
+    grad_u *= n                                    # per pixel, not per sub-sample spacing
+    grad_v *= n
+    weight = luminance + log_eps
+    mean = weight.reshape(height, n, width, n).mean(axis=(1, 3))
+    rate = np.zeros((height, width))
     speed = 0.0
     for v_cam, w_cam in twists:
         with np.errstate(invalid="ignore"):
             flow_u, flow_v = motion_field(camera, depth, v_cam, w_cam)
-        rate = np.maximum(rate, grad_u * np.abs(flow_u) + grad_v * np.abs(flow_v))
+        fu = np.repeat(np.repeat(np.abs(flow_u), n, axis=0), n, axis=1)
+        fv = np.repeat(np.repeat(np.abs(flow_v), n, axis=0), n, axis=1)
+        each = weight * (grad_u * fu + grad_v * fv)
+        rate = np.maximum(rate, each.reshape(height, n, width, n).mean(axis=(1, 3)) / mean)
         speed = max(speed, float(np.max(np.hypot(flow_u, flow_v), initial=0.0)))
     radius = min(MAX_DILATION, math.ceil(speed * seconds))
     if radius > 0:
@@ -404,6 +432,9 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     dt_min_ns = max(int(round(1e9 / params.max_rate)), 1)
     t0_ns, t1_ns = int(round(t0 * 1e9)), int(round(t1 * 1e9))
 
+    def seconds(ns):                       # nanoseconds -> seconds, never outside [t0, t1]
+        return np.clip(np.asarray(ns) * 1e-9, t0, t1)
+
     def log_of(luminance: np.ndarray) -> np.ndarray:
         return np.log(np.asarray(luminance, dtype=np.float64) + log_eps)
 
@@ -423,13 +454,16 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         if t1_ns - t_e < dt_min_ns:                 # no sliver of a block at the end
             t_e = t1_ns
         length = t_e - t_b
-        lum_e = np.asarray(source.frame(t_e * 1e-9), dtype=np.float32)
+        lum_e = np.asarray(source.frame(float(seconds(t_e))), dtype=np.float32)
         stats.full_renders += 1
         log_e = log_of(lum_e)
-        depth = source.depth(t_b * 1e-9)
+        depth = source.depth(float(seconds(t_b)))
         stats.depth_renders += 1
-        twists = [source.camera_velocity(t_b * 1e-9), source.camera_velocity(t_e * 1e-9)]
-        rate = rate_map(camera, log_b, depth, twists, length * 1e-9)
+        subsamples = source.subsamples(float(seconds(t_b)))
+        stats.full_renders += 1
+        twists = [source.camera_velocity(float(seconds(t_b))),
+                  source.camera_velocity(float(seconds(t_e)))]
+        rate = rate_map(camera, subsamples, depth, twists, length * 1e-9, log_eps)
         rate = np.maximum(rate, np.abs(log_e - log_b) / (length * 1e-9)).reshape(-1)
         inner = _intra_counts(rate, length, bound, dt_min_ns)
         # Every pixel: its block-start sample, `inner` evenly spaced samples, its block-end one.
@@ -446,21 +480,21 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         levels[end], lums[end] = log_e.reshape(-1), lum_e.reshape(-1)
         middle = (position > 0) & (position <= inner[pix])
         if middle.any():
-            values = np.asarray(source.luminance(pix[middle], times[middle] * 1e-9), np.float64)
+            values = np.asarray(source.luminance(pix[middle], seconds(times[middle])), np.float64)
             lums[middle], levels[middle] = values, np.log(values + log_eps)
             stats.pixel_samples += int(middle.sum())
         pix, times, levels, lums = _refine(source, pix, times, levels, lums, bound, dt_min_ns,
-                                           log_eps, stats)
+                                           log_eps, stats, seconds)
         stats.intervals += len(pix) - n_pixels
         events = emulator.advance_samples(pix, times, levels, lums, t_e, lum_e)
         stats.blocks += 1
         t_b, lum_b, log_b = t_e, lum_e, log_e
-        yield PixelBlock(t_e * 1e-9, lum_e, log_e, events)
+        yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events)
 
 
 def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.ndarray,
             lums: np.ndarray, bound: float, dt_min_ns: int, log_eps: float,
-            stats: PixelSamplingStats) -> tuple[np.ndarray, ...]:
+            stats: PixelSamplingStats, seconds) -> tuple[np.ndarray, ...]:
     """Split every interval of a pixel that breaks the bound at its midpoint, level by level."""
     candidate = np.ones(len(pix), dtype=bool)        # the interval from sample j to j + 1
     while True:
@@ -475,7 +509,7 @@ def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.
         if index.size == 0:
             break
         mid_t = (times[index] + times[index + 1]) // 2
-        mid_lum = np.asarray(source.luminance(pix[index], mid_t * 1e-9), np.float64)
+        mid_lum = np.asarray(source.luminance(pix[index], seconds(mid_t)), np.float64)
         mid_level = np.log(mid_lum + log_eps)
         stats.pixel_samples += index.size
         stats.midpoint_samples += index.size

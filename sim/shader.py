@@ -255,6 +255,11 @@ class EventShader:
 
         self._trace = dr.freeze(trace)
 
+        def trace_one(scene, directions, pixels, entries, zeros):
+            return _trace(scene, directions, pixels, entries, zeros, spp=1)
+
+        self._trace_subsamples = dr.freeze(trace_one)
+
     # ----------------------------------------------------------------------------------------
     @property
     def pose_step(self) -> float:
@@ -363,6 +368,36 @@ class EventShader:
         entries = np.broadcast_to(self._poses.interpolate(times), (12, size))
         return self._shade(np.arange(size), entries).reshape(self.shape)
 
+    def subsamples(self, t: float) -> np.ndarray:
+        """Every sub-sample of every pixel at time ``t``, laid out on the sub-sample grid.
+
+        Parameters
+        ----------
+        t : float, seconds
+            Within ``[t0, t1]``; objects that move are moved to ``t``.
+
+        Returns
+        -------
+        (H n, W n) float32 ndarray, ``n = sqrt(spp)``
+            Linear luminance of sub-sample ``k`` of pixel ``(x, y)`` at row ``y n + k // n``,
+            column ``x n + k % n`` (its stratum; see :func:`subsample_directions`). A pixel's
+            value (:meth:`frame`) is the mean of its ``spp`` sub-samples (up to float32
+            rounding: the two are summed by different code).
+        """
+        times = self._check_times(np.array([t], dtype=np.float64))
+        if self.renderer.scene.is_dynamic:
+            self.renderer.set_time(float(times[0]))
+        count = self.shape[0] * self.shape[1] * self.spp
+        entries = np.broadcast_to(self._poses.interpolate(times), (12, count))
+        step = MAX_RAYS_PER_LAUNCH
+        values = np.concatenate([
+            self._launch(np.arange(i, min(i + step, count)), entries[:, i:i + step],
+                         self._trace_subsamples) for i in range(0, count, step)])
+        n = math.isqrt(self.spp)
+        height, width = self.shape
+        return (values.reshape(height, width, n, n).transpose(0, 2, 1, 3)
+                .reshape(height * n, width * n))
+
     # ----------------------------------------------------------------------------------------
     def _check_times(self, times: np.ndarray) -> np.ndarray:
         times = np.asarray(times, dtype=np.float64)
@@ -380,13 +415,14 @@ class EventShader:
         return np.concatenate([self._launch(pixels[i:i + step], entries[:, i:i + step])
                                for i in range(0, len(pixels), step)])
 
-    def _launch(self, pixels: np.ndarray, entries: np.ndarray) -> np.ndarray:
+    def _launch(self, pixels: np.ndarray, entries: np.ndarray, trace=None) -> np.ndarray:
         mi, dr = self._mi, self._dr
+        trace = trace or self._trace
         pose = tuple(mi.Float(_aligned(row, np.float32)) for row in entries)
         index = mi.UInt32(_aligned(pixels, np.uint32))
         zeros = dr.zeros(mi.Float, len(pixels))
         dr.make_opaque(index, zeros, *pose)          # sizes change per call, the kernel not
-        total = self._trace(self.renderer.mitsuba_scene, self._directions, index, pose, zeros)
+        total = trace(self.renderer.mitsuba_scene, self._directions, index, pose, zeros)
         return np.asarray(total, dtype=np.float32)
 
 

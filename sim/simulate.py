@@ -32,7 +32,7 @@ import os
 import platform
 import sys
 import time
-from contextlib import ExitStack
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, dataclass
 from importlib import metadata
 from pathlib import Path
@@ -53,6 +53,7 @@ from sim.frames import (
     luminance_to_frame,
 )
 from sim.progress import progress as progress_stage
+from sim.pixel_sampling import PixelEventEmulator, PixelSamplingStats, pixel_blocks
 from sim.render import Renderer
 from sim.sampling import (
     AT_MAX_RATE_NOTE,
@@ -86,6 +87,14 @@ FRAME_NOISE_STREAM = 1
 
 _CHECKPOINT_FORMAT = "evfuse checkpoint 1"
 _EMULATOR_ARRAYS = ("ref", "level", "raw", "last_t")
+_SHADING = ("evfuse.shader: direct light from every light in turn, a fixed stratified sub-pixel "
+            "pattern")
+PIXEL_AT_MAX_RATE_NOTE = (
+    "intervals_at_max_rate: per-pixel intervals (of intervals) that still changed the pixel's "
+    "log intensity by more than lam * C when 2 / max_rate short (sampling.max_rate); the "
+    "emulator interpolates across them. Many of them mean a point light or specular highlight, "
+    "or a texture finer than the pixels; above 1 % simulate says so on stderr.")
+"""The sentence ``sequence.json`` writes beside ``intervals_at_max_rate`` (per-pixel sampler)."""
 
 
 @dataclass(frozen=True)
@@ -103,7 +112,11 @@ class SimulationResult:
     n_events : int or None
         Number of events written (None when events were not simulated).
     event_renders : int
-        Renders made for the event camera (refined intervals included).
+        Whole-frame renders made for the event camera (refined intervals included).
+    event_pixel_samples : int
+        Single-pixel renders of the per-pixel sampler (0 with the frame sampler).
+    sampler : str or None
+        ``pixel`` or ``frame`` (None when events were not simulated).
     variant : str
         Mitsuba variant used.
     timings : dict
@@ -117,6 +130,8 @@ class SimulationResult:
     timings: dict
     n_events: int | None = None
     event_renders: int = 0
+    event_pixel_samples: int = 0
+    sampler: str | None = None
 
 
 def _versions() -> dict[str, str]:
@@ -136,7 +151,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
              progress: bool = True, events: EventParams | None = None,
              sampling: SamplingParams | None = None, with_events: bool = True,
              event_formats: tuple[str, ...] = ("h5", "txt"),
-             resume: bool = False) -> SimulationResult:
+             resume: bool = False, sampler: str | None = None) -> SimulationResult:
     """Render a scene into a sequence folder.
 
     Parameters
@@ -174,6 +189,12 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         software versions; the files come out the same as an uninterrupted run's
         (``sequence.json`` apart from its timings). Without ``resume``, a stale
         ``<out>.partial`` is discarded.
+    sampler : {"pixel", "frame"}, optional
+        How the event camera is sampled: ``pixel`` renders each pixel at its own adaptive
+        times (:mod:`sim.pixel_sampling`; static scenes on a JIT variant only), ``frame``
+        renders whole frames at one adaptive rate (:mod:`sim.sampling`). Default: ``pixel``
+        where it applies, else ``frame``; the choice is said once on stderr and recorded in
+        ``sequence.json``.
 
     Returns
     -------
@@ -217,8 +238,13 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     if with_events and (unknown or not event_formats):
         raise ValueError(f"event formats must be among h5, txt; got {event_formats}")
     out = Path(out)
+    if sampler not in (None, "pixel", "frame"):
+        raise ValueError(f"sampler {sampler!r}: expected 'pixel', 'frame' or None (automatic)")
+    if with_events and sampler == "pixel" and scene.is_dynamic:
+        raise ValueError(f"--sampler pixel: scene {scene.name} has moving objects, and the "
+                         "per-pixel sampler needs a static scene; use --sampler frame")
     identity = _identity(scene, start, duration, spp, events if with_events else None, sampling,
-                         event_formats)
+                         event_formats, sampler)
     if resume:                                        # refuse before loading the renderer
         _check_resumable(out, overwrite, identity)
     else:
@@ -228,6 +254,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     clock = time.perf_counter()
     renderer = Renderer(scene, spp=spp, variant=variant)
     identity["variant"] = renderer.variant
+    if with_events:
+        sampler = _choose_sampler(scene, renderer.variant, sampler)
     timings["setup"] = time.perf_counter() - clock
     with atomic_output_dir(out, overwrite=overwrite, resume=resume) as tmp:
         checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
@@ -238,8 +266,10 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                                                           checkpoint, progress, timings)
         event_info = checkpoint.events_done
         if with_events and event_info is None:
-            event_info = _simulate_events(scene, renderer, tmp, start, end, events, sampling,
-                                          event_formats, checkpoint, progress, timings)
+            simulate_events = (_simulate_events_per_pixel if sampler == "pixel"
+                               else _simulate_events)
+            event_info = simulate_events(scene, renderer, tmp, start, end, events, sampling,
+                                         event_formats, checkpoint, progress, timings)
             checkpoint.set_events_done(event_info)
         if with_events and event_info.get("sampling_warning"):
             print(f"simulate {scene.name}: warning: {event_info['sampling_warning']}",
@@ -272,7 +302,9 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     return SimulationResult(out, len(times), len(times) * params.exposure_samples,
                             renderer.variant, timings,
                             event_info["count"] if with_events else None,
-                            event_info["renders"] if with_events else 0)
+                            event_info["renders"] if with_events else 0,
+                            event_info.get("pixel_samples", 0) if with_events else 0,
+                            event_info.get("sampler", "frame") if with_events else None)
 
 
 # --- standard-camera frames --------------------------------------------------------------------
@@ -351,7 +383,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
         after = Sample(luminance=arrays["sample_luminance"], log=arrays["sample_log"],
                        **state["sample"])
     contrast = min(params.contrast_on, params.contrast_off)
-    fast = _FastRenderer(renderer, scene.render.event_spp)
+    fast = _FastRenderer(renderer, scene.render.event_spp, start, end)
     bar = progress_stage(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
                          noun="s simulated", enabled=progress,
                          bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
@@ -364,13 +396,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
         threads = numba.get_num_threads()
         numba.set_num_threads(1)
         stack.callback(numba.set_num_threads, threads)
-        writers: dict[str, H5EventWriter | TextEventWriter] = {}
-        if "h5" in formats:
-            writers["h5"] = stack.enter_context(H5EventWriter(
-                folder / "events.h5", cam.width, cam.height, resume=positions.get("h5")))
-        if "txt" in formats:
-            writers["txt"] = stack.enter_context(TextEventWriter(
-                folder / "events.txt", resume=positions.get("txt")))
+        writers = stack.enter_context(_event_writers(folder, cam, formats, positions))
         since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()
         for sample in adaptive_samples(fast, start, end, contrast, params.log_eps, sampling,
@@ -402,7 +428,197 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
             bar.n = round(sample.t - start, 6)
             bar.set_postfix_str(f"{count:,} events, {stats.renders:,} renders", refresh=False)
             bar.update(0)
-    noise = params.noise
+    return {
+        **_event_info(params, formats, sampling, scene, count, on),
+        "sampler": "frame",
+        "renders": stats.renders,
+        "full_renders": stats.renders,
+        "pixel_samples": 0,
+        "samples": stats.accepted,
+        "midpoint_renders": stats.refined,
+        "step_intervals": stats.steps,
+        "intervals_at_max_rate": stats.at_max_rate,
+        "intervals_at_max_rate_note": AT_MAX_RATE_NOTE,
+        "sampling_warning": max_rate_warning(stats.at_max_rate, max(stats.accepted - 1, 0),
+                                             sampling.max_rate, sampling.lam * contrast),
+        "shading": _SHADING if fast.shader is not None else "mitsuba direct integrator",
+    }
+
+
+class _FastRenderer:
+    """The renderer with the event camera's samples per pixel (depth unchanged).
+
+    On a JIT variant the event camera is shaded by :class:`sim.shader.EventShader` (every light
+    in turn, a fixed sub-pixel pattern), whichever sampler drives it, so that the two samplers
+    see the same luminance; on ``scalar_rgb`` by Mitsuba's ``direct`` integrator.
+    """
+
+    def __init__(self, renderer: Renderer, spp: int, start: float, end: float):
+        self._renderer, self._spp = renderer, spp
+        self.scene, self.camera = renderer.scene, renderer.camera
+        self.shader = None
+        if renderer.variant != "scalar_rgb":
+            from sim.shader import EventShader
+
+            self.shader = EventShader(renderer, spp, t0=start, t1=end)
+
+    def luminance(self, t: float) -> np.ndarray:
+        if self.shader is not None:
+            return self.shader.frame(t)
+        return self._renderer.luminance(t, spp=self._spp)
+
+    def depth(self, t: float) -> np.ndarray:
+        return self._renderer.depth(t)
+
+
+class _ShaderSource:
+    """:class:`sim.pixel_sampling.PixelSource` of a renderer's scene, timing its renders."""
+
+    def __init__(self, fast: _FastRenderer) -> None:
+        self._fast = fast
+        self.camera = fast.camera
+        self.seconds = 0.0
+
+    def _timed(self, function, *args):
+        tick = time.perf_counter()
+        try:
+            return function(*args)
+        finally:
+            self.seconds += time.perf_counter() - tick
+
+    def frame(self, t: float) -> np.ndarray:
+        return self._timed(self._fast.shader.frame, t)
+
+    def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
+        return self._timed(self._fast.shader.luminance, pixels, times)
+
+    def subsamples(self, t: float) -> np.ndarray:
+        return self._timed(self._fast.shader.subsamples, t)
+
+    def depth(self, t: float) -> np.ndarray:
+        return self._timed(self._fast.depth, t)
+
+    def camera_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self._fast.scene.trajectory.camera_velocity(t)
+
+
+def _choose_sampler(scene: Scene, variant: str, requested: str | None) -> str:
+    """The event camera's sampler (see :func:`simulate`), said once on stderr."""
+    if requested == "pixel" and variant == "scalar_rgb":
+        raise ValueError("--sampler pixel: the per-pixel sampler traces batches of rays and "
+                         "needs a JIT variant (llvm_ad_rgb or cuda_ad_rgb); scalar_rgb renders "
+                         "whole frames only (--sampler frame)")
+    if requested is not None:
+        chosen, why = requested, "as asked (--sampler)"
+    elif scene.is_dynamic:
+        chosen, why = "frame", "the scene has moving objects"
+    elif variant == "scalar_rgb":
+        chosen, why = "frame", "scalar_rgb cannot trace per-pixel batches"
+    else:
+        chosen, why = "pixel", "static scene"
+    how = "each pixel at its own times" if chosen == "pixel" else "whole frames at one rate"
+    print(f"simulate {scene.name}: event camera sampled {how} ({why})", file=sys.stderr,
+          flush=True)
+    return chosen
+
+
+@contextmanager
+def _event_writers(folder: Path, camera, formats: tuple[str, ...], positions: dict):
+    """The event files' writers (resumed at ``positions``), closed on exit."""
+    with ExitStack() as stack:
+        writers: dict[str, H5EventWriter | TextEventWriter] = {}
+        if "h5" in formats:
+            writers["h5"] = stack.enter_context(H5EventWriter(
+                folder / "events.h5", camera.width, camera.height, resume=positions.get("h5")))
+        if "txt" in formats:
+            writers["txt"] = stack.enter_context(TextEventWriter(
+                folder / "events.txt", resume=positions.get("txt")))
+        yield writers
+
+
+def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, start: float,
+                               end: float, params: EventParams, sampling: SamplingParams,
+                               formats: tuple[str, ...], checkpoint: _Checkpoint,
+                               progress: bool, timings: dict) -> dict:
+    """Drive the emulator with per-pixel samples over [start, end]; stream the events out.
+
+    Checkpoints are taken at block ends (see :func:`sim.pixel_sampling.pixel_blocks`).
+    """
+    cam = scene.camera
+    emulator = PixelEventEmulator((cam.height, cam.width), params)
+    stats = PixelSamplingStats()
+    count = on = 0
+    after = None
+    positions: dict = {}
+    saved = checkpoint.load_events()
+    if saved is not None:
+        arrays, state = saved
+        emulator.set_state({**state["emulator"],
+                            **{key: arrays[f"emulator_{key}"] for key in _EMULATOR_ARRAYS}})
+        stats = PixelSamplingStats(**state["stats"])
+        count, on, positions = state["count"], state["on"], state["writers"]
+        after = (state["sample"]["t"], arrays["sample_luminance"])
+    contrast = min(params.contrast_on, params.contrast_off)
+    source = _ShaderSource(_FastRenderer(renderer, scene.render.event_spp, start, end))
+    bar = progress_stage(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
+                         noun="s simulated", enabled=progress,
+                         bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
+                                    "[{elapsed}<{remaining}{postfix}]")
+    with ExitStack() as stack:
+        stack.callback(bar.close)
+        threads = numba.get_num_threads()             # see _simulate_events
+        numba.set_num_threads(1)
+        stack.callback(numba.set_num_threads, threads)
+        writers = stack.enter_context(_event_writers(folder, cam, formats, positions))
+        since, saved_at = 0, time.perf_counter()
+        tick = time.perf_counter()
+        rendered = source.seconds
+        for block in pixel_blocks(source, emulator, start, end, contrast, params.log_eps,
+                                  sampling, stats, after=after):
+            tock = time.perf_counter()
+            timings["event_render"] += source.seconds - rendered
+            timings["emulate"] += (tock - tick) - (source.seconds - rendered)
+            if len(block.events):
+                for writer in writers.values():
+                    writer.write(block.events)
+                count += len(block.events)
+                on += int(np.count_nonzero(block.events["p"] > 0))
+            tick = time.perf_counter()
+            timings["event_write"] += tick - tock
+            since += 1
+            if since >= CHECKPOINT_SAMPLES or tick - saved_at >= CHECKPOINT_SECONDS:
+                sample = Sample(block.t, block.luminance, block.log, 0.0, True)
+                checkpoint.save_events(sample, emulator, stats, count, on, writers)
+                since, saved_at = 0, time.perf_counter()
+                timings["checkpoint"] += saved_at - tick
+                tick = saved_at
+            rendered = source.seconds
+            bar.n = round(block.t - start, 6)
+            bar.set_postfix_str(f"{count:,} events, {stats.pixel_samples:,} pixel samples",
+                                refresh=False)
+            bar.update(0)
+    return {
+        **_event_info(params, formats, sampling, scene, count, on),
+        "sampler": "pixel",
+        "renders": stats.full_renders,
+        "full_renders": stats.full_renders,
+        "pixel_samples": stats.pixel_samples,
+        "midpoint_samples": stats.midpoint_samples,
+        "depth_renders": stats.depth_renders,
+        "blocks": stats.blocks,
+        "intervals": stats.intervals,
+        "step_intervals": stats.steps,
+        "intervals_at_max_rate": stats.at_max_rate,
+        "intervals_at_max_rate_note": PIXEL_AT_MAX_RATE_NOTE,
+        "sampling_warning": max_rate_warning(stats.at_max_rate, stats.intervals,
+                                             sampling.max_rate, sampling.lam * contrast),
+        "shading": _SHADING,
+    }
+
+
+def _event_info(params: EventParams, formats: tuple[str, ...], sampling: SamplingParams,
+                scene: Scene, count: int, on: int) -> dict:
+    """The part of ``sequence.json``'s ``events`` both samplers write alike."""
     return {
         "count": count,
         "on": on,
@@ -412,39 +628,17 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
         "contrast_off": params.contrast_off,
         "log_eps": params.log_eps,
         "seed": params.seed,
-        "noise": asdict(noise),
+        "noise": asdict(params.noise),
         "sampling": asdict(sampling),
-        "renders": stats.renders,
-        "samples": stats.accepted,
-        "midpoint_renders": stats.refined,
-        "step_intervals": stats.steps,
-        "intervals_at_max_rate": stats.at_max_rate,
-        "intervals_at_max_rate_note": AT_MAX_RATE_NOTE,
-        "sampling_warning": max_rate_warning(stats.at_max_rate, max(stats.accepted - 1, 0),
-                                             sampling.max_rate, sampling.lam * contrast),
         "event_spp": scene.render.event_spp,
     }
-
-
-class _FastRenderer:
-    """The renderer with the event camera's samples per pixel (depth unchanged)."""
-
-    def __init__(self, renderer: Renderer, spp: int):
-        self._renderer, self._spp = renderer, spp
-        self.scene, self.camera = renderer.scene, renderer.camera
-
-    def luminance(self, t: float) -> np.ndarray:
-        return self._renderer.luminance(t, spp=self._spp)
-
-    def depth(self, t: float) -> np.ndarray:
-        return self._renderer.depth(t)
 
 
 # --- checkpoints -------------------------------------------------------------------------------
 
 def _identity(scene: Scene, start: float, duration: float, spp: int | None,
               events: EventParams | None, sampling: SamplingParams,
-              formats: tuple[str, ...]) -> dict:
+              formats: tuple[str, ...], sampler: str | None = None) -> dict:
     """What decides a run's output, as JSON values (the variant is added once it is known).
 
     The scene enters by its TOML text (hashed) and the parsed parts a caller may replace;
@@ -460,7 +654,8 @@ def _identity(scene: Scene, start: float, duration: float, spp: int | None,
         "spp": int(spp if spp is not None else scene.render.spp),
         "events": None if events is None else {"params": asdict(events),
                                                "sampling": asdict(sampling),
-                                               "formats": list(formats)},
+                                               "formats": list(formats),
+                                               "sampler": sampler},
         "software": _versions(),
     }
     return json.loads(json.dumps(identity))           # tuples -> lists, as read back

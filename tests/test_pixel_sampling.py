@@ -58,6 +58,9 @@ class Ramp:
         n = self.camera.width * self.camera.height
         return self.luminance(np.arange(n), np.full(n, t)).reshape(self.camera.height, -1)
 
+    def subsamples(self, t):
+        return self.frame(t)
+
     def depth(self, t):
         return np.zeros((self.camera.height, self.camera.width))
 
@@ -91,7 +94,7 @@ def test_a_log_ramp_fires_every_event_at_its_exact_time():
     order = np.lexsort((got[:, 0], got[:, 2], got[:, 1]))
     order_expected = np.lexsort((expected[:, 0], expected[:, 2], expected[:, 1]))
     assert np.abs(got[order] - expected[order_expected]).max() <= 1000      # 1 microsecond
-    assert stats.blocks == 6 and stats.full_renders == 7
+    assert stats.blocks == 6 and stats.full_renders == 7 + 6      # frames, sub-sample frames
     # Each pixel rises over 5.7 C / 200 = 5.7 ms: it needs samples inside its blocks, the
     # flat pixels (before and after the ramp) none.
     assert 0 < stats.pixel_samples < 48 * 6 * 100
@@ -100,7 +103,7 @@ def test_a_log_ramp_fires_every_event_at_its_exact_time():
 def test_a_view_that_does_not_change_gives_no_events_and_no_pixel_samples():
     blocks, stats, _ = _run(Ramp(still=True))
     assert sum(len(b.events) for b in blocks) == 0
-    assert stats.pixel_samples == 0 and stats.full_renders == 7
+    assert stats.pixel_samples == 0 and stats.full_renders == 7 + 6
 
 
 def test_every_interval_meets_the_bound_or_is_counted(monkeypatch):
@@ -179,9 +182,9 @@ def test_the_predicted_rate_spreads_over_the_distance_an_edge_travels():
     log[:, 32:] = 1.0                                       # one vertical edge
     depth = np.full((8, 64), 2.0)
     v = np.array([-1.0, 0.0, 0.0])                          # the image moves at 25 px/s in +x
-    rate = rate_map(camera, log, depth, [(v, np.zeros(3))], 0.2)        # 5 px in a block
+    rate = rate_map(camera, np.exp(log), depth, [(v, np.zeros(3))], 0.2, 0.0)   # 5 px a block
     row = rate[4]
     assert row[31] == pytest.approx(25.0) and row[32] == pytest.approx(25.0)
     assert np.all(row[26:38] == pytest.approx(25.0)) and row[25] == row[38] == 0.0
-    far = rate_map(camera, log, depth, [(v * 100, np.zeros(3))], 0.2)   # 500 px: capped
+    far = rate_map(camera, np.exp(log), depth, [(v * 100, np.zeros(3))], 0.2, 0.0)  # capped
     assert np.count_nonzero(far[4]) == 64 and MAX_DILATION < 500
