@@ -298,6 +298,11 @@ def _pixel_events(pix, t, L, Y, ref, level, raw, last_t, c_on, c_off, leak, norm
     return n
 
 
+def _outputs(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Times (int64 ns), flat pixels (int64) and polarities (int8) of ``n`` events."""
+    return np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int8)
+
+
 class PixelEventEmulator(EventEmulator):
     """:class:`~sim.events.EventEmulator` fed with per-pixel samples, a block at a time.
 
@@ -356,10 +361,8 @@ class PixelEventEmulator(EventEmulator):
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
         args = (pixels, times_ns, levels, luminance, ref, level, raw, last_t, c_on, c_off, leak,
                 normals, cutoff, refractory)
-        empty_t, empty_pix, empty_p = np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.int8)
-        total = _pixel_events(*args, False, empty_t, empty_pix, empty_p)
-        out_t, out_pix, out_p = np.empty(total, np.int64), np.empty(total, np.int64), \
-            np.empty(total, np.int8)
+        total = _pixel_events(*args, False, *_outputs(0))
+        out_t, out_pix, out_p = _outputs(total)
         _pixel_events(*args, True, out_t, out_pix, out_p)
         order = np.argsort((out_t - t0_ns) * n_pixels + out_pix)
         events = np.empty(total, EVENT_DTYPE)

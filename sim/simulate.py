@@ -52,8 +52,8 @@ from sim.frames import (
     frame_times,
     luminance_to_frame,
 )
-from sim.progress import progress as progress_stage
 from sim.pixel_sampling import PixelEventEmulator, PixelSamplingStats, pixel_blocks
+from sim.progress import progress as progress_stage
 from sim.render import Renderer
 from sim.sampling import (
     AT_MAX_RATE_NOTE,
