@@ -255,7 +255,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     renderer = Renderer(scene, spp=spp, variant=variant)
     identity["variant"] = renderer.variant
     if with_events:
-        sampler = _choose_sampler(scene, renderer.variant, sampler)
+        sampler, why = _choose_sampler(scene, renderer.variant, sampler)
     timings["setup"] = time.perf_counter() - clock
     with atomic_output_dir(out, overwrite=overwrite, resume=resume) as tmp:
         checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
@@ -269,7 +269,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
             simulate_events = (_simulate_events_per_pixel if sampler == "pixel"
                                else _simulate_events)
             event_info = simulate_events(scene, renderer, tmp, start, end, events, sampling,
-                                         event_formats, checkpoint, progress, timings)
+                                         event_formats, checkpoint, progress, timings, why)
             checkpoint.set_events_done(event_info)
         if with_events and event_info.get("sampling_warning"):
             print(f"simulate {scene.name}: warning: {event_info['sampling_warning']}",
@@ -361,7 +361,8 @@ def _simulate_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.n
 
 def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: float, end: float,
                      params: EventParams, sampling: SamplingParams, formats: tuple[str, ...],
-                     checkpoint: _Checkpoint, progress: bool, timings: dict) -> dict:
+                     checkpoint: _Checkpoint, progress: bool, timings: dict,
+                     why: str = "as asked") -> dict:
     """Drive the emulator with adaptive renders over [start, end]; stream the events out.
 
     Continues from the checkpoint's event state when there is one, and saves that state at
@@ -426,11 +427,13 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                 timings["checkpoint"] += saved_at - tick
                 tick = saved_at
             bar.n = round(sample.t - start, 6)
-            bar.set_postfix_str(f"{count:,} events, {stats.renders:,} renders", refresh=False)
+            bar.set_postfix_str(f"{count:,} events, frame sampler ({why}): {stats.renders:,} "
+                                "renders", refresh=False)
             bar.update(0)
     return {
         **_event_info(params, formats, sampling, scene, count, on),
         "sampler": "frame",
+        "sampler_reason": why,
         "renders": stats.renders,
         "full_renders": stats.renders,
         "pixel_samples": 0,
@@ -502,8 +505,8 @@ class _ShaderSource:
         return self._fast.scene.trajectory.camera_velocity(t)
 
 
-def _choose_sampler(scene: Scene, variant: str, requested: str | None) -> str:
-    """The event camera's sampler (see :func:`simulate`), said once on stderr."""
+def _choose_sampler(scene: Scene, variant: str, requested: str | None) -> tuple[str, str]:
+    """The event camera's sampler (see :func:`simulate`) and why it was chosen."""
     if requested == "pixel" and variant == "scalar_rgb":
         raise ValueError("--sampler pixel: the per-pixel sampler traces batches of rays and "
                          "needs a JIT variant (llvm_ad_rgb or cuda_ad_rgb); scalar_rgb renders "
@@ -516,10 +519,7 @@ def _choose_sampler(scene: Scene, variant: str, requested: str | None) -> str:
         chosen, why = "frame", "scalar_rgb cannot trace per-pixel batches"
     else:
         chosen, why = "pixel", "static scene"
-    how = "each pixel at its own times" if chosen == "pixel" else "whole frames at one rate"
-    print(f"simulate {scene.name}: event camera sampled {how} ({why})", file=sys.stderr,
-          flush=True)
-    return chosen
+    return chosen, why
 
 
 @contextmanager
@@ -539,7 +539,7 @@ def _event_writers(folder: Path, camera, formats: tuple[str, ...], positions: di
 def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, start: float,
                                end: float, params: EventParams, sampling: SamplingParams,
                                formats: tuple[str, ...], checkpoint: _Checkpoint,
-                               progress: bool, timings: dict) -> dict:
+                               progress: bool, timings: dict, why: str = "as asked") -> dict:
     """Drive the emulator with per-pixel samples over [start, end]; stream the events out.
 
     Checkpoints are taken at block ends (see :func:`sim.pixel_sampling.pixel_blocks`).
@@ -594,12 +594,14 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
                 tick = saved_at
             rendered = source.seconds
             bar.n = round(block.t - start, 6)
-            bar.set_postfix_str(f"{count:,} events, {stats.pixel_samples:,} pixel samples",
-                                refresh=False)
+            bar.set_postfix_str(f"{count:,} events, per-pixel sampler ({why}): "
+                                f"{stats.full_renders:,} frames, {stats.pixel_samples:,} pixel "
+                                "samples", refresh=False)
             bar.update(0)
     return {
         **_event_info(params, formats, sampling, scene, count, on),
         "sampler": "pixel",
+        "sampler_reason": why,
         "renders": stats.full_renders,
         "full_renders": stats.full_renders,
         "pixel_samples": stats.pixel_samples,

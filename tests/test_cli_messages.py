@@ -174,7 +174,8 @@ def test_a_short_run_logs_one_line_per_stage_and_no_carriage_return(tmp_path, ca
                   "map: ", "fill: "):
         assert sum(line.startswith(start) for line in lines) == 1, (start, err)
     events = next(line for line in lines if line.startswith("events test: "))
-    assert " events, " in events and " renders in " in events
+    assert " events, per-pixel sampler (static scene): " in events, events
+    assert " frames, " in events and " pixel samples in " in events
     assert re.search(r"^map: [\d,]+ events in \d+\.\d s$", err, re.M), err
     assert re.search(r"^fill: \d+ regions filled in \d+\.\d s$", err, re.M), err
     assert main(["simulate", str(scene), "--out", str(tmp_path / "quiet"), "--spp", "1",

@@ -19,6 +19,7 @@ from sim.eventio import H5EventWriter, TextEventWriter, make_events, read_events
 from sim.events import EventEmulator, EventParams
 from sim.render import Renderer
 from sim.sampling import SamplingStats, adaptive_samples
+from sim.shader import EventShader
 from sim.scene import parse_scene
 from sim.simulate import SimulationResult, simulate
 from tests.conftest import FAST, scene_text
@@ -44,27 +45,33 @@ EVENTS = EventParams.preset("realistic", seed=3)
 
 
 class _Renders:
-    """Count the renders of frames (default spp) and of the event camera (its own spp), and
-    raise KeyboardInterrupt at render number ``stop``."""
+    """Count the renders of frames (Renderer.luminance) and of the event camera's whole frames
+    (EventShader.frame), and raise KeyboardInterrupt at render number ``stop``."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch, stop: int | None = None) -> None:
         self.frames = self.events = 0
         self.stop = stop
-        luminance = _REAL_LUMINANCE
 
-        def counting(renderer, t, pose=None, spp=None):
+        def check() -> None:
             if self.stop is not None and self.frames + self.events + 1 >= self.stop:
                 raise KeyboardInterrupt
-            if spp is None:
-                self.frames += 1
-            else:
-                self.events += 1
-            return luminance(renderer, t, pose, spp)
 
-        monkeypatch.setattr(Renderer, "luminance", counting)
+        def frame(renderer, t, pose=None, spp=None):
+            check()
+            self.frames += 1
+            return _REAL_LUMINANCE(renderer, t, pose, spp)
+
+        def event_frame(shader, t):
+            check()
+            self.events += 1
+            return _REAL_EVENT_FRAME(shader, t)
+
+        monkeypatch.setattr(Renderer, "luminance", frame)
+        monkeypatch.setattr(EventShader, "frame", event_frame)
 
 
 _REAL_LUMINANCE = Renderer.luminance
+_REAL_EVENT_FRAME = EventShader.frame
 _REAL_SAMPLES = simulation.adaptive_samples
 
 
@@ -72,7 +79,7 @@ def _simulate(out: Path, resume: bool = False, scene_seed: int | None = None
               ) -> SimulationResult:
     scene = parse_scene(TEXT, seed=scene_seed)
     events = EventParams.preset("realistic", seed=scene.seed)
-    return simulate(scene, out, progress=False, events=events, resume=resume)
+    return simulate(scene, out, progress=False, events=events, resume=resume, sampler="frame")
 
 
 def _files(folder: Path) -> list[str]:

@@ -207,7 +207,7 @@ def test_simulate_says_once_when_the_maximum_rate_cannot_hold_the_bound(tmp_path
 
     extra = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 4\n"
     scene = parse_scene(scene_text(CHECKER, trajectory=SLIDE, duration=0.06, extra=extra))
-    simulate(scene, tmp_path / "seq", progress=False, event_formats=("h5",),
+    simulate(scene, tmp_path / "seq", progress=False, event_formats=("h5",), sampler="frame",
              sampling=SamplingParams(min_rate=100.0, max_rate=200.0))
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if "maximum rate" in line]
