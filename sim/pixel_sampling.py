@@ -137,12 +137,17 @@ class PixelBlock:
         ``log(luminance + log_eps)``.
     events : (N,) EVENT_DTYPE ndarray
         The block's events, sorted by time (ties in pixel order).
+    observed : (H W,) float64 ndarray
+        Each pixel's largest observed |dL/dt| in the block (over the intervals that met the
+        bound), 1/s: the next block's prediction uses it; continuing after this block
+        (``after`` of :func:`pixel_blocks`) needs it.
     """
 
     t: float
     luminance: np.ndarray
     log: np.ndarray
     events: np.ndarray
+    observed: np.ndarray
 
 
 def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
@@ -415,10 +420,11 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         boundary) and ``max_rate`` (no pixel interval is split below ``2 / max_rate``).
     stats : PixelSamplingStats, optional
         Filled while iterating.
-    after : (float, ndarray), optional
-        Continue from the end of a block this function yielded: its time and its luminance
-        frame, with the emulator's state as it was after that block. The blocks that follow
-        are exactly those an uninterrupted run gives (renders are deterministic in time).
+    after : (float, ndarray, ndarray), optional
+        Continue from the end of a block this function yielded: its ``t``, ``luminance`` and
+        ``observed``, with the emulator's state as it was after that block. The blocks that
+        follow are exactly those an uninterrupted run gives (renders are deterministic in
+        time).
 
     Yields
     ------
@@ -451,6 +457,7 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         t_b = int(round(after[0] * 1e9))
         lum_b = np.asarray(after[1], dtype=np.float32)
         log_b = log_of(lum_b)
+    observed = None if after is None else np.asarray(after[2], dtype=np.float64)
     all_pixels = np.arange(n_pixels, dtype=np.int64)
     while t_b < t1_ns:
         t_e = min(t_b + block_ns, t1_ns)
@@ -468,6 +475,8 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
                   source.camera_velocity(float(seconds(t_e)))]
         rate = rate_map(camera, subsamples, depth, twists, length * 1e-9, log_eps)
         rate = np.maximum(rate, np.abs(log_e - log_b) / (length * 1e-9)).reshape(-1)
+        if observed is not None:
+            rate = np.maximum(rate, observed)
         inner = _intra_counts(rate, length, bound, dt_min_ns)
         # Every pixel: its block-start sample, `inner` evenly spaced samples, its block-end one.
         counts = inner + 2
@@ -489,10 +498,22 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         pix, times, levels, lums = _refine(source, pix, times, levels, lums, bound, dt_min_ns,
                                            log_eps, stats, seconds)
         stats.intervals += len(pix) - n_pixels
+        observed = _observed_rates(pix, times, levels, bound)
         events = emulator.advance_samples(pix, times, levels, lums, t_e, lum_e)
         stats.blocks += 1
         t_b, lum_b, log_b = t_e, lum_e, log_e
-        yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events)
+        yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
+
+
+def _observed_rates(pix: np.ndarray, times: np.ndarray, levels: np.ndarray, bound: float
+                    ) -> np.ndarray:
+    """Each pixel's largest |dL/dt| over its intervals of the block that met the bound, 1/s
+    (steps left at the maximum rate would ask for the maximum rate everywhere)."""
+    same = pix[1:] == pix[:-1]
+    change = np.abs(np.diff(levels))
+    slope = np.where(same & (change <= bound), change / np.maximum(np.diff(times), 1) * 1e9, 0.0)
+    starts = np.flatnonzero(np.r_[True, ~same])
+    return np.maximum.reduceat(np.r_[slope, 0.0], starts)
 
 
 def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.ndarray,

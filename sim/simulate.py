@@ -557,7 +557,7 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
                             **{key: arrays[f"emulator_{key}"] for key in _EMULATOR_ARRAYS}})
         stats = PixelSamplingStats(**state["stats"])
         count, on, positions = state["count"], state["on"], state["writers"]
-        after = (state["sample"]["t"], arrays["sample_luminance"])
+        after = (state["sample"]["t"], arrays["sample_luminance"], arrays["observed_rates"])
     contrast = min(params.contrast_on, params.contrast_off)
     source = _ShaderSource(_FastRenderer(renderer, scene.render.event_spp, start, end))
     bar = progress_stage(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
@@ -588,7 +588,8 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
             since += 1
             if since >= CHECKPOINT_SAMPLES or tick - saved_at >= CHECKPOINT_SECONDS:
                 sample = Sample(block.t, block.luminance, block.log, 0.0, True)
-                checkpoint.save_events(sample, emulator, stats, count, on, writers)
+                checkpoint.save_events(sample, emulator, stats, count, on, writers,
+                                       observed_rates=block.observed)
                 since, saved_at = 0, time.perf_counter()
                 timings["checkpoint"] += saved_at - tick
                 tick = saved_at
@@ -726,8 +727,11 @@ class _Checkpoint:
     its SHA-256 ``fingerprint``, the frames' ``gain`` once known (saved before the first frame
     is written) and the event stage's ``events`` summary once it is done. ``events.npz`` holds
     the event stage's last saved state: the arrays ``sample_luminance``, ``sample_log`` (the
-    sampler's last sample) and ``emulator_ref``, ``emulator_level``, ``emulator_raw``,
-    ``emulator_last_t`` (see :meth:`EventEmulator.get_state`), and under ``state`` the JSON
+    sampler's last sample; with the per-pixel sampler, the frame at the end of the last block),
+    ``observed_rates`` (per-pixel sampler only: each pixel's observed rate in that block, which
+    the next block's prediction uses) and ``emulator_ref``, ``emulator_level``,
+    ``emulator_raw``, ``emulator_last_t`` (see :meth:`EventEmulator.get_state`), and under
+    ``state`` the JSON
     text of the sample's time and flags, the emulator's time and generator state, the sampling
     counters, the event counts and each writer's :meth:`checkpoint`. Both files are written
     under a temporary name and renamed over the old one.
@@ -795,9 +799,10 @@ class _Checkpoint:
         self.data["events"] = json.loads(json.dumps(info))
         self._save()
 
-    def save_events(self, sample: Sample, emulator: EventEmulator, stats: SamplingStats,
-                    count: int, on: int, writers: dict) -> None:
-        """Save the event stage after ``sample`` (which has no pending tail)."""
+    def save_events(self, sample: Sample, emulator: EventEmulator, stats, count: int, on: int,
+                    writers: dict, **extra: np.ndarray) -> None:
+        """Save the event stage after ``sample`` (which has no pending tail); ``extra`` arrays
+        (the per-pixel sampler's ``observed_rates``) are saved beside the others."""
         emulator_state = emulator.get_state()
         arrays = {f"emulator_{key}": emulator_state.pop(key) for key in _EMULATOR_ARRAYS}
         state = {"sample": {"t": sample.t, "max_change": sample.max_change,
@@ -806,7 +811,7 @@ class _Checkpoint:
                  "writers": {fmt: writer.checkpoint() for fmt, writer in writers.items()}}
         buffer = io.BytesIO()
         np.savez(buffer, sample_luminance=sample.luminance, sample_log=sample.log,
-                 state=np.array(json.dumps(state)), **arrays)
+                 state=np.array(json.dumps(state)), **arrays, **extra)
         _write_atomically(self.folder / "events.npz", buffer.getvalue())
 
     def load_events(self) -> tuple[dict, dict] | None:

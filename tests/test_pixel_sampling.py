@@ -168,7 +168,8 @@ def test_continuing_after_any_block_gives_the_same_blocks():
     resumed = PixelEventEmulator((3, 16), params)
     resumed.set_state(state)
     rest = list(pixel_blocks(Ramp(), resumed, 0.0, 0.06, C, EPS, SamplingParams(),
-                             saved_stats, after=(first[-1].t, first[-1].luminance)))
+                             saved_stats, after=(first[-1].t, first[-1].luminance,
+                                                         first[-1].observed)))
     assert len(first) + len(rest) == len(reference)
     for want, got in zip(reference, first + rest, strict=True):
         assert want.t == got.t

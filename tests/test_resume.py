@@ -173,6 +173,45 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_files(full, tmp_path, m
     _assert_same_sequence(reference.out, out)
 
 
+def test_an_interrupted_per_pixel_run_resumes_to_the_uninterrupted_files(tmp_path, monkeypatch):
+    """The per-pixel sampler, realistic sensor: stopped after some blocks, resumed from its
+    last checkpoint (a block end), and equal byte for byte to one run and to a second one."""
+    scene = parse_scene(TEXT)
+    events = EventParams.preset("realistic", seed=scene.seed)
+
+    def run(out, resume=False):
+        return simulate(scene, out, progress=False, events=events, resume=resume,
+                        sampler="pixel")
+
+    whole, again = run(tmp_path / "whole"), run(tmp_path / "again")
+    assert whole.sampler == "pixel" and whole.n_events > 5000
+    _assert_same_sequence(tmp_path / "whole", tmp_path / "again")          # deterministic
+    real = simulation.pixel_blocks
+    seen = []
+
+    def interrupting(*args, **kwargs):
+        for block in real(*args, **kwargs):
+            if len(seen) == 7:
+                raise KeyboardInterrupt
+            seen.append(block.t)
+            yield block
+
+    monkeypatch.setattr(simulation, "CHECKPOINT_SAMPLES", 3)              # every 3 blocks
+    monkeypatch.setattr(simulation, "CHECKPOINT_SECONDS", 1e9)
+    monkeypatch.setattr(simulation, "pixel_blocks", interrupting)
+    out = tmp_path / "cut"
+    with pytest.raises(KeyboardInterrupt):
+        run(out)
+    with np.load(tmp_path / "cut.partial" / ".checkpoint" / "events.npz") as saved:
+        state = json.loads(str(saved["state"]))
+        assert saved["observed_rates"].shape == (48 * 64,)
+    assert state["sample"]["t"] == pytest.approx(seen[5])                 # blocks 3 and 6
+    monkeypatch.setattr(simulation, "pixel_blocks", real)
+    result = run(out, resume=True)
+    assert result.n_events == whole.n_events
+    _assert_same_sequence(tmp_path / "whole", out)
+
+
 def test_a_resume_after_the_event_stage_only_writes_the_indexes(full, tmp_path, monkeypatch):
     reference, _ = full
     out = tmp_path / "seq"
