@@ -52,12 +52,14 @@ from sim.camera import Camera
 from sim.eventio import EVENT_DTYPE
 from sim.events import EventEmulator
 from sim.noise import background_events, hot_pixel_events, merge_events
-from sim.sampling import MARGIN, SPLIT, SamplingParams, motion_field
+from sim.sampling import SPLIT, SamplingParams, motion_field
 
 __all__ = ["MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
            "PixelSource", "pixel_blocks", "rate_map"]
 
 STEP_RULE = False
+MARGIN = 0.5
+"""The prediction aims at MARGIN * lam * C (frame sampling: 0.75)."""
 MAX_DILATION = 64
 """Largest radius (pixels) over which the predicted rate is spread within a block; faster image
 motion is left to the check (it then costs bisection renders, never accuracy)."""

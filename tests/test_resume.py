@@ -19,8 +19,8 @@ from sim.eventio import H5EventWriter, TextEventWriter, make_events, read_events
 from sim.events import EventEmulator, EventParams
 from sim.render import Renderer
 from sim.sampling import SamplingStats, adaptive_samples
-from sim.shader import EventShader
 from sim.scene import parse_scene
+from sim.shader import EventShader
 from sim.simulate import SimulationResult, simulate
 from tests.conftest import FAST, scene_text
 
@@ -183,7 +183,8 @@ def test_an_interrupted_per_pixel_run_resumes_to_the_uninterrupted_files(tmp_pat
         return simulate(scene, out, progress=False, events=events, resume=resume,
                         sampler="pixel")
 
-    whole, again = run(tmp_path / "whole"), run(tmp_path / "again")
+    whole = run(tmp_path / "whole")
+    run(tmp_path / "again")
     assert whole.sampler == "pixel" and whole.n_events > 5000
     _assert_same_sequence(tmp_path / "whole", tmp_path / "again")          # deterministic
     real = simulation.pixel_blocks
