@@ -68,14 +68,11 @@ motion is left to the check (it then costs bisection renders, never accuracy).""
 class PixelSource(Protocol):
     """What the per-pixel sampler renders from (see :class:`sim.shader.EventShader`).
 
-    ``frame(t)`` must give, for each pixel, exactly the value ``luminance`` gives for that pixel
-    at ``t``.
+    The mean of a pixel's sub-samples at ``t`` (:func:`pixel_means`) must be exactly the value
+    ``luminance`` gives for that pixel at ``t``.
     """
 
     camera: Camera
-
-    def frame(self, t: float) -> np.ndarray:
-        """Linear luminance (H, W) float32 of every pixel at time ``t`` (seconds)."""
 
     def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
         """Linear luminance (N,) of flat pixel indices (N,) at their own times (N,) seconds."""
@@ -154,7 +151,7 @@ class PixelBlock:
 
 def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
              twists: list[tuple[np.ndarray, np.ndarray]], seconds: float,
-             log_eps: float) -> np.ndarray:
+             log_eps: float, centres: np.ndarray | None = None) -> np.ndarray:
     """Predicted |dL/dt| of every pixel over a block, 1/s.
 
     A pixel's value is the mean of its sub-samples, and each sub-sample sees the scene at its
@@ -178,6 +175,8 @@ def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
         The block's length.
     log_eps : float
         L = log(Y + log_eps).
+    centres : (H, W, 2) ndarray, optional
+        ``camera.normalized_pixel_centres()``, if the caller keeps it.
 
     Returns
     -------
@@ -188,31 +187,64 @@ def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
     from sim.sampling import _one_sided_gradient
 
     height, width = camera.height, camera.width
-    luminance = np.asarray(subsamples, dtype=np.float64)
+    luminance = np.asarray(subsamples, dtype=np.float32)       # float32: a rate, not a level
     n = luminance.shape[0] // height
     if luminance.shape != (height * n, width * n) or n < 1:
         raise ValueError(f"subsamples must have shape (H n, W n) for the camera's {height}x"
                          f"{width} pixels, got {luminance.shape}")
-    grad_u, grad_v = _one_sided_gradient(np.log(luminance + log_eps))
-    grad_u *= n                                    # per pixel, not per sub-sample spacing
-    grad_v *= n
-    weight = luminance + log_eps
-    mean = weight.reshape(height, n, width, n).mean(axis=(1, 3))
+    weight = luminance + np.float32(log_eps)
+    grad_u, grad_v = _one_sided_gradient(np.log(weight))
+
+    def per_pixel(values: np.ndarray) -> np.ndarray:
+        rows = values.reshape(height, n, width * n).sum(axis=1)
+        return rows.reshape(height, width, n).sum(axis=2, dtype=np.float64) / (n * n)
+
+    # The motion field is one value per pixel, so the sub-sample sum factors: the weighted
+    # gradients are averaged once (times n: per pixel, not per sub-sample spacing).
+    mean = per_pixel(weight)
+    grad_u *= weight
+    grad_v *= weight
+    slope_u = per_pixel(grad_u) * (n / mean)
+    slope_v = per_pixel(grad_v) * (n / mean)
     rate = np.zeros((height, width))
     speed = 0.0
     for v_cam, w_cam in twists:
         with np.errstate(invalid="ignore"):
-            flow_u, flow_v = motion_field(camera, depth, v_cam, w_cam)
-        fu = np.repeat(np.repeat(np.abs(flow_u), n, axis=0), n, axis=1)
-        fv = np.repeat(np.repeat(np.abs(flow_v), n, axis=0), n, axis=1)
-        each = weight * (grad_u * fu + grad_v * fv)
-        rate = np.maximum(rate, each.reshape(height, n, width, n).mean(axis=(1, 3)) / mean)
+            flow_u, flow_v = motion_field(camera, depth, v_cam, w_cam, centres)
+        rate = np.maximum(rate, slope_u * np.abs(flow_u) + slope_v * np.abs(flow_v))
         speed = max(speed, float(np.max(np.hypot(flow_u, flow_v), initial=0.0)))
     radius = min(MAX_DILATION, math.ceil(speed * seconds))
     if radius > 0:
         kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
         rate = cv2.dilate(rate, kernel, borderType=cv2.BORDER_REPLICATE)
     return rate
+
+
+def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Each pixel's value from its sub-samples, as :class:`sim.shader.EventShader` sums them.
+
+    Parameters
+    ----------
+    subsamples : (H n, W n) float32 ndarray
+        Sub-sample luminance on the sub-sample grid.
+    shape : (int, int)
+        (H, W).
+
+    Returns
+    -------
+    (H, W) float32 ndarray
+        ``(((s_0 + s_1) + s_2) + ...) * (1 / spp)`` in float32, sub-samples in stratum order
+        (row-major within the pixel): bit-identical to the shader's pixel values
+        (``tests/test_shader.py`` checks it).
+    """
+    height, width = shape
+    n = subsamples.shape[0] // height
+    strata = np.asarray(subsamples, np.float32).reshape(height, n, width, n).transpose(0, 2, 1, 3)
+    total = np.zeros(shape, np.float32)
+    for j in range(n):
+        for i in range(n):
+            total = total + strata[:, :, j, i]
+    return total * np.float32(1.0 / (n * n))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -409,7 +441,8 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     Parameters
     ----------
     source : PixelSource
-        Renders frames, single pixels at their own times, and exact depth.
+        Renders the sub-samples of every pixel, single pixels at their own times, and exact
+        depth.
     emulator : PixelEventEmulator
         Started here at ``t0`` (unless ``after``); its state moves with the blocks.
     t0, t1 : float, seconds
@@ -422,9 +455,9 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         boundary) and ``max_rate`` (no pixel interval is split below ``2 / max_rate``).
     stats : PixelSamplingStats, optional
         Filled while iterating.
-    after : (float, ndarray, ndarray), optional
-        Continue from the end of a block this function yielded: its ``t``, ``luminance`` and
-        ``observed``, with the emulator's state as it was after that block. The blocks that
+    after : (float, ndarray), optional
+        Continue from the end of a block this function yielded: its ``t`` and ``observed``,
+        with the emulator's state as it was after that block. The blocks that
         follow are exactly those an uninterrupted run gives (renders are deterministic in
         time).
 
@@ -451,31 +484,32 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
 
     if after is None:
         t_b = t0_ns
-        lum_b = np.asarray(source.frame(t0), dtype=np.float32)
+        sub_b = source.subsamples(t0)
         stats.full_renders += 1
-        log_b = log_of(lum_b)
-        emulator.start(log_b, t0)
-    else:
+    else:                     # the block end's sub-samples again (deterministic; not counted)
         t_b = int(round(after[0] * 1e9))
-        lum_b = np.asarray(after[1], dtype=np.float32)
-        log_b = log_of(lum_b)
-    observed = None if after is None else np.asarray(after[2], dtype=np.float64)
+        sub_b = source.subsamples(float(seconds(t_b)))
+    lum_b = pixel_means(sub_b, shape)
+    log_b = log_of(lum_b)
+    if after is None:
+        emulator.start(log_b, t0)
+    observed = None if after is None else np.asarray(after[1], dtype=np.float64)
+    centres = camera.normalized_pixel_centres()
     all_pixels = np.arange(n_pixels, dtype=np.int64)
     while t_b < t1_ns:
         t_e = min(t_b + block_ns, t1_ns)
         if t1_ns - t_e < dt_min_ns:                 # no sliver of a block at the end
             t_e = t1_ns
         length = t_e - t_b
-        lum_e = np.asarray(source.frame(float(seconds(t_e))), dtype=np.float32)
+        sub_e = source.subsamples(float(seconds(t_e)))
         stats.full_renders += 1
+        lum_e = pixel_means(sub_e, shape)
         log_e = log_of(lum_e)
         depth = source.depth(float(seconds(t_b)))
         stats.depth_renders += 1
-        subsamples = source.subsamples(float(seconds(t_b)))
-        stats.full_renders += 1
         twists = [source.camera_velocity(float(seconds(t_b))),
                   source.camera_velocity(float(seconds(t_e)))]
-        rate = rate_map(camera, subsamples, depth, twists, length * 1e-9, log_eps)
+        rate = rate_map(camera, sub_b, depth, twists, length * 1e-9, log_eps, centres)
         rate = np.maximum(rate, np.abs(log_e - log_b) / (length * 1e-9)).reshape(-1)
         if observed is not None:
             rate = np.maximum(rate, observed)
@@ -503,7 +537,7 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         observed = _observed_rates(pix, times, levels, bound)
         events = emulator.advance_samples(pix, times, levels, lums, t_e, lum_e)
         stats.blocks += 1
-        t_b, lum_b, log_b = t_e, lum_e, log_e
+        t_b, sub_b, lum_b, log_b = t_e, sub_e, lum_e, log_e
         yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
 
 
@@ -521,35 +555,43 @@ def _observed_rates(pix: np.ndarray, times: np.ndarray, levels: np.ndarray, boun
 def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.ndarray,
             lums: np.ndarray, bound: float, dt_min_ns: int, log_eps: float,
             stats: PixelSamplingStats, seconds) -> tuple[np.ndarray, ...]:
-    """Split every interval of a pixel that breaks the bound at its midpoint, level by level."""
-    candidate = np.ones(len(pix), dtype=bool)        # the interval from sample j to j + 1
-    while True:
-        same = pix[1:] == pix[:-1]
-        change = np.abs(levels[1:] - levels[:-1])
-        violating = candidate[:-1] & same & (change > bound)
-        if not violating.any():
+    """Split every interval of a pixel that breaks the bound at its midpoint, level by level
+    (one launch per level, only the intervals still breaking it); then merge the midpoints
+    into the samples, which stay sorted by pixel and time."""
+    same = pix[1:] == pix[:-1]
+    index = np.flatnonzero(same & (np.abs(np.diff(levels)) > bound))
+    # The intervals still to split: pixel, start time and level, end time and level.
+    p, ta, la, tb, lb = pix[index], times[index], levels[index], times[index + 1], \
+        levels[index + 1]
+    found: list[tuple[np.ndarray, ...]] = []
+    while len(p):
+        splittable = tb - ta >= 2 * dt_min_ns
+        stats.at_max_rate += int(np.count_nonzero(~splittable))
+        p, ta, la, tb, lb = (a[splittable] for a in (p, ta, la, tb, lb))
+        if not len(p):
             break
-        splittable = violating & (times[1:] - times[:-1] >= 2 * dt_min_ns)
-        stats.at_max_rate += int(np.count_nonzero(violating & ~splittable))
-        index = np.flatnonzero(splittable)
-        if index.size == 0:
-            break
-        mid_t = (times[index] + times[index + 1]) // 2
-        mid_lum = np.asarray(source.luminance(pix[index], seconds(mid_t)), np.float64)
-        mid_level = np.log(mid_lum + log_eps)
-        stats.pixel_samples += index.size
-        stats.midpoint_samples += index.size
-        share = np.abs(mid_level - levels[index]) / change[index]
+        mt = (ta + tb) // 2
+        my = np.asarray(source.luminance(p, seconds(mt)), np.float64)
+        ml = np.log(my + log_eps)
+        stats.pixel_samples += len(p)
+        stats.midpoint_samples += len(p)
+        share = np.abs(ml - la) / np.abs(lb - la)
         continuous = (share > SPLIT) & (share < 1 - SPLIT)
         stats.steps += int(np.count_nonzero(~continuous))
-        if not STEP_RULE:
-            continuous[:] = True
-        candidate[:] = False
-        candidate[index[continuous]] = True           # first half: from sample j to the midpoint
-        at = index + 1
-        pix = np.insert(pix, at, pix[index])
-        times = np.insert(times, at, mid_t)
-        levels = np.insert(levels, at, mid_level)
-        lums = np.insert(lums, at, mid_lum)
-        candidate = np.insert(candidate, at, continuous)  # second half: midpoint to j + 1
-    return pix, times, levels, lums
+        found.append((p, mt, ml, my))
+        keep = np.ones(len(p), bool) if not STEP_RULE else continuous
+        first = keep & (np.abs(ml - la) > bound)
+        second = keep & (np.abs(lb - ml) > bound)
+        p, ta, la, tb, lb = (np.concatenate([x[first], y[second]]) for x, y in (
+            (p, p), (ta, mt), (la, ml), (mt, tb), (ml, lb)))
+    if not found:
+        return pix, times, levels, lums
+    new_p, new_t, new_l, new_y = (np.concatenate(parts) for parts in zip(*found, strict=True))
+    # Samples sorted by (pixel, time): one key, then one insertion per array.
+    origin, span = int(times.min()), int(times.max() - times.min()) + 1
+    key = pix * span + (times - origin)
+    new_key = new_p * span + (new_t - origin)
+    order = np.argsort(new_key)
+    at = np.searchsorted(key, new_key[order])
+    return (np.insert(pix, at, new_p[order]), np.insert(times, at, new_t[order]),
+            np.insert(levels, at, new_l[order]), np.insert(lums, at, new_y[order]))

@@ -159,8 +159,8 @@ def max_rate_warning(at_max_rate: int, intervals: int, max_rate: float, bound: f
             f"(SamplingParams.max_rate) or prefilter the texture")
 
 
-def motion_field(camera: Camera, depth: np.ndarray, v_cam: np.ndarray, w_cam: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def motion_field(camera: Camera, depth: np.ndarray, v_cam: np.ndarray, w_cam: np.ndarray,
+                 centres: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Pixel velocities of a static scene seen by a moving camera.
 
     Parameters
@@ -169,13 +169,16 @@ def motion_field(camera: Camera, depth: np.ndarray, v_cam: np.ndarray, w_cam: np
     depth : (H, W) float ndarray, metres, 0 where nothing is seen
     v_cam, w_cam : (3,) array_like
         The camera's linear (m/s) and angular (rad/s) velocity in the camera frame.
+    centres : (H, W, 2) ndarray, optional
+        ``camera.normalized_pixel_centres()``, when the caller keeps it (it inverts the
+        distortion, the costly part).
 
     Returns
     -------
     (H, W) float64 ndarray, (H, W) float64 ndarray
         du/dt and dv/dt in pixels per second (0 where depth is 0).
     """
-    xy = camera.normalized_pixel_centres()
+    xy = camera.normalized_pixel_centres() if centres is None else centres
     x, y = xy[..., 0], xy[..., 1]
     z = np.where(depth > 0, depth, np.inf)
     vx, vy, vz = np.asarray(v_cam, dtype=np.float64)

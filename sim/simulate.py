@@ -489,9 +489,6 @@ class _ShaderSource:
         finally:
             self.seconds += time.perf_counter() - tick
 
-    def frame(self, t: float) -> np.ndarray:
-        return self._timed(self._fast.shader.frame, t)
-
     def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
         return self._timed(self._fast.shader.luminance, pixels, times)
 
@@ -557,7 +554,7 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
                             **{key: arrays[f"emulator_{key}"] for key in _EMULATOR_ARRAYS}})
         stats = PixelSamplingStats(**state["stats"])
         count, on, positions = state["count"], state["on"], state["writers"]
-        after = (state["sample"]["t"], arrays["sample_luminance"], arrays["observed_rates"])
+        after = (state["sample"]["t"], arrays["observed_rates"])
     contrast = min(params.contrast_on, params.contrast_off)
     source = _ShaderSource(_FastRenderer(renderer, scene.render.event_spp, start, end))
     bar = progress_stage(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",

@@ -94,7 +94,7 @@ def test_a_log_ramp_fires_every_event_at_its_exact_time():
     order = np.lexsort((got[:, 0], got[:, 2], got[:, 1]))
     order_expected = np.lexsort((expected[:, 0], expected[:, 2], expected[:, 1]))
     assert np.abs(got[order] - expected[order_expected]).max() <= 1000      # 1 microsecond
-    assert stats.blocks == 6 and stats.full_renders == 7 + 6      # frames, sub-sample frames
+    assert stats.blocks == 6 and stats.full_renders == 7      # sub-sample frames at the block ends
     # Each pixel rises over 5.7 C / 200 = 5.7 ms: it needs samples inside its blocks, the
     # flat pixels (before and after the ramp) none.
     assert 0 < stats.pixel_samples < 48 * 6 * 100
@@ -103,7 +103,7 @@ def test_a_log_ramp_fires_every_event_at_its_exact_time():
 def test_a_view_that_does_not_change_gives_no_events_and_no_pixel_samples():
     blocks, stats, _ = _run(Ramp(still=True))
     assert sum(len(b.events) for b in blocks) == 0
-    assert stats.pixel_samples == 0 and stats.full_renders == 7 + 6
+    assert stats.pixel_samples == 0 and stats.full_renders == 7
 
 
 def test_every_interval_meets_the_bound_or_is_counted(monkeypatch):
@@ -168,8 +168,7 @@ def test_continuing_after_any_block_gives_the_same_blocks():
     resumed = PixelEventEmulator((3, 16), params)
     resumed.set_state(state)
     rest = list(pixel_blocks(Ramp(), resumed, 0.0, 0.06, C, EPS, SamplingParams(),
-                             saved_stats, after=(first[-1].t, first[-1].luminance,
-                                                         first[-1].observed)))
+                             saved_stats, after=(first[-1].t, first[-1].observed)))
     assert len(first) + len(rest) == len(reference)
     for want, got in zip(reference, first + rest, strict=True):
         assert want.t == got.t

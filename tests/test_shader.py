@@ -202,3 +202,13 @@ def test_bad_inputs_are_refused_with_what_was_expected(boxes):
     with pytest.raises(ValueError, match="t0 < t1"):
         EventShader(boxes, 4, t0=2.0, t1=2.0)
     assert shader.luminance(np.zeros(0, dtype=np.int64), np.zeros(0)).shape == (0,)
+
+
+def test_a_pixel_is_the_mean_of_its_subsamples_bit_for_bit(boxes):
+    """The per-pixel sampler takes block-end pixel values from EventShader.subsamples."""
+    from sim.pixel_sampling import pixel_means
+
+    shader = EventShader(boxes, 4, t0=3.5, t1=3.7)
+    shape = (boxes.camera.height, boxes.camera.width)
+    for t in (3.5, 3.5731, 3.7):
+        np.testing.assert_array_equal(pixel_means(shader.subsamples(t), shape), shader.frame(t))
