@@ -392,6 +392,8 @@ class EventShader:
             self.renderer.set_time(float(times[0]))
         # Shaded in pixel order, so that neighbouring rays run side by side (scattered pixels
         # run 1.5 times faster); each sample's value does not depend on the others.
+        if np.all(pixels[1:] >= pixels[:-1]):
+            return self._shade(pixels, *self._poses.locate(times))
         order = np.argsort(pixels, kind="stable")
         values = np.empty(len(pixels), dtype=np.float32)
         values[order] = self._shade(pixels[order], *self._poses.locate(times[order]))

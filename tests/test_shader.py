@@ -72,6 +72,7 @@ def test_luminance_equals_frame_bit_for_bit_for_any_subset(boxes):
     assert frame.std() > 0 and np.count_nonzero(frame) > 0.9 * frame.size
     rng = np.random.default_rng(1)
     for pixels in (rng.choice(frame.size, 300),                    # duplicates, any order
+                   np.sort(rng.choice(frame.size, 300)),           # sorted: no reordering
                    rng.permutation(frame.size), np.array([17])):
         values = shader.luminance(pixels, np.full(len(pixels), t))
         assert values.dtype == np.float32
