@@ -2,6 +2,8 @@
 
 On one scene at its own resolution (boxes_6dof: 240x180, two lights, a turning camera), warm:
 - ``luminance()`` of a random tenth of the pixels, each at its own random time in a window;
+- ``luminance()`` of a per-pixel sampler's block: a million samples sorted by pixel (duplicates
+  allowed), at random times within 10 ms;
 - ``frame(t)`` against ``Renderer.luminance(t, spp)`` (``mi.render``) at the same spp;
 - agreement of ``frame(t)`` with ``mi.render`` at 64 spp: image means, and the median per-pixel
   relative difference beside that of ``mi.render`` with another seed (its own noise).
@@ -47,6 +49,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--spp", type=int, default=4)
     parser.add_argument("--time", type=float, default=20.0, help="start of the window, s")
     parser.add_argument("--window", type=float, default=0.05, help="window of sample times, s")
+    parser.add_argument("--block", type=float, default=0.01,
+                        help="window of the million samples' times, s")
     parser.add_argument("--repeats", type=int, default=5, help="best of N runs")
     args = parser.parse_args(argv)
     import mitsuba as mi
@@ -59,11 +63,16 @@ def main(argv=None) -> dict:
     rng = np.random.default_rng(0)
     pixels = rng.choice(height * width, height * width // 10, replace=False)
     times = rng.uniform(t0, t1, len(pixels))
+    block_pixels = np.sort(rng.integers(0, height * width, 10**6))
+    block_times = t0 + rng.uniform(0.0, min(args.block, args.window), len(block_pixels))
     mid = (t0 + t1) / 2
     row = {
         "scene": args.scene, "resolution": f"{width}x{height}", "variant": renderer.variant,
         "spp": args.spp, "samples": len(pixels),
         "luminance_ms": _best_ms(lambda: shader.luminance(pixels, times), 50, args.repeats),
+        "block_samples": len(block_pixels), "block_window_s": min(args.block, args.window),
+        "luminance_block_ms": _best_ms(lambda: shader.luminance(block_pixels, block_times), 1,
+                                       args.repeats),
         "frame_ms": _best_ms(lambda: shader.frame(mid), 10, args.repeats),
         "mi_render_ms": _best_ms(lambda: renderer.luminance(mid, spp=args.spp), 10,
                                  args.repeats),
@@ -78,6 +87,8 @@ def main(argv=None) -> dict:
     print(f"\n{row['scene']} {row['resolution']} {row['variant']}, spp {row['spp']}, warm, "
           f"best of {args.repeats}")
     print(f"luminance() of {row['samples']} scattered samples: {row['luminance_ms']:.2f} ms")
+    print(f"luminance() of {row['block_samples']} samples sorted by pixel within "
+          f"{1e3 * row['block_window_s']:g} ms: {row['luminance_block_ms']:.1f} ms")
     print(f"frame(): {row['frame_ms']:.2f} ms; Renderer.luminance (mi.render): "
           f"{row['mi_render_ms']:.2f} ms")
     print(f"64 spp against mi.render: mean ratio {row['mean_ratio']:.4f}, median relative "

@@ -21,11 +21,15 @@ A call is one launch (one per :data:`MAX_RAYS_PER_LAUNCH` rays for larger calls)
 per sample, looping over its sub-samples.
 
 Poses come from a fine time grid of ``trajectory.pose`` (step at most ``pose_step``), linearly
-interpolated entry by entry (the 12 entries of ``[R | t]``) per sample in NumPy; the kernel
-normalises each world direction. The grid is evaluated lazily in blocks of
-:data:`POSE_BLOCK_NODES` nodes (a 60 s sequence at the default 10 us step has 6 million nodes;
-only the blocks that samples fall in are evaluated, and at most :data:`POSE_CACHE_BLOCKS` are
-kept), each block always from the same call, so that the same time always gets the same pose.
+interpolated entry by entry (the 12 entries of ``[R | t]``) inside the kernel: per sample, NumPy
+computes only the grid interval it falls in and the fraction within it; per launch, the grid nodes
+that the launch's times span are uploaded as one float32 table, from which each thread gathers its
+interval's two nodes and interpolates in float32; the kernel normalises each world direction. The
+grid is evaluated lazily in blocks of :data:`POSE_BLOCK_NODES` nodes (a 60 s sequence at the
+default 10 us step has 6 million nodes; only the blocks that samples' times span are evaluated,
+and at most :data:`POSE_CACHE_BLOCKS` are kept), each block always from the same call, and the
+interval and fraction of a time do not depend on the call's other times, so that the same time
+always gets the same pose.
 """
 
 from __future__ import annotations
@@ -48,6 +52,10 @@ POSE_BLOCK_NODES = 4096
 """Nodes of the pose grid evaluated together (one ``trajectory.pose`` call)."""
 POSE_CACHE_BLOCKS = 64
 """Blocks of the pose grid kept in memory (64 x 4097 x 12 float64, 25 MB)."""
+POSE_TABLE_NODES = 1 << 16
+"""Most grid intervals that the pose table of one launch spans (65537 nodes, 3 MB of float32):
+a call whose times span more is split into launches of samples whose times lie closer together,
+with identical results."""
 POSE_BOUND_SAFETY = 4.0
 """Factor on the second-difference estimate of the interpolation error: it covers a second
 derivative that peaks between nodes and a kink in the trajectory (a sampled trajectory's knot),
@@ -107,16 +115,22 @@ def subsample_directions(camera: Camera, spp: int, seed: int) -> np.ndarray:
     return rays
 
 
-def _aligned(values: np.ndarray, dtype: type) -> np.ndarray:
-    """A copy of ``values`` (N,) as ``dtype`` in a 64-byte aligned buffer.
+def _aligned_empty(size: int, dtype: type) -> np.ndarray:
+    """An uninitialised (size,) array of ``dtype`` in a 64-byte aligned buffer.
 
     Dr.Jit's LLVM backend uses a contiguous NumPy array's memory without copying and compiles the
     pointer's alignment into the kernel: arrays at varying alignments recompile the kernel.
     """
     itemsize = np.dtype(dtype).itemsize
-    buffer = np.empty(len(values) + 64 // itemsize, dtype=dtype)
+    buffer = np.empty(size + 64 // itemsize, dtype=dtype)
     start = (-buffer.ctypes.data % 64) // itemsize
-    out = buffer[start:start + len(values)]
+    return buffer[start:start + size]
+
+
+def _aligned(values: np.ndarray, dtype: type) -> np.ndarray:
+    """A copy of ``values`` (N,) as ``dtype`` in a 64-byte aligned buffer (see
+    :func:`_aligned_empty`)."""
+    out = _aligned_empty(len(values), dtype)
     out[:] = values
     return out
 
@@ -126,8 +140,8 @@ class _PoseGrid:
 
     The grid has ``count + 1`` nodes ``t0 + k (t1 - t0) / count``, ``count`` the smallest (at
     least 2) that makes the step at most ``step``. Blocks of :data:`POSE_BLOCK_NODES` intervals
-    are evaluated when first needed and kept (at most :data:`POSE_CACHE_BLOCKS`) as (12, B + 1)
-    arrays, the 12 entries of ``[R | t]`` row by row.
+    are evaluated when first needed and kept (at most :data:`POSE_CACHE_BLOCKS`) as (B + 1, 12)
+    arrays, node by node the 12 entries of ``[R | t]`` row by row.
     """
 
     def __init__(self, trajectory: Trajectory, t0: float, t1: float, step: float):
@@ -138,7 +152,7 @@ class _PoseGrid:
         self._second: dict[int, tuple[float, float]] = {}
 
     def _evaluate(self, block: int) -> np.ndarray:
-        """Nodes ``b B .. (b + 1) B`` of block ``b`` (fewer in the last one), (12, <= B + 1).
+        """Nodes ``b B .. (b + 1) B`` of block ``b`` (fewer in the last one), (<= B + 1, 12).
 
         Records the block's largest second differences of R's entries and of t, from one
         node more on each side so that every node of the block has one.
@@ -147,11 +161,11 @@ class _PoseGrid:
         last = min(first + POSE_BLOCK_NODES, self.count)
         lo, hi = max(first - 1, 0), min(last + 1, self.count)
         times = np.minimum(self.t0 + np.arange(lo, hi + 1) * self.step, self.t1)
-        entries = self.trajectory.pose(times)[:, :3, :].reshape(-1, 12).T
-        second = np.abs(entries[:, 2:] - 2.0 * entries[:, 1:-1] + entries[:, :-2])
-        second = second.reshape(3, 4, -1)
-        self._second[block] = (float(second[:, :3].max()), float(second[:, 3].max()))
-        return np.ascontiguousarray(entries[:, first - lo:last + 1 - lo])
+        entries = self.trajectory.pose(times)[:, :3, :].reshape(-1, 12)
+        second = np.abs(entries[2:] - 2.0 * entries[1:-1] + entries[:-2])
+        second = second.reshape(-1, 3, 4)
+        self._second[block] = (float(second[:, :, :3].max()), float(second[:, :, 3].max()))
+        return np.ascontiguousarray(entries[first - lo:last + 1 - lo])
 
     def _block(self, block: int) -> np.ndarray:
         entries = self._blocks.get(block)
@@ -163,23 +177,50 @@ class _PoseGrid:
             self._blocks.move_to_end(block)
         return entries
 
+    def locate(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The interval of each time and the fraction of the step it lies in.
+
+        Parameters
+        ----------
+        times : (N,) float64 ndarray, seconds
+            Within ``[t0, t1]``.
+
+        Returns
+        -------
+        node : (N,) float64 ndarray
+            Index ``k`` of the interval's first node, an integer in ``[0, count - 1]``.
+        fraction : (N,) float64 ndarray
+            ``(time - t0) / step - k``, in ``[0, 1]``.
+        """
+        fraction = times - self.t0
+        fraction /= self.step
+        node = np.floor(fraction)
+        np.clip(node, 0, self.count - 1, out=node)
+        fraction -= node
+        np.clip(fraction, 0.0, 1.0, out=fraction)
+        return node, fraction
+
+    def nodes(self, first: int, last: int) -> np.ndarray:
+        """(last - first + 1, 12) float64 entries of nodes ``first .. last`` (``<= count``)."""
+        out = np.empty((last - first + 1, 12))
+        for block in range(first // POSE_BLOCK_NODES, max(last - 1, first) // POSE_BLOCK_NODES + 1):
+            start = block * POSE_BLOCK_NODES
+            lo, hi = max(first, start), min(last, start + POSE_BLOCK_NODES)
+            out[lo - first:hi - first + 1] = self._block(block)[lo - start:hi - start + 1]
+        return out
+
     def interpolate(self, times: np.ndarray) -> np.ndarray:
-        """(12, N) float64 entries of ``[R | t]`` (row by row) at times (N,) in ``[t0, t1]``."""
-        u = (times - self.t0) / self.step
-        node = np.clip(np.floor(u).astype(np.int64), 0, self.count - 1)
-        frac = np.clip(u - node, 0.0, 1.0)
+        """(N, 12) float64 entries of ``[R | t]`` (row by row) at times (N,) in ``[t0, t1]``."""
+        node, fraction = self.locate(times)
+        node = node.astype(np.int64)
         block = node // POSE_BLOCK_NODES
-        out = np.empty((12, len(times)))
+        out = np.empty((len(times), 12))
         for b in np.unique(block):
             sel = np.flatnonzero(block == b)
             entries = self._block(int(b))
             i = node[sel] - b * POSE_BLOCK_NODES
-            start = np.take(entries, i, axis=1)
-            delta = np.take(entries, i + 1, axis=1)
-            delta -= start
-            delta *= frac[sel]
-            delta += start
-            out[:, sel] = delta
+            start = entries[i]
+            out[sel] = start + fraction[sel, None] * (entries[i + 1] - start)
         return out
 
     def error_bound(self) -> tuple[float, float]:
@@ -211,11 +252,13 @@ class EventShader:
     Notes
     -----
     Device memory: the sub-sample directions, ``12 H W spp`` bytes (2 MB at 240x180, spp 4).
-    A call is one launch of at most :data:`MAX_RAYS_PER_LAUNCH` primary rays (larger calls are
+    A call is one launch of at most :data:`MAX_RAYS_PER_LAUNCH` primary rays (larger calls, and
+    calls whose times span more than :data:`POSE_TABLE_NODES` intervals of the pose grid, are
     split), a frozen Dr.Jit function (``dr.freeze``): the first call traces the Python code and
     compiles the kernel, later calls of any size replay it (about 3 ms less per call). Dr.Jit
     records it once more for a size of 1, or one equal to the size of an array in the scene
-    (a mesh's vertex count, say): the same kernel, traced again once.
+    (a mesh's vertex count, say) or to that of the launch's pose table (12 floats per node): the
+    same kernel, traced again once.
 
     Examples
     --------
@@ -250,13 +293,13 @@ class EventShader:
         self._directions = mi.Vector3f(*(rays[:, i] for i in range(3)))
         self._samples_per_launch = max(1, MAX_RAYS_PER_LAUNCH // spp)
 
-        def trace(scene, directions, pixels, entries, zeros):
-            return _trace(scene, directions, pixels, entries, zeros, spp=spp)
+        def trace(scene, directions, pixels, nodes, fractions, table, zeros):
+            return _trace(scene, directions, pixels, nodes, fractions, table, zeros, spp=spp)
 
         self._trace = dr.freeze(trace)
 
-        def trace_one(scene, directions, pixels, entries, zeros):
-            return _trace(scene, directions, pixels, entries, zeros, spp=1)
+        def trace_one(scene, directions, pixels, nodes, fractions, table, zeros):
+            return _trace(scene, directions, pixels, nodes, fractions, table, zeros, spp=1)
 
         self._trace_subsamples = dr.freeze(trace_one)
 
@@ -275,13 +318,20 @@ class EventShader:
         radians), entries of t are in metres. Linear interpolation between nodes ``h`` apart is
         off by at most ``h^2 / 8 max|f''|``; ``h^2 f''`` is estimated by the grid's largest second
         difference, times :data:`POSE_BOUND_SAFETY`. The first access evaluates the grid blocks
-        not seen yet (about 2 s per million nodes for a hand-held trajectory). The float32 pose
-        of the kernel (relative rounding 6e-8) comes on top.
+        not seen yet (about 2 s per million nodes for a hand-held trajectory).
+
+        The kernel's pose differs from :meth:`pose` by float32 rounding on top of this: it
+        interpolates the nodes rounded to float32 with the fraction rounded to float32, in
+        float32, each entry within a few units of relative rounding (``2^-24``, 6e-8) of its
+        magnitude (the camera's distance from the world origin, for t).
         """
         return max(self._poses.error_bound())
 
     def pose(self, times: np.ndarray) -> np.ndarray:
         """The camera poses the shader renders at: the pose grid interpolated entry by entry.
+
+        The kernel renders at these poses up to float32 rounding (see :attr:`pose_error_bound`);
+        the same time always gives the kernel the same float32 pose.
 
         Parameters
         ----------
@@ -296,7 +346,7 @@ class EventShader:
         """
         times = self._check_times(times)
         poses = np.zeros((len(times), 4, 4))
-        poses[:, :3, :] = self._poses.interpolate(times).T.reshape(-1, 3, 4)
+        poses[:, :3, :] = self._poses.interpolate(times).reshape(-1, 3, 4)
         poses[:, 3, 3] = 1.0
         return poses
 
@@ -342,9 +392,11 @@ class EventShader:
             self.renderer.set_time(float(times[0]))
         # Shaded in pixel order, so that neighbouring rays run side by side (scattered pixels
         # run 1.5 times faster); each sample's value does not depend on the others.
+        if np.all(pixels[1:] >= pixels[:-1]):
+            return self._shade(pixels, *self._poses.locate(times))
         order = np.argsort(pixels, kind="stable")
         values = np.empty(len(pixels), dtype=np.float32)
-        values[order] = self._shade(pixels[order], self._poses.interpolate(times[order]))
+        values[order] = self._shade(pixels[order], *self._poses.locate(times[order]))
         return values
 
     def frame(self, t: float) -> np.ndarray:
@@ -364,9 +416,9 @@ class EventShader:
         if self.renderer.scene.is_dynamic:
             self.renderer.set_time(float(times[0]))
         size = self.shape[0] * self.shape[1]
-        # One interpolation for every pixel: the pose luminance() computes for each sample at t.
-        entries = np.broadcast_to(self._poses.interpolate(times), (12, size))
-        return self._shade(np.arange(size), entries).reshape(self.shape)
+        # The interval and fraction luminance() computes for each sample at t.
+        node, fraction = (np.broadcast_to(a, size) for a in self._poses.locate(times))
+        return self._shade(np.arange(size), node, fraction).reshape(self.shape)
 
     def subsamples(self, t: float) -> np.ndarray:
         """Every sub-sample of every pixel at time ``t``, laid out on the sub-sample grid.
@@ -388,11 +440,10 @@ class EventShader:
         if self.renderer.scene.is_dynamic:
             self.renderer.set_time(float(times[0]))
         count = self.shape[0] * self.shape[1] * self.spp
-        entries = np.broadcast_to(self._poses.interpolate(times), (12, count))
-        step = MAX_RAYS_PER_LAUNCH
-        values = np.concatenate([
-            self._launch(np.arange(i, min(i + step, count)), entries[:, i:i + step],
-                         self._trace_subsamples) for i in range(0, count, step)])
+        node, fraction = (np.broadcast_to(a, count) for a in self._poses.locate(times))
+        # One thread per sub-sample: "pixels" index the sub-sample directions, spp = 1.
+        values = self._shade(np.arange(count), node, fraction, self._trace_subsamples,
+                             MAX_RAYS_PER_LAUNCH)
         n = math.isqrt(self.spp)
         height, width = self.shape
         return (values.reshape(height, width, n, n).transpose(0, 2, 1, 3)
@@ -403,35 +454,101 @@ class EventShader:
         times = np.asarray(times, dtype=np.float64)
         if times.ndim != 1:
             raise ValueError(f"times must have shape (N,), got {times.shape}")
-        if not np.all((times >= self.t0) & (times <= self.t1)):
+        if len(times) and not (times.min() >= self.t0 and times.max() <= self.t1):   # NaN too
             bad = times[~((times >= self.t0) & (times <= self.t1))][0]
             raise ValueError(f"times must lie in [t0, t1] = [{self.t0}, {self.t1}] s of this "
                              f"EventShader, got {bad}")
         return times
 
-    def _shade(self, pixels: np.ndarray, entries: np.ndarray) -> np.ndarray:
-        """(N,) float32 luminance of flat pixels (N,) at poses (12, N), launch by launch."""
-        step = self._samples_per_launch
-        return np.concatenate([self._launch(pixels[i:i + step], entries[:, i:i + step])
-                               for i in range(0, len(pixels), step)])
+    def _shade(self, pixels: np.ndarray, node: np.ndarray, fraction: np.ndarray, trace=None,
+               samples_per_launch: int | None = None) -> np.ndarray:
+        """Luminance of samples, launch by launch.
 
-    def _launch(self, pixels: np.ndarray, entries: np.ndarray, trace=None) -> np.ndarray:
-        mi, dr = self._mi, self._dr
+        Parameters
+        ----------
+        pixels : (N,) int ndarray
+            Flat pixel indices (rows of the sub-sample directions for ``_trace_subsamples``).
+        node, fraction : (N,) float64 ndarray
+            Pose grid interval and fraction of each sample (:meth:`_PoseGrid.locate`).
+        trace : frozen function, optional
+            ``self._trace`` by default.
+        samples_per_launch : int, optional
+            ``self._samples_per_launch`` by default.
+
+        Returns
+        -------
+        (N,) float32 ndarray
+        """
         trace = trace or self._trace
-        pose = tuple(mi.Float(_aligned(row, np.float32)) for row in entries)
+        step = samples_per_launch or self._samples_per_launch
+        values = np.empty(len(pixels), dtype=np.float32)
+        for sel, first, last in _pose_groups(node):
+            table = self._table(first, last)
+            group = (pixels, node, fraction) if sel is None else (
+                pixels[sel], node[sel], fraction[sel])
+            out = values if sel is None else np.empty(len(group[0]), dtype=np.float32)
+            for i in range(0, len(out), step):
+                out[i:i + step] = self._launch(*(a[i:i + step] for a in group), first, table,
+                                               trace)
+            if sel is not None:
+                values[sel] = out
+        return values
+
+    def _table(self, first: int, last: int):
+        """Pose grid nodes ``first .. last`` as one mi.Float, node-major (12 entries each)."""
+        table = self._mi.Float(_aligned(self._poses.nodes(first, last).ravel(), np.float32))
+        self._dr.make_opaque(table)
+        return table
+
+    def _launch(self, pixels: np.ndarray, node: np.ndarray, fraction: np.ndarray, first: int,
+                table, trace) -> np.ndarray:
+        mi, dr = self._mi, self._dr
         index = mi.UInt32(_aligned(pixels, np.uint32))
+        relative = _aligned_empty(len(node), np.uint32)
+        np.subtract(node, first, out=relative, casting="unsafe")      # integers: exact
+        nodes = mi.UInt32(relative)
+        fractions = mi.Float(_aligned(fraction, np.float32))
         zeros = dr.zeros(mi.Float, len(pixels))
-        dr.make_opaque(index, zeros, *pose)          # sizes change per call, the kernel not
-        total = trace(self.renderer.mitsuba_scene, self._directions, index, pose, zeros)
+        dr.make_opaque(index, nodes, fractions, zeros)   # sizes change per call, the kernel not
+        total = trace(self.renderer.mitsuba_scene, self._directions, index, nodes, fractions,
+                      table, zeros)
         return np.asarray(total, dtype=np.float32)
 
 
-def _trace(scene, directions, pixels, pose, zeros, *, spp: int):
+def _pose_groups(node: np.ndarray):
+    """Split samples so that each group's times span at most :data:`POSE_TABLE_NODES` intervals.
+
+    Parameters
+    ----------
+    node : (N,) float64 ndarray
+        Pose grid interval of each sample, integers (:meth:`_PoseGrid.locate`).
+
+    Yields
+    ------
+    sel : None or (M,) int64 ndarray
+        ``None`` for all samples (one group), else the group's samples, in their order.
+    first, last : int
+        The group's pose table: nodes ``first .. last``, its smallest interval to one past its
+        largest.
+    """
+    first, last = int(node.min()), int(node.max()) + 1
+    if last - first <= POSE_TABLE_NODES:
+        yield None, first, last
+        return
+    group = (node - first) // POSE_TABLE_NODES
+    order = np.argsort(group, kind="stable")
+    bounds = np.flatnonzero(np.diff(group[order])) + 1
+    for sel in np.split(order, bounds):
+        yield sel, int(node[sel].min()), int(node[sel].max()) + 1
+
+
+def _trace(scene, directions, pixels, nodes, fractions, table, zeros, *, spp: int):
     """Mean luminance over the ``spp`` sub-samples of each (pixel, pose) sample.
 
-    One thread per sample loops over its sub-samples: primary ray, then for every emitter its
-    (delta) direction, a shadow ray and the BSDF times the emitter's weight; luminance summed in
-    sub-sample order.
+    The pose of each sample is interpolated entry by entry between two nodes of the pose table,
+    in float32: ``a + fraction (b - a)``. One thread per sample loops over its sub-samples:
+    primary ray, then for every emitter its (delta) direction, a shadow ray and the BSDF times
+    the emitter's weight; luminance summed in sub-sample order.
 
     Parameters
     ----------
@@ -440,8 +557,14 @@ def _trace(scene, directions, pixels, pose, zeros, *, spp: int):
         Camera-frame unit directions of the sub-samples (:func:`subsample_directions`).
     pixels : mi.UInt32, (N,)
         Flat pixel indices.
-    pose : tuple of 12 mi.Float, (N,) each
-        Entries of ``[R | t]`` row by row (``T_world_camera``, t in metres).
+    nodes : mi.UInt32, (N,)
+        Row ``k`` of the table holding the first node of each sample's interval (``k + 1`` the
+        second).
+    fractions : mi.Float, (N,)
+        Fraction of the interval, in ``[0, 1]``.
+    table : mi.Float, (12 (K + 1),)
+        Pose grid nodes, node by node the entries of ``[R | t]`` row by row
+        (``T_world_camera``, t in metres).
     zeros : mi.Float, (N,)
         The initial sums.
 
@@ -452,8 +575,14 @@ def _trace(scene, directions, pixels, pose, zeros, *, spp: int):
     import drjit as dr
     import mitsuba as mi
 
-    rotation = mi.Matrix3f(*(pose[4 * r + c] for r in range(3) for c in range(3)))
-    origin = mi.Point3f(pose[3], pose[7], pose[11])
+    # Row r of node k: entries 12 k + 4 r .. 12 k + 4 r + 3 of the table, one packet each.
+    rows = []
+    for r in range(3):
+        a = dr.gather(mi.Vector4f, table, nodes * 3 + r)
+        b = dr.gather(mi.Vector4f, table, nodes * 3 + (3 + r))
+        rows.append(a + fractions * (b - a))
+    rotation = mi.Matrix3f(*(rows[r][c] for r in range(3) for c in range(3)))
+    origin = mi.Point3f(rows[0][3], rows[1][3], rows[2][3])
     first = pixels * spp
     emitters = scene.emitters()
     context = mi.BSDFContext()

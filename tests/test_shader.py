@@ -15,7 +15,7 @@ from sim.scene import load_scene, parse_scene
 from sim.se3 import make_pose, so3_exp
 from sim.shader import EventShader, require_jit_variant
 from sim.trajectory import SampledTrajectory
-from tests.conftest import WALL, scene_text
+from tests.conftest import FAST, WALL, scene_text
 
 LENS = (-0.3, 0.08, 0.001, -0.002, 0.0)          # strong barrel distortion, as a DAVIS240C's
 
@@ -72,6 +72,7 @@ def test_luminance_equals_frame_bit_for_bit_for_any_subset(boxes):
     assert frame.std() > 0 and np.count_nonzero(frame) > 0.9 * frame.size
     rng = np.random.default_rng(1)
     for pixels in (rng.choice(frame.size, 300),                    # duplicates, any order
+                   np.sort(rng.choice(frame.size, 300)),           # sorted: no reordering
                    rng.permutation(frame.size), np.array([17])):
         values = shader.luminance(pixels, np.full(len(pixels), t))
         assert values.dtype == np.float32
@@ -90,6 +91,43 @@ def test_each_sample_is_shaded_at_the_pose_of_its_own_time(boxes):
                                                                           strict=True)])
     # The camera turns: one frame for all would be wrong for most samples.
     assert np.mean(values != frames[moments[0]][pixels]) > 0.5
+
+
+def test_a_sample_does_not_depend_on_the_other_samples_of_its_call(monkeypatch):
+    """The kernel's pose table starts at the call's earliest time and is split where the call's
+    times span more than POSE_TABLE_NODES grid intervals: neither may change a sample. A camera
+    near the world origin moving fast: a fraction rounded after subtracting the table's start
+    would move it by several float32 roundings of its position."""
+    scene = parse_scene(scene_text(WALL, trajectory=FAST))          # at 0.2 s, 5 cm from 0
+    shader = EventShader(Renderer(scene, spp=1), 4, t0=0.0, t1=1.0)
+    rng = np.random.default_rng(7)
+    pixels, times = np.sort(rng.integers(0, 64 * 48, 3000)), rng.uniform(0.2, 0.2002, 3000)
+    alone = shader.luminance(pixels, times)
+    others = rng.integers(0, 64 * 48, 300), rng.uniform(0.0, 1.0, 300)
+    mixed = shader.luminance(np.concatenate([others[0], pixels]),
+                             np.concatenate([others[1], times]))
+    np.testing.assert_array_equal(mixed[300:], alone)
+    monkeypatch.setattr(sim.shader, "POSE_TABLE_NODES", 5)             # 50 us per table
+    np.testing.assert_array_equal(shader.luminance(pixels, times), alone)
+
+
+def test_the_kernel_interpolates_between_pose_grid_nodes():
+    """A camera sliding at constant velocity: linear interpolation is exact, so a grid with a
+    node every 0.25 s renders 0.3 s (a fifth into an interval, the camera 5 cm = 3 px from
+    either node) as a fine grid does, up to float32 rounding."""
+    scene = parse_scene(scene_text(WALL, trajectory=FAST))
+    renderer = Renderer(scene, spp=1)
+    coarse = EventShader(renderer, 4, t0=0.0, t1=1.0, pose_step=0.25)
+    fine = EventShader(renderer, 4, t0=0.0, t1=1.0)
+    expected = fine.frame(0.3)
+    assert np.abs(coarse.pose(np.array([0.3]))[0] - scene.trajectory.pose(0.3)).max() < 1e-12
+    for values in (coarse.frame(0.3), coarse.luminance(np.arange(expected.size),
+                                                       np.full(expected.size, 0.3))):
+        close = np.abs(values.ravel() - expected.ravel()) <= 1e-5 * expected.ravel()
+        assert close.mean() > 0.99
+    # The nodes' own frames are 3 px away: most pixels differ
+    for t in (0.25, 0.5):
+        assert np.mean(np.abs(fine.frame(t) - expected) > 1e-3 * expected) > 0.3
 
 
 def _pose_errors(shader: EventShader, times: np.ndarray) -> np.ndarray:
