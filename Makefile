@@ -4,10 +4,10 @@ SHELL := /bin/bash
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
-DEMO_SCENE ?= slider_close
+DEMO_SCENE ?= complex_sphere
 DEMO_OUT ?= runs/demo
-DEMO_T0 ?= 0.0
-DEMO_T1 ?= 0.5
+DEMO_T0 ?= 1.0
+DEMO_T1 ?= 3.0
 
 .PHONY: setup llvm demo test bench lint clean
 
@@ -46,6 +46,7 @@ test: setup
 bench: setup
 	$(BIN)/python benchmarks/bench_render.py
 	$(BIN)/python benchmarks/bench_shader.py
+	$(BIN)/python benchmarks/bench_sampling.py
 	$(BIN)/python benchmarks/bench_events.py
 	$(BIN)/python benchmarks/bench_emvs.py
 	$(BIN)/python benchmarks/bench_fill.py

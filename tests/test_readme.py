@@ -22,8 +22,9 @@ def test_the_commented_scene_in_the_readme_is_valid():
 def test_the_readme_demo_command_is_the_makefile_demo():
     makefile = (ROOT / "Makefile").read_text()
     assert "$(BIN)/evfuse run $(DEMO_SCENE) --t0 $(DEMO_T0) --t1 $(DEMO_T1)" in makefile
-    assert "DEMO_SCENE ?= slider_close" in makefile and "DEMO_T1 ?= 0.5" in makefile
-    assert "evfuse run slider_close --t0 0 --t1 0.5 --out runs/demo" in " ".join(README.split())
+    assert "DEMO_SCENE ?= complex_sphere" in makefile and "DEMO_T0 ?= 1.0" in makefile
+    assert "DEMO_T1 ?= 3.0" in makefile
+    assert "evfuse run complex_sphere --t0 1 --t1 3 --out runs/demo" in " ".join(README.split())
 
 
 def test_every_name_the_readme_python_example_imports_exists():
