@@ -110,7 +110,7 @@ def log_intensity(luminance: np.ndarray, eps: float = 1e-3) -> np.ndarray:
 
 
 @numba.njit(cache=True, parallel=True)
-def _count_rows(L0, L1, ref, c_on, c_off):  # pragma: no cover - compiled
+def _count_rows(L1, ref, c_on, c_off):  # pragma: no cover - compiled
     """Events per row; -1 for a row holding a non-finite level."""
     height, width = L1.shape
     counts = np.zeros(height, dtype=np.int64)
@@ -333,7 +333,7 @@ class EventEmulator:
         return events
 
     def _crossings(self, L0, L1, t0_ns: int, dt_ns: int) -> np.ndarray:
-        counts = _count_rows(L0, L1, self.ref, self.c_on, self.c_off)
+        counts = _count_rows(L1, self.ref, self.c_on, self.c_off)
         if np.any(counts < 0):
             raise ValueError("L1 has non-finite values; expected log intensities")
         total = int(counts.sum())

@@ -18,11 +18,13 @@ fastest pixel needs (:mod:`sim.sampling`), every pixel keeps its own time line:
   ``1 / max_rate``). All these samples, each at its own time and pose, are traced in one launch.
 - Check, per pixel: every interval between two consecutive samples of a pixel whose log change
   exceeds ``lam C`` gets its midpoint rendered (only that pixel), level by level, one launch per
-  level. The step rule of :mod:`sim.sampling` applies per interval: if the midpoint splits the
-  change (its first half holds between ``SPLIT`` and ``1 - SPLIT`` of it), the change is
-  continuous and both halves are checked again; otherwise it is a step of a sub-pixel sample,
-  which refinement cannot shrink, and the interval is left as it is. Intervals shorter than
-  ``2 / max_rate`` are not split (counted in ``at_max_rate``). No render is discarded.
+  level, and each half that still exceeds it is split again, down to ``2 / max_rate``
+  (intervals that short still breaking the bound are counted in ``at_max_rate``). Unlike the
+  frame sampler, a pixel's *step* (an edge crossing one of its sub-pixel samples, which
+  refinement cannot shrink) is split down to that limit too: it costs one single-pixel render
+  per level, not a whole frame, and it pins the step's time (a kink that only looks like a step
+  at the first split is then resolved; ``steps`` counts the splits that found the change in one
+  half). No render is discarded.
 - The emulator then runs over every pixel's samples in time order (:class:`PixelEventEmulator`):
   each crossing of ``ref +/- C`` between two samples of a pixel gets its own interpolated
   timestamp, as in :class:`sim.events.EventEmulator` (the same threshold, leak, refractory and
@@ -58,6 +60,7 @@ __all__ = ["MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingSta
            "PixelSource", "pixel_blocks", "rate_map"]
 
 STEP_RULE = False
+"""Stop splitting at a step, as the frame sampler does (off: see the module docstring)."""
 MARGIN = 0.5
 """The prediction aims at MARGIN * lam * C (frame sampling: 0.75)."""
 MAX_DILATION = 64
@@ -107,7 +110,8 @@ class PixelSamplingStats:
     intervals : int
         Per-pixel intervals the emulator went through.
     steps : int
-        Intervals left unsplit because their change was a sub-pixel-sample step.
+        Splits whose midpoint found the whole change in one half (a sub-pixel-sample step, or
+        a kink); with :data:`STEP_RULE` off they are split further all the same.
     at_max_rate : int
         Intervals still breaking the bound at the maximum rate.
     """

@@ -384,7 +384,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
         after = Sample(luminance=arrays["sample_luminance"], log=arrays["sample_log"],
                        **state["sample"])
     contrast = min(params.contrast_on, params.contrast_off)
-    fast = _FastRenderer(renderer, scene.render.event_spp, start, end)
+    event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
     bar = progress_stage(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
                          noun="s simulated", enabled=progress,
                          bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
@@ -400,7 +400,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
         writers = stack.enter_context(_event_writers(folder, cam, formats, positions))
         since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()
-        for sample in adaptive_samples(fast, start, end, contrast, params.log_eps, sampling,
+        for sample in adaptive_samples(event_camera, start, end, contrast, params.log_eps, sampling,
                                        stats, after=after):
             tock = time.perf_counter()
             timings["event_render"] += tock - tick
@@ -444,12 +444,12 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
         "intervals_at_max_rate_note": AT_MAX_RATE_NOTE,
         "sampling_warning": max_rate_warning(stats.at_max_rate, max(stats.accepted - 1, 0),
                                              sampling.max_rate, sampling.lam * contrast),
-        "shading": _SHADING if fast.shader is not None else "mitsuba direct integrator",
+        "shading": _SHADING if event_camera.shader is not None else "mitsuba direct integrator",
     }
 
 
-class _FastRenderer:
-    """The renderer with the event camera's samples per pixel (depth unchanged).
+class _EventCamera:
+    """The event camera's renders: luminance at its own samples per pixel, exact depth.
 
     On a JIT variant the event camera is shaded by :class:`sim.shader.EventShader` (every light
     in turn, a fixed sub-pixel pattern), whichever sampler drives it, so that the two samplers
@@ -477,9 +477,9 @@ class _FastRenderer:
 class _ShaderSource:
     """:class:`sim.pixel_sampling.PixelSource` of a renderer's scene, timing its renders."""
 
-    def __init__(self, fast: _FastRenderer) -> None:
-        self._fast = fast
-        self.camera = fast.camera
+    def __init__(self, camera: _EventCamera) -> None:
+        self._camera = camera
+        self.camera = camera.camera
         self.seconds = 0.0
 
     def _timed(self, function, *args):
@@ -490,16 +490,16 @@ class _ShaderSource:
             self.seconds += time.perf_counter() - tick
 
     def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
-        return self._timed(self._fast.shader.luminance, pixels, times)
+        return self._timed(self._camera.shader.luminance, pixels, times)
 
     def subsamples(self, t: float) -> np.ndarray:
-        return self._timed(self._fast.shader.subsamples, t)
+        return self._timed(self._camera.shader.subsamples, t)
 
     def depth(self, t: float) -> np.ndarray:
-        return self._timed(self._fast.depth, t)
+        return self._timed(self._camera.depth, t)
 
     def camera_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        return self._fast.scene.trajectory.camera_velocity(t)
+        return self._camera.scene.trajectory.camera_velocity(t)
 
 
 def _choose_sampler(scene: Scene, variant: str, requested: str | None) -> tuple[str, str]:
@@ -556,7 +556,7 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
         count, on, positions = state["count"], state["on"], state["writers"]
         after = (state["sample"]["t"], arrays["observed_rates"])
     contrast = min(params.contrast_on, params.contrast_off)
-    source = _ShaderSource(_FastRenderer(renderer, scene.render.event_spp, start, end))
+    source = _ShaderSource(_EventCamera(renderer, scene.render.event_spp, start, end))
     bar = progress_stage(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
                          noun="s simulated", enabled=progress,
                          bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "

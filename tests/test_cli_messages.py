@@ -160,6 +160,24 @@ def test_simulate_flags_are_named_as_typed(flags, message, tmp_path, capsys):
     assert message in line and "Params" not in line
 
 
+def test_the_per_pixel_sampler_is_refused_where_its_premise_fails(tmp_path, capsys):
+    from sim.simulate import _choose_sampler
+
+    code = main(["simulate", "dynamic_6dof", "--out", str(tmp_path / "o"), "--sampler", "pixel",
+                 "--duration", "0.05"])
+    line = _one_line(capsys, code, "simulate")
+    assert "dynamic_6dof has moving objects" in line and "--sampler frame" in line
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o.partial").exists()
+    scene = type("Scene", (), {"is_dynamic": False, "name": "s"})()
+    with pytest.raises(ValueError, match=r"^--sampler pixel: .* needs a JIT variant"):
+        _choose_sampler(scene, "scalar_rgb", "pixel")
+    assert _choose_sampler(scene, "scalar_rgb", None) == ("frame", "scalar_rgb cannot trace "
+                                                          "per-pixel batches")
+    assert _choose_sampler(scene, "llvm_ad_rgb", None) == ("pixel", "static scene")
+    moving = type("Scene", (), {"is_dynamic": True, "name": "d"})()
+    assert _choose_sampler(moving, "llvm_ad_rgb", None)[0] == "frame"
+
+
 # --- item 7: progress on a terminal only ------------------------------------------------------
 
 def test_a_short_run_logs_one_line_per_stage_and_no_carriage_return(tmp_path, capsys):
