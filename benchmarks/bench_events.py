@@ -156,6 +156,7 @@ def scene_shares(names: list[str], duration: float) -> list[dict]:
         t = result.timings
         event_total = t["event_render"] + t["emulate"] + t["event_write"]
         rows.append({"scene": name, "duration_s": duration, "events": result.n_events,
+                     "sampler": result.sampler, "pixel_samples": result.event_pixel_samples,
                      "event_renders": result.event_renders, "render_s": t["event_render"],
                      "emulate_s": t["emulate"], "write_s": t["event_write"],
                      "emulate_share": t["emulate"] / event_total})
