@@ -337,8 +337,10 @@ def _markdown(report: dict, params: ReproduceParams) -> str:
                 f"{f['beta']:.4f} | {p.get('N1', '-')} | "
                 f"{p.get('N2', '-')} | {p.get('beta', '-')} | {_f(_mae(e, 'map'))} | "
                 f"{_f(_mae(e, 'filled'))} | {_f(_mae(e, 'all'))} | {_coverage(e, 'all')} |")
+        windows = ("the same windows" if params.table1_start is None
+                   and params.long_window == 2.0 else "other windows")
         lines += ["", "The paper's N1 and N2 are from a real DAVIS240C on its own windows; ours "
-                  "come from noiseless simulated twins on short windows, so the counts are "
+                  f"come from noiseless simulated twins on {windows}, so the counts are "
                   "comparable in size, not equal. N1 counts the map's points, N1 in frame those "
                   "that land in the frame after projection; beta = (N2 - N1 in frame) / "
                   "(Res + N1 in frame / Res), "
