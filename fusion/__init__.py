@@ -5,6 +5,7 @@ Stages, each a set of pure functions on arrays with a frozen dataclass of parame
 * :mod:`fusion.emvs` -- the disparity space image and the semi-dense depth (EMVS),
 * :mod:`fusion.segmentation` -- region growing on the standard frame,
 * :mod:`fusion.filling` -- region selection, weighted filling and the filling score,
+* :mod:`fusion.methods` -- filling methods by name (the paper's and baselines, or a user's),
 * :mod:`fusion.scoring` -- errors against exact depth.
 
 Wired together by :mod:`fusion.mapping` (``evfuse map``), :mod:`fusion.dense` (``evfuse fill``),
@@ -42,6 +43,7 @@ from fusion.filling import (
     select_regions,
 )
 from fusion.mapping import MapParams, MapResult, TimeWindow, map_sequence, time_window, write_map
+from fusion.methods import FillMethod, MethodError, available_methods, get_method, run_method
 from fusion.pipeline import RunParams, draw_overview, fill_window, map_window, run_pipeline
 from fusion.pointcloud import read_ply, write_ply
 from fusion.reproduce import ReproduceParams, reproduce
@@ -49,12 +51,14 @@ from fusion.scoring import depth_errors, discontinuity_band, error_image
 from fusion.segmentation import SegmentationParams, segment_regions
 
 __all__ = [
-    "DSIParams", "DSIRange", "DenseParams", "DenseResult", "DepthMapParams", "FillParams",
-    "MapParams", "MapResult", "RegionStats", "ReproduceParams", "RunParams", "SegmentationParams",
-    "SelectionParams", "TimeWindow", "dense_errors", "densify", "depth_errors", "depth_planes",
-    "discontinuity_band", "disparity_space_image", "draw_overview", "error_image",
-    "exponential_weights", "fill_frame", "fill_map", "fill_window", "fill_regions",
-    "filling_score", "gaussian_weights", "inverse_distance_weights", "map_sequence", "map_window",
-    "project_map", "read_ply", "reproduce", "resolve_dsi_range", "run_pipeline", "segment_regions",
-    "select_regions", "semidense_depth", "time_window", "write_fill", "write_map", "write_ply",
+    "DSIParams", "DSIRange", "DenseParams", "DenseResult", "DepthMapParams", "FillMethod",
+    "FillParams", "MapParams", "MapResult", "MethodError", "RegionStats", "ReproduceParams",
+    "RunParams", "SegmentationParams", "SelectionParams", "TimeWindow", "available_methods",
+    "dense_errors", "densify", "depth_errors", "depth_planes", "discontinuity_band",
+    "disparity_space_image", "draw_overview", "error_image", "exponential_weights",
+    "fill_frame", "fill_map", "fill_regions", "fill_window", "filling_score",
+    "gaussian_weights", "get_method", "inverse_distance_weights", "map_sequence", "map_window",
+    "project_map", "read_ply", "reproduce", "resolve_dsi_range", "run_method", "run_pipeline",
+    "segment_regions", "select_regions", "semidense_depth", "time_window", "write_fill",
+    "write_map", "write_ply",
 ]

@@ -37,6 +37,17 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_methods(args: argparse.Namespace) -> int:
+    from fusion.methods import available_methods
+
+    methods = available_methods()
+    width = max(len(name) for name in methods)
+    for name, method in methods.items():
+        origin = "" if method.origin == "built-in" else f" [{method.origin}]"
+        print(f"{name:<{width}}  {method.summary}{origin}")
+    return 0
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from scenes import resolve_scene
     from sim.events import EventParams
@@ -373,6 +384,9 @@ def _parser() -> argparse.ArgumentParser:
 
     scenes = sub.add_parser("scenes", help="list the built-in scenes")
     scenes.set_defaults(run=_cmd_scenes)
+    methods = sub.add_parser("methods", help="list the filling methods, one line each, name "
+                                             "first (built-in and installed)")
+    methods.set_defaults(run=_cmd_methods)
 
     simulate = sub.add_parser(
         "simulate", help="render a scene into a sequence folder",
