@@ -13,6 +13,7 @@ Wired together by :mod:`fusion.mapping` (``evfuse map``), :mod:`fusion.dense` (`
 command line (:mod:`fusion.cli`) only parses arguments and calls these.
 """
 
+from fusion.benchmark import BenchParams, bench, run_bench
 from fusion.dense import (
     DenseParams,
     DenseResult,
@@ -51,6 +52,7 @@ from fusion.scoring import depth_errors, discontinuity_band, error_image
 from fusion.segmentation import SegmentationParams, segment_regions
 
 __all__ = [
+    "BenchParams", "bench", "run_bench",
     "DSIParams", "DSIRange", "DenseParams", "DenseResult", "DepthMapParams", "FillMethod",
     "FillParams", "MapParams", "MapResult", "MethodError", "RegionStats", "ReproduceParams",
     "RunParams", "SegmentationParams", "SelectionParams", "TimeWindow", "available_methods",

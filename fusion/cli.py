@@ -48,6 +48,28 @@ def _cmd_methods(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from fusion.benchmark import BenchParams, run_bench
+    from fusion.methods import available_methods
+
+    given = [m.strip() for m in ",".join(args.method or []).split(",") if m.strip()]
+    methods = given if args.only else list(dict.fromkeys([*available_methods(), *given]))
+    if not methods:
+        raise ValueError("--only needs at least one --method")
+    scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    inputs = [s.strip() for s in args.input.split(",") if s.strip()]
+    command = (f"evfuse bench --scenes {args.scenes} --input {args.input}"
+               + "".join(f" --method {m}" for m in given) + (" --only" if args.only else "")
+               + f" --out {args.out}")
+    rows = run_bench(methods, scenes, inputs, args.out, cache=args.cache,
+                     params=BenchParams(noise=args.noise, outliers=args.outliers),
+                     overwrite=args.overwrite, progress=not args.quiet, command=command)
+    failed = sum(row["status"] != "ok" for row in rows)
+    print(f"{len(rows)} fills ({failed} failed) of {len(methods)} methods; written to "
+          f"{Path(args.out) / 'bench.md'}, bench.csv, figures/")
+    return 0
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from scenes import resolve_scene
     from sim.events import EventParams
@@ -387,6 +409,36 @@ def _parser() -> argparse.ArgumentParser:
     methods = sub.add_parser("methods", help="list the filling methods, one line each, name "
                                              "first (built-in and installed)")
     methods.set_defaults(run=_cmd_methods)
+    bench = sub.add_parser(
+        "bench", help="every filling method x scene x input, scored against exact depth and "
+                      "ranked (bench.md, bench.csv, figures/)",
+        description="Simulates and maps one window per scene (cached in --cache), fills the "
+                    "frame at its middle with every method from each input (emvs: the event "
+                    "map; oracle: exact depth at the map's pixels; oracle-edges: exact depth "
+                    "at every pixel that fired; oracle-noisy: oracle with noise and "
+                    "outliers), and ranks the methods.")
+    bench.add_argument("--scenes", default="complex",
+                       help="built-in scenes, 'complex', 'sliders' or map folders, "
+                            "comma-separated (default complex)")
+    bench.add_argument("--input", default="oracle",
+                       help="inputs, comma-separated, among emvs, oracle, oracle-edges, "
+                            "oracle-noisy (default oracle)")
+    bench.add_argument("--method", action="append", default=None,
+                       help="a method to add to the built-in ones: a name or "
+                            "module:function (repeatable or comma-separated)")
+    bench.add_argument("--only", action="store_true",
+                       help="bench only the --method ones, not every built-in")
+    bench.add_argument("--noise", type=float, default=0.02,
+                       help="relative depth noise of oracle-noisy (default 0.02)")
+    bench.add_argument("--outliers", type=float, default=0.05,
+                       help="share of outliers in oracle-noisy (default 0.05)")
+    bench.add_argument("--out", required=True, help="folder to write")
+    bench.add_argument("--cache", default=None,
+                       help="folder of simulated and mapped windows, re-used (default "
+                            "OUT-cache)")
+    bench.add_argument("--overwrite", action="store_true")
+    bench.add_argument("--quiet", action="store_true", help="no progress bar")
+    bench.set_defaults(run=_cmd_bench)
 
     simulate = sub.add_parser(
         "simulate", help="render a scene into a sequence folder",

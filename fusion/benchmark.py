@@ -1,0 +1,436 @@
+"""``evfuse bench``: every filling method on every scene and input, scored and ranked.
+
+For each scene, one window is simulated and mapped (cached in ``<out>-cache``, re-used by later
+runs); the standard frame nearest the window's middle is filled from four inputs, all for the
+same view and scored against the same exact depth:
+
+- ``emvs``: the event map projected into the frame, as ``evfuse fill`` uses it;
+- ``oracle``: the exact depth at the event map's own pixels (the map's pattern, perfect values);
+- ``oracle-edges``: the exact depth at every pixel that fired an event in the window;
+- ``oracle-noisy``: ``oracle`` with relative Gaussian noise (``noise``, default 2 %) and a share
+  of outliers (``outliers``, default 5 %, uniform over the DSI range), seeded.
+
+``oracle`` minus ``emvs`` is what the map's errors cost each method. Every method runs through
+:func:`fusion.methods.run_method`: a method that raises or returns a wrong shape, NaN or a
+negative depth gets a row saying why, the others go on. Methods run in two worker processes.
+
+Scores (:func:`fusion.dense.dense_errors`, the definitions of ``evfuse fill``): MAE, RMSE,
+AbsRel, delta < 1.05, completeness and precision within 5 % of the dense map (``all``), its
+filled pixels (``filled``: pixels that were not input points) and the band within 3 px of a true
+depth discontinuity apart. Methods fill different shares of the image, so each table shows the
+completeness beside the errors and ranks the methods twice: by MAE on their own pixels, and by
+MAE on the pixels that every method filled (``common``). For a method that returns a confidence,
+``mae_at_half_cm`` is the MAE of its most confident half of the filled pixels.
+
+Outputs in ``--out``: ``bench.md`` (a ranked table per input, the best value of each column in
+bold), ``bench.csv`` (fixed columns, see :data:`CSV_COLUMNS`), ``bench.json`` and one figure
+per scene, ``figures/<scene>_<input>.png``: every method's dense depth and error side by side.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from sim.sequence import atomic_output_dir, check_output_dir
+
+__all__ = ["CSV_COLUMNS", "INPUTS", "SCENE_GROUPS", "BenchParams", "bench", "run_bench"]
+
+INPUTS = ("emvs", "oracle", "oracle-edges", "oracle-noisy")
+"""The inputs a method can be given (see the module docstring)."""
+SCENE_GROUPS = {
+    "complex": ("complex_sphere", "complex_cylinder", "complex_slanted_plane",
+                "complex_staircase", "complex_heightfield"),
+    "sliders": ("slider_close", "slider_far", "slider_hdr_close", "slider_hdr_far"),
+}
+"""Names ``--scenes`` accepts for several scenes."""
+WINDOWS = {"complex": (1.0, 2.0), "sliders": (2.0, 3.0)}
+"""Default window (s) of each group's scenes; other scenes use ``(1.0, 2.0)``."""
+CSV_COLUMNS = ("scene", "input", "method", "status", "mae_cm", "rmse_cm", "abs_rel",
+               "completeness", "precision_5pct", "filled_mae_cm", "filled_completeness",
+               "band_mae_cm", "common_mae_cm", "common_pixels", "mae_at_half_cm", "time_ms")
+"""Columns of ``bench.csv``: errors over the method's own pixels (the whole dense map),
+completeness and precision as :func:`fusion.scoring.depth_errors` defines them, ``filled_*`` for
+its filled pixels only, ``band_mae_cm`` within 3 px of a true discontinuity, ``common_*`` on the
+pixels every method filled, ``time_ms`` the method's own time (after a first, untimed call
+in its worker). Empty where not defined."""
+
+
+@dataclass(frozen=True)
+class BenchParams:
+    """Settings of :func:`bench`.
+
+    Attributes
+    ----------
+    noise : float
+        Relative standard deviation of ``oracle-noisy``'s depths (default 0.02).
+    outliers : float
+        Share of ``oracle-noisy``'s points replaced by a depth uniform over the DSI range
+        (default 0.05).
+    seed : int
+        Seed of ``oracle-noisy``.
+    workers : int
+        Worker processes for the methods (default 2: the development machine's cores).
+    """
+
+    noise: float = 0.02
+    outliers: float = 0.05
+    seed: int = 0
+    workers: int = 2
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.noise < 1 and 0 <= self.outliers <= 1):
+            raise ValueError(f"noise must be in [0, 1) and outliers in [0, 1], got {self.noise} "
+                             f"and {self.outliers}")
+        if not (isinstance(self.workers, int) and self.workers >= 1):
+            raise ValueError(f"workers must be an integer >= 1, got {self.workers!r}")
+
+
+def _scene_names(scenes: list[str]) -> list[str]:
+    """Built-in scene names (groups expanded) and map folders (paths holding ``map.json``)."""
+    from scenes import describe_scenes
+
+    known = describe_scenes()
+    names: list[str] = []
+    for item in scenes:
+        if (Path(item) / "map.json").is_file():
+            names.append(str(item))
+            continue
+        for name in SCENE_GROUPS.get(item, (item,)):
+            if name not in known:
+                raise ValueError(f"--scenes {item}: unknown scene {name!r}; expected built-in "
+                                 f"scene names, {', '.join(SCENE_GROUPS)}, or a map folder of a "
+                                 "simulated sequence")
+            if name not in names:
+                names.append(name)
+    return names
+
+
+def _label(name: str) -> str:
+    """A scene's name in the tables (a map folder: its run folder's name)."""
+    path = Path(name)
+    if (path / "map.json").is_file():
+        return path.resolve().parent.name if path.name == "map" else path.name
+    return name
+
+
+def _window(name: str) -> tuple[float, float]:
+    for group, members in SCENE_GROUPS.items():
+        if name in members:
+            return WINDOWS[group]
+    return (1.0, 2.0)
+
+
+def _mapped(name: str, cache: Path, progress: bool) -> Path:
+    """The cached map folder of a scene's window (simulated and mapped when missing)."""
+    from fusion.pipeline import map_window
+    from scenes import resolve_scene
+    from sim.scene import load_scene
+    from sim.simulate import simulate
+
+    if (Path(name) / "map.json").is_file():
+        return Path(name)
+    t0, t1 = _window(name)
+    folder = cache / f"{name}_{t0:.3f}_{t1:.3f}"
+    if (folder / "map" / "map.json").is_file():
+        return folder / "map"
+    sequence = folder / "sequence"
+    if not (sequence / "sequence.json").is_file():
+        simulate(load_scene(resolve_scene(name)), sequence, start=t0, duration=t1 - t0,
+                 progress=progress, overwrite=True)
+    map_window(sequence, folder / "map", t0, t1, overwrite=True, progress=progress)
+    return folder / "map"
+
+
+def _inputs(map_folder: Path, params: BenchParams) -> tuple[object, dict[str, np.ndarray]]:
+    """The frame's fill inputs: the DenseResult of the paper's fill (frame, camera, truth) and
+    each input's sparse depth."""
+    from fusion.dense import fill_map
+    from sim.eventio import read_window
+
+    base = fill_map(map_folder)
+    if base.truth is None:
+        raise ValueError(f"{map_folder}: no exact depth for the frame; the bench needs a "
+                         "simulated sequence")
+    truth = base.truth
+    info = json.loads((map_folder / "map.json").read_text())
+    sequence = (map_folder / info["sequence"]).resolve()
+    t0, t1 = info["window_s"]
+    events_file = next(p for p in (sequence / "events.h5", sequence / "events.txt")
+                       if p.is_file())
+    events = read_window(events_file, int(round(t0 * 1e9)), int(round(t1 * 1e9)))
+    fired = np.zeros(truth.shape, bool)
+    fired[events["y"].astype(int), events["x"].astype(int)] = True
+    rng = np.random.default_rng(params.seed)
+    oracle = np.where(base.sparse > 0, truth, 0).astype(np.float32)
+    noisy = oracle * (1 + params.noise * rng.standard_normal(oracle.shape)).astype(np.float32)
+    lo, hi = info["depth_range_m"]
+    wild = (rng.random(oracle.shape) < params.outliers) & (oracle > 0)
+    noisy[wild] = rng.uniform(lo, hi, int(wild.sum()))
+    noisy = np.where(oracle > 0, np.maximum(noisy, 1e-3), 0).astype(np.float32)
+    inputs = {"emvs": base.sparse.astype(np.float32), "oracle": oracle,
+              "oracle-edges": np.where(fired, truth, 0).astype(np.float32),
+              "oracle-noisy": noisy}
+    return base, inputs
+
+
+_WARM: set[str] = set()
+"""Methods already run once in this worker process (their compilation is not timed)."""
+
+
+def _run_one(spec: str, frame: np.ndarray, sparse: np.ndarray, camera) -> dict:
+    """Run one method in a worker: its output, or why it failed. A method's first call in a
+    worker is run twice and the second timed (JIT compilation and caches are not its speed)."""
+    from fusion.methods import MethodError, run_method
+
+    try:
+        if spec not in _WARM:
+            run_method(spec, frame, sparse, camera)
+            _WARM.add(spec)
+        dense, confidence, seconds = run_method(spec, frame, sparse, camera)
+    except MethodError as exc:
+        return {"status": f"failed: {exc}"}
+    return {"status": "ok", "dense": dense, "confidence": confidence, "seconds": seconds}
+
+
+def _value(errors: dict | None, key: str):
+    if errors is None or errors.get("n", 0) == 0:
+        return None
+    return errors.get(key)
+
+
+def _scores(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray,
+            confidence: np.ndarray | None) -> dict:
+    from fusion.dense import dense_errors
+    from fusion.scoring import depth_errors
+
+    errors = dense_errors(dense, sparse, truth)
+    whole, filled, band = errors["all"]["overall"], errors["filled"]["overall"], \
+        errors["all"]["band"]
+    row = {"mae_cm": _value(whole, "mae_cm"), "rmse_cm": _value(whole, "rmse_cm"),
+           "abs_rel": _value(whole, "abs_rel"), "completeness": whole["completeness"],
+           "precision_5pct": _value(whole, "precision_5pct"),
+           "filled_mae_cm": _value(filled, "mae_cm"),
+           "filled_completeness": filled["completeness"],
+           "band_mae_cm": _value(band, "mae_cm"), "mae_at_half_cm": None}
+    if confidence is not None:
+        mask = (dense > 0) & (sparse == 0) & (truth > 0)
+        if mask.any():
+            half = confidence >= np.median(confidence[mask])
+            row["mae_at_half_cm"] = _value(depth_errors(np.where(half & mask, dense, 0),
+                                                        truth), "mae_cm")
+    return row
+
+
+def bench(methods: list[str], scenes: list[str], inputs: list[str] = INPUTS,
+          cache: str | Path = "evfuse-bench-cache", params: BenchParams | None = None,
+          progress: bool = True) -> list[dict]:
+    """Score every method on every scene and input.
+
+    Parameters
+    ----------
+    methods : list of str
+        Method names or ``module:function`` specs (:func:`fusion.methods.get_method`).
+    scenes : list of str
+        Built-in scene names, groups (:data:`SCENE_GROUPS`) or map folders of simulated
+        sequences (``evfuse map`` / ``evfuse run`` outputs).
+    inputs : list of str
+        Among :data:`INPUTS` (default all).
+    cache : str or Path
+        Folder of the simulated and mapped windows (created, re-used; default
+        ``evfuse-bench-cache`` in the working directory).
+    params : BenchParams, optional
+    progress : bool
+
+    Returns
+    -------
+    list of dict
+        One row per (scene, input, method) with the :data:`CSV_COLUMNS` and, under
+        ``"_dense"``, the dense depth (for the figures).
+    """
+    from fusion.methods import get_method
+    from sim.progress import progress as progress_stage
+
+    params = params or BenchParams()
+    unknown = [name for name in inputs if name not in INPUTS]
+    if unknown or not inputs:
+        raise ValueError(f"--input {','.join(inputs)}: expected among {', '.join(INPUTS)}")
+    for spec in methods:
+        get_method(spec)                              # refuse unknown names up front
+    names = _scene_names(scenes)
+    cache = Path(cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    rows: list[dict] = []
+    bar = progress_stage(total=len(names) * len(inputs) * len(methods), desc="bench",
+                         unit="fill", noun="fills", enabled=progress)
+    # Fresh worker processes (spawn): forking a process that holds Dr.Jit's threads can hang.
+    with ProcessPoolExecutor(params.workers, mp_context=get_context("spawn")) as pool:
+        for name in names:
+            base, sparse_inputs = _inputs(_mapped(name, cache, progress), params)
+            for input_name in inputs:
+                sparse = sparse_inputs[input_name]
+                futures = {spec: pool.submit(_run_one, spec, base.frame, sparse, base.camera)
+                           for spec in methods}
+                group = []
+                for spec, future in futures.items():
+                    result = future.result()
+                    row = {"scene": _label(name), "input": input_name, "method": spec,
+                           "status": result["status"]}
+                    if result["status"] == "ok":
+                        row.update(_scores(result["dense"], sparse, base.truth,
+                                           result["confidence"]))
+                        row["time_ms"] = 1000 * result["seconds"]
+                        row["_dense"] = result["dense"]
+                    group.append(row)
+                    bar.update(1)
+                _common(group, sparse, base.truth)
+                for row in group:
+                    row["_truth"], row["_frame"] = base.truth, base.frame
+                rows += group
+    bar.close()
+    return rows
+
+
+def _common(group: list[dict], sparse: np.ndarray, truth: np.ndarray) -> None:
+    """MAE of each method on the pixels that every method (that ran) filled."""
+    from fusion.scoring import depth_errors
+
+    ok = [row for row in group if row["status"] == "ok"]
+    if not ok:
+        return
+    mask = truth > 0
+    for row in ok:
+        mask &= row["_dense"] > 0
+    for row in ok:
+        errors = depth_errors(np.where(mask, row["_dense"], 0), truth)
+        row["common_mae_cm"] = _value(errors, "mae_cm")
+        row["common_pixels"] = int(mask.sum())
+
+
+def _number(value, digits: int = 2) -> str:
+    if value is None:
+        return "-"
+    return f"{value:.{digits}f}"
+
+
+def _markdown(rows: list[dict], seconds: float, command: str) -> str:
+    lines = ["# evfuse bench: filling methods ranked", "",
+             f"`{command}` ({seconds / 60:.1f} min). Errors against the exact depth, over each "
+             "method's own pixels (`all`: input points and filled pixels) and over the pixels "
+             "every method filled (`common`); completeness is the share of the pixels with a "
+             "true depth that have one, precision the share of the points within 5 % of the "
+             "exact surface; `band` within 3 px of a true depth discontinuity. Methods are "
+             "ranked by MAE on their own pixels, then by MAE on the common pixels; the best "
+             "value of each column is in bold.", ""]
+    columns = [("mae_cm", "MAE (cm)", min, 2), ("rmse_cm", "RMSE (cm)", min, 2),
+               ("abs_rel", "AbsRel", min, 4), ("completeness", "completeness", max, 3),
+               ("precision_5pct", "precision 5 %", max, 3), ("band_mae_cm", "band MAE", min, 2),
+               ("common_mae_cm", "common MAE", min, 2), ("mae_at_half_cm", "MAE, confident half",
+                                                         min, 2),
+               ("time_ms", "time (ms)", min, 1)]
+    for input_name in dict.fromkeys(row["input"] for row in rows):
+        lines += [f"## Input: {input_name}", ""]
+        for scene in dict.fromkeys(row["scene"] for row in rows):
+            group = [r for r in rows if r["input"] == input_name and r["scene"] == scene]
+            ok = [r for r in group if r["status"] == "ok"]
+            ranked = sorted(ok, key=lambda r: (r["mae_cm"] is None, r["mae_cm"] or 0.0))
+            common = sorted(ok, key=lambda r: (r.get("common_mae_cm") is None,
+                                               r.get("common_mae_cm") or 0.0))
+            rank_common = {id(r): i + 1 for i, r in enumerate(common)}
+            best = {}
+            for key, _, pick, _ in columns:
+                values = [r.get(key) for r in ok if r.get(key) is not None]
+                best[key] = pick(values) if values else None
+            pixels = ok[0].get("common_pixels") if ok else None
+            lines += [f"### {scene} ({pixels if pixels is not None else 0} common pixels)", "",
+                      "| rank | rank on common | method | " + " | ".join(c[1] for c in columns)
+                      + " |", "|---|---|---|" + "---|" * len(columns)]
+            for i, row in enumerate(ranked):
+                cells = []
+                for key, _, _, digits in columns:
+                    text = _number(row.get(key), digits)
+                    cells.append(f"**{text}**" if row.get(key) is not None
+                                 and row.get(key) == best[key] else text)
+                lines.append(f"| {i + 1} | {rank_common[id(row)]} | {row['method']} | "
+                             + " | ".join(cells) + " |")
+            for row in group:
+                if row["status"] != "ok":
+                    lines.append(f"| - | - | {row['method']} | {row['status']} |"
+                                 + " |" * (len(columns) - 1))
+            lines.append("")
+    return "\n".join(lines)
+
+
+def _csv(rows: list[dict]) -> str:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=CSV_COLUMNS, extrasaction="ignore",
+                            lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({key: ("" if row.get(key) is None else row.get(key))
+                         for key in CSV_COLUMNS})
+    return buffer.getvalue()
+
+
+def _figure(rows: list[dict]) -> np.ndarray:
+    """Every method's dense depth and its error, side by side, for one scene and input."""
+    from fusion.figures import depth_colours, depth_scale, error_panel, panel_grid
+
+    ok = [r for r in rows if r["status"] == "ok"]
+    truth, frame = rows[0]["_truth"], rows[0]["_frame"]
+    scale = depth_scale(*(r["_dense"] for r in ok), truth=truth)
+    lo_hi = (scale.lo, scale.hi) if scale else (None, None)
+    images, titles, legends = [depth_colours(truth, *lo_hi, base=frame)], ["exact depth"], \
+        [scale.legend() if scale else None]
+    for row in ok:
+        images.append(depth_colours(row["_dense"], *lo_hi))
+        titles.append(f"{row['method']}: MAE {_number(row['mae_cm'])} cm")
+        legends.append(scale.legend() if scale else None)
+        error, legend = error_panel(row["_dense"], truth)
+        images.append(error)
+        titles.append(f"|error| {row['method']}")
+        legends.append(legend)
+    return panel_grid(images, titles, columns=min(len(images), 5), legends=legends)
+
+
+def run_bench(methods: list[str], scenes: list[str], inputs: list[str], out: str | Path,
+              cache: str | Path | None = None, params: BenchParams | None = None,
+              overwrite: bool = False, progress: bool = True, command: str = "evfuse bench"
+              ) -> list[dict]:
+    """:func:`bench`, then ``bench.md``, ``bench.csv``, ``bench.json`` and ``figures/`` into
+    ``out`` (written under ``<out>.partial`` and renamed when complete).
+
+    Returns
+    -------
+    list of dict
+        The rows (without the arrays).
+    """
+    from fusion.figures import write_image
+
+    out = Path(out)
+    check_output_dir(out, overwrite)
+    cache = Path(cache) if cache is not None else out.with_name(out.name + "-cache")
+    start = time.perf_counter()
+    rows = bench(methods, scenes, inputs, cache, params, progress)
+    seconds = time.perf_counter() - start
+    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+        (tmp / "bench.md").write_text(_markdown(rows, seconds, command))
+        (tmp / "bench.csv").write_text(_csv(rows))
+        (tmp / "figures").mkdir()
+        for scene in dict.fromkeys(r["scene"] for r in rows):
+            for input_name in dict.fromkeys(r["input"] for r in rows):
+                group = [r for r in rows if r["scene"] == scene and r["input"] == input_name]
+                if any(r["status"] == "ok" for r in group):
+                    write_image(tmp / "figures" / f"{scene}_{input_name}.png", _figure(group))
+        plain = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
+        (tmp / "bench.json").write_text(json.dumps({"seconds": seconds, "rows": plain},
+                                                   indent=1))
+    return plain

@@ -1,0 +1,100 @@
+"""evfuse bench on a tiny simulated run: every method x input scored and ranked twice, the
+files it promises, a user's method from outside the package, and a bad method that gets its
+own row while the others go on."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from fusion.benchmark import CSV_COLUMNS, bench
+from fusion.cli import main
+from tests.conftest import FAST, WALL, scene_text
+
+EXTRA = ("depth_range = [0.4, 2.5]\n"
+         "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 4\n")
+USER_MODULE = """
+import numpy as np
+
+def mean_fill(frame, sparse, camera, params):
+    '''Every pixel at the mean input depth, confidence 1 near input points.'''
+    dense = np.full(frame.shape, sparse[sparse > 0].mean(), np.float32)
+    return dense, (sparse > 0).astype(np.float32)
+
+def broken(frame, sparse, camera, params):
+    return np.full((3, 3), 1.0)
+"""
+
+
+@pytest.fixture(scope="module")
+def tiny_map(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("bench")
+    scene = folder / "wall.toml"
+    scene.write_text(scene_text(WALL, trajectory=FAST, duration=0.3, extra=EXTRA))
+    assert main(["run", str(scene), "--t0", "0.0", "--t1", "0.3", "--out",
+                 str(folder / "run"), "--quiet"]) == 0
+    (folder / "bench_user_methods.py").write_text(USER_MODULE)
+    return folder
+
+
+def test_the_bench_scores_ranks_and_writes_every_method_and_input(tiny_map, monkeypatch,
+                                                                  capsys):
+    monkeypatch.syspath_prepend(str(tiny_map))
+    out = tiny_map / "out"
+    code = main(["bench", "--scenes", str(tiny_map / "run" / "map"), "--input",
+                 "emvs,oracle,oracle-edges,oracle-noisy", "--method",
+                 "bench_user_methods:mean_fill,bench_user_methods:broken", "--out", str(out),
+                 "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    assert "fills (4 failed)" in capsys.readouterr().out
+    for name in ("bench.md", "bench.csv", "bench.json", "figures/run_oracle.png",
+                 "figures/run_emvs.png"):
+        assert (out / name).is_file(), name
+    rows = list(csv.DictReader((out / "bench.csv").open()))
+    assert tuple(rows[0]) == CSV_COLUMNS
+    methods = {row["method"] for row in rows}
+    assert {"paper-idw", "nearest", "telea", "morphological", "bench_user_methods:mean_fill",
+            "bench_user_methods:broken"} <= methods
+    assert {row["input"] for row in rows} == {"emvs", "oracle", "oracle-edges", "oracle-noisy"}
+    assert len(rows) == 4 * len(methods)
+    broken = [row for row in rows if row["method"].endswith("broken")]
+    assert all(row["status"].startswith("failed: filling method bench_user_methods:broken "
+                                        "returned a dense depth of shape (3, 3)")
+               for row in broken)
+    ok = [row for row in rows if row["status"] == "ok"]
+    assert all(float(row["completeness"]) > 0 and row["time_ms"] for row in ok)
+    by = {(row["input"], row["method"]): row for row in ok}
+    # Perfect input points: the nearest-point fill is at least as good as from the event map,
+    # and the mean fill gives its confident half a score.
+    assert float(by["oracle", "nearest"]["mae_cm"]) <= float(by["emvs", "nearest"]["mae_cm"])
+    assert by["oracle", "bench_user_methods:mean_fill"]["mae_at_half_cm"] != ""
+    # The common pixels are the same for every method of a scene and input.
+    assert len({row["common_pixels"] for row in ok if row["input"] == "oracle"}) == 1
+    text = (out / "bench.md").read_text()
+    assert "## Input: oracle-noisy" in text and "**" in text and "rank on common" in text
+    assert "failed: filling method bench_user_methods:broken" in text
+
+
+def test_the_python_entry_point_returns_the_table(tiny_map):
+    rows = bench(["nearest", "paper-idw"], [str(tiny_map / "run" / "map")], ["oracle"],
+                 cache=tiny_map / "cache", progress=False)
+    assert [row["method"] for row in rows] == ["nearest", "paper-idw"]
+    nearest = rows[0]
+    assert nearest["completeness"] == pytest.approx(1.0, abs=0.05)    # fills everything seen
+    assert np.count_nonzero(nearest["_dense"]) >= np.count_nonzero(rows[1]["_dense"])
+    json.dumps({k: v for k, v in nearest.items() if not k.startswith("_")})
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--input", "exact"], "--input exact: expected among emvs, oracle"),
+    (["--scenes", "no_such_scene"], "--scenes no_such_scene: unknown scene"),
+    (["--method", "no-such-method"], "unknown filling method 'no-such-method'"),
+])
+def test_bad_bench_arguments_are_refused_in_one_line(argv, message, tmp_path, capsys):
+    code = main(["bench", *argv, "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "o").exists()
