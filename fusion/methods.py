@@ -320,3 +320,7 @@ def morphological(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params:
     blurred = cv2.GaussianBlur(depth, (5, 5), 0)
     depth = np.where(valid, blurred, depth)
     return np.where(depth > 0.1 * top, top - depth, 0).astype(np.float32)
+
+
+# Methods defined in their own modules register on import (at the end: they use register).
+import fusion.surface_fit  # noqa: E402,F401  (registers plane and hybrid)
