@@ -175,15 +175,46 @@ def _cmd_map(args: argparse.Namespace) -> int:
     return 0
 
 
-def _dense_params(args: argparse.Namespace):
-    from fusion.dense import DenseParams
+def _fill_method(args: argparse.Namespace):
+    """The filling method the flags name and the parameters of the paper's stages that go with
+    it (:class:`fusion.dense.DenseParams`), or a ValueError naming the flags that contradict
+    each other: ``--weighting`` against a paper's method of another weighting, or any flag of
+    the paper's stages set off its default with a method that has no such stage."""
+    from fusion.dense import PAPER_METHODS, DenseParams, paper_weighting
     from fusion.filling import FillParams, SelectionParams
+    from fusion.methods import MethodError, get_method
     from fusion.segmentation import SegmentationParams
 
-    return DenseParams(
+    spec = args.method or f"paper-{args.weighting or 'idw'}"
+    try:
+        method = get_method(spec)
+    except MethodError as exc:
+        raise ValueError(f"--method {spec}: {exc}") from None
+    weighting = paper_weighting(method)
+    if weighting is not None and args.weighting not in (None, weighting):
+        raise ValueError(f"--method {spec} and --weighting {args.weighting} contradict each other: "
+                         f"{spec} uses {weighting} weights (give --method "
+                         f"paper-{args.weighting}, or drop --weighting)")
+    if weighting is None:
+        segmentation, selection, fill = SegmentationParams(), SelectionParams(), FillParams()
+        for flag, value, default in (
+                ("--weighting", args.weighting, None),
+                ("--threshold", args.threshold, segmentation.threshold),
+                ("--min-region", args.min_region, segmentation.min_region),
+                ("--ring", args.ring, selection.ring),
+                ("--min-ring-ratio", args.min_ring_ratio, selection.min_ring_ratio),
+                ("--max-inside-ratio", args.max_inside_ratio, selection.max_inside_ratio),
+                ("--sigma", args.sigma, fill.sigma), ("--scale", args.scale, fill.scale)):
+            if value != default:
+                value = f"{value:g}" if isinstance(value, float) else value      # as typed
+                raise ValueError(f"--method {spec} and {flag} {value} contradict each other: "
+                                 f"only the paper's methods ({', '.join(PAPER_METHODS)}) "
+                                 f"use {flag} (drop it, or give one of them)")
+    params = DenseParams(
         segmentation=SegmentationParams(args.threshold, args.min_region),
         selection=SelectionParams(args.ring, args.min_ring_ratio, args.max_inside_ratio),
-        fill=FillParams(args.weighting, sigma=args.sigma, scale=args.scale))
+        fill=FillParams(weighting or "idw", sigma=args.sigma, scale=args.scale))
+    return method.name, params
 
 
 def _cmd_fill(args: argparse.Namespace) -> int:
@@ -193,27 +224,30 @@ def _cmd_fill(args: argparse.Namespace) -> int:
     from sim.exr import read_depth
     from sim.sequence import check_output_dir
 
-    params = _dense_params(args)
+    method, params = _fill_method(args)
     single = (args.frame, args.sparse_depth, args.calib)
     if args.map is not None and any(single):
         raise ValueError("give either a map folder or --frame, --sparse-depth and --calib")
     check_output_dir(args.out, args.overwrite)
     if args.map is not None:
-        result = fill_window(args.map, args.out, params, overwrite=args.overwrite)
+        result = fill_window(args.map, args.out, params, overwrite=args.overwrite,
+                             method=method)
     elif all(single):
         frame = _read_gray(args.frame)
         camera = read_calib(args.calib, frame.shape[1], frame.shape[0])
         truth = read_depth(args.truth) if args.truth else None
         result = fill_frame(frame, read_depth(args.sparse_depth), camera, params, truth,
-                            info={"frame": str(args.frame), "sparse_depth": str(args.sparse_depth)})
+                            info={"frame": str(args.frame), "sparse_depth": str(args.sparse_depth)},
+                            method=method)
         write_fill(result, args.out, params, overwrite=args.overwrite)
     else:
         raise ValueError("give a map folder, or all of --frame, --sparse-depth and --calib")
     out = Path(args.out)
     info = result.info
+    regions = ("no segmentation" if info["regions"] is None
+               else f"{info['regions_filled']} of {info['regions']} regions filled")
     line = (f"N1 = {info['N1']} ({info['N1_in_frame']} in the frame), N2 = {info['N2']} "
-            f"({info['regions_filled']} of {info['regions']} regions filled), "
-            f"beta = {info['beta']:.4f}")
+            f"({regions}), beta = {info['beta']:.4f}, method {info['method']}")
     print(line)
     if "errors" in info:
         e = info["errors"]
@@ -238,11 +272,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.pipeline import RunParams, run_pipeline
 
     _check_depth_flags(args)
+    method, dense = _fill_method(args)
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
                        max_depth=args.max_depth,
                        oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
                        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
-                       dense=_dense_params(args), spp=args.spp, seed=args.seed,
+                       dense=dense, method=method, spp=args.spp, seed=args.seed,
                        clip_window=args.clip_window)
     report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,
                           progress=not args.quiet)
@@ -266,7 +301,8 @@ def _print_report(report: dict, out: Path) -> None:
     summary = report.get("errors_summary")
     rows = [("events", f"{report['events']:,}"), ("N1 (map points)", f"{report['N1']:,}"),
             ("N1 in the frame", f"{report['N1_in_frame']:,}"),
-            ("N2 (after filling)", f"{report['N2']:,}"), ("beta", f"{report['beta']:.4f}")]
+            ("N2 (after filling)", f"{report['N2']:,}"), ("beta", f"{report['beta']:.4f}"),
+            ("filling method", f"{report['method']} ({report['method_origin']})")]
     if summary is None:
         rows.append(("errors", "no ground truth (real data): not scored"))
     else:
@@ -369,6 +405,12 @@ def _add_map_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_dense_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--method", default=None,
+                        help="filling method: a name listed by `evfuse methods` or "
+                             "module:function (default paper-idw, the paper's; "
+                             "paper-WEIGHTING with --weighting). The flags below are the "
+                             "paper's methods': with any other, one set off its default is "
+                             "refused")
     parser.add_argument("--threshold", type=float, default=3.0,
                         help="region growing threshold, gray levels (default 3, the paper's)")
     parser.add_argument("--min-region", type=int, default=None,
@@ -385,9 +427,10 @@ def _add_dense_options(parser: argparse.ArgumentParser) -> None:
                         help="map points inside, off the band, per region pixel allowed "
                              "(default 0.05, the paper's '5 %% of the region size')")
     parser.add_argument("--weighting", choices=("idw", "gaussian", "exponential"),
-                        default="idw",
+                        default=None,
                         help="interpolation weights (default idw, the first of the paper's "
-                             "Table 3, which finds the errors insensitive to it)")
+                             "Table 3, which finds the errors insensitive to it); --weighting W "
+                             "is --method paper-W")
     parser.add_argument("--sigma", type=float, default=5.0,
                         help="Gaussian weights' sigma, px (default 5, the paper's)")
     parser.add_argument("--scale", type=float, default=1.0,
@@ -517,11 +560,13 @@ def _parser() -> argparse.ArgumentParser:
 
     fill = sub.add_parser(
         "fill", help="fill a semi-dense map into a dense one with the standard frame",
-        description="Segment the standard frame nearest the map's reference view by region "
-                    "growing, fill the regions bounded by map points, score the result "
-                    "(against the exact depth for a simulated sequence). Writes "
+        description="Fill the map points projected into the standard frame nearest the map's "
+                    "reference view (by default the paper's way: segment the frame by region "
+                    "growing, fill the regions bounded by map points; --method another), score "
+                    "the result (against the exact depth for a simulated sequence). Writes "
                     "dense_depth.exr, segments.png, filled_mask.png, figure.png, dense.ply, "
-                    "fill.json (and error.png with ground truth).")
+                    "fill.json (and error.png with ground truth, confidence.exr where the "
+                    "method gives one).")
     fill.add_argument("map", nargs="?", default=None, help="folder written by evfuse map")
     fill.add_argument("--frame", default=None, help="any gray frame (instead of a map)")
     fill.add_argument("--sparse-depth", default=None,

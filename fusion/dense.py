@@ -11,6 +11,13 @@ The frame is the standard frame nearest in time to the map's reference view. The
 projected with the frame's own pose and the sensor's calibration (distortion included), so a frame
 a little off the reference time, or a distorted real frame, still gets its map points where they
 belong. The dense depth lives in the frame's pixels.
+
+The filling method is selectable (``--method``, :mod:`fusion.methods`): the paper's
+(``paper-idw``, the default, ``paper-gaussian``, ``paper-exponential``) runs the three stages
+above and keeps its segmentation for the figures and ``segments.png``; any other method is run
+through :func:`fusion.methods.run_method`, and its result has no segmentation (all-zero labels,
+``regions`` None). Either way ``N2`` counts the non-zero pixels of the dense map and ``beta``
+uses the paper's formula, so that for another method it measures that method's fill.
 """
 
 from __future__ import annotations
@@ -30,6 +37,7 @@ from fusion.figures import (
     depth_colours,
     depth_scale,
     error_panel,
+    highlight_pixels,
     label_colours,
     panel_grid,
     point_cloud_view,
@@ -43,17 +51,23 @@ from fusion.filling import (
     select_regions,
 )
 from fusion.jsonio import to_json
+from fusion.methods import FillMethod, get_method, run_method
 from fusion.pointcloud import write_ply
 from fusion.scoring import depth_errors, discontinuity_band
 from fusion.segmentation import SegmentationParams, segment_regions
 from sim.camera import Camera
-from sim.exr import read_depth, write_depth
+from sim.exr import read_depth, write_depth, write_exr_channels
 from sim.se3 import invert_pose
 from sim.sequence import atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
 
-__all__ = ["DenseParams", "DenseResult", "dense_errors", "densify", "fill_frame", "fill_map",
-           "project_map", "write_fill"]
+__all__ = ["PAPER_METHODS", "DenseParams", "DenseResult", "dense_errors", "densify", "fill_frame",
+           "fill_map", "paper_weighting", "project_map", "resolve_method", "write_fill"]
+
+PAPER_METHODS = {"paper-idw": "idw", "paper-gaussian": "gaussian",
+                 "paper-exponential": "exponential"}
+"""The built-in methods that are the paper's (segmentation, selection, weighted filling), with
+the weighting each uses."""
 
 
 @dataclass(frozen=True)
@@ -91,25 +105,34 @@ class DenseResult:
     ----------
     frame : (H, W) uint8 ndarray, the standard frame
     sparse : (H, W) float32 ndarray, metres, the event image (projected map points), 0 = none
-    labels : (H, W) int32 ndarray, regions 1..K, 0 = too small
-    regions : RegionStats
-    dense : (H, W) float32 ndarray, metres, map points and filled pixels, 0 = none
+    labels : (H, W) int32 ndarray, regions 1..K, 0 = too small; all 0 for a method that does
+        not segment the frame (any but the paper's)
+    regions : RegionStats or None
+        None for a method that does not segment the frame.
+    dense : (H, W) float32 ndarray, metres, map points and filled pixels, 0 = none (for a
+        method other than the paper's, whatever it returned)
     camera : Camera, the frame's camera (with its distortion)
     T_world_frame : (4, 4) ndarray or None
     truth : (H, W) float32 ndarray or None, exact depth of the frame
-    info : dict, N1, N1_in_frame, N2, Res, beta, beta_counts, timings, frame, and ``errors``
-        with a truth
+    info : dict, method, method_origin, N1, N1_in_frame, N2, Res, beta, beta_counts,
+        segmentation, regions, regions_filled, timings, frame, and ``errors`` with a truth
+    method : str
+        The filling method's name (``paper-idw``, ``nearest``, ``module:function``...).
+    confidence : (H, W) float32 ndarray in [0, 1], or None
+        The method's confidence in each pixel, where it returns one.
     """
 
     frame: np.ndarray
     sparse: np.ndarray
     labels: np.ndarray
-    regions: RegionStats
+    regions: RegionStats | None
     dense: np.ndarray
     camera: Camera
     T_world_frame: np.ndarray | None
     truth: np.ndarray | None
     info: dict
+    method: str = "paper-idw"
+    confidence: np.ndarray | None = None
 
     @property
     def n1_in_frame(self) -> int:
@@ -162,6 +185,49 @@ def project_map(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: np.ndarr
     order = np.argsort(-z)                                  # far first: the nearest is kept
     out[row[order], col[order]] = z[order]
     return out
+
+
+def paper_weighting(method: FillMethod) -> str | None:
+    """The weighting of ``method`` if it is one of the paper's (:data:`PAPER_METHODS`), else
+    None."""
+    return PAPER_METHODS.get(method.name) if method.origin == "built-in" else None
+
+
+def resolve_method(method: str | None, params: DenseParams | None = None
+                   ) -> tuple[FillMethod, DenseParams]:
+    """The filling method to run and the parameters of the paper's stages that go with it.
+
+    Parameters
+    ----------
+    method : str or None
+        A method's name or ``module:function`` (:func:`fusion.methods.get_method`); None: the
+        paper's method with ``params.fill.weighting`` (``paper-idw`` by default).
+    params : DenseParams, optional
+        For one of the paper's methods, its ``fill.weighting`` must be the method's (default:
+        the method's); any other method uses only ``band``.
+
+    Returns
+    -------
+    FillMethod, DenseParams
+
+    Raises
+    ------
+    fusion.methods.MethodError
+        An unknown method (a ValueError, one line).
+    ValueError
+        A paper's method whose weighting contradicts ``params.fill.weighting``.
+    """
+    if method is None:
+        method = f"paper-{(params or DenseParams()).fill.weighting}"
+    found = get_method(method)
+    weighting = paper_weighting(found)
+    if weighting is None or params is None:
+        return found, params or DenseParams(fill=FillParams(weighting or "idw"))
+    if params.fill.weighting != weighting:
+        raise ValueError(f"filling method {found.name} uses {weighting} weights but "
+                         f"params.fill.weighting is {params.fill.weighting!r}: expected the "
+                         "same weighting, or method None")
+    return found, params
 
 
 def densify(frame: np.ndarray, sparse: np.ndarray, params: DenseParams | None = None
@@ -229,7 +295,7 @@ def dense_errors(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray, band:
 def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                params: DenseParams | None = None, truth: np.ndarray | None = None,
                T_world_frame: np.ndarray | None = None, info: dict | None = None,
-               n1: int | None = None) -> DenseResult:
+               n1: int | None = None, method: str | None = None) -> DenseResult:
     """Fill any frame from its event image (the ``--frame --sparse-depth`` form of the command).
 
     Parameters
@@ -244,24 +310,47 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     n1 : int, optional
         ``N1``, the map's points before projection (``map.json``'s); default the non-zero pixels
         of ``sparse``.
+    method : str, optional
+        The filling method (:func:`resolve_method`; default the paper's with
+        ``params.fill.weighting``, ``paper-idw``). Any but the paper's is run by
+        :func:`fusion.methods.run_method` with no parameters of its own.
 
     Returns
     -------
     DenseResult
-        ``info`` holds the counts: ``N1`` (map points), ``N1_in_frame`` (non-zero pixels of
-        ``sparse``), ``N2`` (non-zero pixels of the dense map: ``N1_in_frame`` plus the filled
-        pixels), ``Res`` (pixels of the frame), ``beta`` (the filling score
-        ``(N2 - N1_in_frame) / (Res + N1_in_frame / Res)``) and ``beta_counts`` (which counts
-        it used), ``N2_over_N1_in_frame``.
+        ``info`` holds ``method`` and ``method_origin``, and the counts: ``N1`` (map points),
+        ``N1_in_frame`` (non-zero pixels of ``sparse``), ``N2`` (non-zero pixels of the dense
+        map: ``N1_in_frame`` plus the filled pixels), ``Res`` (pixels of the frame), ``beta``
+        (the filling score ``(N2 - N1_in_frame) / (Res + N1_in_frame / Res)``; for a method
+        other than the paper's, the share of the frame that method filled) and ``beta_counts``
+        (which counts it used), ``N2_over_N1_in_frame``; ``segmentation``, ``regions`` and
+        ``regions_filled``, None for a method that does not segment the frame.
+
+    Raises
+    ------
+    ValueError
+        Bad input, an unknown method, or a method that returns no depth at some map points
+        (``N2`` and ``beta`` would then not count the pixels it filled).
     """
-    params = params or DenseParams()
+    fill_method, params = resolve_method(method, params)
     start = time.perf_counter()
     if (camera.height, camera.width) != np.shape(frame)[:2]:
         raise ValueError(f"the calibration is for {camera.width}x{camera.height} but the frame "
                          f"is {np.shape(frame)[1]}x{np.shape(frame)[0]}")
     sparse = np.asarray(sparse, np.float32)
-    labels, regions, dense, timings = densify(frame, sparse, params)
+    if paper_weighting(fill_method) is not None:
+        labels, regions, dense, timings = densify(frame, sparse, params)
+        confidence = None
+    else:
+        _check_event_image(frame, sparse)
+        dense, confidence, seconds = run_method(fill_method, frame, sparse, camera)
+        labels, regions, timings = np.zeros(sparse.shape, np.int32), None, {"method_s": seconds}
     in_frame, n2 = int(np.count_nonzero(sparse)), int(np.count_nonzero(dense))
+    dropped = int(np.count_nonzero((sparse > 0) & (dense == 0)))
+    if dropped:
+        raise ValueError(f"filling method {fill_method.name} left {dropped} of the {in_frame} "
+                         "map points in the frame without a depth: expected a depth at every "
+                         "map point (N2 counts the map points and the filled pixels)")
     if n1 is None:
         n1 = in_frame
     elif isinstance(n1, bool) or int(n1) != n1 or n1 < in_frame:
@@ -270,11 +359,14 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     res = int(frame.shape[0] * frame.shape[1])
     timings["total_s"] = time.perf_counter() - start
     document = {
+        "method": fill_method.name, "method_origin": fill_method.origin,
         "N1": int(n1), "N1_in_frame": in_frame, "N2": n2, "Res": res,
         "beta": filling_score(in_frame, n2, res),
         "beta_counts": "(N2 - N1_in_frame) / (Res + N1_in_frame / Res)",
         "N2_over_N1_in_frame": n2 / in_frame if in_frame else None,
-        "regions": int(regions.n_regions), "regions_filled": int(regions.selected.sum()),
+        "segmentation": None if regions is None else "region growing",
+        "regions": None if regions is None else int(regions.n_regions),
+        "regions_filled": None if regions is None else int(regions.selected.sum()),
         "timings": timings, **(info or {}),
     }
     if truth is not None:
@@ -284,10 +376,29 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                              f"is {sparse.shape[1]}x{sparse.shape[0]}")
         document["errors"] = dense_errors(dense, sparse, truth, params.band)
     return DenseResult(np.asarray(frame), sparse, labels, regions, dense, camera,
-                       T_world_frame, truth, document)
+                       T_world_frame, truth, document, fill_method.name, confidence)
 
 
-def fill_map(map_folder: str | Path, params: DenseParams | None = None) -> DenseResult:
+def _check_event_image(frame: np.ndarray, sparse: np.ndarray) -> None:
+    """Refuse, in one line, an event image that is not finite metres >= 0 with a map point in
+    the frame's size (what :func:`densify` refuses for the paper's method)."""
+    if np.shape(frame) != sparse.shape:
+        raise ValueError(f"the frame is {np.shape(frame)[1]}x{np.shape(frame)[0]} but the sparse "
+                         f"depth is {sparse.shape[1]}x{sparse.shape[0]}: they must be the same "
+                         "size")
+    bad = int(np.count_nonzero(~np.isfinite(sparse)))
+    if bad:
+        raise ValueError(f"the sparse depth must be finite metres (0 = no map point), found {bad} "
+                         "NaN or infinite pixels")
+    if np.any(sparse < 0):
+        raise ValueError(f"the sparse depth must be >= 0 metres (0 = no map point), found "
+                         f"{int(np.count_nonzero(sparse < 0))} negative pixels")
+    if not np.any(sparse > 0):
+        raise ValueError("no map points: the sparse depth has no pixel > 0, nothing to fill from")
+
+
+def fill_map(map_folder: str | Path, params: DenseParams | None = None,
+             method: str | None = None) -> DenseResult:
     """Fill the map written by ``evfuse map`` with the standard frame nearest its reference view.
 
     Parameters
@@ -295,6 +406,8 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None) -> Dense
     map_folder : str or Path
         Holds ``map.json`` and ``semidense_depth.exr``; ``map.json`` names the sequence.
     params : DenseParams, optional
+    method : str, optional
+        The filling method (default the paper's, :func:`fill_frame`).
 
     Returns
     -------
@@ -351,7 +464,7 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None) -> Dense
             "frame": os.path.relpath(sequence.image_paths[k], sequence.folder),
             "t_frame": t_frame, "t_ref": t_ref, "T_world_frame": T_world_frame.tolist()}
     return fill_frame(frame, sparse, camera, params, truth, T_world_frame, info,
-                      n1=int(np.count_nonzero(depth_ref)))
+                      n1=int(np.count_nonzero(depth_ref)), method=method)
 
 
 def _figure(result: DenseResult, params: DenseParams) -> np.ndarray:
@@ -363,30 +476,50 @@ def _figure(result: DenseResult, params: DenseParams) -> np.ndarray:
 def _figure_panels(result: DenseResult, params: DenseParams
                    ) -> tuple[list[np.ndarray], list[str], list, list[str]]:
     """The panels of Figure 2, their titles, their legends (the depth scale spans the exact
-    depth where there is one, and both maps) and the header lines (the oracle warning)."""
-    raw = segment_regions(result.frame, SegmentationParams(params.segmentation.threshold, 1))
+    depth where there is one, and both maps) and the header lines (the oracle warning).
+
+    Panels (b)-(d) show the paper's segmentation; for a method that does not segment the frame
+    they say so, and show the pixels it filled and its confidence where it gave one."""
     points, colours, _ = _cloud(result)
     size = (result.frame.shape[1], result.frame.shape[0])
     scale = depth_scale(result.sparse, result.dense, truth=result.truth)
     lo_hi = (scale.lo, scale.hi) if scale else (None, None)
     legend = scale.legend() if scale else None
     view, caption = point_cloud_view(points, colours, size)
-    panels = [
-        depth_colours(result.sparse, *lo_hi, base=result.frame),
-        label_colours(raw),
-        label_colours(result.labels),
-        label_colours(result.labels, highlight=result.regions.selected),
-        depth_colours(result.dense, *lo_hi),
-        view,
-    ]
-    titles = [f"(a) frame + {result.n1_in_frame} projected map points",
-              f"(b) raw segmentation ({int(raw.max())})",
-              f"(c) valid regions ({result.regions.n_regions})",
-              f"(d) regions to fill ({int(result.regions.selected.sum())})",
+    middle, middle_titles = _segmentation_panels(result, params)
+    panels = [depth_colours(result.sparse, *lo_hi, base=result.frame), *middle,
+              depth_colours(result.dense, *lo_hi), view]
+    titles = [f"(a) frame + {result.n1_in_frame} projected map points", *middle_titles,
               f"(e) range image (N2 = {result.n2})",
               "(f) point cloud: map points red, filled green"]
     header = oracle_header(bool(result.info.get("oracle")))
     return panels, titles, [legend, None, None, None, legend, caption], header
+
+
+def _segmentation_panels(result: DenseResult, params: DenseParams
+                         ) -> tuple[list[np.ndarray], list[str]]:
+    """Panels (b)-(d) of Figure 2 and their titles: the raw segmentation, the valid regions and
+    the regions to fill; for a method without a segmentation, the frame saying so, the filled
+    pixels in green, and the method's confidence (black 0, white 1) or the frame again."""
+    if result.regions is not None:
+        raw = segment_regions(result.frame, SegmentationParams(params.segmentation.threshold, 1))
+        return ([label_colours(raw), label_colours(result.labels),
+                 label_colours(result.labels, highlight=result.regions.selected)],
+                [f"(b) raw segmentation ({int(raw.max())})",
+                 f"(c) valid regions ({result.regions.n_regions})",
+                 f"(d) regions to fill ({int(result.regions.selected.sum())})"])
+    method = result.method
+    filled = (result.dense > 0) & (result.sparse == 0)
+    gray = cv2.cvtColor(result.frame, cv2.COLOR_GRAY2BGR)
+    if result.confidence is None:
+        last, last_title = gray, f"(d) regions to fill: not used by {method}"
+    else:
+        level = np.round(255 * result.confidence).astype(np.uint8)
+        last = cv2.cvtColor(level, cv2.COLOR_GRAY2BGR)
+        last_title = f"(d) confidence of {method} (black 0, white 1)"
+    return ([gray, highlight_pixels(result.frame, filled), last],
+            [f"(b) segmentation: not used by {method}",
+             f"(c) pixels filled by {method} ({int(filled.sum())}, green)", last_title])
 
 
 def _error_figure(result: DenseResult) -> np.ndarray:
@@ -410,8 +543,20 @@ def _cloud(result: DenseResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
                overwrite: bool = False) -> Path:
     """Write ``dense_depth.exr``, ``segments.png``, ``filled_mask.png``, ``figure.png``,
-    ``dense.ply`` and ``fill.json`` (plus ``error.png`` with a truth) into ``out``, atomically.
+    ``dense.ply`` and ``fill.json`` (plus ``error.png`` with a truth, and ``confidence.exr``,
+    float32 channel ``Y`` in [0, 1], where the method returned a confidence) into ``out``,
+    atomically.
+
+    For a method that does not segment the frame, ``segments.png`` is all 0 and ``fill.json``'s
+    ``params`` holds only ``band`` (the paper's stages did not run).
     """
+    segmented = result.regions is not None
+    files = {"segments.png": ("region labels, 16-bit (0 = region too small)" if segmented else
+                              f"all 0: {result.method} does not segment the frame"),
+             "dense.ply": "property source: 0 event map point, 1 filled"}
+    if result.confidence is not None:
+        files["confidence.exr"] = (f"confidence of {result.method} in each pixel, float32 "
+                                   "channel Y, 0 to 1")
     with atomic_output_dir(out, overwrite=overwrite) as tmp:
         write_depth(tmp / "dense_depth.exr", result.dense)
         labels16 = np.clip(result.labels, 0, 65535).astype(np.uint16)
@@ -425,14 +570,15 @@ def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
         write_ply(tmp / "dense.ply", points, pose, colours, source, frame_name="T_world_frame")
         if result.truth is not None:
             cv2.imwrite(str(tmp / "error.png"), _error_figure(result))
-        document = {"params": params.as_dict(),
+        if result.confidence is not None:
+            write_exr_channels(tmp / "confidence.exr",
+                               {"Y": result.confidence.astype(np.float32)})
+        document = {"params": params.as_dict() if segmented else {"band": params.band},
                     "camera": {"width": result.camera.width, "height": result.camera.height,
                                "fx": result.camera.fx, "fy": result.camera.fy,
                                "cx": result.camera.cx, "cy": result.camera.cy,
                                "distortion": list(result.camera.distortion)},
-                    "files": {"segments.png": "region labels, 16-bit (0 = region too small)",
-                              "dense.ply": "property source: 0 event map point, 1 filled"},
-                    **result.info}
+                    "files": files, **result.info}
         for key in ("map", "sequence"):             # relative to this folder, as in map.json
             if key in document:
                 document[key] = os.path.relpath(Path(document[key]).resolve(), tmp.resolve())

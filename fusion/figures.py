@@ -17,8 +17,8 @@ import numpy as np
 from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
 
 __all__ = ["Caption", "DepthScale", "Legend", "add_header", "depth_colours", "depth_legend",
-           "depth_scale", "error_legend", "error_panel", "label_colours", "panel_grid",
-           "point_cloud_view", "write_image"]
+           "depth_scale", "error_legend", "error_panel", "highlight_pixels", "label_colours",
+           "panel_grid", "point_cloud_view", "write_image"]
 
 _NO_VALUE = (40, 40, 40)
 """Colour of pixels without a depth (dark grey, so that black texture stays readable)."""
@@ -249,6 +249,35 @@ def label_colours(labels: np.ndarray, highlight: np.ndarray | None = None) -> np
         palette[~keep] = (70, 70, 70)
         palette[0] = 0
     return palette[labels]
+
+
+FILLED_COLOUR = (0, 200, 0)
+"""BGR of filled pixels where they are drawn over the frame (the point cloud's green)."""
+
+
+def highlight_pixels(frame: np.ndarray, mask: np.ndarray,
+                     colour: tuple[int, int, int] = FILLED_COLOUR) -> np.ndarray:
+    """A gray frame with the pixels of ``mask`` in ``colour``, half blended into the frame.
+
+    Parameters
+    ----------
+    frame : (H, W) uint8 ndarray, gray
+    mask : (H, W) bool ndarray
+        The pixels to highlight (the filled ones, say).
+    colour : (3,) tuple of int, BGR
+
+    Returns
+    -------
+    (H, W, 3) uint8 ndarray, BGR
+    """
+    image = cv2.cvtColor(np.asarray(frame, np.uint8), cv2.COLOR_GRAY2BGR)
+    mask = np.asarray(mask, bool)
+    if mask.shape != image.shape[:2]:
+        raise ValueError(f"the mask is {mask.shape[1]}x{mask.shape[0]} but the frame is "
+                         f"{image.shape[1]}x{image.shape[0]}: expected the same size")
+    blended = (image[mask].astype(np.uint16) + np.array(colour, np.uint16)) // 2
+    image[mask] = blended.astype(np.uint8)
+    return image
 
 
 AXIS_COLOURS = ((255, 255, 255), (0, 255, 255), (255, 255, 0))

@@ -23,7 +23,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fusion.dense import DenseParams, DenseResult, fill_map, write_fill
+from fusion.dense import (
+    DenseParams,
+    DenseResult,
+    fill_map,
+    paper_weighting,
+    resolve_method,
+    write_fill,
+)
 from fusion.dsi_range import oracle_header, resolve_dsi_range
 from fusion.emvs import DepthMapParams, DSIParams
 from fusion.figures import (
@@ -31,6 +38,7 @@ from fusion.figures import (
     depth_colours,
     depth_scale,
     error_panel,
+    highlight_pixels,
     label_colours,
     panel_grid,
     point_cloud_view,
@@ -38,6 +46,7 @@ from fusion.figures import (
 )
 from fusion.jsonio import to_json
 from fusion.mapping import MapParams, MapResult, map_sequence, time_window, write_map
+from fusion.methods import FillMethod
 from fusion.pointcloud import read_ply
 from sim.eventio import event_frame, read_window
 from sim.exr import read_depth
@@ -71,6 +80,10 @@ class RunParams:
         Semi-dense extraction (kernel 5, c 5, median 5).
     dense : DenseParams
         Segmentation, selection and filling (the paper's defaults).
+    method : str or None
+        The filling method, a name or ``module:function`` (:mod:`fusion.methods`); None (the
+        default): the paper's with ``dense.fill.weighting``, ``paper-idw``
+        (:func:`fusion.dense.resolve_method`).
     spp : int or None
         Samples per pixel of the simulated frames (default: the scene's).
     seed : int or None
@@ -88,6 +101,7 @@ class RunParams:
     planes: int = 100
     depth: DepthMapParams = field(default_factory=DepthMapParams)
     dense: DenseParams = field(default_factory=DenseParams)
+    method: str | None = None
     spp: int | None = None
     seed: int | None = None
     clip_window: bool = False
@@ -157,10 +171,13 @@ def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = 
 
 
 def fill_window(map_folder: str | Path, out: str | Path, params: DenseParams | None = None,
-                overwrite: bool = False) -> DenseResult:
-    """The fill stage as ``evfuse fill`` and ``evfuse run`` both run it: fill, score, files."""
-    params = params or DenseParams()
-    filled = fill_map(map_folder, params)
+                overwrite: bool = False, method: str | None = None) -> DenseResult:
+    """The fill stage as ``evfuse fill`` and ``evfuse run`` both run it: fill, score, files.
+
+    ``method`` is the filling method (default: the paper's with ``params.fill.weighting``,
+    :func:`fusion.dense.resolve_method`)."""
+    _, params = resolve_method(method, params)
+    filled = fill_map(map_folder, params, method)
     write_fill(filled, out, params, overwrite=overwrite)
     return filled
 
@@ -188,10 +205,11 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
         The content of ``report.json``.
     """
     params = params or RunParams()
+    method, _ = resolve_method(params.method, params.dense)    # refused before any work
     out = Path(out)
     check_output_dir(out, overwrite)
     try:
-        return _run(source, out, params, overwrite, progress)
+        return _run(source, out, params, method, overwrite, progress)
     except ValueError as exc:
         # Bad input (found after the run folder was started): nothing worth keeping. The
         # message must not send the user to the folder deleted here: it names the run folder.
@@ -202,7 +220,8 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
         raise
 
 
-def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) -> dict:
+def _run(source, out: Path, params: RunParams, method: FillMethod, overwrite: bool,
+         progress: bool) -> dict:
     clock = time.perf_counter()
     timings: dict[str, float] = {}
     with atomic_output_dir(out, overwrite=overwrite) as tmp:
@@ -222,10 +241,15 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
             progress=progress)
         timings["map_s"] = time.perf_counter() - tick
         tick = time.perf_counter()
-        stage = progress_stage(desc="fill", unit="region", noun="regions filled",
-                               enabled=progress)
-        filled = fill_window(tmp / "map", tmp / "fill", params.dense)
-        stage.update(filled.info["regions_filled"])
+        if paper_weighting(method) is not None:
+            stage = progress_stage(desc="fill", unit="region", noun="regions filled",
+                                   enabled=progress)
+        else:
+            stage = progress_stage(desc="fill", unit="px", noun=f"pixels filled by "
+                                   f"{method.name}", enabled=progress)
+        filled = fill_window(tmp / "map", tmp / "fill", params.dense, method=method.name)
+        stage.update(filled.info["regions_filled"] if filled.regions is not None
+                     else filled.n2 - filled.n1_in_frame)
         stage.close()
         timings["fill_s"] = time.perf_counter() - tick
         info = filled.info
@@ -233,6 +257,7 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
         summary = _errors_summary(mapped.info.get("errors"), errors)
         report = {
             "source": str(source),
+            "method": info["method"], "method_origin": info["method_origin"],
             "sequence": os.path.relpath(Path(sequence_folder).resolve(), tmp.resolve()),
             "simulated": simulated_here,
             "window_s": mapped.info["window_s"],
@@ -252,7 +277,9 @@ def _run(source, out: Path, params: RunParams, overwrite: bool, progress: bool) 
                 k: None if v is None else v["mae_cm"] for k, v in summary.items()},
             "map_errors_at_reference": mapped.info.get("errors"),
             "files": {"overview": "overview.png", "map": "map/", "fill": "fill/",
-                      "figure": "fill/figure.png", "point_cloud": "fill/dense.ply"},
+                      "figure": "fill/figure.png", "point_cloud": "fill/dense.ply",
+                      **({} if filled.confidence is None
+                         else {"confidence": "fill/confidence.exr"})},
         }
         write_image(tmp / "overview.png", draw_overview(tmp, report))
         timings["total_s"] = time.perf_counter() - clock
@@ -313,11 +340,12 @@ def _simulate_window(source, folder: Path, params: RunParams, progress: bool, ti
 
 
 def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndarray:
-    """The overview of a run, from its saved files: frame, events, semi-dense map, segmentation,
-    dense map, with ground truth the exact depth and the error of the dense map, and the
-    point cloud; depth and error panels carry their colour scale, the point cloud its viewpoint
-    and axes. A run whose DSI range came from the exact depth (``report["oracle"]``) says so in
-    a header line above the panels.
+    """The overview of a run, from its saved files: frame, events, semi-dense map, segmentation
+    (for a filling method without one, the frame with the filled pixels in green), dense map,
+    with ground truth the exact depth and the error of the dense map, and the point cloud;
+    depth and error panels carry their colour scale, the point cloud its viewpoint and axes. A
+    run whose DSI range came from the exact depth (``report["oracle"]``) says so in a header
+    line above the panels.
 
     The depth panels share one scale: the exact depth's range where there is one, else the maps'
     1st-99th percentile, its ends marked where map depths are clipped
@@ -367,8 +395,14 @@ def _overview_panels(run_folder: str | Path, report: dict | None = None
     if labels is None:
         raise ValueError(f"cannot read {run_folder / 'fill' / 'segments.png'}")
     filled_mask = cv2.imread(str(run_folder / "fill" / "filled_mask.png"), cv2.IMREAD_GRAYSCALE)
-    selected = np.zeros(int(labels.max()) + 1, bool)
-    selected[np.unique(labels[(filled_mask > 0) & (labels > 0)])] = True
+    if fill_meta.get("segmentation", "region growing") is None:     # the method did not segment
+        segments = highlight_pixels(frame, filled_mask > 0)
+        segments_title = f"no segmentation (method {fill_meta['method']}; filled green)"
+    else:
+        selected = np.zeros(int(labels.max()) + 1, bool)
+        selected[np.unique(labels[(filled_mask > 0) & (labels > 0)])] = True
+        segments = label_colours(labels, highlight=selected)
+        segments_title = "segmentation (filled in colour)"
     t = float(report["t_frame"])
     width, height = frame.shape[1], frame.shape[0]
     events_path = sequence.events_h5 or sequence.events_txt
@@ -390,10 +424,9 @@ def _overview_panels(run_folder: str | Path, report: dict | None = None
     map_title = (f"semi-dense map (N1 = {n1})" if in_frame is None
                  else f"semi-dense map (N1 = {n1}, {in_frame} in the frame)")
     panels = [cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR), events_image,
-              depth_colours(semidense, *lo_hi), label_colours(labels, highlight=selected),
-              depth_colours(dense, *lo_hi)]
+              depth_colours(semidense, *lo_hi), segments, depth_colours(dense, *lo_hi)]
     titles = [f"frame at {t:.3f} s", f"events +-10 ms ({len(events)})", map_title,
-              "segmentation (filled in colour)",
+              segments_title,
               f"dense map (N2 = {report['N2']}, beta {report['beta']:.3f})"]
     legends = [None, None, legend, None, legend]
     if truth is not None:

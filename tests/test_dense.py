@@ -185,3 +185,30 @@ def test_n1_is_the_map_and_n1_in_frame_what_lands_in_it():
     assert fill_frame(frame, sparse, camera).info["N1"] == 108           # default: the sparse
     with pytest.raises(ValueError, match="n1 must be the map's point count"):
         fill_frame(frame, sparse, camera, n1=107)
+
+
+def test_fill_frame_takes_a_method_and_keeps_the_paper_s_weighting_consistent():
+    from fusion.filling import FillParams
+
+    frame, sparse = _two_patch_scene()
+    camera = Camera(40, 30, 35.0, 30.0, 19.5, 14.5)
+    gaussian = DenseParams(fill=FillParams("gaussian"))
+    by_name = fill_frame(frame, sparse, camera, method="paper-gaussian")
+    np.testing.assert_array_equal(by_name.dense, densify(frame, sparse, gaussian)[2])
+    assert by_name.info["method"] == "paper-gaussian" and by_name.regions is not None
+    assert fill_frame(frame, sparse, camera, gaussian).info["method"] == "paper-gaussian"
+    with pytest.raises(ValueError, match="paper-gaussian uses gaussian weights but "
+                                         "params.fill.weighting is 'idw'"):
+        fill_frame(frame, sparse, camera, DenseParams(), method="paper-gaussian")
+    nearest = fill_frame(frame, sparse, camera, method="nearest")
+    assert nearest.regions is None and nearest.info["regions"] is None
+    assert nearest.labels.dtype == np.int32 and not nearest.labels.any()
+    assert nearest.info["N2"] == 1200 and nearest.info["method_origin"] == "built-in"
+    assert set(nearest.info["timings"]) == {"method_s", "total_s"}
+    with pytest.raises(ValueError, match="unknown filling method 'nope'"):
+        fill_frame(frame, sparse, camera, method="nope")
+    for bad, message in ((sparse[:20], "must be the same size"),
+                         (np.where(sparse > 0, np.nan, 0), "NaN"),
+                         (np.zeros_like(sparse), "no map point")):
+        with pytest.raises(ValueError, match=message):
+            fill_frame(frame, bad, camera, method="nearest")

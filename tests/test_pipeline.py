@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import cv2
 import numpy as np
@@ -273,3 +274,39 @@ def test_an_unexpected_failure_is_still_one_line(tiny_run, monkeypatch, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["evfuse show: unexpected error: RuntimeError: disk on fire (run with --debug "
                    "for the traceback)"]
+
+
+def test_run_with_telea_records_it_and_its_overview_draws(tiny_run, tmp_path, capsys):
+    """The same window and map as the paper's run, filled by telea: report.json and fill.json
+    name it, there is no segmentation, and the overview's segmentation panel says so."""
+    from fusion.pipeline import _overview_panels
+
+    _, out = tiny_run
+    run = tmp_path / "telea"
+    capsys.readouterr()
+    assert main(["run", str(out / "sequence"), "--out", str(run), "--t0", "0.0", "--t1", "0.3",
+                 "--method", "telea"]) == 0
+    captured = capsys.readouterr()
+    report = json.loads((run / "report.json").read_text())
+    fill = json.loads((run / "fill" / "fill.json").read_text())
+    paper = json.loads((out / "report.json").read_text())
+    assert report["method"] == fill["method"] == "telea" and paper["method"] == "paper-idw"
+    assert report["method_origin"] == fill["method_origin"] == "built-in"
+    assert fill["segmentation"] is None and fill["regions"] is None
+    np.testing.assert_array_equal(read_depth(run / "map" / "semidense_depth.exr"),
+                                  read_depth(out / "map" / "semidense_depth.exr"))
+    assert report["N1_in_frame"] == paper["N1_in_frame"]
+    dense = read_depth(run / "fill" / "dense_depth.exr")
+    assert report["N2"] == fill["N2"] == np.count_nonzero(dense) > paper["N2"]
+    assert not cv2.imread(str(run / "fill" / "segments.png"), cv2.IMREAD_UNCHANGED).any()
+    assert re.search(r"^fill: [\d,]+ pixels filled by telea in \d+\.\d s$", captured.err, re.M)
+    assert re.search(r"filling method\s+telea \(built-in\)", captured.out)
+    overview = cv2.imread(str(run / "overview.png"))
+    assert overview.shape == cv2.imread(str(out / "overview.png")).shape
+    panels, titles, _, _ = _overview_panels(run, report)
+    assert titles[3] == "no segmentation (method telea; filled green)"
+    filled = cv2.imread(str(run / "fill" / "filled_mask.png"), cv2.IMREAD_GRAYSCALE) > 0
+    green = panels[3][..., 1].astype(int) - panels[3][..., 2]
+    assert (green[filled] > 0).all() and (green[~filled] == 0).all()
+    assert main(["show", str(run), "--out", str(tmp_path / "again.png")]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "again.png")), overview)
