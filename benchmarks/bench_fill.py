@@ -9,7 +9,13 @@ their plane's depth with 1 % noise (about 2k map points at 240x180). The target 
 stages together on one core at 240x180 with 2-5k map points is 50 ms. Every weighting is timed
 for the fill. Results are printed and written to ``benchmarks/results/bench_fill.json``.
 
-Run: ``.venv/bin/python benchmarks/bench_fill.py [--repeats N]``.
+Then every filling method of :func:`fusion.methods.available_methods` (the paper's, the
+baselines, ours) on the same inputs, on one core (numba and OpenCV at one thread), median of
+``--repeats`` after one untimed call (at most 3 repeats where one call takes over a second),
+through :func:`fusion.methods.run_method`; written to
+``benchmarks/results/bench_fill_methods.json``. The built-ins' target: under 50 ms at 240x180.
+
+Run: ``.venv/bin/python benchmarks/bench_fill.py [--repeats N] [--no-methods]``.
 """
 
 from __future__ import annotations
@@ -88,6 +94,8 @@ def _median_time(fn, repeats: int) -> float:
 def main(argv=None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--no-methods", action="store_true",
+                        help="time the three stages only, not every filling method")
     args = parser.parse_args(argv)
     default_threads = numba.get_num_threads()
     rows = []
@@ -129,6 +137,44 @@ def main(argv=None) -> list[dict]:
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "bench_fill.json").write_text(json.dumps(rows, indent=2))
     print(f"written to {RESULTS / 'bench_fill.json'}")
+    if not args.no_methods:
+        bench_methods(args.repeats)
+    return rows
+
+
+def bench_methods(repeats: int) -> list[dict]:
+    """Every available filling method at every size, one core; printed and written."""
+    from fusion.methods import available_methods, get_method, run_method
+    from sim.camera import Camera
+
+    default_threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    cv2.setNumThreads(1)
+    rows = []
+    names = list(available_methods())
+    for width, height in SIZES:
+        frame, sparse = synthetic_input(width, height)
+        camera = Camera(width=width, height=height, fx=0.8 * width, fy=0.8 * width,
+                        cx=(width - 1) / 2, cy=(height - 1) / 2)
+        for name in names:
+            method = get_method(name)
+            tick = time.perf_counter()
+            run_method(method, frame, sparse, camera)                 # compile, warm up
+            once = time.perf_counter() - tick
+            n = repeats if once < 1.0 else min(repeats, 3)
+            ms = 1e3 * _median_time(lambda m=method, f=frame, sp=sparse, c=camera:
+                                    run_method(m, f, sp, c), n)
+            rows.append({"size": f"{width}x{height}", "method": name, "ms": ms, "repeats": n})
+    numba.set_num_threads(default_threads)
+    cv2.setNumThreads(-1)
+    print("\nEvery filling method, one core, median (ms)")
+    print(f"  {'method':<18}" + "".join(f"{w}x{h:<8}" for w, h in SIZES))
+    for name in names:
+        cells = [next(r["ms"] for r in rows if r["method"] == name and r["size"] == f"{w}x{h}")
+                 for w, h in SIZES]
+        print(f"  {name:<18}" + "".join(f"{c:<12.1f}" for c in cells))
+    (RESULTS / "bench_fill_methods.json").write_text(json.dumps(rows, indent=2))
+    print(f"written to {RESULTS / 'bench_fill_methods.json'}")
     return rows
 
 
