@@ -101,7 +101,8 @@ def _scene_names(scenes: list[str]) -> list[str]:
     known = describe_scenes()
     names: list[str] = []
     for item in scenes:
-        if (Path(item) / "map.json").is_file():
+        if (Path(item) / "map.json").is_file() or (str(item).endswith(".toml")
+                                                   and Path(item).is_file()):
             names.append(str(item))
             continue
         for name in SCENE_GROUPS.get(item, (item,)):
@@ -119,6 +120,8 @@ def _label(name: str) -> str:
     path = Path(name)
     if (path / "map.json").is_file():
         return path.resolve().parent.name if path.name == "map" else path.name
+    if name.endswith(".toml"):
+        return path.stem
     return name
 
 
@@ -139,13 +142,14 @@ def _mapped(name: str, cache: Path, progress: bool) -> Path:
     if (Path(name) / "map.json").is_file():
         return Path(name)
     t0, t1 = _window(name)
-    folder = cache / f"{name}_{t0:.3f}_{t1:.3f}"
+    folder = cache / f"{_label(name)}_{t0:.3f}_{t1:.3f}"
     if (folder / "map" / "map.json").is_file():
         return folder / "map"
     sequence = folder / "sequence"
     if not (sequence / "sequence.json").is_file():
-        simulate(load_scene(resolve_scene(name)), sequence, start=t0, duration=t1 - t0,
-                 progress=progress, overwrite=True)
+        scene = load_scene(name if name.endswith(".toml") else resolve_scene(name))
+        simulate(scene, sequence, start=t0, duration=t1 - t0, progress=progress,
+                 overwrite=True)
     map_window(sequence, folder / "map", t0, t1, overwrite=True, progress=progress)
     return folder / "map"
 
@@ -240,8 +244,9 @@ def bench(methods: list[str], scenes: list[str], inputs: list[str] = INPUTS,
     methods : list of str
         Method names or ``module:function`` specs (:func:`fusion.methods.get_method`).
     scenes : list of str
-        Built-in scene names, groups (:data:`SCENE_GROUPS`) or map folders of simulated
-        sequences (``evfuse map`` / ``evfuse run`` outputs).
+        Built-in scene names, groups (:data:`SCENE_GROUPS`), scene files (``.toml``, e.g. from
+        :mod:`fusion.families`) or map folders of simulated sequences (``evfuse map`` /
+        ``evfuse run`` outputs).
     inputs : list of str
         Among :data:`INPUTS` (default all).
     cache : str or Path

@@ -48,6 +48,38 @@ def _cmd_methods(args: argparse.Namespace) -> int:
     return 0
 
 
+_KNOBS = ("steps", "step_depth", "radius", "distance", "shadow", "angle", "amplitude",
+          "wavelength", "texture")
+"""The difficulty knobs of ``evfuse bench --family`` (see :mod:`fusion.families`)."""
+
+
+def _family_files(args: argparse.Namespace) -> list[str]:
+    """Write each member of ``--family`` over the knobs' values; return the scene files."""
+    from fusion.families import family_variants
+
+    knobs = {}
+    for name in _KNOBS:
+        text = getattr(args, name)
+        if text is None:
+            continue
+        try:
+            knobs[name] = [float(v) for v in text.split(",") if v.strip()]
+        except ValueError:
+            raise ValueError(f"--{name.replace('_', '-')} {text}: expected numbers separated "
+                             "by commas") from None
+    cache = Path(args.cache) if args.cache else Path(args.out).with_name(
+        Path(args.out).name + "-cache")
+    folder = cache / "families"
+    folder.mkdir(parents=True, exist_ok=True)
+    files = []
+    for text in family_variants(args.family, knobs):
+        name = text.split('name = "', 1)[1].split('"', 1)[0]
+        path = folder / f"{name}.toml"
+        path.write_text(text)
+        files.append(str(path))
+    return files
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from fusion.benchmark import BenchParams, run_bench
     from fusion.methods import available_methods
@@ -57,6 +89,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if not methods:
         raise ValueError("--only needs at least one --method")
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    if args.family:
+        scenes = _family_files(args)
     inputs = [s.strip() for s in args.input.split(",") if s.strip()]
     command = (f"evfuse bench --scenes {args.scenes} --input {args.input}"
                + "".join(f" --method {m}" for m in given) + (" --only" if args.only else "")
@@ -469,6 +503,21 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--method", action="append", default=None,
                        help="a method to add to the built-in ones: a name or "
                             "module:function (repeatable or comma-separated)")
+    bench.add_argument("--family", default=None,
+                       help="instead of --scenes, a scene family with a difficulty knob: "
+                            "staircase, sphere, cylinder, slanted, heightfield (see "
+                            "fusion.families); vary its knobs with the flags below")
+    for knob, what in (("steps", "staircase: boxes (default 4)"),
+                       ("step_depth", "staircase: m between steps (default 0.2)"),
+                       ("radius", "sphere / cylinder: m (default 0.25 / 0.2)"),
+                       ("distance", "sphere / cylinder: m (default 0.9)"),
+                       ("shadow", "sphere: 1 a light casts its shadow, 0 not (default 1)"),
+                       ("angle", "slanted: degrees from the image plane (default 50)"),
+                       ("amplitude", "heightfield: m (default 0.08)"),
+                       ("wavelength", "heightfield: m (default 0.4)"),
+                       ("texture", "every family: 1 textured, 0 plain (default 1)")):
+        bench.add_argument(f"--{knob.replace('_', '-')}", dest=knob, default=None,
+                           help=f"comma-separated values; {what}")
     bench.add_argument("--only", action="store_true",
                        help="bench only the --method ones, not every built-in")
     bench.add_argument("--noise", type=float, default=0.02,

@@ -98,3 +98,40 @@ def test_bad_bench_arguments_are_refused_in_one_line(argv, message, tmp_path, ca
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and message in err, err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_family_expands_into_one_scene_per_knob_value(tmp_path):
+    from fusion.cli import _parser
+    from fusion.families import FAMILIES, family_scene, family_variants
+    from sim.scene import parse_scene
+
+    names = [parse_scene(text).name for text in family_variants("staircase",
+                                                                {"steps": [2, 4, 8]})]
+    assert names == ["staircase_steps2_step_depth0.2", "staircase_steps4_step_depth0.2",
+                     "staircase_steps8_step_depth0.1142"]    # 8 steps share 0.8 m by default
+    assert [len(parse_scene(family_scene("staircase", steps=n)).objects) for n in (2, 8)] \
+        == [3, 9]                                                # the wall and the steps
+    for family in FAMILIES:                                      # every member is a valid scene
+        for texture in (0, 1):
+            parse_scene(family_scene(family, texture=texture))
+    shadow = [len(parse_scene(family_scene("sphere", shadow=s)).lights) for s in (0, 1)]
+    assert shadow == [1, 2]
+    args = _parser().parse_args(["bench", "--family", "sphere", "--radius", "0.1,0.3",
+                                 "--texture", "0,1", "--out", str(tmp_path / "b")])
+    from fusion.cli import _family_files
+
+    files = _family_files(args)
+    assert len(files) == 4 and all(path.endswith(".toml") for path in files)
+
+
+@pytest.mark.parametrize("family, knobs, message", [
+    ("tower", {}, "--family tower: expected one of staircase"),
+    ("sphere", {"steps": 3}, "has no knob 'steps'"),
+    ("slanted", {"angle": 80}, "--angle 80: expected 0 to 75"),
+    ("staircase", {"steps": 8, "step_depth": 0.3}, "would stand at or behind the wall"),
+])
+def test_a_bad_family_or_knob_is_named(family, knobs, message):
+    from fusion.families import family_scene
+
+    with pytest.raises(ValueError, match=message):
+        family_scene(family, **knobs)

@@ -1,0 +1,187 @@
+"""Scene families with a difficulty knob, for ``evfuse bench --family``.
+
+Each family writes a scene file (TOML text) from a few parameters that set how hard its surface
+is to fill; everything else (the DAVIS240C camera, a slider moving 10 cm/s, two lights, a
+textured brick wall 1.6 m away) stays fixed, so that a table over one knob shows what that knob
+costs. Every parameter has a default (the middle of its useful range) and a valid range, checked
+in one line naming it:
+
+=============  ==========================================================================
+family         knobs
+=============  ==========================================================================
+``staircase``  ``steps`` (1-12 boxes, the first 0.6 m away), ``step_depth`` (m between
+               two steps, default min(0.2, 0.8 / (steps - 1)); the last step must stay
+               0.2 m in front of the wall)
+``sphere``     ``radius`` (m), ``distance`` (m), ``shadow`` (0/1: a point light that casts
+               the sphere's shadow on the wall, or light from the camera's side only)
+``cylinder``   ``radius`` (m), ``distance`` (m)
+``slanted``    ``angle`` (degrees between the poster and the image plane, 0-75)
+``heightfield`` ``amplitude`` (m), ``wavelength`` (m)
+=============  ==========================================================================
+
+and every family takes ``texture`` (1: textured objects, 0: plain gray ones, which give events
+only at their outlines).
+"""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ["FAMILIES", "family_scene", "family_variants"]
+
+_COMMON = """duration = 3.0
+depth_range = [0.4, 3.0]
+seed = {seed}
+
+[camera]
+preset = "davis240c"
+
+[frames]
+rate = 24.0
+exposure = 0.005
+
+[trajectory]
+type = "linear"
+position = [-0.15, 0.0, 0.0]
+velocity = [0.1, 0.0, 0.0]
+look_at = [-0.05, 1.0, 0.0]
+
+[[lights]]
+type = "directional"
+direction = [0.3, 1.0, -0.5]
+irradiance = 2.0
+
+[[objects]]
+name = "wall"
+type = "rectangle"
+center = [0.0, 1.6, 0.0]
+size = [4.0, 3.0]
+normal = [0.0, -1.0, 0.0]
+material = {{ texture = {{ type = "skimage", name = "brick" }}, texture_scale = [4.0, 3.0] }}
+"""
+
+FAMILIES: dict[str, dict[str, tuple[float, float, float]]] = {
+    "staircase": {"steps": (4, 1, 12), "step_depth": (0.2, 0.05, 0.8)},
+    "sphere": {"radius": (0.25, 0.05, 0.5), "distance": (0.9, 0.5, 1.4), "shadow": (1, 0, 1)},
+    "cylinder": {"radius": (0.2, 0.05, 0.5), "distance": (0.9, 0.5, 1.4)},
+    "slanted": {"angle": (50.0, 0.0, 75.0)},
+    "heightfield": {"amplitude": (0.08, 0.0, 0.2), "wavelength": (0.4, 0.1, 1.0)},
+}
+"""Each family's knobs: (default, lowest, highest); ``texture`` (0 or 1, default 1) on top."""
+
+
+def _material(textured: bool, kind: str) -> str:
+    if not textured:
+        return '{ color = [0.5, 0.5, 0.5] }'
+    return '{ texture = { type = "noise", feature_size = 4.0, contrast = 0.6 } }'
+
+
+def _checked(family: str, knobs: dict) -> dict:
+    if family not in FAMILIES:
+        raise ValueError(f"--family {family}: expected one of {', '.join(FAMILIES)}")
+    allowed = {**FAMILIES[family], "texture": (1, 0, 1)}
+    unknown = sorted(set(knobs) - set(allowed))
+    if unknown:
+        raise ValueError(f"--family {family} has no knob {unknown[0]!r}; its knobs: "
+                         f"{', '.join(allowed)}")
+    values = {}
+    for name, (default, low, high) in allowed.items():
+        value = float(knobs.get(name, default))
+        if not (math.isfinite(value) and low <= value <= high):
+            raise ValueError(f"--{name.replace('_', '-')} {value:g}: expected {low:g} to {high:g} "
+                             f"for the {family} family")
+        values[name] = value
+    return values
+
+
+def family_scene(family: str, **knobs: float) -> str:
+    """The scene file (TOML text) of one member of a family.
+
+    Parameters
+    ----------
+    family : str
+        One of :data:`FAMILIES`.
+    **knobs : float
+        The family's knobs (see the module docstring); missing ones take their defaults.
+
+    Returns
+    -------
+    str
+        A complete scene file; its ``name`` says the family and every knob's value.
+
+    Raises
+    ------
+    ValueError
+        An unknown family or knob, or a value outside the knob's range (one line naming it).
+    """
+    if family == "staircase" and "step_depth" not in knobs:
+        # By default the steps share 0.8 m (at most 0.2 m each): any count fits before the wall.
+        steps = round(float(knobs.get("steps", FAMILIES["staircase"]["steps"][0])))
+        knobs = {**knobs, "step_depth": math.floor(1e4 * min(0.2, 0.8 / max(steps - 1, 1))) / 1e4}
+    k = _checked(family, knobs)
+    textured = k.pop("texture") >= 0.5
+    name = f"{family}_" + "_".join(f"{key}{value:g}" for key, value in k.items()) + \
+        ("" if textured else "_plain")
+    objects = []
+    lights = ""
+    if family == "staircase":
+        steps = int(round(k["steps"]))
+        if 0.6 + (steps - 1) * k["step_depth"] > 1.4:
+            raise ValueError(f"--steps {steps} with --step-depth {k['step_depth']:g}: the last "
+                             "step would stand at or behind the wall (1.6 m); expected "
+                             "0.6 + (steps - 1) step_depth <= 1.4 m")
+        for i in range(steps):
+            depth = 0.6 + i * k["step_depth"]
+            height = 0.3 + 0.15 * i
+            objects.append(("box", f'center = [{-0.45 + 0.9 * i / max(steps - 1, 1):.3f}, '
+                                   f'{depth:.3f}, {-0.4 + height / 2:.3f}]\n'
+                                   f'size = [{0.9 / steps:.3f}, 0.2, {height:.3f}]'))
+    elif family == "sphere":
+        objects.append(("sphere", f'center = [0.0, {k["distance"]:.3f}, 0.0]\n'
+                                  f'radius = {k["radius"]:.3f}'))
+        if k["shadow"] >= 0.5:
+            lights = ('[[lights]]\ntype = "point"\nposition = [-0.5, 0.2, 0.5]\n'
+                      'intensity = 0.4\n\n')
+    elif family == "cylinder":
+        objects.append(("cylinder", f'center = [0.0, {k["distance"]:.3f}, 0.0]\n'
+                                    f'radius = {k["radius"]:.3f}\nheight = 1.5'))
+    elif family == "slanted":
+        angle = math.radians(k["angle"])
+        normal = f"[{math.sin(angle):.4f}, {-math.cos(angle):.4f}, 0.0]"
+        objects.append(("rectangle", f'center = [0.0, 1.0, 0.0]\nsize = [0.9, 0.7]\n'
+                                     f'normal = {normal}'))
+    else:
+        objects.append(("heightfield", f'center = [0.0, 1.0, 0.0]\nsize = [1.6, 1.2]\n'
+                                       'rotation = [90.0, 0.0, 0.0]\n'
+                                       f'amplitude = {k["amplitude"]:.4f}\n'
+                                       f'wavelength = [{k["wavelength"]:.3f}, '
+                                       f'{k["wavelength"]:.3f}]\nresolution = [160, 120]'))
+    text = [f'# Generated by fusion.families: the {family} family, {name}.\n'
+            f'name = "{name}"\n'
+            f'description = "{family} family ({", ".join(f"{a} {b:g}" for a, b in k.items())}'
+            f'{", plain" if not textured else ""})"\n',
+            _COMMON.format(seed=17), lights]
+    for i, (shape, body) in enumerate(objects):
+        text.append(f'[[objects]]\nname = "{family}{i}"\ntype = "{shape}"\n{body}\n'
+                    f'material = {_material(textured, str(i + 1))}\n\n')
+    return "\n".join(text)
+
+
+def family_variants(family: str, knobs: dict[str, list[float]]) -> list[str]:
+    """The scene files of every combination of the knobs' values (others at their defaults).
+
+    Parameters
+    ----------
+    family : str
+    knobs : dict of str to list of float
+        Values of each knob to vary, e.g. ``{"steps": [2, 4, 8]}``.
+
+    Returns
+    -------
+    list of str
+        One scene file (TOML text) per combination, in the order of the values.
+    """
+    combos: list[dict] = [{}]
+    for name, values in knobs.items():
+        combos = [{**combo, name: value} for combo in combos for value in values]
+    return [family_scene(family, **combo) for combo in combos]
