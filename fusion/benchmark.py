@@ -20,7 +20,8 @@ filled pixels (``filled``: pixels that were not input points) and the band withi
 depth discontinuity apart. Methods fill different shares of the image, so each table shows the
 completeness beside the errors and ranks the methods twice: by MAE on their own pixels, and by
 MAE on the pixels that every method filled (``common``). For a method that returns a confidence,
-``mae_at_half_cm`` is the MAE of its most confident half of the filled pixels.
+``coverage_curve`` gives the MAE of its filled pixels against the share kept, most confident
+first (:func:`coverage_curve`), and ``mae_at_half_cm`` its value at one half.
 
 Outputs in ``--out``: ``bench.md`` (a ranked table per input, the best value of each column in
 bold), ``bench.csv`` (fixed columns, see :data:`CSV_COLUMNS`), ``bench.json`` and one figure
@@ -42,7 +43,8 @@ import numpy as np
 
 from sim.sequence import atomic_output_dir, check_output_dir
 
-__all__ = ["CSV_COLUMNS", "INPUTS", "SCENE_GROUPS", "BenchParams", "bench", "run_bench"]
+__all__ = ["CSV_COLUMNS", "CURVE_SHARES", "INPUTS", "SCENE_GROUPS", "BenchParams", "bench",
+           "coverage_curve", "run_bench"]
 
 INPUTS = ("emvs", "oracle", "oracle-edges", "oracle-noisy")
 """The inputs a method can be given (see the module docstring)."""
@@ -214,7 +216,6 @@ def _value(errors: dict | None, key: str):
 def _scores(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray,
             confidence: np.ndarray | None) -> dict:
     from fusion.dense import dense_errors
-    from fusion.scoring import depth_errors
 
     errors = dense_errors(dense, sparse, truth)
     whole, filled, band = errors["all"]["overall"], errors["filled"]["overall"], \
@@ -226,12 +227,41 @@ def _scores(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray,
            "filled_completeness": filled["completeness"],
            "band_mae_cm": _value(band, "mae_cm"), "mae_at_half_cm": None}
     if confidence is not None:
-        mask = (dense > 0) & (sparse == 0) & (truth > 0)
-        if mask.any():
-            half = confidence >= np.median(confidence[mask])
-            row["mae_at_half_cm"] = _value(depth_errors(np.where(half & mask, dense, 0),
-                                                        truth), "mae_cm")
+        row["coverage_curve"] = coverage_curve(dense, sparse, truth, confidence)
+        row["mae_at_half_cm"] = dict(row["coverage_curve"]).get(0.5)
     return row
+
+
+CURVE_SHARES = (0.1, 0.25, 0.5, 0.75, 1.0)
+"""Shares of a method's filled pixels, most confident first, at which the curve is taken."""
+
+
+def coverage_curve(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray,
+                   confidence: np.ndarray, shares: tuple[float, ...] = CURVE_SHARES
+                   ) -> list[tuple[float, float | None]]:
+    """Error of the filled pixels against the share of them kept, most confident first.
+
+    Parameters
+    ----------
+    dense, sparse, truth : (H, W) float arrays, metres (0 = none)
+    confidence : (H, W) float array in [0, 1]
+    shares : tuple of float
+        Shares of the filled pixels (with a true depth) to keep.
+
+    Returns
+    -------
+    list of (share, MAE in cm or None)
+        For each share, the MAE of the most confident ``share`` of the filled pixels; ties in
+        confidence are broken in row-major pixel order, so each share is exact.
+    """
+    index = np.flatnonzero(((dense > 0) & (sparse == 0) & (truth > 0)).ravel())
+    if index.size == 0:
+        return [(share, None) for share in shares]
+    order = index[np.argsort(-confidence.ravel()[index], kind="stable")]
+    error = np.abs(dense.ravel()[order] - truth.ravel()[order]) * 100.0
+    running = np.cumsum(error) / np.arange(1, len(error) + 1)
+    return [(share, float(running[max(int(round(share * len(error))), 1) - 1]))
+            for share in shares]
 
 
 def bench(methods: list[str], scenes: list[str], inputs: list[str] = INPUTS,
@@ -371,6 +401,17 @@ def _markdown(rows: list[dict], seconds: float, command: str) -> str:
                     lines.append(f"| - | - | {row['method']} | {row['status']} |"
                                  + " |" * (len(columns) - 1))
             lines.append("")
+            curves = [r for r in ok if r.get("coverage_curve")]
+            if curves:
+                shares = [share for share, _ in curves[0]["coverage_curve"]]
+                lines += ["Precision against completeness: MAE (cm) of the filled pixels kept, "
+                          "most confident first, at each share of them:", "",
+                          "| method | " + " | ".join(f"{100 * x:g} %" for x in shares) + " |",
+                          "|---|" + "---|" * len(shares)]
+                lines += [f"| {r['method']} | " + " | ".join(_number(mae) for _, mae
+                                                              in r["coverage_curve"]) + " |"
+                          for r in curves]
+                lines.append("")
     return "\n".join(lines)
 
 

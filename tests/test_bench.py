@@ -135,3 +135,19 @@ def test_a_bad_family_or_knob_is_named(family, knobs, message):
 
     with pytest.raises(ValueError, match=message):
         family_scene(family, **knobs)
+
+
+def test_the_coverage_curve_keeps_the_most_confident_pixels_first():
+    from fusion.benchmark import coverage_curve
+
+    truth = np.full((2, 5), 2.0, np.float32)
+    sparse = np.zeros_like(truth)
+    sparse[0, 0] = 2.0                                       # an input point: not counted
+    dense = truth + np.float32([[0, 0.01, 0.02, 0.03, 0.04], [0.05, 0.06, 0.07, 0.08, 0.09]])
+    dense[0, 0] = 2.0
+    confidence = np.float32([[1, 0.9, 0.8, 0.7, 0.6], [0.5, 0.4, 0.3, 0.3, 0.3]])
+    curve = dict(coverage_curve(dense, sparse, truth, confidence, (1 / 9, 5 / 9, 1.0)))
+    assert curve[1 / 9] == pytest.approx(1.0)                # the most confident: 1 cm
+    assert curve[5 / 9] == pytest.approx(3.0)                # 1..5 cm
+    assert curve[1.0] == pytest.approx(5.0)                  # all nine filled pixels
+    assert dict(coverage_curve(dense, truth, truth, confidence, (0.5,)))[0.5] is None
