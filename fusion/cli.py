@@ -372,8 +372,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     scenes = tuple(s.strip() for s in args.scenes.split(",")) if args.scenes else None
+    methods = tuple(m.strip() for m in ",".join(args.method or []).split(",") if m.strip())
     params = ReproduceParams(window=args.window, long_window=args.long_window, tables=tables,
-                             scenes=scenes)
+                             scenes=scenes, methods=methods)
     report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
                        progress=not args.quiet)
     print(f"{len(report['rows'])} windows in {report['total_s'] / 60:.1f} min")
@@ -663,6 +664,10 @@ def _parser() -> argparse.ArgumentParser:
     repro.add_argument("--tables", default="1,2,3,complex",
                        help="tables to make, among 1,2,3,complex (default all)")
     repro.add_argument("--scenes", default=None, help="only these scenes (comma-separated)")
+    repro.add_argument("--method", action="append", default=None,
+                       help="a filling method to run on every window besides the paper's "
+                            "(repeatable or comma-separated; default none: the paper's tables "
+                            "use its three weightings, inverse distance first)")
     repro.add_argument("--overwrite", action="store_true")
     repro.add_argument("--quiet", action="store_true", help="no progress bar")
     repro.set_defaults(run=_cmd_reproduce)

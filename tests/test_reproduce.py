@@ -36,3 +36,21 @@ def test_reproduce_table_1_and_complex_on_one_scene_each(tmp_path, capsys):
     assert main([*argv[:2], str(tmp_path / "again"), *argv[3:]]) == 0
     again = json.loads((tmp_path / "again" / "report.json").read_text())
     assert all(r["seconds"]["simulate (0 when cached)"] < 1.0 for r in again["rows"])
+
+
+def test_reproduce_runs_other_filling_methods_beside_the_paper_s(tmp_path, capsys):
+    out = tmp_path / "report"
+    argv = ["reproduce", "--out", str(out), "--cache", str(tmp_path / "cache"), "--tables",
+            "complex", "--scenes", "complex_slanted_plane", "--long-window", "0.15",
+            "--method", "nearest,plane", "--quiet"]
+    assert main(argv) == 0
+    row = json.loads((out / "report.json").read_text())["rows"][0]
+    assert list(row["methods"]) == ["nearest", "plane"] and len(row["fills"]) == 3
+    assert row["methods"]["nearest"]["N2"] == 43200                  # nearest fills every pixel
+    assert row["methods"]["plane"]["N2"] <= 43200
+    text = (out / "report.md").read_text()
+    assert "## Other filling methods" in text
+    assert "| complex_slanted_plane | 1.00-1.15 | paper-idw |" in text
+    assert "| complex_slanted_plane | 1.00-1.15 | nearest |" in text
+    assert main([*argv[:-3], "--method", "no-such", "--quiet"]) == 2
+    assert "unknown filling method 'no-such'" in capsys.readouterr().err
