@@ -34,6 +34,7 @@ always gets the same pose.
 
 from __future__ import annotations
 
+import gc
 import math
 from collections import OrderedDict
 
@@ -510,9 +511,18 @@ class EventShader:
         fractions = mi.Float(_aligned(fraction, np.float32))
         zeros = dr.zeros(mi.Float, len(pixels))
         dr.make_opaque(index, nodes, fractions, zeros)   # sizes change per call, the kernel not
-        total = trace(self.renderer.mitsuba_scene, self._directions, index, nodes, fractions,
-                      table, zeros)
-        return np.asarray(total, dtype=np.float32)
+        # No cyclic garbage collection while the frozen function records or replays: Python's
+        # collector, run at a random moment inside it, freed Dr.Jit variables of an earlier
+        # scene (a test suite's, or reproduce's previous window) and Dr.Jit aborted the process.
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            total = trace(self.renderer.mitsuba_scene, self._directions, index, nodes,
+                          fractions, table, zeros)
+            return np.asarray(total, dtype=np.float32)
+        finally:
+            if collecting:
+                gc.enable()
 
 
 def _pose_groups(node: np.ndarray):
