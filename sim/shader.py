@@ -413,13 +413,7 @@ class EventShader:
         (H, W) float32 ndarray
             Linear luminance.
         """
-        times = self._check_times(np.array([t], dtype=np.float64))
-        if self.renderer.scene.is_dynamic:
-            self.renderer.set_time(float(times[0]))
-        size = self.shape[0] * self.shape[1]
-        # The interval and fraction luminance() computes for each sample at t.
-        node, fraction = (np.broadcast_to(a, size) for a in self._poses.locate(times))
-        return self._shade(np.arange(size), node, fraction).reshape(self.shape)
+        return self._all_at(t, self.shape[0] * self.shape[1]).reshape(self.shape)
 
     def subsamples(self, t: float) -> np.ndarray:
         """Every sub-sample of every pixel at time ``t``, laid out on the sub-sample grid.
@@ -434,23 +428,29 @@ class EventShader:
         (H n, W n) float32 ndarray, ``n = sqrt(spp)``
             Linear luminance of sub-sample ``k`` of pixel ``(x, y)`` at row ``y n + k // n``,
             column ``x n + k % n`` (its stratum; see :func:`subsample_directions`). A pixel's
-            value (:meth:`frame`) is the mean of its ``spp`` sub-samples (up to float32
-            rounding: the two are summed by different code).
+            value (:meth:`frame`) is the mean of its ``spp`` sub-samples summed in stratum
+            order in float32 (:func:`sim.pixel_sampling.pixel_means`: bit for bit, tested).
         """
-        times = self._check_times(np.array([t], dtype=np.float64))
-        if self.renderer.scene.is_dynamic:
-            self.renderer.set_time(float(times[0]))
-        count = self.shape[0] * self.shape[1] * self.spp
-        node, fraction = (np.broadcast_to(a, count) for a in self._poses.locate(times))
         # One thread per sub-sample: "pixels" index the sub-sample directions, spp = 1.
-        values = self._shade(np.arange(count), node, fraction, self._trace_subsamples,
-                             MAX_RAYS_PER_LAUNCH)
+        values = self._all_at(t, self.shape[0] * self.shape[1] * self.spp,
+                              self._trace_subsamples, MAX_RAYS_PER_LAUNCH)
         n = math.isqrt(self.spp)
         height, width = self.shape
         return (values.reshape(height, width, n, n).transpose(0, 2, 1, 3)
                 .reshape(height * n, width * n))
 
     # ----------------------------------------------------------------------------------------
+    def _all_at(self, t: float, count: int, trace=None,
+                samples_per_launch: int | None = None) -> np.ndarray:
+        """Samples ``0 .. count - 1`` (pixels, or sub-samples with their own ``trace``) all at
+        time ``t``, with the interval and fraction :meth:`luminance` computes for a sample at
+        ``t``; objects that move are moved to ``t`` first."""
+        times = self._check_times(np.array([t], dtype=np.float64))
+        if self.renderer.scene.is_dynamic:
+            self.renderer.set_time(float(times[0]))
+        node, fraction = (np.broadcast_to(a, count) for a in self._poses.locate(times))
+        return self._shade(np.arange(count), node, fraction, trace, samples_per_launch)
+
     def _check_times(self, times: np.ndarray) -> np.ndarray:
         times = np.asarray(times, dtype=np.float64)
         if times.ndim != 1:
