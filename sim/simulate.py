@@ -370,34 +370,16 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
     """
     cam = scene.camera
     emulator = EventEmulator((cam.height, cam.width), params)
-    stats = SamplingStats()
-    count = on = 0
+    stats, count, on, positions, saved = _restore_events(checkpoint, emulator, SamplingStats)
     after: Sample | None = None
-    positions: dict = {}
-    saved = checkpoint.load_events()
     if saved is not None:
         arrays, state = saved
-        emulator.set_state({**state["emulator"],
-                            **{key: arrays[f"emulator_{key}"] for key in _EMULATOR_ARRAYS}})
-        stats = SamplingStats(**state["stats"])
-        count, on, positions = state["count"], state["on"], state["writers"]
         after = Sample(luminance=arrays["sample_luminance"], log=arrays["sample_log"],
                        **state["sample"])
     contrast = min(params.contrast_on, params.contrast_off)
     event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
-    bar = progress_stage(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
-                         noun="s simulated", enabled=progress,
-                         bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
-                                    "[{elapsed}<{remaining}{postfix}]")
-    with ExitStack() as stack:
-        stack.callback(bar.close)
-        # Dr.Jit's worker threads stay busy between renders, and numba's parallel regions then
-        # fight them for the two cores (14 ms instead of 0.6 ms a step at 240x180): interleaved
-        # with rendering, the emulator runs on one thread.
-        threads = numba.get_num_threads()
-        numba.set_num_threads(1)
-        stack.callback(numba.set_num_threads, threads)
-        writers = stack.enter_context(_event_writers(folder, cam, formats, positions))
+    with _event_stage(scene, folder, formats, positions, end - start, progress) as (bar,
+                                                                                   writers):
         since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()
         for sample in adaptive_samples(event_camera, start, end, contrast, params.log_eps, sampling,
@@ -519,10 +501,39 @@ def _choose_sampler(scene: Scene, variant: str, requested: str | None) -> tuple[
     return chosen, why
 
 
+def _restore_events(checkpoint: _Checkpoint, emulator: EventEmulator, stats_type: type
+                    ) -> tuple[object, int, int, dict, tuple[dict, dict] | None]:
+    """The event stage's counters, restored from the checkpoint when it holds a saved state
+    (the emulator is set to it): stats, events written, ON events, the writers' positions, and
+    the saved ``(arrays, state)`` (None for a fresh start)."""
+    saved = checkpoint.load_events()
+    if saved is None:
+        return stats_type(), 0, 0, {}, None
+    arrays, state = saved
+    emulator.set_state({**state["emulator"],
+                        **{key: arrays[f"emulator_{key}"] for key in _EMULATOR_ARRAYS}})
+    return (stats_type(**state["stats"]), state["count"], state["on"], state["writers"],
+            saved)
+
+
 @contextmanager
-def _event_writers(folder: Path, camera, formats: tuple[str, ...], positions: dict):
-    """The event files' writers (resumed at ``positions``), closed on exit."""
+def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions: dict,
+                 seconds: float, progress: bool):
+    """The event stage's progress bar and event writers (resumed at ``positions``), with the
+    emulator on one thread; all undone on exit."""
+    camera = scene.camera
+    bar = progress_stage(total=round(seconds, 6), desc=f"events {scene.name}", unit="s",
+                         noun="s simulated", enabled=progress,
+                         bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
+                                    "[{elapsed}<{remaining}{postfix}]")
     with ExitStack() as stack:
+        stack.callback(bar.close)
+        # Dr.Jit's worker threads stay busy between renders, and numba's parallel regions then
+        # fight them for the two cores (14 ms instead of 0.6 ms a step at 240x180): interleaved
+        # with rendering, the emulator runs on one thread.
+        threads = numba.get_num_threads()
+        numba.set_num_threads(1)
+        stack.callback(numba.set_num_threads, threads)
         writers: dict[str, H5EventWriter | TextEventWriter] = {}
         if "h5" in formats:
             writers["h5"] = stack.enter_context(H5EventWriter(
@@ -530,7 +541,7 @@ def _event_writers(folder: Path, camera, formats: tuple[str, ...], positions: di
         if "txt" in formats:
             writers["txt"] = stack.enter_context(TextEventWriter(
                 folder / "events.txt", resume=positions.get("txt")))
-        yield writers
+        yield bar, writers
 
 
 def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, start: float,
@@ -543,30 +554,16 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
     """
     cam = scene.camera
     emulator = PixelEventEmulator((cam.height, cam.width), params)
-    stats = PixelSamplingStats()
-    count = on = 0
+    stats, count, on, positions, saved = _restore_events(checkpoint, emulator,
+                                                         PixelSamplingStats)
     after = None
-    positions: dict = {}
-    saved = checkpoint.load_events()
     if saved is not None:
         arrays, state = saved
-        emulator.set_state({**state["emulator"],
-                            **{key: arrays[f"emulator_{key}"] for key in _EMULATOR_ARRAYS}})
-        stats = PixelSamplingStats(**state["stats"])
-        count, on, positions = state["count"], state["on"], state["writers"]
         after = (state["sample"]["t"], arrays["observed_rates"])
     contrast = min(params.contrast_on, params.contrast_off)
     source = _ShaderSource(_EventCamera(renderer, scene.render.event_spp, start, end))
-    bar = progress_stage(total=round(end - start, 6), desc=f"events {scene.name}", unit="s",
-                         noun="s simulated", enabled=progress,
-                         bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
-                                    "[{elapsed}<{remaining}{postfix}]")
-    with ExitStack() as stack:
-        stack.callback(bar.close)
-        threads = numba.get_num_threads()             # see _simulate_events
-        numba.set_num_threads(1)
-        stack.callback(numba.set_num_threads, threads)
-        writers = stack.enter_context(_event_writers(folder, cam, formats, positions))
+    with _event_stage(scene, folder, formats, positions, end - start, progress) as (bar,
+                                                                                   writers):
         since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()
         rendered = source.seconds
