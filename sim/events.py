@@ -109,6 +109,30 @@ def log_intensity(luminance: np.ndarray, eps: float = 1e-3) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 
 
+@numba.njit(cache=True, inline="always")
+def threshold_crossings(level, ref, c_on, c_off):  # pragma: no cover - compiled
+    """Crossings of ``ref + i C_on`` (ON) or ``ref - i C_off`` (OFF) on the way to ``level``:
+    ``(count, signed step, polarity)``, ``(0, 0.0, 0)`` when none. Shared by every emulator
+    kernel (frames here, per-pixel samples in :mod:`sim.pixel_sampling`)."""
+    if level >= ref + c_on:
+        return int(math.floor((level - ref) / c_on)), c_on, 1
+    if level <= ref - c_off:
+        return int(math.floor((ref - level) / c_off)), -c_off, -1
+    return 0, 0.0, 0
+
+
+@numba.njit(cache=True, inline="always")
+def crossing_time(level, a, slope, t0, dt):  # pragma: no cover - compiled
+    """Time (int64 ns) at which ``L``, linear from ``a`` at ``t0`` with change ``slope``
+    over ``dt`` ns, reaches ``level``; clamped to ``[t0, t0 + dt]``."""
+    frac = (level - a) / slope if slope != 0.0 else 1.0
+    if frac < 0.0:
+        frac = 0.0
+    elif frac > 1.0:
+        frac = 1.0
+    return t0 + np.int64(round(frac * dt))
+
+
 @numba.njit(cache=True, parallel=True)
 def _count_rows(L1, ref, c_on, c_off):  # pragma: no cover - compiled
     """Events per row; -1 for a row holding a non-finite level."""
@@ -122,10 +146,7 @@ def _count_rows(L1, ref, c_on, c_off):  # pragma: no cover - compiled
             if not math.isfinite(v):
                 n = -1
                 break
-            if v >= r + c_on[y, x]:
-                n += int(math.floor((v - r) / c_on[y, x]))
-            elif v <= r - c_off[y, x]:
-                n += int(math.floor((r - v) / c_off[y, x]))
+            n += threshold_crossings(v, r, c_on[y, x], c_off[y, x])[0]
         counts[y] = n
     return counts
 
@@ -141,26 +162,12 @@ def _write_rows(L0, L1, ref, c_on, c_off, last_t, offsets, t0, dt, refractory,
             a = L0[y, x]
             b = L1[y, x]
             slope = b - a
-            if b >= r + c_on[y, x]:
-                c = c_on[y, x]
-                n = int(math.floor((b - r) / c))
-                sign = 1
-            elif b <= r - c_off[y, x]:
-                c = -c_off[y, x]
-                n = int(math.floor((r - b) / -c))
-                sign = -1
-            else:
+            n, c, sign = threshold_crossings(b, r, c_on[y, x], c_off[y, x])
+            if n == 0:
                 continue
             last = last_t[y, x]
             for i in range(1, n + 1):
-                level = r + i * c
-                # Linear interpolation: the time at which L reaches `level` in [t0, t0 + dt].
-                frac = (level - a) / slope if slope != 0.0 else 1.0
-                if frac < 0.0:
-                    frac = 0.0
-                elif frac > 1.0:
-                    frac = 1.0
-                t = t0 + np.int64(round(frac * dt))
+                t = crossing_time(r + i * c, a, slope, t0, dt)
                 out_t[k] = t
                 out_x[k] = x
                 out_y[k] = y

@@ -52,15 +52,13 @@ import numpy as np
 
 from sim.camera import Camera
 from sim.eventio import EVENT_DTYPE
-from sim.events import EventEmulator
+from sim.events import EventEmulator, crossing_time, threshold_crossings
 from sim.noise import background_events, hot_pixel_events, merge_events
 from sim.sampling import SPLIT, SamplingParams, motion_field
 
 __all__ = ["MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
            "PixelSource", "pixel_blocks", "rate_map"]
 
-STEP_RULE = False
-"""Stop splitting at a step, as the frame sampler does (off: see the module docstring)."""
 MARGIN = 0.5
 """The prediction aims at MARGIN * lam * C (frame sampling: 0.75)."""
 MAX_DILATION = 64
@@ -111,7 +109,7 @@ class PixelSamplingStats:
         Per-pixel intervals the emulator went through.
     steps : int
         Splits whose midpoint found the whole change in one half (a sub-pixel-sample step, or
-        a kink); with :data:`STEP_RULE` off they are split further all the same.
+        a kink); they are split further all the same (see the module docstring).
     at_max_rate : int
         Intervals still breaking the bound at the maximum rate.
     """
@@ -300,27 +298,10 @@ def _pixel_events(pix, t, L, Y, ref, level, raw, last_t, c_on, c_off, leak, norm
                 if jitter < 0.0:
                     jitter = 0.0
                 r += -((dt * 1e-9) * leak_rates[p] * jitter * c_on[p])
-            if lf_new >= r + c_on[p]:
-                c = c_on[p]
-                count = int(math.floor((lf_new - r) / c))
-                sign = 1
-            elif lf_new <= r - c_off[p]:
-                c = -c_off[p]
-                count = int(math.floor((r - lf_new) / -c))
-                sign = -1
-            else:
-                count = 0
-                c = 0.0
-                sign = 0
+            count, c, sign = threshold_crossings(lf_new, r, c_on[p], c_off[p])
             slope = lf_new - lf
             for i in range(1, count + 1):
-                target = r + i * c
-                frac = (target - lf) / slope if slope != 0.0 else 1.0
-                if frac < 0.0:
-                    frac = 0.0
-                elif frac > 1.0:
-                    frac = 1.0
-                te = ta + np.int64(round(frac * dt))
+                te = crossing_time(r + i * c, lf, slope, ta, dt)
                 if refractory > 0 and te - last < refractory:
                     continue
                 last = te
@@ -583,9 +564,8 @@ def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.
         continuous = (share > SPLIT) & (share < 1 - SPLIT)
         stats.steps += int(np.count_nonzero(~continuous))
         found.append((p, mt, ml, my))
-        keep = np.ones(len(p), bool) if not STEP_RULE else continuous
-        first = keep & (np.abs(ml - la) > bound)
-        second = keep & (np.abs(lb - ml) > bound)
+        first = np.abs(ml - la) > bound
+        second = np.abs(lb - ml) > bound
         p, ta, la, tb, lb = (np.concatenate([x[first], y[second]]) for x, y in (
             (p, p), (ta, mt), (la, ml), (mt, tb), (ml, lb)))
     if not found:
