@@ -17,9 +17,11 @@ from fusion.benchmark import BenchParams, bench, run_bench
 from fusion.dense import (
     DenseParams,
     DenseResult,
+    FillInputs,
     dense_errors,
     densify,
     fill_frame,
+    fill_inputs,
     fill_map,
     project_map,
     write_fill,
@@ -52,15 +54,15 @@ from fusion.scoring import depth_errors, discontinuity_band, error_image
 from fusion.segmentation import SegmentationParams, segment_regions
 
 __all__ = [
-    "BenchParams", "bench", "run_bench",
-    "DSIParams", "DSIRange", "DenseParams", "DenseResult", "DepthMapParams", "FillMethod",
-    "FillParams", "MapParams", "MapResult", "MethodError", "RegionStats", "ReproduceParams",
-    "RunParams", "SegmentationParams", "SelectionParams", "TimeWindow", "available_methods",
-    "dense_errors", "densify", "depth_errors", "depth_planes", "discontinuity_band",
-    "disparity_space_image", "draw_overview", "error_image", "exponential_weights",
-    "fill_frame", "fill_map", "fill_regions", "fill_window", "filling_score",
-    "gaussian_weights", "get_method", "inverse_distance_weights", "map_sequence", "map_window",
-    "project_map", "read_ply", "reproduce", "resolve_dsi_range", "run_method", "run_pipeline",
+    "BenchParams", "DSIParams", "DSIRange", "DenseParams", "DenseResult", "DepthMapParams",
+    "FillInputs", "FillMethod", "FillParams", "MapParams", "MapResult", "MethodError",
+    "RegionStats", "ReproduceParams", "RunParams", "SegmentationParams", "SelectionParams",
+    "TimeWindow", "available_methods", "bench", "dense_errors", "densify", "depth_errors",
+    "depth_planes", "discontinuity_band", "disparity_space_image", "draw_overview",
+    "error_image", "exponential_weights", "fill_frame", "fill_inputs", "fill_map",
+    "fill_regions", "fill_window", "filling_score", "gaussian_weights", "get_method",
+    "inverse_distance_weights", "map_sequence", "map_window", "project_map", "read_ply",
+    "reproduce", "resolve_dsi_range", "run_bench", "run_method", "run_pipeline",
     "segment_regions", "select_regions", "semidense_depth", "time_window", "write_fill",
     "write_map", "write_ply",
 ]

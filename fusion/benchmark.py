@@ -157,12 +157,12 @@ def _mapped(name: str, cache: Path, progress: bool) -> Path:
 
 
 def _inputs(map_folder: Path, params: BenchParams) -> tuple[object, dict[str, np.ndarray]]:
-    """The frame's fill inputs: the DenseResult of the paper's fill (frame, camera, truth) and
+    """The frame's fill inputs (:class:`fusion.dense.FillInputs`: frame, camera, truth) and
     each input's sparse depth."""
-    from fusion.dense import fill_map
+    from fusion.dense import fill_inputs
     from sim.eventio import read_window
 
-    base = fill_map(map_folder)
+    base = fill_inputs(map_folder)
     if base.truth is None:
         raise ValueError(f"{map_folder}: no exact depth for the frame; the bench needs a "
                          "simulated sequence")

@@ -397,6 +397,32 @@ def _check_event_image(frame: np.ndarray, sparse: np.ndarray) -> None:
         raise ValueError("no map points: the sparse depth has no pixel > 0, nothing to fill from")
 
 
+@dataclass(frozen=True)
+class FillInputs:
+    """What filling a map needs: the standard frame nearest the map's reference view, the map
+    projected into it, and the frame's pose and exact depth (see :func:`fill_inputs`).
+
+    Attributes
+    ----------
+    frame : (H, W) uint8 ndarray
+    sparse : (H, W) float32 ndarray, metres, the projected map points, 0 = none
+    camera : Camera, the frame's
+    T_world_frame : (4, 4) ndarray
+    truth : (H, W) float32 ndarray or None, the frame's exact depth (simulated sequences)
+    info : dict, the entries :func:`fill_map` writes into ``fill.json`` (map, sequence, frame,
+        times, pose, oracle, depth_range_from)
+    n1 : int, the map's points before projection
+    """
+
+    frame: np.ndarray
+    sparse: np.ndarray
+    camera: Camera
+    T_world_frame: np.ndarray
+    truth: np.ndarray | None
+    info: dict
+    n1: int
+
+
 def fill_map(map_folder: str | Path, params: DenseParams | None = None,
              method: str | None = None) -> DenseResult:
     """Fill the map written by ``evfuse map`` with the standard frame nearest its reference view.
@@ -413,6 +439,20 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None,
     -------
     DenseResult
         With ``errors`` when the sequence is simulated (exact depth at the frame's time).
+    """
+    inputs = fill_inputs(map_folder)
+    return fill_frame(inputs.frame, inputs.sparse, inputs.camera, params, inputs.truth,
+                      inputs.T_world_frame, inputs.info, n1=inputs.n1, method=method)
+
+
+def fill_inputs(map_folder: str | Path) -> FillInputs:
+    """Read a map folder's fill inputs (:class:`FillInputs`) without filling.
+
+    Raises
+    ------
+    ValueError
+        No or a malformed ``map.json``, no ``semidense_depth.exr``, a sequence without frames,
+        a frame outside the poses, or no map point landing in the frame (one line each).
     """
     map_folder = Path(map_folder)
     meta_path = map_folder / "map.json"
@@ -463,8 +503,8 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None,
             "sequence": str(Path(sequence.folder).resolve()),
             "frame": os.path.relpath(sequence.image_paths[k], sequence.folder),
             "t_frame": t_frame, "t_ref": t_ref, "T_world_frame": T_world_frame.tolist()}
-    return fill_frame(frame, sparse, camera, params, truth, T_world_frame, info,
-                      n1=int(np.count_nonzero(depth_ref)), method=method)
+    return FillInputs(frame, sparse, camera, T_world_frame, truth, info,
+                      int(np.count_nonzero(depth_ref)))
 
 
 def _figure(result: DenseResult, params: DenseParams) -> np.ndarray:
