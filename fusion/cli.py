@@ -91,6 +91,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
     if args.family:
         scenes = _family_files(args)
+    else:
+        knobs = [k for k in _KNOBS if getattr(args, k) is not None]
+        if knobs:
+            raise ValueError(f"--{knobs[0].replace('_', '-')} is a knob of a scene family: "
+                             "give --family too (staircase, sphere, cylinder, slanted, "
+                             "heightfield)")
     inputs = [s.strip() for s in args.input.split(",") if s.strip()]
     command = (f"evfuse bench --scenes {args.scenes} --input {args.input}"
                + "".join(f" --method {m}" for m in given) + (" --only" if args.only else "")

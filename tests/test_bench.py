@@ -92,6 +92,7 @@ def test_the_python_entry_point_returns_the_table(tiny_map):
     (["--input", "exact"], "--input exact: expected among emvs, oracle"),
     (["--scenes", "no_such_scene"], "--scenes no_such_scene: unknown scene"),
     (["--method", "no-such-method"], "unknown filling method 'no-such-method'"),
+    (["--steps", "2,4"], "--steps is a knob of a scene family: give --family too"),
 ])
 def test_bad_bench_arguments_are_refused_in_one_line(argv, message, tmp_path, capsys):
     code = main(["bench", *argv, "--out", str(tmp_path / "o"), "--quiet"])
