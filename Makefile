@@ -13,11 +13,19 @@ DEMO_T1 ?= 3.0
 
 setup: $(VENV)/.installed llvm
 
+# opencv-contrib-python-headless replaced opencv-python-headless. Both wheels own cv2/, so in a
+# venv that still has the old one, it is removed and the contrib wheel's files (the same paths,
+# just deleted) are put back, at the version already installed.
 $(VENV)/.installed: pyproject.toml
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "evfuse needs Python >= 3.11"'
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'
+	@if $(BIN)/python -m pip show opencv-python-headless >/dev/null 2>&1; then \
+	  $(BIN)/python -m pip uninstall --quiet --yes opencv-python-headless && \
+	  $(BIN)/python -m pip install --quiet --force-reinstall --no-deps \
+	    "opencv-contrib-python-headless==$$($(BIN)/python -m pip show opencv-contrib-python-headless | sed -n 's/^Version: //p')"; \
+	fi
 	@touch $@
 
 # Mitsuba's llvm_ad_rgb variant needs LLVM >= 16 (Dr.Jit 1.5). Debian/Ubuntu ship libllvm19.
