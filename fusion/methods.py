@@ -29,9 +29,10 @@ Built-ins, each with its own analytic test (``tests/test_methods.py``):
 - ``morphological``: an unguided morphological fill in the manner of IP-Basic (Ku et al. 2018):
   inverted depth (so that the nearer surface wins where two meet), dilation with a 5x5 diamond,
   closing, hole filling with growing kernels, median and Gaussian smoothing, un-inverted.
-- ``guided``, ``bilateral``, ``colorization`` (:mod:`fusion.baselines`): image-guided
-  completion by He et al.'s guided filter, a joint-bilateral normalised convolution, and Levin
-  et al.'s colorization in inverse depth.
+- ``guided``, ``bilateral``, ``colorization``, ``fbs`` (:mod:`fusion.baselines`): image-guided
+  completion by He et al.'s guided filter, a joint-bilateral normalised convolution, Levin
+  et al.'s colorization in inverse depth, and Barron & Poole's fast bilateral solver in inverse
+  depth.
 - ``plane``, ``hybrid`` (:mod:`fusion.surface_fit`): a robust per-region surface fit in inverse
   depth that leaves regions it cannot explain empty, and the same after cutting rejected
   regions along the frame's edges.
@@ -329,6 +330,6 @@ def morphological(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params:
 
 
 # Methods defined in their own modules register on import (at the end: they use register).
-import fusion.baselines  # noqa: E402,F401  (registers guided, bilateral and colorization)
-import fusion.mesh_fill  # noqa: E402,F401  (registers mesh)
+import fusion.baselines  # noqa: E402,F401  (registers guided, bilateral, colorization, fbs)
 import fusion.surface_fit  # noqa: E402,F401  (registers plane and hybrid)
+import fusion.mesh_fill  # noqa: E402,F401  (registers mesh)
