@@ -331,5 +331,5 @@ def morphological(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params:
 
 # Methods defined in their own modules register on import (at the end: they use register).
 import fusion.baselines  # noqa: E402,F401  (registers guided, bilateral, colorization, fbs)
-import fusion.surface_fit  # noqa: E402,F401  (registers plane and hybrid)
 import fusion.mesh_fill  # noqa: E402,F401  (registers mesh)
+import fusion.surface_fit  # noqa: E402,F401  (registers plane and hybrid)
