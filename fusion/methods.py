@@ -36,6 +36,9 @@ Built-ins, each with its own analytic test (``tests/test_methods.py``):
 - ``plane``, ``hybrid`` (:mod:`fusion.surface_fit`): a robust per-region surface fit in inverse
   depth that leaves regions it cannot explain empty, and the same after cutting rejected
   regions along the frame's edges.
+- ``mesh`` (:mod:`fusion.mesh_fill`): ``plane``'s fits, then a Delaunay mesh of the cleaned map
+  across triangles whose corners lie on one surface, then the paper's fill in the paper's
+  regions.
 """
 
 from __future__ import annotations
