@@ -1,5 +1,5 @@
 """The ``mesh`` filling method: robust surfaces where a region has one, a triangle mesh of the
-map where its points agree, the paper's fill where nothing better is known.
+map where its points agree, and never a depth between two surfaces the map tells apart.
 
 The paper fills a selected region with one weighted *mean* depth; ``plane``
 (:mod:`fusion.surface_fit`) fits one surface per region and leaves a region empty when no plane
@@ -33,8 +33,12 @@ Steps, each on the output of the one before:
    piecewise cubic) interpolation of inverse depth, clipped to the range of the triangle's
    corners (``smooth=False``: linear). A smooth surface sampled sparsely (a height field) is
    followed closely; a step larger than ``max_jump_rel`` is never bridged.
-5. **The paper's fill** (stage 4): pixels of the selected regions still empty take the paper's
-   inverse-distance fill of the kept points (``paper-idw``).
+5. **Beyond the mesh** (stage 4): pixels of the selected regions *outside* the mesh (beyond the
+   convex hull of the kept points, at the frame's borders) take the local plane of their
+   nearest kept point (pixel distance), clipped to within ``max_jump_rel`` of that point's
+   depth. Inside the mesh, a pixel that no consistent or small-jump triangle covers lies between
+   surfaces the map tells apart (the sphere's cast shadow, bounded by the sphere's outline and
+   the wall's): it stays empty, where the paper's weighted mean puts it between them.
 
 Map points keep their own depth. A point step 1 dropped takes the depth a stage gives its
 pixel, else keeps its own (the bench and ``evfuse fill`` require every map point to have a
@@ -43,7 +47,9 @@ default), stage 2 0.75, stage 3 0.5, stage 4 0.25; 0 for map points and empty pi
 
 Where it fails: a map that outlines a region without points inside it (a plain wall between two
 edges) gets the linear interpolation between the edges, right only if the wall is flat; regions
-the paper does not select, and no consistent triangle covers, stay empty; a smooth surface that
+the paper does not select, and no consistent triangle covers, stay empty, and so does the inside
+of the mesh where the map's own errors break its triangles (on the event map of the height
+field, 58 % of the frame filled where the paper fills 95 %); a smooth surface that
 curves more than ``consistency_rel`` between map points is left to stages 3-4, and one that
 curves more than ``agree_rel`` across a point's neighbours loses points to the cleaning (10 of
 134 on the egg crate of ``tests/test_mesh_fill.py``); on a map noisier than ``agree_rel`` the
@@ -282,7 +288,8 @@ def _triangulation(xy: np.ndarray) -> Delaunay | None:
 
 def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
               params: MeshParams | None = None) -> MeshFill:
-    """``mesh``: surfaces, consistent triangles, then the paper's fill (see the module).
+    """``mesh``: surfaces, consistent triangles, smooth triangles, extrapolation (see the
+    module).
 
     ``frame``, ``sparse``, ``camera`` and the errors raised are those of
     :func:`fusion.surface_fit.surface_fill`; ``params`` defaults to ``MeshParams()``.
@@ -356,11 +363,19 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                 smooth[use] = 1.0 / np.clip(values, low[use], high[use])
             take(smooth.reshape(sparse.shape), use.reshape(sparse.shape), 3,
                  STAGE_CONFIDENCE[3])
-        else:
-            paper = get_method("paper-idw").function(frame, clean, camera, {})
-            region = paper > 0
-        # Stage 4: the paper's fill of the regions it selects.
-        take(paper, region, 4, STAGE_CONFIDENCE[4])
+            # Stage 4: beyond the mesh, in the paper's regions, the nearest kept point's plane.
+            beyond = region.reshape(-1) & finite & (simplex < 0) & (stage.reshape(-1) == 0)
+            extrapolated = np.zeros(len(query))
+            if beyond.any():
+                v, u = np.divmod(np.flatnonzero(beyond), sparse.shape[1])
+                _, nearest = cKDTree(np.stack([xs, ys], axis=1)).query(np.stack([u, v], axis=1))
+                values = planes[nearest, 0] + (planes[nearest, 1:]
+                                               * (query[beyond] - xy[nearest])).sum(axis=1)
+                own = w[nearest]
+                jump = 1 + params.max_jump_rel
+                extrapolated[beyond] = 1.0 / np.clip(values, own / jump, own * jump)
+            take(extrapolated.reshape(sparse.shape), beyond.reshape(sparse.shape), 4,
+                 STAGE_CONFIDENCE[4])
 
     dense = np.where(kept, sparse, out)
     dropped = (sparse > 0) & ~kept & (stage == 0)
@@ -369,7 +384,7 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
 
 
 @register("mesh", "plane's surfaces, then a Delaunay mesh of the cleaned map across triangles "
-                  "on one surface, then the paper's fill; inverse depth throughout")
+                  "on one surface; never a depth between two surfaces; inverse depth")
 def mesh_method(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dict
                 ) -> tuple[np.ndarray, np.ndarray]:
     """``mesh``: :func:`mesh_fill` with :class:`MeshParams` from ``params``."""

@@ -195,3 +195,26 @@ def test_bad_params_are_refused_in_one_line():
         run_method("mesh", _textured(), sparse, CAMERA, {"max_jump_rel": 0})
     with pytest.raises(ValueError, match="min_support must be <= neighbours"):
         MeshParams(min_support=20)
+
+
+def test_a_region_bounded_by_two_surfaces_gets_neither_mean_nor_bridge():
+    # A cast shadow: a uniform region whose outline is at 1.0 m on its left half and 1.6 m on
+    # its right half (a near object's edge, a far wall's). The paper's method fills it with a
+    # mean between the two; mesh fills no pixel between them.
+    frame = np.full((H, W), 20, np.uint8)
+    frame[8:52, 8:72] = 100
+    inner = frame == 100
+    outline = inner & ~np.pad(inner[1:-1, 1:-1] & inner[:-2, 1:-1] & inner[2:, 1:-1]
+                              & inner[1:-1, :-2] & inner[1:-1, 2:], 1)
+    depth = np.where(np.arange(W) < 40, 1.0, 1.6)[None, :].repeat(H, axis=0)
+    sparse = np.where(outline, depth, 0).astype(np.float32)
+    paper = run_method("paper-idw", frame, sparse, CAMERA)[0]
+    between = lambda d: (d > 1.05) & (d < 1.55)           # noqa: E731
+    assert between(paper[inner & (sparse == 0)]).mean() > 0.9
+    result = mesh_fill(frame, sparse, CAMERA)
+    assert not between(result.dense).any()
+    filled = result.dense > 0
+    left = np.arange(W)[None, :] < 40
+    np.testing.assert_allclose(result.dense[filled & left], 1.0, rtol=1e-6)
+    np.testing.assert_allclose(result.dense[filled & ~left], 1.6, rtol=1e-6)
+    assert (result.dense[inner] == 0).sum() > H // 2         # a strip down the middle
