@@ -38,13 +38,18 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 
 
 def _cmd_methods(args: argparse.Namespace) -> int:
-    from fusion.methods import available_methods
+    from fusion.methods import available_methods, format_value, param_defaults
 
     methods = available_methods()
     width = max(len(name) for name in methods)
     for name, method in methods.items():
         origin = "" if method.origin == "built-in" else f" [{method.origin}]"
         print(f"{name:<{width}}  {method.summary}{origin}")
+        if args.params:
+            defaults = param_defaults(method)
+            text = ("not declared (--param is passed on as given)" if defaults is None else
+                    ", ".join(f"{k}={format_value(v)}" for k, v in defaults.items()) or "none")
+            print(f"{'':<{width}}  params: {text}")
     return 0
 
 
@@ -492,6 +497,9 @@ def _parser() -> argparse.ArgumentParser:
     scenes.set_defaults(run=_cmd_scenes)
     methods = sub.add_parser("methods", help="list the filling methods, one line each, name "
                                              "first (built-in and installed)")
+    methods.add_argument("--params", action="store_true",
+                         help="under each method, the settings --param takes, with their "
+                              "defaults")
     methods.set_defaults(run=_cmd_methods)
     bench = sub.add_parser(
         "bench", help="every filling method x scene x input, scored against exact depth and "
