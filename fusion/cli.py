@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
 import signal
 import sys
 import threading
@@ -167,10 +168,12 @@ def _family_files(args: argparse.Namespace) -> list[str]:
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     from fusion.benchmark import BenchParams, run_bench
-    from fusion.methods import available_methods
+    from fusion.methods import MethodVariant, available_methods, split_labels
 
-    given = [m.strip() for m in ",".join(args.method or []).split(",") if m.strip()]
-    methods = given if args.only else list(dict.fromkeys([*available_methods(), *given]))
+    given = split_labels(",".join(args.method or []))
+    variants = _method_variants(given, args.param or [])
+    defaults = [] if args.only else [MethodVariant(name) for name in available_methods()]
+    methods = list({v.label: v for v in [*defaults, *variants]}.values())    # one row a label
     if not methods:
         raise ValueError("--only needs at least one --method")
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
@@ -184,7 +187,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                              "heightfield)")
     inputs = [s.strip() for s in args.input.split(",") if s.strip()]
     command = (f"evfuse bench --scenes {args.scenes} --input {args.input}"
-               + "".join(f" --method {m}" for m in given) + (" --only" if args.only else "")
+               + "".join(f" --method {shlex.quote(m)}" for m in given)
+               + "".join(f" --param {shlex.quote(p)}" for p in args.param or [])
+               + (" --only" if args.only else "")
                + f" --out {args.out}")
     rows = run_bench(methods, scenes, inputs, args.out, cache=args.cache,
                      params=BenchParams(noise=args.noise, outliers=args.outliers),
@@ -475,11 +480,13 @@ def _cmd_show(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from fusion.methods import split_labels
     from fusion.reproduce import ReproduceParams, reproduce
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     scenes = tuple(s.strip() for s in args.scenes.split(",")) if args.scenes else None
-    methods = tuple(m.strip() for m in ",".join(args.method or []).split(",") if m.strip())
+    methods = tuple(_method_variants(split_labels(",".join(args.method or [])),
+                                     args.param or []))
     params = ReproduceParams(window=args.window, long_window=args.long_window, tables=tables,
                              scenes=scenes, methods=methods)
     report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
@@ -621,7 +628,15 @@ def _parser() -> argparse.ArgumentParser:
                             "oracle-noisy (default oracle)")
     bench.add_argument("--method", action="append", default=None,
                        help="a method to add to the built-in ones: a name or "
-                            "module:function (repeatable or comma-separated)")
+                            "module:function, or NAME{KEY=VALUE,...} for it with settings of "
+                            "its own, e.g. 'plane{residual_rel=0.03}' (repeatable or "
+                            "comma-separated; one method under several settings gives a row "
+                            "each, labelled so)")
+    bench.add_argument("--param", action="append", default=None, metavar="METHOD.KEY=VALUE",
+                       help="a setting of every --method entry of METHOD, e.g. "
+                            "plane.residual_rel=0.03 (repeatable); a bare KEY=VALUE only with "
+                            "one --method. The built-ins that bench adds itself run at their "
+                            "defaults; `evfuse methods --params` lists the settings")
     bench.add_argument("--family", default=None,
                        help="instead of --scenes, a scene family with a difficulty knob: "
                             "staircase, sphere, cylinder, slanted, heightfield (see "
@@ -784,8 +799,13 @@ def _parser() -> argparse.ArgumentParser:
     repro.add_argument("--scenes", default=None, help="only these scenes (comma-separated)")
     repro.add_argument("--method", action="append", default=None,
                        help="a filling method to run on every window besides the paper's "
-                            "(repeatable or comma-separated; default none: the paper's tables "
-                            "use its three weightings, inverse distance first)")
+                            "(repeatable or comma-separated; NAME{KEY=VALUE,...} with settings "
+                            "of its own; default none: the paper's tables use its three "
+                            "weightings, inverse distance first)")
+    repro.add_argument("--param", action="append", default=None, metavar="METHOD.KEY=VALUE",
+                       help="a setting of every --method entry of METHOD (repeatable); a bare "
+                            "KEY=VALUE only with one --method. Never changes the paper's "
+                            "tables; `evfuse methods --params` lists the settings")
     repro.add_argument("--overwrite", action="store_true")
     repro.add_argument("--quiet", action="store_true", help="no progress bar")
     repro.set_defaults(run=_cmd_reproduce)
