@@ -46,7 +46,15 @@ from fusion.filling import (
     select_regions,
 )
 from fusion.mapping import MapParams, MapResult, TimeWindow, map_sequence, time_window, write_map
-from fusion.methods import FillMethod, MethodError, available_methods, get_method, run_method
+from fusion.methods import (
+    FillMethod,
+    MethodError,
+    MethodVariant,
+    available_methods,
+    check_params,
+    get_method,
+    run_method,
+)
 from fusion.pipeline import RunParams, draw_overview, fill_window, map_window, run_pipeline
 from fusion.pointcloud import read_ply, write_ply
 from fusion.reproduce import ReproduceParams, reproduce
@@ -56,8 +64,9 @@ from fusion.segmentation import SegmentationParams, segment_regions
 __all__ = [
     "BenchParams", "DSIParams", "DSIRange", "DenseParams", "DenseResult", "DepthMapParams",
     "FillInputs", "FillMethod", "FillParams", "MapParams", "MapResult", "MethodError",
-    "RegionStats", "ReproduceParams", "RunParams", "SegmentationParams", "SelectionParams",
-    "TimeWindow", "available_methods", "bench", "dense_errors", "densify", "depth_errors",
+    "MethodVariant", "RegionStats", "ReproduceParams", "RunParams", "SegmentationParams",
+    "SelectionParams", "TimeWindow", "available_methods", "bench", "check_params",
+    "dense_errors", "densify", "depth_errors",
     "depth_planes", "discontinuity_band", "disparity_space_image", "draw_overview",
     "error_image", "exponential_weights", "fill_frame", "fill_inputs", "fill_map",
     "fill_regions", "fill_window", "filling_score", "gaussian_weights", "get_method",

@@ -700,7 +700,7 @@ def fast_bilateral_completion(frame: np.ndarray, sparse: np.ndarray,
 # --------------------------------------------------------------------------- registered methods
 
 @register("guided", "He et al.'s guided filter (r 8 px, eps 0.01^2) as normalised "
-                    "convolution: GF(depth) / GF(mask), the frame as guide")
+                    "convolution: GF(depth) / GF(mask), the frame as guide", params=GuidedParams)
 def guided(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dict) -> np.ndarray:
     """Guided-filter normalised convolution (:func:`guided_completion`); ``params`` are
     :class:`GuidedParams`' fields."""
@@ -708,7 +708,7 @@ def guided(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dict) 
 
 
 @register("bilateral", "joint-bilateral normalised convolution over the map points of a 17x17 "
-                       "window (sigma_s 4 px, sigma_r 10 grey levels)")
+                       "window (sigma_s 4 px, sigma_r 10 grey levels)", params=BilateralParams)
 def bilateral(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dict
               ) -> np.ndarray:
     """Joint-bilateral normalised convolution (:func:`joint_bilateral_completion`); ``params``
@@ -718,7 +718,8 @@ def bilateral(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dic
 
 
 @register("colorization", "Levin et al.'s colorization of inverse depth: frame affinities over "
-                          "3x3 neighbourhoods, one sparse solve; fills the whole frame")
+                          "3x3 neighbourhoods, one sparse solve; fills the whole frame",
+          params=ColorizationParams)
 def colorization(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dict
                  ) -> np.ndarray:
     """Levin et al.'s colorization of inverse depth (:func:`colorization_completion`);
@@ -727,10 +728,9 @@ def colorization(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: 
                                    ColorizationParams.from_dict("colorization", params))
 
 
-
 @register("fbs", "Barron & Poole's fast bilateral solver of inverse depth on a simplified "
                  "bilateral grid (8 px, 8 grey levels); fills every part of the grid with a "
-                 "map point")
+                 "map point", params=FastBilateralParams)
 def fbs(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dict) -> np.ndarray:
     """The fast bilateral solver in inverse depth (:func:`fast_bilateral_completion`);
     ``params`` are :class:`FastBilateralParams`' fields."""

@@ -13,6 +13,8 @@ same view and scored against the same exact depth:
 ``oracle`` minus ``emvs`` is what the map's errors cost each method. Every method runs through
 :func:`fusion.methods.run_method`: a method that raises or returns a wrong shape, NaN or a
 negative depth gets a row saying why, the others go on. Methods run in two worker processes.
+A method may run under settings of its own (a :class:`fusion.methods.MethodVariant`, given as
+``plane{residual_rel=0.03}``), the same method under several: each is a row, labelled so.
 
 Scores (:func:`fusion.dense.dense_errors`, the definitions of ``evfuse fill``): MAE, RMSE,
 AbsRel, delta < 1.05, completeness and precision within 5 % of the dense map (``all``), its
@@ -58,8 +60,11 @@ WINDOWS = {"complex": (1.0, 2.0), "sliders": (2.0, 3.0)}
 """Default window (s) of each group's scenes; other scenes use ``(1.0, 2.0)``."""
 CSV_COLUMNS = ("scene", "input", "method", "status", "mae_cm", "rmse_cm", "abs_rel",
                "completeness", "precision_5pct", "filled_mae_cm", "filled_completeness",
-               "band_mae_cm", "common_mae_cm", "common_pixels", "mae_at_half_cm", "time_ms")
-"""Columns of ``bench.csv``: errors over the method's own pixels (the whole dense map),
+               "band_mae_cm", "common_mae_cm", "common_pixels", "mae_at_half_cm", "time_ms",
+               "params")
+"""Columns of ``bench.csv``: ``method`` the method's label (``plane`` or, run with settings of
+its own, ``plane{residual_rel=0.03}``), ``params`` those settings as compact JSON (``{}`` for
+its defaults); errors over the method's own pixels (the whole dense map),
 completeness and precision as :func:`fusion.scoring.depth_errors` defines them, ``filled_*`` for
 its filled pixels only, ``band_mae_cm`` within 3 px of a true discontinuity, ``common_*`` on the
 pixels every method filled, ``time_ms`` the method's own time (after a first, untimed call
@@ -192,16 +197,18 @@ _WARM: set[str] = set()
 """Methods already run once in this worker process (their compilation is not timed)."""
 
 
-def _run_one(spec: str, frame: np.ndarray, sparse: np.ndarray, camera) -> dict:
-    """Run one method in a worker: its output, or why it failed. A method's first call in a
-    worker is run twice and the second timed (JIT compilation and caches are not its speed)."""
+def _run_one(variant, frame: np.ndarray, sparse: np.ndarray, camera) -> dict:
+    """Run one method (a :class:`fusion.methods.MethodVariant`) in a worker: its output, or why
+    it failed. A variant's first call in a worker is run twice and the second timed (JIT
+    compilation and caches are not its speed)."""
     from fusion.methods import MethodError, run_method
 
     try:
-        if spec not in _WARM:
-            run_method(spec, frame, sparse, camera)
-            _WARM.add(spec)
-        dense, confidence, seconds = run_method(spec, frame, sparse, camera)
+        if variant.label not in _WARM:
+            run_method(variant.spec, frame, sparse, camera, variant.params)
+            _WARM.add(variant.label)
+        dense, confidence, seconds = run_method(variant.spec, frame, sparse, camera,
+                                                variant.params)
     except MethodError as exc:
         return {"status": f"failed: {exc}"}
     return {"status": "ok", "dense": dense, "confidence": confidence, "seconds": seconds}
@@ -264,15 +271,17 @@ def coverage_curve(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray,
             for share in shares]
 
 
-def bench(methods: list[str], scenes: list[str], inputs: list[str] = INPUTS,
+def bench(methods: list, scenes: list[str], inputs: list[str] = INPUTS,
           cache: str | Path = "evfuse-bench-cache", params: BenchParams | None = None,
           progress: bool = True) -> list[dict]:
     """Score every method on every scene and input.
 
     Parameters
     ----------
-    methods : list of str
-        Method names or ``module:function`` specs (:func:`fusion.methods.get_method`).
+    methods : list of str or MethodVariant
+        Method names or ``module:function`` specs (:func:`fusion.methods.get_method`), or
+        labels with settings (``plane{residual_rel=0.03}``), or
+        :class:`fusion.methods.MethodVariant`; the settings are checked before any work.
     scenes : list of str
         Built-in scene names, groups (:data:`SCENE_GROUPS`), scene files (``.toml``, e.g. from
         :mod:`fusion.families`) or map folders of simulated sequences (``evfuse map`` /
@@ -288,23 +297,24 @@ def bench(methods: list[str], scenes: list[str], inputs: list[str] = INPUTS,
     Returns
     -------
     list of dict
-        One row per (scene, input, method) with the :data:`CSV_COLUMNS` and, under
-        ``"_dense"``, the dense depth (for the figures).
+        One row per (scene, input, method) with the :data:`CSV_COLUMNS` (``params`` as a
+        dict) and, under ``"_dense"``, the dense depth (for the figures).
     """
-    from fusion.methods import get_method
+    from fusion.methods import MethodVariant
     from sim.progress import progress as progress_stage
 
     params = params or BenchParams()
     unknown = [name for name in inputs if name not in INPUTS]
     if unknown or not inputs:
         raise ValueError(f"--input {','.join(inputs)}: expected among {', '.join(INPUTS)}")
-    for spec in methods:
-        get_method(spec)                              # refuse unknown names up front
+    # Unknown names and bad settings refused up front; one row per label.
+    variants = list({v.label: v for v in (MethodVariant.of(m).checked() for m in methods)}
+                    .values())
     names = _scene_names(scenes)
     cache = Path(cache)
     cache.mkdir(parents=True, exist_ok=True)
     rows: list[dict] = []
-    bar = progress_stage(total=len(names) * len(inputs) * len(methods), desc="bench",
+    bar = progress_stage(total=len(names) * len(inputs) * len(variants), desc="bench",
                          unit="fill", noun="fills", enabled=progress)
     # Fresh worker processes (spawn): forking a process that holds Dr.Jit's threads can hang.
     with ProcessPoolExecutor(params.workers, mp_context=get_context("spawn")) as pool:
@@ -312,13 +322,13 @@ def bench(methods: list[str], scenes: list[str], inputs: list[str] = INPUTS,
             base, sparse_inputs = _inputs(_mapped(name, cache, progress), params)
             for input_name in inputs:
                 sparse = sparse_inputs[input_name]
-                futures = {spec: pool.submit(_run_one, spec, base.frame, sparse, base.camera)
-                           for spec in methods}
+                futures = [(variant, pool.submit(_run_one, variant, base.frame, sparse,
+                                                 base.camera)) for variant in variants]
                 group = []
-                for spec, future in futures.items():
+                for variant, future in futures:
                     result = future.result()
-                    row = {"scene": _label(name), "input": input_name, "method": spec,
-                           "status": result["status"]}
+                    row = {"scene": _label(name), "input": input_name, "method": variant.label,
+                           "status": result["status"], "params": variant.params}
                     if result["status"] == "ok":
                         row.update(_scores(result["dense"], sparse, base.truth,
                                            result["confidence"]))
@@ -421,8 +431,10 @@ def _csv(rows: list[dict]) -> str:
                             lineterminator="\n")
     writer.writeheader()
     for row in rows:
-        writer.writerow({key: ("" if row.get(key) is None else row.get(key))
-                         for key in CSV_COLUMNS})
+        cells = {key: ("" if row.get(key) is None else row.get(key)) for key in CSV_COLUMNS}
+        cells["params"] = json.dumps(row.get("params") or {}, sort_keys=True,
+                                     separators=(",", ":"), default=repr)
+        writer.writerow(cells)
     return buffer.getvalue()
 
 
@@ -447,7 +459,7 @@ def _figure(rows: list[dict]) -> np.ndarray:
     return panel_grid(images, titles, columns=min(len(images), 5), legends=legends)
 
 
-def run_bench(methods: list[str], scenes: list[str], inputs: list[str], out: str | Path,
+def run_bench(methods: list, scenes: list[str], inputs: list[str], out: str | Path,
               cache: str | Path | None = None, params: BenchParams | None = None,
               overwrite: bool = False, progress: bool = True, command: str = "evfuse bench"
               ) -> list[dict]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
 import signal
 import sys
 import threading
@@ -38,14 +39,99 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 
 
 def _cmd_methods(args: argparse.Namespace) -> int:
-    from fusion.methods import available_methods
+    from fusion.methods import available_methods, format_value, param_defaults
 
     methods = available_methods()
     width = max(len(name) for name in methods)
     for name, method in methods.items():
         origin = "" if method.origin == "built-in" else f" [{method.origin}]"
         print(f"{name:<{width}}  {method.summary}{origin}")
+        if args.params:
+            defaults = param_defaults(method)
+            text = ("not declared (--param is passed on as given)" if defaults is None else
+                    ", ".join(f"{k}={format_value(v)}" for k, v in defaults.items()) or "none")
+            print(f"{'':<{width}}  params: {text}")
     return 0
+
+
+def _param_flag(text: str) -> tuple[str | None, str, object]:
+    """``--param [METHOD.]KEY=VALUE`` apart: METHOD (None without), KEY and VALUE
+    (:func:`fusion.methods.parse_value`)."""
+    from fusion.methods import parse_value
+
+    left, equals, value = text.partition("=")
+    scope, dot, key = left.strip().rpartition(".")
+    if not equals or not key.isidentifier() or (dot and not scope):
+        raise ValueError(f"--param {text}: expected KEY=VALUE, or METHOD.KEY=VALUE for one "
+                         "method's (e.g. --param plane.residual_rel=0.03)")
+    return scope or None, key, parse_value(value)
+
+
+def _method_variants(methods: list[str], params: list[str], single: bool = False) -> list:
+    """The ``--method`` entries (``NAME`` or ``NAME{KEY=VALUE,...}``) with the ``--param``
+    settings applied, checked and coerced (:class:`fusion.methods.MethodVariant`), or a
+    ValueError naming the flag, the method and what was expected.
+
+    ``--param METHOD.KEY=VALUE`` sets KEY for every entry of METHOD; a bare ``KEY=VALUE`` for
+    the one entry (refused with several: whose would it be?). A key set twice for one entry is
+    refused. ``single``: the one method of ``evfuse fill`` / ``run`` (given or the default).
+    """
+    from fusion.methods import (
+        MethodError,
+        MethodVariant,
+        check_params,
+        coerce_params,
+        get_method,
+        method_label,
+        parse_label,
+    )
+
+    entries = []                          # (method, settings, the flag that set each key)
+    for text in methods:
+        try:
+            variant = parse_label(text)
+        except MethodError as exc:
+            raise ValueError(f"--method {exc}") from None
+        try:
+            method = get_method(variant.spec)
+            settings = coerce_params(method, variant.params)
+        except MethodError as exc:
+            raise ValueError(f"--method {text}: {exc}") from None
+        entries.append((method, settings, dict.fromkeys(settings, f"--method {text}")))
+    given = ", ".join(method_label(method.name, settings) for method, settings, _ in entries)
+    for text in params:
+        flag = f"--param {text}"
+        scope, key, value = _param_flag(text)
+        if scope is None and len(entries) != 1:
+            if not entries:
+                raise ValueError(f"{flag}: no --method given; --param sets the settings of the "
+                                 "--method ones")
+            raise ValueError(f"{flag}: {len(entries)} methods given ({given}), whose is it? "
+                             f"Write --param METHOD.{key}=... (every entry of METHOD) or "
+                             f"--method 'METHOD{{{key}=...}}' (that entry)")
+        targets = [entry for entry in entries if scope in (None, entry[0].name)]
+        if not targets:
+            if single:
+                raise ValueError(f"{flag}: the filling method is {given}, not {scope}")
+            raise ValueError(f"{flag}: {scope} is not among the --method ones ({given or 'none'})"
+                             "; --param sets their settings only")
+        for method, settings, flags in targets:
+            if key in settings:
+                raise ValueError(f"{flag}: {key} of {method.name} is already set by "
+                                 f"{flags[key]}; set it once")
+            try:
+                settings.update(coerce_params(method, {key: value}))
+            except MethodError as exc:
+                raise ValueError(f"{flag}: {exc}") from None
+            flags[key] = flag
+    variants = []
+    for method, settings, flags in entries:
+        try:
+            check_params(method, settings)
+        except MethodError as exc:
+            raise ValueError(f"{' '.join(dict.fromkeys(flags.values()))}: {exc}") from None
+        variants.append(MethodVariant(method.name, settings))
+    return variants
 
 
 _KNOBS = ("steps", "step_depth", "radius", "distance", "shadow", "angle", "amplitude",
@@ -82,10 +168,12 @@ def _family_files(args: argparse.Namespace) -> list[str]:
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     from fusion.benchmark import BenchParams, run_bench
-    from fusion.methods import available_methods
+    from fusion.methods import MethodVariant, available_methods, split_labels
 
-    given = [m.strip() for m in ",".join(args.method or []).split(",") if m.strip()]
-    methods = given if args.only else list(dict.fromkeys([*available_methods(), *given]))
+    given = split_labels(",".join(args.method or []))
+    variants = _method_variants(given, args.param or [])
+    defaults = [] if args.only else [MethodVariant(name) for name in available_methods()]
+    methods = list({v.label: v for v in [*defaults, *variants]}.values())    # one row a label
     if not methods:
         raise ValueError("--only needs at least one --method")
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
@@ -99,7 +187,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                              "heightfield)")
     inputs = [s.strip() for s in args.input.split(",") if s.strip()]
     command = (f"evfuse bench --scenes {args.scenes} --input {args.input}"
-               + "".join(f" --method {m}" for m in given) + (" --only" if args.only else "")
+               + "".join(f" --method {shlex.quote(m)}" for m in given)
+               + "".join(f" --param {shlex.quote(p)}" for p in args.param or [])
+               + (" --only" if args.only else "")
                + f" --out {args.out}")
     rows = run_bench(methods, scenes, inputs, args.out, cache=args.cache,
                      params=BenchParams(noise=args.noise, outliers=args.outliers),
@@ -216,20 +306,22 @@ def _cmd_map(args: argparse.Namespace) -> int:
 
 
 def _fill_method(args: argparse.Namespace):
-    """The filling method the flags name and the parameters of the paper's stages that go with
-    it (:class:`fusion.dense.DenseParams`), or a ValueError naming the flags that contradict
-    each other: ``--weighting`` against a paper's method of another weighting, or any flag of
-    the paper's stages set off its default with a method that has no such stage."""
+    """The filling method the flags name, its own settings (``--param``) and the parameters of
+    the paper's stages that go with it (:class:`fusion.dense.DenseParams`), or a ValueError
+    naming the flags: a bad setting (:func:`_method_variants`), or two that contradict each
+    other: ``--weighting`` against a paper's method of another weighting, any flag of the
+    paper's stages set off its default with a method that has no such stage, or ``--sigma`` /
+    ``--scale`` and the same setting of a paper's method."""
+    from dataclasses import replace
+
     from fusion.dense import PAPER_METHODS, DenseParams, paper_weighting
     from fusion.filling import FillParams, SelectionParams
-    from fusion.methods import MethodError, get_method
+    from fusion.methods import get_method, method_label
     from fusion.segmentation import SegmentationParams
 
     spec = args.method or f"paper-{args.weighting or 'idw'}"
-    try:
-        method = get_method(spec)
-    except MethodError as exc:
-        raise ValueError(f"--method {spec}: {exc}") from None
+    variant = _method_variants([spec], args.param or [], single=True)[0]
+    method = get_method(variant.spec)
     weighting = paper_weighting(method)
     if weighting is not None and args.weighting not in (None, weighting):
         raise ValueError(f"--method {spec} and --weighting {args.weighting} contradict each other: "
@@ -250,35 +342,44 @@ def _fill_method(args: argparse.Namespace):
                 raise ValueError(f"--method {spec} and {flag} {value} contradict each other: "
                                  f"only the paper's methods ({', '.join(PAPER_METHODS)}) "
                                  f"use {flag} (drop it, or give one of them)")
+    fill = FillParams(weighting or "idw", sigma=args.sigma, scale=args.scale)
+    if weighting is not None:                     # a paper's method: its sigma or scale
+        for key in variant.params:
+            if getattr(args, key) != getattr(FillParams, key):
+                raise ValueError(f"--{key} {getattr(args, key):g} contradicts "
+                                 f"{method_label(method.name, variant.params)}: set {key} once "
+                                 f"(--{key} or --param {key}=...)")
+        fill = replace(fill, **variant.params)
     params = DenseParams(
         segmentation=SegmentationParams(args.threshold, args.min_region),
         selection=SelectionParams(args.ring, args.min_ring_ratio, args.max_inside_ratio),
-        fill=FillParams(weighting or "idw", sigma=args.sigma, scale=args.scale))
-    return method.name, params
+        fill=fill)
+    return method.name, variant.params, params
 
 
 def _cmd_fill(args: argparse.Namespace) -> int:
     from fusion.dense import fill_frame, write_fill
+    from fusion.methods import method_label
     from fusion.pipeline import fill_window
     from sim.camera import read_calib
     from sim.exr import read_depth
     from sim.sequence import check_output_dir
 
-    method, params = _fill_method(args)
+    method, method_params, params = _fill_method(args)
     single = (args.frame, args.sparse_depth, args.calib)
     if args.map is not None and any(single):
         raise ValueError("give either a map folder or --frame, --sparse-depth and --calib")
     check_output_dir(args.out, args.overwrite)
     if args.map is not None:
         result = fill_window(args.map, args.out, params, overwrite=args.overwrite,
-                             method=method)
+                             method=method, method_params=method_params)
     elif all(single):
         frame = _read_gray(args.frame)
         camera = read_calib(args.calib, frame.shape[1], frame.shape[0])
         truth = read_depth(args.truth) if args.truth else None
         result = fill_frame(frame, read_depth(args.sparse_depth), camera, params, truth,
                             info={"frame": str(args.frame), "sparse_depth": str(args.sparse_depth)},
-                            method=method)
+                            method=method, method_params=method_params)
         write_fill(result, args.out, params, overwrite=args.overwrite)
     else:
         raise ValueError("give a map folder, or all of --frame, --sparse-depth and --calib")
@@ -287,7 +388,8 @@ def _cmd_fill(args: argparse.Namespace) -> int:
     regions = ("no segmentation" if info["regions"] is None
                else f"{info['regions_filled']} of {info['regions']} regions filled")
     line = (f"N1 = {info['N1']} ({info['N1_in_frame']} in the frame), N2 = {info['N2']} "
-            f"({regions}), beta = {info['beta']:.4f}, method {info['method']}")
+            f"({regions}), beta = {info['beta']:.4f}, method "
+            f"{method_label(info['method'], info['method_params'])}")
     print(line)
     if "errors" in info:
         e = info["errors"]
@@ -312,12 +414,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.pipeline import RunParams, run_pipeline
 
     _check_depth_flags(args)
-    method, dense = _fill_method(args)
+    method, method_params, dense = _fill_method(args)
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
                        max_depth=args.max_depth,
                        oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
                        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
-                       dense=dense, method=method, spp=args.spp, seed=args.seed,
+                       dense=dense, method=method, method_params=method_params,
+                       spp=args.spp, seed=args.seed,
                        clip_window=args.clip_window)
     report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,
                           progress=not args.quiet)
@@ -338,11 +441,14 @@ def _error_line(e: dict | None) -> str:
 
 
 def _print_report(report: dict, out: Path) -> None:
+    from fusion.methods import method_label
+
     summary = report.get("errors_summary")
     rows = [("events", f"{report['events']:,}"), ("N1 (map points)", f"{report['N1']:,}"),
             ("N1 in the frame", f"{report['N1_in_frame']:,}"),
             ("N2 (after filling)", f"{report['N2']:,}"), ("beta", f"{report['beta']:.4f}"),
-            ("filling method", f"{report['method']} ({report['method_origin']})")]
+            ("filling method", f"{method_label(report['method'], report.get('method_params'))} "
+                               f"({report['method_origin']})")]
     if summary is None:
         rows.append(("errors", "no ground truth (real data): not scored"))
     else:
@@ -374,11 +480,13 @@ def _cmd_show(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from fusion.methods import split_labels
     from fusion.reproduce import ReproduceParams, reproduce
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     scenes = tuple(s.strip() for s in args.scenes.split(",")) if args.scenes else None
-    methods = tuple(m.strip() for m in ",".join(args.method or []).split(",") if m.strip())
+    methods = tuple(_method_variants(split_labels(",".join(args.method or [])),
+                                     args.param or []))
     params = ReproduceParams(window=args.window, long_window=args.long_window, tables=tables,
                              scenes=scenes, methods=methods)
     report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
@@ -449,9 +557,17 @@ def _add_dense_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", default=None,
                         help="filling method: a name listed by `evfuse methods` or "
                              "module:function (default paper-idw, the paper's; "
-                             "paper-WEIGHTING with --weighting). The flags below are the "
+                             "paper-WEIGHTING with --weighting), or NAME{KEY=VALUE,...} with "
+                             "settings (as --param). The flags from --threshold on are the "
                              "paper's methods': with any other, one set off its default is "
                              "refused")
+    parser.add_argument("--param", action="append", default=None, metavar="KEY=VALUE",
+                        help="a setting of the filling method (repeatable), e.g. --method "
+                             "plane --param residual_rel=0.03 (or plane.residual_rel=0.03); "
+                             "VALUE is read as true, false, none or a number where it is one, "
+                             "else as text, and coerced to the setting's type. `evfuse methods "
+                             "--params` lists each method's settings and defaults; recorded as "
+                             "method_params in fill.json / report.json")
     parser.add_argument("--threshold", type=float, default=3.0,
                         help="region growing threshold, gray levels (default 3, the paper's)")
     parser.add_argument("--min-region", type=int, default=None,
@@ -492,6 +608,9 @@ def _parser() -> argparse.ArgumentParser:
     scenes.set_defaults(run=_cmd_scenes)
     methods = sub.add_parser("methods", help="list the filling methods, one line each, name "
                                              "first (built-in and installed)")
+    methods.add_argument("--params", action="store_true",
+                         help="under each method, the settings --param takes, with their "
+                              "defaults")
     methods.set_defaults(run=_cmd_methods)
     bench = sub.add_parser(
         "bench", help="every filling method x scene x input, scored against exact depth and "
@@ -509,7 +628,15 @@ def _parser() -> argparse.ArgumentParser:
                             "oracle-noisy (default oracle)")
     bench.add_argument("--method", action="append", default=None,
                        help="a method to add to the built-in ones: a name or "
-                            "module:function (repeatable or comma-separated)")
+                            "module:function, or NAME{KEY=VALUE,...} for it with settings of "
+                            "its own, e.g. 'plane{residual_rel=0.03}' (repeatable or "
+                            "comma-separated; one method under several settings gives a row "
+                            "each, labelled so)")
+    bench.add_argument("--param", action="append", default=None, metavar="METHOD.KEY=VALUE",
+                       help="a setting of every --method entry of METHOD, e.g. "
+                            "plane.residual_rel=0.03 (repeatable); a bare KEY=VALUE only with "
+                            "one --method. The built-ins that bench adds itself run at their "
+                            "defaults; `evfuse methods --params` lists the settings")
     bench.add_argument("--family", default=None,
                        help="instead of --scenes, a scene family with a difficulty knob: "
                             "staircase, sphere, cylinder, slanted, heightfield (see "
@@ -672,8 +799,13 @@ def _parser() -> argparse.ArgumentParser:
     repro.add_argument("--scenes", default=None, help="only these scenes (comma-separated)")
     repro.add_argument("--method", action="append", default=None,
                        help="a filling method to run on every window besides the paper's "
-                            "(repeatable or comma-separated; default none: the paper's tables "
-                            "use its three weightings, inverse distance first)")
+                            "(repeatable or comma-separated; NAME{KEY=VALUE,...} with settings "
+                            "of its own; default none: the paper's tables use its three "
+                            "weightings, inverse distance first)")
+    repro.add_argument("--param", action="append", default=None, metavar="METHOD.KEY=VALUE",
+                       help="a setting of every --method entry of METHOD (repeatable); a bare "
+                            "KEY=VALUE only with one --method. Never changes the paper's "
+                            "tables; `evfuse methods --params` lists the settings")
     repro.add_argument("--overwrite", action="store_true")
     repro.add_argument("--quiet", action="store_true", help="no progress bar")
     repro.set_defaults(run=_cmd_reproduce)

@@ -17,7 +17,10 @@ The filling method is selectable (``--method``, :mod:`fusion.methods`): the pape
 above and keeps its segmentation for the figures and ``segments.png``; any other method is run
 through :func:`fusion.methods.run_method`, and its result has no segmentation (all-zero labels,
 ``regions`` None). Either way ``N2`` counts the non-zero pixels of the dense map and ``beta``
-uses the paper's formula, so that for another method it measures that method's fill.
+uses the paper's formula, so that for another method it measures that method's fill. A
+method's own settings (``method_params``, ``--param``) are checked before any work and
+recorded in ``fill.json`` (``method_params``); the paper's methods take their weighting's
+length (``sigma``, ``scale``) that way too.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -51,7 +54,7 @@ from fusion.filling import (
     select_regions,
 )
 from fusion.jsonio import to_json
-from fusion.methods import FillMethod, get_method, run_method
+from fusion.methods import FillMethod, check_params, get_method, run_method
 from fusion.pointcloud import write_ply
 from fusion.scoring import depth_errors, discontinuity_band
 from fusion.segmentation import SegmentationParams, segment_regions
@@ -193,8 +196,8 @@ def paper_weighting(method: FillMethod) -> str | None:
     return PAPER_METHODS.get(method.name) if method.origin == "built-in" else None
 
 
-def resolve_method(method: str | None, params: DenseParams | None = None
-                   ) -> tuple[FillMethod, DenseParams]:
+def resolve_method(method: str | None, params: DenseParams | None = None,
+                   method_params: dict | None = None) -> tuple[FillMethod, DenseParams]:
     """The filling method to run and the parameters of the paper's stages that go with it.
 
     Parameters
@@ -205,6 +208,9 @@ def resolve_method(method: str | None, params: DenseParams | None = None
     params : DenseParams, optional
         For one of the paper's methods, its ``fill.weighting`` must be the method's (default:
         the method's); any other method uses only ``band``.
+    method_params : dict, optional
+        The method's own settings, checked (:func:`fusion.methods.check_params`); for one of
+        the paper's methods they replace those of ``params.fill`` (``sigma``, ``scale``).
 
     Returns
     -------
@@ -213,21 +219,24 @@ def resolve_method(method: str | None, params: DenseParams | None = None
     Raises
     ------
     fusion.methods.MethodError
-        An unknown method (a ValueError, one line).
+        An unknown method, or a setting it refuses (a ValueError, one line).
     ValueError
         A paper's method whose weighting contradicts ``params.fill.weighting``.
     """
     if method is None:
         method = f"paper-{(params or DenseParams()).fill.weighting}"
     found = get_method(method)
+    settings = check_params(found, method_params)
     weighting = paper_weighting(found)
-    if weighting is None or params is None:
-        return found, params or DenseParams(fill=FillParams(weighting or "idw"))
-    if params.fill.weighting != weighting:
+    if weighting is None:
+        return found, params or DenseParams()
+    if params is None:
+        params = DenseParams(fill=FillParams(weighting))
+    elif params.fill.weighting != weighting:
         raise ValueError(f"filling method {found.name} uses {weighting} weights but "
                          f"params.fill.weighting is {params.fill.weighting!r}: expected the "
                          "same weighting, or method None")
-    return found, params
+    return found, replace(params, fill=replace(params.fill, **settings))
 
 
 def densify(frame: np.ndarray, sparse: np.ndarray, params: DenseParams | None = None
@@ -295,7 +304,8 @@ def dense_errors(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray, band:
 def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                params: DenseParams | None = None, truth: np.ndarray | None = None,
                T_world_frame: np.ndarray | None = None, info: dict | None = None,
-               n1: int | None = None, method: str | None = None) -> DenseResult:
+               n1: int | None = None, method: str | None = None,
+               method_params: dict | None = None) -> DenseResult:
     """Fill any frame from its event image (the ``--frame --sparse-depth`` form of the command).
 
     Parameters
@@ -313,12 +323,16 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     method : str, optional
         The filling method (:func:`resolve_method`; default the paper's with
         ``params.fill.weighting``, ``paper-idw``). Any but the paper's is run by
-        :func:`fusion.methods.run_method` with no parameters of its own.
+        :func:`fusion.methods.run_method`.
+    method_params : dict, optional
+        The method's own settings (:func:`fusion.methods.check_params`; default none, its
+        defaults); for the paper's, they replace those of ``params.fill``.
 
     Returns
     -------
     DenseResult
-        ``info`` holds ``method`` and ``method_origin``, and the counts: ``N1`` (map points),
+        ``info`` holds ``method``, ``method_origin`` and ``method_params`` (the settings
+        given, coerced), and the counts: ``N1`` (map points),
         ``N1_in_frame`` (non-zero pixels of ``sparse``), ``N2`` (non-zero pixels of the dense
         map: ``N1_in_frame`` plus the filled pixels), ``Res`` (pixels of the frame), ``beta``
         (the filling score ``(N2 - N1_in_frame) / (Res + N1_in_frame / Res)``; for a method
@@ -332,7 +346,8 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
         Bad input, an unknown method, or a method that returns no depth at some map points
         (``N2`` and ``beta`` would then not count the pixels it filled).
     """
-    fill_method, params = resolve_method(method, params)
+    fill_method, params = resolve_method(method, params, method_params)
+    method_params = check_params(fill_method, method_params)
     start = time.perf_counter()
     if (camera.height, camera.width) != np.shape(frame)[:2]:
         raise ValueError(f"the calibration is for {camera.width}x{camera.height} but the frame "
@@ -343,7 +358,8 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
         confidence = None
     else:
         _check_event_image(frame, sparse)
-        dense, confidence, seconds = run_method(fill_method, frame, sparse, camera)
+        dense, confidence, seconds = run_method(fill_method, frame, sparse, camera,
+                                                method_params)
         labels, regions, timings = np.zeros(sparse.shape, np.int32), None, {"method_s": seconds}
     in_frame, n2 = int(np.count_nonzero(sparse)), int(np.count_nonzero(dense))
     dropped = int(np.count_nonzero((sparse > 0) & (dense == 0)))
@@ -360,6 +376,7 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     timings["total_s"] = time.perf_counter() - start
     document = {
         "method": fill_method.name, "method_origin": fill_method.origin,
+        "method_params": method_params,
         "N1": int(n1), "N1_in_frame": in_frame, "N2": n2, "Res": res,
         "beta": filling_score(in_frame, n2, res),
         "beta_counts": "(N2 - N1_in_frame) / (Res + N1_in_frame / Res)",
@@ -424,7 +441,7 @@ class FillInputs:
 
 
 def fill_map(map_folder: str | Path, params: DenseParams | None = None,
-             method: str | None = None) -> DenseResult:
+             method: str | None = None, method_params: dict | None = None) -> DenseResult:
     """Fill the map written by ``evfuse map`` with the standard frame nearest its reference view.
 
     Parameters
@@ -434,6 +451,8 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None,
     params : DenseParams, optional
     method : str, optional
         The filling method (default the paper's, :func:`fill_frame`).
+    method_params : dict, optional
+        Its own settings (:func:`fill_frame`).
 
     Returns
     -------
@@ -442,7 +461,8 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None,
     """
     inputs = fill_inputs(map_folder)
     return fill_frame(inputs.frame, inputs.sparse, inputs.camera, params, inputs.truth,
-                      inputs.T_world_frame, inputs.info, n1=inputs.n1, method=method)
+                      inputs.T_world_frame, inputs.info, n1=inputs.n1, method=method,
+                      method_params=method_params)
 
 
 def fill_inputs(map_folder: str | Path) -> FillInputs:

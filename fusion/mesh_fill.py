@@ -64,8 +64,8 @@ import numpy as np
 from scipy.interpolate import CloughTocher2DInterpolator
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from fusion.methods import get_method, register
-from fusion.surface_fit import SurfaceFitParams, _check_frame, surface_fill
+from fusion.methods import get_method
+from fusion.surface_fit import SurfaceFitParams, _check_frame, _method, surface_fill
 from sim.camera import Camera
 
 __all__ = ["MeshFill", "MeshParams", "clean_map", "consistent_triangles", "local_planes",
@@ -383,10 +383,6 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     return MeshFill(dense.astype(np.float32), confidence, stage, kept)
 
 
-@register("mesh", "plane's surfaces, then a Delaunay mesh of the cleaned map across triangles "
-                  "on one surface; never a depth between two surfaces; inverse depth")
-def mesh_method(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dict
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """``mesh``: :func:`mesh_fill` with :class:`MeshParams` from ``params``."""
-    result = mesh_fill(frame, sparse, camera, MeshParams.from_params(params, "mesh"))
-    return result.dense, result.confidence
+mesh_method = _method("mesh", "plane's surfaces, then a Delaunay mesh of the cleaned map across "
+                             "triangles on one surface; never a depth between two surfaces; "
+                             "inverse depth", mesh_fill, MeshParams)

@@ -84,6 +84,9 @@ class RunParams:
         The filling method, a name or ``module:function`` (:mod:`fusion.methods`); None (the
         default): the paper's with ``dense.fill.weighting``, ``paper-idw``
         (:func:`fusion.dense.resolve_method`).
+    method_params : dict
+        The method's own settings (:func:`fusion.methods.check_params`; default none: its
+        defaults), recorded in ``report.json``.
     spp : int or None
         Samples per pixel of the simulated frames (default: the scene's).
     seed : int or None
@@ -102,6 +105,7 @@ class RunParams:
     depth: DepthMapParams = field(default_factory=DepthMapParams)
     dense: DenseParams = field(default_factory=DenseParams)
     method: str | None = None
+    method_params: dict = field(default_factory=dict)
     spp: int | None = None
     seed: int | None = None
     clip_window: bool = False
@@ -171,13 +175,14 @@ def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = 
 
 
 def fill_window(map_folder: str | Path, out: str | Path, params: DenseParams | None = None,
-                overwrite: bool = False, method: str | None = None) -> DenseResult:
+                overwrite: bool = False, method: str | None = None,
+                method_params: dict | None = None) -> DenseResult:
     """The fill stage as ``evfuse fill`` and ``evfuse run`` both run it: fill, score, files.
 
     ``method`` is the filling method (default: the paper's with ``params.fill.weighting``,
-    :func:`fusion.dense.resolve_method`)."""
-    _, params = resolve_method(method, params)
-    filled = fill_map(map_folder, params, method)
+    :func:`fusion.dense.resolve_method`), ``method_params`` its own settings."""
+    _, params = resolve_method(method, params, method_params)
+    filled = fill_map(map_folder, params, method, method_params)
     write_fill(filled, out, params, overwrite=overwrite)
     return filled
 
@@ -205,7 +210,7 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
         The content of ``report.json``.
     """
     params = params or RunParams()
-    method, _ = resolve_method(params.method, params.dense)    # refused before any work
+    method, _ = resolve_method(params.method, params.dense, params.method_params)  # up front
     out = Path(out)
     check_output_dir(out, overwrite)
     try:
@@ -247,7 +252,8 @@ def _run(source, out: Path, params: RunParams, method: FillMethod, overwrite: bo
         else:
             stage = progress_stage(desc="fill", unit="px", noun=f"pixels filled by "
                                    f"{method.name}", enabled=progress)
-        filled = fill_window(tmp / "map", tmp / "fill", params.dense, method=method.name)
+        filled = fill_window(tmp / "map", tmp / "fill", params.dense, method=method.name,
+                             method_params=params.method_params)
         stage.update(filled.info["regions_filled"] if filled.regions is not None
                      else filled.n2 - filled.n1_in_frame)
         stage.close()
@@ -258,6 +264,7 @@ def _run(source, out: Path, params: RunParams, method: FillMethod, overwrite: bo
         report = {
             "source": str(source),
             "method": info["method"], "method_origin": info["method_origin"],
+            "method_params": info["method_params"],
             "sequence": os.path.relpath(Path(sequence_folder).resolve(), tmp.resolve()),
             "simulated": simulated_here,
             "window_s": mapped.info["window_s"],

@@ -96,10 +96,12 @@ class ReproduceParams:
         Which tables to make, among "1", "2", "3", "complex" (default all).
     scenes : tuple of str or None
         Only these scenes (default all of each table).
-    methods : tuple of str
-        Filling methods (:func:`fusion.methods.get_method` specs) to run on every window
-        besides the paper's (default none): the report adds a table of their errors beside the
-        paper's inverse-distance fill; the paper's tables are unchanged.
+    methods : tuple of str or MethodVariant
+        Filling methods to run on every window besides the paper's (default none):
+        :func:`fusion.methods.get_method` specs, labels with settings of their own
+        (``plane{residual_rel=0.03}``) or :class:`fusion.methods.MethodVariant`; the report adds
+        a table of their errors beside the paper's inverse-distance fill, each method by its
+        label; the paper's tables are unchanged (always the paper's settings).
     """
 
     window: float = 1.0
@@ -114,7 +116,7 @@ class ReproduceParams:
     tables: tuple[str, ...] = ("1", "2", "3", "complex")
     scenes: tuple[str, ...] | None = None
     dense: DenseParams = field(default_factory=DenseParams)
-    methods: tuple[str, ...] = ()
+    methods: tuple = ()
 
     def __post_init__(self) -> None:
         if not (self.window > 0 and self.long_window > 0):
@@ -123,10 +125,11 @@ class ReproduceParams:
         unknown = set(self.tables) - {"1", "2", "3", "complex"}
         if unknown:
             raise ValueError(f"unknown tables {sorted(unknown)}: choose among 1, 2, 3, complex")
-        from fusion.methods import get_method
+        from fusion.methods import MethodVariant
 
-        for spec in self.methods:
-            get_method(spec)                      # an unknown method is refused up front
+        # An unknown method or a bad setting is refused up front; kept checked and coerced.
+        object.__setattr__(self, "methods", tuple(MethodVariant.of(m).checked()
+                                                  for m in self.methods))
 
 
 def _jobs(params: ReproduceParams) -> list[dict]:
@@ -215,10 +218,12 @@ def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams) -
         row["fills"][weighting]["errors"] = info.get("errors")
     if params.methods:
         row["methods"] = {}
-    for k, spec in enumerate(params.methods):
+    for k, variant in enumerate(params.methods):
         info = fill_window(out / name / "map", out / name / f"fill_method{k}", params.dense,
-                           overwrite=True, method=spec).info
-        row["methods"][spec] = {key: info.get(key) for key in ("N2", "beta", "errors")}
+                           overwrite=True, method=variant.spec,
+                           method_params=variant.params).info
+        row["methods"][variant.label] = {key: info.get(key) for key in ("N2", "beta", "errors",
+                                                                        "method_params")}
     return row
 
 

@@ -616,7 +616,7 @@ def _method(name: str, summary: str, fill, params_class: type[SurfaceFitParams])
 
     method.__doc__ = (f"``{name}``: :func:`{fill.__name__}` with :class:`{params_class.__name__}`"
                       " from ``params``.")
-    return register(name, summary)(method)
+    return register(name, summary, params=params_class)(method)
 
 
 plane_method = _method("plane", "per region, a robust plane (or quadric) in inverse depth "

@@ -26,6 +26,11 @@ def mean_fill(frame, sparse, camera, params):
 
 def broken(frame, sparse, camera, params):
     return np.full((3, 3), 1.0)
+
+def shifted(frame, sparse, camera, params):
+    '''Every pixel without an input point at the mean input depth plus params['shift'] m.'''
+    mean = sparse[sparse > 0].mean() + params.get("shift", 0.0)
+    return np.where(sparse > 0, sparse, mean).astype(np.float32)
 """
 
 
@@ -88,11 +93,83 @@ def test_the_python_entry_point_returns_the_table(tiny_map):
     json.dumps({k: v for k, v in nearest.items() if not k.startswith("_")})
 
 
+def test_one_method_under_two_settings_gives_two_rows_labelled_by_them(tiny_map, monkeypatch,
+                                                                      capsys):
+    """``--method M --method 'M{KEY=VALUE}'`` benches M twice; ``--param M.KEY=VALUE`` sets KEY
+    for both. Each row's method is its label, and bench.csv's last column its settings as
+    JSON."""
+    monkeypatch.syspath_prepend(str(tiny_map))
+    out = tiny_map / "out_params"
+    user = "bench_user_methods:shifted"
+    code = main(["bench", "--scenes", str(tiny_map / "run" / "map"), "--input", "oracle",
+                 "--only", "--method", f"plane,{user}", "--method", f"{user}{{shift=0.5}}",
+                 "--param", "plane.residual_rel=0.05", "--out", str(out), "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    assert "3 fills (0 failed) of 3 methods" in capsys.readouterr().out
+    rows = list(csv.DictReader((out / "bench.csv").open()))
+    assert tuple(rows[0]) == CSV_COLUMNS and CSV_COLUMNS[-1] == "params"
+    assert [(row["method"], row["params"]) for row in rows] == [
+        ("plane{residual_rel=0.05}", '{"residual_rel":0.05}'), (user, "{}"),
+        (f"{user}{{shift=0.5}}", '{"shift":0.5}')]
+    assert all(row["status"] == "ok" for row in rows)
+    # The setting reached the method in its worker: the oracle input is the exact depth of a
+    # wall parallel to the image plane, so the mean input depth is every pixel's; the plain
+    # fill is exact and the one shifted by 0.5 m is 50 cm off wherever it filled.
+    by = {row["method"]: float(row["filled_mae_cm"]) for row in rows}
+    assert by[user] == pytest.approx(0.0, abs=0.01)
+    assert by[f"{user}{{shift=0.5}}"] == pytest.approx(50.0, abs=0.01)
+    document = json.loads((out / "bench.json").read_text())
+    assert [row["params"] for row in document["rows"]] == [{"residual_rel": 0.05}, {},
+                                                           {"shift": 0.5}]
+    text = (out / "bench.md").read_text()
+    assert f"| {user}{{shift=0.5}} |" in text and "| plane{residual_rel=0.05} |" in text
+    assert "--param plane.residual_rel=0.05" in text               # the command, as given
+
+
+def test_without_only_the_built_ins_run_at_their_defaults_beside_the_settings(monkeypatch,
+                                                                            tmp_path):
+    """What is benched, before any work: every built-in at its defaults, then the --method
+    entries with their settings; an entry equal to a built-in's is one row."""
+    import fusion.benchmark
+    from fusion.methods import available_methods
+
+    asked = {}
+
+    def run_bench(methods, *args, **kwargs):
+        asked["methods"] = methods
+        return []
+
+    monkeypatch.setattr(fusion.benchmark, "run_bench", run_bench)
+    assert main(["bench", "--method", "plane,nearest", "--param", "plane.residual_rel=0.03",
+                 "--out", str(tmp_path / "o"), "--quiet"]) == 0
+    labels = [variant.label for variant in asked["methods"]]
+    assert labels == [*available_methods(), "plane{residual_rel=0.03}"]
+    assert asked["methods"][-1].params == {"residual_rel": 0.03}
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--input", "exact"], "--input exact: expected among emvs, oracle"),
     (["--scenes", "no_such_scene"], "--scenes no_such_scene: unknown scene"),
     (["--method", "no-such-method"], "unknown filling method 'no-such-method'"),
     (["--steps", "2,4"], "--steps is a knob of a scene family: give --family too"),
+    (["--param", "residual_rel=0.03"],
+     "--param residual_rel=0.03: no --method given; --param sets the settings of the --method "
+     "ones"),
+    (["--method", "plane", "--method", "guided", "--param", "radius=3"],
+     "--param radius=3: 2 methods given (plane, guided), whose is it? Write --param "
+     "METHOD.radius=... (every entry of METHOD) or --method 'METHOD{radius=...}' (that entry)"),
+    (["--method", "plane", "--method", "plane", "--param", "residual_rel=0.03"],
+     "--param residual_rel=0.03: 2 methods given (plane, plane), whose is it?"),
+    (["--method", "plane", "--param", "telea.radius=3"],
+     "--param telea.radius=3: telea is not among the --method ones (plane); --param sets "
+     "their settings only"),
+    (["--method", "plane,guided", "--param", "guided.radius=0.5"],
+     "--param guided.radius=0.5: filling method guided: radius expects an integer, got 0.5"),
+    (["--method", "plane{residual_rel=0}"],
+     "--method plane{residual_rel=0}: filling method plane: residual_rel must be a finite "
+     "number > 0, got 0.0"),
+    (["--method", "plane", "--param", "plane.residual_rel"],
+     "--param plane.residual_rel: expected KEY=VALUE, or METHOD.KEY=VALUE"),
 ])
 def test_bad_bench_arguments_are_refused_in_one_line(argv, message, tmp_path, capsys):
     code = main(["bench", *argv, "--out", str(tmp_path / "o"), "--quiet"])

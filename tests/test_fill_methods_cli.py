@@ -1,6 +1,6 @@
-"""``--method`` of evfuse fill and evfuse run: a method by name or module:function fills a hand-made
-map folder, the paper's method stays what it was, and unknown or contradictory flags are refused
-in one line."""
+"""``--method`` and ``--param`` of evfuse fill and evfuse run: a method by name or module:function,
+with settings of its own, fills a hand-made map folder, the paper's method stays what it was,
+the settings are recorded, and unknown or contradictory flags are refused in one line."""
 
 from __future__ import annotations
 
@@ -159,6 +159,11 @@ def flat(frame, sparse, camera, params):
 def forgetful(frame, sparse, camera, params):
     """Fills the pixels without a map point and forgets the map points."""
     return np.where(sparse > 0, 0.0, 1.0).astype(np.float32)
+
+
+def shifted(frame, sparse, camera, params):
+    """Every pixel without a map point at params['depth'] metres."""
+    return np.where(sparse > 0, sparse, params["depth"]).astype(np.float32)
 '''
 
 
@@ -278,3 +283,98 @@ def test_help_gives_the_method_and_its_default(command, capsys):
     text = " ".join(capsys.readouterr().out.split())
     assert "--method METHOD" in text and "(default paper-idw, the paper's;" in text
     assert "`evfuse methods`" in text and "--weighting W is --method paper-W" in text
+
+
+def _meta(folder):
+    document = json.loads((folder / "fill.json").read_text())
+    document.pop("timings")
+    return document
+
+
+def test_param_settings_reach_the_method_and_fill_json_records_them(tmp_path, user_module,
+                                                                    capsys):
+    mapped = _map_folder(tmp_path)
+    _, sparse = _ramp_scene()
+    out = tmp_path / "shifted"
+    assert main(["fill", str(mapped), "--method", f"{user_module}:shifted", "--param",
+                 "depth=2.5", "--param", "note=abc", "--out", str(out)]) == 0
+    dense = read_depth(out / "dense_depth.exr")
+    assert np.all(dense[sparse == 0] == 2.5)                   # the setting reached the method
+    meta = _meta(out)
+    assert meta["method"] == f"{user_module}:shifted"
+    assert meta["method_params"] == {"depth": 2.5, "note": "abc"}   # not declared: as parsed
+    assert f"method {user_module}:shifted{{depth=2.5,note=abc}}" in capsys.readouterr().out
+    # Three ways to say the same settings give the same fill; an int for a float field is
+    # recorded as the float it is.
+    runs = {"flags": ["--method", "plane", "--param", "residual_rel=1", "--param",
+                      "min_points=4"],
+            "scoped": ["--method", "plane", "--param", "plane.residual_rel=1", "--param",
+                       "plane.min_points=4"],
+            "inline": ["--method", "plane{residual_rel=1,min_points=4}"]}
+    for name, flags in runs.items():
+        assert main(["fill", str(mapped), "--out", str(tmp_path / name), *flags]) == 0, name
+    assert _meta(tmp_path / "flags") == _meta(tmp_path / "scoped") == _meta(tmp_path / "inline")
+    recorded = _meta(tmp_path / "flags")["method_params"]
+    assert recorded == {"residual_rel": 1.0, "min_points": 4}
+    assert type(recorded["residual_rel"]) is float and type(recorded["min_points"]) is int
+    assert "method plane{min_points=4,residual_rel=1.0}" in capsys.readouterr().out
+    assert main(["fill", str(mapped), "--out", str(tmp_path / "default")]) == 0
+    assert _meta(tmp_path / "default")["method_params"] == {}
+
+
+def test_a_paper_method_s_length_set_by_param_is_its_flag(tmp_path):
+    """``--weighting gaussian --param sigma=3`` is ``--sigma 3``: the same fill, the same
+    paper's parameters; only method_params says how it was asked."""
+    mapped = _map_folder(tmp_path)
+    assert main(["fill", str(mapped), "--out", str(tmp_path / "param"), "--weighting",
+                 "gaussian", "--param", "sigma=3"]) == 0
+    assert main(["fill", str(mapped), "--out", str(tmp_path / "flag"), "--method",
+                 "paper-gaussian", "--sigma", "3"]) == 0
+    assert main(["fill", str(mapped), "--out", str(tmp_path / "five"), "--method",
+                 "paper-gaussian"]) == 0
+    param, flag = _meta(tmp_path / "param"), _meta(tmp_path / "flag")
+    assert param["params"]["fill"] == flag["params"]["fill"] == {
+        "weighting": "gaussian", "sigma": 3.0, "scale": 1.0}
+    assert param.pop("method_params") == {"sigma": 3.0} and flag.pop("method_params") == {}
+    assert param == flag
+    depth = {name: (tmp_path / name / "dense_depth.exr").read_bytes()
+             for name in ("param", "flag", "five")}
+    assert depth["param"] == depth["flag"] != depth["five"]
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--method", "plane", "--param", "residual_rel"],
+     "--param residual_rel: expected KEY=VALUE, or METHOD.KEY=VALUE for one method's"),
+    (["--method", "plane", "--param", "=0.1"], "--param =0.1: expected KEY=VALUE"),
+    (["--method", "plane", "--param", "residual=0.1"],
+     "--param residual=0.1: filling method plane: unknown parameter 'residual'; expected one "
+     "of residual_rel, min_points,"),
+    (["--method", "plane", "--param", "min_points=2.5"],
+     "--param min_points=2.5: filling method plane: min_points expects an integer, got 2.5"),
+    (["--method", "plane", "--param", "residual_rel=-1"],
+     "--param residual_rel=-1: filling method plane: residual_rel must be a finite number > 0, "
+     "got -1.0"),
+    (["--method", "plane", "--param", "telea.radius=3"],
+     "--param telea.radius=3: the filling method is plane, not telea"),
+    (["--method", "plane{residual_rel=0.05}", "--param", "residual_rel=0.03"],
+     "--param residual_rel=0.03: residual_rel of plane is already set by --method "
+     "plane{residual_rel=0.05}; set it once"),
+    (["--method", "plane{residual_rel}"],
+     "--method plane{residual_rel}: expected NAME or NAME{KEY=VALUE,...}; got 'residual_rel'"),
+    (["--method", "hybrid", "--param", "canny_low=50"],
+     "--param canny_low=50: filling method hybrid: canny_low must be <= canny_high"),
+    (["--param", "sigma=3"],
+     "--param sigma=3: filling method paper-idw: unknown parameter 'sigma'; paper-idw takes no "
+     "parameters"),
+    (["--weighting", "gaussian", "--sigma", "4", "--param", "sigma=3"],
+     "--sigma 4 contradicts paper-gaussian{sigma=3.0}: set sigma once"),
+])
+@pytest.mark.parametrize("command", ["fill", "run"])
+def test_a_bad_param_is_refused_in_one_line_before_any_work(command, flags, message, tmp_path,
+                                                            capsys):
+    """Refused before anything else: evfuse run would otherwise say its SOURCE is missing."""
+    source = str(_map_folder(tmp_path) if command == "fill" else tmp_path / "no-source")
+    out = tmp_path / "out"
+    line = _one_line(capsys, main([command, source, "--out", str(out), *flags]), command)
+    assert message in line
+    assert not out.exists()

@@ -4,6 +4,7 @@ from outside the package, and bad methods refused in one line."""
 
 from __future__ import annotations
 
+import re
 import sys
 from types import SimpleNamespace
 
@@ -147,3 +148,141 @@ def test_a_bad_method_is_refused_in_one_line_naming_it(body, message):
 def test_an_unknown_method_is_named(spec, message):
     with pytest.raises(MethodError, match=message.replace("(", r"\(")):
         get_method(spec)
+
+
+# --- settings of a method (--param) -------------------------------------------------------------
+
+def test_every_built_in_declares_its_settings_and_methods_params_lists_them(capsys):
+    """``evfuse methods --params`` keeps each method's line as ``evfuse methods`` prints it and
+    adds one line of its settings with their defaults (the dataclass's own)."""
+    from fusion.baselines import GuidedParams
+    from fusion.methods import param_defaults
+
+    built_in = [m for m in available_methods().values() if m.origin == "built-in"]
+    assert all(method.params is not None for method in built_in)
+    for method in built_in:
+        defaults = param_defaults(method)
+        assert method.params(**defaults) == method.params()        # the defaults are valid
+    assert param_defaults(get_method("guided")) == {
+        "radius": GuidedParams.radius, "eps": GuidedParams.eps,
+        "min_support": GuidedParams.min_support}
+    assert param_defaults(get_method("paper-gaussian")) == {"sigma": 5.0}
+    assert param_defaults(get_method("paper-idw")) == {}
+    assert main(["methods"]) == 0
+    plain = capsys.readouterr().out.splitlines()
+    assert main(["methods", "--params"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0::2] == plain                                     # first lines unchanged
+    settings = dict(zip([line.split()[0] for line in plain], lines[1::2], strict=True))
+    assert settings["paper-idw"].split() == ["params:", "none"]
+    assert settings["paper-gaussian"].split() == ["params:", "sigma=5.0"]
+    assert settings["telea"].split() == ["params:", "radius=5.0"]
+    assert settings["guided"].split(None, 1) == ["params:",
+                                                 "radius=8, eps=0.0001, min_support=0.25"]
+    assert "min_subregion=none" in settings["hybrid"]
+
+
+@pytest.mark.parametrize("text, value", [
+    ("3", 3), ("-2", -2), ("0.03", 0.03), ("1e-3", 0.001), ("true", True), ("False", False),
+    ("none", None), ("None", None), ("abc", "abc"), (" 4 ", 4), ("'a,b'", "a,b"),
+    ("1,2", "1,2"), ("[1]", "[1]"), ("nan", "nan"), ("", ""),
+])
+def test_a_value_is_a_python_literal_where_it_is_one_else_text(text, value):
+    from fusion.methods import parse_value
+
+    parsed = parse_value(text)
+    assert parsed == value and type(parsed) is type(value)
+
+
+def test_values_are_coerced_to_their_field_s_type():
+    from fusion.methods import check_params
+
+    coerced = check_params("plane", {"residual_rel": 1, "min_points": np.int64(4)})
+    assert coerced == {"residual_rel": 1.0, "min_points": 4}
+    assert type(coerced["residual_rel"]) is float and type(coerced["min_points"]) is int
+    assert check_params("hybrid", {"min_subregion": None}) == {"min_subregion": None}
+    assert type(check_params("hybrid", {"min_subregion": 30})["min_subregion"]) is int
+    assert check_params("paper-gaussian", {"sigma": 3}) == {"sigma": 3.0}
+    assert check_params("nearest", {}) == {}
+
+
+@pytest.mark.parametrize("method, params, message", [
+    ("plane", {"residual": 0.1}, "filling method plane: unknown parameter 'residual'; expected "
+                                 "one of residual_rel, min_points, min_inlier_share"),
+    ("nearest", {"radius": 3}, "filling method nearest: unknown parameter 'radius'; nearest "
+                               "takes no parameters"),
+    ("paper-idw", {"sigma": 3}, "filling method paper-idw: unknown parameter 'sigma'; "
+                                "paper-idw takes no parameters"),
+    ("plane", {"min_points": 2.5}, "filling method plane: min_points expects an integer, got "
+                                   "2.5"),
+    ("guided", {"radius": True}, "filling method guided: radius expects an integer, got true"),
+    ("plane", {"residual_rel": "abc"}, "filling method plane: residual_rel expects a number, "
+                                       "got abc"),
+    ("hybrid", {"min_subregion": "big"}, "filling method hybrid: min_subregion expects an "
+                                         "integer or none, got big"),
+    ("plane", {"residual_rel": -1}, "filling method plane: residual_rel must be a finite "
+                                    "number > 0, got -1.0"),
+    ("hybrid", {"canny_low": 50}, "filling method hybrid: canny_low must be <= canny_high, got "
+                                  "50.0 > 40.0"),
+    ("telea", {"radius": 0}, "filling method telea: radius must be a finite number > 0"),
+    ("paper-gaussian", {"sigma": 0}, "filling method paper-gaussian: sigma must be a finite "
+                                     "number > 0"),
+])
+def test_a_bad_setting_is_refused_in_one_line_naming_the_method_and_the_key(method, params,
+                                                                           message):
+    from fusion.methods import check_params
+
+    with pytest.raises(MethodError) as info:
+        check_params(method, params)
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
+
+
+def test_a_label_names_a_variant_and_reads_back():
+    from fusion.methods import MethodVariant, method_label, parse_label, split_labels
+
+    variant = MethodVariant("plane", {"residual_rel": 0.03, "min_points": 4})
+    assert variant.label == "plane{min_points=4,residual_rel=0.03}"      # keys in order
+    assert parse_label(variant.label) == variant
+    assert parse_label("plane") == MethodVariant("plane")
+    assert MethodVariant("plane").label == "plane"
+    odd = {"mode": "a,b", "flag": True, "word": "true", "off": None, "tiny": 1e-6}
+    assert method_label("m:f", odd) == "m:f{flag=true,mode='a,b',off=none,tiny=1e-06,word='true'}"
+    assert parse_label(method_label("m:f", odd)).params == odd
+    assert split_labels("nearest, plane{residual_rel=0.03,min_points=4},m:f{mode='a,b'}") == [
+        "nearest", "plane{residual_rel=0.03,min_points=4}", "m:f{mode='a,b'}"]
+    for bad, message in (("plane{x}", "expected NAME or NAME{KEY=VALUE,...}; got 'x'"),
+                         ("plane{x=1", "expected NAME or NAME{KEY=VALUE,...}"),
+                         ("{x=1}", "expected NAME"), ("plane{x=1,x=2}", "x given twice")):
+        with pytest.raises(MethodError, match=re.escape(f"{bad}: {message}")):
+            parse_label(bad)
+
+
+def test_settings_reach_the_method_and_a_user_s_undeclared_ones_pass_unchecked(tmp_path,
+                                                                               monkeypatch):
+    from fusion.dense import DenseParams, densify
+    from fusion.filling import FillParams
+    from fusion.methods import check_params
+
+    (tmp_path / "my_shift.py").write_text(
+        "import numpy as np\n"
+        "def shifted(frame, sparse, camera, params):\n"
+        "    return np.where(sparse > 0, sparse, params['depth']).astype(np.float32)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert check_params("my_shift:shifted", {"depth": 2, "anything": "x"}) == {
+        "depth": 2, "anything": "x"}                       # not declared: passed on as given
+    sparse = _grid_points(np.full((H, W), 1.0, np.float32))
+    dense = run_method("my_shift:shifted", _frame(), sparse, CAMERA, {"depth": 2.5})[0]
+    assert np.all(dense[sparse == 0] == 2.5)
+    sys.modules.pop("my_shift", None)
+    # The paper's Gaussian weighting with sigma 2 is densify with FillParams sigma 2 ...
+    sparse = _grid_points((1.0 + 0.02 * np.arange(W, dtype=np.float32))[None, :].repeat(H, 0))
+    sparse[:, W // 2 - 1] = 1.5
+    dense = run_method("paper-gaussian", _frame(), sparse, CAMERA, {"sigma": 2.0})[0]
+    expected = densify(_frame(), sparse, DenseParams(fill=FillParams("gaussian", sigma=2.0)))[2]
+    np.testing.assert_array_equal(dense, expected)
+    assert not np.array_equal(dense, run_method("paper-gaussian", _frame(), sparse, CAMERA)[0])
+    # ... and a setting a method does not take is refused when it runs, too.
+    with pytest.raises(MethodError, match="filling method paper-idw raised TypeError"):
+        run_method("paper-idw", _frame(), sparse, CAMERA, {"sigma": 2.0})
+    with pytest.raises(MethodError, match="filling method telea raised TypeError"):
+        run_method("telea", _frame(), sparse, CAMERA, {"radius": 3, "speed": 1})

@@ -154,6 +154,21 @@ def test_the_printed_summary_gives_each_error_with_its_coverage(tiny_run, capsys
     assert rows["N1 in the frame"] == f"{report['N1_in_frame']:,}"
 
 
+def test_run_records_the_method_s_settings(tiny_run, tmp_path, capsys):
+    """``--param`` reaches the fill of ``evfuse run``: report.json and fill.json record it, the
+    summary shows the method with it; the paper's default records none."""
+    _, out = tiny_run
+    assert json.loads((out / "report.json").read_text())["method_params"] == {}
+    run = tmp_path / "telea"
+    assert main(["run", str(out / "sequence"), "--out", str(run), "--t0", "0.0", "--t1", "0.3",
+                 "--method", "telea", "--param", "radius=2", "--quiet"]) == 0
+    report = json.loads((run / "report.json").read_text())
+    fill = json.loads((run / "fill" / "fill.json").read_text())
+    assert report["method"] == fill["method"] == "telea"
+    assert report["method_params"] == fill["method_params"] == {"radius": 2.0}
+    assert "filling method      telea{radius=2.0} (built-in)" in capsys.readouterr().out
+
+
 def test_show_redraws_the_same_overview(tiny_run, tmp_path):
     _, out = tiny_run
     target = tmp_path / "again.png"

@@ -42,15 +42,32 @@ def test_reproduce_runs_other_filling_methods_beside_the_paper_s(tmp_path, capsy
     out = tmp_path / "report"
     argv = ["reproduce", "--out", str(out), "--cache", str(tmp_path / "cache"), "--tables",
             "complex", "--scenes", "complex_slanted_plane", "--long-window", "0.15",
-            "--method", "nearest,plane", "--quiet"]
+            "--method", "nearest,plane", "--method", "plane{residual_rel=0.05}", "--param",
+            "plane.min_points=8", "--quiet"]
     assert main(argv) == 0
-    row = json.loads((out / "report.json").read_text())["rows"][0]
-    assert list(row["methods"]) == ["nearest", "plane"] and len(row["fills"]) == 3
+    report = json.loads((out / "report.json").read_text())
+    row = report["rows"][0]
+    assert set(row["methods"]) == {"nearest", "plane{min_points=8}",      # JSON keys sorted
+                                   "plane{min_points=8,residual_rel=0.05}"}
+    assert len(row["fills"]) == 3                                     # the paper's: unchanged
     assert row["methods"]["nearest"]["N2"] == 43200                  # nearest fills every pixel
-    assert row["methods"]["plane"]["N2"] <= 43200
+    assert row["methods"]["plane{min_points=8}"]["N2"] <= 43200
+    assert row["methods"]["plane{min_points=8,residual_rel=0.05}"]["method_params"] == {
+        "min_points": 8, "residual_rel": 0.05}
+    assert [m["params"] for m in report["settings"]["methods"]] == [
+        {}, {"min_points": 8}, {"min_points": 8, "residual_rel": 0.05}]
     text = (out / "report.md").read_text()
     assert "## Other filling methods" in text
     assert "| complex_slanted_plane | 1.00-1.15 | paper-idw |" in text
     assert "| complex_slanted_plane | 1.00-1.15 | nearest |" in text
-    assert main([*argv[:-3], "--method", "no-such", "--quiet"]) == 2
+    assert "| complex_slanted_plane | 1.00-1.15 | plane{min_points=8,residual_rel=0.05} |" in text
+    base = argv[:argv.index("--method")]
+    assert main([*base, "--method", "no-such", "--quiet"]) == 2
     assert "unknown filling method 'no-such'" in capsys.readouterr().err
+    for flags, message in (
+            (["--param", "min_points=8"], "--param min_points=8: no --method given"),
+            (["--method", "nearest,plane", "--param", "min_points=8"],
+             "--param min_points=8: 2 methods given (nearest, plane), whose is it?")):
+        assert main([*base, *flags, "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and message in err, err
