@@ -64,7 +64,6 @@ import numpy as np
 from scipy.interpolate import CloughTocher2DInterpolator
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from fusion.methods import get_method
 from fusion.surface_fit import SurfaceFitParams, _check_frame, _method, surface_fill
 from sim.camera import Camera
 
@@ -344,8 +343,8 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                  STAGE_CONFIDENCE[2])
 
             # Stage 3: the other triangles of the paper's regions, small jumps only.
-            paper = get_method("paper-idw").function(frame, clean, camera, {})
-            region = paper > 0
+            region = (np.zeros(sparse.shape, bool) if surfaces.regions is None
+                      else surfaces.regions.selected[surfaces.labels])
             low, high = np.full(len(query), np.inf), np.zeros(len(query))
             low[inside], high[inside] = corners[inside].min(axis=1), corners[inside].max(axis=1)
             use = (inside & region.reshape(-1) & (stage.reshape(-1) == 0)
