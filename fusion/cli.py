@@ -243,15 +243,18 @@ def _events_file(folder: Path) -> Path:
     raise ValueError(f"{folder}: no events.h5 or events.txt in this folder")
 
 
-def _cmd_events(args: argparse.Namespace) -> int:
+def _recording_stats(folder: Path) -> tuple[dict, Path, object, object]:
+    """A sequence folder's event figures (:func:`sim.statistics.event_stats`) plus
+    ``frame_noise`` (gray levels, the median over its first 10 frames; NaN without frames),
+    its events file, its sequence and its events."""
     import cv2
+    import numpy as np
 
-    from fusion.figures import write_image
-    from sim.eventio import check_time_units, event_frame, event_stats, read_events
+    from sim.eventio import check_time_units, read_events
     from sim.sequence import load_sequence
+    from sim.statistics import event_stats, frame_noise
     from sim.trajectory import read_trajectory
 
-    folder = Path(args.sequence)
     sequence = load_sequence(folder)
     width, height = sequence.camera.width, sequence.camera.height
     path = _events_file(folder)
@@ -260,14 +263,45 @@ def _cmd_events(args: argparse.Namespace) -> int:
         poses = read_trajectory(sequence.groundtruth_path)
         check_time_units(path, events["t"][0] * 1e-9, events["t"][-1] * 1e-9, poses.t_start,
                          poses.t_end)
+    stats = event_stats(events, width, height)
+    noise = [frame_noise(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE))
+             for p in list(sequence.image_paths)[:10]]
+    stats["frame_noise"] = float(np.median(noise)) if noise else float("nan")
+    return stats, path, sequence, events
+
+
+def _cmd_events(args: argparse.Namespace) -> int:
+    import cv2
+
+    from fusion.figures import write_image
+    from sim.statistics import compare_stats, event_frame
+
+    folder = Path(args.sequence)
+    if args.compare is not None and not args.stats:
+        raise ValueError("--compare compares statistics: add --stats")
     if not args.stats:
+        from sim.eventio import read_events
+        from sim.sequence import load_sequence
+
+        sequence = load_sequence(folder)
+        path = _events_file(folder)
+        events = read_events(path, sequence.camera.width, sequence.camera.height)
         print(f"{path}: {len(events)} events (add --stats for statistics)")
         return 0
-    stats = event_stats(events, width, height)
-    print(f"{path}  ({width}x{height})")
-    for key, value in stats.items():
-        shown = f"{value:.6g}" if isinstance(value, float) else value
-        print(f"  {key:<24} {shown}")
+    stats, path, sequence, events = _recording_stats(folder)
+    width, height = sequence.camera.width, sequence.camera.height
+    show = lambda v: f"{v:.6g}" if isinstance(v, float) else str(v)  # noqa: E731
+    if args.compare is None:
+        print(f"{path}  ({width}x{height})")
+        for key, value in stats.items():
+            print(f"  {key:<24} {show(value)}")
+    else:
+        other, other_path, _, _ = _recording_stats(Path(args.compare))
+        print(f"A: {path}\nB: {other_path}")
+        print(f"  {'':<24} {'A':>12} {'B':>12} {'B / A':>8}")
+        for key, a, b, ratio in compare_stats(stats, other):
+            print(f"  {key:<24} {show(a):>12} {show(b):>12} "
+                  f"{'' if ratio is None else f'{ratio:.3g}':>8}")
     out = Path(args.out) if args.out else folder / "event_frame.png"
     window = events
     if args.window is not None and len(events):
@@ -275,6 +309,23 @@ def _cmd_events(args: argparse.Namespace) -> int:
         window = events[events["t"] < t_end]
     write_image(out, cv2.cvtColor(event_frame(window, width, height), cv2.COLOR_RGB2BGR))
     print(f"event frame of {len(window)} events written to {out}")
+    return 0
+
+
+def _cmd_twin(args: argparse.Namespace) -> int:
+    from sim.twin import write_twin
+
+    window = None
+    if args.window is not None:
+        try:
+            window = tuple(float(v) for v in args.window.split(","))
+        except ValueError:
+            window = ()
+        if len(window) != 2:
+            raise ValueError(f"--window: expected T0,T1 in seconds, got {args.window!r}")
+    scene = write_twin(args.recording, args.out, args.depth, window)
+    print(f"twin scene written to {scene}; simulate it with: evfuse simulate {scene} "
+          f"--out SEQUENCE")
     return 0
 
 
@@ -723,7 +774,26 @@ def _parser() -> argparse.ArgumentParser:
                              "(default: all)")
     events.add_argument("--out", default=None,
                         help="event-frame PNG (default: SEQUENCE/event_frame.png)")
+    events.add_argument("--compare", default=None, metavar="OTHER",
+                        help="with --stats: another sequence folder (a twin and its recording), "
+                             "printed side by side with the ratio OTHER / SEQUENCE")
     events.set_defaults(run=_cmd_events)
+
+    twin = sub.add_parser(
+        "twin", help="write a scene that simulates a recording's camera and trajectory",
+        description="Writes OUT/scene.toml, OUT/groundtruth.txt (the recording's poses of the "
+                    "window, times shifted to start at 0) and OUT/poster.png (the recording's "
+                    "frame at the window's start, undistorted): the recording's camera, "
+                    "trajectory and frame rate, and a poster like its view at --depth.")
+    twin.add_argument("recording", help="an Event-Camera Dataset folder (calib.txt, "
+                                        "groundtruth.txt, images.txt)")
+    twin.add_argument("--depth", type=float, required=True,
+                      help="the poster's depth, m, in the camera at the window's start (e.g. "
+                           "the median depth of `evfuse map` on the recording)")
+    twin.add_argument("--window", default=None, metavar="T0,T1",
+                      help="seconds of the recording to copy (default: its poses' span)")
+    twin.add_argument("--out", required=True, help="folder to write")
+    twin.set_defaults(run=_cmd_twin)
 
     mapping = sub.add_parser(
         "map", help="semi-dense depth map of a sequence from its events and poses (EMVS)",

@@ -48,10 +48,11 @@ from fusion.jsonio import to_json
 from fusion.mapping import MapParams, MapResult, map_sequence, time_window, write_map
 from fusion.methods import FillMethod
 from fusion.pointcloud import read_ply
-from sim.eventio import event_frame, read_window
+from sim.eventio import read_window
 from sim.exr import read_depth
 from sim.progress import progress as progress_stage
 from sim.sequence import PARTIAL_SUFFIX, atomic_output_dir, check_output_dir, load_sequence
+from sim.statistics import event_frame
 
 __all__ = ["RunParams", "draw_overview", "fill_window", "is_sequence_folder", "map_window",
            "run_pipeline"]

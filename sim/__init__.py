@@ -10,7 +10,6 @@ from sim.eventio import (
     H5EventWriter,
     TextEventWriter,
     convert_events,
-    event_stats,
     read_events,
     read_window,
 )
@@ -24,6 +23,7 @@ from sim.scene import Scene, SceneError, load_scene, parse_scene
 from sim.sequence import Sequence, load_sequence
 from sim.shader import EventShader
 from sim.simulate import SimulationResult, simulate
+from sim.statistics import compare_stats, event_frame, event_stats, frame_noise
 from sim.trajectory import (
     HandheldTrajectory,
     LinearTrajectory,
@@ -48,7 +48,10 @@ __all__ = [
     "TextEventWriter",
     "convert_events",
     "emulate_events",
+    "compare_stats",
+    "event_frame",
     "event_stats",
+    "frame_noise",
     "noise_preset",
     "read_events",
     "read_window",

@@ -48,16 +48,12 @@ __all__ = [
     "EVENT_DTYPE",
     "H5EventWriter",
     "MAX_EMPTY_MS",
-    "OFF_COLOUR",
-    "ON_COLOUR",
     "PARTIAL_SUFFIX",
     "TextEventWriter",
     "check_events",
     "check_time_units",
     "event_time_span",
     "convert_events",
-    "event_frame",
-    "event_stats",
     "iter_event_chunks",
     "make_events",
     "read_events",
@@ -1428,114 +1424,3 @@ def convert_events(src: str | Path, dst: str | Path, width: int | None = None,
     with writer:
         for chunk in iter_event_chunks(src, 1 << 20, width=width, height=height):
             writer.write(chunk)
-
-
-# --- statistics and pictures ----------------------------------------------------------------
-
-def event_stats(events: np.ndarray, width: int, height: int) -> dict[str, int | float]:
-    """Summary figures of an event stream.
-
-    Parameters
-    ----------
-    events : (N,) EVENT_DTYPE ndarray
-        Valid events (checked with :func:`check_events`) inside a ``width`` x ``height`` sensor.
-    width, height : int
-        Sensor size in pixels.
-
-    Returns
-    -------
-    dict
-        In this order:
-
-        - ``count`` (int): N.
-        - ``t_first_s``, ``t_last_s`` (float, s): first and last time (0.0 when N = 0).
-        - ``duration_s`` (float, s): last minus first time.
-        - ``rate_ev_per_s`` (float): N / duration (0.0 when the duration is 0).
-        - ``on``, ``off`` (int): ON and OFF counts; ``on_fraction`` (float): on / N (0.0 when
-          N = 0).
-        - ``active_pixels`` (int): pixels with at least one event.
-        - ``events_per_pixel_mean`` (float): N / (width * height), over all pixels.
-        - ``events_per_pixel_max`` (int): the busiest pixel's count.
-        - ``hot_pixel_threshold`` (float): 10 x the median count of the active pixels.
-        - ``hot_pixels`` (int): pixels whose count exceeds that threshold.
-
-    Raises
-    ------
-    ValueError
-        As :func:`check_events`.
-    """
-    check_events(events, width, height)
-    count = int(events.size)
-    counts = np.bincount(events["y"].astype(np.int64) * width + events["x"],
-                         minlength=width * height)
-    active = counts[counts > 0]
-    threshold = 10.0 * float(np.median(active)) if active.size else 0.0
-    on = int(np.count_nonzero(events["p"] > 0))
-    t_first = int(events["t"][0]) if count else 0
-    t_last = int(events["t"][-1]) if count else 0
-    duration = (t_last - t_first) / 1e9
-    return {
-        "count": count,
-        "t_first_s": t_first / 1e9,
-        "t_last_s": t_last / 1e9,
-        "duration_s": duration,
-        "rate_ev_per_s": count / duration if duration > 0 else 0.0,
-        "on": on,
-        "off": count - on,
-        "on_fraction": on / count if count else 0.0,
-        "active_pixels": int(active.size),
-        "events_per_pixel_mean": count / (width * height),
-        "events_per_pixel_max": int(counts.max()) if counts.size else 0,
-        "hot_pixel_threshold": threshold,
-        "hot_pixels": int(np.count_nonzero(counts > threshold)) if active.size else 0,
-    }
-
-
-ON_COLOUR = (255, 0, 0)
-"""RGB of a pixel whose latest event is ON in :func:`event_frame` (red)."""
-OFF_COLOUR = (0, 0, 255)
-"""RGB of a pixel whose latest event is OFF in :func:`event_frame` (blue)."""
-
-
-def event_frame(events: np.ndarray, width: int, height: int,
-                background: str = "white") -> np.ndarray:
-    """The classic event frame: each pixel coloured by the polarity of its latest event.
-
-    Parameters
-    ----------
-    events : (N,) EVENT_DTYPE ndarray
-        Valid, time-sorted events inside the sensor.
-    width, height : int
-        Sensor size in pixels.
-    background : {"white", "black"}
-        Colour of pixels without events: (255, 255, 255) or (0, 0, 0).
-
-    Returns
-    -------
-    (H, W, 3) uint8 ndarray, RGB
-        ON (latest event +1): pure red :data:`ON_COLOUR` (255, 0, 0); OFF (latest event -1):
-        pure blue :data:`OFF_COLOUR` (0, 0, 255); no event: the background. As DSEC's
-        visualisation, the latest event of a pixel wins. Convert to BGR before
-        ``cv2.imwrite``.
-
-    Raises
-    ------
-    ValueError
-        Unknown background, or as :func:`check_events`.
-    """
-    backgrounds = {"white": 255, "black": 0}
-    if background not in backgrounds:
-        raise ValueError(f"event_frame: background must be one of {sorted(backgrounds)}, got "
-                         f"{background!r}")
-    check_events(events, width, height)
-    frame = np.full((height, width, 3), backgrounds[background], dtype=np.uint8)
-    if not events.size:
-        return frame
-    flat = events["y"].astype(np.int64) * width + events["x"]
-    # The latest event of each pixel: the first occurrence in the reversed stream.
-    pixels, first_reversed = np.unique(flat[::-1], return_index=True)
-    latest = events["p"][events.size - 1 - first_reversed]
-    colours = np.where((latest > 0)[:, None], np.array(ON_COLOUR, np.uint8),
-                       np.array(OFF_COLOUR, np.uint8))
-    frame.reshape(-1, 3)[pixels] = colours
-    return frame

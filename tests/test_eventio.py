@@ -16,13 +16,12 @@ from sim.eventio import (
     TextEventWriter,
     check_events,
     convert_events,
-    event_frame,
-    event_stats,
     iter_event_chunks,
     make_events,
     read_events,
     read_window,
 )
+from sim.statistics import event_frame, event_stats
 
 BIG_T = 1468941032255198860  # ns: Unix time with a sub-microsecond part (1468941032.255198860 s)
 

@@ -1,0 +1,172 @@
+"""A simulated twin of a real recording: same camera, same trajectory, a poster like its view.
+
+:func:`write_twin` reads a recording in the Event-Camera Dataset layout (``calib.txt``,
+``groundtruth.txt``, ``images.txt`` + ``images/``, events) and writes a scene folder that
+``evfuse simulate`` runs:
+
+- ``scene.toml``: the recording's camera (size from its frames, intrinsics and distortion from
+  ``calib.txt``), its trajectory (``groundtruth.txt``, copied beside the scene and read as a
+  ``file`` trajectory), its frame rate, and one poster;
+- ``groundtruth.txt``: the recording's poses of the window, times shifted by ``-t0`` (a scene's
+  time starts at 0: the twin's ``t`` is the recording's ``t - t0``);
+- ``poster.png``: the recording's first frame of the window, undistorted, as the poster's
+  texture.
+
+**The poster.** A plane facing the camera's first pose of the window at ``depth`` metres (z in
+that camera's frame), sized so that the undistorted first frame covers exactly the view at that
+depth, and extended by mirroring the frame's borders so that the view stays covered over the
+whole window's motion (plus 10 %). The twin's first frame is then the recording's (up to the
+renderer's shading of the reflectance, and the frame camera's response); a real scene's
+parallax (objects at other depths) is not: every point of the twin lies at ``depth``.
+
+Only the *camera's* and the *view's* statistics are copied; the illumination is a light along
+the optical axis. ``depth`` is not read from the recording (there is no depth ground truth):
+give the depth that matters, e.g. the median of ``evfuse map`` on the recording.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from sim.sequence import load_sequence
+
+__all__ = ["write_twin"]
+
+
+def _window_poses(trajectory, t0: float, t1: float) -> np.ndarray:
+    times = np.linspace(t0, t1, 64)
+    return trajectory.pose(times)
+
+
+def write_twin(recording: str | Path, out: str | Path, depth: float,
+               window: tuple[float, float] | None = None) -> Path:
+    """Write a scene folder that simulates ``recording``'s camera and trajectory.
+
+    Parameters
+    ----------
+    recording : str or Path
+        An Event-Camera Dataset folder (``calib.txt``, ``groundtruth.txt``, ``images.txt``).
+    out : str or Path
+        Folder to write (``scene.toml``, ``groundtruth.txt``, ``poster.png``); created.
+    depth : float, metres
+        The poster's depth in the camera of the window's first pose.
+    window : (t0, t1) in seconds, optional
+        The part of the recording to copy; default the span of its poses. The poster is the
+        frame nearest ``t0`` and covers the view over the whole window.
+
+    Returns
+    -------
+    Path
+        ``out / "scene.toml"``.
+
+    Raises
+    ------
+    ValueError
+        One line naming the file or value: no poses, a window outside them, ``depth <= 0``.
+    """
+    from sim.trajectory import read_trajectory
+
+    recording, out = Path(recording), Path(out)
+    if not (math.isfinite(depth) and depth > 0):
+        raise ValueError(f"--depth must be a positive number of metres, got {depth}")
+    sequence = load_sequence(recording)
+    if sequence.groundtruth_path is None or not len(sequence.image_paths):
+        raise ValueError(f"{recording}: a twin needs groundtruth.txt and images.txt")
+    trajectory = read_trajectory(sequence.groundtruth_path)
+    t_start, t_end = float(trajectory.t_start), float(trajectory.t_end)
+    t0, t1 = window if window is not None else (t_start, t_end)
+    if not (t_start <= t0 < t1 <= t_end):
+        raise ValueError(f"window [{t0}, {t1}] s is not inside {sequence.groundtruth_path.name}'s "
+                         f"poses [{t_start:.6f}, {t_end:.6f}] s")
+    camera = sequence.camera
+    frame_index = int(np.argmin(np.abs(np.asarray(sequence.image_times) - t0)))
+    frame = cv2.imread(str(sequence.image_paths[frame_index]), cv2.IMREAD_GRAYSCALE)
+    if frame is None:
+        raise ValueError(f"{sequence.image_paths[frame_index]}: cannot read the frame")
+    K = np.array([[camera.fx, 0, camera.cx], [0, camera.fy, camera.cy], [0, 0, 1]])
+    undistorted = cv2.undistort(frame, K, np.asarray(camera.distortion))
+
+    # The view at `depth` from the first pose spans x in [-cx, W - cx] * depth / fx (camera
+    # frame; pixel (0, 0)'s centre at 0, so the image spans [-0.5, W - 0.5]).
+    width_m = camera.width / camera.fx * depth
+    height_m = camera.height / camera.fy * depth
+    left = -(camera.cx + 0.5) / camera.fx * depth
+    top = -(camera.cy + 0.5) / camera.fy * depth
+    # How far the view moves over the window, in the first camera's frame, at that depth.
+    poses = _window_poses(trajectory, t0, t1)
+    first = np.linalg.inv(poses[0])
+    centres = (first @ poses)[:, :3, 3]
+    shift = np.abs(centres[:, :2]).max(axis=0) * 1.1 + 1e-3
+    pad_x = int(math.ceil(shift[0] / width_m * camera.width))
+    pad_y = int(math.ceil(shift[1] / height_m * camera.height))
+    poster = cv2.copyMakeBorder(undistorted, pad_y, pad_y, pad_x, pad_x, cv2.BORDER_REFLECT)
+    size = (width_m * poster.shape[1] / camera.width, height_m * poster.shape[0] / camera.height)
+    centre_cam = np.array([left + size[0] / 2 - pad_x * width_m / camera.width,
+                           top + size[1] / 2 - pad_y * height_m / camera.height, depth, 1.0])
+    centre = (poses[0] @ centre_cam)[:3]
+    rotation = poses[0][:3, :3]
+    normal = -rotation[:, 2]                  # facing the camera
+    up = -rotation[:, 1]                      # texture rows run along the camera's y (down)
+
+    out.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(out / "poster.png"), poster)
+    # A scene's time starts at 0: the poses are copied with t - t0 (the twin's t = 0 is the
+    # recording's t0), those from just before t0 to just after t1.
+    rows = np.loadtxt(sequence.groundtruth_path, ndmin=2)
+    inside = np.flatnonzero((rows[:, 0] >= t0) & (rows[:, 0] <= t1))
+    keep = np.arange(max(inside[0] - 1, 0), min(inside[-1] + 2, len(rows))) if inside.size \
+        else np.flatnonzero((rows[:, 0] >= rows[rows[:, 0] <= t0, 0].max())
+                            & (rows[:, 0] <= rows[rows[:, 0] >= t1, 0].min()))
+    rows = rows[keep]
+    rows[:, 0] -= t0
+    np.savetxt(out / "groundtruth.txt", rows, fmt="%.9f")
+    frame_times = np.asarray(sequence.image_times)
+    rate = 1.0 / float(np.median(np.diff(frame_times))) if len(frame_times) > 1 else 24.0
+    name = f"twin_{recording.resolve().name}"
+    vec = lambda v: "[" + ", ".join(f"{x:.9g}" for x in v) + "]"  # noqa: E731
+    scene = f"""# Twin of the recording {recording.resolve()} (evfuse twin): its camera, its
+# trajectory (groundtruth.txt, copied), its frame rate, and its first frame of the window
+# undistorted on a poster at {depth} m. Window of the recording: {t0:.6f}-{t1:.6f} s.
+name = "{name}"
+description = "Twin of {recording.resolve().name}: its camera and poses, poster at {depth} m"
+# the recording's {t0:.6f}-{t1:.6f} s; twin time = recording time - {t0:.6f}
+duration = {t1 - t0:.9g}
+depth_range = [{depth / 2:.6g}, {depth * 2:.6g}]
+seed = 1
+
+[camera]
+width = {camera.width}
+height = {camera.height}
+fx = {camera.fx:.9g}
+fy = {camera.fy:.9g}
+cx = {camera.cx:.9g}
+cy = {camera.cy:.9g}
+distortion = {vec(camera.distortion)}
+
+[frames]
+rate = {rate:.6g}
+
+[trajectory]
+type = "file"
+path = "groundtruth.txt"
+
+[[lights]]
+type = "directional"
+direction = {vec(rotation[:, 2])}
+irradiance = 2.0
+
+[[objects]]
+name = "poster"
+type = "rectangle"
+center = {vec(centre)}
+size = {vec(size)}
+normal = {vec(normal)}
+up = {vec(up)}
+material = {{ texture = {{ type = "image", path = "poster.png" }} }}
+"""
+    (out / "scene.toml").write_text(scene)
+    return out / "scene.toml"
