@@ -178,14 +178,6 @@ def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
     simulate(scene, folder, start=job["t0"], duration=job["length"], progress=False,
              sampling=SamplingParams(lam=lam), overwrite=True)
     return folder
-    scene = load_scene(resolve_scene(job["scene"]))
-    scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render,
-                                                                   event_spp=params.event_spp))
-    if job["t0"] + job["length"] > scene.duration:
-        raise ValueError(f"{job['scene']} lasts {scene.duration} s: no window at {job['t0']} s")
-    simulate(scene, folder, start=job["t0"], duration=job["length"], progress=False,
-             sampling=SamplingParams(lam=params.lam), overwrite=True)
-    return folder
 
 
 def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams) -> dict:
