@@ -8,7 +8,9 @@ same view and scored against the same exact depth:
 - ``oracle``: the exact depth at the event map's own pixels (the map's pattern, perfect values);
 - ``oracle-edges``: the exact depth at every pixel that fired an event in the window;
 - ``oracle-noisy``: ``oracle`` with relative Gaussian noise (``noise``, default 2 %) and a share
-  of outliers (``outliers``, default 5 %, uniform over the DSI range), seeded.
+  of outliers (``outliers``, default 5 %, uniform over the DSI range), seeded;
+- ``oracle-canny``: the exact depth on the frame's own Canny edges (:data:`CANNY_THRESHOLDS`),
+  the protocol of a photograph with measured depth and a sparse map on its edges.
 
 ``oracle`` minus ``emvs`` is what the map's errors cost each method. Every method runs through
 :func:`fusion.methods.run_method`: a method that raises or returns a wrong shape, NaN or a
@@ -41,6 +43,7 @@ from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from sim.sequence import atomic_output_dir, check_output_dir
@@ -48,7 +51,10 @@ from sim.sequence import atomic_output_dir, check_output_dir
 __all__ = ["CSV_COLUMNS", "CURVE_SHARES", "INPUTS", "SCENE_GROUPS", "BenchParams", "bench",
            "coverage_curve", "run_bench"]
 
-INPUTS = ("emvs", "oracle", "oracle-edges", "oracle-noisy")
+INPUTS = ("emvs", "oracle", "oracle-edges", "oracle-noisy", "oracle-canny")
+CANNY_THRESHOLDS = (50, 150)
+"""Hysteresis thresholds of ``oracle-canny``'s edges (OpenCV's Canny on the 8-bit frame, 3x3
+Sobel, L1 gradient)."""
 """The inputs a method can be given (see the module docstring)."""
 SCENE_GROUPS = {
     "complex": ("complex_sphere", "complex_cylinder", "complex_slanted_plane",
@@ -189,7 +195,9 @@ def _inputs(map_folder: Path, params: BenchParams) -> tuple[object, dict[str, np
     noisy = np.where(oracle > 0, np.maximum(noisy, 1e-3), 0).astype(np.float32)
     inputs = {"emvs": base.sparse.astype(np.float32), "oracle": oracle,
               "oracle-edges": np.where(fired, truth, 0).astype(np.float32),
-              "oracle-noisy": noisy}
+              "oracle-noisy": noisy,
+              "oracle-canny": np.where(cv2.Canny(base.frame, *CANNY_THRESHOLDS) > 0, truth,
+                                       0).astype(np.float32)}
     return base, inputs
 
 

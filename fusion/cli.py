@@ -670,13 +670,14 @@ def _parser() -> argparse.ArgumentParser:
                     "frame at its middle with every method from each input (emvs: the event "
                     "map; oracle: exact depth at the map's pixels; oracle-edges: exact depth "
                     "at every pixel that fired; oracle-noisy: oracle with noise and "
-                    "outliers), and ranks the methods.")
+                    "outliers; oracle-canny: exact depth on the frame's Canny edges), and ranks "
+                    "the methods.")
     bench.add_argument("--scenes", default="complex",
                        help="built-in scenes, 'complex', 'sliders' or map folders, "
                             "comma-separated (default complex)")
     bench.add_argument("--input", default="oracle",
                        help="inputs, comma-separated, among emvs, oracle, oracle-edges, "
-                            "oracle-noisy (default oracle)")
+                            "oracle-noisy, oracle-canny (default oracle)")
     bench.add_argument("--method", action="append", default=None,
                        help="a method to add to the built-in ones: a name or "
                             "module:function, or NAME{KEY=VALUE,...} for it with settings of "

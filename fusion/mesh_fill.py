@@ -34,10 +34,11 @@ Steps, each on the output of the one before:
    corners (``smooth=False``: linear). A smooth surface sampled sparsely (a height field) is
    followed closely; a step larger than ``max_jump_rel`` is never bridged.
 5. **Beyond the mesh** (stage 4): pixels of the selected regions *outside* the mesh (beyond the
-   convex hull of the kept points, at the frame's borders) take the local plane of their
-   nearest kept point (pixel distance), clipped to within ``max_jump_rel`` of that point's
-   depth. Inside the mesh, a pixel that no consistent or small-jump triangle covers lies between
-   surfaces the map tells apart (the sphere's cast shadow, bounded by the sphere's outline and
+   convex hull of the kept points, at the frame's borders) take the depth of their nearest kept
+   point (pixel distance). Its local plane extrapolated over tens of pixels did worse (the
+   height field with a map on the frame's Canny edges: 4.9 cm against 3.7). Inside the mesh, a
+   pixel that no consistent or small-jump triangle covers lies between surfaces the map tells
+   apart (the sphere's cast shadow, bounded by the sphere's outline and
    the wall's): it stays empty, where the paper's weighted mean puts it between them.
 
 Map points keep their own depth. A point step 1 dropped takes the depth a stage gives its
@@ -362,17 +363,13 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                 smooth[use] = 1.0 / np.clip(values, low[use], high[use])
             take(smooth.reshape(sparse.shape), use.reshape(sparse.shape), 3,
                  STAGE_CONFIDENCE[3])
-            # Stage 4: beyond the mesh, in the paper's regions, the nearest kept point's plane.
+            # Stage 4: beyond the mesh, in the paper's regions, the nearest kept point's depth.
             beyond = region.reshape(-1) & finite & (simplex < 0) & (stage.reshape(-1) == 0)
             extrapolated = np.zeros(len(query))
             if beyond.any():
                 v, u = np.divmod(np.flatnonzero(beyond), sparse.shape[1])
                 _, nearest = cKDTree(np.stack([xs, ys], axis=1)).query(np.stack([u, v], axis=1))
-                values = planes[nearest, 0] + (planes[nearest, 1:]
-                                               * (query[beyond] - xy[nearest])).sum(axis=1)
-                own = w[nearest]
-                jump = 1 + params.max_jump_rel
-                extrapolated[beyond] = 1.0 / np.clip(values, own / jump, own * jump)
+                extrapolated[beyond] = 1.0 / w[nearest]
             take(extrapolated.reshape(sparse.shape), beyond.reshape(sparse.shape), 4,
                  STAGE_CONFIDENCE[4])
 

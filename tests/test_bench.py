@@ -229,3 +229,15 @@ def test_the_coverage_curve_keeps_the_most_confident_pixels_first():
     assert curve[5 / 9] == pytest.approx(3.0)                # 1..5 cm
     assert curve[1.0] == pytest.approx(5.0)                  # all nine filled pixels
     assert dict(coverage_curve(dense, truth, truth, confidence, (0.5,)))[0.5] is None
+
+
+def test_the_canny_input_is_the_exact_depth_on_the_frames_edges(tiny_map):
+    import cv2
+
+    from fusion.benchmark import CANNY_THRESHOLDS, BenchParams, _inputs
+
+    base, inputs = _inputs(tiny_map / "run" / "map", BenchParams())
+    edges = cv2.Canny(base.frame, *CANNY_THRESHOLDS) > 0
+    canny = inputs["oracle-canny"]
+    assert edges.any() and np.array_equal(canny > 0, edges & (base.truth > 0))
+    np.testing.assert_array_equal(canny[canny > 0], base.truth[canny > 0].astype(np.float32))
