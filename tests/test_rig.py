@@ -333,3 +333,19 @@ def test_an_imperfect_rig_without_its_exact_files_is_not_scored(rig_sequence, tm
         exact_camera(sequence)
     with pytest.raises(ValueError, match="imperfect rig but there is no groundtruth_exact.txt"):
         exact_trajectory(sequence)
+
+
+def test_run_on_a_scene_with_a_late_mocap_maps_what_its_poses_cover(tmp_path):
+    """`evfuse run` on a scene whose [rig] stamps the poses 3 ms late: the simulated window's
+    poses start 3 ms into it, so the map is clipped to them (and says so) instead of refused;
+    the map is scored (its truth from the exact files)."""
+    scene = tmp_path / "late.toml"
+    scene.write_text(scene_text(WALL, trajectory=FAST, duration=0.3, extra=PLANE_EXTRA
+                                + '[rig]\npreset = "mocap"\n'))
+    run = tmp_path / "run"
+    assert main(["run", str(scene), "--out", str(run), "--t0", "0.0", "--t1", "0.3",
+                 "--min-depth", "0.5", "--max-depth", "2.0", "--quiet"]) == 0
+    report = json.loads((run / "report.json").read_text())
+    assert report["window_clipped"] is True and report["window_requested_s"] == [0.0, 0.3]
+    np.testing.assert_allclose(report["window_s"], [0.003, 0.3], atol=1e-9)
+    assert report["map_errors_at_reference"]["n"] > 100
