@@ -203,6 +203,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from scenes import resolve_scene
     from sim.events import EventParams
+    from sim.rig import RigParams
     from sim.sampling import SamplingParams
     from sim.scene import load_scene
     from sim.simulate import simulate
@@ -218,13 +219,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         raise ValueError(f"--min-rate {args.min_rate:g} and --max-rate {args.max_rate:g}: "
                          "expected 0 < --min-rate <= --max-rate (Hz)")
     scene = load_scene(resolve_scene(args.scene), seed=args.seed)
+    rig = None if args.rig is None else RigParams.from_preset(args.rig)
     events = EventParams.preset(args.noise, contrast=args.contrast, seed=scene.seed)
     sampling = SamplingParams(lam=args.lam, min_rate=args.min_rate, max_rate=args.max_rate)
     formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
     result = simulate(scene, args.out, duration=args.duration, start=args.start, spp=args.spp,
                       variant=args.variant, overwrite=args.overwrite, progress=not args.quiet,
                       events=events, sampling=sampling, with_events=not args.no_events,
-                      event_formats=formats, resume=args.resume, sampler=args.sampler)
+                      event_formats=formats, resume=args.resume, sampler=args.sampler, rig=rig)
     what = f"{result.n_frames} frames and depth maps ({result.n_renders} renders)"
     if result.n_events is not None and result.sampler == "pixel":
         what += (f", {result.n_events} events ({result.event_renders} frames and "
@@ -759,6 +761,13 @@ def _parser() -> argparse.ArgumentParser:
                           help="event files to write: h5, txt or both (default h5,txt)")
     simulate.add_argument("--no-events", action="store_true",
                           help="render frames and depth only")
+    simulate.add_argument("--rig", choices=("perfect", "mocap", "lab"), default=None,
+                          help="pose noise, clock offsets and calibration error of the written "
+                               "groundtruth.txt, time stamps and calib.txt: perfect, mocap "
+                               "(0.5 mm / 0.1 deg jitter, drift, poses 3 ms late) or lab (mocap "
+                               "plus calibration error); the truth is kept in "
+                               "groundtruth_exact.txt and calib_exact.txt (default: the scene's "
+                               "[rig], else perfect)")
     simulate.add_argument("--resume", action="store_true",
                           help="continue an interrupted run of the same command from the "
                                "checkpoint it left in OUT.partial (the result is the same as an "

@@ -188,9 +188,14 @@ class TimeWindow:
 
 
 def _events_span(sequence: Sequence, events_path: Path) -> tuple[float, float]:
-    """The time the events cover (s): a simulated sequence's whole simulated interval (the event
-    camera watched all of it, quiet or not), else the first and last event."""
+    """The time the events cover (s): a simulated sequence's whole simulated interval on the
+    event camera's clock (the event camera watched all of it, quiet or not; ``events.span_s``,
+    else ``start`` and ``duration``), else the first and last event."""
     meta = sequence.metadata or {}
+    span = (meta.get("events") or {}).get("span_s")
+    if (isinstance(span, list) and len(span) == 2
+            and all(isinstance(v, int | float) for v in span) and span[1] > span[0]):
+        return float(span[0]), float(span[1])
     start, duration = meta.get("start"), meta.get("duration")
     if isinstance(start, int | float) and isinstance(duration, int | float) and duration > 0:
         return float(start), float(start) + float(duration)
@@ -279,23 +284,29 @@ def time_window(sequence: Sequence, t0: float | None = None, t1: float | None = 
     return TimeWindow((t0, t1), used[0], used[1], clipped, t_ref, events, poses)
 
 
-def _ground_truth_depth(sequence: Sequence, t_ref: float, pose: np.ndarray,
-                        camera: Camera) -> np.ndarray | None:
-    """Exact depth of the reference view in the map's own pixel grid, or None without a scene.
+def _ground_truth_depth(sequence: Sequence, t_ref: float) -> np.ndarray | None:
+    """Exact depth of the reference view, in the pixel grid the map should have, or None
+    without a scene. Scoring only: the one place that reads the rig's exact files.
 
-    The map lives in ``camera``, the reference view's undistorted virtual camera. The exact
-    depth written in ``depth/`` is in the sensor's pixels: it is used only when the sensor is
-    that same camera (no distortion) and a depth map was written at ``t_ref`` exactly. Otherwise
-    (lens distortion, or no depth map at that time) the scene of ``sequence.json`` is rendered in
-    ``camera`` at ``t_ref`` and ``pose``: an exact z-depth at the centres of the map's pixels,
-    never an interpolation of the distorted one.
+    The map is the depth seen from the reference view: the camera whose pose ``groundtruth.txt``
+    gives at ``t_ref``, in that camera's undistorted pixels. With a perfect rig that is the pose
+    and calibration the map was built with. With an imperfect one (:mod:`sim.rig`) the truth is
+    the TRUE camera at that instant: the exact pose (``groundtruth_exact.txt``) at the true time
+    ``t_ref - poses_offset``, and the true intrinsics (``calib_exact.txt``) without distortion.
+    So a map built from noisy poses or a wrong calibration is scored against what it should have
+    been, and its errors include theirs; it is never compared with a truth rendered at its own
+    (wrong) pose.
+
+    The exact depth written in ``depth/`` is used when it is that very image (a sensor without
+    distortion and a depth map at the true reference time; ``depthmaps.txt`` is on the frames'
+    clock); otherwise the scene of ``sequence.json`` is rendered in the true undistorted camera at
+    the true pose and time: an exact z-depth at the centres of the map's pixels, never an
+    interpolation of the distorted one.
 
     Parameters
     ----------
     sequence : Sequence
-    t_ref : float, seconds
-    pose : (4, 4) ndarray, T_world_ref
-    camera : Camera, the reference view's virtual camera (no distortion)
+    t_ref : float, seconds, on the poses' clock (as ``map.json``'s ``t_ref``)
 
     Returns
     -------
@@ -303,18 +314,26 @@ def _ground_truth_depth(sequence: Sequence, t_ref: float, pose: np.ndarray,
     """
     meta = sequence.metadata or {}
     toml = (meta.get("scene") or {}).get("toml")
-    same_grid = sequence.camera == camera
-    k = sequence.nearest_depth(t_ref) if same_grid else None
-    if k is not None:
-        return read_depth(sequence.depth_paths[k])
     if not toml:
         return None
+    from sim.rig import exact_camera, exact_trajectory, true_time
+
+    sensor = exact_camera(sequence)
+    camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
+    t_true = true_time(meta, t_ref, "poses")
+    k = None
+    if not sensor.has_distortion:
+        frames_offset = t_ref - true_time(meta, t_ref, "frames")
+        k = sequence.nearest_depth(t_true + frames_offset)
+    if k is not None:
+        return read_depth(sequence.depth_paths[k])
     from sim.render import Renderer
     from sim.scene import parse_scene
 
+    pose = exact_trajectory(sequence).pose(t_true)
     source = (meta.get("scene") or {}).get("source") or "<sequence.json>"
     scene = replace(parse_scene(toml, source, seed=meta.get("seed")), camera=camera)
-    return Renderer(scene, spp=1).depth(t_ref, pose=pose)
+    return Renderer(scene, spp=1).depth(t_true, pose=pose)
 
 
 RANGE_SHARE = 0.5
@@ -464,7 +483,7 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     }
     # Scoring, the only step that reads the exact depth (a simulated sequence's), and only after
     # the map is made: a range that misses the scene is refused with the scene's true span.
-    truth = _ground_truth_depth(sequence, t_ref, T_world_ref, camera)
+    truth = _ground_truth_depth(sequence, t_ref)
     if truth is not None and params.check_depth_range:
         _check_range_contains(truth, params.dsi)
     if params.check_depth_range:

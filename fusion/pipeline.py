@@ -240,11 +240,14 @@ def _run(source, out: Path, params: RunParams, method: FillMethod, overwrite: bo
                                                        progress, timings)
             simulated_here = True
         tick = time.perf_counter()
+        # A window simulated here is all the data there is: a rig's clock offsets (sim.rig)
+        # leave its events and poses a few ms short of it at one end, so it is clipped to them
+        # (recorded as clipped) instead of refused.
         mapped, map_params = map_window(
             sequence_folder, tmp / "map", t0, t1, min_depth=params.min_depth,
             max_depth=params.max_depth, oracle_depth_range=params.oracle_depth_range,
-            planes=params.planes, depth=params.depth, clip_window=params.clip_window,
-            progress=progress)
+            planes=params.planes, depth=params.depth,
+            clip_window=params.clip_window or simulated_here, progress=progress)
         timings["map_s"] = time.perf_counter() - tick
         tick = time.perf_counter()
         if paper_weighting(method) is not None:

@@ -21,6 +21,7 @@ import numpy as np
 
 from sim.camera import Camera, camera_preset
 from sim.frames import FrameParams
+from sim.rig import RIG_PRESETS, RigParams
 from sim.se3 import look_at, make_pose, rotation_from_euler, so3_exp
 from sim.trajectory import (
     HandheldTrajectory,
@@ -251,6 +252,9 @@ class Scene:
         DSI that ``evfuse map`` / ``run`` / ``reproduce`` use for this scene's sequences unless
         the user gives one. A declaration, as a person setting up the rig would choose it (as
         rpg_emvs's configs declare one per sequence), never computed from the exact depth.
+    rig : RigParams
+        How the written poses, clocks and calibration depart from the truth (``[rig]``;
+        default perfect, :mod:`sim.rig`).
     """
 
     name: str
@@ -266,6 +270,7 @@ class Scene:
     source: Path | None = None
     text: str = ""
     depth_range: tuple[float, float] | None = None
+    rig: RigParams = field(default_factory=RigParams)
 
     @property
     def base_dir(self) -> Path:
@@ -437,6 +442,38 @@ def _parse_frames(ctx: _Ctx, raw: Any) -> FrameParams:
         return FrameParams(**values)
     except ValueError as exc:                       # name the TOML key, not the dataclass field
         raise ctx.fail(key, str(exc).replace("FrameParams.", f"{key} ")) from None
+
+
+_RIG_KEYS = {  # TOML key -> (RigParams field, factor to SI units)
+    "position_sigma": ("position_sigma", 1.0),
+    "rotation_sigma": ("rotation_sigma", math.pi / 180),       # degrees in scene files
+    "position_walk": ("position_walk", 1.0),
+    "rotation_walk": ("rotation_walk", math.pi / 180),         # deg/sqrt(s)
+    "events_offset": ("events_offset", 1.0),
+    "frames_offset": ("frames_offset", 1.0),
+    "poses_offset": ("poses_offset", 1.0),
+    "focal_sigma": ("focal_sigma", 1.0),
+    "principal_point_sigma": ("principal_point_sigma", 1.0),
+}
+
+
+def _parse_rig(ctx: _Ctx, raw: Any) -> RigParams:
+    """``[rig]``: a ``preset`` (default ``perfect``) and any of its fields replaced."""
+    key = "[rig]"
+    table = ctx.table(raw, key)
+    ctx.keys(table, key, set(), {"preset", "distortion_sigma", *_RIG_KEYS})
+    preset = _get(ctx, table, key, "preset",
+                  lambda c, v, k: _string(c, v, k, tuple(RIG_PRESETS)), "perfect")
+    changes: dict[str, Any] = {}
+    for name, (attribute, factor) in _RIG_KEYS.items():
+        if name in table:
+            nonneg = not name.endswith("_offset")
+            changes[attribute] = factor * _number(ctx, table[name], f"{key}.{name}",
+                                                  nonneg=nonneg)
+    if "distortion_sigma" in table:
+        changes["distortion_sigma"] = tuple(_vector(ctx, table["distortion_sigma"],
+                                                    f"{key}.distortion_sigma", 5, nonneg=True))
+    return RigParams.from_preset(preset, **changes)
 
 
 def _parse_render(ctx: _Ctx, raw: Any) -> RenderParams:
@@ -776,7 +813,8 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{source}: not valid TOML: {exc}") from None
     top_required = {"duration", "camera", "trajectory", "objects"}
-    top_optional = {"name", "description", "seed", "frames", "render", "lights", "depth_range"}
+    top_optional = {"name", "description", "seed", "frames", "render", "lights", "depth_range",
+                    "rig"}
     ctx.keys(raw, "top level", top_required, top_optional)
     name = _get(ctx, raw, "", "name", _string, source_path.stem if source_path else "scene")
     description = _get(ctx, raw, "", "description", _string, "")
@@ -789,6 +827,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     camera = _parse_camera(ctx, raw["camera"])
     frames = _parse_frames(ctx, raw.get("frames", {}))
     render = _parse_render(ctx, raw.get("render", {}))
+    rig = _parse_rig(ctx, raw.get("rig", {}))
     trajectory = _parse_trajectory(ctx, raw["trajectory"], base_dir, seed)
     if not (trajectory.t_start <= 0 and duration <= trajectory.t_end):
         raise ctx.fail("duration", f"the trajectory covers [{trajectory.t_start}, "
@@ -809,7 +848,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
         raise ctx.fail("[[objects]]", f"object name {duplicate!r} is used twice")
     _check_metres(ctx, objects, trajectory, duration)
     return Scene(name, description, duration, seed, camera, frames, render, trajectory, lights,
-                 objects, source_path, text, depth_range)
+                 objects, source_path, text, depth_range, rig)
 
 
 def load_scene(path: str | Path, *, seed: int | None = None) -> Scene:

@@ -33,7 +33,7 @@ import platform
 import sys
 import time
 from contextlib import ExitStack, contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from importlib import metadata
 from pathlib import Path
 
@@ -55,6 +55,16 @@ from sim.frames import (
 from sim.pixel_sampling import PixelEventEmulator, PixelSamplingStats, pixel_blocks
 from sim.progress import progress as progress_stage
 from sim.render import Renderer
+from sim.rig import (
+    EXACT_CALIB,
+    EXACT_POSES,
+    RIG_STREAM,
+    RigParams,
+    calibration_error,
+    noisy_poses,
+    pose_noise,
+    rig_generator,
+)
 from sim.sampling import (
     AT_MAX_RATE_NOTE,
     Sample,
@@ -151,7 +161,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
              progress: bool = True, events: EventParams | None = None,
              sampling: SamplingParams | None = None, with_events: bool = True,
              event_formats: tuple[str, ...] = ("h5", "txt"),
-             resume: bool = False, sampler: str | None = None) -> SimulationResult:
+             resume: bool = False, sampler: str | None = None,
+             rig: RigParams | None = None) -> SimulationResult:
     """Render a scene into a sequence folder.
 
     Parameters
@@ -195,6 +206,11 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         renders whole frames at one adaptive rate (:mod:`sim.sampling`). Default: ``pixel``
         where it applies, else ``frame``; the choice is said once on stderr and recorded in
         ``sequence.json``.
+    rig : RigParams, optional
+        Pose noise, clock offsets and calibration error of the written files (default the
+        scene's ``[rig]``, perfect unless it says otherwise; :mod:`sim.rig`). The truth is
+        written beside them: ``groundtruth_exact.txt``, ``calib_exact.txt``; ``depth/`` is
+        always exact, indexed by the frames' written times.
 
     Returns
     -------
@@ -204,7 +220,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     ------
     ValueError
         A duration that is not positive, a window ``[start, start + duration]`` outside the
-        scene (its duration, and its trajectory's valid range), or an existing ``out``
+        scene (its duration, and its trajectory's valid range), a rig offset that would write
+        a time before 0 s, or an existing ``out``
         without ``overwrite``. With ``resume``: a complete ``out`` (without ``overwrite``), no
         ``<out>.partial`` or no checkpoint in it, or a checkpoint of a run with other inputs
         (the message names them).
@@ -226,6 +243,13 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     if not (lo <= start and end <= hi + 1e-9):
         raise ValueError(f"time window [{start}, {end}] s is outside the scene {scene.name}, "
                          f"which covers [{lo}, {hi}] s (its duration and trajectory)")
+    if rig is not None:
+        scene = replace(scene, rig=rig)
+    for stream, offset in scene.rig.offsets.items():
+        if start + offset < 0:
+            raise ValueError(f"rig {stream}_offset {offset:g} s would write {stream} times "
+                             f"before 0 s from --start {start:g} s; expected start + offset "
+                             ">= 0 (simulate from a later --start or use a positive offset)")
     params = scene.frames
     times = start + frame_times(duration, params)
     if len(times) == 0:
@@ -259,9 +283,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     timings["setup"] = time.perf_counter() - clock
     with atomic_output_dir(out, overwrite=overwrite, resume=resume) as tmp:
         checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
-        write_calib(tmp / "calib.txt", scene.camera)
-        pose_times = sample_times(start, end, scene.render.pose_rate)
-        write_trajectory(tmp / "groundtruth.txt", pose_times, traj.pose(pose_times))
+        rig_record = _write_rig(tmp, scene, sample_times(start, end, scene.render.pose_rate))
         gain, image_names, depth_names = _simulate_frames(scene, renderer, tmp, times,
                                                           checkpoint, progress, timings)
         event_info = checkpoint.events_done
@@ -274,8 +296,9 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         if with_events and event_info.get("sampling_warning"):
             print(f"simulate {scene.name}: warning: {event_info['sampling_warning']}",
                   file=sys.stderr, flush=True)
-        write_index(tmp / "images.txt", times, image_names)
-        write_index(tmp / "depthmaps.txt", times, depth_names)
+        # depth map k is frame k's (rendered at its true time): both on the frames' clock
+        write_index(tmp / "images.txt", times + scene.rig.frames_offset, image_names)
+        write_index(tmp / "depthmaps.txt", times + scene.rig.frames_offset, depth_names)
         cam = scene.camera
         write_sequence_json(tmp / "sequence.json", {
             "format": "evfuse sequence 1",
@@ -293,7 +316,10 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                        "pose_rate": scene.render.pose_rate, "renders": len(times)
                        * params.exposure_samples},
             "depth": {"kind": "z", "units": "m", "at": "pixel centres, frame mid-exposure times"},
-            "events": event_info if with_events else None,
+            "events": {**event_info, "span_s": [start + scene.rig.events_offset,
+                                                end + scene.rig.events_offset]}
+                      if with_events else None,
+            "rig": rig_record,
             "software": _versions(),
             "timings_s": {k: round(v, 3) for k, v in timings.items()},
         })
@@ -305,6 +331,53 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                             event_info["renders"] if with_events else 0,
                             event_info.get("pixel_samples", 0) if with_events else 0,
                             event_info.get("sampler", "frame") if with_events else None)
+
+
+# --- the rig: written poses and calibration, the exact ones beside them -----------------------
+
+def _write_rig(folder: Path, scene: Scene, pose_times: np.ndarray) -> dict:
+    """Write ``calib.txt`` and ``groundtruth.txt`` as the rig gives them (:mod:`sim.rig`), and
+    ``calib_exact.txt`` and ``groundtruth_exact.txt`` (the truth, for scoring only); return
+    ``sequence.json``'s ``rig`` record. A perfect rig writes the same bytes twice."""
+    rig, seed = scene.rig, scene.seed
+    poses = scene.trajectory.pose(pose_times)
+    camera, drawn = calibration_error(scene.camera, rig, rig_generator(seed, "calibration"))
+    dp, dw = pose_noise(pose_times, rig, rig_generator(seed, "poses"))
+    write_calib(folder / "calib.txt", camera)
+    write_calib(folder / EXACT_CALIB, scene.camera)
+    write_trajectory(folder / "groundtruth.txt", pose_times + rig.poses_offset,
+                     noisy_poses(poses, dp, dw))
+    write_trajectory(folder / EXACT_POSES, pose_times, poses)
+    return {
+        "perfect": rig.is_perfect,
+        "params": rig.as_dict(),
+        "units": "m, rad, m/sqrt(s), rad/sqrt(s), s; focal_sigma relative, "
+                 "principal_point_sigma px",
+        "seed": seed,
+        "streams": {"poses": [seed, RIG_STREAM, 0], "calibration": [seed, RIG_STREAM, 1]},
+        "clock": "the true (scene) clock is the reference: a stream's written time = true "
+                 "time + its offset",
+        "offsets_s": rig.offsets,
+        "calibration_error": drawn,
+        "pose_error_rms": {"position_m": float(np.sqrt(np.mean(dp ** 2))),
+                           "rotation_rad": float(np.sqrt(np.mean(dw ** 2)))},
+        "exact_files": [EXACT_POSES, EXACT_CALIB, "depthmaps.txt", "depth/"],
+    }
+
+
+class _OnEventClock:
+    """An event writer that shifts every event by the event stream's clock offset (ns)."""
+
+    def __init__(self, writer: H5EventWriter | TextEventWriter, offset_ns: int) -> None:
+        self._writer, self._offset_ns = writer, offset_ns
+
+    def write(self, events: np.ndarray) -> None:
+        shifted = events.copy()
+        shifted["t"] += self._offset_ns
+        self._writer.write(shifted)
+
+    def checkpoint(self) -> dict:
+        return self._writer.checkpoint()
 
 
 # --- standard-camera frames --------------------------------------------------------------------
@@ -541,6 +614,9 @@ def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions
         if "txt" in formats:
             writers["txt"] = stack.enter_context(TextEventWriter(
                 folder / "events.txt", resume=positions.get("txt")))
+        offset_ns = round(scene.rig.events_offset * 1e9)
+        if offset_ns:
+            writers = {fmt: _OnEventClock(writer, offset_ns) for fmt, writer in writers.items()}
         yield bar, writers
 
 
@@ -644,7 +720,8 @@ def _identity(scene: Scene, start: float, duration: float, spp: int | None,
     identity = {
         "scene_toml_sha256": hashlib.sha256(scene.text.encode("utf-8")).hexdigest(),
         "scene": {"duration": scene.duration, "camera": asdict(scene.camera),
-                  "frames": asdict(scene.frames), "render": asdict(scene.render)},
+                  "frames": asdict(scene.frames), "render": asdict(scene.render),
+                  "rig": scene.rig.as_dict()},
         "seed": scene.seed,
         "start": start,
         "duration": duration,

@@ -272,7 +272,6 @@ def test_map_is_scored_in_its_own_undistorted_grid(tmp_path):
     from sim.scene import parse_scene
     from sim.sequence import load_sequence
     from sim.simulate import simulate
-    from sim.trajectory import read_trajectory
     from tests.conftest import scene_text
 
     extra = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 1\n"
@@ -284,14 +283,13 @@ def test_map_is_scored_in_its_own_undistorted_grid(tmp_path):
     assert sensor.has_distortion
     camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
     t = float(sequence.depth_times[0])
-    pose = read_trajectory(sequence.groundtruth_path).pose(t)
     perfect = _box_depth(camera)
     edges = np.zeros(perfect.shape, bool)                      # both sides of each depth step
     edges[:, 1:] |= perfect[:, 1:] != perfect[:, :-1]
     edges[:, :-1] |= perfect[:, 1:] != perfect[:, :-1]
     edges[1:, :] |= perfect[1:, :] != perfect[:-1, :]
     edges[:-1, :] |= perfect[1:, :] != perfect[:-1, :]
-    truth = _ground_truth_depth(sequence, t, pose, camera)
+    truth = _ground_truth_depth(sequence, t)
     distorted = read_depth(sequence.depth_paths[0])            # the sensor's pixels
     for name, semidense in (("all pixels", perfect), ("edge pixels", np.where(edges, perfect, 0))):
         right = depth_errors(semidense, truth)
