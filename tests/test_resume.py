@@ -39,7 +39,7 @@ material = { texture = { type = "checkerboard", squares = [24, 24], color0 = 0.0
 # Noisy frames under auto-exposure (a responsivity that keeps it inside its range): every
 # frame's exposure and noise must survive a resume.
 EXTRA = ("[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 2\n"
-         "sensor = { preset = \"machine_vision\", responsivity = 2e6 }\n[render]\nspp = 4\n")
+         "sensor = { preset = \"machine_vision\", responsivity = 1e8 }\n[render]\nspp = 4\n")
 TEXT = scene_text(CHECKER, trajectory=FAST, duration=0.12, extra=EXTRA)
 # The realistic sensor draws from its generator at every step and carries low-pass state.
 EVENTS = EventParams.preset("realistic", seed=3)
@@ -125,7 +125,7 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_files(full, tmp_path, m
     assert not out.exists()
     assert _files(partial / "images") == ["frame_00000000.png"]
     exposures = json.loads((state / "checkpoint.json").read_text())["exposures"]
-    assert len(exposures) == 2 and 0 < exposures[1] <= 0.01 and exposures[0] != exposures[1]
+    assert len(exposures) == 2 and all(0 < e < 0.01 for e in exposures)   # inside its range
 
     # 2. Resumed, and interrupted in the events just before the second half of a split
     # interval, long after the last checkpoint (taken before its first half).
