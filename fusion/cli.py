@@ -242,6 +242,11 @@ def _with_frame_sensor(scene, name: str):
     """The scene with its standard camera's sensor replaced (``--frame-sensor``)."""
     import dataclasses
 
+    from sim.frames import FRAME_SENSOR_NAMES
+
+    if name not in FRAME_SENSOR_NAMES:
+        raise ValueError(f"--frame-sensor {name!r}: expected one of "
+                         f"{', '.join(FRAME_SENSOR_NAMES)}")
     try:
         return dataclasses.replace(scene, frames=scene.frames.with_sensor(name))
     except ValueError as exc:

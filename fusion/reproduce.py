@@ -133,6 +133,10 @@ class ReproduceParams:
         unknown = set(self.tables) - {"1", "2", "3", "complex"}
         if unknown:
             raise ValueError(f"unknown tables {sorted(unknown)}: choose among 1, 2, 3, complex")
+        if (isinstance(self.frame_sensor, str) and self.frame_sensor != "ideal"
+                and self.frame_sensor not in FRAME_SENSORS):
+            raise ValueError(f"--frame-sensor {self.frame_sensor!r}: expected one of ideal, "
+                             f"{', '.join(FRAME_SENSORS)}")
         from fusion.methods import MethodVariant
 
         # An unknown method or a bad setting is refused up front; kept checked and coerced.
