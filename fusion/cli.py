@@ -220,6 +220,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                          "expected 0 < --min-rate <= --max-rate (Hz)")
     scene = load_scene(resolve_scene(args.scene), seed=args.seed)
     rig = None if args.rig is None else RigParams.from_preset(args.rig)
+    if args.frame_sensor is not None:
+        scene = _with_frame_sensor(scene, args.frame_sensor)
     events = EventParams.preset(args.noise, contrast=args.contrast, seed=scene.seed)
     sampling = SamplingParams(lam=args.lam, min_rate=args.min_rate, max_rate=args.max_rate)
     formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
@@ -236,6 +238,21 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     print(f"wrote {what} with {result.variant} in {result.timings['total']:.1f} s to "
           f"{result.out}")
     return 0
+
+
+def _with_frame_sensor(scene, name: str):
+    """The scene with its standard camera's sensor replaced (``--frame-sensor``)."""
+    import dataclasses
+
+    from sim.frames import FRAME_SENSOR_NAMES
+
+    if name not in FRAME_SENSOR_NAMES:
+        raise ValueError(f"--frame-sensor {name!r}: expected one of "
+                         f"{', '.join(FRAME_SENSOR_NAMES)}")
+    try:
+        return dataclasses.replace(scene, frames=scene.frames.with_sensor(name))
+    except ValueError as exc:
+        raise ValueError(f"--frame-sensor {name}: {exc}") from None
 
 
 def _events_file(folder: Path) -> Path:
@@ -541,7 +558,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     methods = tuple(_method_variants(split_labels(",".join(args.method or [])),
                                      args.param or []))
     params = ReproduceParams(window=args.window, long_window=args.long_window, tables=tables,
-                             scenes=scenes, methods=methods)
+                             scenes=scenes, methods=methods, frame_sensor=args.frame_sensor)
     report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
                        progress=not args.quiet)
     print(f"{len(report['rows'])} windows in {report['total_s'] / 60:.1f} min")
@@ -745,6 +762,9 @@ def _parser() -> argparse.ArgumentParser:
                           help="contrast thresholds C+ = C- of the event camera (default 0.2)")
     simulate.add_argument("--noise", choices=("ideal", "realistic"), default="ideal",
                           help="event-camera noise preset (default ideal: no noise)")
+    simulate.add_argument("--frame-sensor", default=None, metavar="NAME",
+                          help="the standard camera's sensor: ideal (no noise), davis240c_aps "
+                               "or machine_vision (default: the scene's [frames] sensor)")
     simulate.add_argument("--lambda", dest="lam", type=float, default=0.5,
                           help="adaptive sampling: largest change of log intensity between "
                                "renders, as a fraction of C (default 0.5)")
@@ -877,6 +897,9 @@ def _parser() -> argparse.ArgumentParser:
     repro.add_argument("--tables", default="1,2,3,complex",
                        help="tables to make, among 1,2,3,complex (default all)")
     repro.add_argument("--scenes", default=None, help="only these scenes (comma-separated)")
+    repro.add_argument("--frame-sensor", default=None, metavar="NAME",
+                       help="every scene's standard-camera sensor: ideal, davis240c_aps or "
+                            "machine_vision (default: each scene's own)")
     repro.add_argument("--method", action="append", default=None,
                        help="a filling method to run on every window besides the paper's "
                             "(repeatable or comma-separated; NAME{KEY=VALUE,...} with settings "

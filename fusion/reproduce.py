@@ -22,6 +22,8 @@ report says what was used.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -34,6 +36,7 @@ from fusion.emvs import DepthMapParams
 from fusion.filling import FillParams
 from fusion.jsonio import to_json
 from fusion.pipeline import fill_window, map_window
+from sim.frame_sensor import FRAME_SENSORS, FrameSensor
 from sim.progress import progress as progress_stage
 from sim.sequence import atomic_output_dir, check_output_dir
 
@@ -96,6 +99,10 @@ class ReproduceParams:
         Which tables to make, among "1", "2", "3", "complex" (default all).
     scenes : tuple of str or None
         Only these scenes (default all of each table).
+    frame_sensor : str or FrameSensor or None
+        Every scene's standard-camera sensor (:class:`sim.frames.FrameParams` ``sensor``:
+        ``ideal``, ``davis240c_aps``, ``machine_vision`` or a
+        :class:`sim.frame_sensor.FrameSensor`); default None: each scene file's own.
     methods : tuple of str or MethodVariant
         Filling methods to run on every window besides the paper's (default none):
         :func:`fusion.methods.get_method` specs, labels with settings of their own
@@ -117,6 +124,7 @@ class ReproduceParams:
     scenes: tuple[str, ...] | None = None
     dense: DenseParams = field(default_factory=DenseParams)
     methods: tuple = ()
+    frame_sensor: str | FrameSensor | None = None
 
     def __post_init__(self) -> None:
         if not (self.window > 0 and self.long_window > 0):
@@ -125,6 +133,10 @@ class ReproduceParams:
         unknown = set(self.tables) - {"1", "2", "3", "complex"}
         if unknown:
             raise ValueError(f"unknown tables {sorted(unknown)}: choose among 1, 2, 3, complex")
+        if (isinstance(self.frame_sensor, str) and self.frame_sensor != "ideal"
+                and self.frame_sensor not in FRAME_SENSORS):
+            raise ValueError(f"--frame-sensor {self.frame_sensor!r}: expected one of ideal, "
+                             f"{', '.join(FRAME_SENSORS)}")
         from fusion.methods import MethodVariant
 
         # An unknown method or a bad setting is refused up front; kept checked and coerced.
@@ -160,6 +172,23 @@ def _event_quality(scene, params: ReproduceParams) -> tuple[int, float]:
     return params.event_spp, params.lam
 
 
+def _sensor_tag(frames) -> str:
+    """The frame sensor in a cache folder's name: its preset, or a hash of its settings."""
+    if frames.ideal or frames.sensor.name in FRAME_SENSORS:
+        tag = frames.sensor_name
+        if frames.ideal or frames.sensor == FRAME_SENSORS[tag]:
+            return tag
+    text = json.dumps(dataclasses.asdict(frames.sensor), sort_keys=True)
+    return f"{frames.sensor.name}-{hashlib.sha256(text.encode()).hexdigest()[:10]}"
+
+
+def _frame_sensor_of(folder: Path) -> str:
+    """The standard camera's sensor a simulated window was made with (its sequence.json)."""
+    frames = json.loads((folder / "sequence.json").read_text(encoding="utf-8"))["frames"]
+    sensor = frames.get("sensor", "ideal")
+    return sensor if isinstance(sensor, str) else sensor["name"]
+
+
 def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
     """The cached simulation of a job's window (simulated when missing)."""
     from scenes import resolve_scene
@@ -168,8 +197,11 @@ def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
     from sim.simulate import simulate
 
     scene = load_scene(resolve_scene(job["scene"]))
+    if params.frame_sensor is not None:
+        scene = dataclasses.replace(scene, frames=scene.frames.with_sensor(params.frame_sensor))
     spp, lam = _event_quality(scene, params)
-    folder = cache / f"{job['scene']}_{job['t0']:.3f}_{job['length']:.3f}_spp{spp}_lam{lam}"
+    folder = cache / (f"{job['scene']}_{job['t0']:.3f}_{job['length']:.3f}_spp{spp}_lam{lam}"
+                      f"_{_sensor_tag(scene.frames)}")
     if (folder / "sequence.json").is_file():
         return folder
     scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render, event_spp=spp))
@@ -263,6 +295,7 @@ def reproduce(out: str | Path, params: ReproduceParams | None = None,
             except ValueError as exc:            # e.g. a map with too little parallax
                 row = {"scene": job["scene"], "table": job["table"], "failed": str(exc),
                        "window_s": [job["t0"], job["t0"] + job["length"]]}
+            row["frame_sensor"] = _frame_sensor_of(folder)
             row["seconds"] = {"simulate (0 when cached)": simulated,
                               "map_fill": time.perf_counter() - tick - simulated}
             rows.append(row)
@@ -351,8 +384,10 @@ def _markdown(report: dict, params: ReproduceParams) -> str:
                 f"{_f(_mae(e, 'filled'))} | {_f(_mae(e, 'all'))} | {_coverage(e, 'all')} |")
         windows = ("the same windows" if params.table1_start is None
                    and params.long_window == 2.0 else "other windows")
+        sensors = ", ".join(sorted({r.get("frame_sensor", "ideal") for r in table1}))
         lines += ["", "The paper's N1 and N2 are from a real DAVIS240C on its own windows; ours "
-                  f"come from noiseless simulated twins on {windows}, so the counts are "
+                  f"come from simulated twins (frame sensor: {sensors}) on {windows}, so the "
+                  "counts are "
                   "comparable in size, not equal. N1 counts the map's points, N1 in frame those "
                   "that land in the frame after projection; beta = (N2 - N1 in frame) / "
                   "(Res + N1 in frame / Res), "

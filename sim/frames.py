@@ -2,26 +2,35 @@
 
 A frame integrates the scene's linear luminance over its exposure (approximated by averaging
 ``exposure_samples`` renders, see :func:`exposure_sample_times`) and turns it into an 8-bit
-gray value through :func:`luminance_to_frame`::
+gray value through its sensor (``FrameParams.sensor``):
 
-    x  = gain * Y                                 normalised signal (1 = full well)
-    x <- Poisson(x * full_well) / full_well       shot noise, if full_well > 0
-    x <- clip(x, 0, 1)                            the well saturates
-    v  = 255 * x ** (1 / gamma) + N(0, read_noise^2)
-    DN = clip(floor(v + 0.5), 0, 255)             round half up, as uint8
+* ``ideal`` (the default): :func:`luminance_to_frame`, no noise of any kind::
 
-Frame k's exposure starts at ``k / rate`` and lasts ``exposure`` seconds; its timestamp is the
-middle of the exposure, ``k / rate + exposure / 2`` (see :func:`frame_times`).
+      x  = clip(gain * Y, 0, 1)                    normalised signal (1 = full scale)
+      DN = clip(floor(255 * x ** (1 / gamma) + 0.5), 0, 255)   round half up, as uint8
+
+  with the gain fixed for the sequence (``gain``, or :func:`auto_gain` of the first frame).
+* a :class:`sim.frame_sensor.FrameSensor` (presets ``davis240c_aps``, ``machine_vision``):
+  electrons, shot, read and dark noise, fixed-pattern noise, vignetting, auto-exposure; see
+  :mod:`sim.frame_sensor`.
+
+Frame k's exposure window is ``[k / rate, k / rate + exposure]`` and its timestamp the middle
+of it, ``k / rate + exposure / 2`` (see :func:`frame_times`). A sensor with auto-exposure
+chooses a shorter exposure ``e_k <= exposure`` per frame, centred on the same timestamp.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["FrameParams", "auto_gain", "exposure_sample_times", "frame_times",
+from sim.frame_sensor import FRAME_SENSORS, FrameSensor
+from sim.validation import positive
+
+__all__ = ["FRAME_SENSOR_NAMES", "FrameParams", "auto_gain", "exposure_sample_times", "frame_times",
            "luminance_to_frame"]
 
 AUTO_GAIN_PERCENTILE = 99.0
@@ -30,24 +39,12 @@ AUTO_GAIN_LEVEL = 0.8
 """Fraction of full scale (before the gamma response) that the percentile is mapped to."""
 _TIME_TOLERANCE = 1e-9
 """Relative slack (in frame periods) for floating-point rounding in :func:`frame_times`."""
-
-
-def _positive(name: str, value: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.number):
-        raise ValueError(f"{name} must be a number, got {value!r}")
-    value = float(value)
-    if not (math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a finite number > 0, got {value}")
-    return value
-
-
-def _non_negative(name: str, value: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float | np.number):
-        raise ValueError(f"{name} must be a number, got {value!r}")
-    value = float(value)
-    if not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"{name} must be a finite number >= 0, got {value}")
-    return value
+IDEAL = "ideal"
+"""The noiseless frame camera of :func:`luminance_to_frame`."""
+FRAME_SENSOR_NAMES = (IDEAL, *FRAME_SENSORS)
+"""Every frame-sensor preset: ``ideal`` and the realistic ones of :mod:`sim.frame_sensor`."""
+IDEAL_GAMMA = 2.2
+"""The ideal camera's display gamma; a realistic sensor's output is linear (gamma 1)."""
 
 
 @dataclass(frozen=True)
@@ -62,29 +59,31 @@ class FrameParams:
         Exposure time, > 0 and at most the frame period ``1 / rate``.
     exposure_samples : int
         Renders averaged over the exposure (motion blur), >= 1.
-    gamma : float
-        Display gamma: the 8-bit value is ``255 * clip(gain * Y, 0, 1) ** (1 / gamma)``.
+    gamma : float or None
+        Output gamma: the 8-bit value is ``255 * x ** (1 / gamma)`` of the normalised signal x.
+        None (default): the sensor's own, :data:`IDEAL_GAMMA` = 2.2 for ``ideal`` and 1 (linear
+        raw values) for a realistic sensor; see :attr:`output_gamma`.
     gain : float or None
-        Linear luminance -> normalised signal (1 = saturation); None = automatic
-        (:func:`auto_gain` of the first frame, then fixed for the sequence).
-    full_well : float, electrons
-        Electrons at saturation, for Poisson shot noise; 0 = no shot noise.
-    read_noise : float, DN
-        Standard deviation of Gaussian read noise in 8-bit digital numbers; 0 = none.
+        ``ideal`` only: linear luminance -> normalised signal (1 = saturation); None =
+        automatic (:func:`auto_gain` of the first frame, then fixed for the sequence). A
+        realistic sensor's level is set by its exposure instead.
+    sensor : str or FrameSensor
+        ``ideal`` (default: :func:`luminance_to_frame`, no noise), a preset name of
+        :data:`sim.frame_sensor.FRAME_SENSORS` (``davis240c_aps``, ``machine_vision``) or a
+        :class:`~sim.frame_sensor.FrameSensor`. A name is replaced by its preset.
     """
 
     rate: float = 24.0
     exposure: float = 0.005
     exposure_samples: int = 4
-    gamma: float = 2.2
+    gamma: float | None = None
     gain: float | None = None
-    full_well: float = 0.0
-    read_noise: float = 0.0
+    sensor: str | FrameSensor = IDEAL
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
-        set_(self, "rate", _positive("FrameParams.rate", self.rate))
-        set_(self, "exposure", _positive("FrameParams.exposure", self.exposure))
+        set_(self, "rate", positive("FrameParams.rate", self.rate))
+        set_(self, "exposure", positive("FrameParams.exposure", self.exposure))
         if self.exposure > 1.0 / self.rate:
             raise ValueError(f"FrameParams.exposure must be at most the frame period 1/rate = "
                              f"{1.0 / self.rate} s, got {self.exposure} s")
@@ -93,11 +92,48 @@ class FrameParams:
             raise ValueError(f"FrameParams.exposure_samples must be an integer >= 1, "
                              f"got {samples!r}")
         set_(self, "exposure_samples", int(samples))
-        set_(self, "gamma", _positive("FrameParams.gamma", self.gamma))
+        if self.gamma is not None:
+            set_(self, "gamma", positive("FrameParams.gamma", self.gamma))
         if self.gain is not None:
-            set_(self, "gain", _positive("FrameParams.gain", self.gain))
-        set_(self, "full_well", _non_negative("FrameParams.full_well", self.full_well))
-        set_(self, "read_noise", _non_negative("FrameParams.read_noise", self.read_noise))
+            set_(self, "gain", positive("FrameParams.gain", self.gain))
+        if isinstance(self.sensor, str):
+            if self.sensor not in FRAME_SENSOR_NAMES:
+                raise ValueError(f"FrameParams.sensor must be one of "
+                                 f"{', '.join(FRAME_SENSOR_NAMES)} or a FrameSensor, got "
+                                 f"{self.sensor!r}")
+            if self.sensor != IDEAL:
+                set_(self, "sensor", FRAME_SENSORS[self.sensor])
+        elif not isinstance(self.sensor, FrameSensor):
+            raise ValueError(f"FrameParams.sensor must be a preset name or a FrameSensor, got "
+                             f"{self.sensor!r}")
+        if self.gain is not None and not self.ideal:
+            raise ValueError(f"FrameParams.gain is the ideal camera's luminance gain; sensor "
+                             f"{self.sensor.name} sets its level by its exposure: leave gain "
+                             "unset or use the ideal sensor")
+
+    def with_sensor(self, sensor: str | FrameSensor) -> FrameParams:
+        """These parameters with another sensor (the gamma, if unset, follows the sensor).
+
+        Raises ValueError for an unknown preset, or a realistic sensor while ``gain`` is set.
+        """
+        return dataclasses.replace(self, sensor=sensor)
+
+    @property
+    def ideal(self) -> bool:
+        """Whether the frames come from the noiseless :func:`luminance_to_frame`."""
+        return self.sensor == IDEAL
+
+    @property
+    def sensor_name(self) -> str:
+        """``ideal`` or the sensor's name."""
+        return IDEAL if self.ideal else self.sensor.name
+
+    @property
+    def output_gamma(self) -> float:
+        """``gamma`` if given, else 2.2 for ``ideal`` and 1.0 (linear) for a sensor."""
+        if self.gamma is not None:
+            return self.gamma
+        return IDEAL_GAMMA if self.ideal else 1.0
 
 
 def frame_times(duration: float, params: FrameParams) -> np.ndarray:
@@ -128,7 +164,8 @@ def frame_times(duration: float, params: FrameParams) -> np.ndarray:
     return np.arange(count, dtype=np.float64) / params.rate + params.exposure / 2
 
 
-def exposure_sample_times(t_mid: float, params: FrameParams) -> np.ndarray:
+def exposure_sample_times(t_mid: float, params: FrameParams,
+                          exposure: float | None = None) -> np.ndarray:
     """Render times whose average approximates one frame's exposure.
 
     The exposure ``[t_mid - exposure/2, t_mid + exposure/2]`` is cut into ``exposure_samples``
@@ -140,6 +177,9 @@ def exposure_sample_times(t_mid: float, params: FrameParams) -> np.ndarray:
     t_mid : float, seconds
         Mid-exposure timestamp of the frame.
     params : FrameParams
+    exposure : float or None, seconds
+        This frame's exposure (auto-exposure), at most ``params.exposure``; default
+        ``params.exposure``.
 
     Returns
     -------
@@ -149,9 +189,13 @@ def exposure_sample_times(t_mid: float, params: FrameParams) -> np.ndarray:
     t_mid = float(t_mid)
     if not math.isfinite(t_mid):
         raise ValueError(f"t_mid must be a finite time in seconds, got {t_mid}")
+    exposure = params.exposure if exposure is None else positive("exposure", exposure)
+    if exposure > params.exposure * (1 + _TIME_TOLERANCE):
+        raise ValueError(f"exposure {exposure} s is longer than the frame's longest exposure "
+                         f"{params.exposure} s")
     n = params.exposure_samples
     offsets = (np.arange(n, dtype=np.float64) + 0.5) / n - 0.5
-    return t_mid + params.exposure * offsets
+    return t_mid + exposure * offsets
 
 
 def _check_luminance(luminance: np.ndarray) -> np.ndarray:
@@ -195,9 +239,8 @@ def auto_gain(luminance: np.ndarray) -> float:
     return AUTO_GAIN_LEVEL / level
 
 
-def luminance_to_frame(luminance: np.ndarray, gain: float, params: FrameParams,
-                       rng: np.random.Generator | None) -> np.ndarray:
-    """The standard camera's 8-bit frame from the luminance it integrated.
+def luminance_to_frame(luminance: np.ndarray, gain: float, params: FrameParams) -> np.ndarray:
+    """The ideal camera's 8-bit frame from the luminance it integrated (no noise).
 
     See the module docstring for the model. Computed in float64.
 
@@ -208,10 +251,8 @@ def luminance_to_frame(luminance: np.ndarray, gain: float, params: FrameParams,
     gain : float
         Linear luminance -> normalised signal, > 0 (``params.gain`` or :func:`auto_gain`).
     params : FrameParams
-        Gamma and noise levels (``params.gain`` is not used here: pass it as ``gain``).
-    rng : numpy.random.Generator or None
-        Source of the noise. Not drawn from when ``full_well == 0`` and ``read_noise == 0``
-        (then the frame does not depend on it and None is allowed).
+        Gives the gamma (:attr:`FrameParams.output_gamma`); ``params.gain`` is not used here:
+        pass it as ``gain``.
 
     Returns
     -------
@@ -219,21 +260,7 @@ def luminance_to_frame(luminance: np.ndarray, gain: float, params: FrameParams,
         Gray values, rounded half up and clipped to [0, 255].
     """
     array = _check_luminance(luminance)
-    gain = _positive("gain", gain)
-    noisy = params.full_well > 0 or params.read_noise > 0
-    if noisy and not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng must be a numpy.random.Generator when noise is on (full_well = "
-                         f"{params.full_well}, read_noise = {params.read_noise}), got {rng!r}")
-    signal = gain * array.astype(np.float64)
-    if params.full_well > 0:
-        # The well fills with Poisson(expected) electrons and overflows at full_well, so an
-        # overexposed pixel saturates rather than scattering around full scale. Expected counts
-        # are capped 10 standard deviations above the well, where the well overflows anyway.
-        well = params.full_well
-        expected = np.minimum(signal * well, well + 10.0 * math.sqrt(well) + 10.0)
-        signal = rng.poisson(expected) / well
-    signal = np.clip(signal, 0.0, 1.0)
-    value = 255.0 * signal ** (1.0 / params.gamma)
-    if params.read_noise > 0:
-        value = value + rng.normal(0.0, params.read_noise, size=value.shape)
+    gain = positive("gain", gain)
+    signal = np.clip(gain * array.astype(np.float64), 0.0, 1.0)
+    value = 255.0 * signal ** (1.0 / params.output_gamma)
     return np.clip(np.floor(value + 0.5), 0, 255).astype(np.uint8)

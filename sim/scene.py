@@ -13,14 +13,15 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from sim.camera import Camera, camera_preset
-from sim.frames import FrameParams
+from sim.frame_sensor import FRAME_SENSORS, FrameSensor
+from sim.frames import FRAME_SENSOR_NAMES, FrameParams
 from sim.rig import RIG_PRESETS, RigParams
 from sim.se3 import look_at, make_pose, rotation_from_euler, so3_exp
 from sim.trajectory import (
@@ -418,16 +419,21 @@ def _parse_camera(ctx: _Ctx, raw: Any) -> Camera:
 def _parse_frames(ctx: _Ctx, raw: Any) -> FrameParams:
     key = "[frames]"
     table = ctx.table(raw, key)
-    fields = {"rate", "exposure", "exposure_samples", "gamma", "gain", "full_well", "read_noise"}
-    ctx.keys(table, key, set(), fields)
+    for gone in ("full_well", "read_noise"):
+        if gone in table:
+            raise ctx.fail(f"{key} {gone}", "the frame noise is now a sensor's: use sensor = "
+                           "\"davis240c_aps\" or \"machine_vision\", or sensor = { preset = "
+                           f"..., {gone} = ... }} in electrons")
+    names = {"rate", "exposure", "exposure_samples", "gamma", "gain", "sensor"}
+    ctx.keys(table, key, set(), names)
     values: dict[str, Any] = {}
     for name, item in table.items():
         if name == "exposure_samples":
             values[name] = _integer(ctx, item, f"{key}.{name}", minimum=1)
+        elif name == "sensor":
+            values[name] = _parse_frame_sensor(ctx, item, f"{key}.sensor")
         else:
-            nonneg = name in ("full_well", "read_noise")
-            values[name] = _number(ctx, item, f"{key}.{name}", positive=not nonneg,
-                                   nonneg=nonneg)
+            values[name] = _number(ctx, item, f"{key}.{name}", positive=True)
     # The one constraint between two keys, said in the file's own terms (given or default).
     defaults = FrameParams()
     rate = values.get("rate", defaults.rate)
@@ -474,6 +480,32 @@ def _parse_rig(ctx: _Ctx, raw: Any) -> RigParams:
         changes["distortion_sigma"] = tuple(_vector(ctx, table["distortion_sigma"],
                                                     f"{key}.distortion_sigma", 5, nonneg=True))
     return RigParams.from_preset(preset, **changes)
+
+
+def _parse_frame_sensor(ctx: _Ctx, raw: Any, key: str) -> str | FrameSensor:
+    """``sensor = "name"`` or ``sensor = { preset = "name", field = value, ... }``."""
+    if isinstance(raw, str):
+        return _string(ctx, raw, key, FRAME_SENSOR_NAMES)
+    table = ctx.table(raw, key)
+    numeric = {f.name for f in fields(FrameSensor)} - {"name", "vignetting", "auto_exposure"}
+    ctx.keys(table, key, {"preset"}, numeric | {"vignetting", "auto_exposure"})
+    preset = _string(ctx, table["preset"], f"{key}.preset", tuple(FRAME_SENSORS))
+    changes: dict[str, Any] = {}
+    for name, item in table.items():
+        if name in numeric:
+            changes[name] = _number(ctx, item, f"{key}.{name}")
+        elif name == "vignetting":
+            changes[name] = _string(ctx, item, f"{key}.{name}", ("cos4", "none"))
+        elif name == "auto_exposure":
+            if not isinstance(item, bool):
+                raise ctx.fail(f"{key}.{name}", f"expected true or false, got {_show(item)}")
+            changes[name] = item
+    if not changes:
+        return preset
+    try:
+        return replace(FRAME_SENSORS[preset], name=f"{preset}+custom", **changes)
+    except ValueError as exc:                       # name the TOML key, not the dataclass field
+        raise ctx.fail(key, str(exc).replace("FrameSensor.", "")) from None
 
 
 def _parse_render(ctx: _Ctx, raw: Any) -> RenderParams:

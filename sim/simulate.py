@@ -45,6 +45,14 @@ from sim.camera import write_calib
 from sim.eventio import H5EventWriter, TextEventWriter
 from sim.events import EventEmulator, EventParams
 from sim.exr import write_depth
+from sim.frame_sensor import (
+    FixedPattern,
+    fixed_pattern,
+    next_exposure,
+    sensor_frame,
+    settled_exposure,
+    vignetting_map,
+)
 from sim.frames import (
     FrameParams,
     auto_gain,
@@ -284,8 +292,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     with atomic_output_dir(out, overwrite=overwrite, resume=resume) as tmp:
         checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
         rig_record = _write_rig(tmp, scene, sample_times(start, end, scene.render.pose_rate))
-        gain, image_names, depth_names = _simulate_frames(scene, renderer, tmp, times,
-                                                          checkpoint, progress, timings)
+        gain, exposures, image_names, depth_names = _simulate_frames(
+            scene, renderer, tmp, times, checkpoint, progress, timings)
         event_info = checkpoint.events_done
         if with_events and event_info is None:
             simulate_events = (_simulate_events_per_pixel if sampler == "pixel"
@@ -310,7 +318,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
             "seed": scene.seed,
             "camera": {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy,
                        "cx": cam.cx, "cy": cam.cy, "distortion": list(cam.distortion)},
-            "frames": {**asdict(params), "gain_used": gain, "count": len(times)},
+            "frames": _frames_record(params, gain, exposures, len(times)),
             "render": {"spp": renderer.spp, "sampler_seed": renderer.seed,
                        "variant": renderer.variant, "integrator": "direct",
                        "pose_rate": scene.render.pose_rate, "renders": len(times)
@@ -382,39 +390,72 @@ class _OnEventClock:
 
 # --- standard-camera frames --------------------------------------------------------------------
 
-def _exposure(renderer: Renderer, t: float, params: FrameParams) -> np.ndarray:
+def _frames_record(params: FrameParams, gain: float | None, exposures: list[float],
+                   count: int) -> dict:
+    """``sequence.json``'s ``frames``: the parameters, the sensor and what was chosen."""
+    record = {**asdict(params), "gamma_used": params.output_gamma, "count": count}
+    if params.ideal:
+        record["gain_used"] = gain
+    else:
+        record["sensor"]["responsivity_e_per_s_per_cd_m2"] = params.sensor.responsivity_e
+        record["exposures_s"] = exposures
+    return record
+
+
+def _exposure(renderer: Renderer, t: float, params: FrameParams,
+              exposure: float | None = None) -> np.ndarray:
     """The luminance a frame integrates: its exposure renders averaged, (H, W) float32."""
-    exposure = [renderer.luminance(ts) for ts in exposure_sample_times(t, params)]
+    exposure = [renderer.luminance(ts) for ts in exposure_sample_times(t, params, exposure)]
     return np.mean(exposure, axis=0, dtype=np.float64).astype(np.float32)
 
 
 def _simulate_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.ndarray,
                      checkpoint: _Checkpoint, progress: bool, timings: dict
-                     ) -> tuple[float, list[str], list[str]]:
-    """Write every frame and depth map that is not on disk yet; return the gain and names."""
+                     ) -> tuple[float | None, list[float], list[str], list[str]]:
+    """Write every frame and depth map that is not on disk yet; return the gain (ideal camera,
+    else None), each frame's exposure and the names."""
     params = scene.frames
     (folder / "images").mkdir(exist_ok=True)
     (folder / "depth").mkdir(exist_ok=True)
     gain = params.gain if params.gain is not None else checkpoint.gain
+    pattern = None if params.ideal else _fixed_pattern(scene)
+    exposures = checkpoint.exposures
     image_names = [frame_name(index, "png") for index in range(len(times))]
     depth_names = [frame_name(index, "exr") for index in range(len(times))]
     bar = progress_stage(times, desc=f"simulate {scene.name}", unit="frame", noun="frames",
                          enabled=progress)
+    previous = None                                      # the last frame read out, uint8
     for index, t in enumerate(bar):
         image, depth_map = folder / image_names[index], folder / depth_names[index]
         if image.is_file() and depth_map.is_file():       # written atomically: complete
+            previous = None
             continue
         tick = time.perf_counter()
-        luminance = _exposure(renderer, t, params)
+        if params.ideal:
+            luminance = _exposure(renderer, t, params)
+        else:
+            if index >= len(exposures):
+                if previous is None and index > 0:        # resumed: read frame index-1 back
+                    previous = cv2.imread(str(folder / image_names[index - 1]),
+                                          cv2.IMREAD_UNCHANGED)
+                exposures.append(_frame_exposure(scene, renderer, t, pattern, previous,
+                                                 exposures[-1] if exposures else None))
+                checkpoint.set_exposures(exposures)       # before the frame is written
+            luminance = _exposure(renderer, t, params, exposures[index])
         tock = time.perf_counter()
         depth = renderer.depth(t)
         tack = time.perf_counter()
-        if gain is None:
-            first = luminance if index == 0 else _exposure(renderer, times[0], params)
-            gain = auto_gain(first)
-            checkpoint.set_gain(gain)                     # before the first frame is written
         rng = np.random.default_rng([scene.seed, FRAME_NOISE_STREAM, index])
-        frame = luminance_to_frame(luminance, gain, params, rng)
+        if params.ideal:
+            if gain is None:
+                first = luminance if index == 0 else _exposure(renderer, times[0], params)
+                gain = auto_gain(first)
+                checkpoint.set_gain(gain)                 # before the first frame is written
+            frame = luminance_to_frame(luminance, gain, params)
+        else:
+            frame = sensor_frame(luminance, exposures[index], params.sensor, pattern,
+                                 params.output_gamma, rng)
+        previous = frame
         ok, png = cv2.imencode(".png", frame)
         if not ok:
             raise OSError(f"cannot encode {image} as PNG")
@@ -425,9 +466,31 @@ def _simulate_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.n
         timings["render"] += tock - tick
         timings["depth"] += tack - tock
         timings["write"] += time.perf_counter() - tack
-    if gain is None:                   # every frame was on disk, but the gain was not saved
+    if params.ideal and gain is None:  # every frame was on disk, but the gain was not saved
         gain = auto_gain(_exposure(renderer, times[0], params))
-    return gain, image_names, depth_names
+    return gain, exposures, image_names, depth_names
+
+
+def _fixed_pattern(scene: Scene) -> FixedPattern:
+    """The frame sensor's fixed pattern: vignetting from the camera, noise from the seed."""
+    cam = scene.camera
+    vignetting = vignetting_map(scene.frames.sensor, cam.width, cam.height, cam.fx, cam.fy,
+                                cam.cx, cam.cy)
+    return fixed_pattern(scene.frames.sensor, vignetting, scene.seed)
+
+
+def _frame_exposure(scene: Scene, renderer: Renderer, t: float, pattern: FixedPattern,
+                    previous: np.ndarray | None, previous_exposure: float | None) -> float:
+    """A realistic sensor's exposure for the frame at ``t``: fixed, or auto-exposure's choice
+    (settled on the view at ``t`` for the first frame, else from the previous frame)."""
+    params = scene.frames
+    sensor = params.sensor
+    if not sensor.auto_exposure:
+        return params.exposure
+    if previous is None:
+        return settled_exposure(renderer.luminance(t), sensor, pattern, params.exposure)
+    return next_exposure(previous, previous_exposure, sensor, params.output_gamma,
+                         params.exposure)
 
 
 # --- events ------------------------------------------------------------------------------------
@@ -859,6 +922,15 @@ class _Checkpoint:
 
     def set_gain(self, gain: float) -> None:
         self.data["gain"] = float(gain)
+        self._save()
+
+    @property
+    def exposures(self) -> list[float]:
+        """A realistic frame sensor's exposure of each frame chosen so far, seconds."""
+        return list(self.data.get("exposures", []))
+
+    def set_exposures(self, exposures: list[float]) -> None:
+        self.data["exposures"] = [float(e) for e in exposures]
         self._save()
 
     @property

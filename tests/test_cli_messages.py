@@ -221,3 +221,14 @@ def test_the_hand_made_sequence_is_a_valid_one(tmp_path):
     assert (sequence.camera.width, sequence.camera.height) == (WIDTH, HEIGHT)
     events = read_events(sequence.events_h5, WIDTH, HEIGHT)
     assert len(events) == 200 and 0.1e9 <= events["t"][0] and events["t"][-1] < 0.9e9
+
+
+@pytest.mark.parametrize("command", ["simulate poster_6dof --out {out} --no-events",
+                                     "reproduce --out {out} --tables 1"])
+def test_an_unknown_frame_sensor_is_refused_naming_the_flag(tmp_path, capsys, command):
+    argv = command.format(out=tmp_path / "out").split() + ["--frame-sensor", "davis"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("--frame-sensor 'davis': expected one of ideal, davis240c_aps, "
+                        "machine_vision") and len(err.splitlines()) == 1, err
+    assert not (tmp_path / "out").exists()

@@ -23,13 +23,24 @@ NOISELESS_LINEAR = FrameParams(gamma=1.0)
 def test_defaults_are_a_noiseless_davis_like_camera():
     params = FrameParams()
     assert (params.rate, params.exposure, params.exposure_samples) == (24.0, 0.005, 4)
-    assert (params.gamma, params.gain, params.full_well, params.read_noise) == (2.2, None, 0.0, 0.0)
+    assert (params.gamma, params.gain, params.sensor) == (None, None, "ideal")
+    assert params.ideal and params.output_gamma == 2.2
 
 
 def test_integer_values_are_stored_as_floats():
-    params = FrameParams(rate=20, gain=2, full_well=1000)
+    params = FrameParams(rate=20, gain=2, gamma=1)
     assert isinstance(params.rate, float) and isinstance(params.gain, float)
-    assert isinstance(params.full_well, float) and params.rate == 20.0
+    assert isinstance(params.gamma, float) and params.rate == 20.0
+
+
+def test_a_sensor_name_becomes_its_preset_and_its_gamma_is_linear():
+    from sim.frame_sensor import FRAME_SENSORS
+
+    params = FrameParams(sensor="machine_vision")
+    assert params.sensor is FRAME_SENSORS["machine_vision"] and not params.ideal
+    assert params.output_gamma == 1.0 and FrameParams(sensor="machine_vision",
+                                                      gamma=2.0).output_gamma == 2.0
+    assert params.with_sensor("ideal").output_gamma == 2.2          # gamma follows the sensor
 
 
 @pytest.mark.parametrize(("kwargs", "message"), [
@@ -43,8 +54,10 @@ def test_integer_values_are_stored_as_floats():
     ({"exposure_samples": True}, r"exposure_samples must be an integer"),
     ({"gamma": 0.0}, r"FrameParams\.gamma must be a finite number > 0"),
     ({"gain": -1.0}, r"FrameParams\.gain must be a finite number > 0"),
-    ({"full_well": -5.0}, r"FrameParams\.full_well must be a finite number >= 0"),
-    ({"read_noise": math.inf}, r"FrameParams\.read_noise must be a finite number >= 0"),
+    ({"sensor": "davis"}, r"FrameParams\.sensor must be one of ideal, davis240c_aps, "
+                         r"machine_vision or a FrameSensor, got 'davis'"),
+    ({"sensor": 3}, r"FrameParams\.sensor must be a preset name or a FrameSensor, got 3"),
+    ({"sensor": "davis240c_aps", "gain": 2.0}, r"FrameParams\.gain is the ideal camera's"),
 ])
 def test_bad_parameters_name_the_field(kwargs, message):
     with pytest.raises(ValueError, match=message):
@@ -119,66 +132,32 @@ def test_auto_gain_guards_black_images():
 def test_gamma_response_on_known_values():
     params = FrameParams(gamma=2.0)
     luminance = np.array([[0.0, 0.25, 1.0, 3.0, 0.0625]], np.float32)
-    frame = luminance_to_frame(luminance, 1.0, params, None)
+    frame = luminance_to_frame(luminance, 1.0, params)
     # sqrt(0.25) = 0.5 -> 127.5 -> 128 (half up); saturated -> 255; sqrt(1/16) * 255 = 63.75 -> 64
     assert frame.dtype == np.uint8
     assert frame.tolist() == [[0, 128, 255, 255, 64]]
 
 
 def test_default_gamma_and_gain_scaling():
-    frame = luminance_to_frame(np.array([[0.25]], np.float32), 2.0, FrameParams(), None)
+    frame = luminance_to_frame(np.array([[0.25]], np.float32), 2.0, FrameParams())
     # 255 * 0.5 ** (1 / 2.2) = 255 * 0.72974 = 186.08
     assert frame.tolist() == [[186]]
 
 
-def test_noiseless_frames_do_not_depend_on_or_consume_the_rng():
-    luminance = np.random.default_rng(5).uniform(0, 2, (16, 16)).astype(np.float32)
-    params = FrameParams()
-    rng = np.random.default_rng(1)
-    a = luminance_to_frame(luminance, 0.6, params, rng)
-    b = luminance_to_frame(luminance, 0.6, params, np.random.default_rng(2))
-    c = luminance_to_frame(luminance, 0.6, params, None)
-    np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(a, c)
-    assert rng.random() == np.random.default_rng(1).random()   # no draw was taken
+def test_ideal_frames_are_todays_formula_byte_for_byte():
+    # The ideal camera before the sensor model, written out: gain, clip, gamma 2.2, half up.
+    luminance = np.random.default_rng(5).uniform(0, 2, (36, 48)).astype(np.float32)
+    old = 255.0 * np.clip(0.6 * luminance.astype(np.float64), 0.0, 1.0) ** (1.0 / 2.2)
+    expected = np.clip(np.floor(old + 0.5), 0, 255).astype(np.uint8)
+    np.testing.assert_array_equal(luminance_to_frame(luminance, 0.6, FrameParams()), expected)
 
 
-def test_shot_noise_variance_is_poisson():
-    params = FrameParams(gamma=1.0, full_well=1000.0)
-    flat = np.full((512, 512), 0.25, np.float32)
-    frame = luminance_to_frame(flat, 1.0, params, np.random.default_rng(0)).astype(np.float64)
-    # 250 electrons on average, variance 250 (Poisson); 1 electron = 0.255 DN;
-    # rounding to integers adds a uniform error of variance 1/12
-    assert frame.mean() == pytest.approx(255 * 0.25, abs=0.05)
-    assert frame.var() == pytest.approx(0.255**2 * 250 + 1 / 12, rel=0.04)
-
-
-def test_overexposed_pixels_saturate_despite_shot_noise():
-    params = FrameParams(gamma=1.0, full_well=100.0)
-    # 3x the full well on average: P(Poisson(300) < 100) is about 1e-40, so every pixel overflows
-    frame = luminance_to_frame(np.full((64, 64), 3.0, np.float32), 1.0, params,
-                               np.random.default_rng(0))
-    assert (frame == 255).all()
-
-
-def test_read_noise_std_in_digital_numbers():
-    params = FrameParams(gamma=1.0, read_noise=2.0)
-    flat = np.full((512, 512), 100.0, np.float32)
-    frame = luminance_to_frame(flat, 1.0 / 255.0, params, np.random.default_rng(0))
-    values = frame.astype(np.float64)
-    # 100 DN + N(0, 2^2), rounded: std sqrt(4 + 1/12)
-    assert values.mean() == pytest.approx(100.0, abs=0.05)
-    assert values.std() == pytest.approx(math.sqrt(4 + 1 / 12), rel=0.03)
-
-
-def test_noisy_frames_are_reproducible_from_the_seed():
-    params = FrameParams(full_well=500.0, read_noise=1.0)
-    flat = np.full((32, 32), 0.3, np.float32)
-    a = luminance_to_frame(flat, 1.0, params, np.random.default_rng(7))
-    b = luminance_to_frame(flat, 1.0, params, np.random.default_rng(7))
-    c = luminance_to_frame(flat, 1.0, params, np.random.default_rng(8))
-    np.testing.assert_array_equal(a, b)
-    assert (a != c).any()
+def test_exposure_samples_follow_a_shorter_auto_exposure():
+    params = FrameParams(exposure=0.004, exposure_samples=2)
+    np.testing.assert_allclose(exposure_sample_times(1.0, params, 0.002), [0.9995, 1.0005],
+                               atol=1e-15)
+    with pytest.raises(ValueError, match="longer than the frame's longest exposure"):
+        exposure_sample_times(1.0, params, 0.005)
 
 
 @pytest.mark.parametrize(("luminance", "gain", "message"), [
@@ -191,9 +170,4 @@ def test_noisy_frames_are_reproducible_from_the_seed():
 ])
 def test_bad_input_is_rejected(luminance, gain, message):
     with pytest.raises(ValueError, match=message):
-        luminance_to_frame(luminance, gain, NOISELESS_LINEAR, None)
-
-
-def test_noise_needs_a_generator():
-    with pytest.raises(ValueError, match="rng must be a numpy.random.Generator"):
-        luminance_to_frame(np.ones((2, 2), np.float32), 1.0, FrameParams(read_noise=1.0), None)
+        luminance_to_frame(luminance, gain, NOISELESS_LINEAR)

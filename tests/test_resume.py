@@ -36,9 +36,10 @@ center = [0.0, 1.0, 0.0]
 size = [6.0, 6.0]
 material = { texture = { type = "checkerboard", squares = [24, 24], color0 = 0.05, color1 = 0.85 } }
 """
-# Noisy frames with an automatic gain: the gain and every frame's noise must survive a resume.
-EXTRA = ("[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 2\nfull_well = 2000.0\n"
-         "read_noise = 1.0\n[render]\nspp = 4\n")
+# Noisy frames under auto-exposure (a responsivity that keeps it inside its range): every
+# frame's exposure and noise must survive a resume.
+EXTRA = ("[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 2\n"
+         "sensor = { preset = \"machine_vision\", responsivity = 1e8 }\n[render]\nspp = 4\n")
 TEXT = scene_text(CHECKER, trajectory=FAST, duration=0.12, extra=EXTRA)
 # The realistic sensor draws from its generator at every step and carries low-pass state.
 EVENTS = EventParams.preset("realistic", seed=3)
@@ -116,13 +117,15 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_files(full, tmp_path, m
     partial, state = tmp_path / "seq.partial", tmp_path / "seq.partial" / ".checkpoint"
     monkeypatch.setattr(simulation, "CHECKPOINT_SAMPLES", 1)   # at every boundary allowed
 
-    # 1. Interrupted in the frames, at frame 1's second exposure render (the 4th render).
+    # 1. Interrupted in the frames, at frame 1's first exposure render (the 4th render: frame
+    # 0's auto-exposure metering render and its two exposure renders come first).
     _Renders(monkeypatch, stop=4)
     with pytest.raises(KeyboardInterrupt):
         _simulate(out)
     assert not out.exists()
     assert _files(partial / "images") == ["frame_00000000.png"]
-    assert json.loads((state / "checkpoint.json").read_text())["gain"] > 0
+    exposures = json.loads((state / "checkpoint.json").read_text())["exposures"]
+    assert len(exposures) == 2 and all(0 < e < 0.01 for e in exposures)   # inside its range
 
     # 2. Resumed, and interrupted in the events just before the second half of a split
     # interval, long after the last checkpoint (taken before its first half).

@@ -274,10 +274,44 @@ def test_frame_errors_name_the_toml_key_not_the_dataclass(tmp_path):
     assert "0.04167 s" in message and "24 Hz" in message and "FrameParams" not in message
     message = _error(scene_text(BOX, extra="[frames]\nrate = 500.0\n"), tmp_path)
     assert "[frames] exposure = 0.005 (the default)" in message and "0.002 s" in message
-    for key, value in (("rate", "-1.0"), ("gamma", "0.0"), ("gain", "0.0"),
-                       ("read_noise", "-2.0"), ("full_well", "-1.0")):
+    for key, value in (("rate", "-1.0"), ("gamma", "0.0"), ("gain", "0.0")):
         message = _error(scene_text(BOX, extra=f"[frames]\n{key} = {value}\n"), tmp_path)
         assert f"[frames].{key}" in message and "FrameParams" not in message, message
+
+
+@pytest.mark.parametrize(("frames", "expected"), [
+    ('sensor = "davis241"', "[frames].sensor: expected one of ideal, davis240c_aps, "
+                            "machine_vision; got 'davis241'"),
+    ('sensor = { preset = "ideal" }', "[frames].sensor.preset: expected one of davis240c_aps, "
+                                      "machine_vision"),
+    ('sensor = { read_noise = 3.0 }', "[frames].sensor: missing required key 'preset'"),
+    ('sensor = { preset = "machine_vision", well = 3.0 }', "unknown key 'well'"),
+    ('sensor = { preset = "machine_vision", prnu = 0.7 }',
+     "[frames].sensor: prnu must be a fraction in [0, 0.5), got 0.7"),
+    ('sensor = { preset = "machine_vision", auto_exposure = 1 }',
+     "[frames].sensor.auto_exposure: expected true or false"),
+    ('sensor = "machine_vision"\ngain = 2.0', "[frames]: [frames] gain is the ideal camera's"),
+    ("full_well = 2000.0", "[frames] full_well: the frame noise is now a sensor's"),
+    ("read_noise = 1.0", 'sensor = { preset = ..., read_noise = ... } in electrons'),
+])
+def test_frame_sensor_errors_name_the_toml_key(tmp_path, frames, expected):
+    message = _error(scene_text(BOX, extra=f"[frames]\n{frames}\n"), tmp_path)
+    assert expected in message and "FrameSensor" not in message, message
+
+
+def test_frame_sensor_presets_and_overrides_parse(tmp_path):
+    from sim.frame_sensor import FRAME_SENSORS
+
+    scene = parse_scene(scene_text(BOX, extra='[frames]\nsensor = "davis240c_aps"\n'))
+    assert scene.frames.sensor == FRAME_SENSORS["davis240c_aps"]
+    assert scene.frames.output_gamma == 1.0                     # raw linear values
+    scene = parse_scene(scene_text(BOX, extra='[frames]\nsensor = { preset = "machine_vision", '
+                                              'read_noise = 7.5, vignetting = "none" }\n'))
+    sensor = scene.frames.sensor
+    assert (sensor.name, sensor.read_noise, sensor.vignetting) == ("machine_vision+custom", 7.5,
+                                                                   "none")
+    assert sensor.full_well == FRAME_SENSORS["machine_vision"].full_well
+    assert parse_scene(scene_text(BOX)).frames.ideal                      # the default
 
 
 def test_an_event_file_given_as_a_scene_is_named_as_one(tmp_path):
