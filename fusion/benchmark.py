@@ -35,6 +35,7 @@ per scene, ``figures/<scene>_<input>.png``: every method's dense depth and error
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import time
@@ -155,7 +156,11 @@ def _mapped(name: str, cache: Path, progress: bool) -> Path:
     if (Path(name) / "map.json").is_file():
         return Path(name)
     t0, t1 = _window(name)
-    folder = cache / f"{_label(name)}_{t0:.3f}_{t1:.3f}"
+    scene_file = Path(name if name.endswith(".toml") else resolve_scene(name))
+    # The scene file's own bytes name the cache entry: an edited scene (a new frame sensor, a
+    # moved object) is simulated again instead of read stale.
+    digest = hashlib.sha256(scene_file.read_bytes()).hexdigest()[:10]
+    folder = cache / f"{_label(name)}_{t0:.3f}_{t1:.3f}_{digest}"
     if (folder / "map" / "map.json").is_file():
         return folder / "map"
     sequence = folder / "sequence"
