@@ -2,9 +2,12 @@
 
 Each pixel keeps a reference log level ``ref``. Between two samples (t0, L0) and (t1, L1) the
 log intensity is interpolated linearly in time, and every crossing of ``ref + C_on`` (ON) or
-``ref - C_off`` (OFF) emits one event timestamped at its own interpolated crossing time, after
-which the reference moves by that threshold. Several events per pixel per interval are normal;
-the reference is carried from interval to interval.
+``ref - C_off`` (OFF) emits one event timestamped at its own crossing time, after which the
+reference moves by that threshold. Several events per pixel per interval are normal; the
+reference is carried from interval to interval. With the photoreceptor low-pass on, the level
+that crosses is the filter's output, exact for the linear input (:func:`sim.noise.ramp_response`,
+monotonic or turning once inside the interval), and each crossing time is solved on it to
+:data:`CROSSING_TOLERANCE_NS` (:func:`interval_levels`, :func:`filtered_crossing_time`).
 
 Choices (documented here because they change the events):
 
@@ -18,7 +21,8 @@ Choices (documented here because they change the events):
   in [0, C_on) per pixel (``initial_phase``), so that a scene start does not fire a synchronized
   burst.
 - Noise (see :mod:`sim.noise`): photoreceptor low-pass filter on L with a cutoff that falls in
-  the dark (solved exactly for the linear ramp between samples), leak (each pixel's reference
+  the dark (solved exactly for the linear ramp between samples, with the logarithmic mean of
+  the cutoffs at the interval's two ends), leak (each pixel's reference
   drifts down at its own fixed rate, giving ON events), background activity and hot pixels
   (Poisson events in [t0, t1) merged into the stream). Unlike v2e, a background event does not
   reset the pixel's reference.
@@ -39,17 +43,22 @@ from sim.eventio import EVENT_DTYPE
 from sim.noise import (
     NoiseParams,
     background_events,
+    cutoff_frequency,
     hot_pixel_events,
     hot_pixel_mask,
     leak_drift,
     leak_rate_map,
-    lowpass_ramp_step,
+    lowpass_exponent,
     merge_events,
     noise_preset,
+    ramp_crossing,
+    ramp_response,
+    ramp_turn,
     threshold_map,
 )
 
 __all__ = [
+    "CROSSING_TOLERANCE_NS",
     "EVENT_DTYPE",
     "EventEmulator",
     "EventParams",
@@ -57,6 +66,10 @@ __all__ = [
     "emulate_events_reference",
     "log_intensity",
 ]
+
+
+_STATE_ARRAYS = ("ref", "level", "raw", "cutoff", "last_t")
+"""The arrays of :meth:`EventEmulator.get_state`."""
 
 
 @dataclass(frozen=True)
@@ -133,53 +146,108 @@ def crossing_time(level, a, slope, t0, dt):  # pragma: no cover - compiled
     return t0 + np.int64(round(frac * dt))
 
 
+CROSSING_TOLERANCE_NS = 0.01
+"""Largest error (ns) of a crossing time solved on the filter's output, before the timestamp is
+rounded to the nanosecond (:func:`filtered_crossing_time`)."""
+
+
+@numba.njit(cache=True, inline="always")
+def interval_levels(y0, a, b, x):  # pragma: no cover - compiled
+    """The pixel's (filtered) level over an interval, as two monotonic pieces.
+
+    ``y0`` is the filter's output at the start, ``a`` and ``b`` its input (the unfiltered
+    samples) at the two ends, ``x`` the interval in time constants (``inf``: no filter, the
+    level is the input). Returns ``(f_turn, y_turn, y1)``: the fraction of the interval where
+    the level turns and its value there, and the level at the end; ``f_turn = 1.0`` and
+    ``y_turn = y1`` when it is monotonic. Without the filter ``y1`` is ``b`` itself.
+    """
+    if x == math.inf:
+        return 1.0, b, b
+    y1 = ramp_response(1.0, y0, a, b, x)
+    f_turn = ramp_turn(y0, a, b, x)
+    if f_turn >= 1.0:
+        return 1.0, y1, y1
+    return f_turn, ramp_response(f_turn, y0, a, b, x), y1
+
+
+@numba.njit(cache=True, inline="always")
+def filtered_crossing_time(level, y0, a, b, x, f_lo, y_lo, f_hi, y_hi, t0,
+                           dt):  # pragma: no cover - compiled
+    """Time (int64 ns) at which the level of :func:`interval_levels` reaches ``level`` on its
+    monotonic piece from fraction ``f_lo`` (level ``y_lo``) to ``f_hi`` (``y_hi``) of the
+    interval ``[t0, t0 + dt]``; clamped to the piece. Without the filter (``x = inf``) it is
+    :func:`crossing_time` on the line from ``y0`` to ``y_hi``, bit for bit."""
+    if x == math.inf:
+        return crossing_time(level, y0, y_hi - y0, t0, dt)
+    f = ramp_crossing(level, y0, a, b, x, f_lo, y_lo, f_hi, y_hi, CROSSING_TOLERANCE_NS / dt)
+    return t0 + np.int64(round(f * dt))
+
+
+@numba.njit(cache=True, inline="always")
+def interval_count(r, c_on, c_off, y0, a, b, x):  # pragma: no cover - compiled
+    """Number of threshold crossings of the level of :func:`interval_levels` from reference
+    ``r``, over both its pieces, and the level at the end: ``(count, y1)``."""
+    f_turn, y_turn, y1 = interval_levels(y0, a, b, x)
+    n, c, _ = threshold_crossings(y_turn, r, c_on, c_off)
+    if f_turn < 1.0:
+        n += threshold_crossings(y1, r + n * c, c_on, c_off)[0]
+    return n, y1
+
+
 @numba.njit(cache=True, parallel=True)
-def _count_rows(L1, ref, c_on, c_off):  # pragma: no cover - compiled
-    """Events per row; -1 for a row holding a non-finite level."""
-    height, width = L1.shape
+def _count_rows(L0, raw0, raw1, x, ref, c_on, c_off, L1):  # pragma: no cover - compiled
+    """Events per row; -1 for a row holding a non-finite level. Writes each pixel's level at
+    the end of the interval (filtered when ``x`` is finite) into ``L1``."""
+    height, width = raw1.shape
     counts = np.zeros(height, dtype=np.int64)
     for y in numba.prange(height):
         n = 0
-        for x in range(width):
-            r = ref[y, x]
-            v = L1[y, x]
+        for i in range(width):
+            v = raw1[y, i]
             if not math.isfinite(v):
                 n = -1
                 break
-            n += threshold_crossings(v, r, c_on[y, x], c_off[y, x])[0]
+            m, L1[y, i] = interval_count(ref[y, i], c_on[y, i], c_off[y, i], L0[y, i],
+                                         raw0[y, i], v, x[y, i])
+            n += m
         counts[y] = n
     return counts
 
 
 @numba.njit(cache=True, parallel=True)
-def _write_rows(L0, L1, ref, c_on, c_off, last_t, offsets, t0, dt, refractory,
+def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, refractory,
                 out_t, out_x, out_y, out_p, keep):  # pragma: no cover - compiled
-    height, width = L1.shape
+    height, width = raw1.shape
     for y in numba.prange(height):
         k = offsets[y]
-        for x in range(width):
-            r = ref[y, x]
-            a = L0[y, x]
-            b = L1[y, x]
-            slope = b - a
-            n, c, sign = threshold_crossings(b, r, c_on[y, x], c_off[y, x])
-            if n == 0:
-                continue
-            last = last_t[y, x]
-            for i in range(1, n + 1):
-                t = crossing_time(r + i * c, a, slope, t0, dt)
-                out_t[k] = t
-                out_x[k] = x
-                out_y[k] = y
-                out_p[k] = sign
-                if refractory > 0 and t - last < refractory:
-                    keep[k] = False
-                else:
-                    keep[k] = True
-                    last = t
-                k += 1
-            last_t[y, x] = last
-            ref[y, x] = r + n * c
+        for i in range(width):
+            r = ref[y, i]
+            y0, a, b, xi = L0[y, i], raw0[y, i], raw1[y, i], x[y, i]
+            f_turn, y_turn, y1 = interval_levels(y0, a, b, xi)
+            last = last_t[y, i]
+            # The level's monotonic pieces: up to the turn, then (if it turns) to the end.
+            f_lo, y_lo, f_hi, y_hi = 0.0, y0, f_turn, y_turn
+            while True:
+                n, c, sign = threshold_crossings(y_hi, r, c_on[y, i], c_off[y, i])
+                for j in range(1, n + 1):
+                    t = filtered_crossing_time(r + j * c, y0, a, b, xi, f_lo, y_lo, f_hi, y_hi,
+                                               t0, dt)
+                    out_t[k] = t
+                    out_x[k] = i
+                    out_y[k] = y
+                    out_p[k] = sign
+                    if refractory > 0 and t - last < refractory:
+                        keep[k] = False
+                    else:
+                        keep[k] = True
+                        last = t
+                    k += 1
+                r += n * c
+                if f_hi >= 1.0:
+                    break
+                f_lo, y_lo, f_hi, y_hi = f_hi, y_hi, 1.0, y1
+            last_t[y, i] = last
+            ref[y, i] = r
 
 
 class EventEmulator:
@@ -212,6 +280,7 @@ class EventEmulator:
         self.ref: np.ndarray | None = None
         self._L: np.ndarray | None = None
         self._raw: np.ndarray | None = None
+        self._cutoff: np.ndarray | None = None
         self._t: int | None = None
         self._last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, dtype=np.int64)
 
@@ -234,14 +303,16 @@ class EventEmulator:
             ``time_ns`` (int or None before :meth:`start`), ``rng`` (the generator's
             ``bit_generator.state``, a JSON-able dict) and, after :meth:`start`, the (H, W)
             arrays ``ref`` (float64 references), ``level`` (float64 filtered log intensity of
-            the last sample), ``raw`` (float64 unfiltered log intensity of the last sample) and
-            ``last_t`` (int64 ns of each pixel's last event). The threshold, hot-pixel and leak
-            maps are not included: they follow from ``params`` alone.
+            the last sample), ``raw`` (float64 unfiltered log intensity of the last sample),
+            ``cutoff`` (float64 low-pass cutoff of each pixel at the last sample, Hz; 0 without
+            the filter) and ``last_t`` (int64 ns of each pixel's last event). The threshold,
+            hot-pixel and leak maps are not included: they follow from ``params`` alone.
         """
         state: dict = {"time_ns": self._t, "rng": self._rng.bit_generator.state}
         if self.ref is not None:
             state.update(ref=self.ref.copy(), level=np.array(self._L, dtype=np.float64),
-                         raw=np.array(self._raw, dtype=np.float64), last_t=self._last_t.copy())
+                         raw=np.array(self._raw, dtype=np.float64),
+                         cutoff=self._cutoff.copy(), last_t=self._last_t.copy())
         return state
 
     def set_state(self, state: dict) -> None:
@@ -255,7 +326,7 @@ class EventEmulator:
         """
         missing = [key for key in ("time_ns", "rng") if key not in state]
         if state.get("time_ns") is not None:
-            missing += [key for key in ("ref", "level", "raw", "last_t") if key not in state]
+            missing += [key for key in _STATE_ARRAYS if key not in state]
         if missing:
             raise ValueError(f"emulator state lacks {', '.join(missing)}; expected a dict from "
                              "EventEmulator.get_state()")
@@ -263,7 +334,7 @@ class EventEmulator:
             arrays = {}
         else:
             arrays = {key: np.array(state[key], dtype=np.int64 if key == "last_t" else np.float64)
-                      for key in ("ref", "level", "raw", "last_t")}
+                      for key in _STATE_ARRAYS}
         for key, value in arrays.items():
             if value.shape != self.shape:
                 raise ValueError(f"emulator state: {key} has shape {value.shape}; expected the "
@@ -272,6 +343,7 @@ class EventEmulator:
         self._t = None if state["time_ns"] is None else int(state["time_ns"])
         self.ref = arrays.get("ref")
         self._L, self._raw = arrays.get("level"), arrays.get("raw")
+        self._cutoff = arrays.get("cutoff")
         if "last_t" in arrays:
             self._last_t = arrays["last_t"]
 
@@ -283,14 +355,25 @@ class EventEmulator:
             raise ValueError(f"{name} has non-finite values; expected log intensities")
         return L
 
-    def start(self, L0: np.ndarray, t0: float) -> None:
-        """Set the first sample (t0 in seconds) and the references; emits nothing."""
+    def start(self, L0: np.ndarray, t0: float, luminance: np.ndarray | None = None) -> None:
+        """Set the first sample (t0 in seconds) and the references; emits nothing.
+
+        ``luminance`` (H, W), linear luminance at t0, sets the low-pass cutoff there (default
+        exp(L0), as in :meth:`advance`).
+        """
         L0 = self._check(L0, "L0")
         self.ref = L0.copy()
         if self.params.noise.initial_phase:
             self.ref -= self._rng.random(self.shape) * self.c_on
         self._L = self._raw = L0
+        self._cutoff = self._cutoff_at(L0, luminance)
         self._t = int(round(t0 * 1e9))
+
+    def _cutoff_at(self, L: np.ndarray, luminance: np.ndarray | None) -> np.ndarray:
+        """Each pixel's low-pass cutoff (Hz, 0 without the filter) at a sample."""
+        if self.params.noise.cutoff_hz == 0:
+            return np.zeros(self.shape)
+        return cutoff_frequency(np.exp(L) if luminance is None else luminance, self.params.noise)
 
     def advance(self, L1: np.ndarray, t1: float, luminance: np.ndarray | None = None
                 ) -> np.ndarray:
@@ -325,46 +408,56 @@ class EventEmulator:
         Y = None
         if needs_light:
             Y = np.exp(L1) if luminance is None else np.asarray(luminance, dtype=np.float64)
-        raw = L1
+        cutoff = self._cutoff
         if noise.cutoff_hz > 0:
-            L1 = lowpass_ramp_step(self._L, self._raw, raw, dt_ns * 1e-9, Y, noise)
+            if not np.all(np.isfinite(L1)):
+                raise ValueError("L1 has non-finite values; expected log intensities")
+            cutoff = cutoff_frequency(Y, noise)
+            x = lowpass_exponent(dt_ns * 1e-9, self._cutoff, cutoff)
+        else:
+            x = np.full(self.shape, np.inf)
         if noise.leak_rate > 0:
             self.ref += leak_drift(dt_ns * 1e-9, self.c_on, self.leak_rates, noise, self._rng)
-        events = self._crossings(self._L, L1, self._t, dt_ns)
+        raw = L1
+        events, L1 = self._crossings(self._L, self._raw, raw, x, self._t, dt_ns)
         if noise.shot_noise_rate > 0:
             events = merge_events(events, background_events(self._t, t1_ns, Y, noise, self._rng))
         if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
             events = merge_events(events, hot_pixel_events(self._t, t1_ns, self.hot_mask,
                                                            noise.hot_pixel_rate, self._rng))
-        self._L, self._raw, self._t = L1, raw, t1_ns
+        self._L, self._raw, self._cutoff, self._t = L1, raw, cutoff, t1_ns
         return events
 
-    def _crossings(self, L0, L1, t0_ns: int, dt_ns: int) -> np.ndarray:
-        counts = _count_rows(L1, self.ref, self.c_on, self.c_off)
+    def _crossings(self, L0, raw0, raw1, x, t0_ns: int, dt_ns: int
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """The interval's threshold crossings (sorted events) and each pixel's level at its end
+        (H, W): ``raw1`` itself without the filter (``x`` all inf)."""
+        L1 = np.empty(self.shape)
+        counts = _count_rows(L0, raw0, raw1, x, self.ref, self.c_on, self.c_off, L1)
         if np.any(counts < 0):
             raise ValueError("L1 has non-finite values; expected log intensities")
         total = int(counts.sum())
         offsets = np.zeros(len(counts), dtype=np.int64)
         np.cumsum(counts[:-1], out=offsets[1:])
         t = np.empty(total, np.int64)
-        x = np.empty(total, np.uint16)
+        xs = np.empty(total, np.uint16)
         y = np.empty(total, np.uint16)
         p = np.empty(total, np.int8)
         keep = np.empty(total, np.bool_)
         refractory = int(round(self.params.noise.refractory_period * 1e9))
-        _write_rows(L0, L1, self.ref, self.c_on, self.c_off, self._last_t, offsets, t0_ns,
-                    float(dt_ns), refractory, t, x, y, p, keep)
+        _write_rows(L0, raw0, raw1, x, self.ref, self.c_on, self.c_off, self._last_t, offsets,
+                    t0_ns, float(dt_ns), refractory, t, xs, y, p, keep)
         # Time order, ties in pixel order: sort on (t - t0) * pixels + pixel index. The key is
         # unique unless one pixel fires twice in the same nanosecond, so the fast (unstable)
         # sort gives the stable order; it fits int64 for intervals up to ~9e18 / (H W) ns.
         pixels = self.shape[0] * self.shape[1]
-        key = (t - t0_ns) * pixels + (y.astype(np.int64) * self.shape[1] + x)
+        key = (t - t0_ns) * pixels + (y.astype(np.int64) * self.shape[1] + xs)
         order = np.argsort(key)
         if refractory > 0:
             order = order[keep[order]]
         events = np.empty(len(order), EVENT_DTYPE)
-        events["t"], events["x"], events["y"], events["p"] = t[order], x[order], y[order], p[order]
-        return events
+        events["t"], events["x"], events["y"], events["p"] = t[order], xs[order], y[order], p[order]
+        return events, L1
 
 
 def _check_stack(log_frames, times) -> tuple[np.ndarray, np.ndarray]:

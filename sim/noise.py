@@ -9,16 +9,19 @@ Contrast-threshold mismatch (:func:`threshold_map`)
     ``C = N(C_nominal, threshold_sigma**2)`` per pixel, independently for ON and OFF, sigma in
     absolute log-intensity units, floored at :data:`THRESHOLD_FLOOR` = 0.01. As v2e.
 
-Photoreceptor low-pass (:func:`cutoff_frequency`, :func:`lowpass_step`)
+Photoreceptor low-pass (:func:`cutoff_frequency`, :func:`lowpass_exponent`, :func:`ramp_response`)
     A first-order low-pass on the log intensity whose 3 dB cutoff is proportional to the
     photocurrent, ``f(Y) = cutoff_hz * clip(Y / cutoff_intensity_ref, cutoff_min_fraction, 1)``.
     v2e uses ``f = cutoff_hz * (DN + 20) / 275`` for an 8-bit input DN: affine in DN, from
     20/275 at DN 0 to 1 at DN 255. Here ``f`` is proportional to linear luminance, with
     ``cutoff_intensity_ref`` in the role of DN 255 and v2e's 20/275 as the default floor
     ``cutoff_min_fraction`` (they differ by at most 0.07 of ``cutoff_hz`` in between). v2e
-    integrates with a forward-Euler step clamped at 1; here the step is exact for an input
-    held constant over ``dt``: ``alpha = 1 - exp(-2 pi f dt)``, stable for any ``dt``
-    (:func:`lowpass_ramp_step` is exact for a linear ramp, the emulator's interpolation).
+    integrates with a forward-Euler step clamped at 1 and interpolates its output linearly;
+    here the filter is solved exactly for the emulator's input, linear between two samples
+    (:func:`ramp_response`, stable for any interval), with the cutoff's logarithmic mean over
+    the interval (:func:`lowpass_exponent`), and each threshold crossing of the filtered
+    level is found on that solution (:func:`ramp_turn`, :func:`ramp_crossing`; used by
+    :mod:`sim.events`).
 
 Leak events (:func:`leak_rate_map`, :func:`leak_drift`)
     Junction leakage in the reset switch moves each pixel's reference *down* by
@@ -56,6 +59,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
+import numba
 import numpy as np
 
 __all__ = [
@@ -68,11 +72,12 @@ __all__ = [
     "hot_pixel_mask",
     "leak_drift",
     "leak_rate_map",
-    "lowpass_ramp_step",
-    "lowpass_step",
-    "lowpass_substeps",
+    "lowpass_exponent",
     "merge_events",
     "noise_preset",
+    "ramp_crossing",
+    "ramp_response",
+    "ramp_turn",
     "shot_noise_rate_map",
     "threshold_map",
 ]
@@ -345,138 +350,138 @@ def cutoff_frequency(luminance: np.ndarray, params: NoiseParams) -> np.ndarray:
         ``cutoff_hz * clip(Y / cutoff_intensity_ref, cutoff_min_fraction, 1)``; all 0 when
         ``cutoff_hz`` is 0 (filter off).
     """
-    params = _check_params(params)
-    luminance = _check_luminance(luminance)
+    return _cutoff(_check_luminance(luminance), _check_params(params))
+
+
+def _cutoff(luminance: np.ndarray, params: NoiseParams) -> np.ndarray:
+    """The law of :func:`cutoff_frequency` on already-checked values of any shape (the
+    per-pixel emulator's samples are a flat array)."""
     fraction = np.clip(luminance / params.cutoff_intensity_ref, params.cutoff_min_fraction, 1.0)
     return params.cutoff_hz * fraction
 
 
-def _check_levels(L_filtered, L_new, luminance, names=("L_filtered", "L_new")):
-    arrays = []
-    for name, L in zip(names, (L_filtered, L_new), strict=True):
-        L = np.asarray(L, dtype=np.float64)
-        if L.ndim != 2 or not np.all(np.isfinite(L)):
-            raise ValueError(f"{name} must be a finite (H, W) array of log intensities, "
-                             f"got shape {L.shape}")
-        arrays.append(L)
-    luminance = _check_luminance(luminance)
-    for name, array in zip(names, arrays, strict=True):
-        if array.shape != luminance.shape:
-            raise ValueError(f"{name} has shape {array.shape} but luminance has shape "
-                             f"{luminance.shape}; expected the same (H, W)")
-    return arrays[0], arrays[1], luminance
+def lowpass_exponent(dt: float | np.ndarray, cutoff_start: np.ndarray, cutoff_end: np.ndarray
+                     ) -> np.ndarray:
+    """Length of an interval in time constants of each pixel's low-pass, ``x = dt / tau``.
 
-
-def lowpass_step(L_filtered: np.ndarray, L_new: np.ndarray, dt: float, luminance: np.ndarray,
-                 params: NoiseParams) -> np.ndarray:
-    """Advance the photoreceptor low-pass by ``dt`` with the input held at ``L_new``.
-
-    First-order filter ``tau dL/dt = L_in - L`` with ``tau = 1 / (2 pi f(Y))``
-    (:func:`cutoff_frequency`), integrated exactly for a constant input::
-
-        L <- L + alpha (L_new - L),    alpha = 1 - exp(-2 pi f dt)
-
-    so it is stable for any ``dt``; see :func:`lowpass_substeps` for when ``dt`` is too long
-    for the emulator's linear interpolation of the output, and :func:`lowpass_ramp_step` for
-    an input that ramps linearly over the interval.
+    Inside an interval the log intensity is linear in time, so the photocurrent (and the
+    cutoff, proportional to it) is exponential in time between its two end values. The filter
+    is solved with a constant cutoff over the interval (:func:`ramp_response`); the one that
+    gives the exact integral of ``2 pi f(t)`` over the interval is the *logarithmic mean* of
+    the end cutoffs, ``(f1 - f0) / ln(f1 / f0)`` (their common value when equal). What is left
+    is second order in the cutoff's change over the interval (see ``README.md``, "Exact timing
+    under the low-pass filter", for the bound).
 
     Parameters
     ----------
-    L_filtered : (H, W) array_like, log intensity
-        Filter output at the start of the interval.
-    L_new : (H, W) array_like, log intensity
-        Input over the interval (the new render).
-    dt : float, seconds, > 0
-    luminance : (H, W) array_like, linear luminance
-        Sets each pixel's cutoff (use the new render's luminance).
-    params : NoiseParams
+    dt : float or array_like, seconds, > 0
+        The interval's length (one for all, or one per cutoff).
+    cutoff_start, cutoff_end : array_like, Hz
+        Each pixel's cutoff at the start and at the end of the interval
+        (:func:`cutoff_frequency`), same shape; 0 = no filter.
 
     Returns
     -------
-    (H, W) float64 ndarray, log intensity
-        Filter output at the end of the interval; ``L_new`` itself (a copy) when
-        ``params.cutoff_hz`` is 0.
+    ndarray of float64, same shape
+        ``2 pi dt fbar``; ``inf`` (infinite bandwidth: the filter passes its input) where a
+        cutoff is 0.
     """
-    params = _check_params(params)
-    dt = _check_dt("lowpass_step", dt)
-    L_filtered, L_new, luminance = _check_levels(L_filtered, L_new, luminance)
-    if params.cutoff_hz == 0:
-        return L_new.copy()
-    alpha = -np.expm1(-2.0 * np.pi * dt * cutoff_frequency(luminance, params))
-    return L_filtered + alpha * (L_new - L_filtered)
+    if isinstance(dt, np.ndarray):
+        if not (np.all(np.isfinite(dt)) and np.all(dt > 0)):
+            raise ValueError("lowpass_exponent.dt must hold finite numbers > 0 (seconds)")
+    else:
+        dt = _check_dt("lowpass_exponent", dt)
+    f0 = np.asarray(cutoff_start, dtype=np.float64)
+    f1 = np.asarray(cutoff_end, dtype=np.float64)
+    if f0.shape != f1.shape or not (np.all(np.isfinite(f0)) and np.all(np.isfinite(f1))) \
+            or np.any(f0 < 0) or np.any(f1 < 0):
+        raise ValueError(f"cutoff_start and cutoff_end must be finite cutoffs >= 0 Hz of the "
+                         f"same shape, got shapes {f0.shape} and {f1.shape}")
+    off = (f0 == 0) | (f1 == 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = f1 / f0
+        # Below a relative difference of 1e-6 the arithmetic mean is the logarithmic one to
+        # 1e-13 (their difference is (r - 1)**2 / 12 of it).
+        mean = np.where(np.abs(ratio - 1.0) < 1e-6, 0.5 * (f0 + f1),
+                        (f1 - f0) / np.log(ratio))
+    return np.where(off, np.inf, 2.0 * np.pi * dt * mean)
 
 
-def lowpass_ramp_step(L_filtered: np.ndarray, L_prev: np.ndarray, L_new: np.ndarray, dt: float,
-                      luminance: np.ndarray, params: NoiseParams) -> np.ndarray:
-    """Advance the photoreceptor low-pass by ``dt`` with the input ramping linearly.
+@numba.njit(cache=True, inline="always")
+def ramp_response(f, y0, a, b, x):  # pragma: no cover - compiled
+    """The filter's output at fraction ``f`` of an interval over which its input ramps.
 
-    The exact solution of ``tau dL/dt = L_in - L`` for ``L_in`` linear in time (the
-    emulator's interpolation between renders), with ``x = dt / tau = 2 pi f dt``::
+    The exact solution of ``tau dy/dt = u - y`` for ``u`` linear from ``a`` to ``b`` over the
+    interval, ``y = y0`` at its start, ``x`` = the interval in time constants::
 
-        L <- e L + (1 - e) L_new + (L_new - L_prev) (e - (1 - e) / x),   e = exp(-x)
+        y(f) = a + (y0 - a) E + (b - a) (f - (1 - E) / x),   E = exp(-x f)
 
-    Parameters
-    ----------
-    L_filtered : (H, W) array_like, log intensity
-        Filter output at the start of the interval.
-    L_prev, L_new : (H, W) array_like, log intensity
-        Input at the start and at the end of the interval.
-    dt : float, seconds, > 0
-    luminance : (H, W) array_like, linear luminance
-        Sets each pixel's cutoff.
-    params : NoiseParams
-
-    Returns
-    -------
-    (H, W) float64 ndarray, log intensity
-        Filter output at the end of the interval; ``L_new`` (a copy) when ``cutoff_hz`` is 0.
+    written so that neither a small nor a large ``x`` loses precision. ``x = inf`` (no
+    filter) gives the input itself, ``a + (b - a) f``.
     """
-    params = _check_params(params)
-    dt = _check_dt("lowpass_ramp_step", dt)
-    L_filtered, L_new, luminance = _check_levels(L_filtered, L_new, luminance)
-    L_prev, _, _ = _check_levels(L_prev, L_new, luminance, names=("L_prev", "L_new"))
-    if params.cutoff_hz == 0:
-        return L_new.copy()
-    x = 2.0 * np.pi * dt * cutoff_frequency(luminance, params)
-    one_minus_e = -np.expm1(-x)
-    e = 1.0 - one_minus_e
-    return e * L_filtered + one_minus_e * L_new + (L_new - L_prev) * (e - one_minus_e / x)
+    if x == math.inf:
+        return a + (b - a) * f
+    one_minus_e = -math.expm1(-x * f)
+    return a + (y0 - a) * (1.0 - one_minus_e) + (b - a) * (f - one_minus_e / x)
 
 
-def lowpass_substeps(dt: float, params: NoiseParams, luminance: np.ndarray | None = None,
-                     max_step: float = 0.1) -> int:
-    """Number of equal sub-steps that keep each step within ``max_step`` time constants.
+@numba.njit(cache=True, inline="always")
+def ramp_turn(y0, a, b, x):  # pragma: no cover - compiled
+    """Fraction in (0, 1) of the interval at which :func:`ramp_response` turns; 1.0 if none.
 
-    :func:`lowpass_step` is stable for any ``dt``, but between two filter outputs the emulator
-    interpolates linearly, which misses the curvature of the exponential approach: the error
-    is at most ``(dt / tau)**2 / 8`` of the step's size (0.125 % at the default 0.1). Splitting
-    an interval into this many sub-steps (with the input interpolated between the renders)
-    bounds that error; v2e warns from ``dt / tau > 0.3``.
-
-    Parameters
-    ----------
-    dt : float, seconds, > 0
-        Interval between two renders.
-    params : NoiseParams
-    luminance : (H, W) array_like, optional
-        When given, the fastest pixel's cutoff sets the count; otherwise ``cutoff_hz``.
-    max_step : float, > 0
-        Largest allowed ``dt_sub / tau = 2 pi f dt_sub``.
-
-    Returns
-    -------
-    int
-        ``max(1, ceil(2 pi f_max dt / max_step))``; 1 when the filter is off.
+    ``y'' `` never changes sign on the interval, so the output is monotonic or turns once: it
+    turns when it starts on the other side of the input from where the input goes (it first
+    moves towards the input, then follows the ramp), at ``f = ln(1 + x (y0 - a) / (b - a)) / x``.
     """
-    params = _check_params(params)
-    dt = _check_dt("lowpass_substeps", dt)
-    max_step = _number("lowpass_substeps", "max_step", max_step, low_open=True)
-    if params.cutoff_hz == 0:
-        return 1
-    f_max = params.cutoff_hz if luminance is None else float(
-        np.max(cutoff_frequency(luminance, params)))
-    # The tiny slack keeps an exact multiple (up to rounding) from asking for one more step.
-    return max(1, math.ceil(2.0 * math.pi * f_max * dt / max_step * (1.0 - 1e-12)))
+    slope = b - a
+    if x == math.inf or slope == 0.0:
+        return 1.0
+    lead = x * (y0 - a)
+    if lead == 0.0 or (lead > 0.0) != (slope > 0.0):
+        return 1.0
+    f = math.log1p(lead / slope) / x
+    return f if 0.0 < f < 1.0 else 1.0
+
+
+@numba.njit(cache=True)
+def ramp_crossing(level, y0, a, b, x, f_lo, y_lo, f_hi, y_hi, tolerance):  # pragma: no cover
+    """Fraction ``f`` in ``[f_lo, f_hi]`` at which :func:`ramp_response` equals ``level``.
+
+    The response must be monotonic on the bracket (split it at :func:`ramp_turn`), with values
+    ``y_lo`` and ``y_hi`` at its ends. A level outside them gives the nearer end. Safeguarded
+    Newton: a Newton step from the end nearer the level, a bisection whenever the step would
+    leave the bracket; stops when the bracket (or the step) is shorter than ``tolerance``
+    (a fraction of the interval), or after 200 steps (bisection alone needs about 60 for
+    double precision).
+    """
+    rising = y_hi >= y_lo
+    if (level <= y_lo) == rising or level == y_lo:
+        return f_lo
+    if (level >= y_hi) == rising or level == y_hi:
+        return f_hi
+    lo, hi = f_lo, f_hi
+    f = f_lo + (f_hi - f_lo) * (level - y_lo) / (y_hi - y_lo)        # the chord's guess
+    slope = b - a
+    for _ in range(200):
+        g = ramp_response(f, y0, a, b, x) - level
+        if g == 0.0:
+            return f
+        if (g > 0.0) == rising:
+            hi = f
+        else:
+            lo = f
+        if hi - lo <= tolerance:
+            return 0.5 * (lo + hi)
+        e = math.exp(-x * f)
+        derivative = slope * (1.0 - e) - x * (y0 - a) * e            # dy/df
+        step = g / derivative if derivative != 0.0 else math.inf
+        f_new = f - step
+        if not lo < f_new < hi:
+            f_new = 0.5 * (lo + hi)
+        elif abs(step) <= tolerance:
+            return f_new
+        f = f_new
+    return f
 
 
 # ------------------------------------------------------------------------------------------------

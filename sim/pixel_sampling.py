@@ -52,9 +52,9 @@ import numpy as np
 
 from sim.camera import Camera
 from sim.eventio import EVENT_DTYPE
-from sim.events import EventEmulator, crossing_time, threshold_crossings
-from sim.noise import background_events, hot_pixel_events, merge_events
-from sim.sampling import SPLIT, SamplingParams, motion_field
+from sim.events import EventEmulator, filtered_crossing_time, interval_levels, threshold_crossings
+from sim.noise import _cutoff, background_events, hot_pixel_events, lowpass_exponent, merge_events
+from sim.sampling import SPLIT, SamplingParams, contrast_scale, motion_field
 
 __all__ = ["MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
            "PixelSource", "pixel_blocks", "rate_map"]
@@ -255,16 +255,16 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _pixel_events(pix, t, L, Y, ref, level, raw, last_t, c_on, c_off, leak, normals,
-                  cutoff, refractory, write, out_t, out_pix, out_p):  # pragma: no cover
+def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
+                  refractory, write, out_t, out_pix, out_p):  # pragma: no cover
     """Events of per-pixel samples sorted by (pixel, time); the first sample of each pixel is
     its state at the block start. Counts only (and leaves the state alone) unless ``write``.
 
-    ``leak`` is (rate per pixel (P,), jitter); ``cutoff`` is (cutoff_hz, intensity_ref,
-    min_fraction) with cutoff_hz 0 for no filter.
+    ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
+    the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
+    per pixel (P,), jitter).
     """
     leak_rates, leak_jitter = leak
-    cutoff_hz, intensity_ref, min_fraction = cutoff
     n = 0
     S = len(pix)
     j = 0
@@ -281,36 +281,32 @@ def _pixel_events(pix, t, L, Y, ref, level, raw, last_t, c_on, c_off, leak, norm
             tb = t[j]
             lb = L[j]
             dt = tb - ta
-            if cutoff_hz > 0.0:
-                fraction = Y[j] / intensity_ref
-                if fraction < min_fraction:
-                    fraction = min_fraction
-                elif fraction > 1.0:
-                    fraction = 1.0
-                x = 2.0 * math.pi * (dt * 1e-9) * (cutoff_hz * fraction)
-                one_minus_e = -math.expm1(-x)
-                e = 1.0 - one_minus_e
-                lf_new = e * lf + one_minus_e * lb + (lb - la) * (e - one_minus_e / x)
-            else:
-                lf_new = lb
+            x = exponent[j - 1]
             if leak_rates.size:
                 jitter = 1.0 - leak_jitter * normals[k]
                 if jitter < 0.0:
                     jitter = 0.0
                 r += -((dt * 1e-9) * leak_rates[p] * jitter * c_on[p])
-            count, c, sign = threshold_crossings(lf_new, r, c_on[p], c_off[p])
-            slope = lf_new - lf
-            for i in range(1, count + 1):
-                te = crossing_time(r + i * c, lf, slope, ta, dt)
-                if refractory > 0 and te - last < refractory:
-                    continue
-                last = te
-                if write:
-                    out_t[n] = te
-                    out_pix[n] = p
-                    out_p[n] = sign
-                n += 1
-            r += count * c
+            f_turn, y_turn, lf_new = interval_levels(lf, la, lb, x)
+            # The level's monotonic pieces: up to the turn, then (if it turns) to the end.
+            f_lo, y_lo, f_hi, y_hi = 0.0, lf, f_turn, y_turn
+            while True:
+                count, c, sign = threshold_crossings(y_hi, r, c_on[p], c_off[p])
+                for i in range(1, count + 1):
+                    te = filtered_crossing_time(r + i * c, lf, la, lb, x, f_lo, y_lo, f_hi, y_hi,
+                                                ta, float(dt))
+                    if refractory > 0 and te - last < refractory:
+                        continue
+                    last = te
+                    if write:
+                        out_t[n] = te
+                        out_pix[n] = p
+                        out_p[n] = sign
+                    n += 1
+                r += count * c
+                if f_hi >= 1.0:
+                    break
+                f_lo, y_lo, f_hi, y_hi = f_hi, y_hi, 1.0, lf_new
             lf, la, ta = lf_new, lb, tb
             j += 1
             k += 1
@@ -379,12 +375,16 @@ class PixelEventEmulator(EventEmulator):
         else:
             normals = np.zeros(0)
             leak = (np.zeros(0), 0.0)
-        cutoff = (float(noise.cutoff_hz), float(noise.cutoff_intensity_ref),
-                  float(noise.cutoff_min_fraction))
+        exponent = np.full(max(len(pixels) - 1, 0), np.inf)
+        if noise.cutoff_hz > 0:
+            same = pixels[1:] == pixels[:-1]
+            cutoff = _cutoff(np.asarray(luminance, np.float64), noise)
+            exponent[same] = lowpass_exponent(np.diff(times_ns)[same] * 1e-9, cutoff[:-1][same],
+                                              cutoff[1:][same])
         refractory = int(round(noise.refractory_period * 1e9))
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
-        args = (pixels, times_ns, levels, luminance, ref, level, raw, last_t, c_on, c_off, leak,
-                normals, cutoff, refractory)
+        args = (pixels, times_ns, levels, exponent, ref, level, raw, last_t, c_on, c_off, leak,
+                normals, refractory)
         total = _pixel_events(*args, False, *_outputs(0))
         out_t, out_pix, out_p = _outputs(total)
         _pixel_events(*args, True, out_t, out_pix, out_p)
@@ -399,6 +399,7 @@ class PixelEventEmulator(EventEmulator):
         if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
             events = merge_events(events, hot_pixel_events(t0_ns, t_end_ns, self.hot_mask,
                                                            noise.hot_pixel_rate, self._rng))
+        self._cutoff = self._cutoff_at(self._raw, end_luminance)
         self._t = int(t_end_ns)
         return events
 
@@ -431,8 +432,10 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     emulator : PixelEventEmulator
         Started here at ``t0`` (unless ``after``); its state moves with the blocks.
     t0, t1 : float, seconds
-    contrast : float
-        The smallest contrast threshold C (log units).
+    contrast : float or (H, W) array_like
+        The contrast threshold C (log units): one for all pixels, or each pixel's own (the
+        smaller of its ON and OFF thresholds); each pixel is then held to ``lam`` of its own
+        (:func:`sim.sampling.contrast_scale`).
     log_eps : float
         L = log(Y + log_eps).
     params : SamplingParams, optional
@@ -456,6 +459,9 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     camera = source.camera
     shape = (camera.height, camera.width)
     n_pixels = shape[0] * shape[1]
+    contrast, scale = contrast_scale(contrast)
+    if scale is not None:
+        scale = scale.reshape(-1)
     bound = params.lam * contrast
     block_ns = max(int(round(1e9 / params.min_rate)), 1)
     dt_min_ns = max(int(round(1e9 / params.max_rate)), 1)
@@ -477,7 +483,7 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     lum_b = pixel_means(sub_b, shape)
     log_b = log_of(lum_b)
     if after is None:
-        emulator.start(log_b, t0)
+        emulator.start(log_b, t0, lum_b)
     observed = None if after is None else np.asarray(after[1], dtype=np.float64)
     centres = camera.normalized_pixel_centres()
     all_pixels = np.arange(n_pixels, dtype=np.int64)
@@ -498,7 +504,7 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         rate = np.maximum(rate, np.abs(log_e - log_b) / (length * 1e-9)).reshape(-1)
         if observed is not None:
             rate = np.maximum(rate, observed)
-        inner = _intra_counts(rate, length, bound, dt_min_ns)
+        inner = _intra_counts(rate if scale is None else rate * scale, length, bound, dt_min_ns)
         # Every pixel: its block-start sample, `inner` evenly spaced samples, its block-end one.
         counts = inner + 2
         pix = np.repeat(all_pixels, counts)
@@ -516,35 +522,43 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
             values = np.asarray(source.luminance(pix[middle], seconds(times[middle])), np.float64)
             lums[middle], levels[middle] = values, np.log(values + log_eps)
             stats.pixel_samples += int(middle.sum())
-        pix, times, levels, lums = _refine(source, pix, times, levels, lums, bound, dt_min_ns,
-                                           log_eps, stats, seconds)
+        pix, times, levels, lums = _refine(source, pix, times, levels, lums, bound, scale,
+                                           dt_min_ns, log_eps, stats, seconds)
         stats.intervals += len(pix) - n_pixels
-        observed = _observed_rates(pix, times, levels, bound)
+        observed = _observed_rates(pix, times, levels, bound, scale)
         events = emulator.advance_samples(pix, times, levels, lums, t_e, lum_e)
         stats.blocks += 1
         t_b, sub_b, lum_b, log_b = t_e, sub_e, lum_e, log_e
         yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
 
 
-def _observed_rates(pix: np.ndarray, times: np.ndarray, levels: np.ndarray, bound: float
-                    ) -> np.ndarray:
+def _scaled(change: np.ndarray, pix: np.ndarray, scale: np.ndarray | None) -> np.ndarray:
+    """Changes of pixels ``pix`` in units of the smallest threshold (``scale`` from
+    :func:`sim.sampling.contrast_scale`, flat; None when all thresholds are equal)."""
+    return change if scale is None else change * scale[pix]
+
+
+def _observed_rates(pix: np.ndarray, times: np.ndarray, levels: np.ndarray, bound: float,
+                    scale: np.ndarray | None) -> np.ndarray:
     """Each pixel's largest |dL/dt| over its intervals of the block that met the bound, 1/s
     (steps left at the maximum rate would ask for the maximum rate everywhere)."""
     same = pix[1:] == pix[:-1]
     change = np.abs(np.diff(levels))
-    slope = np.where(same & (change <= bound), change / np.maximum(np.diff(times), 1) * 1e9, 0.0)
+    met = _scaled(change, pix[:-1], scale) <= bound
+    slope = np.where(same & met, change / np.maximum(np.diff(times), 1) * 1e9, 0.0)
     starts = np.flatnonzero(np.r_[True, ~same])
     return np.maximum.reduceat(np.r_[slope, 0.0], starts)
 
 
 def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.ndarray,
-            lums: np.ndarray, bound: float, dt_min_ns: int, log_eps: float,
-            stats: PixelSamplingStats, seconds) -> tuple[np.ndarray, ...]:
-    """Split every interval of a pixel that breaks the bound at its midpoint, level by level
-    (one launch per level, only the intervals still breaking it); then merge the midpoints
-    into the samples, which stay sorted by pixel and time."""
+            lums: np.ndarray, bound: float, scale: np.ndarray | None, dt_min_ns: int,
+            log_eps: float, stats: PixelSamplingStats, seconds) -> tuple[np.ndarray, ...]:
+    """Split every interval of a pixel that breaks the bound (``lam`` of its own threshold:
+    ``bound`` on the change scaled by ``scale``) at its midpoint, level by level (one launch
+    per level, only the intervals still breaking it); then merge the midpoints into the
+    samples, which stay sorted by pixel and time."""
     same = pix[1:] == pix[:-1]
-    index = np.flatnonzero(same & (np.abs(np.diff(levels)) > bound))
+    index = np.flatnonzero(same & (_scaled(np.abs(np.diff(levels)), pix[:-1], scale) > bound))
     # The intervals still to split: pixel, start time and level, end time and level.
     p, ta, la, tb, lb = pix[index], times[index], levels[index], times[index + 1], \
         levels[index + 1]
@@ -564,8 +578,8 @@ def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.
         continuous = (share > SPLIT) & (share < 1 - SPLIT)
         stats.steps += int(np.count_nonzero(~continuous))
         found.append((p, mt, ml, my))
-        first = np.abs(ml - la) > bound
-        second = np.abs(lb - ml) > bound
+        first = _scaled(np.abs(ml - la), p, scale) > bound
+        second = _scaled(np.abs(lb - ml), p, scale) > bound
         p, ta, la, tb, lb = (np.concatenate([x[first], y[second]]) for x, y in (
             (p, p), (ta, mt), (la, ml), (mt, tb), (ml, lb)))
     if not found:

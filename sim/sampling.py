@@ -15,6 +15,21 @@ pixel whose change splits between the two halves (the first half holds between `
 ``1 - SPLIT`` of it) is changing continuously, and the first half is refined further; if every
 violating pixel changed in one half only (steps), both halves are kept (no render is wasted)
 and sampling goes on. Such samples have ``refined`` True and may have ``bound_met`` False.
+
+Each pixel's own threshold. With threshold mismatch every pixel has its own ``C_p`` (the smaller
+of its ON and OFF thresholds, :func:`sim.noise.threshold_map`), and the bound is ``lam * C_p``
+per pixel: the prediction takes the largest ``rate_p / C_p`` and the check compares each
+pixel's change with its own bound (:func:`contrast_scale`). A pixel 3 sigma low (C = 0.11 for
+C = 0.2, sigma 0.03) is then sampled at ``lam`` of its threshold, not at 0.9.
+
+The photoreceptor low-pass. The emulator solves the filter exactly for an input that is linear
+between two samples and finds each crossing on that solution (:mod:`sim.events`), so what the
+sampler must bound is how far the real input is from that line, as without the filter: the
+bound stays on the *unfiltered* change. The filter cannot make that error larger: a first-order
+low-pass has a positive impulse response of unit area, so ``|y - y_lin| <= max |u - u_lin|``
+(L-infinity gain 1). What remains of the filter is the cutoff's change inside an interval,
+taken as the logarithmic mean of its ends (:func:`sim.noise.lowpass_exponent`); the README
+states that bound.
 """
 
 from __future__ import annotations
@@ -28,8 +43,8 @@ import numpy as np
 from sim.camera import Camera
 
 __all__ = ["AT_MAX_RATE_NOTE", "AT_MAX_RATE_WARN_SHARE", "Sample", "SamplingParams",
-           "SamplingStats", "adaptive_samples", "log_rate_bound", "max_rate_warning",
-           "motion_field"]
+           "SamplingStats", "adaptive_samples", "contrast_scale", "log_rate_bound",
+           "max_rate_warning", "motion_field"]
 
 MARGIN = 0.75
 """The prediction aims at MARGIN * lam * C: a slight underestimate then costs no refinement."""
@@ -85,9 +100,10 @@ class Sample:
     luminance : (H, W) float32 ndarray, linear
     log : (H, W) float64 ndarray, L = log(Y + eps)
     max_change : float
-        Largest |L - L_previous| over the pixels (0 for the first sample).
+        Largest |L - L_previous| over the pixels (0 for the first sample), each pixel's change
+        scaled by ``C / C_p`` when the thresholds differ (:func:`contrast_scale`).
     bound_met : bool
-        max_change <= lam * C.
+        max_change <= lam * C (C the smallest threshold): every pixel met its own bound.
     refined : bool
         The interval was shortened after the render at the predicted time broke the bound.
     tail_pending : bool
@@ -157,6 +173,36 @@ def max_rate_warning(at_max_rate: int, intervals: int, max_rate: float, bound: f
             f"light / specular highlight or texture too fine for the event camera's pixels; "
             f"their events are interpolated across larger changes; raise --max-rate "
             f"(SamplingParams.max_rate) or prefilter the texture")
+
+
+def contrast_scale(contrast: float | np.ndarray) -> tuple[float, np.ndarray | None]:
+    """The samplers' threshold: the smallest one, and each pixel's scale to it.
+
+    Parameters
+    ----------
+    contrast : float or (H, W) array_like, log-intensity units
+        One threshold for all pixels, or each pixel's own (the smaller of its ON and OFF
+        thresholds), > 0.
+
+    Returns
+    -------
+    C : float
+        The smallest threshold.
+    scale : (H, W) float64 ndarray or None
+        ``C / C_p`` (<= 1): a change ``d`` of pixel ``p`` meets ``lam * C_p`` exactly when
+        ``d * scale`` meets ``lam * C``. None when every pixel has the same threshold (then
+        the samplers do exactly what they do with a number).
+    """
+    values = np.asarray(contrast, dtype=np.float64)
+    if values.size == 0 or not np.all(np.isfinite(values)) or np.any(values <= 0):
+        raise ValueError("contrast must be a finite threshold > 0 (log units) or an (H, W) map "
+                         f"of them, got {contrast!r}" if values.ndim == 0 else
+                         "contrast must be a finite threshold > 0 (log units) or an (H, W) map "
+                         "of them; the map holds a value <= 0 or not finite")
+    smallest = float(values.min())
+    if values.ndim == 0 or np.all(values == smallest):
+        return smallest, None
+    return smallest, smallest / values
 
 
 def motion_field(camera: Camera, depth: np.ndarray, v_cam: np.ndarray, w_cam: np.ndarray,
@@ -231,8 +277,9 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
     renderer : sim.render.Renderer
         Renders luminance and depth of the scene at any time.
     t0, t1 : float, seconds
-    contrast : float
-        The smallest contrast threshold C (log units).
+    contrast : float or (H, W) array_like
+        The contrast threshold C (log units): one for all pixels, or each pixel's own (the
+        smaller of its ON and OFF thresholds); each pixel is then held to ``lam`` of its own.
     log_eps : float
         L = log(Y + log_eps).
     params : SamplingParams, optional
@@ -267,6 +314,7 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
     params = params or SamplingParams()
     stats = stats if stats is not None else SamplingStats()
     trajectory = renderer.scene.trajectory
+    contrast, scale = contrast_scale(contrast)
     bound = params.lam * contrast
     dt_min, dt_max = 1.0 / params.max_rate, 1.0 / params.min_rate
 
@@ -287,11 +335,13 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
     while t < t1:
         v_cam, w_cam = trajectory.camera_velocity(t)
         flow_u, flow_v = motion_field(renderer.camera, renderer.depth(t), v_cam, w_cam)
+        if scale is not None:                 # rates in units of the smallest threshold
+            flow_u, flow_v = flow_u * scale, flow_v * scale
         rate = log_rate_bound(log, flow_u, flow_v)
         dt = dt_max if rate == 0 else min(dt_max, max(dt_min, MARGIN * bound / rate))
         t_next = min(t + dt, t1)
         lum_next, log_next = render(t_next)
-        change = np.abs(log_next - log)
+        change = _scaled(np.abs(log_next - log), scale)
         refined = False
         tail: tuple | None = None                      # a second half kept after a step
         while True:
@@ -300,13 +350,14 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
                 break
             t_half = t + (t_next - t) / 2
             lum_half, log_half = render(t_half)
-            first = np.abs(log_half - log)
+            first = _scaled(np.abs(log_half - log), scale)
             stats.refined += 1
             refined = True
             share = first[violating] / change[violating]
             if not np.any((share > SPLIT) & (share < 1 - SPLIT)):
                 stats.steps += 1                       # steps only: keep both halves
-                tail = (t_next, lum_next, log_next, float(np.max(np.abs(log_next - log_half))))
+                tail = (t_next, lum_next, log_next,
+                        float(np.max(_scaled(np.abs(log_next - log_half), scale))))
                 t_next, lum_next, log_next, change = t_half, lum_half, log_half, first
                 break
             t_next, lum_next, log_next, change = t_half, lum_half, log_half, first
@@ -322,3 +373,8 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
             yield Sample(t, lum_s, log, largest, met, refined, tail_pending=k + 1 < len(kept))
         if math.isclose(t, t1, rel_tol=0, abs_tol=1e-12):
             break
+
+
+def _scaled(change: np.ndarray, scale: np.ndarray | None) -> np.ndarray:
+    """Each pixel's change in units of the smallest threshold (see :func:`contrast_scale`)."""
+    return change if scale is None else change * scale

@@ -103,8 +103,8 @@ CHECKPOINT_FOLDER = ".checkpoint"
 FRAME_NOISE_STREAM = 1
 """Frame ``k`` draws its noise from ``np.random.default_rng([seed, FRAME_NOISE_STREAM, k])``."""
 
-_CHECKPOINT_FORMAT = "evfuse checkpoint 1"
-_EMULATOR_ARRAYS = ("ref", "level", "raw", "last_t")
+_CHECKPOINT_FORMAT = "evfuse checkpoint 2"
+_EMULATOR_ARRAYS = ("ref", "level", "raw", "cutoff", "last_t")
 _SHADING = ("evfuse.shader: direct light from every light in turn, a fixed stratified sub-pixel "
             "pattern")
 PIXEL_AT_MAX_RATE_NOTE = (
@@ -512,7 +512,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
         arrays, state = saved
         after = Sample(luminance=arrays["sample_luminance"], log=arrays["sample_log"],
                        **state["sample"])
-    contrast = min(params.contrast_on, params.contrast_off)
+    contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
     event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
     with _event_stage(scene, folder, formats, positions, end - start, progress) as (bar,
                                                                                    writers):
@@ -523,7 +523,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
             tock = time.perf_counter()
             timings["event_render"] += tock - tick
             if emulator.time_ns is None:
-                emulator.start(sample.log, sample.t)
+                emulator.start(sample.log, sample.t, sample.luminance)
                 chunk = None
             else:
                 chunk = emulator.advance(sample.log, sample.t, sample.luminance)
@@ -561,7 +561,8 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
         "intervals_at_max_rate": stats.at_max_rate,
         "intervals_at_max_rate_note": AT_MAX_RATE_NOTE,
         "sampling_warning": max_rate_warning(stats.at_max_rate, max(stats.accepted - 1, 0),
-                                             sampling.max_rate, sampling.lam * contrast),
+                                             sampling.max_rate,
+                                             sampling.lam * float(contrast.min())),
         "shading": _SHADING if event_camera.shader is not None else "mitsuba direct integrator",
     }
 
@@ -699,7 +700,7 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
     if saved is not None:
         arrays, state = saved
         after = (state["sample"]["t"], arrays["observed_rates"])
-    contrast = min(params.contrast_on, params.contrast_off)
+    contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
     source = _ShaderSource(_EventCamera(renderer, scene.render.event_spp, start, end))
     with _event_stage(scene, folder, formats, positions, end - start, progress) as (bar,
                                                                                    writers):
@@ -747,7 +748,8 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
         "intervals_at_max_rate": stats.at_max_rate,
         "intervals_at_max_rate_note": PIXEL_AT_MAX_RATE_NOTE,
         "sampling_warning": max_rate_warning(stats.at_max_rate, stats.intervals,
-                                             sampling.max_rate, sampling.lam * contrast),
+                                             sampling.max_rate,
+                                             sampling.lam * float(contrast.min())),
         "shading": _SHADING,
     }
 
@@ -864,8 +866,8 @@ class _Checkpoint:
     sampler's last sample; with the per-pixel sampler, the frame at the end of the last block),
     ``observed_rates`` (per-pixel sampler only: each pixel's observed rate in that block, which
     the next block's prediction uses) and ``emulator_ref``, ``emulator_level``,
-    ``emulator_raw``, ``emulator_last_t`` (see :meth:`EventEmulator.get_state`), and under
-    ``state`` the JSON
+    ``emulator_raw``, ``emulator_cutoff``, ``emulator_last_t`` (see
+    :meth:`EventEmulator.get_state`), and under ``state`` the JSON
     text of the sample's time and flags, the emulator's time and generator state, the sampling
     counters, the event counts and each writer's :meth:`checkpoint`. Both files are written
     under a temporary name and renamed over the old one.

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.optimize import brentq
 
 from sim.events import (
     EVENT_DTYPE,
@@ -14,7 +16,9 @@ from sim.events import (
     emulate_events,
     emulate_events_reference,
 )
-from sim.noise import noise_preset
+from sim.noise import NoiseParams, noise_preset
+from sim.pixel_sampling import PixelEventEmulator
+from tests.conftest import filtered_reference_events
 
 
 def _pixel(values, times):
@@ -128,3 +132,73 @@ def test_bad_input_is_refused():
         emulator.advance(np.full((2, 2), np.nan), 0.1)
     with pytest.raises(ValueError, match="forward"):
         emulator.advance(np.zeros((2, 2)), 0.0)
+
+
+# --- crossings under the photoreceptor low-pass (issue 14) ---------------------------------------
+
+LOWPASS = EventParams(noise=NoiseParams(cutoff_hz=200.0))      # the filter alone, no noise
+
+
+def _one_pixel(level, times, params=LOWPASS, luminance=None):
+    """Events of one pixel with log intensity ``level(t)`` and luminance exp(level(t)) (or
+    ``luminance`` throughout)."""
+    emulator = EventEmulator((1, 1), params)
+    at = [np.full((1, 1), level(t)) for t in times]
+    lum = [np.exp(L) if luminance is None else np.full((1, 1), luminance) for L in at]
+    emulator.start(at[0], times[0], lum[0])
+    return np.concatenate([emulator.advance(L, t, Y) for L, t, Y in zip(
+        at[1:], times[1:], lum[1:], strict=True)])
+
+
+def test_a_1_log_unit_ramp_over_1_ms_fires_at_the_dense_sampling_times():
+    """Issue 14: interpolating the filtered level linearly fired at 3.97 and 7.49 ms instead
+    of 1.28 and 1.83 ms (tau = 0.8 ms). Three samples (what the sampler takes: the ramp's
+    ends, then 10 ms of nothing) must give the times of 1 us sampling, within 10 us."""
+    def ramp(t):
+        return min(max(t / 1e-3, 0.0), 1.0)
+
+    coarse = _one_pixel(ramp, [0.0, 1e-3, 11e-3])
+    # Dense: 1 us samples, fed in one call to the per-pixel emulator (the same kernels).
+    times = np.arange(11001) * 1000
+    levels = np.array([ramp(t * 1e-9) for t in times])
+    dense_emulator = PixelEventEmulator((1, 1), LOWPASS)
+    dense_emulator.start(levels[:1].reshape(1, 1), 0.0, np.exp(levels[:1]).reshape(1, 1))
+    dense = dense_emulator.advance_samples(np.zeros(len(times), np.int64), times, levels,
+                                           np.exp(levels), int(times[-1]),
+                                           np.exp(levels[-1:]).reshape(1, 1))
+    assert len(coarse) == len(dense) == 4 and np.all(coarse["p"] == 1)
+    assert np.abs(coarse["t"] - dense["t"]).max() <= 10_000
+    # And the closed form: y = (t - tau (1 - e^(-t / tau))) / T on the ramp, then an
+    # exponential approach to 1 from y(T); crossings of 0.2, 0.4, 0.6, 0.8.
+    tau, T = 1.0 / (2 * math.pi * 200.0), 1e-3
+    y_T = (T - tau * (1 - math.exp(-T / tau))) / T
+
+    def y(t):
+        if t <= T:
+            return (t - tau * (1 - math.exp(-t / tau))) / T
+        return 1.0 - (1.0 - y_T) * math.exp(-(t - T) / tau)
+
+    exact = [brentq(lambda t, lv=lv: y(t) - lv, 0.0, 11e-3, xtol=1e-13) for lv in
+             (0.2, 0.4, 0.6, 0.8)]
+    assert np.abs(coarse["t"] - np.array(exact) * 1e9).max() <= 1_000          # 1 us
+    assert 1.2e6 < coarse["t"][2] < 1.3e6 and 1.8e6 < coarse["t"][3] < 1.9e6
+
+
+def test_a_filtered_level_that_turns_inside_an_interval_fires_both_ways():
+    """The input drops by 1 in 0.2 ms and then ramps up by 2 over 5 ms: the lagging filtered
+    level goes on falling inside the long interval before it rises, so the interval holds OFF
+    events and then ON events (one sample at each end)."""
+    params = EventParams(noise=NoiseParams(cutoff_hz=50.0))
+
+    def u(t):
+        return -t / 2e-4 if t <= 2e-4 else -1.0 + 2.0 * (t - 2e-4) / 5e-3
+
+    events = _one_pixel(u, [0.0, 2e-4, 5.2e-3], params, luminance=1.0)     # 50 Hz throughout
+    omega = 2 * math.pi * 50.0
+    want = filtered_reference_events(u, lambda t: omega, 5.2e-3, 0.2, 0.0)
+    assert [int(p) for p in events["p"]] == [p for _, p in want]
+    assert -1 in events["p"] and 1 in events["p"]
+    later = events["t"] > 2e5                      # OFF events inside the long interval too
+    assert np.any(events["p"][later] == -1)
+    assert np.abs(events["t"] - np.array([t for t, _ in want]) * 1e9).max() <= 1_000
+

@@ -23,11 +23,12 @@ from sim.noise import (
     hot_pixel_mask,
     leak_drift,
     leak_rate_map,
-    lowpass_ramp_step,
-    lowpass_step,
-    lowpass_substeps,
+    lowpass_exponent,
     merge_events,
     noise_preset,
+    ramp_crossing,
+    ramp_response,
+    ramp_turn,
     shot_noise_rate_map,
     threshold_map,
 )
@@ -308,75 +309,77 @@ def test_cutoff_falls_in_proportion_to_luminance_down_to_a_floor():
     assert np.allclose(f, [[200.0, 200.0, 100.0, 20.0, 10.0]])
 
 
-def test_lowpass_step_response_has_the_right_time_constant():
-    params = NoiseParams(cutoff_hz=200.0)
-    tau = 1.0 / (2.0 * math.pi * params.cutoff_hz)
-    luminance = np.array([[1.0, 0.1]])                        # bright (200 Hz), dim (20 Hz)
-    level = np.zeros((1, 2))
-    steps = 37                                                # any number: the step is exact
-    for _ in range(steps):
-        level = lowpass_step(level, np.ones((1, 2)), tau / steps, luminance, params)
-    assert level[0, 0] == pytest.approx(1.0 - math.exp(-1.0), rel=0.01)
-    assert level[0, 0] == pytest.approx(1.0 - math.exp(-1.0), rel=1e-12)
-    # The dimmer pixel's cutoff is 10x lower: after the same time it is at 1 - exp(-0.1).
-    assert level[0, 1] == pytest.approx(1.0 - math.exp(-0.1), rel=1e-12)
-    # One long step gives the same answer (stable and exact for a held input).
-    once = lowpass_step(np.zeros((1, 2)), np.ones((1, 2)), tau, luminance, params)
-    assert np.allclose(once, level, rtol=1e-12)
+def _ramp_reference(f, y0, a, b, x):
+    """tau dy/dt = u - y, u = a + (b - a) t / T, x = T / tau: the textbook ramp response,
+    y = u - (b - a) / x + (y0 - a + (b - a) / x) exp(-x f)."""
+    return a + (b - a) * f - (b - a) / x + (y0 - a + (b - a) / x) * math.exp(-x * f)
 
 
-def test_lowpass_step_is_stable_for_long_steps_and_off_without_cutoff():
-    params = NoiseParams(cutoff_hz=200.0)
-    level = lowpass_step(np.zeros((2, 2)), np.full((2, 2), 3.0), 10.0, np.ones((2, 2)), params)
-    assert np.allclose(level, 3.0)
-    new = np.full((2, 2), 5.0)
-    out = lowpass_step(np.zeros((2, 2)), new, 1e-3, np.ones((2, 2)), NoiseParams())
-    assert np.array_equal(out, new) and out is not new
+@pytest.mark.parametrize("x", [1e-3, 0.3, 1.2566, 12.566, 300.0])
+def test_ramp_response_is_the_exact_solution_of_the_filter(x):
+    for y0, a, b in [(0.0, 0.0, 1.0), (0.4, 0.0, 1.0), (-0.2, 0.3, -0.5), (1.0, 1.0, 1.0)]:
+        for f in (0.0, 0.25, 0.5, 1.0):
+            want = _ramp_reference(f, y0, a, b, x)
+            assert ramp_response(f, y0, a, b, x) == pytest.approx(want, rel=1e-9, abs=1e-9)
+    # Two half steps give one whole step (the solution is exact, not an integrator).
+    half = ramp_response(1.0, 0.1, 0.0, 0.5, x / 2)
+    assert ramp_response(1.0, half, 0.5, 1.0, x / 2) == pytest.approx(
+        ramp_response(1.0, 0.1, 0.0, 1.0, x), abs=1e-12)
+    assert ramp_response(0.3, 5.0, 0.0, 1.0, math.inf) == 0.3       # no filter: the input
 
 
-def test_lowpass_ramp_step_matches_the_analytic_ramp_response():
-    # tau dy/dt = s t - y with y(0) = 0 has y(t) = s (t - tau (1 - exp(-t / tau))).
-    params = NoiseParams(cutoff_hz=50.0)
-    tau = 1.0 / (2.0 * math.pi * 50.0)
-    slope, dt = 3.0, 0.7 * tau
-    y = np.zeros((1, 1))
-    t = 0.0
-    for _ in range(5):
-        y = lowpass_ramp_step(y, np.full((1, 1), slope * t), np.full((1, 1), slope * (t + dt)),
-                              dt, np.ones((1, 1)), params)
-        t += dt
-    expected = slope * (t - tau * (1.0 - math.exp(-t / tau)))
-    assert y[0, 0] == pytest.approx(expected, rel=1e-10)
-    # A held input (L_prev = L_new) reduces it to lowpass_step; tiny steps stay accurate.
-    a = lowpass_ramp_step(np.zeros((1, 1)), np.ones((1, 1)), np.ones((1, 1)), 1e-9,
-                          np.ones((1, 1)), params)
-    b = lowpass_step(np.zeros((1, 1)), np.ones((1, 1)), 1e-9, np.ones((1, 1)), params)
-    assert a[0, 0] == pytest.approx(b[0, 0], rel=1e-9)
+def test_ramp_turn_finds_where_the_output_stops_falling():
+    # The output starts above a rising input: it falls, then follows the ramp.
+    x, y0, a, b = 4.0, 0.5, 0.0, 1.0
+    f = ramp_turn(y0, a, b, x)
+    assert f == pytest.approx(math.log(1.0 + x * (y0 - a) / (b - a)) / x)
+    assert 0.0 < f < 1.0
+    h = 1e-6
+    assert ramp_response(f - h, y0, a, b, x) > ramp_response(f, y0, a, b, x)
+    assert ramp_response(f + h, y0, a, b, x) > ramp_response(f, y0, a, b, x)
+    # Below a rising input, or with the filter off, or a turn after the interval: none.
+    assert ramp_turn(-0.5, 0.0, 1.0, x) == ramp_turn(y0, a, b, math.inf) == 1.0
+    assert ramp_turn(2.0, 0.0, 1.0, 0.1) == 1.0                      # ln(1.2) / 0.1 > 1
 
 
-def test_lowpass_substeps_bound_the_step_in_time_constants():
-    params = NoiseParams(cutoff_hz=200.0)
-    # 2 pi 200 Hz * 1 ms = 1.257 time constants -> 13 steps of at most 0.1.
-    assert lowpass_substeps(1e-3, params) == 13
-    assert lowpass_substeps(1e-3, params, max_step=0.3) == 5
-    assert lowpass_substeps(1e-6, params) == 1
-    dim = np.full((3, 3), 0.1)                                # 20 Hz everywhere
-    assert lowpass_substeps(1e-3, params, dim) == 2
-    assert lowpass_substeps(1.0, NoiseParams()) == 1
+@pytest.mark.parametrize("x", [0.05, 1.2566, 40.0])
+def test_ramp_crossing_solves_the_response_to_the_tolerance(x):
+    y0, a, b = 0.1, 0.0, 1.0
+    y1 = ramp_response(1.0, y0, a, b, x)
+    for level in np.linspace(y0, y1, 7)[1:-1]:
+        f = ramp_crossing(level, y0, a, b, x, 0.0, y0, 1.0, y1, 1e-12)
+        assert ramp_response(f, y0, a, b, x) == pytest.approx(level, abs=1e-10)
+    # Levels outside the piece give its nearer end.
+    assert ramp_crossing(y1 + 1.0, y0, a, b, x, 0.0, y0, 1.0, y1, 1e-12) == 1.0
+    assert ramp_crossing(y0 - 1.0, y0, a, b, x, 0.0, y0, 1.0, y1, 1e-12) == 0.0
+
+
+def test_lowpass_exponent_uses_the_logarithmic_mean_of_the_cutoffs():
+    f0 = np.array([[100.0, 50.0, 0.0, 80.0]])
+    f1 = np.array([[100.0, 200.0, 30.0, 80.0 * (1 + 1e-9)]])
+    x = lowpass_exponent(1e-3, f0, f1)
+    # A cutoff exponential in time from 50 to 200 Hz integrates to (200 - 50) / ln 4 Hz.
+    assert x[0, 1] == pytest.approx(2 * math.pi * 1e-3 * 150.0 / math.log(4.0), rel=1e-12)
+    assert x[0, 0] == pytest.approx(2 * math.pi * 0.1, rel=1e-15)
+    assert x[0, 2] == math.inf                                        # filter off
+    assert x[0, 3] == pytest.approx(2 * math.pi * 0.08 * (1 + 0.5e-9), rel=1e-14)
+    per_pixel = lowpass_exponent(np.array([1e-3, 2e-3]), f0[0, :2], f1[0, :2])
+    assert per_pixel[1] == pytest.approx(2 * x[0, 1], rel=1e-12)
 
 
 @pytest.mark.parametrize(("call", "message"), [
-    (lambda p: lowpass_step(np.zeros((2, 2)), np.zeros((2, 2)), 0.0, np.ones((2, 2)), p),
-     r"lowpass_step\.dt must be a finite number in \(0, inf\), got 0\.0"),
-    (lambda p: lowpass_step(np.zeros((2, 3)), np.zeros((2, 2)), 1e-3, np.ones((2, 2)), p),
-     r"L_filtered has shape \(2, 3\) but luminance has shape \(2, 2\)"),
-    (lambda p: lowpass_step(np.zeros(2), np.zeros((2, 2)), 1e-3, np.ones((2, 2)), p),
-     r"L_filtered must be a finite \(H, W\) array of log intensities"),
-    (lambda p: lowpass_substeps(1e-3, p, max_step=0.0), r"max_step must be a finite number"),
+    (lambda: lowpass_exponent(0.0, np.ones(2), np.ones(2)),
+     r"lowpass_exponent\.dt must be a finite number in \(0, inf\), got 0\.0"),
+    (lambda: lowpass_exponent(np.array([1e-3, -1.0]), np.ones(2), np.ones(2)),
+     r"lowpass_exponent\.dt must hold finite numbers > 0"),
+    (lambda: lowpass_exponent(1e-3, np.ones(2), np.ones(3)),
+     r"cutoff_start and cutoff_end must be finite cutoffs >= 0 Hz of the same shape"),
+    (lambda: lowpass_exponent(1e-3, -np.ones(2), np.ones(2)),
+     r"cutoff_start and cutoff_end must be finite cutoffs"),
 ])
 def test_lowpass_rejects_bad_input(call, message):
     with pytest.raises(ValueError, match=message):
-        call(NoiseParams(cutoff_hz=200.0))
+        call()
 
 
 # --- leak --------------------------------------------------------------------------------------

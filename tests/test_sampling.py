@@ -14,6 +14,7 @@ from sim.sampling import (
     SamplingParams,
     SamplingStats,
     adaptive_samples,
+    contrast_scale,
     max_rate_warning,
     motion_field,
 )
@@ -218,3 +219,35 @@ def test_simulate_says_once_when_the_maximum_rate_cannot_hold_the_bound(tmp_path
     assert f"{info['intervals_at_max_rate']:,} of {intervals:,} intervals" in lines[0]
     assert info["sampling_warning"] in lines[0]
     assert "lam * C" in info["intervals_at_max_rate_note"]
+
+
+def test_contrast_scale_holds_each_pixel_to_its_own_threshold():
+    assert contrast_scale(0.2) == (0.2, None)
+    assert contrast_scale(np.full((2, 3), 0.2)) == (0.2, None)    # equal: the scalar path
+    thresholds = np.array([[0.2, 0.11], [0.29, 0.2]])
+    smallest, scale = contrast_scale(thresholds)
+    assert smallest == 0.11
+    np.testing.assert_allclose(scale, 0.11 / thresholds)
+    # A change d meets lam C_p exactly when d * scale meets lam * C_min.
+    lam, change = 0.5, np.array([[0.09, 0.06], [0.14, 0.11]])
+    np.testing.assert_array_equal(change * scale <= lam * smallest, change <= lam * thresholds)
+    with pytest.raises(ValueError, match=r"contrast must be a finite threshold > 0"):
+        contrast_scale(np.array([[0.2, 0.0]]))
+
+
+def test_the_frame_sampler_holds_a_low_threshold_pixel_to_its_own_bound(edge_renderer):
+    """Columns of pixels at C = 0.11 (3 sigma low for sigma 0.03): a sample meets the bound
+    exactly when those pixels changed by at most lam * 0.11 and the others by lam * 0.2 (the
+    checker's sub-pixel steps leave many at the step rule); it samples more often than at the
+    nominal C."""
+    cam = edge_renderer.camera
+    thresholds = np.full((cam.height, cam.width), C)
+    thresholds[:, ::7] = 0.11
+    samples = list(adaptive_samples(edge_renderer, 0.0, 0.02, thresholds, 1e-3,
+                                    SamplingParams(lam=0.5)))
+    for prev, sample in zip(samples[:-1], samples[1:], strict=True):
+        change = np.abs(sample.log - prev.log)
+        assert sample.bound_met == bool(np.all(change <= 0.5 * thresholds))
+    assert any(s.bound_met for s in samples[1:])
+    nominal = list(adaptive_samples(edge_renderer, 0.0, 0.02, C, 1e-3, SamplingParams(lam=0.5)))
+    assert len(samples) > len(nominal)
