@@ -558,7 +558,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     methods = tuple(_method_variants(split_labels(",".join(args.method or [])),
                                      args.param or []))
     params = ReproduceParams(window=args.window, long_window=args.long_window, tables=tables,
-                             scenes=scenes, methods=methods, frame_sensor=args.frame_sensor)
+                             scenes=scenes, methods=methods, frame_sensor=args.frame_sensor,
+                             event_noise=args.event_noise)
     report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
                        progress=not args.quiet)
     print(f"{len(report['rows'])} windows in {report['total_s'] / 60:.1f} min")
@@ -900,6 +901,10 @@ def _parser() -> argparse.ArgumentParser:
     repro.add_argument("--frame-sensor", default=None, metavar="NAME",
                        help="every scene's standard-camera sensor: ideal, davis240c_aps or "
                             "machine_vision (default: each scene's own)")
+    repro.add_argument("--event-noise", choices=("ideal", "realistic"), default="ideal",
+                       help="the event camera's noise preset (default ideal; realistic: "
+                            "threshold mismatch, refractory period, the photoreceptor's low-pass "
+                            "filter, leak and shot-noise events, hot pixels)")
     repro.add_argument("--method", action="append", default=None,
                        help="a filling method to run on every window besides the paper's "
                             "(repeatable or comma-separated; NAME{KEY=VALUE,...} with settings "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 from fusion.cli import main
+from sim.noise import noise_preset
 
 
 def test_reproduce_table_1_and_complex_on_one_scene_each(tmp_path, capsys):
@@ -71,3 +72,20 @@ def test_reproduce_runs_other_filling_methods_beside_the_paper_s(tmp_path, capsy
         assert main([*base, *flags, "--quiet"]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and message in err, err
+
+
+def test_reproduce_with_the_realistic_event_camera_records_it_and_caches_apart(tmp_path):
+    out, cache = tmp_path / "report", tmp_path / "cache"
+    argv = ["reproduce", "--out", str(out), "--cache", str(cache), "--tables", "1",
+            "--scenes", "shapes_6dof", "--long-window", "0.1", "--quiet"]
+    assert main([*argv, "--event-noise", "realistic"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["settings"]["event_noise"] == "realistic"
+    assert "event noise: realistic" in (out / "report.md").read_text()
+    folders = [p.name for p in cache.iterdir()]
+    assert len(folders) == 1 and folders[0].endswith("_ev-realistic")
+    sequence = json.loads((cache / folders[0] / "sequence.json").read_text())
+    realistic = noise_preset("realistic")
+    assert sequence["events"]["noise"]["refractory_period"] == realistic.refractory_period > 0
+    assert sequence["events"]["noise"]["threshold_sigma"] == realistic.threshold_sigma > 0
+    assert main([*argv, "--event-noise", "bogus"]) == 2
