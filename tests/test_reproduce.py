@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from fusion.cli import main
 from sim.noise import noise_preset
 
@@ -88,4 +90,6 @@ def test_reproduce_with_the_realistic_event_camera_records_it_and_caches_apart(t
     realistic = noise_preset("realistic")
     assert sequence["events"]["noise"]["refractory_period"] == realistic.refractory_period > 0
     assert sequence["events"]["noise"]["threshold_sigma"] == realistic.threshold_sigma > 0
-    assert main([*argv, "--event-noise", "bogus"]) == 2
+    with pytest.raises(SystemExit) as refused:                 # argparse: one line, exit 2
+        main([*argv, "--event-noise", "bogus"])
+    assert refused.value.code == 2
