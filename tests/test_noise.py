@@ -212,7 +212,7 @@ def test_bright_factor_one_makes_the_rate_independent_of_intensity():
 
 
 def test_background_events_of_many_short_intervals_tile_the_long_one():
-    params = NoiseParams(shot_noise_rate=1.0)
+    params = NoiseParams(shot_noise_rate=1.0, shot_noise_intensity_ref=1.0)    # np.ones: at ref
     rng = _rng(3)
     chunks = [background_events(k * SECOND // 100, (k + 1) * SECOND // 100, np.ones(SHAPE),
                                 params, rng) for k in range(100)]
@@ -309,7 +309,7 @@ def test_cutoff_falls_in_proportion_to_luminance_down_to_a_floor():
 
 
 def test_lowpass_step_response_has_the_right_time_constant():
-    params = NoiseParams(cutoff_hz=200.0)
+    params = NoiseParams(cutoff_hz=200.0, cutoff_intensity_ref=1.0)
     tau = 1.0 / (2.0 * math.pi * params.cutoff_hz)
     luminance = np.array([[1.0, 0.1]])                        # bright (200 Hz), dim (20 Hz)
     level = np.zeros((1, 2))
@@ -336,7 +336,7 @@ def test_lowpass_step_is_stable_for_long_steps_and_off_without_cutoff():
 
 def test_lowpass_ramp_step_matches_the_analytic_ramp_response():
     # tau dy/dt = s t - y with y(0) = 0 has y(t) = s (t - tau (1 - exp(-t / tau))).
-    params = NoiseParams(cutoff_hz=50.0)
+    params = NoiseParams(cutoff_hz=50.0, cutoff_intensity_ref=1.0)
     tau = 1.0 / (2.0 * math.pi * 50.0)
     slope, dt = 3.0, 0.7 * tau
     y = np.zeros((1, 1))
@@ -355,7 +355,7 @@ def test_lowpass_ramp_step_matches_the_analytic_ramp_response():
 
 
 def test_lowpass_substeps_bound_the_step_in_time_constants():
-    params = NoiseParams(cutoff_hz=200.0)
+    params = NoiseParams(cutoff_hz=200.0, cutoff_intensity_ref=1.0)
     # 2 pi 200 Hz * 1 ms = 1.257 time constants -> 13 steps of at most 0.1.
     assert lowpass_substeps(1e-3, params) == 13
     assert lowpass_substeps(1e-3, params, max_step=0.3) == 5
