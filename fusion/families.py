@@ -49,7 +49,7 @@ look_at = [-0.05, 1.0, 0.0]
 [[lights]]
 type = "directional"
 direction = [0.3, 1.0, -0.5]
-irradiance = 2.0
+illuminance_lux = 400.0
 
 [[objects]]
 name = "wall"
@@ -141,7 +141,7 @@ def family_scene(family: str, **knobs: float) -> str:
                                   f'radius = {k["radius"]:.3f}'))
         if k["shadow"] >= 0.5:
             lights = ('[[lights]]\ntype = "point"\nposition = [-0.5, 0.2, 0.5]\n'
-                      'intensity = 0.4\n\n')
+                      'intensity_cd = 80.0\n\n')
     elif family == "cylinder":
         objects.append(("cylinder", f'center = [0.0, {k["distance"]:.3f}, 0.0]\n'
                                     f'radius = {k["radius"]:.3f}\nheight = 1.5'))

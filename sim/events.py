@@ -1,5 +1,9 @@
 """Event-camera emulator: log-intensity samples in, DVS events out (ESIM's model, v2e's noise).
 
+The input is the log of photocurrent plus dark current, computed as ``L = log(Y + log_eps)``
+of the rendered luminance ``Y`` in cd/m^2 with the dark current expressed as a luminance
+(:class:`EventParams`, :mod:`sim.radiometry`).
+
 Each pixel keeps a reference log level ``ref``. Between two samples (t0, L0) and (t1, L1) the
 log intensity is interpolated linearly in time, and every crossing of ``ref + C_on`` (ON) or
 ``ref - C_off`` (OFF) emits one event timestamped at its own crossing time, after which the
@@ -56,6 +60,7 @@ from sim.noise import (
     ramp_turn,
     threshold_map,
 )
+from sim.radiometry import DVS_DARK_LUMINANCE, DVS_RESPONSIVITY, photocurrent
 
 __all__ = [
     "CROSSING_TOLERANCE_NS",
@@ -80,8 +85,19 @@ class EventParams:
     ----------
     contrast_on, contrast_off : float
         Nominal contrast thresholds C+ and C- in log-intensity units (default 0.2).
-    log_eps : float
-        L = log(Y + log_eps) for linear luminance Y (used by :func:`log_intensity`).
+    log_eps : float, cd/m^2
+        The pixel's dark current expressed as the scene luminance whose photocurrent equals it,
+        ``I_dark / responsivity``: L = log(Y + log_eps) for luminance Y in cd/m^2, which is
+        the log of photocurrent plus dark current, ``log(R Y + I_dark)``, less the constant
+        ``log R`` (no event moves; see :mod:`sim.radiometry`). Default
+        :data:`~sim.radiometry.DVS_DARK_LUMINANCE` (0.43 cd/m^2, 4 fA at the DAVIS240C's
+        assumed responsivity); the same formula as before luminance had units, when it was
+        1e-3 of an arbitrary scale.
+    responsivity : float, A per cd/m^2
+        Photocurrent per unit of scene luminance (:func:`sim.radiometry.responsivity`), default
+        the DAVIS240C DVS pixel's :data:`~sim.radiometry.DVS_RESPONSIVITY`. It turns
+        ``log_eps`` into a dark current (:attr:`dark_current`) and luminance into photocurrent
+        (:meth:`photocurrent`); the events do not depend on it.
     noise : NoiseParams
         Sensor non-idealities; default the ``ideal`` preset (none, thresholds exact, each
         reference starting at the pixel's first level).
@@ -91,18 +107,29 @@ class EventParams:
 
     contrast_on: float = 0.2
     contrast_off: float = 0.2
-    log_eps: float = 1e-3
+    log_eps: float = DVS_DARK_LUMINANCE
     noise: NoiseParams = field(default_factory=lambda: noise_preset("ideal"))
     seed: int = 0
+    responsivity: float = DVS_RESPONSIVITY
 
     def __post_init__(self) -> None:
-        for name in ("contrast_on", "contrast_off", "log_eps"):
+        for name in ("contrast_on", "contrast_off", "log_eps", "responsivity"):
             value = getattr(self, name)
             if isinstance(value, bool) or not (isinstance(value, int | float)
                                                and math.isfinite(value) and value > 0):
                 raise ValueError(f"EventParams.{name} must be a finite number > 0, got {value!r}")
         if not isinstance(self.noise, NoiseParams):
             raise ValueError(f"EventParams.noise must be a NoiseParams, got {self.noise!r}")
+
+    @property
+    def dark_current(self) -> float:
+        """float, amperes: the dark current ``log_eps * responsivity``."""
+        return self.log_eps * self.responsivity
+
+    def photocurrent(self, luminance: np.ndarray) -> np.ndarray:
+        """Photocurrent (A, float64, the input's shape) of pixels seeing ``luminance`` (cd/m^2),
+        dark current not included: ``responsivity * luminance``."""
+        return photocurrent(luminance, self.responsivity)
 
     @classmethod
     def preset(cls, name: str, contrast: float = 0.2, seed: int = 0) -> EventParams:
@@ -111,8 +138,9 @@ class EventParams:
                    seed=seed)
 
 
-def log_intensity(luminance: np.ndarray, eps: float = 1e-3) -> np.ndarray:
-    """L = log(Y + eps) of linear luminance, float64 (..., H, W)."""
+def log_intensity(luminance: np.ndarray, eps: float = DVS_DARK_LUMINANCE) -> np.ndarray:
+    """L = log(Y + eps) of linear luminance Y (cd/m^2), float64 (..., H, W); ``eps`` is the
+    dark current as a luminance (:attr:`EventParams.log_eps`)."""
     return np.log(np.asarray(luminance, dtype=np.float64) + eps)
 
 

@@ -9,13 +9,26 @@ Contrast-threshold mismatch (:func:`threshold_map`)
     ``C = N(C_nominal, threshold_sigma**2)`` per pixel, independently for ON and OFF, sigma in
     absolute log-intensity units, floored at :data:`THRESHOLD_FLOOR` = 0.01. As v2e.
 
+Physical units (see :mod:`sim.radiometry`)
+    Luminance ``Y`` is the rendered scene luminance in cd/m^2, which the photocurrent is
+    proportional to (``I = R Y``). v2e scales its cutoff and its shot-noise rate with an
+    intensity normalised to the white of its 8-bit input (``inten01``, DN 255 = 1); here the
+    same laws take ``Y / Y_ref`` with reference luminances in cd/m^2, by default
+    :data:`~sim.radiometry.OFFICE_WHITE_LUMINANCE` (100 cd/m^2, a white sheet under ~400 lux)
+    in the role of v2e's DN 255. So the ``realistic`` preset's bandwidth and background rate
+    follow the scene's illuminance: a twin lit 100 times dimmer has a 100 times lower cutoff
+    (down to the floor) and the dark background rate.
+
 Photoreceptor low-pass (:func:`cutoff_frequency`, :func:`lowpass_exponent`, :func:`ramp_response`)
     A first-order low-pass on the log intensity whose 3 dB cutoff is proportional to the
     photocurrent, ``f(Y) = cutoff_hz * clip(Y / cutoff_intensity_ref, cutoff_min_fraction, 1)``.
     v2e uses ``f = cutoff_hz * (DN + 20) / 275`` for an 8-bit input DN: affine in DN, from
-    20/275 at DN 0 to 1 at DN 255. Here ``f`` is proportional to linear luminance, with
-    ``cutoff_intensity_ref`` in the role of DN 255 and v2e's 20/275 as the default floor
-    ``cutoff_min_fraction`` (they differ by at most 0.07 of ``cutoff_hz`` in between). v2e
+    20/275 at DN 0 to 1 at DN 255 (SensorsINI/v2e at cac6384, ``v2ecore/emulator_utils.py``:
+    ``rescale_intensity_frame`` returns ``(new_frame + 20) / 275`` and ``low_pass_filter``
+    multiplies its step ``delta_time / tau`` by it). Here ``f`` is proportional to luminance,
+    with ``cutoff_intensity_ref`` (cd/m^2) in the role of DN 255 and v2e's 20/275 as the
+    default floor ``cutoff_min_fraction`` (they differ by at most 0.07 of ``cutoff_hz`` in
+    between). v2e
     integrates with a forward-Euler step clamped at 1 and interpolates its output linearly;
     here the filter is solved exactly for the emulator's input, linear between two samples
     (:func:`ramp_response`, stable for any interval), with the cutoff's logarithmic mean over
@@ -31,9 +44,12 @@ Leak events (:func:`leak_rate_map`, :func:`leak_drift`)
     0 so the reference never moves up). As v2e's ``subtract_leak_current``.
 
 Background activity / shot noise (:func:`shot_noise_rate_map`, :func:`background_events`)
-    A Poisson process per pixel, half ON and half OFF as in v2e's ``generate_shot_noise``,
-    with v2e's intensity dependence: the rate falls linearly with normalised intensity
-    ``u = clip(Y / shot_noise_intensity_ref, 0, 1)`` from the dark value to
+    A Poisson process per pixel, half ON and half OFF as in v2e's ``generate_shot_noise``
+    (``v2ecore/emulator_utils.py``: ``(shot_noise_rate_hz / 2) * delta_time *
+    ((shot_noise_inten_factor - 1) * inten01 + 1)`` per polarity, with
+    ``SHOT_NOISE_INTEN_FACTOR = 0.25`` in ``v2ecore/emulator.py``), with v2e's intensity
+    dependence: the rate falls linearly with normalised intensity
+    ``u = clip(Y / shot_noise_intensity_ref, 0, 1)`` (both in cd/m^2) from the dark value to
     ``shot_noise_bright_factor`` (v2e's ``SHOT_NOISE_INTEN_FACTOR`` = 0.25) times it at
     ``u = 1``. evfuse quotes the rate at the reference intensity, so::
 
@@ -61,6 +77,8 @@ from dataclasses import dataclass, fields
 
 import numba
 import numpy as np
+
+from sim.radiometry import OFFICE_WHITE_LUMINANCE
 
 __all__ = [
     "NOISE_PRESETS",
@@ -125,9 +143,9 @@ class NoiseParams:
         4x this in the dark with the default ``shot_noise_bright_factor`` (see the module
         docstring for the law). 0 = off. v2e's ``shot_noise_rate_hz`` (CLI default 0.001 Hz,
         ``noisy`` preset 5 Hz) is the dark rate, i.e. ``shot_noise_rate / k``.
-    shot_noise_intensity_ref : float, linear luminance
+    shot_noise_intensity_ref : float, cd/m^2
         Luminance at which the background rate equals ``shot_noise_rate`` (v2e's white level,
-        DN 255). Default 1.0.
+        DN 255). Default :data:`~sim.radiometry.OFFICE_WHITE_LUMINANCE`, 100 cd/m^2.
     shot_noise_bright_factor : float in (0, 1]
         Bright-to-dark ratio ``k`` of the background rate (v2e's ``SHOT_NOISE_INTEN_FACTOR``
         0.25); 1 makes the rate independent of intensity.
@@ -147,8 +165,9 @@ class NoiseParams:
     cutoff_hz : float, Hz
         3 dB cutoff of the photoreceptor low-pass at ``cutoff_intensity_ref`` and brighter.
         0 = no filter (infinite bandwidth). v2e: CLI default 300 Hz, ``noisy`` preset 30 Hz.
-    cutoff_intensity_ref : float, linear luminance
-        Luminance at which the cutoff reaches ``cutoff_hz`` (v2e's DN 255). Default 1.0.
+    cutoff_intensity_ref : float, cd/m^2
+        Luminance at which the cutoff reaches ``cutoff_hz`` (v2e's DN 255). Default
+        :data:`~sim.radiometry.OFFICE_WHITE_LUMINANCE`, 100 cd/m^2.
     cutoff_min_fraction : float in (0, 1]
         Floor of ``f(Y) / cutoff_hz`` in the dark (v2e's 20/275 = 0.0727 at DN 0).
     threshold_sigma : float, log-intensity units
@@ -162,7 +181,7 @@ class NoiseParams:
     """
 
     shot_noise_rate: float = 0.0
-    shot_noise_intensity_ref: float = 1.0
+    shot_noise_intensity_ref: float = OFFICE_WHITE_LUMINANCE
     shot_noise_bright_factor: float = 0.25
     leak_rate: float = 0.0
     leak_jitter: float = 0.1
@@ -170,7 +189,7 @@ class NoiseParams:
     hot_pixel_fraction: float = 0.0
     hot_pixel_rate: float = 0.0
     cutoff_hz: float = 0.0
-    cutoff_intensity_ref: float = 1.0
+    cutoff_intensity_ref: float = OFFICE_WHITE_LUMINANCE
     cutoff_min_fraction: float = 20.0 / 275.0
     threshold_sigma: float = 0.0
     refractory_period: float = 0.0
@@ -215,7 +234,8 @@ NOISE_PRESETS: dict[str, NoiseParams] = {
         # Not modelled by v2e: a few DAVIS240C pixels (~1e-4) fire at ~10 Hz.
         hot_pixel_fraction=1e-4,
         hot_pixel_rate=10.0,
-        # DAVIS photoreceptor bandwidth in bright light is a few hundred Hz (v2e CLI: 300 Hz).
+        # DAVIS photoreceptor bandwidth in bright light is a few hundred Hz (v2e CLI: 300 Hz),
+        # reached from 100 cd/m^2 (white under ~400 lux) up; 14.5 Hz (the floor) below 7 cd/m^2.
         cutoff_hz=200.0,
         threshold_sigma=0.03,          # v2e CLI default sigma_thres
         refractory_period=0.5e-3,      # v2e CLI default refractory_period
@@ -269,7 +289,7 @@ def _check_luminance(luminance, name: str = "luminance") -> np.ndarray:
         raise ValueError(f"{name} must be an (H, W) array, got shape {luminance.shape}")
     _check_shape(luminance.shape)
     if not np.all(np.isfinite(luminance)) or np.any(luminance < 0):
-        raise ValueError(f"{name} must be finite and >= 0 (linear luminance)")
+        raise ValueError(f"{name} must be finite and >= 0 (luminance, cd/m^2)")
     return luminance
 
 
@@ -341,7 +361,7 @@ def cutoff_frequency(luminance: np.ndarray, params: NoiseParams) -> np.ndarray:
 
     Parameters
     ----------
-    luminance : (H, W) array_like, linear luminance >= 0
+    luminance : (H, W) array_like, cd/m^2, >= 0
     params : NoiseParams
 
     Returns
@@ -593,7 +613,7 @@ def shot_noise_rate_map(luminance: np.ndarray, params: NoiseParams) -> np.ndarra
 
     Parameters
     ----------
-    luminance : (H, W) array_like, linear luminance >= 0
+    luminance : (H, W) array_like, cd/m^2, >= 0
     params : NoiseParams
 
     Returns
@@ -628,7 +648,7 @@ def background_events(t0_ns: int, t1_ns: int, luminance: np.ndarray, params: Noi
     ----------
     t0_ns, t1_ns : int, nanoseconds
         The interval, ``t1_ns >= t0_ns`` (empty output when equal).
-    luminance : (H, W) array_like, linear luminance >= 0
+    luminance : (H, W) array_like, cd/m^2, >= 0
         Luminance over the interval (use the newer render's).
     params : NoiseParams
     rng : numpy.random.Generator

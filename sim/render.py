@@ -4,7 +4,10 @@ One :class:`Renderer` loads a scene once and re-renders it for any time and pose
 pose and moving objects are changed through Mitsuba's parameter API, so the compiled kernels are
 reused (no reload, no recompilation).
 
-- Luminance: Mitsuba's ``direct`` integrator with point, spot and directional lights only, a
+- Luminance, in cd/m^2: the scene's lights are photometric (candela, lux; see
+  :mod:`sim.radiometry`) and rendering is linear in them, so a white Lambertian surface of
+  albedo rho under E lux renders rho E / pi (tested). Mitsuba's ``direct`` integrator with
+  point, spot and directional lights only, a
   stratified sampler and a fixed seed, a box pixel filter (each pixel integrates its own square).
   Bitmap textures are area-averaged to about one texel per pixel footprint at the object's
   closest approach (Mitsuba's bitmap has no mipmaps; finer texels alias under point sampling and
@@ -37,8 +40,9 @@ class RenderResult:
 
     Attributes
     ----------
-    luminance : (H, W) float32 ndarray
-        Linear luminance Y (HDR, no tone mapping), arbitrary radiometric units.
+    luminance : (H, W) float32 ndarray, cd/m^2
+        Linear luminance Y (HDR, no tone mapping) of the surface each pixel sees, from the
+        scene's photometric lights (see :mod:`sim.radiometry`).
     depth : (H, W) float32 ndarray
         z-depth in metres at pixel centres, 0 where nothing is hit.
     """
@@ -337,7 +341,8 @@ class Renderer:
 
     def luminance(self, t: float, pose: np.ndarray | None = None, spp: int | None = None
                   ) -> np.ndarray:
-        """Linear luminance (H, W) float32 at time ``t`` (pose from the trajectory by default).
+        """Linear luminance (H, W) float32, cd/m^2, at time ``t`` (pose from the trajectory by
+        default).
 
         ``spp`` overrides the renderer's samples per pixel (a perfect square) for this call.
         """

@@ -53,6 +53,12 @@ MAX_OBJECT_SIZE_M = 1000.0
 """Largest size, radius or height of an object accepted in a scene file, metres. A scene written
 in millimetres (a 1.2 m poster as 1200) is refused instead of being simulated 1000 times too big.
 """
+MAX_ILLUMINANCE_LUX = 200_000.0
+"""Brightest directional light a scene file may declare, lux (direct sunlight is about
+100,000 lux): a value beyond it is a unit mistake, refused naming the key."""
+MAX_INTENSITY_CD = 10_000_000.0
+"""Brightest point or spot light a scene file may declare, candela (a searchlight; a 50 W
+halogen spot is 1,000-3,000 cd)."""
 MAX_NEAREST_SURFACE_M = 100.0
 """Farthest the nearest object's surface may stay from the camera over the whole trajectory,
 metres (meshes and object motion aside). No scene for event-based depth is seen from beyond
@@ -202,11 +208,15 @@ class SceneObject:
 class Light:
     """A light that needs no sampling, so that renders carry no noise.
 
+    Lights are photometric (see :mod:`sim.radiometry`): renders come out in cd/m^2.
+
     Attributes
     ----------
     kind : {"point", "spot", "directional"}
     intensity : (3,) ndarray
-        W/sr for point and spot lights, W/m^2 (irradiance) for a directional light.
+        Luminous intensity in candela (lm/sr) for point and spot lights (TOML
+        ``intensity_cd``), illuminance in lux on a surface facing it for a directional light
+        (TOML ``illuminance_lux``); per RGB channel, equal for a grey light.
     position : (3,) ndarray or None
     target : (3,) ndarray or None
         Where a spot light points.
@@ -594,33 +604,58 @@ def _parse_trajectory(ctx: _Ctx, raw: Any, base_dir: Path, seed: int) -> Traject
     return read_trajectory(path)
 
 
+_OLD_LIGHT_KEYS = {
+    "irradiance": "give 'illuminance_lux' instead: lux on a surface facing the light (office "
+                  "light is 300-500 lux, daylight through a window 1,000-10,000)",
+    "intensity": "give 'intensity_cd' instead: luminous intensity in candela (a 60 W "
+                 "incandescent bulb is about 70 cd, a 50 W halogen spot 1,000-3,000 cd)",
+}
+
+
+def _photometric(ctx: _Ctx, table: Mapping[str, Any], key: str, name: str) -> np.ndarray:
+    """A light's photometric value (``illuminance_lux`` or ``intensity_cd``), refused beyond
+    :data:`MAX_ILLUMINANCE_LUX` or :data:`MAX_INTENSITY_CD` (a unit mistake)."""
+    value = _color(ctx, table[name], f"{key}.{name}")
+    limit, unit, example = ((MAX_ILLUMINANCE_LUX, "lux", "direct sunlight is about 100,000 lux")
+                            if name == "illuminance_lux" else
+                            (MAX_INTENSITY_CD, "cd", "a 50 W halogen spot is 1,000-3,000 cd"))
+    if value.max() > limit:
+        raise ctx.fail(f"{key}.{name}", f"{value.max():g} {unit} is brighter than the "
+                                         f"{limit:,.0f} {unit} a scene may declare ({example})")
+    return value
+
+
 def _parse_light(ctx: _Ctx, raw: Any, key: str) -> Light:
     table = ctx.table(raw, key)
     if "type" not in table:
         raise ctx.fail(key, "missing required key 'type' (point, spot or directional)")
+    for old, advice in _OLD_LIGHT_KEYS.items():
+        if old in table:
+            raise ctx.fail(f"{key}.{old}", f"lights are photometric (see scenes/README.md); "
+                                           f"{advice}")
     kind = _string(ctx, table["type"], f"{key}.type", ("point", "spot", "directional"))
     vec3 = lambda c, v, k: _vector(c, v, k, 3)  # noqa: E731
     if kind == "point":
-        ctx.keys(table, key, {"type", "position", "intensity"}, set())
-        return Light(kind, _color(ctx, table["intensity"], f"{key}.intensity"),
+        ctx.keys(table, key, {"type", "position", "intensity_cd"}, set())
+        return Light(kind, _photometric(ctx, table, key, "intensity_cd"),
                      position=vec3(ctx, table["position"], f"{key}.position"))
     if kind == "spot":
-        ctx.keys(table, key, {"type", "position", "look_at", "intensity"},
+        ctx.keys(table, key, {"type", "position", "look_at", "intensity_cd"},
                  {"cutoff_angle", "beam_width"})
         cutoff = _get(ctx, table, key, "cutoff_angle", _number, 20.0)
         beam = _get(ctx, table, key, "beam_width", _number, cutoff * 0.75)
         if not 0 < beam <= cutoff < 90:
             raise ctx.fail(key, f"expected 0 < beam_width <= cutoff_angle < 90 degrees, got "
                                 f"beam_width {beam}, cutoff_angle {cutoff}")
-        return Light(kind, _color(ctx, table["intensity"], f"{key}.intensity"),
+        return Light(kind, _photometric(ctx, table, key, "intensity_cd"),
                      position=vec3(ctx, table["position"], f"{key}.position"),
                      target=vec3(ctx, table["look_at"], f"{key}.look_at"),
                      cutoff_angle=cutoff, beam_width=beam)
-    ctx.keys(table, key, {"type", "direction", "irradiance"}, set())
+    ctx.keys(table, key, {"type", "direction", "illuminance_lux"}, set())
     direction = vec3(ctx, table["direction"], f"{key}.direction")
     if np.linalg.norm(direction) == 0:
         raise ctx.fail(f"{key}.direction", "expected a non-zero vector")
-    return Light(kind, _color(ctx, table["irradiance"], f"{key}.irradiance"),
+    return Light(kind, _photometric(ctx, table, key, "illuminance_lux"),
                  direction=direction / np.linalg.norm(direction))
 
 

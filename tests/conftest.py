@@ -21,7 +21,8 @@ def scene_text(objects: str, *, camera: str | None = None, trajectory: str | Non
         "velocity = [0.0, 0.0, 0.0]\nlook_at = [0.0, 1.0, 0.0]\n"
     )
     lights = lights or (
-        '[[lights]]\ntype = "directional"\ndirection = [0.0, 1.0, 0.0]\nirradiance = 1.0\n'
+        '[[lights]]\ntype = "directional"\ndirection = [0.0, 1.0, 0.0]\n'
+        'illuminance_lux = 400.0\n'
     )
     return (f'name = "test"\ndescription = "test scene"\nduration = {duration}\nseed = 3\n'
             f"{extra}\n{camera}\n{trajectory}\n{lights}\n{objects}\n")

@@ -136,7 +136,7 @@ def test_bad_input_is_refused():
 
 # --- crossings under the photoreceptor low-pass (issue 14) ---------------------------------------
 
-LOWPASS = EventParams(noise=NoiseParams(cutoff_hz=200.0))      # the filter alone, no noise
+LOWPASS = EventParams(noise=NoiseParams(cutoff_hz=200.0, cutoff_intensity_ref=1.0))  # filter only
 
 
 def _one_pixel(level, times, params=LOWPASS, luminance=None):
@@ -188,7 +188,7 @@ def test_a_filtered_level_that_turns_inside_an_interval_fires_both_ways():
     """The input drops by 1 in 0.2 ms and then ramps up by 2 over 5 ms: the lagging filtered
     level goes on falling inside the long interval before it rises, so the interval holds OFF
     events and then ON events (one sample at each end)."""
-    params = EventParams(noise=NoiseParams(cutoff_hz=50.0))
+    params = EventParams(noise=NoiseParams(cutoff_hz=50.0, cutoff_intensity_ref=1.0))
 
     def u(t):
         return -t / 2e-4 if t <= 2e-4 else -1.0 + 2.0 * (t - 2e-4) / 5e-3

@@ -213,7 +213,7 @@ def test_bright_factor_one_makes_the_rate_independent_of_intensity():
 
 
 def test_background_events_of_many_short_intervals_tile_the_long_one():
-    params = NoiseParams(shot_noise_rate=1.0)
+    params = NoiseParams(shot_noise_rate=1.0, shot_noise_intensity_ref=1.0)    # np.ones: at ref
     rng = _rng(3)
     chunks = [background_events(k * SECOND // 100, (k + 1) * SECOND // 100, np.ones(SHAPE),
                                 params, rng) for k in range(100)]

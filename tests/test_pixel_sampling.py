@@ -198,7 +198,7 @@ def test_filtered_crossings_are_within_a_microsecond_at_several_illuminances(bas
     to its floor of 14.5 Hz at 0.0727 and below) changes with the luminance along the ramp.
     Sampled as the sampler's bound allows (every lam C = 0.1 log units), the events are those
     of the filter integrated with its cutoff varying continuously, within 1 us."""
-    noise = NoiseParams(cutoff_hz=200.0)
+    noise = NoiseParams(cutoff_hz=200.0, cutoff_intensity_ref=1.0)
     start = math.log(base)
 
     def u(t):

@@ -80,7 +80,7 @@ def test_other_sections_are_checked(tmp_path):
     assert "[trajectory].type" in _error(
         scene_text(BOX).replace('type = "linear"', 'type = "teleport"'), tmp_path)
     assert "[[lights]][0]" in _error(
-        scene_text(BOX).replace("irradiance = 1.0", "power = 1.0"), tmp_path)
+        scene_text(BOX).replace("illuminance_lux = 400.0", "power = 1.0"), tmp_path)
     assert "[render].spp" in _error(scene_text(BOX, extra="[render]\nspp = 10\n"), tmp_path)
     assert "texture.name" in _error(scene_text(BOX.replace(
         'size = [1.0, 1.0, 1.0]', 'size = [1.0, 1.0, 1.0]\nmaterial = { texture = { type = '

@@ -173,7 +173,7 @@ def test_exposure_averages_renders_into_motion_blur(tmp_path):
     sharpness = {}
     for samples in (1, 8):
         frames = (f"[frames]\nrate = 20.0\nexposure = 0.04\nexposure_samples = {samples}\n"
-                  "gain = 2.0\n[render]\nspp = 4\n")
+                  "gain = 0.005\n[render]\nspp = 4\n")   # 1 / (cd/m^2): 400 lux
         checker = OBJECTS.replace('type = "noise", resolution = 128',
                                   'type = "checkerboard", squares = [64, 64]')
         scene = parse_scene(scene_text(checker, trajectory=fast, duration=0.1, extra=frames))
