@@ -342,7 +342,8 @@ def _cmd_twin(args: argparse.Namespace) -> int:
             window = ()
         if len(window) != 2:
             raise ValueError(f"--window: expected T0,T1 in seconds, got {args.window!r}")
-    scene = write_twin(args.recording, args.out, args.depth, window)
+    scene = write_twin(args.recording, args.out, args.depth, window, args.illuminance,
+                       args.frame_sensor)
     print(f"twin scene written to {scene}; simulate it with: evfuse simulate {scene} "
           f"--out SEQUENCE")
     return 0
@@ -823,6 +824,12 @@ def _parser() -> argparse.ArgumentParser:
                            "the median depth of `evfuse map` on the recording)")
     twin.add_argument("--window", default=None, metavar="T0,T1",
                       help="seconds of the recording to copy (default: its poses' span)")
+    twin.add_argument("--illuminance", type=float, default=400.0,
+                      help="lux on the poster, from a light along the optical axis (default 400, "
+                           "an office)")
+    twin.add_argument("--frame-sensor", default="davis240c_aps",
+                      choices=("ideal", "davis240c_aps", "machine_vision"),
+                      help="the standard camera's sensor (default davis240c_aps, the ECD's)")
     twin.add_argument("--out", required=True, help="folder to write")
     twin.set_defaults(run=_cmd_twin)
 

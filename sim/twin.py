@@ -20,8 +20,9 @@ renderer's shading of the reflectance, and the frame camera's response); a real 
 parallax (objects at other depths) is not: every point of the twin lies at ``depth``.
 
 Only the *camera's* and the *view's* statistics are copied; the illumination is a light along
-the optical axis. ``depth`` is not read from the recording (there is no depth ground truth):
-give the depth that matters, e.g. the median of ``evfuse map`` on the recording.
+the optical axis giving ``illuminance`` lux on the poster (the recording's is unknown).
+``depth`` is not read from the recording (there is no depth ground truth): give the depth that
+matters, e.g. the median of ``evfuse map`` on the recording.
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ def _window_poses(trajectory, t0: float, t1: float) -> np.ndarray:
 
 
 def write_twin(recording: str | Path, out: str | Path, depth: float,
-               window: tuple[float, float] | None = None) -> Path:
+               window: tuple[float, float] | None = None, illuminance: float = 400.0,
+               frame_sensor: str = "davis240c_aps") -> Path:
     """Write a scene folder that simulates ``recording``'s camera and trajectory.
 
     Parameters
@@ -57,6 +59,12 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     window : (t0, t1) in seconds, optional
         The part of the recording to copy; default the span of its poses. The poster is the
         frame nearest ``t0`` and covers the view over the whole window.
+    illuminance : float, lux
+        On the poster, from a light along the first pose's optical axis (default 400: an
+        office; the recording's own light level is unknown).
+    frame_sensor : str
+        The standard camera's sensor (:data:`sim.frame_sensor.FRAME_SENSORS` or ``ideal``;
+        default ``davis240c_aps``, the ECD's camera).
 
     Returns
     -------
@@ -73,6 +81,8 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     recording, out = Path(recording), Path(out)
     if not (math.isfinite(depth) and depth > 0):
         raise ValueError(f"--depth must be a positive number of metres, got {depth}")
+    if not (math.isfinite(illuminance) and illuminance > 0):
+        raise ValueError(f"--illuminance must be a positive number of lux, got {illuminance}")
     sequence = load_sequence(recording)
     if sequence.groundtruth_path is None or not len(sequence.image_paths):
         raise ValueError(f"{recording}: a twin needs groundtruth.txt and images.txt")
@@ -149,6 +159,7 @@ distortion = {vec(camera.distortion)}
 
 [frames]
 rate = {rate:.6g}
+sensor = "{frame_sensor}"
 
 [trajectory]
 type = "file"
@@ -157,7 +168,7 @@ path = "groundtruth.txt"
 [[lights]]
 type = "directional"
 direction = {vec(rotation[:, 2])}
-irradiance = 2.0
+illuminance_lux = {illuminance:.6g}
 
 [[objects]]
 name = "poster"
