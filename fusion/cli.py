@@ -343,7 +343,7 @@ def _cmd_twin(args: argparse.Namespace) -> int:
         if len(window) != 2:
             raise ValueError(f"--window: expected T0,T1 in seconds, got {args.window!r}")
     scene = write_twin(args.recording, args.out, args.depth, window, args.illuminance,
-                       args.frame_sensor)
+                       args.frame_sensor, args.frame_gamma)
     print(f"twin scene written to {scene}; simulate it with: evfuse simulate {scene} "
           f"--out SEQUENCE")
     return 0
@@ -830,6 +830,9 @@ def _parser() -> argparse.ArgumentParser:
     twin.add_argument("--frame-sensor", default="davis240c_aps",
                       choices=("ideal", "davis240c_aps", "machine_vision"),
                       help="the standard camera's sensor (default davis240c_aps, the ECD's)")
+    twin.add_argument("--frame-gamma", type=float, default=1.0,
+                      help="the recording's frames are 255 * light^(1/GAMMA) (default 1: linear, "
+                           "as a DAVIS APS; 2.2 for a gamma-encoded camera)")
     twin.add_argument("--out", required=True, help="folder to write")
     twin.set_defaults(run=_cmd_twin)
 

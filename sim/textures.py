@@ -33,6 +33,13 @@ def srgb_to_linear(values: np.ndarray) -> np.ndarray:
     return np.where(values <= 0.04045, values / 12.92, ((values + 0.055) / 1.055) ** 2.4)
 
 
+def linear_to_srgb(values: np.ndarray) -> np.ndarray:
+    """Encode linear values in [0, 1] as sRGB values in [0, 1] (IEC 61966-2-1), the inverse of
+    :func:`srgb_to_linear`."""
+    values = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
+    return np.where(values <= 0.0031308, values * 12.92, 1.055 * values ** (1 / 2.4) - 0.055)
+
+
 def _as_paper(image: np.ndarray) -> np.ndarray:
     """uint8/bool/float sRGB image -> float32 linear reflectance in PAPER_RANGE."""
     image = np.asarray(image)

@@ -111,3 +111,28 @@ def test_events_stats_compare_prints_two_recordings_side_by_side(capsys, tmp_pat
     assert 0.5 < float(noise.split()[1]) < 5                # a real APS frame's noise, DN
     assert main(["events", str(SHARED), "--compare", str(SHARED)]) == 2
     assert "--compare compares statistics: add --stats" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not SHARED.is_dir(), reason="the shared ECD recording is absent")
+def test_the_twin_of_slider_depth_fires_like_the_recording(tmp_path):
+    # Issue 14's match: event rate, ON/OFF balance and the share of pixels that fire within a
+    # factor 1.5 of the recording's, the frames' noise in flat areas within a factor 2. The
+    # twin: the README's commands (poster at the map's median depth 0.88 m, DAVIS frames,
+    # the realistic event camera at C = 0.4).
+    from sim.eventio import read_events
+    from sim.events import EventParams
+    from sim.noise import noise_preset
+    from sim.statistics import event_stats
+
+    scene = load_scene(write_twin(SHARED, tmp_path / "twin", 0.88, (0.0223, 0.1742)))
+    out = tmp_path / "seq"
+    simulate(scene, out, progress=False, event_formats=("h5",),
+             events=EventParams(contrast_on=0.4, contrast_off=0.4,
+                                noise=noise_preset("realistic")))
+    real = event_stats(read_events(SHARED / "events.txt", 240, 180), 240, 180)
+    twin = event_stats(read_events(out / "events.h5", 240, 180), 240, 180)
+    for key in ("rate_ev_per_s", "on_fraction", "active_pixels"):
+        assert 1 / 1.5 < twin[key] / real[key] < 1.5, key
+    noise = [frame_noise(cv2.imread(str(p), 0)) for p in sorted((out / "images").glob("*.png"))]
+    real_noise = frame_noise(cv2.imread(str(SHARED / "images" / "frame_00000000.png"), 0))
+    assert 0.5 < np.median(noise) / real_noise < 2
