@@ -61,6 +61,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.interpolate import CloughTocher2DInterpolator
 from scipy.spatial import Delaunay, QhullError, cKDTree
@@ -286,6 +287,32 @@ def _triangulation(xy: np.ndarray) -> Delaunay | None:
         return None
 
 
+def _locate(mesh: Delaunay, pixels: np.ndarray, query: np.ndarray, finite: np.ndarray,
+            shape: tuple[int, int]) -> np.ndarray:
+    """The triangle of ``mesh`` each pixel lies in (-1 outside): the triangles are rasterised
+    by their corners' pixels (fast), and the few pixels whose barycentric coordinates in the
+    mesh's own (undistorted) coordinates come out negative, where the lens bends an edge, are
+    located exactly (:meth:`scipy.spatial.Delaunay.find_simplex`)."""
+    index = np.full(shape, -1, np.int32)
+    corners = pixels[mesh.simplices].astype(np.int32)
+    for label, triangle in enumerate(corners):
+        cv2.fillConvexPoly(index, triangle, label)
+    simplex = np.where(finite, index.reshape(-1), -1)
+    inside = np.flatnonzero(simplex >= 0)
+    transform = mesh.transform[simplex[inside]]
+    bary = np.einsum("nij,nj->ni", transform[:, :2], query[inside] - transform[:, 2])
+    bary = np.column_stack([bary, 1 - bary.sum(axis=1)])
+    wrong = inside[(bary < -1e-9).any(axis=1)]
+    # Pixels just outside the rasterised triangles (an edge bent outward) may lie in the mesh.
+    covered = (index >= 0).astype(np.uint8)
+    rim = cv2.dilate(covered, np.ones((5, 5), np.uint8)).astype(bool) & ~covered.astype(bool)
+    missed = np.flatnonzero(finite & rim.reshape(-1))
+    recheck = np.concatenate([wrong, missed])
+    if recheck.size:
+        simplex[recheck] = mesh.find_simplex(query[recheck])
+    return simplex
+
+
 def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
               params: MeshParams | None = None) -> MeshFill:
     """``mesh``: surfaces, consistent triangles, smooth triangles, extrapolation (see the
@@ -326,20 +353,19 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
             good = consistent_triangles(xy, w, mesh.simplices, planes, params.consistency_rel)
             query = xy_all.reshape(-1, 2)
             finite = np.isfinite(query).all(axis=1)
-            simplex = np.full(len(query), -1)
-            simplex[finite] = mesh.find_simplex(query[finite])
+            simplex = _locate(mesh, np.stack([xs, ys], axis=1), query, finite, sparse.shape)
             inside = simplex >= 0
             corners = np.full((len(query), 3), np.nan)
             corners[inside] = w[mesh.simplices[simplex[inside]]]
+            transform = mesh.transform[simplex[inside]]
+            bary = np.einsum("nij,nj->ni", transform[:, :2], query[inside] - transform[:, 2])
+            bary = np.column_stack([bary, 1 - bary.sum(axis=1)])
 
             # Stage 2: barycentric interpolation on the consistent triangles.
             linear = np.zeros(len(query))
+            linear[inside] = 1.0 / (bary * corners[inside]).sum(axis=1)
             use = inside.copy()
             use[inside] = good[simplex[inside]]
-            transform = mesh.transform[simplex[use]]
-            bary = np.einsum("nij,nj->ni", transform[:, :2], query[use] - transform[:, 2])
-            bary = np.column_stack([bary, 1 - bary.sum(axis=1)])
-            linear[use] = 1.0 / (bary * corners[use]).sum(axis=1)
             take(linear.reshape(sparse.shape), use.reshape(sparse.shape), 2,
                  STAGE_CONFIDENCE[2])
 
@@ -352,14 +378,11 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                    & (high <= (1 + params.max_jump_rel) * low))
             smooth = np.zeros(len(query))
             if use.any():
+                at = use[inside]                    # the inside pixels stage 3 fills
                 if params.smooth:
                     values = CloughTocher2DInterpolator(mesh, w)(query[use])
                 else:
-                    transform = mesh.transform[simplex[use]]
-                    bary = np.einsum("nij,nj->ni", transform[:, :2],
-                                     query[use] - transform[:, 2])
-                    bary = np.column_stack([bary, 1 - bary.sum(axis=1)])
-                    values = (bary * corners[use]).sum(axis=1)
+                    values = (bary[at] * corners[use]).sum(axis=1)
                 smooth[use] = 1.0 / np.clip(values, low[use], high[use])
             take(smooth.reshape(sparse.shape), use.reshape(sparse.shape), 3,
                  STAGE_CONFIDENCE[3])
