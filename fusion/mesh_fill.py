@@ -50,7 +50,7 @@ Where it fails: a map that outlines a region without points inside it (a plain w
 edges) gets the linear interpolation between the edges, right only if the wall is flat; regions
 the paper does not select, and no consistent triangle covers, stay empty, and so does the inside
 of the mesh where the map's own errors break its triangles (on the event map of the height
-field, 58 % of the frame filled where the paper fills 95 %); a smooth surface that
+field, 52 % of the frame filled where the paper fills 95 %); a smooth surface that
 curves more than ``consistency_rel`` between map points is left to stages 3-4, and one that
 curves more than ``agree_rel`` across a point's neighbours loses points to the cleaning (10 of
 134 on the egg crate of ``tests/test_mesh_fill.py``); on a map noisier than ``agree_rel`` the
