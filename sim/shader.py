@@ -297,12 +297,15 @@ class EventShader:
         def trace(scene, directions, pixels, nodes, fractions, table, zeros):
             return _trace(scene, directions, pixels, nodes, fractions, table, zeros, spp=spp)
 
-        self._trace = dr.freeze(trace)
-
         def trace_one(scene, directions, pixels, nodes, fractions, table, zeros):
             return _trace(scene, directions, pixels, nodes, fractions, table, zeros, spp=1)
 
-        self._trace_subsamples = dr.freeze(trace_one)
+        # A scene whose objects move is re-traced at every call: replaying a frozen kernel
+        # after objects moved (their shapes' buffers and the BVH rebuilt) gave NaN luminance
+        # and flicker on dynamic_6dof's 2-s window.
+        freeze = (lambda f: f) if renderer.scene.is_dynamic else dr.freeze
+        self._trace = freeze(trace)
+        self._trace_subsamples = freeze(trace_one)
 
     # ----------------------------------------------------------------------------------------
     @property

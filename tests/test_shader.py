@@ -193,6 +193,11 @@ def test_moving_objects_one_time_per_call_and_frames_follow_them():
         np.testing.assert_array_equal(shader.luminance(pixels, np.full(len(pixels), t)),
                                       frames[t].ravel()[pixels])
     assert np.mean(frames[0.0] != frames[0.7]) > 0.2
+    # With moving objects the kernel is traced at every call, never replayed frozen: a frozen
+    # replay after objects moved gave NaN luminance on dynamic_6dof's 2-s window (at 7.53 s).
+    assert not hasattr(shader._trace, "n_recordings")           # a dr.freeze object has it
+    static = EventShader(Renderer(parse_scene(scene_text(WALL))), 1, t0=0.0, t1=1.0)
+    assert hasattr(static._trace, "n_recordings")
 
 
 def test_calls_of_any_size_reuse_the_kernel_and_launches_change_nothing(boxes, monkeypatch):
