@@ -112,17 +112,12 @@ class MeshParams(SurfaceFitParams):
     max_jump_rel: float = 0.2
     smooth: bool = True
 
+    _POSITIVE = SurfaceFitParams._POSITIVE + ("agree_rel", "similar_rel", "consistency_rel",
+                                              "max_jump_rel")
+    _COUNTS = {**SurfaceFitParams._COUNTS, "neighbours": 3, "min_support": 0}
+
     def __post_init__(self) -> None:
         super().__post_init__()
-        for name in ("agree_rel", "similar_rel", "consistency_rel", "max_jump_rel"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not (isinstance(value, (int, float))
-                                               and np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name, least in (("neighbours", 3), ("min_support", 0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
-                raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
         if self.min_support > self.neighbours:
             raise ValueError(f"min_support must be <= neighbours, got {self.min_support} > "
                              f"{self.neighbours}")
@@ -338,9 +333,7 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
         stage[where] = level
 
     if kept.any():
-        surface_params = SurfaceFitParams(**{name: getattr(params, name)
-                                             for name in SurfaceFitParams.__dataclass_fields__})
-        surfaces = surface_fill(frame, clean, camera, surface_params)
+        surfaces = surface_fill(frame, clean, camera, params)     # reads plane's fields only
         take(surfaces.dense, surfaces.confidence > 0, 1, surfaces.confidence)
 
         xy_all = camera.normalized_pixel_centres()

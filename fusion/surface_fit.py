@@ -126,18 +126,22 @@ class SurfaceFitParams:
     refine_iterations: int = 5
     seed: int = 0
 
+    # Which fields each check covers; a subclass extends these (MeshParams, HybridParams).
+    _POSITIVE = ("residual_rel", "max_leverage", "quadric_gain")
+    _NON_NEGATIVE = ("quadric_floor_rel", "depth_margin")
+    _COUNTS = {"min_points": 3, "quadric_min_points": 6, "ransac_iterations": 1,
+               "refine_iterations": 0, "seed": 0}
+
     def __post_init__(self) -> None:
-        positive = ("residual_rel", "max_leverage", "quadric_gain")
-        non_negative = ("quadric_floor_rel", "depth_margin")
-        counts = {"min_points": 3, "quadric_min_points": 6, "ransac_iterations": 1,
-                  "refine_iterations": 0, "seed": 0}
-        for name in positive + non_negative:
+        for name in self._POSITIVE + self._NON_NEGATIVE:
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value)
-                    and (value > 0 if name in positive else value >= 0)):
-                bound = "> 0" if name in positive else ">= 0"
+            positive = name in self._POSITIVE
+            if isinstance(value, bool) or not (isinstance(value, (int, float))
+                                               and np.isfinite(value)
+                                               and (value > 0 if positive else value >= 0)):
+                bound = "> 0" if positive else ">= 0"
                 raise ValueError(f"{name} must be a finite number {bound}, got {value!r}")
-        for name, least in counts.items():
+        for name, least in self._COUNTS.items():
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
                 raise ValueError(f"{name} must be an integer >= {least}, got {value!r}")
