@@ -282,10 +282,18 @@ def _triangulation(xy: np.ndarray) -> Delaunay | None:
         return None
 
 
+def _barycentric(mesh: Delaunay, simplex: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(N, 3) barycentric coordinates of points (N, 2) in their triangles (N,) of ``mesh``."""
+    transform = mesh.transform[simplex]
+    bary = np.einsum("nij,nj->ni", transform[:, :2], points - transform[:, 2])
+    return np.column_stack([bary, 1 - bary.sum(axis=1)])
+
+
 def _locate(mesh: Delaunay, pixels: np.ndarray, query: np.ndarray, finite: np.ndarray,
-            shape: tuple[int, int]) -> np.ndarray:
-    """The triangle of ``mesh`` each pixel lies in (-1 outside): the triangles are rasterised
-    by their corners' pixels (fast), and the few pixels whose barycentric coordinates in the
+            shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The triangle of ``mesh`` each pixel lies in (-1 outside), and the barycentric
+    coordinates of the pixels inside (in flat pixel order): the triangles are rasterised by
+    their corners' pixels (fast), and the few pixels whose barycentric coordinates in the
     mesh's own (undistorted) coordinates come out negative, where the lens bends an edge, are
     located exactly (:meth:`scipy.spatial.Delaunay.find_simplex`)."""
     index = np.full(shape, -1, np.int32)
@@ -294,9 +302,7 @@ def _locate(mesh: Delaunay, pixels: np.ndarray, query: np.ndarray, finite: np.nd
         cv2.fillConvexPoly(index, triangle, label)
     simplex = np.where(finite, index.reshape(-1), -1)
     inside = np.flatnonzero(simplex >= 0)
-    transform = mesh.transform[simplex[inside]]
-    bary = np.einsum("nij,nj->ni", transform[:, :2], query[inside] - transform[:, 2])
-    bary = np.column_stack([bary, 1 - bary.sum(axis=1)])
+    bary = _barycentric(mesh, simplex[inside], query[inside])
     wrong = inside[(bary < -1e-9).any(axis=1)]
     # Pixels just outside the rasterised triangles (an edge bent outward) may lie in the mesh.
     covered = (index >= 0).astype(np.uint8)
@@ -305,7 +311,9 @@ def _locate(mesh: Delaunay, pixels: np.ndarray, query: np.ndarray, finite: np.nd
     recheck = np.concatenate([wrong, missed])
     if recheck.size:
         simplex[recheck] = mesh.find_simplex(query[recheck])
-    return simplex
+        inside = np.flatnonzero(simplex >= 0)
+        bary = _barycentric(mesh, simplex[inside], query[inside])
+    return simplex, bary
 
 
 def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
@@ -346,13 +354,11 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
             good = consistent_triangles(xy, w, mesh.simplices, planes, params.consistency_rel)
             query = xy_all.reshape(-1, 2)
             finite = np.isfinite(query).all(axis=1)
-            simplex = _locate(mesh, np.stack([xs, ys], axis=1), query, finite, sparse.shape)
+            simplex, bary = _locate(mesh, np.stack([xs, ys], axis=1), query, finite,
+                                    sparse.shape)
             inside = simplex >= 0
             corners = np.full((len(query), 3), np.nan)
             corners[inside] = w[mesh.simplices[simplex[inside]]]
-            transform = mesh.transform[simplex[inside]]
-            bary = np.einsum("nij,nj->ni", transform[:, :2], query[inside] - transform[:, 2])
-            bary = np.column_stack([bary, 1 - bary.sum(axis=1)])
 
             # Stage 2: barycentric interpolation on the consistent triangles.
             linear = np.zeros(len(query))
