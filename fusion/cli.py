@@ -262,31 +262,36 @@ def _events_file(folder: Path) -> Path:
     raise ValueError(f"{folder}: no events.h5 or events.txt in this folder")
 
 
-def _recording_stats(folder: Path) -> tuple[dict, Path, object, object]:
-    """A sequence folder's event figures (:func:`sim.statistics.event_stats`) plus
-    ``frame_noise`` (gray levels, the median over its first 10 frames; NaN without frames),
-    its events file, its sequence and its events."""
-    import cv2
-    import numpy as np
-
+def _read_recording(folder: Path) -> tuple[object, Path, object]:
+    """A sequence folder's sequence, events file and events; event times in the wrong unit
+    (against the poses) are refused."""
     from sim.eventio import check_time_units, read_events
     from sim.sequence import load_sequence
-    from sim.statistics import event_stats, frame_noise
     from sim.trajectory import read_trajectory
 
     sequence = load_sequence(folder)
-    width, height = sequence.camera.width, sequence.camera.height
     path = _events_file(folder)
-    events = read_events(path, width, height)
+    events = read_events(path, sequence.camera.width, sequence.camera.height)
     if len(events) and sequence.groundtruth_path is not None:      # times in the wrong unit
         poses = read_trajectory(sequence.groundtruth_path)
         check_time_units(path, events["t"][0] * 1e-9, events["t"][-1] * 1e-9, poses.t_start,
                          poses.t_end)
-    stats = event_stats(events, width, height)
+    return sequence, path, events
+
+
+def _recording_stats(sequence, events) -> dict:
+    """A recording's event figures (:func:`sim.statistics.event_stats`) plus ``frame_noise``
+    (gray levels, the median over its first 10 frames; NaN without frames)."""
+    import cv2
+    import numpy as np
+
+    from sim.statistics import event_stats, frame_noise
+
+    stats = event_stats(events, sequence.camera.width, sequence.camera.height)
     noise = [frame_noise(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE))
              for p in list(sequence.image_paths)[:10]]
     stats["frame_noise"] = float(np.median(noise)) if noise else float("nan")
-    return stats, path, sequence, events
+    return stats
 
 
 def _cmd_events(args: argparse.Namespace) -> int:
@@ -298,16 +303,11 @@ def _cmd_events(args: argparse.Namespace) -> int:
     folder = Path(args.sequence)
     if args.compare is not None and not args.stats:
         raise ValueError("--compare compares statistics: add --stats")
+    sequence, path, events = _read_recording(folder)
     if not args.stats:
-        from sim.eventio import read_events
-        from sim.sequence import load_sequence
-
-        sequence = load_sequence(folder)
-        path = _events_file(folder)
-        events = read_events(path, sequence.camera.width, sequence.camera.height)
         print(f"{path}: {len(events)} events (add --stats for statistics)")
         return 0
-    stats, path, sequence, events = _recording_stats(folder)
+    stats = _recording_stats(sequence, events)
     width, height = sequence.camera.width, sequence.camera.height
     show = lambda v: f"{v:.6g}" if isinstance(v, float) else str(v)  # noqa: E731
     if args.compare is None:
@@ -315,7 +315,8 @@ def _cmd_events(args: argparse.Namespace) -> int:
         for key, value in stats.items():
             print(f"  {key:<24} {show(value)}")
     else:
-        other, other_path, _, _ = _recording_stats(Path(args.compare))
+        other_sequence, other_path, other_events = _read_recording(Path(args.compare))
+        other = _recording_stats(other_sequence, other_events)
         print(f"A: {path}\nB: {other_path}")
         print(f"  {'':<24} {'A':>12} {'B':>12} {'B / A':>8}")
         for key, a, b, ratio in compare_stats(stats, other):
