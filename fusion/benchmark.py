@@ -165,7 +165,7 @@ def _mapped(name: str, cache: Path, progress: bool) -> Path:
         return folder / "map"
     sequence = folder / "sequence"
     if not (sequence / "sequence.json").is_file():
-        scene = load_scene(name if name.endswith(".toml") else resolve_scene(name))
+        scene = load_scene(scene_file)
         simulate(scene, sequence, start=t0, duration=t1 - t0, progress=progress,
                  overwrite=True)
     map_window(sequence, folder / "map", t0, t1, overwrite=True, progress=progress)
