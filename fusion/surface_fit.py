@@ -62,6 +62,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 
 import cv2
+import numba
 import numpy as np
 from scipy import ndimage
 
@@ -309,36 +310,144 @@ def _model(coefficients: np.ndarray, phi: np.ndarray, w: np.ndarray, tolerance: 
                   np.abs(errors) <= tolerance)
 
 
+@numba.njit(cache=True)
+def _solve_small(a: np.ndarray, b: np.ndarray, x: np.ndarray) -> bool:
+    """Solve ``a x = b`` in place (Gaussian elimination, partial pivoting; ``a`` and ``b`` are
+    overwritten); False when a pivot is exactly 0."""
+    size = b.shape[0]
+    for col in range(size):
+        pivot = col
+        for row in range(col + 1, size):
+            if abs(a[row, col]) > abs(a[pivot, col]):
+                pivot = row
+        if a[pivot, col] == 0.0:
+            return False
+        if pivot != col:
+            for j in range(size):
+                a[col, j], a[pivot, j] = a[pivot, j], a[col, j]
+            b[col], b[pivot] = b[pivot], b[col]
+        for row in range(col + 1, size):
+            factor = a[row, col] / a[col, col]
+            for j in range(col, size):
+                a[row, j] -= factor * a[col, j]
+            b[row] -= factor * b[col]
+    for row in range(size - 1, -1, -1):
+        total = b[row]
+        for j in range(row + 1, size):
+            total -= a[row, j] * x[j]
+        x[row] = total / a[row, row]
+    return True
+
+
+@numba.njit(cache=True)
+def _best_sample(phi: np.ndarray, w: np.ndarray, samples: np.ndarray, tolerance: float,
+                 max_condition: float) -> np.ndarray:
+    """RANSAC's hypotheses, compiled: the exact solution of each minimal sample of distinct,
+    well-conditioned points (2-norm condition number below ``max_condition``), scored by MSAC
+    over all points; the best one's coefficients (empty when no sample qualifies), the first
+    of equal scores. A hypothesis's score stops accumulating once it cannot beat the best so
+    far, and the condition number is computed only for a hypothesis that would become the
+    best: both leave the choice unchanged."""
+    m, size = samples.shape
+    n = phi.shape[0]
+    tol2 = tolerance * tolerance
+    best = np.empty(0)
+    best_total = np.inf
+    a = np.empty((size, size))
+    work = np.empty((size, size))
+    b = np.empty(size)
+    c = np.empty(size)
+    for k in range(m):
+        distinct = True
+        for i in range(size):
+            for j in range(i + 1, size):
+                if samples[k, i] == samples[k, j]:
+                    distinct = False
+        if not distinct:
+            continue
+        for i in range(size):
+            for j in range(size):
+                a[i, j] = phi[samples[k, i], j]
+                work[i, j] = a[i, j]
+            b[i] = w[samples[k, i]]
+        if not _solve_small(work, b, c):
+            continue
+        total = 0.0
+        for p in range(n):
+            predicted = 0.0
+            for j in range(size):
+                predicted += phi[p, j] * c[j]
+            e2 = tol2                                   # at or behind the camera: truncated
+            if predicted > 0:
+                e = w[p] / predicted - 1
+                e2 = min(e * e, tol2)
+            total += e2                                 # not NaN: c is finite here
+            if total >= best_total:
+                break
+        if total >= best_total:
+            continue
+        singular = np.linalg.svd(a)[1]
+        if not (singular[size - 1] > 0 and singular[0] / singular[size - 1] < max_condition):
+            continue
+        best_total = total
+        best = c.copy()
+    return best
+
+
 def _robust_fit(phi: np.ndarray, w: np.ndarray, params: SurfaceFitParams,
                 rng: np.random.Generator) -> _Model | None:
     """RANSAC (MSAC score) over minimal samples, then least squares on the inliers."""
     n, size = phi.shape
     tolerance = params.residual_rel
     samples = rng.integers(0, n, size=(params.ransac_iterations, size))
-    ordered = np.sort(samples, axis=1)
-    samples = samples[np.all(np.diff(ordered, axis=1) > 0, axis=1)]    # distinct points only
-    matrices = phi[samples]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        regular = np.linalg.cond(matrices) < _MAX_CONDITION if len(samples) else []
-    samples, matrices = samples[regular], matrices[regular]
-    if not len(samples):
+    best = _best_sample(np.ascontiguousarray(phi, np.float64), np.ascontiguousarray(w, np.float64),
+                        samples, tolerance, _MAX_CONDITION)
+    if not best.size:
         return None
-    candidates = np.linalg.solve(matrices, w[samples][..., None])[..., 0]   # (m, size)
-    scores = _msac(_relative_errors(phi @ candidates.T, w), tolerance)      # (m,)
-    model = _model(candidates[int(np.argmin(scores))], phi, w, tolerance)
-    for _ in range(params.refine_iterations):
-        inliers = model.inliers
-        if np.count_nonzero(inliers) < size:
+    return _model(_refine(phi, w, best, tolerance, params.refine_iterations), phi, w, tolerance)
+
+
+@numba.njit(cache=True)
+def _inliers(phi: np.ndarray, w: np.ndarray, c: np.ndarray, tolerance: float) -> np.ndarray:
+    """Points whose relative depth error under ``c`` is within ``tolerance`` (ahead only)."""
+    n, size = phi.shape
+    out = np.zeros(n, np.bool_)
+    for p in range(n):
+        predicted = 0.0
+        for j in range(size):
+            predicted += phi[p, j] * c[j]
+        out[p] = predicted > 0 and abs(w[p] / predicted - 1) <= tolerance
+    return out
+
+
+@numba.njit(cache=True)
+def _refine(phi: np.ndarray, w: np.ndarray, coefficients: np.ndarray, tolerance: float,
+            iterations: int) -> np.ndarray:
+    """Least squares of the relative residuals on the inliers, again on the new inliers, up to
+    ``iterations`` times, compiled: stops when the inliers are fewer than the coefficients,
+    would shrink, or no longer change."""
+    n, size = phi.shape
+    inliers = _inliers(phi, w, coefficients, tolerance)
+    for _ in range(iterations):
+        count = inliers.sum()
+        if count < size:
             break
-        rows = phi[inliers] / w[inliers, None]          # relative residuals w_fit / w - 1
-        refined = _model(np.linalg.lstsq(rows, np.ones(len(rows)), rcond=None)[0], phi, w,
-                         tolerance)
-        if np.count_nonzero(refined.inliers) < np.count_nonzero(inliers):
+        rows = np.empty((count, size))
+        k = 0
+        for p in range(n):
+            if inliers[p]:
+                for j in range(size):
+                    rows[k, j] = phi[p, j] / w[p]      # relative residuals w_fit / w - 1
+                k += 1
+        refined = np.linalg.lstsq(rows, np.ones(count))[0]
+        new = _inliers(phi, w, refined, tolerance)
+        if new.sum() < count:
             break
-        model = refined
-        if np.array_equal(refined.inliers, inliers):
+        coefficients = refined
+        if np.array_equal(new, inliers):
             break
-    return model
+        inliers = new
+    return coefficients
 
 
 def _leverage(model: _Model, phi: np.ndarray, w: np.ndarray, phi_region: np.ndarray) -> float:
@@ -348,12 +457,31 @@ def _leverage(model: _Model, phi: np.ndarray, w: np.ndarray, phi_region: np.ndar
     gram = rows.T @ rows
     if len(rows) < phi.shape[1] or np.linalg.cond(gram) > _MAX_CONDITION ** 2:
         return float("inf")
-    predicted = phi_region @ model.coefficients
-    ahead = predicted > 0
-    if not ahead.any():
-        return 0.0
-    spread = np.einsum("ij,jk,ik->i", phi_region[ahead], np.linalg.inv(gram), phi_region[ahead])
-    return float(np.sqrt(np.max(np.maximum(spread, 0.0) / predicted[ahead] ** 2)))
+    return _largest_spread(np.ascontiguousarray(phi_region), model.coefficients,
+                           np.linalg.inv(gram))
+
+
+@numba.njit(cache=True)
+def _largest_spread(phi_region: np.ndarray, coefficients: np.ndarray, inverse: np.ndarray
+                    ) -> float:
+    """:func:`_leverage`'s maximum over the pixels ahead of the camera, compiled (0 when none
+    is)."""
+    size = coefficients.shape[0]
+    largest = 0.0
+    for p in range(phi_region.shape[0]):
+        predicted = 0.0
+        for j in range(size):
+            predicted += phi_region[p, j] * coefficients[j]
+        if not predicted > 0:
+            continue
+        spread = 0.0
+        for j in range(size):
+            inner = 0.0
+            for k in range(size):
+                inner += inverse[j, k] * phi_region[p, k]
+            spread += phi_region[p, j] * inner
+        largest = max(largest, max(spread, 0.0) / (predicted * predicted))
+    return np.sqrt(largest)
 
 
 def fit_surface(xy: np.ndarray, depth: np.ndarray, xy_region: np.ndarray,

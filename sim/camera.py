@@ -8,6 +8,7 @@ normalised coordinates ``x = X/Z, y = Y/Z``; OpenCV's distortion (k1, k2, p1, p2
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 from numbers import Integral, Real
@@ -206,10 +207,10 @@ class Camera:
         -------
         (H, W, 2) float64 ndarray
             ``(X/Z, Y/Z)`` of the points that project onto each pixel centre (NaN where the
-            distortion cannot be inverted; never for an undistorted camera).
+            distortion cannot be inverted; never for an undistorted camera). Read-only: the
+            last few cameras' are kept, since every filling method asks for them.
         """
-        xy_d = (self.pixel_centres() - [self.cx, self.cy]) / [self.fx, self.fy]
-        return self.undistort(xy_d.reshape(-1, 2)).reshape(self.height, self.width, 2)
+        return _normalized_pixel_centres(self)
 
     def in_image(self, uv: ArrayLike) -> np.ndarray:
         """Whether pixel coordinates fall on the sensor.
@@ -255,6 +256,14 @@ class Camera:
         return replace(self, width=int(width), height=int(height),
                        fx=self.fx * sx, fy=self.fy * sy,
                        cx=(self.cx + 0.5) * sx - 0.5, cy=(self.cy + 0.5) * sy - 0.5)
+
+
+@functools.lru_cache(maxsize=8)
+def _normalized_pixel_centres(camera: Camera) -> np.ndarray:
+    xy_d = (camera.pixel_centres() - [camera.cx, camera.cy]) / [camera.fx, camera.fy]
+    xy = camera.undistort(xy_d.reshape(-1, 2)).reshape(camera.height, camera.width, 2)
+    xy.setflags(write=False)
+    return xy
 
 
 def _points(x: ArrayLike, name: str, size: int) -> np.ndarray:

@@ -12,7 +12,15 @@ import dataclasses
 import numpy as np
 import pytest
 
-from fusion.mesh_fill import MeshParams, clean_map, mesh_fill
+from fusion.mesh_fill import (
+    MeshParams,
+    _cubic_patch,
+    _locate,
+    _triangulation,
+    _vertex_slopes,
+    clean_map,
+    mesh_fill,
+)
 from fusion.methods import MethodError, run_method
 from sim.camera import Camera
 
@@ -218,3 +226,69 @@ def test_a_region_bounded_by_two_surfaces_gets_neither_mean_nor_bridge():
     np.testing.assert_allclose(result.dense[filled & left], 1.0, rtol=1e-6)
     np.testing.assert_allclose(result.dense[filled & ~left], 1.6, rtol=1e-6)
     assert (result.dense[inner] == 0).sum() > H // 2         # a strip down the middle
+
+
+# --- the compiled pieces, each against an independent computation ---------------------------
+
+def test_the_triangulation_is_scipys_delaunay_on_points_in_general_position():
+    from scipy.spatial import Delaunay
+
+    points = np.random.default_rng(3).random((300, 2)) * [1.3, 0.9] - [0.6, 0.4]
+    ours = _triangulation(points)
+    theirs = Delaunay(points).simplices
+    as_set = lambda t: {tuple(sorted(row)) for row in t.tolist()}      # noqa: E731
+    assert as_set(ours) == as_set(theirs)
+    assert _triangulation(np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])) is None
+
+
+def test_every_pixel_is_located_in_the_triangle_that_contains_it_through_the_lens():
+    from scipy.spatial import Delaunay
+
+    rng = np.random.default_rng(4)
+    pixels = np.unique(rng.integers([0, 0], [W, H], (150, 2)), axis=0)
+    query = CAMERA.normalized_pixel_centres().reshape(-1, 2)
+    points = query[pixels[:, 1] * W + pixels[:, 0]]
+    triangles = Delaunay(points).simplices
+    simplex, bary = _locate(points, triangles, pixels, query, (H, W),
+                            np.ones(len(triangles), bool))
+    expected = Delaunay(points).find_simplex(query)
+    # Inside the mesh, every pixel is found; on an edge either triangle is right.
+    inside = expected >= 0
+    assert np.all(simplex[inside] >= 0) and np.all(simplex[~inside] < 0)
+    corners = points[triangles[simplex[inside]]]                       # (n, 3, 2)
+    np.testing.assert_allclose(np.einsum("nk,nkd->nd", bary[inside], corners), query[inside],
+                               atol=1e-12)
+    assert bary[inside].min() > -1e-9
+
+
+def test_the_cubic_patches_reproduce_a_quadratic_from_its_values_and_slopes():
+    rng = np.random.default_rng(5)
+    points = rng.random((40, 2))
+    quadratic = lambda p: 0.7 + 0.3 * p[:, 0] - 0.2 * p[:, 1] + 0.5 * p[:, 0] ** 2 \
+        - 0.4 * p[:, 0] * p[:, 1] + 0.25 * p[:, 1] ** 2                  # noqa: E731
+    x, y = points[:, 0], points[:, 1]
+    slopes = np.stack([0.3 + x - 0.4 * y, -0.2 - 0.4 * x + 0.5 * y], axis=1)
+    triangles = _triangulation(points)
+    simplex = rng.integers(0, len(triangles), 500)
+    bary = rng.dirichlet([1, 1, 1], 500)
+    inside = np.einsum("nk,nkd->nd", bary, points[triangles[simplex]])
+    values = _cubic_patch(points, quadratic(points), slopes, triangles, simplex, bary)
+    np.testing.assert_allclose(values, quadratic(inside), atol=1e-12)
+
+
+def test_the_vertex_slopes_of_a_plane_are_its_slopes_and_steps_are_ignored():
+    rng = np.random.default_rng(6)
+    points = rng.random((200, 2))
+    values = 0.8 + 0.3 * points[:, 0] - 0.1 * points[:, 1]
+    triangles = _triangulation(points)
+    slopes = _vertex_slopes(points, values, triangles, 0.15, np.zeros((200, 2)))
+    np.testing.assert_allclose(slopes, np.tile([0.3, -0.1], (200, 1)), atol=1e-6)
+    # A second plane twice as far (half the inverse depth) to the right: no edge across the
+    # step enters either side's slopes.
+    right = points[:, 0] > 0.5
+    stepped = np.where(right, 0.5 * values, values)
+    slopes = _vertex_slopes(points, stepped, triangles, 0.15, np.zeros((200, 2)))
+    np.testing.assert_allclose(slopes[~right], np.tile([0.3, -0.1], ((~right).sum(), 1)),
+                               atol=1e-6)
+    np.testing.assert_allclose(slopes[right], np.tile([0.15, -0.05], (right.sum(), 1)),
+                               atol=1e-6)
