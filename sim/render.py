@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -157,7 +157,7 @@ def _shape_dicts(index: int, obj: SceneObject, scene: Scene,
     """Mitsuba plugin dictionaries of one object (several for a capped cylinder), with the
     given material (default the object's own, see :func:`_bsdf_dict`)."""
     bsdf = _bsdf_dict(index, obj, scene) if bsdf is None else bsdf
-    pose = obj.pose(0.0)
+    pose = replace(obj, motion=None).pose()     # at rest: _set_state moves it to its time
     key = _key(index, obj.name)
     p = obj.params
     if obj.shape == "rectangle":
