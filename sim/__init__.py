@@ -15,6 +15,7 @@ from sim.eventio import (
 )
 from sim.events import EventEmulator, EventParams, emulate_events
 from sim.exr import read_depth, write_depth
+from sim.flow import read_flow, read_motion_field, read_object_mask
 from sim.frames import FrameParams, luminance_to_frame
 from sim.noise import NoiseParams, noise_preset
 from sim.render import Renderer, RenderResult
@@ -54,6 +55,9 @@ __all__ = [
     "frame_noise",
     "noise_preset",
     "read_events",
+    "read_flow",
+    "read_motion_field",
+    "read_object_mask",
     "read_window",
     "FrameParams",
     "HandheldTrajectory",

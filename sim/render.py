@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -130,20 +130,34 @@ def _max_texels(obj: SceneObject, scene: Scene) -> tuple[float, float] | None:
     return extent[0] / footprint, extent[1] / footprint
 
 
-def _shape_dicts(index: int, obj: SceneObject, scene: Scene) -> dict[str, dict]:
-    """Mitsuba plugin dictionaries of one object (several for a capped cylinder)."""
+def _bsdf_dict(index: int, obj: SceneObject, scene: Scene) -> dict:
+    """Mitsuba plugin dictionary of one object's material (its texture loaded)."""
     from sim.textures import mitsuba_texture
 
     material = obj.material
-    seed = scene.seed
     if material.texture is not None:
-        reflectance = mitsuba_texture(material.texture, material.texture_scale, seed + index,
+        reflectance = mitsuba_texture(material.texture, material.texture_scale,
+                                      scene.seed + index,
                                       flip_v=obj.shape in ("rectangle", "cylinder"),
                                       max_texels=_max_texels(obj, scene))
     else:
         reflectance = {"type": "rgb", "value": list(material.color)}
-    bsdf = {"type": "twosided", "material": {"type": "diffuse", "reflectance": reflectance}}
-    pose = obj.pose(0.0)
+    return {"type": "twosided", "material": {"type": "diffuse", "reflectance": reflectance}}
+
+
+def _object_index(shape_id: str) -> int:
+    """``scene.objects`` index of the object a Mitsuba shape (keyed by :func:`_key`) belongs
+    to, from its id ``o{index}_...``; -1 for a shape without such an id."""
+    found = re.match(r"o(\d+)_", shape_id)
+    return int(found.group(1)) if found else -1
+
+
+def _shape_dicts(index: int, obj: SceneObject, scene: Scene,
+                 bsdf: dict | None = None) -> dict[str, dict]:
+    """Mitsuba plugin dictionaries of one object (several for a capped cylinder), with the
+    given material (default the object's own, see :func:`_bsdf_dict`)."""
+    bsdf = _bsdf_dict(index, obj, scene) if bsdf is None else bsdf
+    pose = replace(obj, motion=None).pose()     # at rest: _set_state moves it to its time
     key = _key(index, obj.name)
     p = obj.params
     if obj.shape == "rectangle":
@@ -291,6 +305,7 @@ class Renderer:
             self._rays = mi.Vector3f(*(rays[:, i].astype(np.float32) for i in range(3)))
         self._pose: np.ndarray | None = None
         self._time: float | None = None
+        self._geometry = None                            # see _geometry_scene
 
     # ----------------------------------------------------------------------------------------
     def _set_state(self, t: float, pose: np.ndarray | None) -> np.ndarray:
@@ -379,6 +394,59 @@ class Renderer:
             if si.is_valid():
                 out[i] = si.t * dz
         return out
+
+    def object_ids(self, t: float, pose: np.ndarray | None = None) -> np.ndarray:
+        """Which object each pixel-centre ray hits first (the rays of :meth:`depth`).
+
+        A static scene is loaded with Mitsuba's optimisation, which merges meshes that share a
+        material into one shape; its ids then come from a copy of its geometry loaded without
+        that optimisation (built at the first call, once). A dynamic scene is loaded without
+        it, and its own shapes give the ids (from the same ray cast as :meth:`depth`'s).
+
+        Parameters
+        ----------
+        t : float, seconds
+        pose : (4, 4) ndarray, optional
+            ``T_world_camera`` (default the trajectory's at ``t``).
+
+        Returns
+        -------
+        (H, W) uint16 ndarray
+            0 where nothing is hit, ``i`` where the ray hits ``scene.objects[i - 1]``.
+        """
+        pose = self._set_state(t, pose)
+        mi, dr = self._mi, self._dr
+        scene = self._scene if self.scene.is_dynamic else self._geometry_scene()
+        shape = (self.camera.height, self.camera.width)
+        if self.variant == "scalar_rgb":
+            origin = mi.Point3f(*pose[:3, 3].tolist())
+            out = np.zeros(len(self._rays_np), dtype=np.uint16)
+            for i, d in enumerate(self._rays_np @ pose[:3, :3].T):
+                si = scene.ray_intersect(mi.Ray3f(origin, mi.Vector3f(*d)),
+                                         ray_flags=mi.RayFlags.Minimal, coherent=False)
+                if si.is_valid():
+                    out[i] = _object_index(si.shape.id()) + 1
+            return out.reshape(shape)
+        pointers = np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64)
+        lookup = np.zeros(int(pointers.max()) + 1, dtype=np.uint16)     # pointer 0: no hit
+        lookup[pointers] = [_object_index(s.id()) + 1 for s in scene.shapes()]
+        rotation = mi.Matrix3f(pose[:3, :3].astype(np.float32))
+        origin = mi.Point3f(*pose[:3, 3].astype(np.float32).tolist())
+        dr.make_opaque(rotation, origin)
+        si = scene.ray_intersect(mi.Ray3f(origin, rotation @ self._rays),
+                                 ray_flags=mi.RayFlags.Minimal, coherent=True)
+        hit = np.array(dr.reinterpret_array(mi.UInt32, si.shape), dtype=np.int64)
+        return lookup[hit].reshape(shape)
+
+    def _geometry_scene(self):
+        """The scene's shapes, one Mitsuba shape per object part (no merging), no textures."""
+        if self._geometry is None:
+            plain = {"type": "diffuse"}
+            description: dict = {"type": "scene"}
+            for i, obj in enumerate(self.scene.objects):
+                description.update(_shape_dicts(i, obj, self.scene, plain))
+            self._geometry = self._mi.load_dict(description, optimize=False)
+        return self._geometry
 
     def render(self, t: float, pose: np.ndarray | None = None) -> RenderResult:
         """Luminance and depth for the same time and pose."""

@@ -143,6 +143,22 @@ class ObjectMotion:
             translation = self.amplitude * math.sin(2 * math.pi * self.frequency * t + self.phase)
         return make_pose(rotation, translation)
 
+    def twist(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The time derivative of :meth:`offset` at ``t``, world axes.
+
+        Returns
+        -------
+        v : (3,) float64 ndarray, m/s
+            Velocity of the object's centre.
+        w : (3,) float64 ndarray, rad/s
+            Angular velocity: a point ``X`` of the object moves at ``v + w x (X - centre)``.
+        """
+        if self.kind == "linear":
+            return np.array(self.velocity, dtype=float), np.array(self.angular_velocity,
+                                                                  dtype=float)
+        omega = 2 * math.pi * self.frequency
+        return self.amplitude * omega * math.cos(omega * t + self.phase), np.zeros(3)
+
 
 @dataclass(frozen=True)
 class SceneObject:

@@ -30,7 +30,8 @@ import numpy as np
 if TYPE_CHECKING:
     from sim.camera import Camera
 
-__all__ = ["EXACT_TIME_S", "SEQUENCE_FOLDER_NEEDS", "Sequence", "atomic_output_dir",
+__all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "SEQUENCE_FOLDER_NEEDS", "FileIndex", "Sequence",
+           "atomic_output_dir",
            "check_output_dir", "describe_data_file", "frame_name", "load_sequence",
            "partial_dir", "read_index", "read_sequence_json", "write_index",
            "write_sequence_json"]
@@ -43,6 +44,11 @@ PARTIAL_SUFFIX = ".partial"
 """Suffix of the folder a sequence is written into before it is complete."""
 
 _FRAME_FOLDERS = {"png": "images", "exr": "depth"}
+
+FLOW_INDEXES = {"forward_flow": "flow_forward.txt", "backward_flow": "flow_backward.txt",
+                "motion_field": "motionfield.txt", "object_masks": "masks.txt"}
+"""Index files of a simulated sequence's motion ground truth (:mod:`sim.flow`), by the
+:class:`Sequence` field that reads them."""
 
 EXACT_TIME_S = 1e-6
 """Two times this close (s) are the same instant: index files hold whole nanoseconds, and a
@@ -393,6 +399,21 @@ def describe_data_file(path: str | Path) -> str | None:
 # --- a whole sequence ------------------------------------------------------------------------
 
 @dataclass(frozen=True, eq=False)
+class FileIndex:
+    """The files an index lists, and their times.
+
+    Attributes
+    ----------
+    times : (N,) float64 ndarray, seconds
+        Read-only.
+    paths : tuple of N Path
+    """
+
+    times: np.ndarray
+    paths: tuple[Path, ...]
+
+
+@dataclass(frozen=True, eq=False)
 class Sequence:
     """A sequence folder, read by :func:`load_sequence`.
 
@@ -419,6 +440,15 @@ class Sequence:
         ``events.h5``, if present.
     metadata : dict or None
         ``sequence.json`` (simulated sequences only).
+    forward_flow, backward_flow : FileIndex or None
+        Exact optical flow of frame k to k + 1 (every frame but the last) and to k - 1 (every
+        frame but the first), at frame k's time (simulated sequences; :func:`sim.flow.read_flow`).
+    motion_field : FileIndex or None
+        Exact image velocity at each frame time (:func:`sim.flow.read_motion_field`).
+    object_masks : FileIndex or None
+        Which object each pixel sees at each frame time (:func:`sim.flow.read_object_mask`).
+    object_names : tuple of str or None
+        The objects of the masks: mask value ``i`` is ``object_names[i - 1]``.
     """
 
     folder: Path
@@ -431,6 +461,11 @@ class Sequence:
     events_txt: Path | None
     events_h5: Path | None
     metadata: dict | None
+    forward_flow: FileIndex | None = None
+    backward_flow: FileIndex | None = None
+    motion_field: FileIndex | None = None
+    object_masks: FileIndex | None = None
+    object_names: tuple[str, ...] | None = None
 
     def nearest_frame(self, t: float) -> int:
         """Index of the standard frame nearest to time ``t``.
@@ -560,8 +595,20 @@ def load_sequence(folder: str | Path) -> Sequence:
     def optional(name: str) -> Path | None:
         return folder / name if (folder / name).is_file() else None
 
+    indexes = {field: _file_index(folder / name) for field, name in FLOW_INDEXES.items()}
+    names = ((metadata or {}).get("object_masks") or {}).get("objects")
     return Sequence(folder=folder, camera=camera, image_times=image_times,
                     image_paths=image_paths, depth_times=depth_times, depth_paths=depth_paths,
                     groundtruth_path=optional("groundtruth.txt"),
                     events_txt=optional("events.txt"), events_h5=optional("events.h5"),
-                    metadata=metadata)
+                    metadata=metadata, **indexes,
+                    object_names=None if names is None else tuple(str(n) for n in names))
+
+
+def _file_index(path: Path) -> FileIndex | None:
+    """The index at ``path`` (its files checked), or None when there is none."""
+    if not path.is_file():
+        return None
+    times, names = read_index(path)
+    times.setflags(write=False)
+    return FileIndex(times, tuple(path.parent / name for name in names))

@@ -45,6 +45,7 @@ from sim.camera import write_calib
 from sim.eventio import H5EventWriter, TextEventWriter
 from sim.events import EventEmulator, EventParams
 from sim.exr import write_depth
+from sim.flow import write_motion_ground_truth
 from sim.frame_sensor import (
     FixedPattern,
     fixed_pattern,
@@ -294,6 +295,10 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         rig_record = _write_rig(tmp, scene, sample_times(start, end, scene.render.pose_rate))
         gain, exposures, image_names, depth_names = _simulate_frames(
             scene, renderer, tmp, times, checkpoint, progress, timings)
+        tick = time.perf_counter()
+        motion_truth = write_motion_ground_truth(scene, renderer, tmp, times, depth_names,
+                                                 scene.rig.frames_offset)
+        timings["flow"] = time.perf_counter() - tick
         event_info = checkpoint.events_done
         if with_events and event_info is None:
             simulate_events = (_simulate_events_per_pixel if sampler == "pixel"
@@ -324,6 +329,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                        "pose_rate": scene.render.pose_rate, "renders": len(times)
                        * params.exposure_samples},
             "depth": {"kind": "z", "units": "m", "at": "pixel centres, frame mid-exposure times"},
+            **motion_truth,
             "events": {**event_info, "span_s": [start + scene.rig.events_offset,
                                                 end + scene.rig.events_offset]}
                       if with_events else None,
