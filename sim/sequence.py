@@ -419,6 +419,11 @@ class Sequence:
         ``events.h5``, if present.
     metadata : dict or None
         ``sequence.json`` (simulated sequences only).
+    velocity_path : Path or None
+        ``velocity.txt`` (camera-frame twist at the pose rate; simulated sequences only), read
+        by :meth:`read_velocity`.
+    imu_path : Path or None
+        ``imu.txt`` (ECD layout), read by :meth:`read_imu`.
     """
 
     folder: Path
@@ -431,6 +436,22 @@ class Sequence:
     events_txt: Path | None
     events_h5: Path | None
     metadata: dict | None
+    velocity_path: Path | None = None
+    imu_path: Path | None = None
+
+    def read_velocity(self) -> np.ndarray | None:
+        """``velocity.txt`` as (N, 7) float64 ``t vx vy vz wx wy wz`` (s, m/s, rad/s, camera
+        frame, true clock), or None without one (:func:`sim.imu.read_velocity`)."""
+        from sim.imu import read_velocity
+
+        return None if self.velocity_path is None else read_velocity(self.velocity_path)
+
+    def read_imu(self) -> np.ndarray | None:
+        """``imu.txt`` as (N, 7) float64 ``t ax ay az gx gy gz`` (s, m/s^2, rad/s, IMU frame,
+        the IMU's clock), or None without one (:func:`sim.imu.read_imu`)."""
+        from sim.imu import read_imu
+
+        return None if self.imu_path is None else read_imu(self.imu_path)
 
     def nearest_frame(self, t: float) -> int:
         """Index of the standard frame nearest to time ``t``.
@@ -564,4 +585,5 @@ def load_sequence(folder: str | Path) -> Sequence:
                     image_paths=image_paths, depth_times=depth_times, depth_paths=depth_paths,
                     groundtruth_path=optional("groundtruth.txt"),
                     events_txt=optional("events.txt"), events_h5=optional("events.h5"),
-                    metadata=metadata)
+                    metadata=metadata, velocity_path=optional("velocity.txt"),
+                    imu_path=optional("imu.txt"))
