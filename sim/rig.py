@@ -23,7 +23,7 @@ Models, each drawn from its own seeded generator (:func:`rig_generator`):
   axis (``q`` a continuous-time density in m/sqrt(s) or rad/sqrt(s): after ``t`` seconds the
   walk's standard deviation per axis is ``q sqrt(t)``).
 - Clock offsets: a stream's written time is ``t_written = t_true + offset`` for the event stream,
-  the frames and the poses each. The reference is the TRUE clock, the scene's (the clock of
+  the frames, the poses and the IMU each. The reference is the TRUE clock, the scene's (the clock of
   ``groundtruth_exact.txt``, of the renders and of ``sequence.json``'s ``start``); an offset of 0
   leaves a stream on it. Only differences between offsets are observable by the pipeline.
 - Calibration error: ``f' = f (1 + e_f)`` (one relative draw for ``fx`` and ``fy``: a
@@ -71,8 +71,9 @@ class RigParams:
         Random-walk density of the position error per axis.
     rotation_walk : float, rad/sqrt(s)
         Random-walk density of the rotation error per axis.
-    events_offset, frames_offset, poses_offset : float, seconds
-        Each stream's written time minus the true time (the reference clock is the true one).
+    events_offset, frames_offset, poses_offset, imu_offset : float, seconds
+        Each stream's written time minus the true time (the reference clock is the true one;
+        ``imu_offset`` stamps ``imu.txt``, :mod:`sim.imu`).
     focal_sigma : float
         Relative error of the focal length (one draw for ``fx`` and ``fy``).
     principal_point_sigma : float, pixels
@@ -90,6 +91,7 @@ class RigParams:
     events_offset: float = 0.0
     frames_offset: float = 0.0
     poses_offset: float = 0.0
+    imu_offset: float = 0.0
     focal_sigma: float = 0.0
     principal_point_sigma: float = 0.0
     distortion_sigma: tuple[float, float, float, float, float] = (0.0,) * 5
@@ -135,9 +137,9 @@ class RigParams:
 
     @property
     def offsets(self) -> dict[str, float]:
-        """``{"events" | "frames" | "poses": offset in seconds}``."""
+        """``{"events" | "frames" | "poses" | "imu": offset in seconds}``."""
         return {"events": self.events_offset, "frames": self.frames_offset,
-                "poses": self.poses_offset}
+                "poses": self.poses_offset, "imu": self.imu_offset}
 
     def as_dict(self) -> dict:
         """The parameters as JSON values (for ``sequence.json``)."""
@@ -298,7 +300,7 @@ def exact_trajectory(sequence) -> SampledTrajectory:
 
 
 def true_time(metadata: dict | None, t: float, stream: str) -> float:
-    """The true time of a time stamped by ``stream`` (``events``, ``frames``, ``poses``):
+    """The true time of a time stamped by ``stream`` (``events``, ``frames``, ``poses``, ``imu``):
     ``t - offset`` from ``sequence.json``'s ``rig`` record (scoring only; 0 without one)."""
     record = _rig_record(metadata) or {}
     offsets = record.get("offsets_s") or {}

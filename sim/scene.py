@@ -22,6 +22,7 @@ import numpy as np
 from sim.camera import Camera, camera_preset
 from sim.frame_sensor import FRAME_SENSORS, FrameSensor
 from sim.frames import FRAME_SENSOR_NAMES, FrameParams
+from sim.imu import IMU_PRESETS, ImuParams
 from sim.rig import RIG_PRESETS, RigParams
 from sim.se3 import look_at, make_pose, rotation_from_euler, so3_exp
 from sim.trajectory import (
@@ -282,6 +283,11 @@ class Scene:
     rig : RigParams
         How the written poses, clocks and calibration depart from the truth (``[rig]``;
         default perfect, :mod:`sim.rig`).
+    up : (3,) tuple of float
+        Which way is up in the world (top-level ``up``, normalised; default ``+z``, as in the
+        built-in scenes): gravity points along ``-up``.
+    imu : ImuParams
+        The IMU riding with the camera (``[imu]``; default the ``ideal`` one, :mod:`sim.imu`).
     """
 
     name: str
@@ -298,6 +304,8 @@ class Scene:
     text: str = ""
     depth_range: tuple[float, float] | None = None
     rig: RigParams = field(default_factory=RigParams)
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    imu: ImuParams = field(default_factory=ImuParams)
 
     @property
     def base_dir(self) -> Path:
@@ -484,18 +492,28 @@ _RIG_KEYS = {  # TOML key -> (RigParams field, factor to SI units)
     "events_offset": ("events_offset", 1.0),
     "frames_offset": ("frames_offset", 1.0),
     "poses_offset": ("poses_offset", 1.0),
+    "imu_offset": ("imu_offset", 1.0),
     "focal_sigma": ("focal_sigma", 1.0),
     "principal_point_sigma": ("principal_point_sigma", 1.0),
 }
 
 
+def _preset_table(ctx: _Ctx, raw: Any, key: str, presets: Mapping[str, Any], default: str,
+                  names: set[str]) -> tuple[dict[str, Any], str]:
+    """A table of optional ``names`` plus ``preset`` (one of ``presets``, default
+    ``default``): the table and the preset's name."""
+    table = ctx.table(raw, key)
+    ctx.keys(table, key, set(), {"preset", *names})
+    preset = _get(ctx, table, key, "preset",
+                  lambda c, v, k: _string(c, v, k, tuple(presets)), default)
+    return table, preset
+
+
 def _parse_rig(ctx: _Ctx, raw: Any) -> RigParams:
     """``[rig]``: a ``preset`` (default ``perfect``) and any of its fields replaced."""
     key = "[rig]"
-    table = ctx.table(raw, key)
-    ctx.keys(table, key, set(), {"preset", "distortion_sigma", *_RIG_KEYS})
-    preset = _get(ctx, table, key, "preset",
-                  lambda c, v, k: _string(c, v, k, tuple(RIG_PRESETS)), "perfect")
+    table, preset = _preset_table(ctx, raw, key, RIG_PRESETS, "perfect",
+                                  {"distortion_sigma", *_RIG_KEYS})
     changes: dict[str, Any] = {}
     for name, (attribute, factor) in _RIG_KEYS.items():
         if name in table:
@@ -506,6 +524,42 @@ def _parse_rig(ctx: _Ctx, raw: Any) -> RigParams:
         changes["distortion_sigma"] = tuple(_vector(ctx, table["distortion_sigma"],
                                                     f"{key}.distortion_sigma", 5, nonneg=True))
     return RigParams.from_preset(preset, **changes)
+
+
+def _parse_up(ctx: _Ctx, value: Any, key: str) -> tuple[float, float, float]:
+    """Top-level ``up``: a non-zero 3-vector, normalised."""
+    vec = _vector(ctx, value, key, 3)
+    norm = float(np.linalg.norm(vec))
+    if not norm > 0:
+        raise ctx.fail(key, f"expected a non-zero direction [x, y, z], got {_show(value)}")
+    return tuple(float(x) for x in vec / norm)
+
+
+_IMU_NUMBERS = ("rate", "gravity", "accelerometer_noise_density", "accelerometer_random_walk",
+                "gyroscope_noise_density", "gyroscope_random_walk")
+
+
+def _parse_imu(ctx: _Ctx, raw: Any) -> ImuParams:
+    """``[imu]``: a ``preset`` (default ``ideal``), any of its numbers replaced, and
+    ``T_camera_imu = { translation = [m x3], rotation = [deg x3] }`` (Euler, as objects')."""
+    key = "[imu]"
+    table, preset = _preset_table(ctx, raw, key, IMU_PRESETS, "ideal",
+                                  {"T_camera_imu", *_IMU_NUMBERS})
+    changes: dict[str, Any] = {}
+    for name in _IMU_NUMBERS:
+        if name in table:
+            positive = name in ("rate", "gravity")
+            changes[name] = _number(ctx, table[name], f"{key}.{name}", positive=positive,
+                                    nonneg=not positive)
+    if "T_camera_imu" in table:
+        sub = f"{key}.T_camera_imu"
+        extrinsic = ctx.table(table["T_camera_imu"], sub)
+        ctx.keys(extrinsic, sub, set(), {"translation", "rotation"})
+        vec3 = lambda c, v, k: _vector(c, v, k, 3)  # noqa: E731
+        translation = _get(ctx, extrinsic, sub, "translation", vec3, np.zeros(3))
+        rotation = rotation_from_euler(_get(ctx, extrinsic, sub, "rotation", vec3, np.zeros(3)))
+        changes["T_camera_imu"] = make_pose(rotation, translation)
+    return ImuParams.from_preset(preset, **changes)
 
 
 def _parse_frame_sensor(ctx: _Ctx, raw: Any, key: str) -> str | FrameSensor:
@@ -897,7 +951,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
         raise SceneError(f"{source}: not valid TOML: {exc}") from None
     top_required = {"duration", "camera", "trajectory", "objects"}
     top_optional = {"name", "description", "seed", "frames", "render", "lights", "depth_range",
-                    "rig"}
+                    "rig", "up", "imu"}
     ctx.keys(raw, "top level", top_required, top_optional)
     name = _get(ctx, raw, "", "name", _string, source_path.stem if source_path else "scene")
     description = _get(ctx, raw, "", "description", _string, "")
@@ -911,6 +965,8 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     frames = _parse_frames(ctx, raw.get("frames", {}))
     render = _parse_render(ctx, raw.get("render", {}))
     rig = _parse_rig(ctx, raw.get("rig", {}))
+    up = _get(ctx, raw, "", "up", _parse_up, (0.0, 0.0, 1.0))
+    imu = _parse_imu(ctx, raw.get("imu", {}))
     trajectory = _parse_trajectory(ctx, raw["trajectory"], base_dir, seed)
     if not (trajectory.t_start <= 0 and duration <= trajectory.t_end):
         raise ctx.fail("duration", f"the trajectory covers [{trajectory.t_start}, "
@@ -931,7 +987,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
         raise ctx.fail("[[objects]]", f"object name {duplicate!r} is used twice")
     _check_metres(ctx, objects, trajectory, duration)
     return Scene(name, description, duration, seed, camera, frames, render, trajectory, lights,
-                 objects, source_path, text, depth_range, rig)
+                 objects, source_path, text, depth_range, rig, up, imu)
 
 
 def load_scene(path: str | Path, *, seed: int | None = None) -> Scene:

@@ -449,6 +449,11 @@ class Sequence:
         Which object each pixel sees at each frame time (:func:`sim.flow.read_object_mask`).
     object_names : tuple of str or None
         The objects of the masks: mask value ``i`` is ``object_names[i - 1]``.
+    velocity_path : Path or None
+        ``velocity.txt`` (camera-frame twist at the pose rate; simulated sequences only), read
+        by :meth:`read_velocity`.
+    imu_path : Path or None
+        ``imu.txt`` (ECD layout), read by :meth:`read_imu`.
     """
 
     folder: Path
@@ -466,6 +471,22 @@ class Sequence:
     motion_field: FileIndex | None = None
     object_masks: FileIndex | None = None
     object_names: tuple[str, ...] | None = None
+    velocity_path: Path | None = None
+    imu_path: Path | None = None
+
+    def read_velocity(self) -> np.ndarray | None:
+        """``velocity.txt`` as (N, 7) float64 ``t vx vy vz wx wy wz`` (s, m/s, rad/s, camera
+        frame, true clock), or None without one (:func:`sim.imu.read_velocity`)."""
+        from sim.imu import read_velocity
+
+        return None if self.velocity_path is None else read_velocity(self.velocity_path)
+
+    def read_imu(self) -> np.ndarray | None:
+        """``imu.txt`` as (N, 7) float64 ``t ax ay az gx gy gz`` (s, m/s^2, rad/s, IMU frame,
+        the IMU's clock), or None without one (:func:`sim.imu.read_imu`)."""
+        from sim.imu import read_imu
+
+        return None if self.imu_path is None else read_imu(self.imu_path)
 
     def nearest_frame(self, t: float) -> int:
         """Index of the standard frame nearest to time ``t``.
@@ -602,7 +623,8 @@ def load_sequence(folder: str | Path) -> Sequence:
                     groundtruth_path=optional("groundtruth.txt"),
                     events_txt=optional("events.txt"), events_h5=optional("events.h5"),
                     metadata=metadata, **indexes,
-                    object_names=None if names is None else tuple(str(n) for n in names))
+                    object_names=None if names is None else tuple(str(n) for n in names),
+                    velocity_path=optional("velocity.txt"), imu_path=optional("imu.txt"))
 
 
 def _file_index(path: Path) -> FileIndex | None:

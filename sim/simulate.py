@@ -1,7 +1,8 @@
 """The simulator pipeline: a scene in, a sequence folder (CONVENTIONS.md) out.
 
 Stages, in order: camera calibration -> ground-truth poses (``groundtruth.txt`` at the scene's
-``pose_rate``) -> standard-camera frames (renders averaged over the exposure, camera response,
+``pose_rate``) -> motion truth (``velocity.txt``, ``imu.txt``, ``imu_exact.txt``,
+:mod:`sim.imu`) -> standard-camera frames (renders averaged over the exposure, camera response,
 noise) and the exact depth at each frame time -> events: the event emulator driven by renders at
 adaptively chosen times (:mod:`sim.sampling`), streamed to ``events.h5`` and ``events.txt`` ->
 indexes and ``sequence.json``.
@@ -61,6 +62,7 @@ from sim.frames import (
     frame_times,
     luminance_to_frame,
 )
+from sim.imu import write_motion_truth
 from sim.pixel_sampling import PixelEventEmulator, PixelSamplingStats, pixel_blocks
 from sim.progress import progress as progress_stage
 from sim.render import Renderer
@@ -293,6 +295,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     with atomic_output_dir(out, overwrite=overwrite, resume=resume) as tmp:
         checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
         rig_record = _write_rig(tmp, scene, sample_times(start, end, scene.render.pose_rate))
+        imu_record = write_motion_truth(tmp, scene, start, end)
         gain, exposures, image_names, depth_names = _simulate_frames(
             scene, renderer, tmp, times, checkpoint, progress, timings)
         tick = time.perf_counter()
@@ -334,6 +337,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                                                 end + scene.rig.events_offset]}
                       if with_events else None,
             "rig": rig_record,
+            "imu": imu_record,
             "software": _versions(),
             "timings_s": {k: round(v, 3) for k, v in timings.items()},
         })
@@ -795,7 +799,8 @@ def _identity(scene: Scene, start: float, duration: float, spp: int | None,
         "scene_toml_sha256": hashlib.sha256(scene.text.encode("utf-8")).hexdigest(),
         "scene": {"duration": scene.duration, "camera": asdict(scene.camera),
                   "frames": asdict(scene.frames), "render": asdict(scene.render),
-                  "rig": scene.rig.as_dict()},
+                  "rig": scene.rig.as_dict(), "imu": scene.imu.as_dict(),
+                  "up": list(scene.up)},
         "seed": scene.seed,
         "start": start,
         "duration": duration,

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-__all__ = ["parse_floats"]
+__all__ = ["numeric_rows", "parse_floats"]
 
 
 def parse_floats(
@@ -45,3 +45,39 @@ def parse_floats(
             raise ValueError(f"{path}:{lineno}: {field!r} is not finite; expected finite numbers")
         values.append(value)
     return values
+
+
+def numeric_rows(path: str | Path, columns: int, expected: str
+                 ) -> Iterator[tuple[int, list[str], list[float]]]:
+    """The lines of a whitespace-separated numeric file, blank and ``#`` lines skipped.
+
+    Parameters
+    ----------
+    path : str or Path
+    columns : int
+        How many numbers each line must hold.
+    expected : str
+        What a line should look like (for the messages).
+
+    Yields
+    ------
+    lineno : int, 1-based
+    fields : list of str
+    values : list of float, finite
+
+    Raises
+    ------
+    ValueError
+        ``"{path}:{lineno}: expected ..., got N fields"`` or :func:`parse_floats`'s messages.
+    """
+    path = Path(path)
+    with path.open(encoding="utf-8") as f:
+        for lineno, line in enumerate(f, start=1):
+            text = line.strip()
+            if not text or text.startswith("#"):
+                continue
+            fields = text.split()
+            if len(fields) != columns:
+                raise ValueError(f"{path}:{lineno}: expected {expected}, got {len(fields)} "
+                                 "fields")
+            yield lineno, fields, parse_floats(fields, path, lineno, expected)

@@ -3,8 +3,9 @@
 Every trajectory answers ``pose(t)`` (4x4 ``T_world_camera``, CONVENTIONS.md) and
 ``velocity(t) -> (v, w)``: ``v`` the velocity of the camera centre and ``w`` the angular velocity,
 both in the WORLD frame (``dR/dt = hat(w) R``); ``camera_velocity(t)`` gives the same twist in the
-camera frame. Times are seconds; each trajectory has a valid range ``[t_start, t_end]`` (infinite
-for the analytic ones) and raises ``ValueError`` outside it.
+camera frame, and ``acceleration(t) -> (a, alpha)`` the analytic time derivatives of ``v`` and
+``w`` (world frame, m/s^2 and rad/s^2). Times are seconds; each trajectory has a valid range
+``[t_start, t_end]`` (infinite for the analytic ones) and raises ``ValueError`` outside it.
 
 Trajectories:
 
@@ -41,8 +42,9 @@ from sim.se3 import (
     so3_exp,
     so3_log,
     so3_right_jacobian,
+    so3_right_jacobian_rate,
 )
-from sim.textfile import parse_floats
+from sim.textfile import numeric_rows
 
 __all__ = [
     "HandheldTrajectory",
@@ -146,6 +148,29 @@ class Trajectory(ABC):
         w_c = (Rt @ w[..., None])[..., 0]
         return v_c.reshape(shape + (3,)), w_c.reshape(shape + (3,))
 
+    def acceleration(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Linear and angular acceleration in the WORLD frame at time(s) ``t``.
+
+        The time derivatives of :meth:`velocity`, analytic for every trajectory (for a
+        :class:`SampledTrajectory` the derivative inside the segment holding ``t``).
+
+        Parameters
+        ----------
+        t : float or (N,) array_like, seconds
+            Within ``[t_start, t_end]``.
+
+        Returns
+        -------
+        a : (3,) or (N, 3) float64 ndarray, m/s^2
+            Acceleration of the camera centre, world frame (``dv/dt``; gravity not included).
+        alpha : (3,) or (N, 3) float64 ndarray, rad/s^2
+            Angular acceleration ``dw/dt`` in the world frame; in the camera frame it is
+            ``R^T alpha``, the derivative of the camera-frame angular velocity.
+        """
+        times, shape = self._check_times(t)
+        a, alpha = self._accelerations(times)
+        return a.reshape(shape + (3,)), alpha.reshape(shape + (3,))
+
     def _check_times(self, t: ArrayLike) -> tuple[np.ndarray, tuple[int, ...]]:
         arr = np.asarray(t, dtype=np.float64)
         flat = arr.reshape(-1)
@@ -165,6 +190,10 @@ class Trajectory(ABC):
     @abstractmethod
     def _velocities(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World-frame ``(v, w)``, (N, 3) each, at valid times (N,)."""
+
+    @abstractmethod
+    def _accelerations(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame ``(dv/dt, dw/dt)``, (N, 3) each, at valid times (N,)."""
 
 
 # ----------------------------------------------------------------------------------------------
@@ -271,6 +300,9 @@ class LinearTrajectory(Trajectory):
     def _velocities(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.tile(self.linear_velocity, (len(t), 1)), np.zeros((len(t), 3))
 
+    def _accelerations(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.zeros((len(t), 3)), np.zeros((len(t), 3))
+
 
 @dataclass(frozen=True, eq=False)
 class HandheldTrajectory(Trajectory):
@@ -346,6 +378,22 @@ class HandheldTrajectory(Trajectory):
         w_body = (so3_right_jacobian(r) @ r_dot[:, :, None])[:, :, 0]
         R = self.rotation @ so3_exp(r)
         return d_dot @ self.rotation.T, (R @ w_body[:, :, None])[:, :, 0]
+
+    def _accelerations(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        phase, rate = self._phase(t)
+        rate_dot = 2.0 * np.pi * self.frequencies * self.chirp       # d(rate)/dt, constant
+        sin, cos = np.sin(phase), np.cos(phase)
+        second = -sin * rate * rate + cos * rate_dot                  # d^2 sin(phase) / dt^2
+        d_ddot = self.translation_amplitude * second[:, :3]
+        r = self.rotation_amplitude * sin[:, 3:]
+        r_dot = self.rotation_amplitude * cos[:, 3:] * rate[:, 3:]
+        r_ddot = self.rotation_amplitude * second[:, 3:]
+        # w_body = J_r(r) r_dot, so alpha_body = J_r(r) r_ddot + (d/dt J_r(r)) r_dot, and the
+        # world angular acceleration is R alpha_body (d/dt (R w_body) = R hat(w_b) w_b + R w_b').
+        alpha_body = (so3_right_jacobian(r) @ r_ddot[:, :, None]
+                      + so3_right_jacobian_rate(r, r_dot) @ r_dot[:, :, None])[:, :, 0]
+        R = self.rotation @ so3_exp(r)
+        return d_ddot @ self.rotation.T, (R @ alpha_body[:, :, None])[:, :, 0]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -440,6 +488,10 @@ class SplineTrajectory(_TimedTrajectory):
     Velocities are analytic: ``v = sum_i B_i'(t) c_i`` and, in a span whose increments are
     ``Omega_1..3`` with factors ``A_k = exp(Btilde_k Omega_k)``, the body angular velocity is
     ``A_3^T A_2^T Btilde_1' Omega_1 + A_3^T Btilde_2' Omega_2 + Btilde_3' Omega_3``.
+    Accelerations are analytic too: ``a = sum_i B_i''(t) c_i`` and the body angular acceleration
+    is the exact time derivative of that sum (with ``d/dt A_k^T = -hat(Btilde_k' Omega_k)
+    A_k^T``, as in Sommer et al., "Efficient Derivative Computation for Cumulative B-Splines on
+    Lie Groups", CVPR 2020); both are continuous (C2 spline).
 
     Attributes
     ----------
@@ -562,8 +614,10 @@ class SplineTrajectory(_TimedTrajectory):
 
     # ---- evaluation --------------------------------------------------------------------------
     def _rotation_factors(self, control: np.ndarray, increments: np.ndarray, t: np.ndarray,
-                          derivative: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        """Rotations (N, 3, 3) and, if ``derivative``, body angular velocities (N, 3)."""
+                          derivative: bool, second: bool = False
+                          ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Rotations (N, 3, 3) and, if ``derivative``, body angular velocities (N, 3), or with
+        ``second`` too, body angular accelerations (N, 3) instead."""
         j, s = self._span(t)
         b = _polyval(self._cumulative[j], s, 0)  # (N, 3)
         omega = increments[j[:, None] + np.arange(1, 4)]  # (N, 3 increments, 3)
@@ -571,11 +625,19 @@ class SplineTrajectory(_TimedTrajectory):
         R = control[j] @ A[:, 0] @ A[:, 1] @ A[:, 2]
         if not derivative:
             return R, None
-        db = _polyval(self._cumulative[j], s, 1)
+        u = _polyval(self._cumulative[j], s, 1)[:, :, None] * omega  # Btilde_k' Omega_k
         A2t, A3t = np.swapaxes(A[:, 1], -1, -2), np.swapaxes(A[:, 2], -1, -2)
-        term1 = (A3t @ A2t @ (db[:, 0, None] * omega[:, 0])[:, :, None])[:, :, 0]
-        term2 = (A3t @ (db[:, 1, None] * omega[:, 1])[:, :, None])[:, :, 0]
-        return R, term1 + term2 + db[:, 2, None] * omega[:, 2]
+        y = (A2t @ u[:, 0, :, None])[:, :, 0] + u[:, 1]   # w_body = A3^T y + u_3
+        if not second:
+            return R, (A3t @ y[:, :, None])[:, :, 0] + u[:, 2]
+        # d/dt A_k^T = -hat(u_k) A_k^T, so with u_k' = Btilde_k'' Omega_k:
+        # y' = -u_2 x (A2^T u_1) + A2^T u_1' + u_2', w_body' = -u_3 x (A3^T y) + A3^T y' + u_3'.
+        u_dot = _polyval(self._cumulative[j], s, 2)[:, :, None] * omega
+        a2u1 = (A2t @ u[:, 0, :, None])[:, :, 0]
+        y_dot = (-np.cross(u[:, 1], a2u1) + (A2t @ u_dot[:, 0, :, None])[:, :, 0]
+                 + u_dot[:, 1])
+        a3y = (A3t @ y[:, :, None])[:, :, 0]
+        return R, -np.cross(u[:, 2], a3y) + (A3t @ y_dot[:, :, None])[:, :, 0] + u_dot[:, 2]
 
     def _positions(self, t: np.ndarray, derivative: int) -> np.ndarray:
         j, s = self._span(t)
@@ -590,6 +652,11 @@ class SplineTrajectory(_TimedTrajectory):
     def _velocities(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         R, w_body = self._rotation_factors(self._control, self._increments, t, derivative=True)
         return self._positions(t, 1), (R @ w_body[:, :, None])[:, :, 0]
+
+    def _accelerations(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        R, alpha_body = self._rotation_factors(self._control, self._increments, t,
+                                               derivative=True, second=True)
+        return self._positions(t, 2), (R @ alpha_body[:, :, None])[:, :, 0]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -606,7 +673,11 @@ class SampledTrajectory(_TimedTrajectory):
     ``xi_k / dt_k`` with ``xi_k = se3_log(inv(T_k) T_k+1) = (rho_k, phi_k)``. The velocity is that
     segment's twist: ``v = R(t) rho_k / dt_k`` and ``w = R(t) phi_k / dt_k`` (world frame), so it
     is piecewise constant in the camera frame and jumps at the samples; at a sample time the
-    segment that starts there is used (the last segment at the last sample).
+    segment that starts there is used (the last segment at the last sample). The acceleration
+    is the exact derivative of this interpolant inside a segment: ``a = R(t) (w_b x v_b)`` with
+    the segment's body twist ``(v_b, w_b) = (rho_k, phi_k) / dt_k`` (the velocity turns with the
+    camera) and zero angular acceleration; the jumps of velocity at the samples (impulses) are
+    not in it, so an IMU integrated over a sampled trajectory drifts from its samples.
 
     Attributes
     ----------
@@ -638,6 +709,15 @@ class SampledTrajectory(_TimedTrajectory):
         R = self._poses(t)[:, :3, :3]
         rate = self._rates[j]
         return (R @ rate[:, :3, None])[:, :, 0], (R @ rate[:, 3:, None])[:, :, 0]
+
+    def _accelerations(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # Constant body twist (v_b, w_b) in the segment: dR/dt = R hat(w_b), so
+        # a = d(R v_b)/dt = R (w_b x v_b), and dw/dt = d(R w_b)/dt = R (w_b x w_b) = 0.
+        j, _ = self._segment(t)
+        R = self._poses(t)[:, :3, :3]
+        rate = self._rates[j]
+        a_body = np.cross(rate[:, 3:], rate[:, :3])
+        return (R @ a_body[:, :, None])[:, :, 0], np.zeros((len(t), 3))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -674,30 +754,20 @@ def read_trajectory(path: str | Path) -> SampledTrajectory:
     times: list[float] = []
     rows: list[list[float]] = []
     previous_line = 0
-    with path.open(encoding="utf-8") as f:
-        for lineno, line in enumerate(f, start=1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            fields = text.split()
-            if len(fields) != 8:
-                raise ValueError(
-                    f"{path}:{lineno}: expected {_TRAJECTORY_FORMAT}, got {len(fields)} fields"
-                )
-            values = parse_floats(fields, path, lineno, _TRAJECTORY_FORMAT)
-            if not any(values[4:]):
-                raise ValueError(
-                    f"{path}:{lineno}: the quaternion (qx, qy, qz, qw) is zero; "
-                    "expected a non-zero (normally unit) quaternion"
-                )
-            if times and values[0] <= times[-1]:
-                raise ValueError(
-                    f"{path}:{lineno}: time {fields[0]} is not after {times[-1]!r} (line "
-                    f"{previous_line}); expected strictly increasing times"
-                )
-            times.append(values[0])
-            rows.append(values[1:])
-            previous_line = lineno
+    for lineno, fields, values in numeric_rows(path, 8, _TRAJECTORY_FORMAT):
+        if not any(values[4:]):
+            raise ValueError(
+                f"{path}:{lineno}: the quaternion (qx, qy, qz, qw) is zero; "
+                "expected a non-zero (normally unit) quaternion"
+            )
+        if times and values[0] <= times[-1]:
+            raise ValueError(
+                f"{path}:{lineno}: time {fields[0]} is not after {times[-1]!r} (line "
+                f"{previous_line}); expected strictly increasing times"
+            )
+        times.append(values[0])
+        rows.append(values[1:])
+        previous_line = lineno
     if len(times) < 2:
         raise ValueError(f"{path}: found {len(times)} pose(s); expected at least 2 lines "
                          f"{_TRAJECTORY_FORMAT}")

@@ -149,7 +149,8 @@ def test_offsets_shift_every_stream_exactly(plane_sequence, rig_sequence):
     np.testing.assert_allclose(written.times - exact.times, 0.0031, atol=1e-9)
     assert (rig_sequence / EXACT_POSES).read_bytes() == (plane_sequence / EXACT_POSES).read_bytes()
     meta = json.loads((rig_sequence / "sequence.json").read_text())
-    assert meta["rig"]["offsets_s"] == {"events": 0.0123, "frames": 0.02, "poses": 0.0031}
+    assert meta["rig"]["offsets_s"] == {"events": 0.0123, "frames": 0.02, "poses": 0.0031,
+                                        "imu": 0.0}
     np.testing.assert_allclose(meta["events"]["span_s"], [0.0123, 0.3123])
 
 
