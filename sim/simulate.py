@@ -91,6 +91,7 @@ from sim.sequence import (
     write_sequence_json,
 )
 from sim.trajectory import sample_times, write_trajectory
+from sim.two_camera import simulate_frame_camera
 
 __all__ = ["CHECKPOINT_SAMPLES", "CHECKPOINT_SECONDS", "SimulationResult", "simulate"]
 
@@ -292,8 +293,17 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     with atomic_output_dir(out, overwrite=overwrite, resume=resume) as tmp:
         checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
         rig_record = _write_rig(tmp, scene, sample_times(start, end, scene.render.pose_rate))
-        gain, exposures, image_names, depth_names = _simulate_frames(
-            scene, renderer, tmp, times, checkpoint, progress, timings)
+        if scene.frame_camera is None:
+            gain, exposures, image_names, depth_names = _simulate_frames(
+                scene, renderer, tmp, times, checkpoint, progress, timings)
+            # depth map k is frame k's (rendered at its true time): both on the frames' clock
+            write_index(tmp / "images.txt", times + scene.rig.frames_offset, image_names)
+            write_index(tmp / "depthmaps.txt", times + scene.rig.frames_offset, depth_names)
+        else:                     # a rig: frame_camera/, and the event camera's depth at its times
+            gain, exposures = simulate_frame_camera(
+                scene, renderer, tmp, times, scene.rig.frames_offset, _simulate_frames, spp=spp,
+                variant=renderer.variant, checkpoint=checkpoint, progress=progress,
+                timings=timings)
         event_info = checkpoint.events_done
         if with_events and event_info is None:
             simulate_events = (_simulate_events_per_pixel if sampler == "pixel"
@@ -304,9 +314,6 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         if with_events and event_info.get("sampling_warning"):
             print(f"simulate {scene.name}: warning: {event_info['sampling_warning']}",
                   file=sys.stderr, flush=True)
-        # depth map k is frame k's (rendered at its true time): both on the frames' clock
-        write_index(tmp / "images.txt", times + scene.rig.frames_offset, image_names)
-        write_index(tmp / "depthmaps.txt", times + scene.rig.frames_offset, depth_names)
         cam = scene.camera
         write_sequence_json(tmp / "sequence.json", {
             "format": "evfuse sequence 1",
@@ -328,6 +335,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                                                 end + scene.rig.events_offset]}
                       if with_events else None,
             "rig": rig_record,
+            **({"frame_camera": scene.frame_camera.as_record()} if scene.frame_camera else {}),
             "software": _versions(),
             "timings_s": {k: round(v, 3) for k, v in timings.items()},
         })
