@@ -235,6 +235,9 @@ class Renderer:
         Seed of the sampler, default the scene's seed. Fixed for every render.
     variant : str, optional
         Mitsuba variant (see :func:`sim.variant.use_variant`).
+    rows : bool
+        Give every image row its own pose (a rolling shutter: :meth:`luminance_rows`,
+        :meth:`depth_rows`); JIT variants only.
 
     Examples
     --------
@@ -245,8 +248,12 @@ class Renderer:
     """
 
     def __init__(self, scene: Scene, *, spp: int | None = None, seed: int | None = None,
-                 variant: str | None = None):
+                 variant: str | None = None, rows: bool = False):
         self.variant = use_variant(variant)
+        if rows and self.variant == "scalar_rgb":
+            raise ValueError("a renderer with a pose per row (a rolling shutter) needs a JIT "
+                             "variant (llvm_ad_rgb or cuda_ad_rgb), not scalar_rgb")
+        self.rows = bool(rows)
         import drjit as dr
         import mitsuba as mi
 
@@ -272,6 +279,7 @@ class Renderer:
                          "pixel_format": "luminance", "rfilter": {"type": "box"},
                          "sample_border": False},
                 "sampler": {"type": "stratified", "sample_count": self.spp, "jitter": True},
+                **({"rows": True} if rows else {}),
             },
         }
         for i, light in enumerate(scene.lights):
@@ -447,6 +455,53 @@ class Renderer:
                 description.update(_shape_dicts(i, obj, self.scene, plain))
             self._geometry = self._mi.load_dict(description, optimize=False)
         return self._geometry
+
+    def _row_poses(self, poses: np.ndarray) -> np.ndarray:
+        poses = np.asarray(poses, dtype=np.float64)
+        shape = (self.camera.height, 4, 4)
+        if poses.shape != shape or not np.all(np.isfinite(poses)):
+            raise ValueError(f"row poses must be finite T_world_camera, shape {shape}, got "
+                             f"shape {poses.shape}")
+        return poses
+
+    def luminance_rows(self, t: float, poses: np.ndarray, spp: int | None = None
+                       ) -> np.ndarray:
+        """Linear luminance (H, W) float32, cd/m^2, each row ``r`` seen from ``poses[r]``.
+
+        Parameters
+        ----------
+        t : float, seconds
+            Where the moving objects are (one time for the whole image).
+        poses : (H, 4, 4) float ndarray
+            ``T_world_camera`` of every row.
+        spp : int, optional
+            Overrides the renderer's samples per pixel.
+        """
+        if not self.rows:
+            raise ValueError("luminance_rows needs a Renderer(..., rows=True)")
+        poses = self._row_poses(poses)
+        flat = np.concatenate([poses[:, :3, :3].reshape(-1, 9), poses[:, :3, 3]], axis=1)
+        self._params["sensor.row_pose"] = self._mi.Float(flat.astype(np.float32).ravel())
+        self._params.update()
+        return self.luminance(t, poses[len(poses) // 2], spp)
+
+    def depth_rows(self, t: float, poses: np.ndarray) -> np.ndarray:
+        """z-depth (H, W) float32 in metres at pixel centres, each row ``r`` from ``poses[r]``
+        (0 where nothing is hit); ``t`` places the moving objects."""
+        poses = self._row_poses(poses)
+        self._set_state(t, poses[len(poses) // 2])
+        mi, dr = self._mi, self._dr
+        shape = (self.camera.height, self.camera.width)
+        rays = self._rays_np.reshape(*shape, 3)
+        directions = np.einsum("rij,rcj->rci", poses[:, :3, :3], rays).reshape(-1, 3)
+        origins = np.repeat(poses[:, :3, 3], shape[1], axis=0)
+        if self.variant == "scalar_rgb":
+            raise ValueError("depth_rows needs a JIT variant, not scalar_rgb")
+        ray = mi.Ray3f(mi.Point3f(*(origins[:, i].astype(np.float32) for i in range(3))),
+                       mi.Vector3f(*(directions[:, i].astype(np.float32) for i in range(3))))
+        si = self._scene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=True)
+        z = dr.select(si.is_valid(), si.t * self._rays.z, 0.0)
+        return np.array(z, dtype=np.float32).reshape(shape)
 
     def render(self, t: float, pose: np.ndarray | None = None) -> RenderResult:
         """Luminance and depth for the same time and pose."""

@@ -20,11 +20,12 @@ from typing import Any
 import numpy as np
 
 from sim.camera import Camera, camera_preset
+from sim.frame_camera import SHUTTERS, FrameCamera
 from sim.frame_sensor import FRAME_SENSORS, FrameSensor
 from sim.frames import FRAME_SENSOR_NAMES, FrameParams
 from sim.imu import IMU_PRESETS, ImuParams
 from sim.rig import RIG_PRESETS, RigParams
-from sim.se3 import look_at, make_pose, rotation_from_euler, so3_exp
+from sim.se3 import look_at, make_pose, quat_to_rot, rotation_from_euler, so3_exp
 from sim.trajectory import (
     HandheldTrajectory,
     LinearTrajectory,
@@ -288,6 +289,10 @@ class Scene:
         built-in scenes): gravity points along ``-up``.
     imu : ImuParams
         The IMU riding with the camera (``[imu]``; default the ``ideal`` one, :mod:`sim.imu`).
+    frame_camera : FrameCamera or None
+        A rig's separate frame camera (``[event_camera]`` + ``[frame_camera]``); then
+        ``camera`` is the event camera and ``trajectory`` its ``T_world_event(t)``. None for
+        ``[camera]``: one DAVIS-like sensor gives both events and frames.
     """
 
     name: str
@@ -306,6 +311,7 @@ class Scene:
     rig: RigParams = field(default_factory=RigParams)
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     imu: ImuParams = field(default_factory=ImuParams)
+    frame_camera: FrameCamera | None = None
 
     @property
     def base_dir(self) -> Path:
@@ -419,10 +425,12 @@ def _depth_range(ctx: _Ctx, value: Any, key: str) -> tuple[float, float]:
     return float(low), float(high)
 
 
-def _parse_camera(ctx: _Ctx, raw: Any) -> Camera:
-    key = "[camera]"
+def _parse_camera(ctx: _Ctx, raw: Any, key: str = "[camera]",
+                  extra: frozenset[str] = frozenset()) -> Camera:
+    """``[camera]`` (or ``[event_camera]``, ``[frame_camera]``, whose ``extra`` keys the
+    caller reads): a ``preset`` and/or the intrinsics."""
     table = ctx.table(raw, key)
-    ctx.keys(table, key, set(), {"preset", "distortion", *_CAMERA_FIELDS})
+    ctx.keys(table, key, set(), {"preset", "distortion", *_CAMERA_FIELDS, *extra})
     if "preset" in table:
         name = _string(ctx, table["preset"], f"{key}.preset")
         try:
@@ -448,6 +456,71 @@ def _parse_camera(ctx: _Ctx, raw: Any) -> Camera:
         return Camera(distortion=distortion, **values)
     except ValueError as exc:
         raise ctx.fail(key, str(exc)) from None
+
+
+_FRAME_CAMERA_KEYS = frozenset({"T_event_frame", "shutter", "readout_s"})
+
+
+def _parse_extrinsic(ctx: _Ctx, raw: Any, key: str) -> np.ndarray:
+    """``T_event_frame = { translation = [x, y, z], rotation = [rx, ry, rz] }`` (metres, XYZ
+    Euler degrees) or ``quaternion = [qx, qy, qz, qw]`` instead of ``rotation``."""
+    table = ctx.table(raw, key)
+    ctx.keys(table, key, {"translation"}, {"rotation", "quaternion"})
+    translation = _vector(ctx, table["translation"], f"{key}.translation", 3)
+    if "rotation" in table and "quaternion" in table:
+        raise ctx.fail(key, "expected either 'rotation' (degrees) or 'quaternion', not both")
+    if "quaternion" in table:
+        q = _vector(ctx, table["quaternion"], f"{key}.quaternion", 4)
+        if not np.any(q):
+            raise ctx.fail(f"{key}.quaternion", "expected a non-zero quaternion [qx, qy, qz, qw]")
+        rotation = quat_to_rot(q)
+    else:
+        rotation = rotation_from_euler(_get(ctx, table, key, "rotation",
+                                            lambda c, v, k: _vector(c, v, k, 3), np.zeros(3)))
+    return make_pose(rotation, translation)
+
+
+def _parse_frame_camera(ctx: _Ctx, raw: Any) -> FrameCamera:
+    """``[frame_camera]``: the intrinsics of ``[camera]`` plus ``T_event_frame`` (required),
+    ``shutter`` (default global) and ``readout_s`` (rolling shutter only, required there)."""
+    key = "[frame_camera]"
+    camera = _parse_camera(ctx, raw, key, _FRAME_CAMERA_KEYS)
+    if "T_event_frame" not in raw:
+        raise ctx.fail(key, "missing required key 'T_event_frame' (the frame camera's pose in "
+                            "the event camera's frame: { translation = [x, y, z], rotation = "
+                            "[rx, ry, rz] })")
+    extrinsic = _parse_extrinsic(ctx, raw["T_event_frame"], f"{key}.T_event_frame")
+    shutter = _get(ctx, raw, key, "shutter",
+                   lambda c, v, k: _string(c, v, k, SHUTTERS), "global")
+    if shutter == "rolling" and "readout_s" not in raw:
+        raise ctx.fail(key, "shutter = \"rolling\" needs readout_s (seconds from the first "
+                            "row to the last)")
+    if shutter == "global" and "readout_s" in raw:
+        raise ctx.fail(f"{key}.readout_s", "is a rolling shutter's readout time; set shutter "
+                                           "= \"rolling\" or remove it")
+    readout = _get(ctx, raw, key, "readout_s", lambda c, v, k: _number(c, v, k, nonneg=True),
+                   0.0)
+    return FrameCamera(camera, extrinsic, shutter, readout)
+
+
+def _parse_cameras(ctx: _Ctx, raw: dict[str, Any]) -> tuple[Camera, FrameCamera | None]:
+    """``[camera]`` alone (one DAVIS-like sensor), or ``[event_camera]`` and
+    ``[frame_camera]`` (a rig of two cameras): the event camera and the frame camera."""
+    given = [name for name in ("camera", "event_camera", "frame_camera") if name in raw]
+    if given == ["camera"]:
+        return _parse_camera(ctx, raw["camera"]), None
+    if given == ["event_camera", "frame_camera"]:
+        return (_parse_camera(ctx, raw["event_camera"], "[event_camera]"),
+                _parse_frame_camera(ctx, raw["frame_camera"]))
+    if "camera" in given and len(given) > 1:
+        raise ctx.fail(f"[{given[1]}]", "expected either [camera] (one sensor) or "
+                                        "[event_camera] with [frame_camera] (a rig), not both")
+    if given:
+        missing = "frame_camera" if given == ["event_camera"] else "event_camera"
+        raise ctx.fail(f"[{given[0]}]", f"a rig needs both [event_camera] and [frame_camera]; "
+                                        f"[{missing}] is missing")
+    raise ctx.fail("top level", "missing required key 'camera' (or [event_camera] with "
+                                "[frame_camera] for a rig of two cameras)")
 
 
 def _parse_frames(ctx: _Ctx, raw: Any) -> FrameParams:
@@ -949,9 +1022,9 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{source}: not valid TOML: {exc}") from None
-    top_required = {"duration", "camera", "trajectory", "objects"}
+    top_required = {"duration", "trajectory", "objects"}
     top_optional = {"name", "description", "seed", "frames", "render", "lights", "depth_range",
-                    "rig", "up", "imu"}
+                    "rig", "up", "imu", "camera", "event_camera", "frame_camera"}
     ctx.keys(raw, "top level", top_required, top_optional)
     name = _get(ctx, raw, "", "name", _string, source_path.stem if source_path else "scene")
     description = _get(ctx, raw, "", "description", _string, "")
@@ -961,7 +1034,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
         raise SceneError(f"{source}: seed: expected an integer >= 0, got {seed!r}")
     seed = file_seed if seed is None else seed
     depth_range = _get(ctx, raw, "", "depth_range", _depth_range)
-    camera = _parse_camera(ctx, raw["camera"])
+    camera, frame_camera = _parse_cameras(ctx, raw)
     frames = _parse_frames(ctx, raw.get("frames", {}))
     render = _parse_render(ctx, raw.get("render", {}))
     rig = _parse_rig(ctx, raw.get("rig", {}))
@@ -986,8 +1059,12 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     if duplicate is not None:
         raise ctx.fail("[[objects]]", f"object name {duplicate!r} is used twice")
     _check_metres(ctx, objects, trajectory, duration)
+    if frame_camera is not None and frame_camera.rolling and any(o.motion for o in objects):
+        raise ctx.fail("[frame_camera].shutter", "a rolling shutter is simulated for static "
+                       "scenes only (each row has its own pose, the objects one time per "
+                       "render); remove the objects' motion or use shutter = \"global\"")
     return Scene(name, description, duration, seed, camera, frames, render, trajectory, lights,
-                 objects, source_path, text, depth_range, rig, up, imu)
+                 objects, source_path, text, depth_range, rig, up, imu, frame_camera)
 
 
 def load_scene(path: str | Path, *, seed: int | None = None) -> Scene:

@@ -7,6 +7,11 @@ through pixel (u, v) of the model, with the centre of pixel (0, 0) at (0.0, 0.0)
 OpenCV's (x right, y down, z forward) and its pose is ``T_world_camera``, given as the parameters
 ``R`` (3x3) and ``t`` (3,) so that one loaded scene is re-rendered for many poses without
 recompiling. Rays start at the camera centre (not on a near plane).
+
+With the property ``rows = true`` (a rolling shutter) every image row ``r`` has its own pose
+instead, the parameter ``row_pose``: a flat array of ``12 H`` floats, row ``r``'s rotation
+(row-major, 9 values) then its position (3 values), and every sample of that row's pixels
+(whatever its sub-pixel position) leaves from that pose. JIT variants only.
 """
 
 from __future__ import annotations
@@ -42,13 +47,22 @@ def register_sensor() -> None:
             self.R = mi.Matrix3f(1, 0, 0, 0, 1, 0, 0, 0, 1)
             self.t = mi.Point3f(0.0, 0.0, 0.0)
             dr.make_opaque(self.R, self.t)
+            self.rows = bool(props.get("rows", False))
+            if self.rows:
+                identity = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0, 0, 0, 0] * self.height
+                self.row_pose = mi.Float(identity)
+                dr.make_opaque(self.row_pose)
 
         def traverse(self, callback):
             callback.put("R", self.R, mi.ParamFlags.NonDifferentiable)
             callback.put("t", self.t, mi.ParamFlags.NonDifferentiable)
+            if self.rows:
+                callback.put("row_pose", self.row_pose, mi.ParamFlags.NonDifferentiable)
 
         def parameters_changed(self, keys=None):
             dr.make_opaque(self.R, self.t)
+            if self.rows:
+                dr.make_opaque(self.row_pose)
 
         def _undistort(self, xd, yd):
             # Fixed-point inversion of the distortion, as OpenCV's undistortPoints does.
@@ -72,10 +86,20 @@ def register_sensor() -> None:
             y = (v - self.cy) / self.fy
             if self.distorted:
                 x, y = self._undistort(x, y)
-            direction = dr.normalize(self.R @ mi.Vector3f(x, y, 1.0))
-            ray = mi.Ray3f(self.t, direction)
+            if self.rows:
+                R, t = self._row_pose(position_sample.y)
+            else:
+                R, t = self.R, self.t
+            direction = dr.normalize(R @ mi.Vector3f(x, y, 1.0))
+            ray = mi.Ray3f(t, direction)
             ray.time = time
             return ray, mi.Spectrum(1.0)
+
+        def _row_pose(self, film_y):
+            # The row a film position lies in (pixel row r spans [r, r + 1) / H), its pose.
+            row = dr.clip(mi.Int32(dr.floor(film_y * self.height)), 0, self.height - 1)
+            values = [dr.gather(mi.Float, self.row_pose, row * 12 + k) for k in range(12)]
+            return mi.Matrix3f(*values[:9]), mi.Point3f(*values[9:])
 
         def sample_ray_differential(self, time, wavelength_sample, position_sample,
                                     aperture_sample, active=True):

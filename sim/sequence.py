@@ -30,7 +30,8 @@ import numpy as np
 if TYPE_CHECKING:
     from sim.camera import Camera
 
-__all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "SEQUENCE_FOLDER_NEEDS", "FileIndex", "Sequence",
+__all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "SEQUENCE_FOLDER_NEEDS", "FileIndex",
+           "FrameCameraFiles", "Sequence",
            "atomic_output_dir",
            "check_output_dir", "describe_data_file", "frame_name", "load_sequence",
            "partial_dir", "read_index", "read_sequence_json", "write_index",
@@ -414,6 +415,70 @@ class FileIndex:
 
 
 @dataclass(frozen=True, eq=False)
+class FrameCameraFiles:
+    """A rig's frame camera, read from the ``frame_camera/`` folder of a sequence folder.
+
+    Attributes
+    ----------
+    folder : Path
+        The ``frame_camera/`` folder.
+    camera : sim.camera.Camera
+        Its intrinsics from ``frame_camera/calib.txt``, its size from ``sequence.json``'s
+        ``frame_camera`` record or else from its first frame.
+    image_times : (N,) float64 ndarray, seconds
+        Frame times (mid-exposure; a rolling shutter's middle row's), read-only.
+    image_paths : tuple of N Path
+        Its frames (8-bit grayscale PNG).
+    depth_times : (M,) float64 ndarray, seconds, or None
+        Times of its exact depth maps (simulated sequences only).
+    depth_paths : tuple of M Path, or None
+        Its exact z-depth (float32 EXR, metres; each row at its own time for a rolling shutter).
+    T_event_frame : (4, 4) float64 ndarray
+        Its pose in the event camera's frame (maps frame-camera coordinates to event-camera
+        coordinates), from ``frame_camera/T_event_frame.txt``.
+    shutter : {"global", "rolling"}
+    readout_s : float, seconds
+        Time from the first row to the last; 0 for a global shutter.
+    forward_flow, backward_flow, motion_field, object_masks : FileIndex or None
+        The frame camera's motion ground truth, as :class:`Sequence`'s (``frame_camera/``
+        holds the same index files; a global shutter's only).
+    """
+
+    folder: Path
+    camera: Camera
+    image_times: np.ndarray
+    image_paths: tuple[Path, ...]
+    depth_times: np.ndarray | None
+    depth_paths: tuple[Path, ...] | None
+    T_event_frame: np.ndarray
+    shutter: str
+    readout_s: float
+    forward_flow: FileIndex | None = None
+    backward_flow: FileIndex | None = None
+    motion_field: FileIndex | None = None
+    object_masks: FileIndex | None = None
+
+    def row_times(self, t_frame: float) -> np.ndarray:
+        """Each row's exposure time of the frame at ``t_frame``.
+
+        Parameters
+        ----------
+        t_frame : float, seconds
+            The frame's time (its middle row's).
+
+        Returns
+        -------
+        (H,) float64 ndarray, seconds
+            ``t_frame + (r / (H - 1) - 0.5) * readout_s`` for row ``r`` (all ``t_frame`` for a
+            global shutter).
+        """
+        height = self.camera.height
+        rows = np.arange(height, dtype=np.float64)
+        fraction = rows / (height - 1) - 0.5 if height > 1 else np.zeros(1)
+        return float(t_frame) + fraction * self.readout_s
+
+
+@dataclass(frozen=True, eq=False)
 class Sequence:
     """A sequence folder, read by :func:`load_sequence`.
 
@@ -454,6 +519,8 @@ class Sequence:
         by :meth:`read_velocity`.
     imu_path : Path or None
         ``imu.txt`` (ECD layout), read by :meth:`read_imu`.
+    frame_camera : FrameCameraFiles or None
+        A rig's separate frame camera (``frame_camera/``); None for one DAVIS-like sensor.
     """
 
     folder: Path
@@ -487,6 +554,7 @@ class Sequence:
         from sim.imu import read_imu
 
         return None if self.imu_path is None else read_imu(self.imu_path)
+    frame_camera: FrameCameraFiles | None = None
 
     def nearest_frame(self, t: float) -> int:
         """Index of the standard frame nearest to time ``t``.
@@ -560,6 +628,79 @@ def _size_from_frame(path: Path) -> tuple[int, int]:
     return width, height
 
 
+def _read_depth_index(folder: Path) -> tuple[np.ndarray | None, tuple[Path, ...] | None]:
+    """``depthmaps.txt`` of ``folder``: read-only times and the depth maps' paths, or
+    ``(None, None)`` when there is none (a real recording)."""
+    if not (folder / "depthmaps.txt").is_file():
+        return None, None
+    depth_times, depth_names = read_index(folder / "depthmaps.txt")
+    depth_times.setflags(write=False)
+    return depth_times, tuple(folder / name for name in depth_names)
+
+
+def _read_extrinsic(path: Path) -> np.ndarray:
+    """``T_event_frame.txt``: one line ``px py pz qx qy qz qw`` -> (4, 4) float64."""
+    from sim.se3 import make_pose, quat_to_rot
+    from sim.textfile import parse_floats
+
+    form = "one line 'px py pz qx qy qz qw' (metres, quaternion scalar last)"
+    if not path.is_file():
+        raise ValueError(f"{path} does not exist; expected {form}")
+    lines = [(n, line.split()) for n, line in
+             enumerate(path.read_text(encoding="utf-8").splitlines(), start=1) if line.strip()]
+    if len(lines) != 1 or len(lines[0][1]) != 7:
+        where = f"{path}:{lines[1][0] if len(lines) > 1 else lines[0][0]}" if lines else path
+        raise ValueError(f"{where}: expected {form}")
+    number, fields = lines[0]
+    values = parse_floats(fields, path, number, form)
+    try:
+        rotation = quat_to_rot(values[3:])
+    except ValueError as exc:
+        raise ValueError(f"{path}:{number}: {exc}") from None
+    return make_pose(rotation, values[:3])
+
+
+def _load_frame_camera(folder: Path, metadata: dict | None) -> FrameCameraFiles:
+    """Read ``folder`` = a sequence's ``frame_camera/`` (see :class:`FrameCameraFiles`)."""
+    from sim.camera import read_calib
+
+    for required in ("calib.txt", "images.txt", "T_event_frame.txt"):
+        if not (folder / required).is_file():
+            raise ValueError(f"frame-camera folder {folder} has no {required}; it needs "
+                             "calib.txt, images.txt with images/ and T_event_frame.txt")
+    image_times, image_names = read_index(folder / "images.txt")
+    image_paths = tuple(folder / name for name in image_names)
+    record = (metadata or {}).get("frame_camera")
+    size = _size_from_metadata(folder.parent / "sequence.json",
+                               {"camera": record}) if isinstance(record, dict) else None
+    if size is None:
+        if not image_paths:
+            raise ValueError(f"{folder / 'images.txt'} lists no frames and sequence.json has "
+                             "no frame_camera.width/height: the frame camera's size is unknown")
+        size = _size_from_frame(image_paths[0])
+    camera = read_calib(folder / "calib.txt", *size)
+    depth_times, depth_paths = _read_depth_index(folder)
+    image_times.setflags(write=False)
+    record = record if isinstance(record, dict) else {}
+    shutter = record.get("shutter", "global")
+    readout = record.get("readout_s", 0.0)
+    if shutter not in ("global", "rolling"):
+        raise ValueError(f"{folder.parent / 'sequence.json'}: frame_camera.shutter must be "
+                         f"'global' or 'rolling', got {shutter!r}")
+    if (isinstance(readout, bool) or not isinstance(readout, int | float)
+            or not math.isfinite(readout) or readout < 0):
+        raise ValueError(f"{folder.parent / 'sequence.json'}: frame_camera.readout_s must be a "
+                         f"number of seconds >= 0, got {readout!r}")
+    extrinsic = _read_extrinsic(folder / "T_event_frame.txt")
+    extrinsic.setflags(write=False)
+    return FrameCameraFiles(folder=folder, camera=camera, image_times=image_times,
+                            image_paths=image_paths, depth_times=depth_times,
+                            depth_paths=depth_paths, T_event_frame=extrinsic, shutter=shutter,
+                            readout_s=float(readout),
+                            **{field: _file_index(folder / name)
+                               for field, name in FLOW_INDEXES.items()})
+
+
 def load_sequence(folder: str | Path) -> Sequence:
     """Read a sequence folder (CONVENTIONS.md): a real ECD folder or a simulated one.
 
@@ -606,11 +747,7 @@ def load_sequence(folder: str | Path) -> Sequence:
 
     camera = read_calib(folder / "calib.txt", width, height)
 
-    depth_times = depth_paths = None
-    if (folder / "depthmaps.txt").is_file():
-        depth_times, depth_names = read_index(folder / "depthmaps.txt")
-        depth_paths = tuple(folder / name for name in depth_names)
-        depth_times.setflags(write=False)
+    depth_times, depth_paths = _read_depth_index(folder)
     image_times.setflags(write=False)
 
     def optional(name: str) -> Path | None:
@@ -618,13 +755,17 @@ def load_sequence(folder: str | Path) -> Sequence:
 
     indexes = {field: _file_index(folder / name) for field, name in FLOW_INDEXES.items()}
     names = ((metadata or {}).get("object_masks") or {}).get("objects")
+    frame_camera = None
+    if (folder / "frame_camera").is_dir():
+        frame_camera = _load_frame_camera(folder / "frame_camera", metadata)
     return Sequence(folder=folder, camera=camera, image_times=image_times,
                     image_paths=image_paths, depth_times=depth_times, depth_paths=depth_paths,
                     groundtruth_path=optional("groundtruth.txt"),
                     events_txt=optional("events.txt"), events_h5=optional("events.h5"),
                     metadata=metadata, **indexes,
                     object_names=None if names is None else tuple(str(n) for n in names),
-                    velocity_path=optional("velocity.txt"), imu_path=optional("imu.txt"))
+                    velocity_path=optional("velocity.txt"), imu_path=optional("imu.txt"),
+                    frame_camera=frame_camera)
 
 
 def _file_index(path: Path) -> FileIndex | None:

@@ -94,6 +94,7 @@ from sim.sequence import (
     write_sequence_json,
 )
 from sim.trajectory import sample_times, write_trajectory
+from sim.two_camera import simulate_frame_camera
 
 __all__ = ["CHECKPOINT_SAMPLES", "CHECKPOINT_SECONDS", "SimulationResult", "simulate"]
 
@@ -296,12 +297,33 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
         rig_record = _write_rig(tmp, scene, sample_times(start, end, scene.render.pose_rate))
         imu_record = write_motion_truth(tmp, scene, start, end)
-        gain, exposures, image_names, depth_names = _simulate_frames(
-            scene, renderer, tmp, times, checkpoint, progress, timings)
-        tick = time.perf_counter()
-        motion_truth = write_motion_ground_truth(scene, renderer, tmp, times, depth_names,
-                                                 scene.rig.frames_offset)
-        timings["flow"] = time.perf_counter() - tick
+        tick = None
+        if scene.frame_camera is None:
+            gain, exposures, image_names, depth_names = _simulate_frames(
+                scene, renderer, tmp, times, checkpoint, progress, timings)
+            # depth map k is frame k's (rendered at its true time): both on the frames' clock
+            write_index(tmp / "images.txt", times + scene.rig.frames_offset, image_names)
+            write_index(tmp / "depthmaps.txt", times + scene.rig.frames_offset, depth_names)
+            tick = time.perf_counter()
+            motion_truth = write_motion_ground_truth(scene, renderer, tmp, times, depth_names,
+                                                     scene.rig.frames_offset)
+        else:                     # a rig: frame_camera/, and the event camera's depth at its times
+            gain, exposures, frame_view = simulate_frame_camera(
+                scene, renderer, tmp, times, scene.rig.frames_offset, _simulate_frames, spp=spp,
+                variant=renderer.variant, checkpoint=checkpoint, progress=progress,
+                timings=timings)
+            motion_truth = {"flow": None, "motion_field": None, "object_masks": None,
+                            "motion_truth_note": "not written for a rolling shutter, whose "
+                                                 "rows are seen at different times"}
+            if frame_view is not None:                     # the frame camera's, in its folder
+                view_scene, view_renderer, view_folder, view_depths = frame_view
+                tick = time.perf_counter()
+                motion_truth = write_motion_ground_truth(view_scene, view_renderer, view_folder,
+                                                         times, view_depths,
+                                                         scene.rig.frames_offset)
+                motion_truth["motion_truth_folder"] = view_folder.name
+        if tick is not None:
+            timings["flow"] = time.perf_counter() - tick
         event_info = checkpoint.events_done
         if with_events and event_info is None:
             simulate_events = (_simulate_events_per_pixel if sampler == "pixel"
@@ -312,9 +334,6 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         if with_events and event_info.get("sampling_warning"):
             print(f"simulate {scene.name}: warning: {event_info['sampling_warning']}",
                   file=sys.stderr, flush=True)
-        # depth map k is frame k's (rendered at its true time): both on the frames' clock
-        write_index(tmp / "images.txt", times + scene.rig.frames_offset, image_names)
-        write_index(tmp / "depthmaps.txt", times + scene.rig.frames_offset, depth_names)
         cam = scene.camera
         write_sequence_json(tmp / "sequence.json", {
             "format": "evfuse sequence 1",
@@ -338,6 +357,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                       if with_events else None,
             "rig": rig_record,
             "imu": imu_record,
+            **({"frame_camera": scene.frame_camera.as_record()} if scene.frame_camera else {}),
             "software": _versions(),
             "timings_s": {k: round(v, 3) for k, v in timings.items()},
         })
