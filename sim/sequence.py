@@ -30,7 +30,8 @@ import numpy as np
 if TYPE_CHECKING:
     from sim.camera import Camera
 
-__all__ = ["EXACT_TIME_S", "SEQUENCE_FOLDER_NEEDS", "Sequence", "atomic_output_dir",
+__all__ = ["EXACT_TIME_S", "FRAME_CAMERA_FOLDER", "SEQUENCE_FOLDER_NEEDS", "FrameCameraFiles",
+           "Sequence", "atomic_output_dir",
            "check_output_dir", "describe_data_file", "frame_name", "load_sequence",
            "partial_dir", "read_index", "read_sequence_json", "write_index",
            "write_sequence_json"]
@@ -392,6 +393,98 @@ def describe_data_file(path: str | Path) -> str | None:
 
 # --- a whole sequence ------------------------------------------------------------------------
 
+FRAME_CAMERA_FOLDER = "frame_camera"
+"""Sub-folder of a two-camera rig's sequence folder holding the frame camera's files (README,
+"A two-camera rig"): ``calib.txt``, ``images.txt`` + ``images/``, ``depthmaps.txt`` + ``depth/``
+and ``T_event_frame.txt``."""
+
+
+def _nearest(times: np.ndarray | None, t: float, tolerance: float) -> int | None:
+    """Index of the time of ``times`` nearest ``t`` (the earlier on a tie), None when there is
+    none within ``tolerance``."""
+    if times is None or len(times) == 0:
+        return None
+    k = int(np.argmin(np.abs(times - t)))
+    return k if abs(float(times[k]) - t) <= tolerance else None
+
+
+def _finite_time(folder: Path, t: float, what: str) -> None:
+    if not math.isfinite(t):
+        raise ValueError(f"{folder}: {what} to t = {t!r}; expected a finite time in seconds")
+
+
+@dataclass(frozen=True, eq=False)
+class FrameCameraFiles:
+    """The standard frames of a sequence: a rig's frame camera (``frame_camera/``), or the top
+    level of a one-camera sequence (:meth:`Sequence.standard_frames`).
+
+    Attributes
+    ----------
+    folder : Path
+        The folder holding ``calib.txt``, ``images.txt`` and ``depthmaps.txt`` of these frames.
+    camera : sim.camera.Camera
+        Their calibration, distortion included.
+    image_times : (N,) float64 ndarray, seconds
+        Mid-exposure time of each frame (for a rolling shutter, the middle row's).
+    image_paths : tuple of N Path
+        8-bit grayscale PNG frames.
+    depth_times : (M,) float64 ndarray, seconds, or None
+    depth_paths : tuple of M Path, or None
+        Exact z-depth of this camera (float32 EXR, channel ``Z``); for a rolling shutter each
+        row at its own time (:meth:`row_times`).
+    T_event_frame : (4, 4) float64 ndarray
+        The frame camera's pose in the event camera's frame (maps frame-camera coordinates to
+        event-camera coordinates); the identity for a one-camera sequence.
+    shutter : {"global", "rolling"}
+    readout_s : float, seconds
+        Rolling shutter: time from the first row to the last; 0 for a global shutter.
+    """
+
+    folder: Path
+    camera: Camera
+    image_times: np.ndarray
+    image_paths: tuple[Path, ...]
+    depth_times: np.ndarray | None
+    depth_paths: tuple[Path, ...] | None
+    T_event_frame: np.ndarray
+    shutter: str
+    readout_s: float
+
+    def row_times(self, t_frame: float) -> np.ndarray:
+        """Exposure time of each row of the frame whose (middle row's) time is ``t_frame``.
+
+        Returns
+        -------
+        (H,) float64 ndarray, seconds
+            ``t_frame + (r / (H - 1) - 0.5) * readout_s`` for row ``r``; all ``t_frame`` for a
+            global shutter.
+        """
+        height = self.camera.height
+        rows = np.arange(height, dtype=np.float64)
+        share = rows / (height - 1) - 0.5 if height > 1 else np.zeros(1)
+        return float(t_frame) + share * float(self.readout_s)
+
+    def nearest_frame(self, t: float) -> int:
+        """Index of the frame nearest to time ``t`` (the earlier on a tie).
+
+        Raises
+        ------
+        ValueError
+            ``images.txt`` lists no frames, or ``t`` is not finite.
+        """
+        _finite_time(self.folder, t, "nearest frame")
+        k = _nearest(self.image_times, t, math.inf)
+        if k is None:
+            raise ValueError(f"{self.folder / 'images.txt'} lists no frames; expected at least "
+                             "one standard frame")
+        return k
+
+    def nearest_depth(self, t: float, tolerance: float = EXACT_TIME_S) -> int | None:
+        """Index of this camera's depth map at time ``t`` (within ``tolerance``), else None."""
+        _finite_time(self.folder, t, "nearest depth map")
+        return _nearest(self.depth_times, t, tolerance)
+
+
 @dataclass(frozen=True, eq=False)
 class Sequence:
     """A sequence folder, read by :func:`load_sequence`.
@@ -419,6 +512,9 @@ class Sequence:
         ``events.h5``, if present.
     metadata : dict or None
         ``sequence.json`` (simulated sequences only).
+    frame_camera : FrameCameraFiles or None
+        A two-camera rig's frame camera (``frame_camera/``); None for one camera. The top level
+        is then the event camera's, with no frames of its own.
     """
 
     folder: Path
@@ -431,6 +527,20 @@ class Sequence:
     events_txt: Path | None
     events_h5: Path | None
     metadata: dict | None
+    frame_camera: FrameCameraFiles | None = None
+
+    def standard_frames(self) -> FrameCameraFiles:
+        """The frames the pipeline fills and scores in: the frame camera's for a rig, else the
+        top level's (the same sensor as the events: identity ``T_event_frame``, global
+        shutter). The one place that says where "the standard frame nearest t" comes from."""
+        return self.frame_camera if self.frame_camera is not None else self._own_frames()
+
+    def _own_frames(self) -> FrameCameraFiles:
+        """The top level's frames and depth maps (the event camera's own, for a rig: none)."""
+        return FrameCameraFiles(folder=self.folder, camera=self.camera,
+                                image_times=self.image_times, image_paths=self.image_paths,
+                                depth_times=self.depth_times, depth_paths=self.depth_paths,
+                                T_event_frame=np.eye(4), shutter="global", readout_s=0.0)
 
     def nearest_frame(self, t: float) -> int:
         """Index of the standard frame nearest to time ``t``.
@@ -450,13 +560,7 @@ class Sequence:
         ValueError
             ``images.txt`` lists no frames, or ``t`` is not finite.
         """
-        if not math.isfinite(t):
-            raise ValueError(f"{self.folder}: nearest frame to t = {t!r}; expected a finite "
-                             "time in seconds")
-        if len(self.image_times) == 0:
-            raise ValueError(f"{self.folder / 'images.txt'} lists no frames; expected at least "
-                             "one standard frame")
-        return int(np.argmin(np.abs(self.image_times - t)))
+        return self._own_frames().nearest_frame(t)
 
     def nearest_depth(self, t: float, tolerance: float = EXACT_TIME_S) -> int | None:
         """Index of the depth map at time ``t``, if there is one within ``tolerance``.
@@ -476,23 +580,18 @@ class Sequence:
             on a tie), or None when the sequence has no depth maps (a real recording) or the
             nearest is farther than ``tolerance``.
         """
-        if not math.isfinite(t):
-            raise ValueError(f"{self.folder}: nearest depth map to t = {t!r}; expected a finite "
-                             "time in seconds")
-        if self.depth_times is None or len(self.depth_times) == 0:
-            return None
-        k = int(np.argmin(np.abs(self.depth_times - t)))
-        return k if abs(float(self.depth_times[k]) - t) <= tolerance else None
+        return self._own_frames().nearest_depth(t, tolerance)
 
 
-def _size_from_metadata(path: Path, metadata: dict) -> tuple[int, int] | None:
-    camera = metadata.get("camera")
+def _size_from_metadata(path: Path, metadata: dict, key: str = "camera"
+                        ) -> tuple[int, int] | None:
+    camera = metadata.get(key)
     if not isinstance(camera, dict) or "width" not in camera or "height" not in camera:
         return None
     width, height = camera["width"], camera["height"]
     for name, value in (("width", width), ("height", height)):
         if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-            raise ValueError(f"{path}: camera.{name} must be a positive integer, got {value!r}")
+            raise ValueError(f"{path}: {key}.{name} must be a positive integer, got {value!r}")
     return width, height
 
 
@@ -502,6 +601,68 @@ def _size_from_frame(path: Path) -> tuple[int, int]:
         raise ValueError(f"cannot read frame {path} as an image (needed for the sensor size)")
     height, width = frame.shape[:2]
     return width, height
+
+
+def _read_T_event_frame(path: Path) -> np.ndarray:
+    """``frame_camera/T_event_frame.txt``: one line ``px py pz qx qy qz qw`` (scalar last)."""
+    from sim.se3 import make_pose, quat_to_rot
+
+    lines = [line.split() for line in path.read_text(encoding="utf-8").splitlines()
+             if line.strip() and not line.lstrip().startswith("#")]
+    try:
+        values = [float(v) for v in lines[0]] if len(lines) == 1 else []
+    except ValueError:
+        values = []
+    if len(values) != 7 or not all(math.isfinite(v) for v in values) or not any(values[3:]):
+        raise ValueError(f"{path}: expected one line 'px py pz qx qy qz qw' (metres, a non-zero "
+                         f"quaternion, scalar last), got {path.read_text(encoding='utf-8')!r}")
+    return make_pose(quat_to_rot(values[3:]), values[:3])
+
+
+def _load_frame_camera(folder: Path, metadata: dict | None) -> FrameCameraFiles | None:
+    """A rig's ``frame_camera/`` (None when the folder has none)."""
+    sub = folder / FRAME_CAMERA_FOLDER
+    if not sub.is_dir():
+        return None
+    for required in ("calib.txt", "images.txt", "T_event_frame.txt"):
+        if not (sub / required).is_file():
+            raise ValueError(f"{sub} has no {required}; a rig's {FRAME_CAMERA_FOLDER}/ needs "
+                             "calib.txt, images.txt with images/ and T_event_frame.txt")
+    image_times, image_names = read_index(sub / "images.txt")
+    image_paths = tuple(sub / name for name in image_names)
+    record = (metadata or {}).get("frame_camera")
+    record = record if isinstance(record, dict) else {}
+    size = _size_from_metadata(folder / "sequence.json", {"frame_camera": record},
+                               "frame_camera")
+    if size is None:
+        if not image_paths:
+            raise ValueError(f"{sub / 'images.txt'} lists no frames and sequence.json has no "
+                             "frame_camera.width/height: the frame camera's size is unknown")
+        size = _size_from_frame(image_paths[0])
+    from sim.camera import read_calib
+
+    shutter = record.get("shutter", "global")
+    readout = record.get("readout_s") or 0.0
+    if shutter not in ("global", "rolling"):
+        raise ValueError(f"{folder / 'sequence.json'}: frame_camera.shutter must be 'global' or "
+                         f"'rolling', got {shutter!r}")
+    if (isinstance(readout, bool) or not isinstance(readout, int | float)
+            or not math.isfinite(readout) or readout < 0):
+        raise ValueError(f"{folder / 'sequence.json'}: frame_camera.readout_s must be a finite "
+                         f"number of seconds >= 0, got {readout!r}")
+    depth_times = depth_paths = None
+    if (sub / "depthmaps.txt").is_file():
+        depth_times, depth_names = read_index(sub / "depthmaps.txt")
+        depth_paths = tuple(sub / name for name in depth_names)
+        depth_times.setflags(write=False)
+    image_times.setflags(write=False)
+    T_event_frame = _read_T_event_frame(sub / "T_event_frame.txt")
+    T_event_frame.setflags(write=False)
+    return FrameCameraFiles(folder=sub, camera=read_calib(sub / "calib.txt", *size),
+                            image_times=image_times, image_paths=image_paths,
+                            depth_times=depth_times, depth_paths=depth_paths,
+                            T_event_frame=T_event_frame, shutter=shutter,
+                            readout_s=float(readout) if shutter == "rolling" else 0.0)
 
 
 def load_sequence(folder: str | Path) -> Sequence:
@@ -515,8 +676,9 @@ def load_sequence(folder: str | Path) -> Sequence:
     Returns
     -------
     Sequence
-        Optional parts the folder lacks (depth, ground truth, events, ``sequence.json``) are
-        ``None``.
+        Optional parts the folder lacks (depth, ground truth, events, ``sequence.json``, a
+        rig's ``frame_camera/``) are ``None``. ``images.txt`` may list no frames (a rig's
+        event camera has none) when ``sequence.json`` gives ``camera.width/height``.
 
     Raises
     ------
@@ -564,4 +726,4 @@ def load_sequence(folder: str | Path) -> Sequence:
                     image_paths=image_paths, depth_times=depth_times, depth_paths=depth_paths,
                     groundtruth_path=optional("groundtruth.txt"),
                     events_txt=optional("events.txt"), events_h5=optional("events.h5"),
-                    metadata=metadata)
+                    metadata=metadata, frame_camera=_load_frame_camera(folder, metadata))
