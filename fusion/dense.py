@@ -7,10 +7,13 @@ filled (:mod:`fusion.filling`), and the filling score is computed. With the exac
 frame (a simulated sequence) the result is scored (:mod:`fusion.scoring`): separately for the map
 points, the filled pixels and all, and apart in a band around true depth discontinuities.
 
-The frame is the standard frame nearest in time to the map's reference view. The map points are
-projected with the frame's own pose and the sensor's calibration (distortion included), so a frame
-a little off the reference time, or a distorted real frame, still gets its map points where they
-belong. The dense depth lives in the frame's pixels.
+The frame is the standard frame nearest in time to the map's reference view
+(:meth:`sim.sequence.Sequence.standard_frames`: on a two-camera rig, the frame camera's). The map
+points are projected with the frame's own pose and its camera's calibration (distortion
+included), so a frame a little off the reference time, a distorted real frame, or a rig's frame
+camera (pose ``T_world_event(t) @ T_event_frame``, its own lens and size; a rolling shutter row by
+row, :mod:`fusion.frame_projection`) still gets its map points where they belong. The dense depth
+lives in the frame's pixels and is scored against that camera's exact depth.
 
 The filling method is selectable (``--method``, :mod:`fusion.methods`): the paper's
 (``paper-idw``, the default, ``paper-gaussian``, ``paper-exponential``) runs the three stages

@@ -335,3 +335,23 @@ def test_map_overlay_without_event_frames_draws_the_events(rig):
     assert image.shape == (48, 64)
     fired = image == 0
     assert fired.sum() == 20 and fired[7, 3:23].all()
+
+
+def test_overview_of_a_rig_run_draws_each_camera_at_its_own_size(rig, tmp_path):
+    import shutil
+
+    from fusion.pipeline import _overview_panels
+
+    run = tmp_path / "run"
+    shutil.copytree(rig, run / "map")
+    meta = json.loads((rig / "map.json").read_text())
+    meta["sequence"] = str((rig / meta["sequence"]).resolve())
+    (run / "map" / "map.json").write_text(json.dumps(meta))
+    info = fill_window(run / "map", run / "fill", method="plane").info
+    report = {"sequence": meta["sequence"], "t_frame": info["t_frame"], "N1": info["N1"],
+              "N1_in_frame": info["N1_in_frame"], "N2": info["N2"], "beta": info["beta"]}
+    panels, titles, _, _ = _overview_panels(run, report)
+    shapes = dict(zip(titles, (p.shape[:2] for p in panels), strict=True))
+    assert shapes["frame at 0.090 s"] == (42, 56)
+    assert shapes["events +-10 ms (20)"] == (48, 64)              # the event camera's size
+    assert shapes["exact depth"] == (42, 56)                      # the frame camera's truth
