@@ -179,6 +179,10 @@ def _inputs(map_folder: Path, params: BenchParams) -> tuple[object, dict[str, np
     from sim.eventio import read_window
 
     base = fill_inputs(map_folder)
+    if base.info.get("rig") is not None:
+        raise ValueError(f"{map_folder}: evfuse bench does not take a two-camera rig (its "
+                         "oracle-edges input marks the event camera's pixels in the frame); "
+                         "use evfuse run or evfuse fill --method on a rig")
     if base.truth is None:
         raise ValueError(f"{map_folder}: no exact depth for the frame; the bench needs a "
                          "simulated sequence")

@@ -7,10 +7,13 @@ filled (:mod:`fusion.filling`), and the filling score is computed. With the exac
 frame (a simulated sequence) the result is scored (:mod:`fusion.scoring`): separately for the map
 points, the filled pixels and all, and apart in a band around true depth discontinuities.
 
-The frame is the standard frame nearest in time to the map's reference view. The map points are
-projected with the frame's own pose and the sensor's calibration (distortion included), so a frame
-a little off the reference time, or a distorted real frame, still gets its map points where they
-belong. The dense depth lives in the frame's pixels.
+The frame is the standard frame nearest in time to the map's reference view
+(:meth:`sim.sequence.Sequence.standard_frames`: on a two-camera rig, the frame camera's). The map
+points are projected with the frame's own pose and its camera's calibration (distortion
+included), so a frame a little off the reference time, a distorted real frame, or a rig's frame
+camera (pose ``T_world_event(t) @ T_event_frame``, its own lens and size; a rolling shutter row by
+row, :mod:`fusion.frame_projection`) still gets its map points where they belong. The dense depth
+lives in the frame's pixels and is scored against that camera's exact depth.
 
 The filling method is selectable (``--method``, :mod:`fusion.methods`): the paper's
 (``paper-idw``, the default, ``paper-gaussian``, ``paper-exponential``) runs the three stages
@@ -53,6 +56,13 @@ from fusion.filling import (
     filling_score,
     select_regions,
 )
+from fusion.frame_projection import (
+    ROLLING_ITERATIONS,
+    frame_record,
+    map_points_world,
+    nearest_per_pixel,
+    rolling_shutter_project,
+)
 from fusion.jsonio import to_json
 from fusion.methods import FillMethod, check_params, get_method, run_method
 from fusion.pointcloud import write_ply
@@ -61,11 +71,12 @@ from fusion.segmentation import SegmentationParams, segment_regions
 from sim.camera import Camera
 from sim.exr import read_depth, write_depth, write_exr_channels
 from sim.se3 import invert_pose
-from sim.sequence import atomic_output_dir, load_sequence
+from sim.sequence import FrameCameraFiles, atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
 
 __all__ = ["PAPER_METHODS", "DenseParams", "DenseResult", "dense_errors", "densify", "fill_frame",
-           "fill_map", "paper_weighting", "project_map", "resolve_method", "write_fill"]
+           "fill_map", "paper_weighting", "project_map", "project_map_rolling", "resolve_method",
+           "write_fill"]
 
 PAPER_METHODS = {"paper-idw": "idw", "paper-gaussian": "gaussian",
                  "paper-exponential": "exponential"}
@@ -168,26 +179,46 @@ def project_map(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: np.ndarr
     (H, W) float32 ndarray, metres
         z-depth in the frame of each projected point, rounded to the nearest pixel; 0 elsewhere.
     """
-    depth_ref = np.asarray(depth_ref, dtype=np.float64)
-    if depth_ref.shape != (camera_ref.height, camera_ref.width):
-        raise ValueError(f"the map is {depth_ref.shape[1]}x{depth_ref.shape[0]} but its camera "
-                         f"is {camera_ref.width}x{camera_ref.height}")
-    v, u = np.nonzero(depth_ref > 0)
-    out = np.zeros((camera.height, camera.width), np.float32)
-    if len(v) == 0:
-        return out
-    points = camera_ref.backproject(np.stack([u, v], 1).astype(np.float64), depth_ref[v, u])
-    T = invert_pose(np.asarray(T_world_frame, np.float64)) @ np.asarray(T_world_ref, np.float64)
+    points = map_points_world(depth_ref, camera_ref, T_world_ref)
+    T = invert_pose(np.asarray(T_world_frame, np.float64))
     local = points @ T[:3, :3].T + T[:3, 3]
-    uv = camera.project(local)
-    col = np.round(uv[:, 0])
-    row = np.round(uv[:, 1])
-    inside = (np.isfinite(col) & np.isfinite(row) & (col >= 0) & (col < camera.width)
-              & (row >= 0) & (row < camera.height))
-    col, row, z = col[inside].astype(np.int64), row[inside].astype(np.int64), local[inside, 2]
-    order = np.argsort(-z)                                  # far first: the nearest is kept
-    out[row[order], col[order]] = z[order]
-    return out
+    return nearest_per_pixel(camera.project(local), local[:, 2], camera)
+
+
+def project_map_rolling(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: np.ndarray,
+                        frames: FrameCameraFiles, trajectory, t_frame: float
+                        ) -> tuple[np.ndarray, float]:
+    """The event image of a rolling-shutter frame: each map point projected with the pose of
+    the row it lands on (:func:`fusion.frame_projection.rolling_shutter_project`).
+
+    Parameters
+    ----------
+    depth_ref, camera_ref, T_world_ref : as :func:`project_map`
+    frames : FrameCameraFiles
+        The frame camera (its ``camera``, ``T_event_frame`` and :meth:`row_times`).
+    trajectory : sim.trajectory.Trajectory
+        ``T_world_event(t)``; the frame camera's pose is ``T_world_event(t) @ T_event_frame``.
+    t_frame : float, seconds, the frame's (middle row's) time
+
+    Returns
+    -------
+    sparse : (H, W) float32 ndarray, metres, 0 elsewhere
+    last_step : float, pixels
+        The largest last fixed-point step of the points that land in the frame (0 without any):
+        it bounds each point's row error by ``|q| / (1 - |q|)`` times itself.
+    """
+    camera = frames.camera
+    row_times = frames.row_times(t_frame)
+    per_row = (row_times[-1] - row_times[0]) / max(camera.height - 1, 1)   # linear in the row
+
+    def pose_at_row(v: np.ndarray) -> np.ndarray:
+        return trajectory.pose(row_times[0] + per_row * v) @ frames.T_event_frame
+
+    points = map_points_world(depth_ref, camera_ref, T_world_ref)
+    uv, z, last_step = rolling_shutter_project(points, camera, pose_at_row)
+    landed = camera.in_image(uv) & (z > 0)
+    return (nearest_per_pixel(uv, z, camera),
+            float(last_step[landed].max()) if landed.any() else 0.0)
 
 
 def paper_weighting(method: FillMethod) -> str | None:
@@ -493,36 +524,57 @@ def fill_inputs(map_folder: str | Path) -> FillInputs:
         raise ValueError(f"{map_folder}: no semidense_depth.exr")
     depth_ref = read_depth(depth_path)
     sequence = load_sequence(sequence_folder)
-    if len(sequence.image_times) == 0:
-        raise ValueError(f"{sequence_folder}: no standard frames (images.txt) to fill with")
-    k = sequence.nearest_frame(t_ref)
-    t_frame = float(sequence.image_times[k])
-    frame = cv2.imread(str(sequence.image_paths[k]), cv2.IMREAD_GRAYSCALE)
+    frames = sequence.standard_frames()
+    rig = sequence.frame_camera is not None
+    if len(frames.image_times) == 0:
+        raise ValueError(f"{frames.folder}: no standard frames (images.txt) to fill with")
+    k = frames.nearest_frame(t_ref)
+    t_frame = float(frames.image_times[k])
+    frame = cv2.imread(str(frames.image_paths[k]), cv2.IMREAD_GRAYSCALE)
     if frame is None:
-        raise ValueError(f"cannot read the frame {sequence.image_paths[k]}")
+        raise ValueError(f"cannot read the frame {frames.image_paths[k]}")
     trajectory = read_trajectory(sequence.groundtruth_path)
-    if not trajectory.t_start <= t_frame <= trajectory.t_end:
-        raise ValueError(f"the frame nearest the reference time ({t_frame} s) is outside the "
-                         f"poses [{trajectory.t_start}, {trajectory.t_end}] s")
-    T_world_frame = trajectory.pose(t_frame)
-    camera = sequence.camera
+    row_times = frames.row_times(t_frame)
+    if not trajectory.t_start <= row_times[0] <= row_times[-1] <= trajectory.t_end:
+        raise ValueError(f"the frame nearest the reference time ({t_frame} s, rows exposed "
+                         f"{row_times[0]}-{row_times[-1]} s) is outside the poses "
+                         f"[{trajectory.t_start}, {trajectory.t_end}] s")
+    T_world_frame = trajectory.pose(t_frame) @ frames.T_event_frame
+    camera = frames.camera
     if (camera.height, camera.width) != frame.shape:
+        if rig:
+            raise ValueError(f"{frames.image_paths[k]} is {frame.shape[1]}x{frame.shape[0]} but "
+                             f"the frame camera is {camera.width}x{camera.height} "
+                             "(sequence.json's frame_camera); expected the same size")
         camera = camera.with_resolution(frame.shape[1], frame.shape[0])
-    sparse = project_map(depth_ref, camera_ref, T_world_ref, camera, T_world_frame)
+    extra: dict = {}
+    if frames.shutter == "rolling":
+        sparse, last_step = project_map_rolling(depth_ref, camera_ref, T_world_ref, frames,
+                                                trajectory, t_frame)
+        extra["rolling_shutter"] = {"iterations": ROLLING_ITERATIONS,
+                                    "max_last_step_px": last_step}
+    else:
+        sparse = project_map(depth_ref, camera_ref, T_world_ref, camera, T_world_frame)
     if not sparse.any():
         raise ValueError(f"{map_folder}: no map point lands in the frame at {t_frame} s "
                          f"(N1 = {int(np.count_nonzero(depth_ref))} in the map)")
     truth = None
-    j = sequence.nearest_depth(t_frame)
+    j = frames.nearest_depth(t_frame)
     if j is not None:
-        truth = read_depth(sequence.depth_paths[j])
+        truth = read_depth(frames.depth_paths[j])
     info = {"map": str(map_folder.resolve()),
             # an oracle DSI range (the exact depth) makes every figure downstream an oracle's
             "oracle": bool(meta.get("oracle", False)),
             "depth_range_from": meta.get("depth_range_from", "given"),
             "sequence": str(Path(sequence.folder).resolve()),
-            "frame": os.path.relpath(sequence.image_paths[k], sequence.folder),
-            "t_frame": t_frame, "t_ref": t_ref, "T_world_frame": T_world_frame.tolist()}
+            "frame": os.path.relpath(frames.image_paths[k], sequence.folder),
+            "t_frame": t_frame, "t_ref": t_ref, "T_world_frame": T_world_frame.tolist(),
+            # a rig: the map (event camera) was projected into the frame camera and scored
+            # against the frame camera's own exact depth
+            "rig": frame_record(frames) if rig else None,
+            "truth": None if j is None else os.path.relpath(frames.depth_paths[j],
+                                                            sequence.folder),
+            **extra}
     return FillInputs(frame, sparse, camera, T_world_frame, truth, info,
                       int(np.count_nonzero(depth_ref)))
 

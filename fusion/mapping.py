@@ -493,20 +493,34 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     return MapResult(depth, confidence, mask, camera, t_ref, T_world_ref, info, sequence)
 
 
+OVERLAY_EVENTS_S = 0.01
+"""Half-width (s) of the event window drawn under the map when the event camera has no frames."""
+
+
 def _reference_image(sequence: Sequence, t_ref: float) -> np.ndarray:
-    """The standard frame nearest to the reference time, undistorted, gray (H, W) uint8."""
-    k = sequence.nearest_frame(t_ref)
-    image = cv2.imread(str(sequence.image_paths[k]), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise ValueError(f"cannot read {sequence.image_paths[k]}")
+    """The event camera's own frame nearest to the reference time, undistorted, gray (H, W)
+    uint8; where it has none (a two-camera rig's event camera), its events within
+    :data:`OVERLAY_EVENTS_S` of the reference time (gray 0 where any fired, 255 elsewhere)."""
     camera = sequence.camera
+    if len(sequence.image_times):
+        k = sequence.nearest_frame(t_ref)
+        image = cv2.imread(str(sequence.image_paths[k]), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise ValueError(f"cannot read {sequence.image_paths[k]}")
+    else:
+        events = read_window(sequence.events_h5 or sequence.events_txt,
+                             int(round((t_ref - OVERLAY_EVENTS_S) * 1e9)),
+                             int(round((t_ref + OVERLAY_EVENTS_S) * 1e9)))
+        image = np.full((camera.height, camera.width), 255, np.uint8)
+        image[events["y"].astype(np.int64), events["x"].astype(np.int64)] = 0
     if camera.has_distortion:                      # the map lives in undistorted coordinates
         image = cv2.undistort(image, camera.K, np.array(camera.distortion))
     return image
 
 
 def _overlay(result: MapResult) -> np.ndarray:
-    """``overlay.png``: the map points over the frame nearest the reference time, coloured on
+    """``overlay.png``: the map points over the event camera's frame nearest the reference time
+    (or its events there, :func:`_reference_image`), coloured on
     the map's own depths (1st-99th percentile, :func:`fusion.figures.depth_scale`; the map is
     blind, so no exact depth here), with the colour bar and, for a DSI range taken from the exact
     depth (``info["oracle"]``), a header saying so."""

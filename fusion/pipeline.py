@@ -118,10 +118,6 @@ def is_sequence_folder(source: str | Path) -> bool:
     return path.is_dir() and (path / "calib.txt").is_file()
 
 
-def _frame_nearest(sequence, t: float) -> float:
-    return float(sequence.image_times[sequence.nearest_frame(t)])
-
-
 def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = None,
                t1: float | None = None, *, ref_time: float | None = None,
                min_depth: float | None = None, max_depth: float | None = None,
@@ -165,7 +161,9 @@ def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = 
                          "needed to map)")
     if ref_time is None:
         middle = time_window(sequence, t0, t1, clip=clip_window).t_ref
-        ref_time = _frame_nearest(sequence, middle) if len(sequence.image_times) else middle
+        frames = sequence.standard_frames()      # a rig's: the frame camera's frame times
+        ref_time = (float(frames.image_times[frames.nearest_frame(middle)])
+                    if len(frames.image_times) else middle)
     dsi_range = resolve_dsi_range(sequence, min_depth, max_depth, oracle_depth_range, ref_time)
     params = MapParams(DSIParams(dsi_range.min_depth, dsi_range.max_depth, planes=planes),
                        depth or DepthMapParams(), t0=t0, t1=t1, ref_time=ref_time,
@@ -283,6 +281,8 @@ def _run(source, out: Path, params: RunParams, method: FillMethod, overwrite: bo
             "N1": info["N1"], "N1_in_frame": info["N1_in_frame"], "N2": info["N2"],
             "Res": info["Res"], "beta": info["beta"], "beta_counts": info["beta_counts"],
             "ground_truth": errors is not None,
+            # a two-camera rig: filled in the frame camera, scored against its exact depth
+            "rig": info.get("rig"), "truth": info.get("truth"),
             "errors_summary": summary,
             "mae_cm": None if summary is None else {
                 k: None if v is None else v["mae_cm"] for k, v in summary.items()},
@@ -418,12 +418,13 @@ def _overview_panels(run_folder: str | Path, report: dict | None = None
     width, height = frame.shape[1], frame.shape[0]
     events_path = sequence.events_h5 or sequence.events_txt
     events = read_window(events_path, int(round((t - 0.01) * 1e9)), int(round((t + 0.01) * 1e9)))
-    events_image = cv2.cvtColor(event_frame(events, width, height), cv2.COLOR_RGB2BGR)
+    events_image = cv2.cvtColor(event_frame(events, sequence.camera.width,
+                                            sequence.camera.height), cv2.COLOR_RGB2BGR)
     truth = None
-    if sequence.depth_paths:
-        k = sequence.nearest_depth(t)
-        if k is not None:
-            truth = read_depth(sequence.depth_paths[k])
+    frames = sequence.standard_frames()          # the frame's camera: a rig's frame camera
+    k = frames.nearest_depth(t)
+    if k is not None:
+        truth = read_depth(frames.depth_paths[k])
     scale = depth_scale(semidense, dense, truth=truth)
     lo_hi = (scale.lo, scale.hi) if scale else (None, None)
     legend = scale.legend() if scale else None

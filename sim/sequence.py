@@ -30,8 +30,8 @@ import numpy as np
 if TYPE_CHECKING:
     from sim.camera import Camera
 
-__all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "SEQUENCE_FOLDER_NEEDS", "FileIndex",
-           "FrameCameraFiles", "Sequence",
+__all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "FRAME_CAMERA_FOLDER", "SEQUENCE_FOLDER_NEEDS",
+           "FileIndex", "FrameCameraFiles", "Sequence",
            "atomic_output_dir",
            "check_output_dir", "describe_data_file", "frame_name", "load_sequence",
            "partial_dir", "read_index", "read_sequence_json", "write_index",
@@ -399,6 +399,26 @@ def describe_data_file(path: str | Path) -> str | None:
 
 # --- a whole sequence ------------------------------------------------------------------------
 
+FRAME_CAMERA_FOLDER = "frame_camera"
+"""Sub-folder of a two-camera rig's sequence folder holding the frame camera's files (README,
+"A two-camera rig"): ``calib.txt``, ``images.txt`` + ``images/``, ``depthmaps.txt`` + ``depth/``
+and ``T_event_frame.txt``."""
+
+
+def _nearest(times: np.ndarray | None, t: float, tolerance: float) -> int | None:
+    """Index of the time of ``times`` nearest ``t`` (the earlier on a tie), None when there is
+    none within ``tolerance``."""
+    if times is None or len(times) == 0:
+        return None
+    k = int(np.argmin(np.abs(times - t)))
+    return k if abs(float(times[k]) - t) <= tolerance else None
+
+
+def _finite_time(folder: Path, t: float, what: str) -> None:
+    if not math.isfinite(t):
+        raise ValueError(f"{folder}: {what} to t = {t!r}; expected a finite time in seconds")
+
+
 @dataclass(frozen=True, eq=False)
 class FileIndex:
     """The files an index lists, and their times.
@@ -416,12 +436,13 @@ class FileIndex:
 
 @dataclass(frozen=True, eq=False)
 class FrameCameraFiles:
-    """A rig's frame camera, read from the ``frame_camera/`` folder of a sequence folder.
+    """The standard frames of a sequence: a rig's frame camera, read from ``frame_camera/``,
+    or the top level of a one-camera sequence (:meth:`Sequence.standard_frames`).
 
     Attributes
     ----------
     folder : Path
-        The ``frame_camera/`` folder.
+        The ``frame_camera/`` folder (the sequence folder itself for one camera).
     camera : sim.camera.Camera
         Its intrinsics from ``frame_camera/calib.txt``, its size from ``sequence.json``'s
         ``frame_camera`` record or else from its first frame.
@@ -435,7 +456,7 @@ class FrameCameraFiles:
         Its exact z-depth (float32 EXR, metres; each row at its own time for a rolling shutter).
     T_event_frame : (4, 4) float64 ndarray
         Its pose in the event camera's frame (maps frame-camera coordinates to event-camera
-        coordinates), from ``frame_camera/T_event_frame.txt``.
+        coordinates), from ``frame_camera/T_event_frame.txt``; the identity for one camera.
     shutter : {"global", "rolling"}
     readout_s : float, seconds
         Time from the first row to the last; 0 for a global shutter.
@@ -476,6 +497,26 @@ class FrameCameraFiles:
         rows = np.arange(height, dtype=np.float64)
         fraction = rows / (height - 1) - 0.5 if height > 1 else np.zeros(1)
         return float(t_frame) + fraction * self.readout_s
+
+    def nearest_frame(self, t: float) -> int:
+        """Index of the frame nearest to time ``t`` (the earlier on a tie).
+
+        Raises
+        ------
+        ValueError
+            ``images.txt`` lists no frames, or ``t`` is not finite.
+        """
+        _finite_time(self.folder, t, "nearest frame")
+        k = _nearest(self.image_times, t, math.inf)
+        if k is None:
+            raise ValueError(f"{self.folder / 'images.txt'} lists no frames; expected at least "
+                             "one standard frame")
+        return k
+
+    def nearest_depth(self, t: float, tolerance: float = EXACT_TIME_S) -> int | None:
+        """Index of this camera's depth map at time ``t`` (within ``tolerance``), else None."""
+        _finite_time(self.folder, t, "nearest depth map")
+        return _nearest(self.depth_times, t, tolerance)
 
 
 @dataclass(frozen=True, eq=False)
@@ -520,7 +561,8 @@ class Sequence:
     imu_path : Path or None
         ``imu.txt`` (ECD layout), read by :meth:`read_imu`.
     frame_camera : FrameCameraFiles or None
-        A rig's separate frame camera (``frame_camera/``); None for one DAVIS-like sensor.
+        A two-camera rig's frame camera (``frame_camera/``); None for one camera. The top level
+        is then the event camera's, with no frames of its own.
     """
 
     folder: Path
@@ -540,6 +582,7 @@ class Sequence:
     object_names: tuple[str, ...] | None = None
     velocity_path: Path | None = None
     imu_path: Path | None = None
+    frame_camera: FrameCameraFiles | None = None
 
     def read_velocity(self) -> np.ndarray | None:
         """``velocity.txt`` as (N, 7) float64 ``t vx vy vz wx wy wz`` (s, m/s, rad/s, camera
@@ -554,7 +597,19 @@ class Sequence:
         from sim.imu import read_imu
 
         return None if self.imu_path is None else read_imu(self.imu_path)
-    frame_camera: FrameCameraFiles | None = None
+
+    def standard_frames(self) -> FrameCameraFiles:
+        """The frames the pipeline fills and scores in: the frame camera's for a rig, else the
+        top level's (the same sensor as the events: identity ``T_event_frame``, global
+        shutter). The one place that says where "the standard frame nearest t" comes from."""
+        return self.frame_camera if self.frame_camera is not None else self._own_frames()
+
+    def _own_frames(self) -> FrameCameraFiles:
+        """The top level's frames and depth maps (the event camera's own, for a rig: none)."""
+        return FrameCameraFiles(folder=self.folder, camera=self.camera,
+                                image_times=self.image_times, image_paths=self.image_paths,
+                                depth_times=self.depth_times, depth_paths=self.depth_paths,
+                                T_event_frame=np.eye(4), shutter="global", readout_s=0.0)
 
     def nearest_frame(self, t: float) -> int:
         """Index of the standard frame nearest to time ``t``.
@@ -574,13 +629,7 @@ class Sequence:
         ValueError
             ``images.txt`` lists no frames, or ``t`` is not finite.
         """
-        if not math.isfinite(t):
-            raise ValueError(f"{self.folder}: nearest frame to t = {t!r}; expected a finite "
-                             "time in seconds")
-        if len(self.image_times) == 0:
-            raise ValueError(f"{self.folder / 'images.txt'} lists no frames; expected at least "
-                             "one standard frame")
-        return int(np.argmin(np.abs(self.image_times - t)))
+        return self._own_frames().nearest_frame(t)
 
     def nearest_depth(self, t: float, tolerance: float = EXACT_TIME_S) -> int | None:
         """Index of the depth map at time ``t``, if there is one within ``tolerance``.
@@ -600,23 +649,18 @@ class Sequence:
             on a tie), or None when the sequence has no depth maps (a real recording) or the
             nearest is farther than ``tolerance``.
         """
-        if not math.isfinite(t):
-            raise ValueError(f"{self.folder}: nearest depth map to t = {t!r}; expected a finite "
-                             "time in seconds")
-        if self.depth_times is None or len(self.depth_times) == 0:
-            return None
-        k = int(np.argmin(np.abs(self.depth_times - t)))
-        return k if abs(float(self.depth_times[k]) - t) <= tolerance else None
+        return self._own_frames().nearest_depth(t, tolerance)
 
 
-def _size_from_metadata(path: Path, metadata: dict) -> tuple[int, int] | None:
-    camera = metadata.get("camera")
+def _size_from_metadata(path: Path, metadata: dict, key: str = "camera"
+                        ) -> tuple[int, int] | None:
+    camera = metadata.get(key)
     if not isinstance(camera, dict) or "width" not in camera or "height" not in camera:
         return None
     width, height = camera["width"], camera["height"]
     for name, value in (("width", width), ("height", height)):
         if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-            raise ValueError(f"{path}: camera.{name} must be a positive integer, got {value!r}")
+            raise ValueError(f"{path}: {key}.{name} must be a positive integer, got {value!r}")
     return width, height
 
 
@@ -712,8 +756,9 @@ def load_sequence(folder: str | Path) -> Sequence:
     Returns
     -------
     Sequence
-        Optional parts the folder lacks (depth, ground truth, events, ``sequence.json``) are
-        ``None``.
+        Optional parts the folder lacks (depth, ground truth, events, ``sequence.json``, a
+        rig's ``frame_camera/``) are ``None``. ``images.txt`` may list no frames (a rig's
+        event camera has none) when ``sequence.json`` gives ``camera.width/height``.
 
     Raises
     ------
@@ -756,8 +801,8 @@ def load_sequence(folder: str | Path) -> Sequence:
     indexes = {field: _file_index(folder / name) for field, name in FLOW_INDEXES.items()}
     names = ((metadata or {}).get("object_masks") or {}).get("objects")
     frame_camera = None
-    if (folder / "frame_camera").is_dir():
-        frame_camera = _load_frame_camera(folder / "frame_camera", metadata)
+    if (folder / FRAME_CAMERA_FOLDER).is_dir():
+        frame_camera = _load_frame_camera(folder / FRAME_CAMERA_FOLDER, metadata)
     return Sequence(folder=folder, camera=camera, image_times=image_times,
                     image_paths=image_paths, depth_times=depth_times, depth_paths=depth_paths,
                     groundtruth_path=optional("groundtruth.txt"),
