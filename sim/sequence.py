@@ -419,6 +419,8 @@ class Sequence:
         ``events.h5``, if present.
     metadata : dict or None
         ``sequence.json`` (simulated sequences only).
+    events_depth_txt : Path or None
+        ``events_depth.txt`` (per-event depth as text), if present.
     """
 
     folder: Path
@@ -431,6 +433,22 @@ class Sequence:
     events_txt: Path | None
     events_h5: Path | None
     metadata: dict | None
+    events_depth_txt: Path | None = None
+
+    def event_depth(self, t0_ns: int | None = None, t1_ns: int | None = None
+                    ) -> np.ndarray | None:
+        """Events in ``[t0_ns, t1_ns)`` with their exact depth and flag (simulated sequences).
+
+        From ``events.h5`` (``events/depth``) or else ``events_depth.txt``; None when the
+        folder has neither (a real recording). See :func:`sim.event_depth.read_event_depth`.
+        """
+        from sim.event_depth import read_event_depth
+
+        for path in (self.events_h5, self.events_depth_txt):
+            found = None if path is None else read_event_depth(path, t0_ns, t1_ns)
+            if found is not None:
+                return found
+        return None
 
     def nearest_frame(self, t: float) -> int:
         """Index of the standard frame nearest to time ``t``.
@@ -564,4 +582,4 @@ def load_sequence(folder: str | Path) -> Sequence:
                     image_paths=image_paths, depth_times=depth_times, depth_paths=depth_paths,
                     groundtruth_path=optional("groundtruth.txt"),
                     events_txt=optional("events.txt"), events_h5=optional("events.h5"),
-                    metadata=metadata)
+                    metadata=metadata, events_depth_txt=optional("events_depth.txt"))
