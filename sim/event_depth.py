@@ -326,7 +326,9 @@ class EventOutputs:
     depth : EventDepth or None
         Annotates the chunks (None when no writer holds depth).
     timings : dict, optional
-        ``timings["event_depth"]`` accumulates the seconds spent on depth (renders included).
+        ``timings["event_depth"]`` accumulates the seconds spent on depth (the depth renders
+        included, those the sampler then reuses too), taken out of ``timings["event_write"]``
+        (the caller times the whole :meth:`write` as writing).
     """
 
     def __init__(self, writers: Mapping, depth: EventDepth | None,
@@ -357,9 +359,10 @@ class EventOutputs:
             tick = time.perf_counter()
             depth, flag = self._depth.annotate(events, t)
             columns = {"depth": depth, "depth_flag": flag}
-            if self._timings is not None:
-                self._timings["event_depth"] = (self._timings.get("event_depth", 0.0)
-                                                + time.perf_counter() - tick)
+            if self._timings is not None:           # counted here, not in event_write
+                seconds = time.perf_counter() - tick
+                self._timings["event_depth"] = self._timings.get("event_depth", 0.0) + seconds
+                self._timings["event_write"] = self._timings.get("event_write", 0.0) - seconds
         if events is None or not len(events):
             return
         for fmt, writer in self.writers.items():
