@@ -781,7 +781,9 @@ def _parser() -> argparse.ArgumentParser:
                                "adaptive rate) (default: pixel for static scenes on a JIT "
                                "variant, else frame)")
     simulate.add_argument("--event-format", default="h5,txt",
-                          help="event files to write: h5, txt or both (default h5,txt)")
+                          help="event files to write, comma-separated: h5 (with per-event "
+                               "depth, events/depth), txt, depth-txt (events_depth.txt: t x y p "
+                               "depth flag) (default h5,txt)")
     simulate.add_argument("--no-events", action="store_true",
                           help="render frames and depth only")
     simulate.add_argument("--rig", choices=("perfect", "mocap", "lab"), default=None,

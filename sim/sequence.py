@@ -563,6 +563,8 @@ class Sequence:
     frame_camera : FrameCameraFiles or None
         A two-camera rig's frame camera (``frame_camera/``); None for one camera. The top level
         is then the event camera's, with no frames of its own.
+    events_depth_txt : Path or None
+        ``events_depth.txt`` (per-event depth as text), if present.
     """
 
     folder: Path
@@ -583,6 +585,7 @@ class Sequence:
     velocity_path: Path | None = None
     imu_path: Path | None = None
     frame_camera: FrameCameraFiles | None = None
+    events_depth_txt: Path | None = None
 
     def read_velocity(self) -> np.ndarray | None:
         """``velocity.txt`` as (N, 7) float64 ``t vx vy vz wx wy wz`` (s, m/s, rad/s, camera
@@ -610,6 +613,21 @@ class Sequence:
                                 image_times=self.image_times, image_paths=self.image_paths,
                                 depth_times=self.depth_times, depth_paths=self.depth_paths,
                                 T_event_frame=np.eye(4), shutter="global", readout_s=0.0)
+
+    def event_depth(self, t0_ns: int | None = None, t1_ns: int | None = None
+                    ) -> np.ndarray | None:
+        """Events in ``[t0_ns, t1_ns)`` with their exact depth and flag (simulated sequences).
+
+        From ``events.h5`` (``events/depth``) or else ``events_depth.txt``; None when the
+        folder has neither (a real recording). See :func:`sim.event_depth.read_event_depth`.
+        """
+        from sim.event_depth import read_event_depth
+
+        for path in (self.events_h5, self.events_depth_txt):
+            found = None if path is None else read_event_depth(path, t0_ns, t1_ns)
+            if found is not None:
+                return found
+        return None
 
     def nearest_frame(self, t: float) -> int:
         """Index of the standard frame nearest to time ``t``.
@@ -810,7 +828,8 @@ def load_sequence(folder: str | Path) -> Sequence:
                     metadata=metadata, **indexes,
                     object_names=None if names is None else tuple(str(n) for n in names),
                     velocity_path=optional("velocity.txt"), imu_path=optional("imu.txt"),
-                    frame_camera=frame_camera)
+                    frame_camera=frame_camera,
+                    events_depth_txt=optional("events_depth.txt"))
 
 
 def _file_index(path: Path) -> FileIndex | None:

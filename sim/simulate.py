@@ -43,6 +43,16 @@ import numba
 import numpy as np
 
 from sim.camera import write_calib
+from sim.event_depth import (
+    DEPTH_TXT,
+    EventDepth,
+    EventOutputs,
+    H5EventDepthWriter,
+    RecentDepth,
+    TextEventDepthWriter,
+    event_depth_record,
+    event_file_name,
+)
 from sim.eventio import H5EventWriter, TextEventWriter
 from sim.events import EventEmulator, EventParams
 from sim.exr import write_depth
@@ -203,8 +213,10 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         Adaptive sampling of the renders that drive the event camera.
     with_events : bool
         Simulate the event camera (default True).
-    event_formats : tuple of {"h5", "txt"}
-        Files to write the events to (``events.h5``, ``events.txt``).
+    event_formats : tuple of {"h5", "txt", "depth-txt"}
+        Files to write the events to (``events.h5``, ``events.txt``, ``events_depth.txt``:
+        the events with their depth, :mod:`sim.event_depth`); ``events.h5`` holds the
+        per-event depth too (``events/depth``, ``events/depth_flag``).
     resume : bool
         Continue the interrupted run that left ``<out>.partial``, from its last checkpoint:
         frames already written are kept, the event stage goes on from its last saved sample.
@@ -270,9 +282,9 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     events = events or EventParams(seed=scene.seed)
     sampling = sampling or SamplingParams()
     event_formats = tuple(event_formats)
-    unknown = set(event_formats) - {"h5", "txt"}
+    unknown = set(event_formats) - {"h5", "txt", DEPTH_TXT}
     if with_events and (unknown or not event_formats):
-        raise ValueError(f"event formats must be among h5, txt; got {event_formats}")
+        raise ValueError(f"event formats must be among h5, txt, {DEPTH_TXT}; got {event_formats}")
     out = Path(out)
     if sampler not in (None, "pixel", "frame"):
         raise ValueError(f"sampler {sampler!r}: expected 'pixel', 'frame' or None (automatic)")
@@ -286,7 +298,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     else:
         check_output_dir(out, overwrite)
     timings = {"setup": 0.0, "render": 0.0, "depth": 0.0, "write": 0.0, "event_render": 0.0,
-               "emulate": 0.0, "event_write": 0.0, "checkpoint": 0.0}
+               "emulate": 0.0, "event_write": 0.0, "event_depth": 0.0, "checkpoint": 0.0}
     clock = time.perf_counter()
     renderer = Renderer(scene, spp=spp, variant=variant)
     identity["variant"] = renderer.variant
@@ -409,10 +421,10 @@ class _OnEventClock:
     def __init__(self, writer: H5EventWriter | TextEventWriter, offset_ns: int) -> None:
         self._writer, self._offset_ns = writer, offset_ns
 
-    def write(self, events: np.ndarray) -> None:
+    def write(self, events: np.ndarray, **columns: np.ndarray) -> None:
         shifted = events.copy()
         shifted["t"] += self._offset_ns
-        self._writer.write(shifted)
+        self._writer.write(shifted, **columns)
 
     def checkpoint(self) -> dict:
         return self._writer.checkpoint()
@@ -544,8 +556,9 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                        **state["sample"])
     contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
     event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
-    with _event_stage(scene, folder, formats, positions, end - start, progress) as (bar,
-                                                                                   writers):
+    with _event_stage(scene, folder, formats, positions, end - start, progress,
+                      EventDepth(event_camera.depth, start if after is None else after.t),
+                      timings) as (bar, writers):
         since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()
         for sample in adaptive_samples(event_camera, start, end, contrast, params.log_eps, sampling,
@@ -559,9 +572,8 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                 chunk = emulator.advance(sample.log, sample.t, sample.luminance)
             tack = time.perf_counter()
             timings["emulate"] += tack - tock
+            writers.write(chunk, sample.t, pending=sample.tail_pending)
             if chunk is not None and len(chunk):
-                for writer in writers.values():
-                    writer.write(chunk)
                 count += len(chunk)
                 on += int(np.count_nonzero(chunk["p"] > 0))
             tick = time.perf_counter()
@@ -570,7 +582,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
             # Only where the sampler can be restarted from this sample (no tail pending).
             if not sample.tail_pending and (since >= CHECKPOINT_SAMPLES
                                             or tick - saved_at >= CHECKPOINT_SECONDS):
-                checkpoint.save_events(sample, emulator, stats, count, on, writers)
+                checkpoint.save_events(sample, emulator, stats, count, on, writers.writers)
                 since, saved_at = 0, time.perf_counter()
                 timings["checkpoint"] += saved_at - tick
                 tick = saved_at
@@ -608,6 +620,7 @@ class _EventCamera:
     def __init__(self, renderer: Renderer, spp: int, start: float, end: float):
         self._renderer, self._spp = renderer, spp
         self.scene, self.camera = renderer.scene, renderer.camera
+        self.depth = RecentDepth(renderer.depth)     # shared by the sampler and per-event depth
         self.shader = None
         if renderer.variant != "scalar_rgb":
             from sim.shader import EventShader
@@ -618,9 +631,6 @@ class _EventCamera:
         if self.shader is not None:
             return self.shader.frame(t)
         return self._renderer.luminance(t, spp=self._spp)
-
-    def depth(self, t: float) -> np.ndarray:
-        return self._renderer.depth(t)
 
 
 class _ShaderSource:
@@ -685,9 +695,10 @@ def _restore_events(checkpoint: _Checkpoint, emulator: EventEmulator, stats_type
 
 @contextmanager
 def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions: dict,
-                 seconds: float, progress: bool):
-    """The event stage's progress bar and event writers (resumed at ``positions``), with the
-    emulator on one thread; all undone on exit."""
+                 seconds: float, progress: bool, depth: EventDepth, timings: dict):
+    """The event stage's progress bar and event writers (resumed at ``positions``, behind
+    :class:`sim.event_depth.EventOutputs`, which adds ``depth`` where a file holds it), with
+    the emulator on one thread; all undone on exit."""
     camera = scene.camera
     bar = progress_stage(total=round(seconds, 6), desc=f"events {scene.name}", unit="s",
                          noun="s simulated", enabled=progress,
@@ -703,15 +714,19 @@ def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions
         stack.callback(numba.set_num_threads, threads)
         writers: dict[str, H5EventWriter | TextEventWriter] = {}
         if "h5" in formats:
-            writers["h5"] = stack.enter_context(H5EventWriter(
+            writers["h5"] = stack.enter_context(H5EventDepthWriter(
                 folder / "events.h5", camera.width, camera.height, resume=positions.get("h5")))
         if "txt" in formats:
             writers["txt"] = stack.enter_context(TextEventWriter(
                 folder / "events.txt", resume=positions.get("txt")))
+        if DEPTH_TXT in formats:
+            writers[DEPTH_TXT] = stack.enter_context(TextEventDepthWriter(
+                folder / event_file_name(DEPTH_TXT), resume=positions.get(DEPTH_TXT)))
         offset_ns = round(scene.rig.events_offset * 1e9)
         if offset_ns:
             writers = {fmt: _OnEventClock(writer, offset_ns) for fmt, writer in writers.items()}
-        yield bar, writers
+        with_depth = "h5" in formats or DEPTH_TXT in formats
+        yield bar, EventOutputs(writers, depth if with_depth else None, timings)
 
 
 def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, start: float,
@@ -731,9 +746,11 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
         arrays, state = saved
         after = (state["sample"]["t"], arrays["observed_rates"])
     contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
-    source = _ShaderSource(_EventCamera(renderer, scene.render.event_spp, start, end))
-    with _event_stage(scene, folder, formats, positions, end - start, progress) as (bar,
-                                                                                   writers):
+    event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
+    source = _ShaderSource(event_camera)
+    with _event_stage(scene, folder, formats, positions, end - start, progress,
+                      EventDepth(event_camera.depth, start if after is None else after[0]),
+                      timings) as (bar, writers):
         since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()
         rendered = source.seconds
@@ -742,9 +759,8 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
             tock = time.perf_counter()
             timings["event_render"] += source.seconds - rendered
             timings["emulate"] += (tock - tick) - (source.seconds - rendered)
+            writers.write(block.events, block.t)
             if len(block.events):
-                for writer in writers.values():
-                    writer.write(block.events)
                 count += len(block.events)
                 on += int(np.count_nonzero(block.events["p"] > 0))
             tick = time.perf_counter()
@@ -752,7 +768,7 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
             since += 1
             if since >= CHECKPOINT_SAMPLES or tick - saved_at >= CHECKPOINT_SECONDS:
                 sample = Sample(block.t, block.luminance, block.log, 0.0, True)
-                checkpoint.save_events(sample, emulator, stats, count, on, writers,
+                checkpoint.save_events(sample, emulator, stats, count, on, writers.writers,
                                        observed_rates=block.observed)
                 since, saved_at = 0, time.perf_counter()
                 timings["checkpoint"] += saved_at - tick
@@ -791,7 +807,8 @@ def _event_info(params: EventParams, formats: tuple[str, ...], sampling: Samplin
         "count": count,
         "on": on,
         "off": count - on,
-        "files": [f"events.{fmt}" for fmt in formats],
+        "files": [event_file_name(fmt) for fmt in formats],
+        "depth": event_depth_record(formats),
         "contrast_on": params.contrast_on,
         "contrast_off": params.contrast_off,
         "log_eps": params.log_eps,

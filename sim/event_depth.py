@@ -1,0 +1,453 @@
+"""Per-event depth: the z-depth of the scene at each event's pixel and time.
+
+Both event samplers render the exact z-depth of the whole image (one ray per pixel centre, no
+shading) at the times that bracket every chunk of events they emit: the per-pixel sampler at
+each block's ends (:func:`sim.pixel_sampling.pixel_blocks`; every event of a block lies in
+``[t_b, t_e]``), the frame sampler at each accepted sample (:func:`sim.sampling.adaptive_samples`;
+the events between two samples lie between their times). Those renders are kept
+(:class:`RecentDepth`), so annotating costs one extra depth render only where the sampler made
+none (the end of the run, the first half of an interval kept after a step, a resume's first
+sample) and the interpolation itself.
+
+The depth of an event at pixel (x, y) and time t, between the bracketing renders ``z_a`` at
+``t_a`` and ``z_b`` at ``t_b`` of that pixel (:func:`interpolate_depth`):
+
+- both > 0 and ``|z_b - z_a| <= EDGE_JUMP * min(z_a, z_b)``: linear in time,
+  ``z = z_a + (t - t_a) / (t_b - t_a) (z_b - z_a)``, flag 0;
+- both > 0 and they differ by more: a depth edge crossed the pixel between the renders; the
+  depth of the sample nearer in time (``t_a`` on a tie), flag :data:`FLAG_EDGE`;
+- one of them 0 (a surface appeared or left the pixel): the nearer sample's depth, which may
+  be 0, flag :data:`FLAG_NO_SURFACE`;
+- both 0: 0 (no surface), flag 0.
+
+Interpolated in depth, not inverse depth: the z-depth seen by a fixed pixel on a plane is
+``d / (n . r)`` (plane ``n . X = d`` in the camera frame, ``r`` the pixel's ray), affine in the
+camera's position, so linear in time for a translation at constant velocity; inverse depth is
+not. Under rotation neither is linear, and over one bracket (at most ``1 / min_rate``, 10 ms by
+default) both are smooth to second order.
+
+The bound. Where the pixel sees one smooth surface over ``[t_a, t_b]``, the error of linear
+interpolation is ``|z(t) - z_lin(t)| <= (t - t_a)(t_b - t) / 2 * max |z''| <= dt^2 / 8 *
+max |z''|`` with ``dt = t_b - t_a <= 1 / min_rate``. Across a depth edge too small to flag,
+both ``z(t)`` and the interpolated value lie between the two surfaces' depths (for a depth that
+is monotone over the bracket), so the error is at most ``|z_b - z_a| <= EDGE_JUMP *
+min(z_a, z_b)`` plus the term above. ``tests/test_event_depth.py`` checks both against a direct
+depth render at each event's own time.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import numpy as np
+
+from sim.eventio import EVENT_DTYPE, H5EventWriter, TextEventWriter
+
+__all__ = ["DEPTH_TXT", "DEPTH_TXT_NAME", "EDGE_JUMP", "EVENT_DEPTH_DTYPE", "FLAG_EDGE",
+           "FLAG_NO_SURFACE", "EventDepth", "EventOutputs", "H5EventDepthWriter", "RecentDepth",
+           "TextEventDepthWriter", "event_depth_record", "event_file_name", "interpolate_depth",
+           "read_event_depth"]
+
+EDGE_JUMP = 0.05
+"""Relative change between the two bracketing depth renders of a pixel above which a depth edge
+crossed it (the event is flagged :data:`FLAG_EDGE`). A surface seen by a pixel changes its depth
+by well under 5 % in 10 ms at hand-held speeds (1 m/s at 1 m: 1 %)."""
+FLAG_EDGE = 1
+"""``events/depth_flag``: the two renders differ by more than :data:`EDGE_JUMP` (a depth edge)."""
+FLAG_NO_SURFACE = 2
+"""``events/depth_flag``: one of the two renders sees no surface at the pixel (depth 0)."""
+DEPTH_TXT = "depth-txt"
+"""The event format (``simulate(event_formats=...)``, ``--event-format``) of events_depth.txt."""
+DEPTH_TXT_NAME = "events_depth.txt"
+"""The text file of per-event depth: ``t[s] x y p depth[m] flag`` per line."""
+
+EVENT_DEPTH_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1"),
+                              ("depth", "<f4"), ("flag", "u1")])
+"""Events with their depth, as :func:`read_event_depth` returns them: EVENT_DTYPE's fields, then
+``depth`` (float32 m, 0 = none) and ``flag`` (uint8, 0, :data:`FLAG_EDGE` or
+:data:`FLAG_NO_SURFACE`)."""
+
+
+def event_file_name(fmt: str) -> str:
+    """The file an event format writes: ``events.h5``, ``events.txt`` or ``events_depth.txt``."""
+    return DEPTH_TXT_NAME if fmt == DEPTH_TXT else f"events.{fmt}"
+
+
+def event_depth_record(formats: tuple[str, ...]) -> dict | None:
+    """``sequence.json``'s ``events.depth``: where per-event depth is and how it was made (None
+    when no format holds it)."""
+    files = [name for fmt, name in (("h5", "events.h5 events/depth, events/depth_flag"),
+                                    (DEPTH_TXT, DEPTH_TXT_NAME)) if fmt in formats]
+    if not files:
+        return None
+    return {"files": files, "kind": "z", "units": "m, 0 = no surface",
+            "interpolation": "linear in time between the exact depth renders that bracket the "
+                             "event (block ends / accepted samples)",
+            "edge_jump": EDGE_JUMP,
+            "flags": {"0": "interpolated (or no surface at either render)",
+                      str(FLAG_EDGE): f"the two renders differ by more than {EDGE_JUMP:g} "
+                                      "relative: the depth of the render nearer in time",
+                      str(FLAG_NO_SURFACE): "one render sees no surface: the depth of the render "
+                                            "nearer in time (may be 0)"}}
+
+
+def interpolate_depth(depth_a: np.ndarray, depth_b: np.ndarray, weight: np.ndarray,
+                      jump: float = EDGE_JUMP) -> tuple[np.ndarray, np.ndarray]:
+    """Depth between two renders of the same pixels, with the flag of an edge between them.
+
+    Parameters
+    ----------
+    depth_a, depth_b : (N,) float32 ndarray, metres, 0 where nothing is seen
+        Each event's pixel in the renders at ``t_a`` and ``t_b``.
+    weight : (N,) float64 ndarray
+        ``(t - t_a) / (t_b - t_a)`` of each event, in [0, 1].
+    jump : float
+        Relative difference above which an edge crossed the pixel (default :data:`EDGE_JUMP`).
+
+    Returns
+    -------
+    depth : (N,) float32 ndarray, metres
+        Interpolated where unflagged, else the nearer render's depth (``t_a`` on a tie).
+    flag : (N,) uint8 ndarray
+        0, :data:`FLAG_EDGE` or :data:`FLAG_NO_SURFACE` (see the module docstring).
+    """
+    a = np.asarray(depth_a, np.float64)
+    b = np.asarray(depth_b, np.float64)
+    w = np.asarray(weight, np.float64)
+    nearer = np.where(w <= 0.5, a, b)
+    seen_a, seen_b = a > 0, b > 0
+    edge = seen_a & seen_b & (np.abs(b - a) > jump * np.minimum(a, b))
+    none = seen_a != seen_b
+    flag = np.where(edge, FLAG_EDGE, np.where(none, FLAG_NO_SURFACE, 0)).astype(np.uint8)
+    depth = np.where(flag > 0, nearer, a + w * (b - a))
+    return depth.astype(np.float32), flag
+
+
+class RecentDepth:
+    """A depth render function that keeps its last render (renders are deterministic in time).
+
+    The event stage and the sampler that drives it ask for the depth at the same times; this
+    renders it once. The array returned is read-only (it is shared).
+
+    Parameters
+    ----------
+    render : callable
+        ``render(t) -> (H, W) float32 ndarray``, z-depth in metres (``Renderer.depth``).
+    """
+
+    def __init__(self, render: Callable[[float], np.ndarray]) -> None:
+        self._render = render
+        self._t: float | None = None
+        self._depth: np.ndarray | None = None
+        self.renders = 0
+        """Depth renders made."""
+
+    def __call__(self, t: float) -> np.ndarray:
+        if self._depth is None or t != self._t:
+            depth = np.array(self._render(t), dtype=np.float32)
+            depth.flags.writeable = False
+            self._t, self._depth = t, depth
+            self.renders += 1
+        return self._depth
+
+
+class EventDepth:
+    """Per-event depth of the chunks an event sampler emits, in time order.
+
+    Parameters
+    ----------
+    depth : callable
+        ``depth(t) -> (H, W)`` z-depth in metres at time ``t`` seconds (a :class:`RecentDepth`
+        shared with the sampler, so that no time is rendered twice).
+    t : float, seconds
+        Where the events start: the start of the run, or the sample a resumed run goes on from.
+    jump : float
+        See :func:`interpolate_depth`.
+    """
+
+    def __init__(self, depth: Callable[[float], np.ndarray], t: float,
+                 jump: float = EDGE_JUMP) -> None:
+        self._depth, self._jump = depth, jump
+        self._t = float(t)
+        self._at_t: np.ndarray | None = None        # rendered lazily (the sampler may first)
+
+    def annotate(self, events: np.ndarray | None, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Depth and flag of the events between the previous call's time and ``t``.
+
+        Call it at every bracketing time (every block end or accepted sample), with or without
+        events: ``t`` becomes the start of the next bracket.
+
+        Parameters
+        ----------
+        events : (N,) EVENT_DTYPE ndarray or None
+            Events with times (ns, on the simulation's clock) in the bracket.
+        t : float, seconds
+            The bracket's end (not before the previous one).
+
+        Returns
+        -------
+        depth : (N,) float32 ndarray, metres, 0 where no surface
+        flag : (N,) uint8 ndarray
+        """
+        t = float(t)
+        if t < self._t:
+            raise ValueError(f"per-event depth: bracket end t = {t} s comes before its start "
+                             f"{self._t} s; expected brackets in time order")
+        events = np.zeros(0, EVENT_DTYPE) if events is None else events
+        if len(events) and self._at_t is None:
+            self._at_t = self._depth(self._t)
+        at_end = self._depth(t)
+        if len(events):
+            t_a_ns, t_b_ns = round(self._t * 1e9), round(t * 1e9)
+            span = max(t_b_ns - t_a_ns, 1)
+            weight = np.clip((events["t"] - t_a_ns) / span, 0.0, 1.0)
+            y, x = events["y"].astype(np.intp), events["x"].astype(np.intp)
+            result = interpolate_depth(self._at_t[y, x], at_end[y, x], weight, self._jump)
+        else:
+            result = np.zeros(0, np.float32), np.zeros(0, np.uint8)
+        self._t, self._at_t = t, at_end
+        return result
+
+
+class H5EventDepthWriter(H5EventWriter):
+    """:class:`~sim.eventio.H5EventWriter` with two more per-event datasets.
+
+    - ``events/depth``: float32 z-depth in metres at the event's pixel and time, 0 = none;
+    - ``events/depth_flag``: uint8, 0, :data:`FLAG_EDGE` or :data:`FLAG_NO_SURFACE`.
+
+    Chunked, compressed, checkpointed, resumed and packed as the other ``events/`` datasets (the
+    DSEC readers ignore them). :meth:`write` takes each chunk's columns beside it.
+    """
+
+    _EVENT_FIELDS = (*H5EventWriter._EVENT_FIELDS, ("depth", np.float32),
+                     ("depth_flag", np.uint8))
+    _COLUMNS = ("depth", "depth_flag")
+
+    def __init__(self, path: str | Path, width: int, height: int, chunk_size: int = 2**16,
+                 t_offset_us: int | None = None, *, resume: dict | None = None) -> None:
+        self._pending_columns: list[tuple[np.ndarray, np.ndarray]] = []
+        super().__init__(path, width, height, chunk_size, t_offset_us, resume=resume)
+        if resume is None:
+            return
+        try:
+            missing = [name for name in self._COLUMNS if f"events/{name}" not in self._file]
+            if missing:
+                raise ValueError(f"{self.partial}: no dataset events/{', events/'.join(missing)}; "
+                                 "expected the file a per-event depth writer left")
+            for name in self._COLUMNS:
+                dataset = self._file[f"events/{name}"]
+                if dataset.shape[0] < self._stored:
+                    raise self._too_short(f"events in {dataset.name}", dataset.shape[0],
+                                          self._stored)
+                dataset.resize((self._stored,))
+                self._datasets[name] = dataset
+        except BaseException:
+            self._file.close()
+            raise
+
+    def write(self, events: np.ndarray, depth: np.ndarray | None = None,
+              depth_flag: np.ndarray | None = None) -> None:
+        """Append a chunk of events with their depth and flag (arrays as long as ``events``).
+
+        Raises
+        ------
+        ValueError
+            As :meth:`H5EventWriter.write`, or a column is missing or of another length.
+        """
+        n = len(events)
+        for name, column in (("depth", depth), ("depth_flag", depth_flag)):
+            if column is None or np.shape(column) != (n,):
+                got = None if column is None else np.shape(column)
+                raise ValueError(f"{self.path}: {name} must be an array of one value per event "
+                                 f"({n}), got {got}")
+        if not n:
+            return super().write(events)
+        self._pending_columns.append((np.asarray(depth, np.float32),
+                                      np.asarray(depth_flag, np.uint8)))
+        try:
+            super().write(events)
+        except BaseException:
+            self._pending_columns.pop()
+            raise
+
+    def _flush(self) -> None:
+        if not self._pending:
+            return
+        depth, flag = (np.concatenate(parts) for parts in zip(*self._pending_columns,
+                                                              strict=True))
+        self._pending_columns = []
+        super()._flush()
+        self._append(self._datasets["depth"], depth)
+        self._append(self._datasets["depth_flag"], flag)
+
+
+class TextEventDepthWriter(TextEventWriter):
+    """Stream events with their depth into ``events_depth.txt``: ``t[s] x y p depth flag``.
+
+    t in seconds with 9 decimals and p in {0, 1}, as ``events.txt`` (ECD); depth in metres with
+    9 significant digits (a float32 reads back exactly), 0 = none; flag as ``events/depth_flag``.
+    Checkpointed and resumed as :class:`~sim.eventio.TextEventWriter`.
+    """
+
+    def write(self, events: np.ndarray, depth: np.ndarray | None = None,
+              depth_flag: np.ndarray | None = None) -> None:
+        """Append a chunk of events with their depth and flag (arrays as long as ``events``)."""
+        self._check_chunk(events)
+        n = len(events)
+        if depth is None or depth_flag is None or np.shape(depth) != (n,) \
+                or np.shape(depth_flag) != (n,):
+            raise ValueError(f"{self.path}: depth and depth_flag must be arrays of one value per "
+                             f"event ({n})")
+        if not n:
+            return
+        seconds, nanos = np.divmod(events["t"], 10**9)
+        text = "".join(f"{s}.{f:09d} {x} {y} {1 if p > 0 else 0} {d:.9g} {g}\n" for s, f, x, y,
+                       p, d, g in zip(seconds.tolist(), nanos.tolist(), events["x"].tolist(),
+                                      events["y"].tolist(), events["p"].tolist(),
+                                      np.asarray(depth, np.float32).tolist(),
+                                      np.asarray(depth_flag, np.uint8).tolist(), strict=True))
+        self._handle.write(text.encode("ascii"))
+        self.count += n
+        self._last_t = int(events["t"][-1])
+
+
+class EventOutputs:
+    """The event stage's writers, with per-event depth for those that hold it.
+
+    Parameters
+    ----------
+    writers : dict
+        Format (``h5``, ``txt``, :data:`DEPTH_TXT`) -> writer; the ``h5`` and :data:`DEPTH_TXT`
+        ones take the columns (:class:`H5EventDepthWriter`, :class:`TextEventDepthWriter`, maybe
+        behind a clock offset that passes them on).
+    depth : EventDepth or None
+        Annotates the chunks (None when no writer holds depth).
+    timings : dict, optional
+        ``timings["event_depth"]`` accumulates the seconds spent on depth (the depth renders
+        included, those the sampler then reuses too), taken out of ``timings["event_write"]``
+        (the caller times the whole :meth:`write` as writing).
+    """
+
+    def __init__(self, writers: Mapping, depth: EventDepth | None,
+                 timings: dict | None = None) -> None:
+        self.writers = dict(writers)
+        self._depth = depth
+        self._timings = timings
+        self._held: np.ndarray | None = None
+
+    def write(self, events: np.ndarray | None, t: float, pending: bool = False) -> None:
+        """Write a chunk (None or empty: nothing) whose events end the bracket at ``t`` s.
+
+        ``pending``: more of the same sampling interval follows at once (a frame sample with
+        ``tail_pending``, after which no checkpoint is taken): the chunk is held and written
+        with the next one, bracketed by the depth at the interval's ends, so that the
+        interval's midpoint costs no depth render.
+        """
+        if self._held is not None and events is not None:
+            events = np.concatenate([self._held, events])
+        elif self._held is not None:
+            events = self._held
+        self._held = None
+        if pending:
+            self._held = events
+            return
+        columns = {}
+        if self._depth is not None:
+            tick = time.perf_counter()
+            depth, flag = self._depth.annotate(events, t)
+            columns = {"depth": depth, "depth_flag": flag}
+            if self._timings is not None:           # counted here, not in event_write
+                seconds = time.perf_counter() - tick
+                self._timings["event_depth"] = self._timings.get("event_depth", 0.0) + seconds
+                self._timings["event_write"] = self._timings.get("event_write", 0.0) - seconds
+        if events is None or not len(events):
+            return
+        for fmt, writer in self.writers.items():
+            if fmt in ("h5", DEPTH_TXT):
+                writer.write(events, **columns)
+            else:
+                writer.write(events)
+
+
+# --- reading -----------------------------------------------------------------------------------
+
+def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | None:
+    from sim.eventio import _H5Source
+
+    source = _H5Source(path)
+    try:
+        if "events/depth" not in source.file or "events/depth_flag" not in source.file:
+            return None
+        start = 0 if t0_ns is None else source.index_at(t0_ns)
+        stop = source.size if t1_ns is None else source.index_before(t1_ns)
+        events = source.read(start, max(start, stop))
+        out = np.empty(len(events), EVENT_DEPTH_DTYPE)
+        for name in EVENT_DTYPE.names:
+            out[name] = events[name]
+        out["depth"] = source.file["events/depth"][start:start + len(events)]
+        out["flag"] = source.file["events/depth_flag"][start:start + len(events)]
+    finally:
+        source.close()
+    return out
+
+
+def _read_txt(path: Path) -> np.ndarray:
+    rows = []
+    with path.open(encoding="ascii") as handle:
+        for number, line in enumerate(handle, 1):
+            fields = line.split()
+            if not fields or fields[0].startswith("#"):
+                continue
+            try:
+                if len(fields) != 6:
+                    raise ValueError
+                whole, _, frac = fields[0].partition(".")
+                t = int(whole) * 10**9 + int((frac + "000000000")[:9])
+                row = (t, int(fields[1]), int(fields[2]), 1 if fields[3] == "1" else -1,
+                       float(fields[4]), int(fields[5]))
+                if fields[3] not in ("0", "1") or not math.isfinite(row[4]):
+                    raise ValueError
+            except ValueError:
+                raise ValueError(f"{path}:{number}: expected 't[s] x y p depth flag' (p 0 or 1, "
+                                 f"depth in metres), got {line.strip()[:60]!r}") from None
+            rows.append(row)
+    return np.array(rows, dtype=EVENT_DEPTH_DTYPE)
+
+
+def read_event_depth(path: str | Path, t0_ns: int | None = None,
+                     t1_ns: int | None = None) -> np.ndarray | None:
+    """Events with their depth in ``[t0_ns, t1_ns)``, from ``events.h5`` or ``events_depth.txt``.
+
+    Parameters
+    ----------
+    path : str or Path
+        An ``events.h5`` (with ``events/depth``) or an ``events_depth.txt``.
+    t0_ns, t1_ns : int, optional
+        The window, nanoseconds on the event clock (default: everything).
+
+    Returns
+    -------
+    (N,) EVENT_DEPTH_DTYPE ndarray or None
+        Sorted by t; None for an ``events.h5`` without per-event depth (a real recording).
+
+    Raises
+    ------
+    ValueError
+        The file cannot be read (the message names it and the line or dataset).
+    """
+    path = Path(path)
+    if path.suffix == ".h5":
+        out = _read_h5(path, t0_ns, t1_ns)
+        if out is None:
+            return None
+    else:
+        out = _read_txt(path)
+    keep = np.ones(len(out), bool)
+    if t0_ns is not None:
+        keep &= out["t"] >= t0_ns
+    if t1_ns is not None:
+        keep &= out["t"] < t1_ns
+    return out[keep]
