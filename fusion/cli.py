@@ -228,7 +228,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     result = simulate(scene, args.out, duration=args.duration, start=args.start, spp=args.spp,
                       variant=args.variant, overwrite=args.overwrite, progress=not args.quiet,
                       events=events, sampling=sampling, with_events=not args.no_events,
-                      event_formats=formats, resume=args.resume, sampler=args.sampler, rig=rig)
+                      event_formats=formats, resume=args.resume, sampler=args.sampler, rig=rig,
+                      motion_truth=not args.no_motion_truth)
     what = f"{result.n_frames} frames and depth maps ({result.n_renders} renders)"
     if result.n_events is not None and result.sampler == "pixel":
         what += (f", {result.n_events} events ({result.event_renders} frames and "
@@ -786,6 +787,10 @@ def _parser() -> argparse.ArgumentParser:
                                "depth flag) (default h5,txt)")
     simulate.add_argument("--no-events", action="store_true",
                           help="render frames and depth only")
+    simulate.add_argument("--no-motion-truth", action="store_true",
+                          help="skip the motion ground truth (velocity.txt, imu.txt, optical "
+                               "flow, motion fields, object masks, per-event depth): frames, "
+                               "depth maps, poses and events only")
     simulate.add_argument("--rig", choices=("perfect", "mocap", "lab"), default=None,
                           help="pose noise, clock offsets and calibration error of the written "
                                "groundtruth.txt, time stamps and calib.txt: perfect, mocap "

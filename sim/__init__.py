@@ -5,6 +5,7 @@ Importing ``sim`` does not import Mitsuba: the variant is chosen (and announced 
 """
 
 from sim.camera import CAMERA_PRESETS, Camera, camera_preset, read_calib, write_calib
+from sim.event_depth import read_event_depth
 from sim.eventio import (
     EVENT_DTYPE,
     H5EventWriter,
@@ -17,11 +18,12 @@ from sim.events import EventEmulator, EventParams, emulate_events
 from sim.exr import read_depth, write_depth
 from sim.flow import read_flow, read_motion_field, read_object_mask
 from sim.frames import FrameParams, luminance_to_frame
+from sim.imu import ImuParams, read_imu, read_velocity
 from sim.noise import NoiseParams, noise_preset
 from sim.render import Renderer, RenderResult
 from sim.sampling import SamplingParams
 from sim.scene import Scene, SceneError, load_scene, parse_scene
-from sim.sequence import Sequence, load_sequence
+from sim.sequence import FileIndex, FrameCameraFiles, Sequence, load_sequence
 from sim.shader import EventShader
 from sim.simulate import SimulationResult, simulate
 from sim.statistics import compare_stats, event_frame, event_stats, frame_noise
@@ -55,12 +57,18 @@ __all__ = [
     "frame_noise",
     "noise_preset",
     "read_events",
+    "read_event_depth",
     "read_flow",
+    "read_imu",
+    "read_velocity",
     "read_motion_field",
     "read_object_mask",
     "read_window",
     "FrameParams",
+    "FileIndex",
+    "FrameCameraFiles",
     "HandheldTrajectory",
+    "ImuParams",
     "LinearTrajectory",
     "RenderResult",
     "Renderer",

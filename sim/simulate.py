@@ -184,7 +184,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
              sampling: SamplingParams | None = None, with_events: bool = True,
              event_formats: tuple[str, ...] = ("h5", "txt"),
              resume: bool = False, sampler: str | None = None,
-             rig: RigParams | None = None) -> SimulationResult:
+             rig: RigParams | None = None, motion_truth: bool = True) -> SimulationResult:
     """Render a scene into a sequence folder.
 
     Parameters
@@ -235,6 +235,11 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         scene's ``[rig]``, perfect unless it says otherwise; :mod:`sim.rig`). The truth is
         written beside them: ``groundtruth_exact.txt``, ``calib_exact.txt``; ``depth/`` is
         always exact, indexed by the frames' written times.
+    motion_truth : bool
+        Write the motion ground truth (default True): camera velocity and IMU
+        (:mod:`sim.imu`), optical flow, motion fields and object masks (:mod:`sim.flow`) and
+        each event's depth (:mod:`sim.event_depth`). False keeps the frames, depth maps,
+        poses and events only (smaller, and a little faster).
 
     Returns
     -------
@@ -285,6 +290,9 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     unknown = set(event_formats) - {"h5", "txt", DEPTH_TXT}
     if with_events and (unknown or not event_formats):
         raise ValueError(f"event formats must be among h5, txt, {DEPTH_TXT}; got {event_formats}")
+    if not motion_truth and DEPTH_TXT in event_formats:
+        raise ValueError(f"event format {DEPTH_TXT} holds each event's depth, which is motion "
+                         "ground truth: drop it or keep the motion truth")
     out = Path(out)
     if sampler not in (None, "pixel", "frame"):
         raise ValueError(f"sampler {sampler!r}: expected 'pixel', 'frame' or None (automatic)")
@@ -293,6 +301,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                          "per-pixel sampler needs a static scene; use --sampler frame")
     identity = _identity(scene, start, duration, spp, events if with_events else None, sampling,
                          event_formats, sampler)
+    identity["motion_truth"] = bool(motion_truth)
     if resume:                                        # refuse before loading the renderer
         _check_resumable(out, overwrite, identity)
     else:
@@ -308,7 +317,9 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     with atomic_output_dir(out, overwrite=overwrite, resume=resume) as tmp:
         checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
         rig_record = _write_rig(tmp, scene, sample_times(start, end, scene.render.pose_rate))
-        imu_record = write_motion_truth(tmp, scene, start, end)
+        tick = time.perf_counter()
+        imu_record = write_motion_truth(tmp, scene, start, end) if motion_truth else None
+        timings["imu"] = time.perf_counter() - tick
         tick = None
         if scene.frame_camera is None:
             gain, exposures, image_names, depth_names = _simulate_frames(
@@ -316,24 +327,25 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
             # depth map k is frame k's (rendered at its true time): both on the frames' clock
             write_index(tmp / "images.txt", times + scene.rig.frames_offset, image_names)
             write_index(tmp / "depthmaps.txt", times + scene.rig.frames_offset, depth_names)
-            tick = time.perf_counter()
-            motion_truth = write_motion_ground_truth(scene, renderer, tmp, times, depth_names,
-                                                     scene.rig.frames_offset)
+            if motion_truth:
+                tick = time.perf_counter()
+                flow_record = write_motion_ground_truth(scene, renderer, tmp, times, depth_names,
+                                                        scene.rig.frames_offset)
         else:                     # a rig: frame_camera/, and the event camera's depth at its times
             gain, exposures, frame_view = simulate_frame_camera(
                 scene, renderer, tmp, times, scene.rig.frames_offset, _simulate_frames, spp=spp,
                 variant=renderer.variant, checkpoint=checkpoint, progress=progress,
                 timings=timings)
-            motion_truth = {"flow": None, "motion_field": None, "object_masks": None,
-                            "motion_truth_note": "not written for a rolling shutter, whose "
-                                                 "rows are seen at different times"}
-            if frame_view is not None:                     # the frame camera's, in its folder
+            flow_record = {"flow": None, "motion_field": None, "object_masks": None,
+                           "motion_truth_note": "not written for a rolling shutter, whose "
+                                                "rows are seen at different times"}
+            if frame_view is not None and motion_truth:    # the frame camera's, in its folder
                 view_scene, view_renderer, view_folder, view_depths = frame_view
                 tick = time.perf_counter()
-                motion_truth = write_motion_ground_truth(view_scene, view_renderer, view_folder,
-                                                         times, view_depths,
-                                                         scene.rig.frames_offset)
-                motion_truth["motion_truth_folder"] = view_folder.name
+                flow_record = write_motion_ground_truth(view_scene, view_renderer, view_folder,
+                                                        times, view_depths,
+                                                        scene.rig.frames_offset)
+                flow_record["motion_truth_folder"] = view_folder.name
         if tick is not None:
             timings["flow"] = time.perf_counter() - tick
         event_info = checkpoint.events_done
@@ -341,7 +353,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
             simulate_events = (_simulate_events_per_pixel if sampler == "pixel"
                                else _simulate_events)
             event_info = simulate_events(scene, renderer, tmp, start, end, events, sampling,
-                                         event_formats, checkpoint, progress, timings, why)
+                                         event_formats, checkpoint, progress, timings, why,
+                                         event_depth=motion_truth)
             checkpoint.set_events_done(event_info)
         if with_events and event_info.get("sampling_warning"):
             print(f"simulate {scene.name}: warning: {event_info['sampling_warning']}",
@@ -363,7 +376,9 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                        "pose_rate": scene.render.pose_rate, "renders": len(times)
                        * params.exposure_samples},
             "depth": {"kind": "z", "units": "m", "at": "pixel centres, frame mid-exposure times"},
-            **motion_truth,
+            **(flow_record if motion_truth else {"flow": None, "motion_field": None,
+                                                 "object_masks": None}),
+            "motion_truth": motion_truth,
             "events": {**event_info, "span_s": [start + scene.rig.events_offset,
                                                 end + scene.rig.events_offset]}
                       if with_events else None,
@@ -540,7 +555,7 @@ def _frame_exposure(scene: Scene, renderer: Renderer, t: float, pattern: FixedPa
 def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: float, end: float,
                      params: EventParams, sampling: SamplingParams, formats: tuple[str, ...],
                      checkpoint: _Checkpoint, progress: bool, timings: dict,
-                     why: str = "as asked") -> dict:
+                     why: str = "as asked", event_depth: bool = True) -> dict:
     """Drive the emulator with adaptive renders over [start, end]; stream the events out.
 
     Continues from the checkpoint's event state when there is one, and saves that state at
@@ -557,7 +572,8 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
     contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
     event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
     with _event_stage(scene, folder, formats, positions, end - start, progress,
-                      EventDepth(event_camera.depth, start if after is None else after.t),
+                      EventDepth(event_camera.depth, start if after is None else after.t)
+                      if event_depth else None,
                       timings) as (bar, writers):
         since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()
@@ -695,7 +711,7 @@ def _restore_events(checkpoint: _Checkpoint, emulator: EventEmulator, stats_type
 
 @contextmanager
 def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions: dict,
-                 seconds: float, progress: bool, depth: EventDepth, timings: dict):
+                 seconds: float, progress: bool, depth: EventDepth | None, timings: dict):
     """The event stage's progress bar and event writers (resumed at ``positions``, behind
     :class:`sim.event_depth.EventOutputs`, which adds ``depth`` where a file holds it), with
     the emulator on one thread; all undone on exit."""
@@ -714,7 +730,8 @@ def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions
         stack.callback(numba.set_num_threads, threads)
         writers: dict[str, H5EventWriter | TextEventWriter] = {}
         if "h5" in formats:
-            writers["h5"] = stack.enter_context(H5EventDepthWriter(
+            writers["h5"] = stack.enter_context((H5EventWriter if depth is None else
+                                                 H5EventDepthWriter)(
                 folder / "events.h5", camera.width, camera.height, resume=positions.get("h5")))
         if "txt" in formats:
             writers["txt"] = stack.enter_context(TextEventWriter(
@@ -725,14 +742,15 @@ def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions
         offset_ns = round(scene.rig.events_offset * 1e9)
         if offset_ns:
             writers = {fmt: _OnEventClock(writer, offset_ns) for fmt, writer in writers.items()}
-        with_depth = "h5" in formats or DEPTH_TXT in formats
+        with_depth = depth is not None and ("h5" in formats or DEPTH_TXT in formats)
         yield bar, EventOutputs(writers, depth if with_depth else None, timings)
 
 
 def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, start: float,
                                end: float, params: EventParams, sampling: SamplingParams,
                                formats: tuple[str, ...], checkpoint: _Checkpoint,
-                               progress: bool, timings: dict, why: str = "as asked") -> dict:
+                               progress: bool, timings: dict, why: str = "as asked",
+                               event_depth: bool = True) -> dict:
     """Drive the emulator with per-pixel samples over [start, end]; stream the events out.
 
     Checkpoints are taken at block ends (see :func:`sim.pixel_sampling.pixel_blocks`).
@@ -749,7 +767,8 @@ def _simulate_events_per_pixel(scene: Scene, renderer: Renderer, folder: Path, s
     event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
     source = _ShaderSource(event_camera)
     with _event_stage(scene, folder, formats, positions, end - start, progress,
-                      EventDepth(event_camera.depth, start if after is None else after[0]),
+                      EventDepth(event_camera.depth, start if after is None else after[0])
+                      if event_depth else None,
                       timings) as (bar, writers):
         since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()

@@ -351,3 +351,18 @@ def test_motion_field_is_the_limit_of_the_flow(dynamic, plane):
             again = motion_field(camera, depth, ids, scene.objects, pose,
                                  scene.trajectory.velocity(t), t, centres)
             np.testing.assert_array_equal(again, field)
+
+
+def test_without_the_motion_truth_only_frames_depth_poses_and_events_are_written(tmp_path):
+    scene = parse_scene(scene_text(WALL, camera=LENS, trajectory=TURNING, duration=0.5,
+                                   extra=FRAMES))
+    simulate(scene, tmp_path / "seq", duration=0.12, progress=False, motion_truth=False)
+    seq = load_sequence(tmp_path / "seq")
+    assert seq.velocity_path is None and seq.imu_path is None
+    assert seq.forward_flow is None and seq.motion_field is None and seq.object_masks is None
+    assert seq.event_depth() is None                    # events.h5 without events/depth
+    assert seq.events_h5 is not None and len(seq.depth_paths) == len(seq.image_paths) > 0
+    assert json.loads((tmp_path / "seq" / "sequence.json").read_text())["motion_truth"] is False
+    with pytest.raises(ValueError, match="depth-txt holds each event's depth"):
+        simulate(scene, tmp_path / "other", progress=False, motion_truth=False,
+                 event_formats=("h5", "depth-txt"))
