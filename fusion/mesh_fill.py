@@ -75,7 +75,6 @@ import cv2
 import numba
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import cKDTree
 
 from fusion.surface_fit import (
     SurfaceFitParams,
@@ -208,9 +207,9 @@ def clean_map(sparse: np.ndarray, camera: Camera, neighbours: int = 12,
     xy, w = xy_all[ys, xs], 1.0 / sparse[ys, xs].astype(np.float64)
     planes, near = local_planes(xy, w, np.stack([xs, ys], axis=1).astype(np.float64),
                                 neighbours, similar_rel, SELF_WEIGHT_CLEANING)
-    offset = xy[near] - xy[:, None, :]
-    predicted = planes[:, None, 0] + (planes[:, None, 1:] * offset).sum(axis=2)
-    agree = np.abs(predicted / w[near] - 1) <= agree_rel
+    k = near.shape[1]
+    agree = _predicts(xy, w, planes, np.repeat(np.arange(len(w)), k), near.ravel(),
+                      agree_rel).reshape(-1, k)
     keep = agree[:, 0] & (agree[:, 1:].sum(axis=1) >= min_support)
     kept[ys[keep], xs[keep]] = True
     return kept
@@ -243,11 +242,76 @@ def local_planes(xy: np.ndarray, w: np.ndarray, pixels: np.ndarray, neighbours: 
     near : (N, k) int ndarray
         Each point's index followed by its ``k - 1 = min(neighbours, N - 1)`` nearest.
     """
-    _, near = cKDTree(pixels).query(pixels, k=min(neighbours + 1, len(w)))
+    near = _nearest_pixels(np.ascontiguousarray(np.rint(pixels), np.int64),
+                           min(neighbours + 1, len(w)))
     planes = _fit_local_planes(np.ascontiguousarray(xy, np.float64),
                                np.ascontiguousarray(w, np.float64), near, similar_rel,
                                float(self_weight))
     return planes, near
+
+
+@numba.njit(cache=True)
+def _nearest_pixels(pixels: np.ndarray, k: int) -> np.ndarray:
+    """The ``k`` nearest points of each point (itself first), compiled, by rings of pixels.
+
+    Parameters
+    ----------
+    pixels : (N, 2) int64 ndarray, distinct pixel columns and rows
+    k : int, <= N
+
+    Returns
+    -------
+    (N, k) int64 ndarray
+        Indices by increasing Euclidean distance, the lower index first among equal ones.
+        Exact: the square rings around a point are searched until the next ring lies farther
+        than the k-th nearest found.
+    """
+    n = pixels.shape[0]
+    u0, v0 = pixels[:, 0].min(), pixels[:, 1].min()
+    width = pixels[:, 0].max() - u0 + 1
+    height = pixels[:, 1].max() - v0 + 1
+    grid = np.full((height, width), -1, np.int64)
+    for i in range(n):
+        grid[pixels[i, 1] - v0, pixels[i, 0] - u0] = i
+    near = np.empty((n, k), np.int64)
+    dist = np.empty(k, np.int64)
+    for i in range(n):
+        u, v = pixels[i, 0] - u0, pixels[i, 1] - v0
+        found = 0
+        r = 0
+        while True:
+            for dv in range(-r, r + 1):
+                vv = v + dv
+                if vv < 0 or vv >= height:
+                    continue
+                step = 1 if abs(dv) == r else 2 * r        # the ring only
+                for du in range(-r, r + 1, max(step, 1)):
+                    uu = u + du
+                    if uu < 0 or uu >= width:
+                        continue
+                    j = grid[vv, uu]
+                    if j < 0:
+                        continue
+                    d = du * du + dv * dv
+                    if found == k and (d > dist[k - 1] or (d == dist[k - 1]
+                                                           and j > near[i, k - 1])):
+                        continue
+                    at = min(found, k - 1)                 # insert, sorted by (d, index)
+                    while at > 0 and (dist[at - 1] > d or (dist[at - 1] == d
+                                                           and near[i, at - 1] > j)):
+                        if at < k:
+                            dist[at] = dist[at - 1]
+                            near[i, at] = near[i, at - 1]
+                        at -= 1
+                    dist[at] = d
+                    near[i, at] = j
+                    found = min(found + 1, k)
+            if found == k and r * r > dist[k - 1]:
+                break
+            if r > width + height:
+                break
+            r += 1
+    return near
 
 
 @numba.njit(cache=True)
@@ -304,16 +368,24 @@ def consistent_triangles(xy: np.ndarray, inverse_depth: np.ndarray, triangles: n
     (T,) bool ndarray
     """
     ok = np.ones(len(triangles), bool)
-    for i in range(3):
-        for j in range(3):
-            if i == j:
-                continue
-            a, b = triangles[:, i], triangles[:, j]
-            offset = xy[b] - xy[a]
-            predicted = planes[a, 0] + (planes[a, 1:] * offset).sum(axis=1)
-            # |z_b / z_predicted - 1| = |w_predicted / w_b - 1|
-            ok &= np.abs(predicted / inverse_depth[b] - 1) <= consistency_rel
+    for i, j in _CORNER_PAIRS:
+        ok &= _predicts(xy, inverse_depth, planes, triangles[:, i], triangles[:, j],
+                        consistency_rel)
     return ok
+
+
+@numba.njit(cache=True)
+def _predicts(xy: np.ndarray, inverse_depth: np.ndarray, planes: np.ndarray, a: np.ndarray,
+              b: np.ndarray, tolerance: float) -> np.ndarray:
+    """Whether point ``a[k]``'s local plane predicts point ``b[k]``'s depth within
+    ``tolerance`` (``|z_b / z_predicted - 1| = |w_predicted / w_b - 1|``), compiled."""
+    out = np.empty(a.shape[0], np.bool_)
+    for k in range(a.shape[0]):
+        p, q = a[k], b[k]
+        predicted = (planes[p, 0] + planes[p, 1] * (xy[q, 0] - xy[p, 0])
+                     + planes[p, 2] * (xy[q, 1] - xy[p, 1]))
+        out[k] = abs(predicted / inverse_depth[q] - 1.0) <= tolerance
+    return out
 
 
 def _triangulation(xy: np.ndarray) -> np.ndarray | None:
@@ -359,36 +431,57 @@ def _ring_fit(points: np.ndarray, values: np.ndarray, start: np.ndarray, ring: n
     gradient changes by more than ``tolerance`` (relative to max(1, |gradient|)) or
     ``max_iterations``. Only the neighbours whose value is within ``similar_rel`` of the
     vertex's take part (an edge across a depth step says nothing of either side's slope); a
-    vertex with fewer than 2 of them keeps ``initial``'s row."""
+    vertex with fewer than 2 of them keeps ``initial``'s row.
+
+    Vertex ``i``'s update solves ``Q_i g_i = c_i - 2 sum_k M_k g_k`` with, over its edges
+    ``e_k`` (length ``L_k``), ``M_k = e_k e_k^T / L_k^3``, ``Q_i = 4 sum_k M_k`` and
+    ``c_i = 6 sum_k (f_k - f_i) e_k / L_k^3``: all but the neighbours' gradients are fixed, and
+    computed once."""
     n = points.shape[0]
     grad = initial.copy()
+    m = np.zeros((ring.shape[0], 3))                   # M_k: xx, xy, yy
+    use = np.zeros(ring.shape[0], np.bool_)
+    inverse = np.zeros((n, 3))                         # Q_i^-1: xx, xy, yy
+    constant = np.zeros((n, 2))
+    active = np.zeros(n, np.bool_)
+    for i in range(n):
+        q00 = q01 = q11 = c0 = c1 = 0.0
+        count = 0
+        for k in range(start[i], start[i + 1]):
+            j = ring[k]
+            if abs(values[j] / values[i] - 1.0) > similar_rel:
+                continue
+            ex = points[j, 0] - points[i, 0]
+            ey = points[j, 1] - points[i, 1]
+            length3 = (ex * ex + ey * ey) ** 1.5
+            if length3 == 0.0:
+                continue
+            count += 1
+            use[k] = True
+            m[k, 0], m[k, 1], m[k, 2] = ex * ex / length3, ex * ey / length3, ey * ey / length3
+            q00 += 4.0 * m[k, 0]
+            q01 += 4.0 * m[k, 1]
+            q11 += 4.0 * m[k, 2]
+            c0 += 6.0 * (values[j] - values[i]) * ex / length3
+            c1 += 6.0 * (values[j] - values[i]) * ey / length3
+        det = q00 * q11 - q01 * q01
+        if count >= 2 and det != 0.0:
+            active[i] = True
+            inverse[i, 0], inverse[i, 1], inverse[i, 2] = q11 / det, -q01 / det, q00 / det
+            constant[i, 0], constant[i, 1] = c0, c1
     for _ in range(max_iterations):
         change = 0.0
         for i in range(n):
-            q00 = q01 = q11 = s0 = s1 = 0.0
-            count = 0
-            for k in range(start[i], start[i + 1]):
-                j = ring[k]
-                if abs(values[j] / values[i] - 1.0) > similar_rel:
-                    continue
-                ex = points[j, 0] - points[i, 0]
-                ey = points[j, 1] - points[i, 1]
-                length3 = (ex * ex + ey * ey) ** 1.5
-                if length3 == 0.0:
-                    continue
-                count += 1
-                slope_j = ex * grad[j, 0] + ey * grad[j, 1]
-                q00 += 4.0 * ex * ex / length3
-                q01 += 4.0 * ex * ey / length3
-                q11 += 4.0 * ey * ey / length3
-                r = 6.0 * (values[j] - values[i]) - 2.0 * slope_j
-                s0 += r * ex / length3
-                s1 += r * ey / length3
-            det = q00 * q11 - q01 * q01
-            if count < 2 or det == 0.0:
+            if not active[i]:
                 continue
-            g0 = (q11 * s0 - q01 * s1) / det
-            g1 = (q00 * s1 - q01 * s0) / det
+            s0, s1 = constant[i, 0], constant[i, 1]
+            for k in range(start[i], start[i + 1]):
+                if use[k]:
+                    j = ring[k]
+                    s0 -= 2.0 * (m[k, 0] * grad[j, 0] + m[k, 1] * grad[j, 1])
+                    s1 -= 2.0 * (m[k, 1] * grad[j, 0] + m[k, 2] * grad[j, 1])
+            g0 = inverse[i, 0] * s0 + inverse[i, 1] * s1
+            g1 = inverse[i, 1] * s0 + inverse[i, 2] * s1
             step = max(abs(g0 - grad[i, 0]), abs(g1 - grad[i, 1]))
             change = max(change, step / max(1.0, abs(g0), abs(g1)))
             grad[i, 0], grad[i, 1] = g0, g1
@@ -622,7 +715,8 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
             # Stage 3: the other triangles of the paper's regions, small jumps only.
             region = (np.zeros(sparse.shape, bool) if surfaces.regions is None
                       else surfaces.regions.selected[surfaces.labels]).reshape(-1)
-            low, high = corners.min(axis=1), corners.max(axis=1)
+            low = np.minimum(np.minimum(corners[:, 0], corners[:, 1]), corners[:, 2])
+            high = np.maximum(np.maximum(corners[:, 0], corners[:, 1]), corners[:, 2])
             use = (region[inside] & (flat_stage[inside] == 0)
                    & (high <= (1 + params.max_jump_rel) * low))
             if use.any():

@@ -377,9 +377,10 @@ def _best_sample(phi: np.ndarray, w: np.ndarray, samples: np.ndarray, tolerance:
             predicted = 0.0
             for j in range(size):
                 predicted += phi[p, j] * c[j]
-            e2 = tol2                                   # at or behind the camera: truncated
-            if predicted > 0:
-                e = w[p] / predicted - 1
+            e2 = tol2                 # an outlier, or at or behind the camera: truncated
+            diff = w[p] - predicted   # e = w / predicted - 1 = diff / predicted
+            if predicted > 0 and abs(diff) <= tolerance * predicted:
+                e = diff / predicted
                 e2 = min(e * e, tol2)
             total += e2                                 # not NaN: c is finite here
             if total >= best_total:
@@ -421,6 +422,49 @@ def _inliers(phi: np.ndarray, w: np.ndarray, c: np.ndarray, tolerance: float) ->
 
 
 @numba.njit(cache=True)
+def _least_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``argmin |a x - b|`` for a tall (m, n) ``a`` of full column rank, compiled: Householder
+    QR (as stable as LAPACK's, without its call overhead on these small systems); ``a`` and
+    ``b`` are overwritten. A zero column gives a zero coefficient."""
+    m, n = a.shape
+    for col in range(n):
+        norm = 0.0
+        for row in range(col, m):
+            norm += a[row, col] * a[row, col]
+        norm = np.sqrt(norm)
+        if norm == 0.0:
+            continue
+        alpha = -norm if a[col, col] >= 0 else norm
+        a[col, col] -= alpha                                # v = x - alpha e1, in place
+        vnorm2 = 0.0
+        for row in range(col, m):
+            vnorm2 += a[row, col] * a[row, col]
+        for j in range(col + 1, n):                         # H = I - 2 v v^T / v^T v
+            dot = 0.0
+            for row in range(col, m):
+                dot += a[row, col] * a[row, j]
+            factor = 2.0 * dot / vnorm2
+            for row in range(col, m):
+                a[row, j] -= factor * a[row, col]
+        dot = 0.0
+        for row in range(col, m):
+            dot += a[row, col] * b[row]
+        factor = 2.0 * dot / vnorm2
+        for row in range(col, m):
+            b[row] -= factor * a[row, col]
+        a[col, col] = alpha                                 # R's diagonal
+    x = np.zeros(n)
+    for row in range(n - 1, -1, -1):
+        if a[row, row] == 0.0:
+            continue
+        total = b[row]
+        for j in range(row + 1, n):
+            total -= a[row, j] * x[j]
+        x[row] = total / a[row, row]
+    return x
+
+
+@numba.njit(cache=True)
 def _refine(phi: np.ndarray, w: np.ndarray, coefficients: np.ndarray, tolerance: float,
             iterations: int) -> np.ndarray:
     """Least squares of the relative residuals on the inliers, again on the new inliers, up to
@@ -439,7 +483,7 @@ def _refine(phi: np.ndarray, w: np.ndarray, coefficients: np.ndarray, tolerance:
                 for j in range(size):
                     rows[k, j] = phi[p, j] / w[p]      # relative residuals w_fit / w - 1
                 k += 1
-        refined = np.linalg.lstsq(rows, np.ones(count))[0]
+        refined = _least_squares(rows, np.ones(count))
         new = _inliers(phi, w, refined, tolerance)
         if new.sum() < count:
             break
@@ -450,36 +494,44 @@ def _refine(phi: np.ndarray, w: np.ndarray, coefficients: np.ndarray, tolerance:
     return coefficients
 
 
-def _leverage(model: _Model, phi: np.ndarray, w: np.ndarray, phi_region: np.ndarray) -> float:
+def _leverage(model: _Model, phi: np.ndarray, w: np.ndarray, region: np.ndarray,
+              centre: np.ndarray, scale: float) -> float:
     """Largest ``sqrt(phi(p)^T (Psi^T Psi)^-1 phi(p)) / w_fit(p)`` over the region's pixels
-    ahead of the camera (``Psi``: the inliers' rows over their inverse depths)."""
+    ``region`` (M, 2) ahead of the camera (``Psi``: the inliers' rows over their inverse
+    depths; ``phi`` the basis of :func:`_basis` about ``centre``, ``scale``)."""
     rows = phi[model.inliers] / w[model.inliers, None]
     gram = rows.T @ rows
     if len(rows) < phi.shape[1] or np.linalg.cond(gram) > _MAX_CONDITION ** 2:
         return float("inf")
-    return _largest_spread(np.ascontiguousarray(phi_region), model.coefficients,
-                           np.linalg.inv(gram))
+    return _largest_spread(np.ascontiguousarray(region, np.float64), centre[0], centre[1],
+                           scale, model.coefficients, np.linalg.inv(gram))
 
 
 @numba.njit(cache=True)
-def _largest_spread(phi_region: np.ndarray, coefficients: np.ndarray, inverse: np.ndarray
-                    ) -> float:
-    """:func:`_leverage`'s maximum over the pixels ahead of the camera, compiled (0 when none
-    is)."""
+def _largest_spread(region: np.ndarray, cx: float, cy: float, scale: float,
+                    coefficients: np.ndarray, inverse: np.ndarray) -> float:
+    """:func:`_leverage`'s maximum over the pixels ahead of the camera (0 when none is),
+    compiled, with each pixel's basis (:func:`_basis`) formed on the fly."""
     size = coefficients.shape[0]
     largest = 0.0
-    for p in range(phi_region.shape[0]):
+    basis = np.empty(size)
+    for p in range(region.shape[0]):
+        s = (region[p, 0] - cx) / scale
+        t = (region[p, 1] - cy) / scale
+        basis[0], basis[1], basis[2] = 1.0, s, t
+        if size == 6:
+            basis[3], basis[4], basis[5] = s * s, s * t, t * t
         predicted = 0.0
         for j in range(size):
-            predicted += phi_region[p, j] * coefficients[j]
+            predicted += basis[j] * coefficients[j]
         if not predicted > 0:
             continue
         spread = 0.0
         for j in range(size):
             inner = 0.0
             for k in range(size):
-                inner += inverse[j, k] * phi_region[p, k]
-            spread += phi_region[p, j] * inner
+                inner += inverse[j, k] * basis[k]
+            spread += basis[j] * inner
         largest = max(largest, max(spread, 0.0) / (predicted * predicted))
     return np.sqrt(largest)
 
@@ -527,8 +579,7 @@ def fit_surface(xy: np.ndarray, depth: np.ndarray, xy_region: np.ndarray,
             choices.insert(0, ("quadric", quadric))
     region = np.asarray(xy_region, np.float64).reshape(-1, 2)
     for name, model in choices:                        # the quadric first, when it is better
-        leverage = _leverage(model, phis[len(model.coefficients)], w,
-                             _basis(region, centre, scale, len(model.coefficients)))
+        leverage = _leverage(model, phis[len(model.coefficients)], w, region, centre, scale)
         if leverage <= params.max_leverage or name == "plane":
             break
     share = np.count_nonzero(model.inliers) / n
