@@ -362,7 +362,7 @@ def test_builtin_rig_scene_simulates_at_reduced_size(tmp_path):
     rig = scene.frame_camera
     small = replace(scene, camera=scene.camera.with_resolution(48, 36),
                     frame_camera=replace(rig, camera=rig.camera.with_resolution(64, 36)))
-    out = simulate(small, tmp_path / "rig", duration=0.06, spp=1, with_events=False,
+    out = simulate(small, tmp_path / "rig", duration=0.09, spp=1, with_events=False,
                    progress=False).out
     seq = load_sequence(out)
     assert seq.frame_camera.camera.width == 64 and len(seq.frame_camera.image_times) == 2
