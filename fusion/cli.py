@@ -237,9 +237,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     elif result.n_events is not None:
         what += f", {result.n_events} events ({result.event_renders} renders)"
     if not args.no_motion_truth:
-        parts = ["velocity", "IMU"]
-        if scene.frame_camera is None or not scene.frame_camera.rolling:
-            parts += ["flow", "motion field", "object masks"]
+        parts = ["velocity", "IMU", "flow", "motion field", "object masks"]
         if result.n_events is not None and "h5" in formats:
             parts.append("per-event depth")
         what += f", the motion ground truth ({', '.join(parts)})"

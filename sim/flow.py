@@ -227,7 +227,15 @@ def optical_flow(camera: Camera, depth_src: np.ndarray, ids_src: np.ndarray,
     seen = np.isfinite(points).all(axis=-1)
     moved = transport(points, ids_src, objects, pose_src, t_src, pose_dst, t_dst)
     uv, valid = _project(camera, moved)
-    valid &= seen
+    return _flow_and_flags(camera, seen, moved, uv, valid & seen, depth_dst, rtol)
+
+
+def _flow_and_flags(camera: Camera, seen: np.ndarray, moved: np.ndarray, uv: np.ndarray,
+                    valid: np.ndarray, depth_dst: np.ndarray, rtol: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The flow and flags of points seen in the source frame (``seen``, (H, W)) that land at
+    ``uv`` (H, W, 2) with camera-frame coordinates ``moved`` (H, W, 3) in the target frame,
+    where the lens model holds (``valid``)."""
     in_view = valid & camera.in_image(uv)
     hidden = in_view & occluded(uv, moved[..., 2], depth_dst, rtol)
     flags = np.where(seen, 0, NO_SURFACE).astype(np.uint8)
@@ -235,6 +243,77 @@ def optical_flow(camera: Camera, depth_src: np.ndarray, ids_src: np.ndarray,
     flags[hidden] |= OCCLUDED
     flow = np.where(valid[..., None], uv - camera.pixel_centres(), 0.0)
     return flow.astype(np.float32), flags
+
+
+ROLLING_TOLERANCE_PX = 1e-4
+"""A rolling shutter's landing row is iterated until no point's row moves more than this."""
+ROLLING_MAX_ITERATIONS = 12
+
+
+def rolling_optical_flow(camera: Camera, depth_src: np.ndarray, depth_dst: np.ndarray,
+                         trajectory, rows_src: np.ndarray, t_dst: float, readout_s: float,
+                         centres: np.ndarray | None = None, rtol: float = OCCLUSION_RTOL
+                         ) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`optical_flow` for a rolling shutter in a static scene: each row is seen at its
+    own time, in the source frame and in the target frame.
+
+    A pixel of row ``r`` of the source frame sees its point at ``rows_src[r]``, from the pose
+    there. In the target frame the point is seen by the row it lands on, whose time depends on
+    that row: the landing row ``v`` is iterated, ``v <- row of the point projected from the
+    pose at t_dst + (v / (H - 1) - 0.5) readout_s``, from the middle row, until no point's row
+    moves more than :data:`ROLLING_TOLERANCE_PX` (or :data:`ROLLING_MAX_ITERATIONS`; the
+    iteration contracts by the rows the image moves per row of readout, far below 1). Rows are
+    continuous here: a point between two rows' centres is seen at the time between theirs.
+
+    Parameters
+    ----------
+    camera : Camera
+    depth_src, depth_dst : (H, W) float32 ndarray, metres, 0 = none
+        The frames' exact depth, each row at its own time.
+    trajectory : sim.trajectory.Trajectory
+        ``T_world_camera(t)`` of this camera.
+    rows_src : (H,) float64 ndarray, seconds
+        The source frame's row times.
+    t_dst : float, seconds
+        The target frame's (middle row's) time.
+    readout_s : float, seconds
+        From the first row to the last.
+    centres, rtol :
+        As for :func:`optical_flow`.
+
+    Returns
+    -------
+    flow, flags :
+        As :func:`optical_flow`'s.
+    residual : float, pixels
+        The last iteration's largest change of a landing row (0 when no point lands).
+    """
+    height = camera.height
+    centres = camera.normalized_pixel_centres() if centres is None else centres
+    points = surface_points(centres, depth_src)
+    seen = np.isfinite(points).all(axis=-1)
+    poses = trajectory.pose(np.asarray(rows_src, dtype=np.float64))
+    world = (np.einsum("rij,rcj->rci", poses[:, :3, :3], points)
+             + poses[:, None, :3, 3])[seen]
+    row = np.full(len(world), (height - 1) / 2.0)
+    residual = 0.0
+    for _ in range(ROLLING_MAX_ITERATIONS):
+        share = np.clip(row, 0.0, height - 1) / max(height - 1, 1) - 0.5
+        pose = trajectory.pose(t_dst + share * readout_s)
+        local = np.einsum("nji,nj->ni", pose[:, :3, :3], world - pose[:, :3, 3])
+        uv, valid = _project(camera, local)
+        landed = np.where(valid, uv[:, 1], row)
+        residual = float(np.max(np.abs(landed - row), initial=0.0))
+        row = landed
+        if residual < ROLLING_TOLERANCE_PX:
+            break
+    moved = np.full(points.shape, np.nan)
+    moved[seen] = local
+    uv_all = np.full(points.shape[:2] + (2,), np.nan)
+    uv_all[seen] = uv
+    ok = np.zeros(seen.shape, dtype=bool)
+    ok[seen] = valid
+    return (*_flow_and_flags(camera, seen, moved, uv_all, ok, depth_dst, rtol), residual)
 
 
 def _distortion_jacobian(xy: np.ndarray, coeffs: tuple[float, ...]) -> np.ndarray:
@@ -328,7 +407,8 @@ def _write_mask(path: Path, ids: np.ndarray) -> None:
 
 
 def write_motion_ground_truth(scene: Scene, renderer, folder: Path, times: np.ndarray,
-                              depth_names: list[str], clock_offset: float = 0.0) -> dict:
+                              depth_names: list[str], clock_offset: float = 0.0,
+                              readout_s: float = 0.0) -> dict:
     """Write the flows, motion fields and object masks of every frame (see the module's notes).
 
     Parameters
@@ -336,16 +416,21 @@ def write_motion_ground_truth(scene: Scene, renderer, folder: Path, times: np.nd
     scene : Scene
     renderer : sim.render.Renderer
         The scene's renderer (for :meth:`~sim.render.Renderer.object_ids`: one ray cast a
-        frame).
+        frame; ``rows=True`` for a rolling shutter, :meth:`~sim.render.Renderer.object_ids_rows`).
     folder : Path
         The sequence folder being written, which already holds the depth maps.
     times : (N,) float64 ndarray, seconds
-        The frames' true times (poses and object motions are taken there).
+        The frames' true times (poses and object motions are taken there; a rolling shutter's
+        middle row's).
     depth_names : list of N str
         The depth maps, relative to ``folder``.
     clock_offset : float, seconds
         The frames' clock offset: index times are ``times + clock_offset``, as in
         ``depthmaps.txt``.
+    readout_s : float, seconds
+        A rolling shutter's readout (0: a global shutter): row ``r`` of every frame is seen at
+        ``t + (r / (H - 1) - 0.5) readout_s``, its flow by :func:`rolling_optical_flow` and its
+        motion field at its own time. Static scenes only.
 
     Returns
     -------
@@ -353,28 +438,57 @@ def write_motion_ground_truth(scene: Scene, renderer, folder: Path, times: np.nd
         The entries of ``sequence.json`` that describe these files.
     """
     camera, objects = scene.camera, scene.objects
+    if readout_s > 0 and scene.is_dynamic:
+        raise ValueError("the motion ground truth of a rolling shutter needs a static scene")
     centres = camera.normalized_pixel_centres()
-    poses = scene.trajectory.pose(times)
+    height = camera.height
+    share = np.arange(height) / max(height - 1, 1) - 0.5
+
+    def rows(t: float) -> np.ndarray:
+        return float(t) + share * readout_s
+
     for sub in ("flow", "motion", "masks"):
         (folder / sub).mkdir(exist_ok=True)
     n = len(times)
+    residual = 0.0
     previous = None                                    # (depth, ids) of frame k - 1
     for k, t in enumerate(times):
         depth = read_depth(folder / depth_names[k])
-        ids = renderer.object_ids(float(t))
+        if readout_s > 0:
+            row_times = rows(t)
+            poses = scene.trajectory.pose(row_times)
+            ids = renderer.object_ids_rows(float(t), poses)
+            velocity = scene.trajectory.velocity(row_times)
+            field = np.concatenate([motion_field(
+                camera, depth[r:r + 1], ids[r:r + 1], objects, poses[r],
+                (velocity[0][r], velocity[1][r]), float(row_times[r]), centres[r:r + 1])
+                for r in range(height)])
+        else:
+            ids = renderer.object_ids(float(t))
+            field = motion_field(camera, depth, ids, objects, scene.trajectory.pose(float(t)),
+                                 scene.trajectory.velocity(float(t)), float(t), centres)
         _write_mask(folder / _names("mask", k, "png"), ids)
-        field = motion_field(camera, depth, ids, objects, poses[k],
-                             scene.trajectory.velocity(float(t)), float(t), centres)
         _write_exr(folder / _names("motion", k), {"du_dt": field[..., 0],
                                                   "dv_dt": field[..., 1]})
         if previous is not None:
             depth_prev, ids_prev = previous
-            _write_flow(folder / _names("forward", k - 1), *optical_flow(
-                camera, depth_prev, ids_prev, depth, objects, poses[k - 1], times[k - 1],
-                poses[k], float(t), centres))
-            _write_flow(folder / _names("backward", k), *optical_flow(
-                camera, depth, ids, depth_prev, objects, poses[k], float(t), poses[k - 1],
-                times[k - 1], centres))
+            t_prev = float(times[k - 1])
+            if readout_s > 0:
+                *forward, step = rolling_optical_flow(camera, depth_prev, depth,
+                                                      scene.trajectory, rows(t_prev), float(t),
+                                                      readout_s, centres)
+                *backward, back = rolling_optical_flow(camera, depth, depth_prev,
+                                                       scene.trajectory, rows(t), t_prev,
+                                                       readout_s, centres)
+                residual = max(residual, step, back)
+            else:
+                pose, pose_prev = scene.trajectory.pose(float(t)), scene.trajectory.pose(t_prev)
+                forward = optical_flow(camera, depth_prev, ids_prev, depth, objects, pose_prev,
+                                       t_prev, pose, float(t), centres)
+                backward = optical_flow(camera, depth, ids, depth_prev, objects, pose,
+                                        float(t), pose_prev, t_prev, centres)
+            _write_flow(folder / _names("forward", k - 1), *forward)
+            _write_flow(folder / _names("backward", k), *backward)
         previous = depth, ids
     stamps = np.asarray(times, dtype=np.float64) + clock_offset
     write_index(folder / FORWARD_INDEX, stamps[:-1], [_names("forward", k) for k in range(n - 1)])
@@ -393,6 +507,9 @@ def write_motion_ground_truth(scene: Scene, renderer, folder: Path, times: np.nd
                          "units": "pixels/s of the distorted image", "exact": "analytic"},
         "object_masks": {"index": MASK_INDEX, "encoding": "uint16 PNG, 0 = none, i = objects[i-1]",
                          "objects": [obj.name for obj in objects]},
+        **({"rolling_shutter": {"readout_s": readout_s, "row_residual_px": residual,
+                                "rows": "each row at its own time; the target row iterated"}}
+           if readout_s > 0 else {}),
     }
 
 

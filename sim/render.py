@@ -435,16 +435,40 @@ class Renderer:
                 if si.is_valid():
                     out[i] = _object_index(si.shape.id()) + 1
             return out.reshape(shape)
-        pointers = np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64)
-        lookup = np.zeros(int(pointers.max()) + 1, dtype=np.uint16)     # pointer 0: no hit
-        lookup[pointers] = [_object_index(s.id()) + 1 for s in scene.shapes()]
         rotation = mi.Matrix3f(pose[:3, :3].astype(np.float32))
         origin = mi.Point3f(*pose[:3, 3].astype(np.float32).tolist())
         dr.make_opaque(rotation, origin)
-        si = scene.ray_intersect(mi.Ray3f(origin, rotation @ self._rays),
-                                 ray_flags=mi.RayFlags.Minimal, coherent=True)
-        hit = np.array(dr.reinterpret_array(mi.UInt32, si.shape), dtype=np.int64)
-        return lookup[hit].reshape(shape)
+        return self._hit_objects(scene, mi.Ray3f(origin, rotation @ self._rays)).reshape(shape)
+
+    def _hit_objects(self, scene, ray) -> np.ndarray:
+        """(N,) uint16: 0 where the rays hit nothing, ``i`` where ``scene.objects[i - 1]``."""
+        mi, dr = self._mi, self._dr
+        pointers = np.array(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()), dtype=np.int64)
+        lookup = np.zeros(int(pointers.max()) + 1, dtype=np.uint16)     # pointer 0: no hit
+        lookup[pointers] = [_object_index(s.id()) + 1 for s in scene.shapes()]
+        si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=True)
+        return lookup[np.array(dr.reinterpret_array(mi.UInt32, si.shape), dtype=np.int64)]
+
+    def object_ids_rows(self, t: float, poses: np.ndarray) -> np.ndarray:
+        """:meth:`object_ids` with each row ``r`` seen from ``poses[r]`` (a rolling shutter,
+        as :meth:`depth_rows`); ``t`` places the moving objects. JIT variants only."""
+        if self.variant == "scalar_rgb":
+            raise ValueError("object_ids_rows needs a JIT variant, not scalar_rgb")
+        poses = self._row_poses(poses)
+        self._set_state(t, poses[len(poses) // 2])
+        scene = self._scene if self.scene.is_dynamic else self._geometry_scene()
+        return self._hit_objects(scene, self._row_rays(poses)).reshape(
+            self.camera.height, self.camera.width)
+
+    def _row_rays(self, poses: np.ndarray):
+        """The pixel-centre rays, row ``r`` from ``poses[r]`` (H, 4, 4)."""
+        mi = self._mi
+        shape = (self.camera.height, self.camera.width)
+        rays = self._rays_np.reshape(*shape, 3)
+        directions = np.einsum("rij,rcj->rci", poses[:, :3, :3], rays).reshape(-1, 3)
+        origins = np.repeat(poses[:, :3, 3], shape[1], axis=0)
+        return mi.Ray3f(mi.Point3f(*(origins[:, i].astype(np.float32) for i in range(3))),
+                        mi.Vector3f(*(directions[:, i].astype(np.float32) for i in range(3))))
 
     def _geometry_scene(self):
         """The scene's shapes, one Mitsuba shape per object part (no merging), no textures."""
@@ -492,14 +516,10 @@ class Renderer:
         self._set_state(t, poses[len(poses) // 2])
         mi, dr = self._mi, self._dr
         shape = (self.camera.height, self.camera.width)
-        rays = self._rays_np.reshape(*shape, 3)
-        directions = np.einsum("rij,rcj->rci", poses[:, :3, :3], rays).reshape(-1, 3)
-        origins = np.repeat(poses[:, :3, 3], shape[1], axis=0)
         if self.variant == "scalar_rgb":
             raise ValueError("depth_rows needs a JIT variant, not scalar_rgb")
-        ray = mi.Ray3f(mi.Point3f(*(origins[:, i].astype(np.float32) for i in range(3))),
-                       mi.Vector3f(*(directions[:, i].astype(np.float32) for i in range(3))))
-        si = self._scene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=True)
+        si = self._scene.ray_intersect(self._row_rays(poses), ray_flags=mi.RayFlags.Minimal,
+                                       coherent=True)
         z = dr.select(si.is_valid(), si.t * self._rays.z, 0.0)
         return np.array(z, dtype=np.float32).reshape(shape)
 

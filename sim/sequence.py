@@ -462,7 +462,7 @@ class FrameCameraFiles:
         Time from the first row to the last; 0 for a global shutter.
     forward_flow, backward_flow, motion_field, object_masks : FileIndex or None
         The frame camera's motion ground truth, as :class:`Sequence`'s (``frame_camera/``
-        holds the same index files; a global shutter's only).
+        holds the same index files, each row at its own time for a rolling shutter).
     """
 
     folder: Path

@@ -336,15 +336,12 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                 scene, renderer, tmp, times, scene.rig.frames_offset, _simulate_frames, spp=spp,
                 variant=renderer.variant, checkpoint=checkpoint, progress=progress,
                 timings=timings)
-            flow_record = {"flow": None, "motion_field": None, "object_masks": None,
-                           "motion_truth_note": "not written for a rolling shutter, whose "
-                                                "rows are seen at different times"}
-            if frame_view is not None and motion_truth:    # the frame camera's, in its folder
-                view_scene, view_renderer, view_folder, view_depths = frame_view
+            if motion_truth:                               # the frame camera's, in its folder
+                view_scene, view_renderer, view_folder, view_depths, readout = frame_view
                 tick = time.perf_counter()
                 flow_record = write_motion_ground_truth(view_scene, view_renderer, view_folder,
                                                         times, view_depths,
-                                                        scene.rig.frames_offset)
+                                                        scene.rig.frames_offset, readout)
                 flow_record["motion_truth_folder"] = view_folder.name
         if tick is not None:
             timings["flow"] = time.perf_counter() - tick

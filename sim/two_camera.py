@@ -122,7 +122,7 @@ def write_extrinsic(path: str | Path, T_event_frame: np.ndarray) -> None:
 def simulate_frame_camera(scene: Scene, event_renderer: Renderer, folder: Path,
                           times: np.ndarray, frames_offset: float,
                           simulate_frames: Callable, *, spp: int | None, variant: str | None,
-                          **stage) -> tuple[float | None, list[float], tuple | None]:
+                          **stage) -> tuple[float | None, list[float], tuple]:
     """Write a rig's frame-camera files and the event camera's depth at the frame times.
 
     Parameters
@@ -151,10 +151,10 @@ def simulate_frame_camera(scene: Scene, event_renderer: Renderer, folder: Path,
         The frame camera's gain (ideal sensor).
     exposures : list of float
         Each frame's exposure (realistic sensor).
-    view : tuple or None
-        ``(scene, renderer, folder, depth_names)`` of the frame camera, for the motion ground
-        truth of :func:`sim.flow.write_motion_ground_truth`; None for a rolling shutter, whose
-        rows are seen at different times (its flow is not written).
+    view : tuple
+        ``(scene, renderer, folder, depth_names, readout_s)`` of the frame camera, for the
+        motion ground truth of :func:`sim.flow.write_motion_ground_truth` (a rolling shutter's
+        renderer casts each row from its own pose; ``readout_s`` is 0 for a global shutter).
     """
     rig = scene.frame_camera
     view_scene = frame_camera_scene(scene)
@@ -179,5 +179,6 @@ def simulate_frame_camera(scene: Scene, event_renderer: Renderer, folder: Path,
             os.replace(partial, path)
     write_index(folder / "images.txt", times[:0], [])
     write_index(folder / "depthmaps.txt", times + frames_offset, names)
-    view = None if rig.rolling else (view_scene, renderer, sub, depth_names)
+    view = (view_scene, renderer.renderer if rig.rolling else renderer, sub, depth_names,
+            rig.readout_s if rig.rolling else 0.0)
     return gain, exposures, view
