@@ -331,12 +331,23 @@ def _solve_small(a: np.ndarray, b: np.ndarray, x: np.ndarray) -> bool:
             for j in range(col, size):
                 a[row, j] -= factor * a[col, j]
             b[row] -= factor * b[col]
-    for row in range(size - 1, -1, -1):
-        total = b[row]
-        for j in range(row + 1, size):
-            total -= a[row, j] * x[j]
-        x[row] = total / a[row, row]
+    _back_substitute(a, b, x)
     return True
+
+
+@numba.njit(cache=True)
+def _back_substitute(r: np.ndarray, b: np.ndarray, x: np.ndarray) -> None:
+    """Solve the upper-triangular ``r[:n, :n] x = b[:n]`` into ``x`` (n,), compiled; a zero on
+    the diagonal gives a zero coefficient."""
+    n = x.shape[0]
+    for row in range(n - 1, -1, -1):
+        x[row] = 0.0
+        if r[row, row] == 0.0:
+            continue
+        total = b[row]
+        for j in range(row + 1, n):
+            total -= r[row, j] * x[j]
+        x[row] = total / r[row, row]
 
 
 @numba.njit(cache=True)
@@ -454,13 +465,7 @@ def _least_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             b[row] -= factor * a[row, col]
         a[col, col] = alpha                                 # R's diagonal
     x = np.zeros(n)
-    for row in range(n - 1, -1, -1):
-        if a[row, row] == 0.0:
-            continue
-        total = b[row]
-        for j in range(row + 1, n):
-            total -= a[row, j] * x[j]
-        x[row] = total / a[row, row]
+    _back_substitute(a, b, x)
     return x
 
 
