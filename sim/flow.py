@@ -263,14 +263,13 @@ def _seen_from_rows(world: np.ndarray, row: np.ndarray, rotations: np.ndarray,
         low = min(int(np.floor(at)), height - 1)
         high = min(low + 1, height - 1)
         b = at - low
-        d = np.empty(3)
-        for i in range(3):
-            d[i] = world[n, i] - ((1.0 - b) * centres[low, i] + b * centres[high, i])
-        for j in range(3):
-            total = 0.0
-            for i in range(3):
-                total += ((1.0 - b) * rotations[low, i, j] + b * rotations[high, i, j]) * d[i]
-            out[n, j] = total
+        d0 = world[n, 0] - ((1.0 - b) * centres[low, 0] + b * centres[high, 0])
+        d1 = world[n, 1] - ((1.0 - b) * centres[low, 1] + b * centres[high, 1])
+        d2 = world[n, 2] - ((1.0 - b) * centres[low, 2] + b * centres[high, 2])
+        for j in range(3):                               # R^T d, R blended between the rows
+            out[n, j] = (((1.0 - b) * rotations[low, 0, j] + b * rotations[high, 0, j]) * d0
+                         + ((1.0 - b) * rotations[low, 1, j] + b * rotations[high, 1, j]) * d1
+                         + ((1.0 - b) * rotations[low, 2, j] + b * rotations[high, 2, j]) * d2)
     return out
 
 
@@ -480,22 +479,23 @@ def write_motion_ground_truth(scene: Scene, renderer, folder: Path, times: np.nd
     for sub in ("flow", "motion", "masks"):
         (folder / sub).mkdir(exist_ok=True)
     n = len(times)
+    poses = None if readout_s > 0 else scene.trajectory.pose(times)   # a global shutter's
     residual = 0.0
     previous = None                                    # (depth, ids) of frame k - 1
     for k, t in enumerate(times):
         depth = read_depth(folder / depth_names[k])
         if readout_s > 0:
             row_times = rows(t)
-            poses = scene.trajectory.pose(row_times)
-            ids = renderer.object_ids_rows(float(t), poses)
+            row_poses = scene.trajectory.pose(row_times)
+            ids = renderer.object_ids_rows(float(t), row_poses)
             velocity = scene.trajectory.velocity(row_times)
             field = np.concatenate([motion_field(
-                camera, depth[r:r + 1], ids[r:r + 1], objects, poses[r],
+                camera, depth[r:r + 1], ids[r:r + 1], objects, row_poses[r],
                 (velocity[0][r], velocity[1][r]), float(row_times[r]), centres[r:r + 1])
                 for r in range(height)])
         else:
             ids = renderer.object_ids(float(t))
-            field = motion_field(camera, depth, ids, objects, scene.trajectory.pose(float(t)),
+            field = motion_field(camera, depth, ids, objects, poses[k],
                                  scene.trajectory.velocity(float(t)), float(t), centres)
         _write_mask(folder / _names("mask", k, "png"), ids)
         _write_exr(folder / _names("motion", k), {"du_dt": field[..., 0],
@@ -512,11 +512,10 @@ def write_motion_ground_truth(scene: Scene, renderer, folder: Path, times: np.nd
                                                        readout_s, centres)
                 residual = max(residual, step, back)
             else:
-                pose, pose_prev = scene.trajectory.pose(float(t)), scene.trajectory.pose(t_prev)
-                forward = optical_flow(camera, depth_prev, ids_prev, depth, objects, pose_prev,
-                                       t_prev, pose, float(t), centres)
-                backward = optical_flow(camera, depth, ids, depth_prev, objects, pose,
-                                        float(t), pose_prev, t_prev, centres)
+                forward = optical_flow(camera, depth_prev, ids_prev, depth, objects,
+                                       poses[k - 1], t_prev, poses[k], float(t), centres)
+                backward = optical_flow(camera, depth, ids, depth_prev, objects, poses[k],
+                                        float(t), poses[k - 1], t_prev, centres)
             _write_flow(folder / _names("forward", k - 1), *forward)
             _write_flow(folder / _names("backward", k), *backward)
         previous = depth, ids
