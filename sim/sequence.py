@@ -612,7 +612,8 @@ class Sequence:
         return FrameCameraFiles(folder=self.folder, camera=self.camera,
                                 image_times=self.image_times, image_paths=self.image_paths,
                                 depth_times=self.depth_times, depth_paths=self.depth_paths,
-                                T_event_frame=np.eye(4), shutter="global", readout_s=0.0)
+                                T_event_frame=np.eye(4), shutter="global", readout_s=0.0,
+                                **{field: getattr(self, field) for field in FLOW_INDEXES})
 
     def event_depth(self, t0_ns: int | None = None, t1_ns: int | None = None
                     ) -> np.ndarray | None:
@@ -758,9 +759,7 @@ def _load_frame_camera(folder: Path, metadata: dict | None) -> FrameCameraFiles:
     return FrameCameraFiles(folder=folder, camera=camera, image_times=image_times,
                             image_paths=image_paths, depth_times=depth_times,
                             depth_paths=depth_paths, T_event_frame=extrinsic, shutter=shutter,
-                            readout_s=float(readout),
-                            **{field: _file_index(folder / name)
-                               for field, name in FLOW_INDEXES.items()})
+                            readout_s=float(readout), **_flow_indexes(folder))
 
 
 def load_sequence(folder: str | Path) -> Sequence:
@@ -816,7 +815,6 @@ def load_sequence(folder: str | Path) -> Sequence:
     def optional(name: str) -> Path | None:
         return folder / name if (folder / name).is_file() else None
 
-    indexes = {field: _file_index(folder / name) for field, name in FLOW_INDEXES.items()}
     names = ((metadata or {}).get("object_masks") or {}).get("objects")
     frame_camera = None
     if (folder / FRAME_CAMERA_FOLDER).is_dir():
@@ -825,11 +823,16 @@ def load_sequence(folder: str | Path) -> Sequence:
                     image_paths=image_paths, depth_times=depth_times, depth_paths=depth_paths,
                     groundtruth_path=optional("groundtruth.txt"),
                     events_txt=optional("events.txt"), events_h5=optional("events.h5"),
-                    metadata=metadata, **indexes,
+                    metadata=metadata, **_flow_indexes(folder),
                     object_names=None if names is None else tuple(str(n) for n in names),
                     velocity_path=optional("velocity.txt"), imu_path=optional("imu.txt"),
                     frame_camera=frame_camera,
                     events_depth_txt=optional("events_depth.txt"))
+
+
+def _flow_indexes(folder: Path) -> dict[str, FileIndex | None]:
+    """The motion ground truth's indexes in ``folder`` (:data:`FLOW_INDEXES`), by field."""
+    return {field: _file_index(folder / name) for field, name in FLOW_INDEXES.items()}
 
 
 def _file_index(path: Path) -> FileIndex | None:

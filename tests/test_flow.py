@@ -151,6 +151,9 @@ def test_files_round_trip_through_load_sequence(dynamic):
     np.testing.assert_array_equal(seq.motion_field.times, seq.image_times)
     np.testing.assert_array_equal(seq.object_masks.times, seq.image_times)
     assert seq.object_names == ("wall", "box")
+    # The standard frames of one camera carry the same files as a rig's frame camera does.
+    assert seq.standard_frames().forward_flow is seq.forward_flow
+    assert seq.standard_frames().object_masks is seq.object_masks
     flow, flags = read_flow(seq.forward_flow.paths[0])
     assert flow.shape == (48, 64, 2) and flow.dtype == np.float32 and flags.dtype == np.uint8
     assert read_motion_field(seq.motion_field.paths[0]).shape == (48, 64, 2)
