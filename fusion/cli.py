@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import shlex
 import signal
 import sys
@@ -26,6 +27,13 @@ def _check_depth_flags(args: argparse.Namespace) -> None:
             raise ValueError(f"depths are in metres: {flag} {value:g} looks like millimetres "
                              f"({value / 1000:g} m?); bounds above {PLAUSIBLE_DEPTH_M:g} m are "
                              "refused")
+
+
+def _check_seed(args: argparse.Namespace) -> None:
+    """Refuse a negative ``--seed`` in the flag's terms (the scene parser would name its
+    ``seed`` argument)."""
+    if args.seed is not None and args.seed < 0:
+        raise ValueError(f"--seed {args.seed}: expected an integer >= 0")
 
 
 def _cmd_scenes(args: argparse.Namespace) -> int:
@@ -218,6 +226,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if not 0 < args.min_rate <= args.max_rate:
         raise ValueError(f"--min-rate {args.min_rate:g} and --max-rate {args.max_rate:g}: "
                          "expected 0 < --min-rate <= --max-rate (Hz)")
+    _check_seed(args)
     scene = load_scene(resolve_scene(args.scene), seed=args.seed)
     rig = None if args.rig is None else RigParams.from_preset(args.rig)
     if args.frame_sensor is not None:
@@ -288,14 +297,12 @@ def _read_recording(folder: Path) -> tuple[object, Path, object]:
 def _recording_stats(sequence, events) -> dict:
     """A recording's event figures (:func:`sim.statistics.event_stats`) plus ``frame_noise``
     (gray levels, the median over its first 10 frames; NaN without frames)."""
-    import cv2
     import numpy as np
 
     from sim.statistics import event_stats, frame_noise
 
     stats = event_stats(events, sequence.camera.width, sequence.camera.height)
-    noise = [frame_noise(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE))
-             for p in list(sequence.image_paths)[:10]]
+    noise = [frame_noise(_read_gray(p)) for p in list(sequence.image_paths)[:10]]
     stats["frame_noise"] = float(np.median(noise)) if noise else float("nan")
     return stats
 
@@ -492,6 +499,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.pipeline import RunParams, run_pipeline
 
     _check_depth_flags(args)
+    _check_seed(args)
     method, method_params, dense = _fill_method(args)
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
                        max_depth=args.max_depth,
@@ -674,6 +682,28 @@ def _add_dense_options(parser: argparse.ArgumentParser) -> None:
                              "(default 1, the paper's exp(-d))")
 
 
+def _version() -> str:
+    """evfuse's version: the installed package's (its metadata), else that of the source tree
+    this module was imported from (its ``pyproject.toml``, said so), else ``unknown``."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("evfuse")
+    except metadata.PackageNotFoundError:
+        pass
+    import tomllib
+
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    try:
+        with pyproject.open("rb") as handle:
+            project = tomllib.load(handle)["project"]
+        if project["name"] == "evfuse":
+            return f"{project['version']} (source tree {pyproject.parent}, not installed)"
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return "unknown (not installed, and no pyproject.toml of evfuse beside the source)"
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="evfuse",
@@ -681,6 +711,8 @@ def _parser() -> argparse.ArgumentParser:
                     "into dense depth.",
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    parser.add_argument("--version", action="version", version=f"evfuse {_version()}",
+                        help="print evfuse's version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
 
     scenes = sub.add_parser("scenes", help="list the built-in scenes")
@@ -987,6 +1019,42 @@ def _interrupted(args: argparse.Namespace, exc: KeyboardInterrupt) -> int:
     return 143 if terminated else 130
 
 
+def _quiet_opencv() -> None:
+    """OpenCV's own warnings (``[ WARN:0@0.1] ... imread_(...)``) off: evfuse checks every image
+    it reads and says what is wrong in its own one line."""
+    import cv2
+
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
+
+def _stdout_is_closed() -> bool:
+    """Whether standard output is a pipe whose reader has gone (``evfuse methods | head``); True
+    where it cannot be told."""
+    import select
+
+    try:
+        fd = sys.stdout.fileno()
+        poller = select.poll()
+    except (OSError, ValueError, AttributeError):
+        return True
+    poller.register(fd, select.POLLOUT)
+    return any(event & (select.POLLERR | select.POLLHUP) for _, event in poller.poll(0))
+
+
+def _quit_on_closed_stdout() -> int:
+    """Exit quietly when the reader of standard output has gone, as Python's documentation of
+    SIGPIPE recommends: the rest of the output goes to the null device (so that the flush at
+    exit does not fail again), and the status is that of a process ended by SIGPIPE."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+    finally:
+        os.close(devnull)
+    return 128 + signal.SIGPIPE if hasattr(signal, "SIGPIPE") else 1
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``evfuse`` command line.
 
@@ -1000,13 +1068,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     int
         Exit status: 0 on success, 2 for bad input (one line on standard error, no traceback
         unless ``--debug``), 1 for an unexpected error (also one line), 130 when interrupted
-        (Ctrl-C) and 143 when terminated (SIGTERM), both with one line that says what is left.
+        (Ctrl-C) and 143 when terminated (SIGTERM), both with one line that says what is left,
+        and 141 (SIGPIPE's), silently, when the reader of standard output has gone
+        (``evfuse methods --params | head``).
     """
+    _quiet_opencv()
     args = _parser().parse_args(argv)
     in_main_thread = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main_thread else None
     try:
-        return args.run(args)
+        code = args.run(args)
+        sys.stdout.flush()                        # a closed pipe fails here, not at exit
+        return code
+    except BrokenPipeError as exc:
+        if not _stdout_is_closed():
+            if args.debug:
+                raise
+            print(f"evfuse {args.command}: error: {exc}", file=sys.stderr)
+            return 2
+        return _quit_on_closed_stdout()
     except (ValueError, OSError) as exc:
         if args.debug:
             raise

@@ -502,11 +502,15 @@ def fill_inputs(map_folder: str | Path) -> FillInputs:
     Raises
     ------
     ValueError
-        No or a malformed ``map.json``, no ``semidense_depth.exr``, a sequence without frames,
-        a frame outside the poses, or no map point landing in the frame (one line each).
+        No such folder, no or a malformed ``map.json``, no ``semidense_depth.exr``, a sequence
+        without frames, a frame outside the poses, or no map point landing in the frame (one
+        line each).
     """
     map_folder = Path(map_folder)
     meta_path = map_folder / "map.json"
+    if not map_folder.is_dir():
+        raise ValueError(f"map folder {map_folder} does not exist or is not a folder (write a "
+                         "map with evfuse map first)")
     if not meta_path.is_file():
         raise ValueError(f"{map_folder}: no map.json (write a map with evfuse map first)")
     try:

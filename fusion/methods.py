@@ -14,9 +14,9 @@ A filling method is a function ``method(frame, sparse, camera, params) -> dense`
 - ``confidence`` (optional): (H, W) float in [0, 1], how much the method trusts each pixel.
 
 Built-in methods register under a name (:func:`available_methods` lists them, ``evfuse methods``
-prints them). A user's method is given as ``module:function`` (imported from ``sys.path``) or
-installed under the Python entry-point group ``evfuse.fill_methods``. :func:`run_method` calls
-any of them and refuses, in one line naming the method, an output of the wrong shape, a
+prints them). A user's method is given as ``module:function`` (imported from the current
+folder, as ``python -m`` does, or from ``sys.path``) or installed under the Python entry-point
+group ``evfuse.fill_methods``. :func:`run_method` calls any of them and refuses, in one line naming the method, an output of the wrong shape, a
 non-finite or negative depth, or an exception. A :class:`MethodVariant` is a method with
 settings of its own, labelled ``NAME{KEY=VALUE,...}`` (:func:`method_label`): what ``evfuse
 bench`` and ``evfuse reproduce`` run, the same method possibly under several settings.
@@ -50,12 +50,15 @@ from __future__ import annotations
 import ast
 import importlib
 import numbers
+import os
+import sys
 import time
 import types
 import typing
 from collections.abc import Callable, Mapping
 from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass
 from importlib import metadata
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -370,6 +373,16 @@ def available_methods() -> dict[str, FillMethod]:
     return methods
 
 
+def _current_folder_on_path() -> None:
+    """Put the current folder first on ``sys.path``, as ``python -m`` does, so that a user's
+    ``module:function`` in the folder they run evfuse from imports (the ``evfuse`` script's own
+    ``sys.path`` starts with its ``bin/`` folder instead)."""
+    here = os.path.realpath(os.getcwd())
+    if not any(os.path.realpath(entry or os.curdir) == here for entry in sys.path):
+        sys.path.insert(0, here)
+        importlib.invalidate_caches()
+
+
 def get_method(spec: str) -> FillMethod:
     """The filling method named ``spec``: a built-in name, an installed entry point's name, or
     ``module:function``.
@@ -385,11 +398,13 @@ def get_method(spec: str) -> FillMethod:
         return _BUILT_IN[spec]
     if ":" in spec:
         module_name, _, attribute = spec.partition(":")
+        _current_folder_on_path()
         try:
             module = importlib.import_module(module_name)
         except Exception as exc:                       # any import failure, said in one line
             raise MethodError(f"filling method {spec}: cannot import module {module_name!r} "
-                              f"({type(exc).__name__}: {exc})") from None
+                              f"({type(exc).__name__}: {exc}; looked in the current folder "
+                              f"{Path.cwd()} and on PYTHONPATH)") from None
         function = getattr(module, attribute, None)
         if not callable(function):
             raise MethodError(f"filling method {spec}: module {module_name!r} has no function "

@@ -378,6 +378,11 @@ def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndar
     return add_header(grid, header)
 
 
+OVERVIEW_INPUTS = ("fill/fill.json", "fill/segments.png", "fill/filled_mask.png",
+                   "fill/dense_depth.exr", "fill/dense.ply", "map/semidense_depth.exr")
+"""The files of a run folder, besides ``report.json``, that its overview is drawn from."""
+
+
 def _overview_panels(run_folder: str | Path, report: dict | None = None
                     ) -> tuple[list[np.ndarray], list[str], list, list[str]]:
     """The panels of :func:`draw_overview`, before they are laid out.
@@ -395,6 +400,10 @@ def _overview_panels(run_folder: str | Path, report: dict | None = None
         if not path.is_file():
             raise ValueError(f"{run_folder}: no report.json (not a folder written by evfuse run)")
         report = json.loads(path.read_text())
+    for name in OVERVIEW_INPUTS:
+        if not (run_folder / name).is_file():
+            raise ValueError(f"{run_folder / name} does not exist; evfuse show needs the files "
+                             f"evfuse run writes ({', '.join(OVERVIEW_INPUTS)})")
     fill_meta = json.loads((run_folder / "fill" / "fill.json").read_text())
     sequence = load_sequence(run_folder / report["sequence"])
     frame = cv2.imread(str(sequence.folder / fill_meta["frame"]), cv2.IMREAD_GRAYSCALE)
@@ -406,6 +415,8 @@ def _overview_panels(run_folder: str | Path, report: dict | None = None
     if labels is None:
         raise ValueError(f"cannot read {run_folder / 'fill' / 'segments.png'}")
     filled_mask = cv2.imread(str(run_folder / "fill" / "filled_mask.png"), cv2.IMREAD_GRAYSCALE)
+    if filled_mask is None:
+        raise ValueError(f"cannot read {run_folder / 'fill' / 'filled_mask.png'}")
     if fill_meta.get("segmentation", "region growing") is None:     # the method did not segment
         segments = highlight_pixels(frame, filled_mask > 0)
         segments_title = f"no segmentation (method {fill_meta['method']}; filled green)"

@@ -98,7 +98,8 @@ class ReproduceParams:
     tables : tuple of str
         Which tables to make, among "1", "2", "3", "complex" (default all).
     scenes : tuple of str or None
-        Only these scenes (default all of each table).
+        Only these scenes (default all of each table); each must be a scene of one of the
+        ``tables``.
     frame_sensor : str or FrameSensor or None
         Every scene's standard-camera sensor (:class:`sim.frames.FrameParams` ``sensor``:
         ``ideal``, ``davis240c_aps``, ``machine_vision`` or a
@@ -140,6 +141,13 @@ class ReproduceParams:
         unknown = set(self.tables) - {"1", "2", "3", "complex"}
         if unknown:
             raise ValueError(f"unknown tables {sorted(unknown)}: choose among 1, 2, 3, complex")
+        if self.scenes is not None:
+            tables = {"1": TABLE1_SCENES, "2": SLIDERS, "3": SLIDERS, "complex": COMPLEX}
+            offered = [s for t in self.tables for s in tables[t]]
+            missing = [s for s in self.scenes if s not in offered]
+            if missing:
+                raise ValueError(f"--scenes {','.join(missing)}: not among the scenes of --tables "
+                                 f"{','.join(self.tables)} ({', '.join(dict.fromkeys(offered))})")
         if (isinstance(self.frame_sensor, str) and self.frame_sensor != "ideal"
                 and self.frame_sensor not in FRAME_SENSORS):
             raise ValueError(f"--frame-sensor {self.frame_sensor!r}: expected one of ideal, "

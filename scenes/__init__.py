@@ -35,8 +35,8 @@ def resolve_scene(name_or_path: str | Path) -> Path:
     ------
     ValueError
         Neither a built-in scene nor an existing file (the message lists the built-in names); a
-        folder (it is not a sequence folder either: the message says what it lacks); a file of
-        a sequence folder, such as an event file (the message names the folder holding it).
+        folder (a sequence folder, said so; any other: the message says what it lacks); a file
+        of a sequence folder, such as an event file (the message names the folder holding it).
     """
     from sim.sequence import SEQUENCE_FOLDER_NEEDS, describe_data_file
 
@@ -46,6 +46,10 @@ def resolve_scene(name_or_path: str | Path) -> Path:
     path = Path(name_or_path)
     if path.is_dir():
         lacks = [name for name in ("calib.txt", "images.txt") if not (path / name).is_file()]
+        if not lacks:
+            raise ValueError(f"{path} is a sequence folder, not a scene: a scene is a built-in "
+                             "name or a .toml file; evfuse run, map, events and twin take a "
+                             "sequence folder")
         raise ValueError(f"{path}: this folder lacks {' and '.join(lacks)}, so it is not a "
                          f"sequence folder (one needs {SEQUENCE_FOLDER_NEEDS}); a scene is a "
                          "built-in name or a .toml file")

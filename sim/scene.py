@@ -383,7 +383,7 @@ def _string(ctx: _Ctx, value: Any, key: str, choices: tuple[str, ...] | None = N
 
 
 def _vector(ctx: _Ctx, value: Any, key: str, n: int, *, positive=False, nonneg=False):
-    what = f"a list of {n} {'positive ' if positive else ''}numbers"
+    what = f"a list of {n} {'positive ' if positive else ''}numbers{' >= 0' if nonneg else ''}"
     if not isinstance(value, list) or len(value) != n:
         raise ctx.fail(key, f"expected {what}, got {_show(value)}")
     out = []
@@ -397,11 +397,16 @@ def _vector(ctx: _Ctx, value: Any, key: str, n: int, *, positive=False, nonneg=F
 
 
 def _color(ctx: _Ctx, value: Any, key: str) -> np.ndarray:
+    """A light's value: a positive number, or one per colour channel (3 numbers >= 0, not all
+    0)."""
     if isinstance(value, int | float) and not isinstance(value, bool):
-        value = [value] * 3
-    vec = _vector(ctx, value, key, 3, nonneg=True) if isinstance(value, list) else None
-    if vec is None:
-        raise ctx.fail(key, f"expected a number or a list of 3 numbers, got {_show(value)}")
+        return np.full(3, _number(ctx, value, key, positive=True))
+    expected = "expected a positive number or a list of 3 numbers >= 0 (one per colour channel)"
+    if not isinstance(value, list):
+        raise ctx.fail(key, f"{expected}, got {_show(value)}")
+    vec = _vector(ctx, value, key, 3, nonneg=True)
+    if not vec.max() > 0:
+        raise ctx.fail(key, f"{expected}, not all 0, got {_show(value)}")
     return vec
 
 
@@ -1031,7 +1036,8 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     duration = _number(ctx, raw["duration"], "duration", positive=True)
     file_seed = _get(ctx, raw, "", "seed", lambda c, v, k: _integer(c, v, k, minimum=0), 0)
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
-        raise SceneError(f"{source}: seed: expected an integer >= 0, got {seed!r}")
+        raise SceneError(f"seed {seed!r} (given to replace the seed of {source}): expected an "
+                         "integer >= 0")
     seed = file_seed if seed is None else seed
     depth_range = _get(ctx, raw, "", "depth_range", _depth_range)
     camera, frame_camera = _parse_cameras(ctx, raw)

@@ -904,13 +904,12 @@ def _check_resumable(out: Path, overwrite: bool, identity: dict) -> None:
     """Raise ValueError unless ``<out>.partial`` holds a checkpoint of a run like this one."""
     if out.is_dir() and not out.is_symlink() and any(out.iterdir()) and not overwrite:
         raise ValueError(f"output folder {out} is already complete; there is nothing to resume "
-                         "(add --overwrite (overwrite=True) to continue an interrupted run that "
-                         "replaces it)")
+                         "(add --overwrite to continue an interrupted run that replaces it)")
     check_output_dir(out, overwrite)
     partial = partial_dir(out)
     if not partial.is_dir():
         raise ValueError(f"there is no interrupted run of {out} to resume ({partial} does not "
-                         "exist); run without --resume (resume=False) to start one")
+                         "exist); run without --resume to start one")
     saved = _Checkpoint.read(partial / CHECKPOINT_FOLDER)["identity"]
     differences = _differences(saved, identity, skip=("variant",))
     if differences:
@@ -969,8 +968,8 @@ class _Checkpoint:
         path = folder / "checkpoint.json"
         if not path.is_file():
             raise ValueError(f"{folder.parent} holds no checkpoint ({path} does not exist): the "
-                             "run stopped before its first one; run without --resume "
-                             "(resume=False) to start again")
+                             "run stopped before its first one; run without --resume to start "
+                             "again")
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
         except json.JSONDecodeError as exc:
@@ -1037,7 +1036,7 @@ class _Checkpoint:
                 state = json.loads(str(saved["state"]))
         except (OSError, ValueError, KeyError) as exc:
             raise ValueError(f"{path}: cannot read the event checkpoint ({exc}); run without "
-                             "--resume (resume=False) to start again") from None
+                             "--resume to start again") from None
         return arrays, state
 
     def remove(self) -> None:

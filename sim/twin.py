@@ -83,7 +83,8 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     Raises
     ------
     ValueError
-        One line naming the file or value: no poses, a window outside them, ``depth <= 0``.
+        One line naming the file or value: no poses, a reversed or empty window, a window
+        outside the poses, ``depth <= 0``.
     """
     from sim.trajectory import read_trajectory
 
@@ -100,6 +101,9 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     trajectory = read_trajectory(sequence.groundtruth_path)
     t_start, t_end = float(trajectory.t_start), float(trajectory.t_end)
     t0, t1 = window if window is not None else (t_start, t_end)
+    if not t0 < t1:
+        raise ValueError(f"--window {t0:g},{t1:g}: expected T0 < T1 (the window's start before its "
+                         "end, in seconds)")
     if not (t_start <= t0 < t1 <= t_end):
         raise ValueError(f"window [{t0}, {t1}] s is not inside {sequence.groundtruth_path.name}'s "
                          f"poses [{t_start:.6f}, {t_end:.6f}] s")

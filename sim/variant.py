@@ -171,6 +171,37 @@ def _say(message: str) -> None:
     print(f"evfuse: {message}", file=sys.stderr, flush=True)
 
 
+_ANSI_ESCAPE = re.compile(r"\x1b\[[0-9;]*m")
+_appender = None     # the Mitsuba appender installed by _route_mitsuba_log, kept alive here
+
+
+def _route_mitsuba_log(mi) -> None:
+    """Mitsuba's log as evfuse's own one-line messages on standard error.
+
+    Mitsuba's stream appender writes warnings in colour, with a date and a thread name, straight
+    to the process's standard error; each one comes out instead as ``evfuse: Mitsuba warning:
+    [Class] text`` (one line, no escape codes), and Mitsuba's progress bars are dropped (evfuse
+    draws its own).
+    """
+    global _appender
+
+    class OneLineAppender(mi.Appender):
+        def append(self, level, text):
+            kind = "error" if level == mi.LogLevel.Error else "warning"
+            _say(f"Mitsuba {kind}: {' '.join(_ANSI_ESCAPE.sub('', str(text)).split())}")
+
+        def log_progress(self, progress, name, formatted, eta, ptr=None):
+            pass
+
+    logger = mi.logger() if hasattr(mi, "logger") else mi.Thread.thread().logger()
+    formatter = logger.formatter()
+    for setting in ("set_has_date", "set_has_thread", "set_has_log_level"):
+        getattr(formatter, setting)(False)
+    logger.clear_appenders()
+    _appender = OneLineAppender()
+    logger.add_appender(_appender)
+
+
 def _choose(forced: str | None) -> tuple[str, str | None, str]:
     """Return (variant, llvm library path or None, why)."""
     libraries = find_llvm_libraries()
@@ -189,6 +220,13 @@ def _choose(forced: str | None) -> tuple[str, str | None, str]:
                     "DRJIT_LIBLLVM_PATH)"
                 )
             return forced, working.path, "forced"
+        if forced == "cuda_ad_rgb" and not (
+                _cuda_driver_present()
+                and _probe(forced, libraries[0].path if libraries else None)):
+            instead = next(("llvm_ad_rgb" for lib in libraries
+                            if _probe("llvm_ad_rgb", lib.path)), "scalar_rgb")
+            raise ValueError(f"cuda_ad_rgb was asked for (from --variant or EVFUSE_VARIANT), but "
+                             f"no CUDA device works here; use {instead}")
         return forced, libraries[0].path if libraries else None, "forced"
     if _cuda_driver_present() and _probe("cuda_ad_rgb", libraries[0].path if libraries else None):
         return "cuda_ad_rgb", libraries[0].path if libraries else None, "a GPU works"
@@ -221,7 +259,9 @@ def use_variant(variant: str | None = None) -> str:
     Raises
     ------
     ValueError
-        For an unknown variant, a forced ``llvm_ad_rgb`` with no working LLVM, or a second call
+        For an unknown variant, a forced ``llvm_ad_rgb`` with no working LLVM, a forced
+        ``cuda_ad_rgb`` with no working CUDA device (probed, as ``llvm_ad_rgb``, in a child
+        process; the message names the variant to use instead), or a second call
         that asks for a different variant than the one already active (Dr.Jit cannot reload).
     """
     global _active
@@ -239,6 +279,7 @@ def use_variant(variant: str | None = None) -> str:
     import mitsuba as mi
 
     mi.set_variant(chosen)
+    _route_mitsuba_log(mi)
     _active = chosen
     _say(f"rendering with Mitsuba variant {chosen} ({why})")
     return chosen
