@@ -16,10 +16,11 @@ A filling method is a function ``method(frame, sparse, camera, params) -> dense`
 Built-in methods register under a name (:func:`available_methods` lists them, ``evfuse methods``
 prints them). A user's method is given as ``module:function`` (imported from the current
 folder, as ``python -m`` does, or from ``sys.path``) or installed under the Python entry-point
-group ``evfuse.fill_methods``. :func:`run_method` calls any of them and refuses, in one line naming the method, an output of the wrong shape, a
-non-finite or negative depth, or an exception. A :class:`MethodVariant` is a method with
-settings of its own, labelled ``NAME{KEY=VALUE,...}`` (:func:`method_label`): what ``evfuse
-bench`` and ``evfuse reproduce`` run, the same method possibly under several settings.
+group ``evfuse.fill_methods``. :func:`run_method` calls any of them and refuses, in one line
+naming the method, an output of the wrong shape, a non-finite or negative depth, or an
+exception. A :class:`MethodVariant` is a method with settings of its own, labelled
+``NAME{KEY=VALUE,...}`` (:func:`method_label`): what ``evfuse bench`` and ``evfuse reproduce``
+run, the same method possibly under several settings.
 
 Built-ins, each with its own analytic test (``tests/test_methods.py``):
 

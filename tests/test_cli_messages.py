@@ -232,3 +232,256 @@ def test_an_unknown_frame_sensor_is_refused_naming_the_flag(tmp_path, capsys, co
     assert err.endswith("--frame-sensor 'davis': expected one of ideal, davis240c_aps, "
                         "machine_vision") and len(err.splitlines()) == 1, err
     assert not (tmp_path / "out").exists()
+
+
+# --- issue 21: messages that name the file, key or flag -----------------------------------------
+
+def _line(capsys, code, command):
+    """The one line of an exit-2 refusal, without its ``evfuse COMMAND: error: `` prefix."""
+    return _one_line(capsys, code, command).removeprefix(f"evfuse {command}: error: ")
+
+
+def test_simulate_of_a_sequence_folder_says_it_is_one(tmp_path, capsys):
+    folder = _sequence(tmp_path / "seq")
+    line = _line(capsys, main(["simulate", str(folder), "--out", str(tmp_path / "o")]),
+                 "simulate")
+    assert line == (f"{folder} is a sequence folder, not a scene: a scene is a built-in name or a "
+                    ".toml file; evfuse run, map, events and twin take a sequence folder")
+    assert list(tmp_path.iterdir()) == [folder]
+
+
+def test_a_forced_cuda_variant_without_a_device_names_the_variant_to_use(tmp_path, capsys,
+                                                                       monkeypatch):
+    import sim.variant as variant
+
+    probed = []
+
+    def probe(name, library):
+        probed.append(name)
+        return name != "cuda_ad_rgb"                   # no CUDA device here; LLVM works
+
+    monkeypatch.setattr(variant, "_active", None)
+    monkeypatch.setattr(variant, "_probe", probe)
+    monkeypatch.setattr(variant, "_cuda_driver_present", lambda: True)
+    monkeypatch.setattr(variant, "find_llvm_libraries",
+                        lambda: [variant.LlvmLibrary("/usr/lib/libLLVM-19.so", 19)])
+    monkeypatch.setenv("EVFUSE_VARIANT", "cuda_ad_rgb")
+    out = tmp_path / "o"
+    code = main(["simulate", "slider_close", "--out", str(out), "--duration", "0.05"])
+    assert _line(capsys, code, "simulate") == (
+        "cuda_ad_rgb was asked for (from --variant or EVFUSE_VARIANT), but no CUDA device works "
+        "here; use llvm_ad_rgb")
+    assert probed[0] == "cuda_ad_rgb" and variant.active_variant() is None
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(variant, "_cuda_driver_present", lambda: False)   # no driver: no probe
+    monkeypatch.setattr(variant, "_probe", lambda name, library: False)   # and no LLVM either
+    with pytest.raises(ValueError, match="no CUDA device works here; use scalar_rgb$"):
+        variant.use_variant("cuda_ad_rgb")
+
+
+def test_resume_messages_name_flags_not_python_parameters(tmp_path, capsys):
+    out = tmp_path / "o"
+    line = _line(capsys, main(["simulate", "slider_close", "--out", str(out), "--resume"]),
+                 "simulate")
+    assert line == (f"there is no interrupted run of {out} to resume ({out}.partial does not "
+                    "exist); run without --resume to start one")
+    out.mkdir()
+    (out / "f").write_text("x")
+    line = _line(capsys, main(["simulate", "slider_close", "--out", str(out), "--resume"]),
+                 "simulate")
+    assert line == (f"output folder {out} is already complete; there is nothing to resume (add "
+                    "--overwrite to continue an interrupted run that replaces it)")
+
+
+@pytest.mark.parametrize("command", ["simulate", "run"])
+def test_a_negative_seed_is_blamed_on_the_flag_not_the_scene_file(command, tmp_path, capsys):
+    code = main([command, "slider_close", "--out", str(tmp_path / "o"), "--seed", "-1"])
+    assert _line(capsys, code, command) == "--seed -1: expected an integer >= 0"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_negative_seed_argument_is_not_blamed_on_the_file():
+    from sim.scene import SceneError, parse_scene
+
+    with pytest.raises(SceneError) as info:
+        parse_scene(scene_text(WALL), "wall.toml", seed=-1)
+    assert str(info.value) == ("seed -1 (given to replace the seed of wall.toml): expected an "
+                               "integer >= 0")
+
+
+@pytest.mark.parametrize("value, message", [
+    ("-300", "expected a positive number, got -300"),
+    ("0", "expected a positive number, got 0"),
+    ("[1, -3, 2]", "expected a list of 3 numbers >= 0, got list [1, -3, 2] (item 1)"),
+    ("[0, 0, 0]", "expected a positive number or a list of 3 numbers >= 0 (one per colour "
+                  "channel), not all 0, got list [0, 0, 0]"),
+])
+def test_a_light_s_intensity_must_be_positive(value, message, tmp_path, capsys):
+    scene = tmp_path / "lit.toml"
+    light = f'[[lights]]\ntype = "point"\nposition = [0.0, 0.0, 0.0]\nintensity_cd = {value}\n'
+    scene.write_text(scene_text(WALL, lights=light))
+    line = _line(capsys, main(["simulate", str(scene), "--out", str(tmp_path / "o")]),
+                 "simulate")
+    assert line == f"{scene}: [[lights]][0].intensity_cd: {message}"
+
+
+def test_a_reversed_twin_window_is_called_reversed(tmp_path, capsys):
+    folder = _sequence(tmp_path / "seq")
+    code = main(["twin", str(folder), "--out", str(tmp_path / "o"), "--depth", "1",
+                 "--window", "0.8,0.2"])
+    assert _line(capsys, code, "twin") == ("--window 0.8,0.2: expected T0 < T1 (the window's "
+                                           "start before its end, in seconds)")
+
+
+def test_fill_of_a_missing_folder_says_it_does_not_exist(tmp_path, capsys):
+    missing = tmp_path / "nosuch"
+    code = main(["fill", str(missing), "--out", str(tmp_path / "o")])
+    assert _line(capsys, code, "fill") == (f"map folder {missing} does not exist or is not a "
+                                           "folder (write a map with evfuse map first)")
+
+
+@pytest.mark.parametrize("scenes, tables, named", [
+    ("nosuch", "1,2,3,complex", "nosuch"),
+    ("shapes_6dof,slider_close,nosuch", "1", "slider_close,nosuch"),
+])
+def test_reproduce_names_a_scene_its_tables_lack(scenes, tables, named, tmp_path, capsys):
+    from fusion.reproduce import COMPLEX, SLIDERS, TABLE1_SCENES
+
+    out, cache = tmp_path / "report", tmp_path / "cache"
+    code = main(["reproduce", "--out", str(out), "--cache", str(cache), "--scenes", scenes,
+                 "--tables", tables])
+    offered = TABLE1_SCENES + (SLIDERS + COMPLEX if tables != "1" else ())
+    assert _line(capsys, code, "reproduce") == (f"--scenes {named}: not among the scenes of "
+                                                f"--tables {tables} ({', '.join(offered)})")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_closed_standard_output_ends_the_listing_quietly():
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    child = subprocess.Popen([sys.executable, "-m", "fusion.cli", "methods", "--params"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=root)
+    child.stdout.close()                 # the reader goes before the listing is written (| head)
+    err = child.stderr.read().decode()
+    assert child.wait(timeout=60) == 128 + signal.SIGPIPE and err == "", err
+
+
+def test_version_comes_from_the_package_metadata_or_the_source_tree(capsys, monkeypatch):
+    import tomllib
+    from importlib import metadata
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    with (root / "pyproject.toml").open("rb") as handle:
+        declared = tomllib.load(handle)["project"]["version"]
+    try:
+        installed = metadata.version("evfuse")
+    except metadata.PackageNotFoundError:
+        installed = f"{declared} (source tree {root}, not installed)"
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0 and capsys.readouterr().out == f"evfuse {installed}\n"
+
+    def not_installed(name):
+        raise metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(metadata, "version", not_installed)
+    with pytest.raises(SystemExit):
+        main(["--version"])
+    assert capsys.readouterr().out == f"evfuse {declared} (source tree {root}, not installed)\n"
+
+
+def test_opencv_s_own_warnings_stay_out_of_the_log(tmp_path, capfd):
+    level = cv2.utils.logging.getLogLevel()
+    try:
+        assert main(["scenes"]) == 0
+        capfd.readouterr()
+        assert cv2.imread(str(tmp_path / "missing.png")) is None
+        assert capfd.readouterr().err == ""
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+
+
+def test_mitsuba_s_warnings_come_out_as_one_plain_line(capfd):
+    from sim.variant import use_variant
+
+    use_variant()
+    import mitsuba as mi
+
+    capfd.readouterr()
+    mi.Log(mi.LogLevel.Warn, "a test warning\nover two lines")
+    err = capfd.readouterr().err
+    assert err.startswith("evfuse: Mitsuba warning: [") and len(err.splitlines()) == 1, err
+    assert err.endswith("a test warning over two lines\n") and "\x1b" not in err, repr(err)
+
+
+@pytest.fixture(scope="module")
+def ecd_run(ecd_slider, tmp_path_factory):
+    """``evfuse run`` on the real ECD slider prefix (map and fill, no rendering)."""
+    out = tmp_path_factory.mktemp("ecd") / "run"
+    assert main(["run", str(ecd_slider), "--out", str(out), "--min-depth", "0.47",
+                 "--max-depth", "2.4", "--quiet"]) == 0
+    return out
+
+
+def test_show_names_a_missing_or_unreadable_file_of_the_run(ecd_run, tmp_path, capfd):
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(ecd_run, run)
+    capfd.readouterr()
+    mask = run / "fill" / "filled_mask.png"
+    mask.unlink()
+    line = _line(capfd, main(["show", str(run), "--out", str(tmp_path / "o.png")]), "show")
+    assert line.startswith(f"{mask} does not exist; evfuse show needs the files evfuse run "
+                           "writes (fill/fill.json, "), line
+    mask.write_text("not a PNG")
+    line = _line(capfd, main(["show", str(run), "--out", str(tmp_path / "o.png")]), "show")
+    assert line == f"cannot read {mask}"
+
+
+def test_events_stats_name_an_unreadable_frame(tmp_path, capsys):
+    folder = _sequence(tmp_path / "seq")
+    frame = folder / "images" / "frame_00000001.png"        # the first gives the sensor size
+    frame.write_text("not a PNG")
+    with (folder / "images.txt").open("a") as handle:
+        handle.write("0.6 images/frame_00000001.png\n")
+    line = _line(capsys, main(["events", str(folder), "--stats"]), "events")
+    assert line == f"{frame}: not a readable image"
+
+
+def test_a_user_s_method_module_imports_from_the_current_folder(ecd_run, tmp_path, capsys,
+                                                                 monkeypatch):
+    import json
+    import os
+    import sys
+
+    name = "evfuse_messages_test_fill"
+    (tmp_path / f"{name}.py").write_text(
+        "import numpy as np\n\n"
+        "def fill(frame, sparse, camera, params):\n"
+        "    return np.where(sparse > 0, sparse, 1.5).astype(np.float32)\n")
+    monkeypatch.chdir(tmp_path)
+    here = os.path.realpath(tmp_path)        # as the evfuse script runs: its bin/ first, no cwd
+    monkeypatch.setattr(sys, "path", [p for p in sys.path
+                                      if os.path.realpath(p or os.curdir) != here])
+    try:
+        code = main(["fill", str(ecd_run / "map"), "--out", str(tmp_path / "fill"), "--method",
+                     f"{name}:fill"])
+        assert code == 0, capsys.readouterr().err
+    finally:
+        sys.modules.pop(name, None)
+    assert json.loads((tmp_path / "fill" / "fill.json").read_text())["method"] == f"{name}:fill"
+    capsys.readouterr()
+    code = main(["fill", str(ecd_run / "map"), "--out", str(tmp_path / "fill2"), "--method",
+                 "evfuse_no_such_module:fill"])
+    line = _line(capsys, code, "fill")
+    assert line.endswith("cannot import module 'evfuse_no_such_module' (ModuleNotFoundError: No "
+                         "module named 'evfuse_no_such_module'; looked in the current folder "
+                         f"{tmp_path} and on PYTHONPATH)"), line

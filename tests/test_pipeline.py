@@ -230,7 +230,7 @@ BAD_TOML = 'name = "x"\nduration = [1.0\n'
 @pytest.mark.parametrize("argv, message", [
     (["map", "{tmp}/missing", "--out", "{tmp}/o"], "does not exist"),
     (["run", "{tmp}/missing", "--out", "{tmp}/o"], "no such scene file"),
-    (["fill", "{tmp}/missing", "--out", "{tmp}/o"], "no map.json"),
+    (["fill", "{tmp}/missing", "--out", "{tmp}/o"], "does not exist"),
     (["show", "{tmp}/missing"], "no report.json"),
     (["simulate", "{tmp}/bad.toml", "--out", "{tmp}/o"], "bad.toml"),
     (["events", "{tmp}/badevents", "--stats"], "events.txt:2: x 'three'"),
