@@ -113,7 +113,10 @@ def test_bad_fill_input_gives_one_clear_line(tmp_path, capsys):
         assert code == 2 and message in err and "Traceback" not in err, (depth, err)
         assert not (tmp_path / f"o{k}").exists()
     assert main(["fill", str(tmp_path / "nomap"), "--out", str(tmp_path / "o9")]) == 2
-    assert "no map.json" in capsys.readouterr().err
+    assert f"map folder {tmp_path / 'nomap'} does not exist" in capsys.readouterr().err
+    (tmp_path / "nomap").mkdir()
+    assert main(["fill", str(tmp_path / "nomap"), "--out", str(tmp_path / "o9")]) == 2
+    assert f"{tmp_path / 'nomap'}: no map.json" in capsys.readouterr().err
 
 
 def test_fill_of_a_simulated_plane_map_is_scored_against_exact_depth(plane_sequence, tmp_path):
