@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import math
 import numbers
 import time
 import types
@@ -149,7 +150,8 @@ def coerce_params(method: FillMethod | str, params: Mapping | None) -> dict:
         A method or its spec (:func:`get_method`).
     params : mapping or None
         Setting name -> value. For a method that declares no settings
-        (``FillMethod.params`` None), returned as a dict unchecked.
+        (``FillMethod.params`` None), returned as a dict unchecked (but for non-finite
+        numbers, refused for every method).
 
     Returns
     -------
@@ -159,11 +161,16 @@ def coerce_params(method: FillMethod | str, params: Mapping | None) -> dict:
     Raises
     ------
     MethodError
-        One line naming the method and the key: unknown (with the keys expected) or a value of
-        the wrong type (with the type expected).
+        One line naming the method and the key: unknown (with the keys expected), a value of
+        the wrong type (with the type expected) or a number that is not finite.
     """
     method = get_method(method) if isinstance(method, str) else method
     params = dict(params or {})
+    for key, value in params.items():             # no setting takes one, declared or not
+        if isinstance(value, numbers.Real) and not isinstance(value, bool) \
+                and not math.isfinite(value):
+            raise MethodError(f"filling method {method.name}: {key} expects a finite number, "
+                              f"got {value}")
     if method.params is None:
         return params
     declared = [f.name for f in fields(method.params)]
@@ -233,13 +240,25 @@ def _coerced(method: str, key: str, value, kind):
 
 def parse_value(text: str):
     """A setting's value from text: ``true`` / ``false``, ``none``, an int or float literal, a
-    quoted string; any other text is itself (a string)."""
+    quoted string; any other text is itself (a string).
+
+    Raises
+    ------
+    MethodError
+        A number that is not finite (``nan``, ``inf``, ``1e999``): no setting takes one.
+    """
     stripped = text.strip()
     lowered = stripped.lower()
     if lowered in ("true", "false"):
         return lowered == "true"
     if lowered == "none":
         return None
+    try:
+        number = float(stripped)
+    except ValueError:
+        number = None
+    if number is not None and not math.isfinite(number):
+        raise MethodError(f"{stripped}: expected a finite number")
     try:
         value = ast.literal_eval(stripped)
     except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
@@ -303,7 +322,10 @@ def parse_label(text: str) -> MethodVariant:
             raise MethodError(f"{expected}; got {item!r}")
         if key in params:
             raise MethodError(f"{text}: {key} given twice")
-        params[key] = parse_value(value)
+        try:
+            params[key] = parse_value(value)
+        except MethodError as exc:
+            raise MethodError(f"{text}: {key}={exc}") from None
     return MethodVariant(name.strip(), params)
 
 

@@ -86,3 +86,119 @@ def test_every_builtin_scene_declares_a_range_that_contains_its_exact_depth(path
     low, high = _exact_depth_span(scene, times=5)
     near, far = scene.depth_range
     assert near <= low and high <= far, ((low, high), (near, far))
+
+
+# --------------------------------------------------------------------------------------------
+# Non-finite numbers
+# --------------------------------------------------------------------------------------------
+
+def _numeric_flags():
+    """(command, base argv, flag) for every option of every subcommand that takes a number
+    (its argparse ``type`` is neither None nor str), with the base argv filling the command's
+    required arguments."""
+    import argparse
+
+    from fusion.cli import _parser
+
+    sub = next(a for a in _parser()._actions if isinstance(a, argparse._SubParsersAction))
+    for command, parser in sub.choices.items():
+        base = [command]
+        for action in parser._actions:
+            if not action.option_strings and action.nargs != "?":
+                base.append("x")
+            elif action.required:
+                base += [action.option_strings[0], "1"]
+        for action in parser._actions:
+            if action.option_strings and action.type not in (None, str) \
+                    and action.nargs is None:
+                yield command, base, action.option_strings[0]
+
+
+def test_the_numeric_flags_are_found():
+    found = {(command, flag) for command, _, flag in _numeric_flags()}
+    for expected in [("map", "--c"), ("map", "--t0"), ("run", "--min-depth"),
+                     ("simulate", "--contrast"), ("simulate", "--duration"), ("twin", "--depth"),
+                     ("fill", "--sigma"), ("bench", "--noise"), ("reproduce", "--window"),
+                     ("events", "--window")]:
+        assert expected in found
+    assert len(found) >= 40
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "NaN", "1e999"])
+def test_every_numeric_flag_refuses_a_non_finite_value(value, capsys):
+    """Refused by argparse (exit 2, one error line naming the flag) before any work."""
+    from fusion.cli import _parser
+
+    for command, base, flag in _numeric_flags():
+        with pytest.raises(SystemExit) as stop:
+            _parser().parse_args([*base, flag, value])
+        assert stop.value.code == 2, (command, flag)
+        error = capsys.readouterr().err.strip().splitlines()[-1]
+        assert error.startswith(f"evfuse {command}: error: argument {flag}"), error
+
+
+@pytest.mark.parametrize("command, flag, value, expected", [
+    ("map", "--planes", "1", "an integer >= 2"),
+    ("simulate", "--seed", "-1", "an integer >= 0"),
+    ("simulate", "--duration", "0", "a finite number > 0"),
+    ("fill", "--sigma", "-2", "a finite number > 0"),
+    ("twin", "--depth", "-0.5", "a finite number > 0"),
+])
+def test_numeric_flags_refuse_values_out_of_their_range(command, flag, value, expected, capsys):
+    from fusion.cli import _parser
+
+    base = {"map": ["map", "seq", "--out", "o"], "simulate": ["simulate", "s", "--out", "o"],
+            "fill": ["fill", "m", "--out", "o"], "twin": ["twin", "r", "--out", "o"]}[command]
+    with pytest.raises(SystemExit):
+        _parser().parse_args([*base, flag, value])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert error == f"evfuse {command}: error: argument {flag}: expected {expected}, got " \
+                    f"'{value}'"
+
+
+def test_method_settings_refuse_non_finite_numbers(tmp_path, capsys):
+    from fusion.cli import main
+    from fusion.methods import MethodError, check_params, get_method, parse_label, parse_value
+
+    for text in ("nan", "inf", "-inf", "1e999", " -1E999 "):
+        with pytest.raises(MethodError, match="expected a finite number"):
+            parse_value(text)
+    assert parse_value("0.5") == 0.5 and parse_value("nanometre") == "nanometre"
+    with pytest.raises(MethodError, match=r"plane\{residual_rel=inf\}: residual_rel=inf"):
+        parse_label("plane{residual_rel=inf}")
+    undeclared = dataclasses.replace(get_method("nearest"), params=None)   # passed on unchecked
+    with pytest.raises(MethodError, match="k expects a finite number, got nan"):
+        check_params(undeclared, {"k": float("nan")})
+    code = main(["fill", str(tmp_path), "--out", str(tmp_path / "o"), "--method", "plane",
+                 "--param", "residual_rel=1e999"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == "evfuse fill: error: --param residual_rel=1e999: expected a " \
+                                "finite number"
+
+
+def test_library_parameters_refuse_non_finite_numbers():
+    from fusion.emvs import DepthMapParams
+    from fusion.pipeline import RunParams
+    from fusion.reproduce import ReproduceParams
+    from sim.sampling import SamplingParams
+
+    for make, message in [
+            (lambda: DepthMapParams(c=float("nan")), "c must be a finite number"),
+            (lambda: DepthMapParams(kernel=float("nan")), "kernel must be an integer"),
+            (lambda: SamplingParams(max_rate=float("inf")), "max_rate must be a finite"),
+            (lambda: ReproduceParams(window=float("inf")), "window must be a finite"),
+            (lambda: ReproduceParams(lam=float("nan")), "lam must be a finite"),
+            (lambda: RunParams(t0=float("nan")), "t0 must be a finite"),
+            (lambda: RunParams(max_depth=float("inf")), "max_depth must be a finite")]:
+        with pytest.raises(ValueError, match=message):
+            make()
+
+
+def test_a_twin_window_of_non_finite_times_is_refused_naming_the_flag(tmp_path, capsys):
+    from fusion.cli import main
+
+    code = main(["twin", str(tmp_path), "--depth", "0.5", "--window", "nan,1", "--out",
+                 str(tmp_path / "t")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.startswith("evfuse twin: error: --window: expected T0,T1 in "
+                                        "seconds (finite)")
