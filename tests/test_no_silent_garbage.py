@@ -19,7 +19,7 @@ BUILTIN_SCENES = sorted((ROOT / "scenes").glob("*.toml"))
 # Declared depth ranges contain the exact depth
 # --------------------------------------------------------------------------------------------
 
-def _exact_depth_span(scene, times: int = 4, size: tuple[int, int] = (40, 30)):
+def _exact_depth_span(scene, times: int = 3, size: tuple[int, int] = (32, 24)):
     """(min, max) exact z-depth over ``times`` instants of ``[0, duration]``, rendered by
     Mitsuba on a small sensor of the same field of view (plain materials: geometry only)."""
     from sim.render import Renderer
@@ -45,7 +45,7 @@ def _family_members():
 
     for family, knobs in FAMILIES.items():
         names = list(knobs)
-        values = [(low, high, default, (low + high) / 2) for default, low, high in
+        values = [sorted({low, high, default, (low + high) / 2}) for default, low, high in
                   knobs.values()]
         for combo in itertools.product(*values):
             yield family, dict(zip(names, combo, strict=True))
@@ -56,6 +56,7 @@ def test_every_family_member_declares_a_range_that_contains_its_exact_depth():
     from sim.scene import parse_scene
 
     made = {family: 0 for family in FAMILIES}
+    seen = set()
     for family, knobs in _family_members():
         try:
             text = family_scene(family, **knobs)
@@ -63,6 +64,10 @@ def test_every_family_member_declares_a_range_that_contains_its_exact_depth():
             assert "\n" not in str(exc) and str(exc).startswith("--")
             continue
         scene = parse_scene(text)
+        geometry = repr([(o.shape, o.center, o.rotation, o.params) for o in scene.objects])
+        if geometry in seen:                        # e.g. shadow 0.5 and 1: the same scene
+            continue
+        seen.add(geometry)
         low, high = _exact_depth_span(scene)
         near, far = scene.depth_range
         assert near <= low and high <= far, (family, knobs, (low, high), (near, far))
@@ -126,15 +131,17 @@ def test_the_numeric_flags_are_found():
 
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf", "NaN", "1e999"])
 def test_every_numeric_flag_refuses_a_non_finite_value(value, capsys):
-    """Refused by argparse (exit 2, one error line naming the flag) before any work."""
+    """Refused by argparse (exit 2, one error line naming the flag) before any work; given
+    as ``--flag=VALUE``, the form in which argparse takes ``-inf`` as a value."""
     from fusion.cli import _parser
 
     for command, base, flag in _numeric_flags():
         with pytest.raises(SystemExit) as stop:
-            _parser().parse_args([*base, flag, value])
+            _parser().parse_args([*base, f"{flag}={value}"])
         assert stop.value.code == 2, (command, flag)
         error = capsys.readouterr().err.strip().splitlines()[-1]
-        assert error.startswith(f"evfuse {command}: error: argument {flag}"), error
+        assert error.startswith(f"evfuse {command}: error: argument {flag}: expected "), error
+        assert error.endswith(f", got '{value}'"), error
 
 
 @pytest.mark.parametrize("command, flag, value, expected", [
@@ -202,3 +209,106 @@ def test_a_twin_window_of_non_finite_times_is_refused_naming_the_flag(tmp_path, 
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.startswith("evfuse twin: error: --window: expected T0,T1 in "
                                         "seconds (finite)")
+
+
+# --------------------------------------------------------------------------------------------
+# A window the scene cannot hold
+# --------------------------------------------------------------------------------------------
+
+def test_a_default_window_past_the_scene_end_is_refused_naming_t0(tmp_path, capsys, monkeypatch):
+    """`evfuse run slider_far --t0 6.4` mapped 0.1 s of the 1 s the help promises."""
+    import importlib
+
+    from fusion.cli import main
+    from fusion.pipeline import RunParams, _simulate_window
+
+    module = importlib.import_module("sim.simulate")
+    calls = []
+    monkeypatch.setattr(module, "simulate",
+                        lambda scene, folder, **k: calls.append((k["start"], k["duration"])))
+    code = main(["run", "slider_far", "--t0", "6.4", "--out", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and not calls, err
+    assert err == ("evfuse run: error: --t0 6.4: the default 1 s window, [6.4, 7.4] s, reaches "
+                   "past the end of scene slider_far ([0, 6.5] s); give --t0 at most 5.5 or "
+                   "--t1 at most 6.5, or --clip-window to map [6.4, 6.5] s")
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o.partial").exists()
+    # With clip_window the scene is simulated to its end and the map asked the whole second
+    # (map.json then records the window as clipped); a window that fits is simulated as asked.
+    for params, window in ((RunParams(t0=6.4, clip_window=True), (6.4, 6.5, 7.4)),
+                           (RunParams(t0=5.5), (5.5, 6.5, 6.5))):
+        calls.clear()
+        _, t0, t1 = _simulate_window("slider_far", tmp_path / "s", params, False, {})
+        assert (t0, calls[0][0] + calls[0][1], t1) == pytest.approx(window)
+
+
+# --------------------------------------------------------------------------------------------
+# Millimetres, refused where they enter
+# --------------------------------------------------------------------------------------------
+
+def test_a_scene_depth_range_in_millimetres_is_refused_naming_the_key():
+    from sim.scene import SceneError, parse_scene
+    from sim.validation import PLAUSIBLE_DEPTH_M
+
+    text = (ROOT / "scenes" / "slider_far.toml").read_text()
+    assert "depth_range = [0.3, 1.5]" in text
+    with pytest.raises(SceneError) as error:
+        parse_scene(text.replace("depth_range = [0.3, 1.5]", "depth_range = [500, 3000]"),
+                    "mm.toml")
+    assert str(error.value) == ("mm.toml: depths are in metres: depth_range 500 looks like "
+                                f"millimetres (0.5 m?); depths above {PLAUSIBLE_DEPTH_M:g} m "
+                                "are refused")
+    parse_scene(text.replace("depth_range = [0.3, 1.5]", "depth_range = [0.3, 90]"))
+
+
+def test_a_twin_depth_in_millimetres_is_refused_before_reading(tmp_path, capsys):
+    from fusion.cli import main
+    from sim.twin import write_twin
+
+    with pytest.raises(ValueError, match=r"^depths are in metres: --depth 880 looks like "
+                                         r"millimetres \(0.88 m\?\)"):
+        write_twin(tmp_path / "nowhere", tmp_path / "t", 880.0)
+    code = main(["twin", str(tmp_path / "nowhere"), "--depth", "880", "--out",
+                 str(tmp_path / "t")])
+    assert code == 2 and "--depth 880 looks like millimetres" in capsys.readouterr().err
+    assert not (tmp_path / "t").exists()
+
+
+def test_the_library_refuses_dsi_bounds_in_millimetres(plane_sequence):
+    from fusion.dsi_range import resolve_dsi_range
+    from sim.sequence import load_sequence
+
+    sequence = load_sequence(plane_sequence)
+    with pytest.raises(ValueError, match="--max-depth 2400 looks like millimetres"):
+        resolve_dsi_range(sequence, 0.5, 2400.0)
+    assert resolve_dsi_range(sequence, 0.5, 2.4).max_depth == 2.4
+
+
+# --------------------------------------------------------------------------------------------
+# evfuse twin's default output simulates
+# --------------------------------------------------------------------------------------------
+
+def test_a_twin_of_the_whole_recording_is_accepted_by_simulate(ecd_slider, tmp_path,
+                                                              monkeypatch):
+    """Its duration was the window's length rounded to 9 significant digits (3.38019462 s),
+    past the last pose written to the nanosecond (3.380194616 s): simulate refused it."""
+    import importlib
+
+    from sim.scene import load_scene
+    from sim.twin import write_twin
+
+    scene = load_scene(write_twin(ecd_slider, tmp_path / "twin", 0.6))       # no window
+    assert scene.duration <= scene.trajectory.t_end
+    assert scene.duration == pytest.approx(scene.trajectory.t_end, abs=1.5e-9)
+
+    class Validated(Exception):
+        pass
+
+    module = importlib.import_module("sim.simulate")
+
+    def renderer(*args, **kwargs):                   # simulate's checks are done: stop here
+        raise Validated
+
+    monkeypatch.setattr(module, "Renderer", renderer)
+    with pytest.raises(Validated):
+        module.simulate(scene, tmp_path / "seq", progress=False)
