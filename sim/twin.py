@@ -40,7 +40,7 @@ import numpy as np
 from sim.sequence import load_sequence
 from sim.statistics import frame_noise
 from sim.textures import linear_to_srgb
-from sim.validation import depth_metres
+from sim.validation import depth_metres, positive
 
 __all__ = ["write_twin"]
 
@@ -90,7 +90,7 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     from sim.trajectory import read_trajectory
 
     recording, out = Path(recording), Path(out)
-    depth = depth_metres("--depth", depth)
+    depth = depth_metres("--depth", positive("--depth", depth))
     if not (math.isfinite(frame_gamma) and frame_gamma > 0):
         raise ValueError(f"--frame-gamma must be a positive number, got {frame_gamma}")
     if not (math.isfinite(illuminance) and illuminance > 0):

@@ -50,9 +50,10 @@ def non_negative(name: str, value: object) -> float:
 
 
 def depth_metres(name: str, value: object) -> float:
-    """``value`` as a depth in metres, finite, > 0 and at most :data:`PLAUSIBLE_DEPTH_M`, or a
-    ValueError naming ``name`` (beyond that bound: saying it looks like millimetres)."""
-    value = positive(name, value)
+    """``value`` as a depth in metres, finite and at most :data:`PLAUSIBLE_DEPTH_M`, or a
+    ValueError naming ``name`` (beyond that bound: saying it looks like millimetres). Its sign
+    is the caller's to check (with :func:`positive`, or against the other bound of a range)."""
+    value = finite(name, value)
     if value > PLAUSIBLE_DEPTH_M:
         raise ValueError(f"depths are in metres: {name} {value:g} looks like millimetres "
                          f"({value / 1000:g} m?); depths above {PLAUSIBLE_DEPTH_M:g} m are "
