@@ -245,7 +245,8 @@ def parse_value(text: str):
     Raises
     ------
     MethodError
-        A number that is not finite (``nan``, ``inf``, ``1e999``): no setting takes one.
+        A literal that overflows to infinity (``1e999``): no setting takes one. (``nan`` and
+        ``inf`` are not literals: they are text, which a number setting refuses.)
     """
     stripped = text.strip()
     lowered = stripped.lower()
@@ -254,15 +255,11 @@ def parse_value(text: str):
     if lowered == "none":
         return None
     try:
-        number = float(stripped)
-    except ValueError:
-        number = None
-    if number is not None and not math.isfinite(number):
-        raise MethodError(f"{stripped}: expected a finite number")
-    try:
         value = ast.literal_eval(stripped)
     except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
         return stripped
+    if isinstance(value, float) and not math.isfinite(value):
+        raise MethodError(f"{stripped}: expected a finite number")
     return value if isinstance(value, bool | int | float | str) else stripped
 
 
