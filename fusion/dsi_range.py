@@ -147,7 +147,7 @@ def resolve_dsi_range(sequence: Sequence, min_depth: float | None = None,
     if not (np.isfinite(low) and np.isfinite(high) and 0 < low < high):
         raise ValueError(f"depth range [{low:g}, {high:g}] m ({source}): expected "
                          "0 < --min-depth < --max-depth, in metres")
-    for flag, value in (("--min-depth", min_depth), ("--max-depth", max_depth)):
-        if value is not None:
-            depth_metres(flag, float(value))            # millimetres?
+    declared_key = f"depth_range of the scene in {sequence.folder / 'sequence.json'}"
+    for flag, value, was_given in (("--min-depth", low, given[0]), ("--max-depth", high, given[1])):
+        depth_metres(flag if was_given else declared_key, value)          # millimetres?
     return DSIRange(low, high, source)

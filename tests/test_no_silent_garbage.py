@@ -276,14 +276,23 @@ def test_a_twin_depth_in_millimetres_is_refused_before_reading(tmp_path, capsys)
     assert not (tmp_path / "t").exists()
 
 
-def test_the_library_refuses_dsi_bounds_in_millimetres(plane_sequence):
-    from fusion.dsi_range import resolve_dsi_range
-    from sim.sequence import load_sequence
+def test_the_library_refuses_dsi_bounds_in_millimetres():
+    from types import SimpleNamespace
 
-    sequence = load_sequence(plane_sequence)
+    from fusion.dsi_range import resolve_dsi_range
+
+    # resolve_dsi_range reads a sequence's folder and the scene TOML kept in sequence.json.
+    sequence = SimpleNamespace(folder=Path("seq"), metadata={"scene": {"toml": "x = 1"}})
     with pytest.raises(ValueError, match="--max-depth 2400 looks like millimetres"):
         resolve_dsi_range(sequence, 0.5, 2400.0)
     assert resolve_dsi_range(sequence, 0.5, 2.4).max_depth == 2.4
+    # A sequence simulated from a scene in millimetres before scene files were checked for it.
+    old = SimpleNamespace(folder=Path("seq"),
+                          metadata={"scene": {"toml": "depth_range = [500, 3000]"}})
+    with pytest.raises(ValueError, match=r"depth_range of the scene in seq/sequence.json 500 "
+                                         r"looks like millimetres"):
+        resolve_dsi_range(old)
+    assert resolve_dsi_range(old, 0.5, 2.4).min_depth == 0.5            # both given: used
 
 
 # --------------------------------------------------------------------------------------------
