@@ -12,21 +12,54 @@ import threading
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["main"]
+from sim.validation import (
+    PLAUSIBLE_DEPTH_M,  # noqa: F401  (the bound of --min/--max-depth)
+    depth_metres,
+    finite,
+    non_negative,
+    positive,
+)
 
-PLAUSIBLE_DEPTH_M = 100.0
-"""Largest depth bound (--min-depth, --max-depth) accepted, metres: beyond it the bound is taken
-for millimetres (the ECD's 0.47-2.4 m written 470-2400) and refused. Event-based mapping over a
-window's baseline (centimetres to metres) resolves no depth out there anyway."""
+__all__ = ["main"]
 
 
 def _check_depth_flags(args: argparse.Namespace) -> None:
-    """Refuse depth bounds that are implausible in metres, before any work."""
+    """Refuse depth bounds that are implausible in metres (:func:`sim.validation.depth_metres`),
+    before any work."""
     for flag, value in (("--min-depth", args.min_depth), ("--max-depth", args.max_depth)):
-        if value is not None and value > PLAUSIBLE_DEPTH_M:
-            raise ValueError(f"depths are in metres: {flag} {value:g} looks like millimetres "
-                             f"({value / 1000:g} m?); bounds above {PLAUSIBLE_DEPTH_M:g} m are "
-                             "refused")
+        if value is not None:
+            depth_metres(flag, value)
+
+
+def _number_type(check, what: str):
+    """An argparse ``type=``: the text as a float that passes ``check`` (a validator of
+    :mod:`sim.validation`), else argparse's usage and one error line naming the flag."""
+    def parse(text: str) -> float:
+        try:
+            return check("value", float(text))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    parse.__name__ = what
+    return parse
+
+
+def _count_type(minimum: int):
+    """An argparse ``type=``: the text as an integer >= ``minimum``."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
+        return value
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
+
+
+_FINITE = _number_type(finite, "a finite number")
+_POSITIVE = _number_type(positive, "a finite number > 0")
+_NON_NEGATIVE = _number_type(non_negative, "a finite number >= 0")
 
 
 def _check_seed(args: argparse.Namespace) -> None:
@@ -72,7 +105,10 @@ def _param_flag(text: str) -> tuple[str | None, str, object]:
     if not equals or not key.isidentifier() or (dot and not scope):
         raise ValueError(f"--param {text}: expected KEY=VALUE, or METHOD.KEY=VALUE for one "
                          "method's (e.g. --param plane.residual_rel=0.03)")
-    return scope or None, key, parse_value(value)
+    try:
+        return scope or None, key, parse_value(value)
+    except ValueError:
+        raise ValueError(f"--param {text}: expected a finite number") from None
 
 
 def _method_variants(methods: list[str], params: list[str], single: bool = False) -> list:
@@ -354,8 +390,9 @@ def _cmd_twin(args: argparse.Namespace) -> int:
             window = tuple(float(v) for v in args.window.split(","))
         except ValueError:
             window = ()
-        if len(window) != 2:
-            raise ValueError(f"--window: expected T0,T1 in seconds, got {args.window!r}")
+        if len(window) != 2 or not all(math.isfinite(t) for t in window):
+            raise ValueError(f"--window: expected T0,T1 in seconds (finite), got "
+                             f"{args.window!r}")
     scene = write_twin(args.recording, args.out, args.depth, window, args.illuminance,
                        args.frame_sensor, args.frame_gamma)
     print(f"twin scene written to {scene}; simulate it with: evfuse simulate {scene} "
@@ -607,19 +644,20 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
 
 def _add_map_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--t0", type=float, default=None,
+    parser.add_argument("--t0", type=_FINITE, default=None,
                         help="window start, s (default: where the events and the poses begin; "
                              "for a scene, 0)")
-    parser.add_argument("--t1", type=float, default=None,
+    parser.add_argument("--t1", type=_FINITE, default=None,
                         help="window end, s (default: where the events or the poses end; for a "
-                             "scene, 1 s after --t0)")
+                             "scene, 1 s after --t0, refused where the scene ends sooner)")
     parser.add_argument("--clip-window", action="store_true",
-                        help="map the part of --t0/--t1 that the events and poses cover "
-                             "(recorded in map.json) instead of refusing a window past them")
-    parser.add_argument("--min-depth", type=float, default=None,
+                        help="map the part of --t0/--t1 that the events and poses (or the "
+                             "scene) cover (recorded in map.json) instead of refusing a window "
+                             "past them")
+    parser.add_argument("--min-depth", type=_FINITE, default=None,
                         help="nearest DSI plane, m (default: the near end of the working range "
                              "the scene file declares, else 0.2 m)")
-    parser.add_argument("--max-depth", type=float, default=None,
+    parser.add_argument("--max-depth", type=_FINITE, default=None,
                         help="farthest DSI plane, m (default: the far end of the working range "
                              "the scene file declares, else 5 m)")
     parser.add_argument("--depth-range", choices=("auto", "oracle"), default="auto",
@@ -627,16 +665,16 @@ def _add_map_options(parser: argparse.ArgumentParser) -> None:
                              "range, else 0.2-5 m, never the exact depth; oracle: the exact "
                              "depth at the reference view widened by 20 %% (simulated sequences "
                              "only; every output then says it used the answer)")
-    parser.add_argument("--planes", type=int, default=100,
+    parser.add_argument("--planes", type=_count_type(2), default=100,
                         help="depth planes, uniform in inverse depth (default 100, the paper's "
                              "240x180x100 grid)")
-    parser.add_argument("--kernel", type=int, default=5,
+    parser.add_argument("--kernel", type=_count_type(3), default=5,
                         help="adaptive threshold block size, odd (default 5, rpg_emvs's; the "
                              "paper's sliders: 15)")
-    parser.add_argument("--c", type=float, default=5.0,
+    parser.add_argument("--c", type=_FINITE, default=5.0,
                         help="adaptive threshold constant (default 5, rpg_emvs's; the paper's "
                              "sliders: 7)")
-    parser.add_argument("--median", type=int, default=5,
+    parser.add_argument("--median", type=_count_type(1), default=5,
                         help="median filter size, px (default 5, rpg_emvs's)")
 
 
@@ -655,19 +693,19 @@ def _add_dense_options(parser: argparse.ArgumentParser) -> None:
                              "else as text, and coerced to the setting's type. `evfuse methods "
                              "--params` lists each method's settings and defaults; recorded as "
                              "method_params in fill.json / report.json")
-    parser.add_argument("--threshold", type=float, default=3.0,
+    parser.add_argument("--threshold", type=_NON_NEGATIVE, default=3.0,
                         help="region growing threshold, gray levels (default 3, the paper's)")
-    parser.add_argument("--min-region", type=int, default=None,
+    parser.add_argument("--min-region", type=_count_type(1), default=None,
                         help="smallest region kept, pixels (default max(20, Res / 1000), ours: "
                              "the paper ignores 'small regions' without a size)")
-    parser.add_argument("--ring", type=int, default=3,
+    parser.add_argument("--ring", type=_count_type(1), default=3,
                         help="half-width of the band on both sides of a region's contour where "
                              "its map points are counted, px (default 3, the paper's "
                              "'3-pixel ring')")
-    parser.add_argument("--min-ring-ratio", type=float, default=0.30,
+    parser.add_argument("--min-ring-ratio", type=_NON_NEGATIVE, default=0.30,
                         help="band map points per contour pixel needed to fill (default 0.30, "
                              "the paper's '30 %% of the contour length')")
-    parser.add_argument("--max-inside-ratio", type=float, default=0.05,
+    parser.add_argument("--max-inside-ratio", type=_NON_NEGATIVE, default=0.05,
                         help="map points inside, off the band, per region pixel allowed "
                              "(default 0.05, the paper's '5 %% of the region size')")
     parser.add_argument("--weighting", choices=("idw", "gaussian", "exponential"),
@@ -675,9 +713,9 @@ def _add_dense_options(parser: argparse.ArgumentParser) -> None:
                         help="interpolation weights (default idw, the first of the paper's "
                              "Table 3, which finds the errors insensitive to it); --weighting W "
                              "is --method paper-W")
-    parser.add_argument("--sigma", type=float, default=5.0,
+    parser.add_argument("--sigma", type=_POSITIVE, default=5.0,
                         help="Gaussian weights' sigma, px (default 5, the paper's)")
-    parser.add_argument("--scale", type=float, default=1.0,
+    parser.add_argument("--scale", type=_POSITIVE, default=1.0,
                         help="exponential weights' decay length, px: exp(-d / scale) "
                              "(default 1, the paper's exp(-d))")
 
@@ -766,9 +804,9 @@ def _parser() -> argparse.ArgumentParser:
                            help=f"comma-separated values; {what}")
     bench.add_argument("--only", action="store_true",
                        help="bench only the --method ones, not every built-in")
-    bench.add_argument("--noise", type=float, default=0.02,
+    bench.add_argument("--noise", type=_NON_NEGATIVE, default=0.02,
                        help="relative depth noise of oracle-noisy (default 0.02)")
-    bench.add_argument("--outliers", type=float, default=0.05,
+    bench.add_argument("--outliers", type=_NON_NEGATIVE, default=0.05,
                        help="share of outliers in oracle-noisy (default 0.05)")
     bench.add_argument("--out", required=True, help="folder to write")
     bench.add_argument("--cache", default=None,
@@ -785,13 +823,13 @@ def _parser() -> argparse.ArgumentParser:
                     "sequence.json.")
     simulate.add_argument("scene", help="built-in scene name or path of a .toml scene file")
     simulate.add_argument("--out", required=True, help="sequence folder to write")
-    simulate.add_argument("--duration", type=float, default=None,
+    simulate.add_argument("--duration", type=_POSITIVE, default=None,
                           help="seconds to simulate (default: the scene's duration)")
-    simulate.add_argument("--start", type=float, default=0.0,
+    simulate.add_argument("--start", type=_FINITE, default=0.0,
                           help="time of the scene's trajectory to start at, s (default 0)")
-    simulate.add_argument("--seed", type=int, default=None,
+    simulate.add_argument("--seed", type=_count_type(0), default=None,
                           help="seed of every random draw (default: the scene's seed)")
-    simulate.add_argument("--spp", type=int, default=None,
+    simulate.add_argument("--spp", type=_count_type(1), default=None,
                           help="samples per pixel, a perfect square (default: the scene's)")
     simulate.add_argument("--variant", default=None,
                           help="Mitsuba variant: cuda_ad_rgb, llvm_ad_rgb or scalar_rgb "
@@ -799,19 +837,19 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("--overwrite", action="store_true",
                           help="replace an existing output folder once the new one is complete")
     simulate.add_argument("--quiet", action="store_true", help="no progress bar")
-    simulate.add_argument("--contrast", type=float, default=0.2,
+    simulate.add_argument("--contrast", type=_FINITE, default=0.2,
                           help="contrast thresholds C+ = C- of the event camera (default 0.2)")
     simulate.add_argument("--noise", choices=("ideal", "realistic"), default="ideal",
                           help="event-camera noise preset (default ideal: no noise)")
     simulate.add_argument("--frame-sensor", default=None, metavar="NAME",
                           help="the standard camera's sensor: ideal (no noise), davis240c_aps "
                                "or machine_vision (default: the scene's [frames] sensor)")
-    simulate.add_argument("--lambda", dest="lam", type=float, default=0.5,
+    simulate.add_argument("--lambda", dest="lam", type=_FINITE, default=0.5,
                           help="adaptive sampling: largest change of log intensity between "
                                "renders, as a fraction of C (default 0.5)")
-    simulate.add_argument("--min-rate", type=float, default=100.0,
+    simulate.add_argument("--min-rate", type=_FINITE, default=100.0,
                           help="lowest render rate for the event camera, Hz (default 100)")
-    simulate.add_argument("--max-rate", type=float, default=20000.0,
+    simulate.add_argument("--max-rate", type=_FINITE, default=20000.0,
                           help="highest render rate for the event camera, Hz (default 20000)")
     simulate.add_argument("--sampler", choices=("pixel", "frame"), default=None,
                           help="how the event camera is sampled: pixel (each pixel at its own "
@@ -846,7 +884,7 @@ def _parser() -> argparse.ArgumentParser:
     events.add_argument("sequence", help="sequence folder with events.h5 or events.txt")
     events.add_argument("--stats", action="store_true",
                         help="print count, rate, ON/OFF balance and write an event-frame PNG")
-    events.add_argument("--window", type=float, default=None,
+    events.add_argument("--window", type=_POSITIVE, default=None,
                         help="seconds of events from the start drawn in the event frame "
                              "(default: all)")
     events.add_argument("--out", default=None,
@@ -864,18 +902,18 @@ def _parser() -> argparse.ArgumentParser:
                     "trajectory and frame rate, and a poster like its view at --depth.")
     twin.add_argument("recording", help="an Event-Camera Dataset folder (calib.txt, "
                                         "groundtruth.txt, images.txt)")
-    twin.add_argument("--depth", type=float, required=True,
+    twin.add_argument("--depth", type=_POSITIVE, required=True,
                       help="the poster's depth, m, in the camera at the window's start (e.g. "
                            "the median depth of `evfuse map` on the recording)")
     twin.add_argument("--window", default=None, metavar="T0,T1",
                       help="seconds of the recording to copy (default: its poses' span)")
-    twin.add_argument("--illuminance", type=float, default=400.0,
+    twin.add_argument("--illuminance", type=_POSITIVE, default=400.0,
                       help="lux on the poster, from a light along the optical axis (default 400, "
                            "an office)")
     twin.add_argument("--frame-sensor", default="davis240c_aps",
                       choices=("ideal", "davis240c_aps", "machine_vision"),
                       help="the standard camera's sensor (default davis240c_aps, the ECD's)")
-    twin.add_argument("--frame-gamma", type=float, default=1.0,
+    twin.add_argument("--frame-gamma", type=_POSITIVE, default=1.0,
                       help="the recording's frames are 255 * light^(1/GAMMA) (default 1: linear, "
                            "as a DAVIS APS; 2.2 for a gamma-encoded camera)")
     twin.add_argument("--out", required=True, help="folder to write")
@@ -889,7 +927,7 @@ def _parser() -> argparse.ArgumentParser:
                     "simulated sequences).")
     mapping.add_argument("sequence", help="sequence folder (simulated or ECD)")
     mapping.add_argument("--out", required=True, help="folder to write the map into")
-    mapping.add_argument("--ref-time", type=float, default=None,
+    mapping.add_argument("--ref-time", type=_FINITE, default=None,
                          help="reference view time, s (default: the standard frame nearest the "
                               "middle of the window, the frame the map is filled with)")
     _add_map_options(mapping)
@@ -925,8 +963,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("source", help="scene name, scene file or sequence folder")
     run.add_argument("--out", required=True, help="run folder to write")
     _add_map_options(run)
-    run.add_argument("--spp", type=int, default=None, help="samples per pixel (scenes)")
-    run.add_argument("--seed", type=int, default=None, help="simulation seed (scenes)")
+    run.add_argument("--spp", type=_count_type(1), default=None, help="samples per pixel (scenes)")
+    run.add_argument("--seed", type=_count_type(0), default=None, help="simulation seed (scenes)")
     _add_dense_options(run)
     run.add_argument("--overwrite", action="store_true")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -945,9 +983,9 @@ def _parser() -> argparse.ArgumentParser:
     repro.add_argument("--out", required=True, help="report folder to write")
     repro.add_argument("--cache", default=None,
                        help="folder of simulated windows, re-used (default OUT-cache)")
-    repro.add_argument("--window", type=float, default=1.0,
+    repro.add_argument("--window", type=_POSITIVE, default=1.0,
                        help="slider window length, s (default 1, as the paper)")
-    repro.add_argument("--long-window", type=float, default=2.0,
+    repro.add_argument("--long-window", type=_POSITIVE, default=2.0,
                        help="6-DoF and complex-surface window length, s (default 2, as the "
                             "paper's Table 1)")
     repro.add_argument("--tables", default="1,2,3,complex",

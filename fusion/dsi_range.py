@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.sequence import Sequence
+from sim.validation import depth_metres
 
 __all__ = ["DEFAULT_RANGE", "ORACLE_MARGIN", "DSIRange", "declared_range", "oracle_header",
            "resolve_dsi_range"]
@@ -122,7 +123,8 @@ def resolve_dsi_range(sequence: Sequence, min_depth: float | None = None,
     Raises
     ------
     ValueError
-        Oracle with a given bound or without exact depth; a range with near >= far.
+        Oracle with a given bound or without exact depth; a range with near >= far; a bound
+        in millimetres (:func:`sim.validation.depth_metres`).
     """
     if oracle:
         if min_depth is not None or max_depth is not None:
@@ -145,4 +147,7 @@ def resolve_dsi_range(sequence: Sequence, min_depth: float | None = None,
     if not (np.isfinite(low) and np.isfinite(high) and 0 < low < high):
         raise ValueError(f"depth range [{low:g}, {high:g}] m ({source}): expected "
                          "0 < --min-depth < --max-depth, in metres")
+    declared_key = f"depth_range of the scene in {sequence.folder / 'sequence.json'}"
+    for flag, value, was_given in (("--min-depth", low, given[0]), ("--max-depth", high, given[1])):
+        depth_metres(flag if was_given else declared_key, value)          # millimetres?
     return DSIRange(low, high, source)

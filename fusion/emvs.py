@@ -19,6 +19,7 @@ Planes are uniform in inverse depth. Events share the pose of their packet's mid
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import cv2
@@ -27,6 +28,7 @@ import numpy as np
 
 from sim.camera import Camera
 from sim.se3 import invert_pose
+from sim.validation import finite
 
 __all__ = ["DSIParams", "DepthMapParams", "depth_planes", "disparity_space_image",
            "masked_median", "ray_coefficients", "semidense_depth"]
@@ -277,6 +279,11 @@ class DepthMapParams:
     border: int = 1
 
     def __post_init__(self) -> None:
+        for name in ("kernel", "median", "border"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+                raise ValueError(f"{name} must be an integer, got {value!r}")
+        object.__setattr__(self, "c", finite("c", self.c))
         if self.kernel < 3 or self.kernel % 2 == 0:
             raise ValueError(f"kernel must be an odd integer >= 3, got {self.kernel}")
         if self.median < 1 or self.median % 2 == 0:

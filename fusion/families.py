@@ -13,24 +13,37 @@ family         knobs
                two steps, default min(0.2, 0.8 / (steps - 1)); the last step must stay
                0.2 m in front of the wall)
 ``sphere``     ``radius`` (m), ``distance`` (m), ``shadow`` (0/1: a point light that casts
-               the sphere's shadow on the wall, or light from the camera's side only)
-``cylinder``   ``radius`` (m), ``distance`` (m)
+               the sphere's shadow on the wall, or light from the camera's side only); its
+               front, ``distance - radius``, must stay 0.2 m from the camera
+``cylinder``   ``radius`` (m), ``distance`` (m); as the sphere's, its front 0.2 m away
 ``slanted``    ``angle`` (degrees between the poster and the image plane, 0-75)
 ``heightfield`` ``amplitude`` (m), ``wavelength`` (m)
 =============  ==========================================================================
 
 and every family takes ``texture`` (1: textured objects, 0: plain gray ones, which give events
 only at their outlines).
+
+Each member declares the working depth range that its own geometry spans (see
+:func:`geometry_depth_range`): the DSI's range, so that the map covers every surface from the
+nearest object to the wall.
 """
 
 from __future__ import annotations
 
 import math
 
-__all__ = ["FAMILIES", "family_scene", "family_variants"]
+import numpy as np
+
+from sim.scene import parse_scene
+
+__all__ = ["FAMILIES", "family_scene", "family_variants", "geometry_depth_range"]
+
+MIN_FRONT_M = 0.2
+"""Nearest a sphere's or cylinder's front (``distance - radius``) may come to the camera, m."""
+DEPTH_MARGIN = 0.1
+"""Relative margin of :func:`geometry_depth_range` on both sides of the geometry's bounds."""
 
 _COMMON = """duration = 3.0
-depth_range = [0.4, 3.0]
 seed = {seed}
 
 [camera]
@@ -124,6 +137,10 @@ def family_scene(family: str, **knobs: float) -> str:
         ("" if textured else "_plain")
     objects = []
     lights = ""
+    if family in ("sphere", "cylinder") and k["distance"] - k["radius"] < MIN_FRONT_M:
+        raise ValueError(f"--radius {k['radius']:g} with --distance {k['distance']:g}: the "
+                         f"{family}'s front would come within {MIN_FRONT_M:g} m of the camera; "
+                         f"expected distance - radius >= {MIN_FRONT_M:g} m")
     if family == "staircase":
         steps = int(round(k["steps"]))
         if 0.6 + (steps - 1) * k["step_depth"] > 1.4:
@@ -164,7 +181,53 @@ def family_scene(family: str, **knobs: float) -> str:
     for i, (shape, body) in enumerate(objects):
         text.append(f'[[objects]]\nname = "{family}{i}"\ntype = "{shape}"\n{body}\n'
                     f'material = {_material(textured, str(i + 1))}\n\n')
-    return "\n".join(text)
+    body = "\n".join(text)
+    near, far = geometry_depth_range(parse_scene(body, f"<{name}>"))
+    # The declared range goes right after the duration (top-level keys precede the tables).
+    return body.replace("duration = 3.0\n", f"duration = 3.0\ndepth_range = [{near:.2f}, "
+                        f"{far:.2f}]   # from the geometry (fusion.families)\n", 1)
+
+
+def geometry_depth_range(scene) -> tuple[float, float]:
+    """A working depth range that contains every exact depth the scene can show, m.
+
+    Bounds the z-depth, in the camera along the trajectory (at 11 times over ``[0, duration]``,
+    which are exact for a linear trajectory: z-depth is affine in the camera's position), of
+    the corners of every object's bounding box (at rest; meshes are not supported), widened by
+    :data:`DEPTH_MARGIN` on both sides and rounded outwards to centimetres. Every surface point
+    lies in its object's box, so every exact depth lies in the range.
+
+    Parameters
+    ----------
+    scene : sim.scene.Scene
+        A scene without meshes or moving objects (the families').
+
+    Returns
+    -------
+    (float, float)
+        ``(near, far)``, metres, ``0 < near < far``.
+
+    Raises
+    ------
+    ValueError
+        A mesh or a moving object, or an object that reaches the camera (no positive near).
+    """
+    corners = []
+    unit = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    for obj in scene.objects:
+        if obj.shape == "mesh" or obj.motion is not None:
+            raise ValueError(f"object {obj.name!r}: a mesh or a moving object has no bounds here")
+        corners.append(obj.center + (unit * obj.half_extents()) @ np.asarray(obj.rotation).T)
+    points = np.concatenate(corners)
+    poses = scene.trajectory.pose(np.linspace(0.0, scene.duration, 11))
+    # z-depth of world point P in camera (R, C): the third row of R^T (P - C).
+    z = np.einsum("ni,nki->nk", poses[:, :3, 2], points[None] - poses[:, None, :3, 3])
+    near, far = float(z.min()), float(z.max())
+    if not near > 0:
+        raise ValueError(f"an object reaches the camera (nearest bound {near:.3g} m): no "
+                         "positive depth range")
+    return (math.floor(100 * near * (1 - DEPTH_MARGIN)) / 100,
+            math.ceil(100 * far * (1 + DEPTH_MARGIN)) / 100)
 
 
 def family_variants(family: str, knobs: dict[str, list[float]]) -> list[str]:

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import math
 import numbers
 import os
 import sys
@@ -153,7 +154,8 @@ def coerce_params(method: FillMethod | str, params: Mapping | None) -> dict:
         A method or its spec (:func:`get_method`).
     params : mapping or None
         Setting name -> value. For a method that declares no settings
-        (``FillMethod.params`` None), returned as a dict unchecked.
+        (``FillMethod.params`` None), returned as a dict unchecked (but for non-finite
+        numbers, refused for every method).
 
     Returns
     -------
@@ -163,11 +165,16 @@ def coerce_params(method: FillMethod | str, params: Mapping | None) -> dict:
     Raises
     ------
     MethodError
-        One line naming the method and the key: unknown (with the keys expected) or a value of
-        the wrong type (with the type expected).
+        One line naming the method and the key: unknown (with the keys expected), a value of
+        the wrong type (with the type expected) or a number that is not finite.
     """
     method = get_method(method) if isinstance(method, str) else method
     params = dict(params or {})
+    for key, value in params.items():             # no setting takes one, declared or not
+        if isinstance(value, numbers.Real) and not isinstance(value, bool) \
+                and not math.isfinite(value):
+            raise MethodError(f"filling method {method.name}: {key} expects a finite number, "
+                              f"got {value}")
     if method.params is None:
         return params
     declared = [f.name for f in fields(method.params)]
@@ -237,7 +244,14 @@ def _coerced(method: str, key: str, value, kind):
 
 def parse_value(text: str):
     """A setting's value from text: ``true`` / ``false``, ``none``, an int or float literal, a
-    quoted string; any other text is itself (a string)."""
+    quoted string; any other text is itself (a string).
+
+    Raises
+    ------
+    MethodError
+        A literal that overflows to infinity (``1e999``): no setting takes one. (``nan`` and
+        ``inf`` are not literals: they are text, which a number setting refuses.)
+    """
     stripped = text.strip()
     lowered = stripped.lower()
     if lowered in ("true", "false"):
@@ -248,6 +262,8 @@ def parse_value(text: str):
         value = ast.literal_eval(stripped)
     except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
         return stripped
+    if isinstance(value, float) and not math.isfinite(value):
+        raise MethodError(f"{stripped}: expected a finite number")
     return value if isinstance(value, bool | int | float | str) else stripped
 
 
@@ -307,7 +323,10 @@ def parse_label(text: str) -> MethodVariant:
             raise MethodError(f"{expected}; got {item!r}")
         if key in params:
             raise MethodError(f"{text}: {key} given twice")
-        params[key] = parse_value(value)
+        try:
+            params[key] = parse_value(value)
+        except MethodError as exc:
+            raise MethodError(f"{text}: {key}={exc}") from None
     return MethodVariant(name.strip(), params)
 
 

@@ -53,6 +53,7 @@ from sim.exr import read_depth
 from sim.progress import progress as progress_stage
 from sim.sequence import PARTIAL_SUFFIX, atomic_output_dir, check_output_dir, load_sequence
 from sim.statistics import event_frame
+from sim.validation import finite
 
 __all__ = ["RunParams", "draw_overview", "fill_window", "is_sequence_folder", "map_window",
            "run_pipeline"]
@@ -68,7 +69,10 @@ class RunParams:
     Attributes
     ----------
     t0, t1 : float or None, seconds
-        Time window. For a scene, default ``[0, min(1, duration)]``; for a folder, all events.
+        Time window. For a scene, default ``[0, min(1, duration)]``, and ``t1`` 1 s after a
+        given ``t0``: a ``t0`` that leaves the scene less than 1 s is refused (with
+        ``clip_window``, mapped to the scene's end and recorded as clipped); for a folder, all
+        events.
     min_depth, max_depth : float or None, metres
         Depth range of the DSI. Default: the working range the scene file declares, else
         0.2 to 5 m (:func:`fusion.dsi_range.resolve_dsi_range`); never the exact depth.
@@ -93,8 +97,9 @@ class RunParams:
     seed : int or None
         Seed of the simulation (default: the scene's).
     clip_window : bool
-        Map the part of ``[t0, t1]`` that a folder's events and poses cover instead of refusing
-        a window that reaches past them (``MapParams.clip_window``; default False).
+        Map the part of ``[t0, t1]`` that a folder's events and poses (or a scene) cover
+        instead of refusing a window that reaches past them (``MapParams.clip_window``;
+        default False).
     """
 
     t0: float | None = None
@@ -110,6 +115,12 @@ class RunParams:
     spp: int | None = None
     seed: int | None = None
     clip_window: bool = False
+
+    def __post_init__(self) -> None:
+        # Ranges and units are checked where the window and the DSI range are resolved.
+        for name in ("t0", "t1", "min_depth", "max_depth"):
+            if getattr(self, name) is not None:
+                finite(name, getattr(self, name))
 
 
 def is_sequence_folder(source: str | Path) -> bool:
@@ -342,10 +353,23 @@ def _simulate_window(source, folder: Path, params: RunParams, progress: bool, ti
     scene = load_scene(resolve_scene(source), seed=params.seed)
     t0 = 0.0 if params.t0 is None else float(params.t0)
     t1 = min(t0 + DEFAULT_WINDOW, scene.duration) if params.t1 is None else float(params.t1)
-    if not t1 > t0:
-        raise ValueError(f"empty time window [{t0}, {t1}] s")
+    end = t1                        # simulated to here; t1 is what the map is asked
+    if params.t0 is not None and params.t1 is None and t0 + DEFAULT_WINDOW > scene.duration:
+        # The default window is DEFAULT_WINDOW long: one that the scene cannot hold is
+        # refused (or, with clip_window, mapped to the scene's end and recorded as clipped).
+        if not params.clip_window:
+            latest = max(scene.duration - DEFAULT_WINDOW, 0.0)
+            clip = (f", or --clip-window to map [{t0:g}, {scene.duration:g}] s"
+                    if t0 < scene.duration else "")
+            raise ValueError(f"--t0 {t0:g}: the default {DEFAULT_WINDOW:g} s window, "
+                             f"[{t0:g}, {t0 + DEFAULT_WINDOW:g}] s, reaches past the end of "
+                             f"scene {scene.name} ([0, {scene.duration:g}] s); give --t0 at "
+                             f"most {latest:g} or --t1 at most {scene.duration:g}{clip}")
+        t1 = t0 + DEFAULT_WINDOW
+    if not end > t0:
+        raise ValueError(f"empty time window [{t0}, {end}] s")
     tick = time.perf_counter()
-    simulate(scene, folder, start=t0, duration=t1 - t0, spp=params.spp, progress=progress)
+    simulate(scene, folder, start=t0, duration=end - t0, spp=params.spp, progress=progress)
     timings["simulate_s"] = time.perf_counter() - tick
     return folder, t0, t1
 

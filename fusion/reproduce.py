@@ -39,6 +39,7 @@ from fusion.pipeline import fill_window, map_window
 from sim.frame_sensor import FRAME_SENSORS, FrameSensor
 from sim.progress import progress as progress_stage
 from sim.sequence import atomic_output_dir, check_output_dir
+from sim.validation import finite, positive
 
 __all__ = ["PAPER", "ReproduceParams", "reproduce"]
 
@@ -135,9 +136,11 @@ class ReproduceParams:
     def __post_init__(self) -> None:
         if self.event_noise not in ("ideal", "realistic"):
             raise ValueError(f"--event-noise {self.event_noise!r}: expected ideal or realistic")
-        if not (self.window > 0 and self.long_window > 0):
-            raise ValueError(f"windows must be positive, got {self.window} and "
-                             f"{self.long_window} s")
+        for name in ("window", "long_window", "lam", "moving_lam"):
+            positive(name, getattr(self, name))
+        for name in ("complex_start", "table1_start"):
+            if getattr(self, name) is not None:
+                finite(name, getattr(self, name))
         unknown = set(self.tables) - {"1", "2", "3", "complex"}
         if unknown:
             raise ValueError(f"unknown tables {sorted(unknown)}: choose among 1, 2, 3, complex")

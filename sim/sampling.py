@@ -41,6 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.camera import Camera
+from sim.validation import positive
 
 __all__ = ["AT_MAX_RATE_NOTE", "AT_MAX_RATE_WARN_SHARE", "Sample", "SamplingParams",
            "SamplingStats", "adaptive_samples", "contrast_scale", "log_rate_bound",
@@ -85,6 +86,8 @@ class SamplingParams:
     def __post_init__(self) -> None:
         if not 0 < self.lam <= 1:
             raise ValueError(f"SamplingParams.lam must be in (0, 1], got {self.lam}")
+        for name in ("min_rate", "max_rate"):
+            positive(f"SamplingParams.{name}", getattr(self, name))
         if not 0 < self.min_rate <= self.max_rate:
             raise ValueError(f"SamplingParams needs 0 < min_rate <= max_rate, got "
                              f"{self.min_rate} and {self.max_rate}")

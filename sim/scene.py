@@ -33,6 +33,7 @@ from sim.trajectory import (
     Trajectory,
     read_trajectory,
 )
+from sim.validation import depth_metres
 
 __all__ = [
     "Light",
@@ -425,6 +426,11 @@ _CAMERA_FIELDS = ("width", "height", "fx", "fy", "cx", "cy")
 
 def _depth_range(ctx: _Ctx, value: Any, key: str) -> tuple[float, float]:
     low, high = _vector(ctx, value, key, 2, positive=True)
+    for end in (low, high):
+        try:
+            depth_metres(key, end)
+        except ValueError as exc:
+            raise SceneError(f"{ctx.source}: {exc}") from None
     if not low < high:
         raise ctx.fail(key, f"expected [near, far] metres with near < far, got {_show(value)}")
     return float(low), float(high)

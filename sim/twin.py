@@ -40,6 +40,7 @@ import numpy as np
 from sim.sequence import load_sequence
 from sim.statistics import frame_noise
 from sim.textures import linear_to_srgb
+from sim.validation import depth_metres, positive
 
 __all__ = ["write_twin"]
 
@@ -84,13 +85,12 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     ------
     ValueError
         One line naming the file or value: no poses, a reversed or empty window, a window
-        outside the poses, ``depth <= 0``.
+        outside the poses, ``depth <= 0`` or in millimetres (:func:`sim.validation.depth_metres`).
     """
     from sim.trajectory import read_trajectory
 
     recording, out = Path(recording), Path(out)
-    if not (math.isfinite(depth) and depth > 0):
-        raise ValueError(f"--depth must be a positive number of metres, got {depth}")
+    depth = depth_metres("--depth", positive("--depth", depth))
     if not (math.isfinite(frame_gamma) and frame_gamma > 0):
         raise ValueError(f"--frame-gamma must be a positive number, got {frame_gamma}")
     if not (math.isfinite(illuminance) and illuminance > 0):
@@ -156,6 +156,9 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     rows = rows[keep]
     rows[:, 0] -= t0
     np.savetxt(out / "groundtruth.txt", rows, fmt="%.9f")
+    # The times are written to the nanosecond, the last pose's rounded to the nearest: the
+    # duration, rounded down to the nanosecond, stays inside the poses as they are read back.
+    duration = math.floor(round((t1 - t0) * 1e9, 3)) / 1e9
     frame_times = np.asarray(sequence.image_times)
     rate = 1.0 / float(np.median(np.diff(frame_times))) if len(frame_times) > 1 else 24.0
     name = f"twin_{recording.resolve().name}"
@@ -166,7 +169,7 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
 name = "{name}"
 description = "Twin of {recording.resolve().name}: its camera and poses, poster at {depth} m"
 # the recording's {t0:.6f}-{t1:.6f} s; twin time = recording time - {t0:.6f}
-duration = {t1 - t0:.9g}
+duration = {duration:.9f}
 depth_range = [{depth / 2:.6g}, {depth * 2:.6g}]
 seed = 1
 

@@ -10,7 +10,23 @@ import math
 
 import numpy as np
 
-__all__ = ["non_negative", "positive"]
+__all__ = ["PLAUSIBLE_DEPTH_M", "depth_metres", "finite", "non_negative", "positive"]
+
+PLAUSIBLE_DEPTH_M = 100.0
+"""Largest depth accepted where a depth is given (a scene's ``depth_range``, ``--min-depth`` /
+``--max-depth``, a twin's poster depth), metres: beyond it the value is taken for millimetres
+(the ECD's 0.47-2.4 m written 470-2400) and refused. Event-based mapping over a window's
+baseline (centimetres to metres) resolves no depth out there anyway."""
+
+
+def finite(name: str, value: object) -> float:
+    """``value`` as a finite float, or a ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.number):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ValueError(f"{name} must be a finite number, got {value}")
+    return value
 
 
 def positive(name: str, value: object) -> float:
@@ -30,4 +46,16 @@ def non_negative(name: str, value: object) -> float:
     value = float(value)
     if not (math.isfinite(value) and value >= 0):
         raise ValueError(f"{name} must be a finite number >= 0, got {value}")
+    return value
+
+
+def depth_metres(name: str, value: object) -> float:
+    """``value`` as a depth in metres, finite and at most :data:`PLAUSIBLE_DEPTH_M`, or a
+    ValueError naming ``name`` (beyond that bound: saying it looks like millimetres). Its sign
+    is the caller's to check (with :func:`positive`, or against the other bound of a range)."""
+    value = finite(name, value)
+    if value > PLAUSIBLE_DEPTH_M:
+        raise ValueError(f"depths are in metres: {name} {value:g} looks like millimetres "
+                         f"({value / 1000:g} m?); depths above {PLAUSIBLE_DEPTH_M:g} m are "
+                         "refused")
     return value

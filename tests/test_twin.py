@@ -92,7 +92,7 @@ def test_the_twin_of_a_poster_at_its_own_depth_is_the_same_view(recording, tmp_p
 
 
 def test_twin_refuses_what_it_cannot_copy(recording, tmp_path):
-    with pytest.raises(ValueError, match="--depth must be a positive number"):
+    with pytest.raises(ValueError, match="--depth must be a finite number > 0"):
         write_twin(recording, tmp_path / "t", 0.0)
     with pytest.raises(ValueError, match="window .* is not inside groundtruth.txt's poses"):
         write_twin(recording, tmp_path / "t", 0.2, (0.0, 50.0))
