@@ -11,6 +11,7 @@ import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NoReturn
 
 from sim.validation import (
     PLAUSIBLE_DEPTH_M,  # noqa: F401  (the bound of --min/--max-depth)
@@ -742,8 +743,16 @@ def _version() -> str:
     return "unknown (not installed, and no pyproject.toml of evfuse beside the source)"
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose refusals are one line (``evfuse CMD: error: ...``, exit 2), as
+    every other refusal of evfuse is, instead of argparse's usage block before the error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog="evfuse",
         description="Simulate event and standard cameras in ground-truthed scenes, and fuse them "
                     "into dense depth.",

@@ -295,8 +295,10 @@ def test_resume_messages_name_flags_not_python_parameters(tmp_path, capsys):
 
 @pytest.mark.parametrize("command", ["simulate", "run"])
 def test_a_negative_seed_is_blamed_on_the_flag_not_the_scene_file(command, tmp_path, capsys):
-    code = main([command, "slider_close", "--out", str(tmp_path / "o"), "--seed", "-1"])
-    assert _line(capsys, code, command) == "--seed -1: expected an integer >= 0"
+    with pytest.raises(SystemExit) as stop:
+        main([command, "slider_close", "--out", str(tmp_path / "o"), "--seed", "-1"])
+    assert _line(capsys, stop.value.code, command) == (
+        "argument --seed: expected an integer >= 0, got '-1'")
     assert list(tmp_path.iterdir()) == []
 
 

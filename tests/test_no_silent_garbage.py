@@ -139,7 +139,7 @@ def test_every_numeric_flag_refuses_a_non_finite_value(value, capsys):
         with pytest.raises(SystemExit) as stop:
             _parser().parse_args([*base, f"{flag}={value}"])
         assert stop.value.code == 2, (command, flag)
-        error = capsys.readouterr().err.strip().splitlines()[-1]
+        (error,) = capsys.readouterr().err.strip().splitlines()        # one line, no usage block
         assert error.startswith(f"evfuse {command}: error: argument {flag}: expected "), error
         assert error.endswith(f", got '{value}'"), error
 
@@ -158,7 +158,7 @@ def test_numeric_flags_refuse_values_out_of_their_range(command, flag, value, ex
             "fill": ["fill", "m", "--out", "o"], "twin": ["twin", "r", "--out", "o"]}[command]
     with pytest.raises(SystemExit):
         _parser().parse_args([*base, flag, value])
-    error = capsys.readouterr().err.strip().splitlines()[-1]
+    (error,) = capsys.readouterr().err.strip().splitlines()        # one line, no usage block
     assert error == f"evfuse {command}: error: argument {flag}: expected {expected}, got " \
                     f"'{value}'"
 
