@@ -313,12 +313,12 @@ def test_bench_figure_draws_every_method_on_one_error_scale(monkeypatch):
 
 
 def test_a_rig_sized_overview_stays_screen_wide_and_keeps_its_map_points():
-    from fusion.figures import grid_scale, point_radius
-
     # eight 1280x720 panels in four columns were 5120 px wide, with 15 px titles
     frame = np.full((720, 1280, 3), 90, np.uint8)
     grid = panel_grid([frame] * 8, [f"panel {k}" for k in range(8)], columns=4)
     assert grid.shape[1] <= 1920
+    from fusion.figures import grid_scale, point_radius
+
     assert panel_grid([frame[:180, :240]] * 8, ["x"] * 8, columns=4).shape[1] == 4 * 320
     # a sparse map's one-pixel points stay visible in the reduced panel
     sparse = np.zeros((720, 1280))
