@@ -357,13 +357,15 @@ def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndar
     """The overview of a run, from its saved files: frame, events, semi-dense map, segmentation
     (for a filling method without one, the frame with the filled pixels in green), dense map,
     with ground truth the exact depth and the error of the dense map, and the point cloud;
-    depth and error panels carry their colour scale, the point cloud its viewpoint and axes. A
-    run whose DSI range came from the exact depth (``report["oracle"]``) says so in a header
-    line above the panels.
+    depth and error panels carry their colour scale, the events panel its ON/OFF swatches, the
+    point cloud its viewpoint and axes. A run whose DSI range came from the exact depth
+    (``report["oracle"]``) says so in a header line above the panels.
 
     The depth panels share one scale: the exact depth's range where there is one, else the maps'
-    1st-99th percentile, its ends marked where map depths are clipped
-    (:func:`fusion.figures.depth_scale`).
+    1st-99th percentile; map depths beyond it are drawn in colours of their own, which the
+    legend shows at the ends of its bar (:func:`fusion.figures.depth_scale`). Large frames are
+    reduced to a grid at most 1920 px wide (:func:`fusion.figures.grid_scale`), their sparse
+    points drawn larger so that they stay visible.
 
     Parameters
     ----------
