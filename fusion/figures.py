@@ -144,7 +144,7 @@ class DepthScale:
     Attributes
     ----------
     lo, hi : float, metres
-        The depths drawn in the first (red) and last (blue) colour.
+        The depths drawn in the first (red) and last (azure) colour.
     below, above : bool
         Some depth of the maps lies nearer than ``lo`` / farther than ``hi``; it is drawn in
         :data:`NEARER_COLOUR` / :data:`FARTHER_COLOUR`, and the legend shows that colour at
