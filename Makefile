@@ -21,9 +21,12 @@ $(VENV)/.installed: pyproject.toml
 	@touch $@
 
 # Mitsuba's llvm_ad_rgb variant needs LLVM >= 16 (Dr.Jit 1.5). Debian/Ubuntu ship libllvm19.
+# The probe is evfuse's own (sim/variant.py: find_llvm_libraries, the standard library only), so
+# that make and evfuse agree on what is installed.
+LLVM_PROBE := $(PYTHON) -c 'import runpy, sys; sys.argv[1:] = ["--find-llvm"]; runpy.run_path("sim/variant.py", run_name="__main__")'
 llvm:
-	@if ls /usr/lib/*/libLLVM-1[6-9]*.so* /usr/lib/*/libLLVM-2[0-9]*.so* /usr/lib/llvm-1[6-9]/lib/libLLVM*.so* >/dev/null 2>&1; then \
-	  echo "LLVM >= 16 present: Mitsuba's llvm_ad_rgb variant can be used"; \
+	@if found="$$($(LLVM_PROBE) 2>/dev/null)"; then \
+	  echo "LLVM >= 16 present ($$found): Mitsuba's llvm_ad_rgb variant can be used"; \
 	elif ! command -v apt-get >/dev/null 2>&1; then \
 	  echo "No LLVM >= 16 found and no apt-get: install LLVM >= 16 and set DRJIT_LIBLLVM_PATH, or evfuse renders on scalar_rgb (much slower)"; \
 	elif [ "$$(id -u)" = 0 ]; then \

@@ -456,24 +456,36 @@ def _csv(rows: list[dict]) -> str:
 
 
 def _figure(rows: list[dict]) -> np.ndarray:
-    """Every method's dense depth and its error, side by side, for one scene and input."""
-    from fusion.figures import depth_colours, depth_scale, error_panel, panel_grid
+    """Every method's dense depth and its error, side by side, for one scene and input: one
+    depth scale and ONE error scale for all methods (:func:`fusion.figures.error_panels`), so
+    that a colour is the same error in every method's panel."""
+    from fusion.figures import (
+        depth_colours,
+        depth_scale,
+        error_panels,
+        grid_scale,
+        panel_grid,
+        point_radius,
+    )
 
     ok = [r for r in rows if r["status"] == "ok"]
     truth, frame = rows[0]["_truth"], rows[0]["_frame"]
+    columns = min(1 + 2 * len(ok), 5)
+    width = truth.shape[1]
+    radius = point_radius(width, width * grid_scale(width, columns))   # sparse fills stay seen
     scale = depth_scale(*(r["_dense"] for r in ok), truth=truth)
     lo_hi = (scale.lo, scale.hi) if scale else (None, None)
+    errors, error_legend = error_panels([r["_dense"] for r in ok], truth, radius)
     images, titles, legends = [depth_colours(truth, *lo_hi, base=frame)], ["exact depth"], \
         [scale.legend() if scale else None]
-    for row in ok:
-        images.append(depth_colours(row["_dense"], *lo_hi))
+    for row, error in zip(ok, errors, strict=True):
+        images.append(depth_colours(row["_dense"], *lo_hi, radius=radius))
         titles.append(f"{row['method']}: MAE {_number(row['mae_cm'])} cm")
         legends.append(scale.legend() if scale else None)
-        error, legend = error_panel(row["_dense"], truth)
         images.append(error)
         titles.append(f"|error| {row['method']}")
-        legends.append(legend)
-    return panel_grid(images, titles, columns=min(len(images), 5), legends=legends)
+        legends.append(error_legend)
+    return panel_grid(images, titles, columns=columns, legends=legends)
 
 
 def run_bench(methods: list, scenes: list[str], inputs: list[str], out: str | Path,

@@ -211,6 +211,33 @@ def _family_files(args: argparse.Namespace) -> list[str]:
     return files
 
 
+def _bench_command(args: argparse.Namespace, given: list[str]) -> str:
+    """The command line of a bench run, for ``bench.md``: every flag that changes what it
+    benches, as given (a ``--family`` run names its family and knobs, not ``--scenes``)."""
+    from fusion.benchmark import BenchParams
+
+    words = ["evfuse", "bench"]
+    if args.family:
+        words += ["--family", args.family]
+        for name in _KNOBS:
+            if getattr(args, name) is not None:
+                words += [f"--{name.replace('_', '-')}", getattr(args, name)]
+    else:
+        words += ["--scenes", args.scenes]
+    words += ["--input", args.input]
+    for method in given:
+        words += ["--method", method]
+    for param in args.param or []:
+        words += ["--param", param]
+    words += ["--only"] if args.only else []
+    for flag, value, default in (("--noise", args.noise, BenchParams.noise),
+                                 ("--outliers", args.outliers, BenchParams.outliers)):
+        if value != default:
+            words += [flag, f"{value:g}"]
+    words += ["--cache", str(args.cache)] if args.cache else []
+    return shlex.join([*words, "--out", str(args.out)])
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from fusion.benchmark import BenchParams, run_bench
     from fusion.methods import MethodVariant, available_methods, split_labels
@@ -231,14 +258,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                              "give --family too (staircase, sphere, cylinder, slanted, "
                              "heightfield)")
     inputs = [s.strip() for s in args.input.split(",") if s.strip()]
-    command = (f"evfuse bench --scenes {args.scenes} --input {args.input}"
-               + "".join(f" --method {shlex.quote(m)}" for m in given)
-               + "".join(f" --param {shlex.quote(p)}" for p in args.param or [])
-               + (" --only" if args.only else "")
-               + f" --out {args.out}")
     rows = run_bench(methods, scenes, inputs, args.out, cache=args.cache,
                      params=BenchParams(noise=args.noise, outliers=args.outliers),
-                     overwrite=args.overwrite, progress=not args.quiet, command=command)
+                     overwrite=args.overwrite, progress=not args.quiet,
+                     command=_bench_command(args, given))
     failed = sum(row["status"] != "ok" for row in rows)
     print(f"{len(rows)} fills ({failed} failed) of {len(methods)} methods; written to "
           f"{Path(args.out) / 'bench.md'}, bench.csv, figures/")
@@ -347,7 +370,7 @@ def _recording_stats(sequence, events) -> dict:
 def _cmd_events(args: argparse.Namespace) -> int:
     import cv2
 
-    from fusion.figures import write_image
+    from fusion.figures import event_legend, panel_grid, write_image
     from sim.statistics import compare_stats, event_frame
 
     folder = Path(args.sequence)
@@ -377,7 +400,9 @@ def _cmd_events(args: argparse.Namespace) -> int:
     if args.window is not None and len(events):
         t_end = int(events["t"][0] + args.window * 1e9)
         window = events[events["t"] < t_end]
-    write_image(out, cv2.cvtColor(event_frame(window, width, height), cv2.COLOR_RGB2BGR))
+    frame = cv2.cvtColor(event_frame(window, width, height), cv2.COLOR_RGB2BGR)
+    write_image(out, panel_grid([frame], [f"event frame: latest polarity of {len(window)} events"],
+                                columns=1, legends=[event_legend()]))
     print(f"event frame of {len(window)} events written to {out}")
     return 0
 
@@ -418,9 +443,11 @@ def _cmd_map(args: argparse.Namespace) -> int:
     info = result.info
     dsi = params.dsi_range
     print(f"DSI depth range {dsi.min_depth:g}-{dsi.max_depth:g} m ({dsi.source})")
+    median = info.get("depth_median_m")
     line = (f"N1 = {result.n1} map points from {info['events_used']} events "
             f"({info['events_dropped_before_poses'] + info['events_dropped_after_poses']} "
-            f"outside the poses dropped), reference at {result.t_ref:.6f} s")
+            f"outside the poses dropped), reference at {result.t_ref:.6f} s"
+            + ("" if median is None else f", median depth {median:.3f} m"))
     if "errors" in info and info["errors"].get("points"):
         line += f"; against exact depth: {_error_line(info['errors'])}"
     print(line)
@@ -913,7 +940,8 @@ def _parser() -> argparse.ArgumentParser:
                                         "groundtruth.txt, images.txt)")
     twin.add_argument("--depth", type=_POSITIVE, required=True,
                       help="the poster's depth, m, in the camera at the window's start (e.g. "
-                           "the median depth of `evfuse map` on the recording)")
+                           "the median depth that `evfuse map` prints for the recording and "
+                           "writes to map.json as depth_median_m)")
     twin.add_argument("--window", default=None, metavar="T0,T1",
                       help="seconds of the recording to copy (default: its poses' span)")
     twin.add_argument("--illuminance", type=_POSITIVE, default=400.0,

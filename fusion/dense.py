@@ -43,10 +43,12 @@ from fusion.figures import (
     depth_colours,
     depth_scale,
     error_panel,
+    grid_scale,
     highlight_pixels,
     label_colours,
     panel_grid,
     point_cloud_view,
+    point_radius,
 )
 from fusion.filling import (
     FillParams,
@@ -601,10 +603,12 @@ def _figure_panels(result: DenseResult, params: DenseParams
     scale = depth_scale(result.sparse, result.dense, truth=result.truth)
     lo_hi = (scale.lo, scale.hi) if scale else (None, None)
     legend = scale.legend() if scale else None
-    view, caption = point_cloud_view(points, colours, size)
+    # a large frame is reduced in the grid: the map's points are drawn that much larger
+    radius = point_radius(size[0], size[0] * grid_scale(size[0], 3))
+    view, caption = point_cloud_view(points, colours, size, splat=max(2, 2 * radius + 1))
     middle, middle_titles = _segmentation_panels(result, params)
-    panels = [depth_colours(result.sparse, *lo_hi, base=result.frame), *middle,
-              depth_colours(result.dense, *lo_hi), view]
+    panels = [depth_colours(result.sparse, *lo_hi, base=result.frame, radius=radius), *middle,
+              depth_colours(result.dense, *lo_hi, radius=radius), view]
     titles = [f"(a) frame + {result.n1_in_frame} projected map points", *middle_titles,
               f"(e) range image (N2 = {result.n2})",
               "(f) point cloud: map points red, filled green"]

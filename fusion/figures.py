@@ -16,17 +16,34 @@ import numpy as np
 
 from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
 
-__all__ = ["Caption", "DepthScale", "Legend", "add_header", "depth_colours", "depth_legend",
-           "depth_scale", "error_legend", "error_panel", "highlight_pixels", "label_colours",
-           "panel_grid", "point_cloud_view", "write_image"]
+__all__ = ["FARTHER_COLOUR", "NEARER_COLOUR", "Caption", "DepthScale", "Legend", "Swatches",
+           "add_header", "depth_colours", "depth_legend", "depth_scale", "error_legend",
+           "error_panel", "error_panels", "event_legend", "grid_scale", "highlight_pixels",
+           "label_colours", "panel_grid", "point_cloud_view", "point_radius", "spread_pixels",
+           "write_image"]
 
 _NO_VALUE = (40, 40, 40)
 """Colour of pixels without a depth (dark grey, so that black texture stays readable)."""
 
+DEPTH_LEVELS = (64, 224)
+"""The part of OpenCV's JET map that :func:`depth_colours` uses, far (azure, level 64) to near
+(red, level 224): JET's dark blue and dark red ends are left out, so that every depth colour
+stands out from the dark grey of "no value" (WCAG contrast at least 3.6; JET's far end had 1.1,
+and far map points vanished into the background)."""
+NEARER_COLOUR = (255, 255, 255)
+"""BGR of a depth nearer than the low end of the colour scale (white: no depth colour is)."""
+FARTHER_COLOUR = (255, 80, 180)
+"""BGR of a depth farther than the high end of the colour scale (violet: no depth colour is,
+and not the magenta of an error panel's "no surface")."""
+
 
 def depth_colours(depth: np.ndarray, lo: float | None = None, hi: float | None = None,
-                  base: np.ndarray | None = None) -> np.ndarray:
-    """Depth in colour (near red, far blue; OpenCV's JET on inverse order).
+                  base: np.ndarray | None = None, radius: int = 0) -> np.ndarray:
+    """Depth in colour (near red, far azure: :data:`DEPTH_LEVELS` of OpenCV's JET).
+
+    Depths outside ``[lo, hi]`` are not clipped to the end colours: they are drawn in
+    :data:`NEARER_COLOUR` / :data:`FARTHER_COLOUR`, which the scale does not use, so that a
+    map point beyond the scale never reads as a plausible depth.
 
     Parameters
     ----------
@@ -35,6 +52,10 @@ def depth_colours(depth: np.ndarray, lo: float | None = None, hi: float | None =
         Range of the colour scale (default: the range of the valid depths).
     base : (H, W) uint8 or (H, W, 3) uint8 ndarray, optional
         Image shown where there is no depth (default dark grey).
+    radius : int, pixels, >= 0
+        Draw each depth as a square of side ``2 radius + 1`` (the nearest depth wins where
+        squares overlap), so that a sparse map's points survive a panel's downscaling
+        (:func:`point_radius`). 0: one pixel each.
 
     Returns
     -------
@@ -42,6 +63,13 @@ def depth_colours(depth: np.ndarray, lo: float | None = None, hi: float | None =
     """
     depth = np.asarray(depth, dtype=np.float64)
     valid = depth > 0
+    if radius > 0 and valid.any():
+        nearest = np.where(valid, depth, np.inf).astype(np.float32)
+        kernel = np.ones((2 * int(radius) + 1, 2 * int(radius) + 1), np.uint8)
+        nearest = cv2.erode(nearest, kernel, borderType=cv2.BORDER_CONSTANT,
+                            borderValue=np.inf).astype(np.float64)      # min: the nearest
+        valid = np.isfinite(nearest)
+        depth = np.where(valid, nearest, 0.0)
     if base is None:
         out = np.empty(depth.shape + (3,), np.uint8)
         out[:] = _NO_VALUE
@@ -52,8 +80,12 @@ def depth_colours(depth: np.ndarray, lo: float | None = None, hi: float | None =
     lo = float(depth[valid].min()) if lo is None else lo
     hi = float(depth[valid].max()) if hi is None else hi
     scaled = np.clip((depth - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
-    colours = cv2.applyColorMap((255 * (1 - scaled)).astype(np.uint8), cv2.COLORMAP_JET)
+    far, near = DEPTH_LEVELS
+    levels = np.round(near - (near - far) * scaled).astype(np.uint8)
+    colours = cv2.applyColorMap(levels, cv2.COLORMAP_JET)
     out[valid] = colours[valid]
+    out[valid & (depth < lo)] = NEARER_COLOUR
+    out[valid & (depth > hi)] = FARTHER_COLOUR
     return out
 
 
@@ -70,12 +102,25 @@ class Legend:
     keys : tuple of (str, (B, G, R)) pairs
         Colours outside the scale, each drawn as a swatch with its meaning after the bar
         (``("no value", (200, 200, 200))``).
+    under, over : (B, G, R), optional
+        The colour of values below the low / above the high end, drawn as a triangle at that
+        end of the bar (as matplotlib's ``extend``); None: no value lies beyond that end.
     """
 
     colours: np.ndarray
     low: str
     high: str
     keys: tuple[tuple[str, tuple[int, int, int]], ...] = ()
+    under: tuple[int, int, int] | None = None
+    over: tuple[int, int, int] | None = None
+
+
+@dataclass(frozen=True)
+class Swatches:
+    """Colour swatches with their meanings, drawn under a panel by :func:`panel_grid` in place
+    of a colour bar (``(("ON", (0, 0, 255)), ("OFF", (255, 0, 0)))``)."""
+
+    keys: tuple[tuple[str, tuple[int, int, int]], ...]
 
 
 @dataclass(frozen=True)
@@ -99,10 +144,11 @@ class DepthScale:
     Attributes
     ----------
     lo, hi : float, metres
-        The depths drawn in the first (red) and last (blue) colour.
+        The depths drawn in the first (red) and last (azure) colour.
     below, above : bool
-        Some depth of the maps lies nearer than ``lo`` / farther than ``hi`` and is drawn in the
-        end colour: the legend then reads "<= lo" / ">= hi".
+        Some depth of the maps lies nearer than ``lo`` / farther than ``hi``; it is drawn in
+        :data:`NEARER_COLOUR` / :data:`FARTHER_COLOUR`, and the legend shows that colour at
+        that end of its bar, labelled "< lo" / "> hi".
     source : str
         ``"exact depth"`` or ``"maps, 1st-99th percentile"``: what the scale spans.
     """
@@ -114,7 +160,7 @@ class DepthScale:
     source: str = "exact depth"
 
     def legend(self) -> Legend:
-        """:func:`depth_legend` of the scale, its ends marked where depths are clipped."""
+        """:func:`depth_legend` of the scale, its ends marked where depths lie beyond."""
         return depth_legend(self.lo, self.hi, below=self.below, above=self.above)
 
 
@@ -122,11 +168,13 @@ def depth_scale(*maps: np.ndarray | None, truth: np.ndarray | None = None) -> De
     """One colour scale for the depth panels of a figure: the scene's, not an outlier's.
 
     With an exact depth the scale spans it (min to max of its surfaces), so that the panels read
-    as the scene and a map that misses the far wall does not pull the scale in; without one it
-    spans the 1st to 99th percentile of the maps' depths together (:data:`MAP_PERCENTILES`). It is
-    widened to at least :data:`MIN_SPAN_SHARE` of its middle depth (a flat scene would otherwise
-    have no span). Map depths outside it are drawn in the end colours, and the scale says so
-    (``below`` / ``above``), so the legend reads "<=" / ">=" there.
+    as the scene and neither a map that misses the far wall nor a map point at the DSI's far
+    plane stretches it; without one it spans the 1st to 99th percentile of the maps' depths
+    together (:data:`MAP_PERCENTILES`). It is widened to at least :data:`MIN_SPAN_SHARE` of its
+    middle depth (a flat scene would otherwise have no span). Map depths outside it are not
+    given an end colour: :func:`depth_colours` draws them in :data:`NEARER_COLOUR` /
+    :data:`FARTHER_COLOUR`, and the scale says that there are some (``below`` / ``above``), so
+    that its legend shows those colours at the ends of its bar.
 
     Parameters
     ----------
@@ -154,13 +202,15 @@ def depth_scale(*maps: np.ndarray | None, truth: np.ndarray | None = None) -> De
 
 
 def depth_legend(lo: float, hi: float, below: bool = False, above: bool = False) -> Legend:
-    """The legend of :func:`depth_colours` over ``[lo, hi]`` metres (near red, far blue).
+    """The legend of :func:`depth_colours` over ``[lo, hi]`` metres (near red, far azure).
 
     Parameters
     ----------
     lo, hi : float, metres, > 0
     below, above : bool
-        Depths beyond an end are drawn in its colour: label it "<= lo" / ">= hi".
+        Some depths lie nearer than ``lo`` / farther than ``hi`` (drawn in
+        :data:`NEARER_COLOUR` / :data:`FARTHER_COLOUR`): that colour is drawn at that end of
+        the bar and the end is labelled "< lo" / "> hi".
 
     Returns
     -------
@@ -169,8 +219,8 @@ def depth_legend(lo: float, hi: float, below: bool = False, above: bool = False)
         panel used.
     """
     ramp = depth_colours(np.linspace(lo, hi, 256)[None, :], lo, hi)[0]
-    return Legend(ramp, f"{'<= ' if below else ''}{lo:.3g} m",
-                  f"{'>= ' if above else ''}{hi:.3g} m")
+    return Legend(ramp, f"{'< ' if below else ''}{lo:.3g} m", f"{'> ' if above else ''}{hi:.3g} m",
+                  under=NEARER_COLOUR if below else None, over=FARTHER_COLOUR if above else None)
 
 
 def error_legend(max_error: float, clipped: bool = False) -> Legend:
@@ -202,7 +252,8 @@ ERROR_PERCENTILE = 99.0
 """Percentile of the errors at which :func:`error_panel` ends its scale (outliers clipped)."""
 
 
-def error_panel(depth: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, Legend]:
+def error_panel(depth: np.ndarray, truth: np.ndarray, radius: int = 0
+                ) -> tuple[np.ndarray, Legend]:
     """|depth - truth| in colour, with its legend: the scale ends at the 99th percentile of the
     errors (the larger ones drawn in its last colour, the legend says ``>=``).
 
@@ -210,20 +261,80 @@ def error_panel(depth: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, Legen
     ----------
     depth : (H, W) float ndarray, metres, 0 where no estimate
     truth : (H, W) float ndarray, metres, 0 where no surface
+    radius : int, pixels, >= 0
+        Draw each estimate as a square of side ``2 radius + 1`` (:func:`spread_pixels`), for a
+        panel that :func:`panel_grid` reduces (:func:`point_radius`).
 
     Returns
     -------
     image : (H, W, 3) uint8 ndarray, BGR, from :func:`fusion.scoring.error_image`
     legend : Legend, from :func:`error_legend`
     """
-    depth = np.asarray(depth, dtype=np.float64)
+    images, legend = error_panels([depth], truth, radius)
+    return images[0], legend
+
+
+def spread_pixels(image: np.ndarray, mask: np.ndarray, radius: int) -> np.ndarray:
+    """The image with each pixel of ``mask`` drawn as a square of side ``2 radius + 1``: a
+    pixel off the mask within ``radius`` (chessboard distance) of it takes the colour of the
+    nearest pixel of the mask (a display aid, so that sparse points survive a reduction).
+
+    Parameters
+    ----------
+    image : (H, W, 3) uint8 ndarray
+    mask : (H, W) bool ndarray
+        The pixels that carry a value.
+    radius : int, pixels, >= 0
+
+    Returns
+    -------
+    (H, W, 3) uint8 ndarray (``image`` itself for radius 0 or an empty mask)
+    """
+    mask = np.asarray(mask, bool)
+    if radius <= 0 or not mask.any() or mask.all():
+        return image
+    distance, labels = cv2.distanceTransformWithLabels(
+        (~mask).astype(np.uint8), cv2.DIST_C, 3, labelType=cv2.DIST_LABEL_PIXEL)
+    rows, cols = np.nonzero(mask)                    # label k: the k-th zero pixel, row-major
+    source = np.zeros(len(rows) + 1, np.int64)
+    source[1:] = rows * mask.shape[1] + cols
+    near = ~mask & (distance <= radius)
+    out = image.copy()
+    out.reshape(-1, 3)[np.flatnonzero(near)] = image.reshape(-1, 3)[source[labels[near]]]
+    return out
+
+
+def error_panels(depths: list[np.ndarray], truth: np.ndarray, radius: int = 0
+                 ) -> tuple[list[np.ndarray], Legend]:
+    """The errors of several estimates of one view on ONE colour scale (a figure that compares
+    methods): it ends at the 99th percentile of all their errors together, so that equal colours
+    are equal errors in every panel; the legend says ``>=`` when any error is larger.
+
+    Parameters
+    ----------
+    depths : list of (H, W) float ndarrays, metres, 0 where no estimate
+    truth : (H, W) float ndarray, metres, 0 where no surface
+    radius : int, pixels, >= 0
+        As :func:`error_panel`.
+
+    Returns
+    -------
+    images : list of (H, W, 3) uint8 ndarrays, BGR, from :func:`fusion.scoring.error_image`,
+        one per estimate
+    legend : Legend, from :func:`error_legend`, the scale of every image
+    """
     truth = np.asarray(truth, dtype=np.float64)
-    both = (depth > 0) & (truth > 0)
-    errors = np.abs(depth - truth)[both]
+    errors = []
+    for depth in depths:
+        depth = np.asarray(depth, dtype=np.float64)
+        both = (depth > 0) & (truth > 0)
+        errors.append(np.abs(depth - truth)[both])
+    errors = np.concatenate(errors) if errors else np.zeros(0)
     top = float(np.percentile(errors, ERROR_PERCENTILE)) if errors.size else 0.0
     top = top if top > 0 else 1e-3                 # all exact (or none): a 1-mm scale
     clipped = bool((errors > top).any())
-    return error_image(depth, truth, max_error=top), error_legend(top, clipped)
+    return ([spread_pixels(error_image(depth, truth, max_error=top), np.asarray(depth) > 0,
+                           radius) for depth in depths], error_legend(top, clipped))
 
 
 def label_colours(labels: np.ndarray, highlight: np.ndarray | None = None) -> np.ndarray:
@@ -249,6 +360,26 @@ def label_colours(labels: np.ndarray, highlight: np.ndarray | None = None) -> np
         palette[~keep] = (70, 70, 70)
         palette[0] = 0
     return palette[labels]
+
+
+def event_legend(background: str = "white") -> Swatches:
+    """The swatches of :func:`sim.statistics.event_frame`: ON, OFF and no event.
+
+    Parameters
+    ----------
+    background : {"white", "black"}
+        The event frame's background (the colour of "no event").
+
+    Returns
+    -------
+    Swatches
+        BGR colours, as the frame is after ``cv2.cvtColor(..., cv2.COLOR_RGB2BGR)``.
+    """
+    from sim.statistics import OFF_COLOUR, ON_COLOUR
+
+    level = {"white": 255, "black": 0}[background]
+    return Swatches((("ON (latest event)", tuple(ON_COLOUR[::-1])),
+                     ("OFF", tuple(OFF_COLOUR[::-1])), ("no event", (level, level, level))))
 
 
 FILLED_COLOUR = (0, 200, 0)
@@ -300,8 +431,8 @@ def _side(angle: float, positive: str, negative: str) -> str:
 
 
 def point_cloud_view(points: np.ndarray, colours: np.ndarray, size: tuple[int, int],
-                     left_deg: float = 30.0, above_deg: float = 20.0, axes: bool = True
-                     ) -> tuple[np.ndarray, Caption]:
+                     left_deg: float = 30.0, above_deg: float = 20.0, axes: bool = True,
+                     splat: int = 2) -> tuple[np.ndarray, Caption]:
     """The points seen by a virtual camera looking at their centre from beside the camera that
     took them, z-buffered splats, with the camera frame's axes drawn at the centre.
 
@@ -323,6 +454,9 @@ def point_cloud_view(points: np.ndarray, colours: np.ndarray, size: tuple[int, i
         reference camera's view of the centre.
     axes : bool
         Draw the axes (colours :data:`AXIS_COLOURS`).
+    splat : int, pixels, >= 1
+        Side of each point's square (2; larger for a panel that :func:`panel_grid` reduces:
+        ``max(2, 2 point_radius + 1)``), and the axes' line width is ``splat - 1`` (at least 1).
 
     Returns
     -------
@@ -361,20 +495,25 @@ def point_cloud_view(points: np.ndarray, colours: np.ndarray, size: tuple[int, i
 
     u, v, z, ahead = project(points)
     u, v = np.round(u).astype(np.int64), np.round(v).astype(np.int64)
-    inside = ahead & (u >= 1) & (u < width - 1) & (v >= 1) & (v < height - 1)
+    splat = max(1, int(splat))
+    before, after = splat // 2, splat - splat // 2      # offsets -before .. after - 1
+    inside = (ahead & (u >= before) & (u < width - after) & (v >= before)
+              & (v < height - after))
     order = np.argsort(-z[inside])                      # far first, near drawn over them
     u, v, c = u[inside][order], v[inside][order], np.asarray(colours)[inside][order]
-    for du in (-1, 0):                                  # 2x2 splats
-        for dv in (-1, 0):
+    for du in range(-before, after):                    # splat x splat squares
+        for dv in range(-before, after):
             image[v + dv, u + du] = c
     length = _round_length(spread)
     if axes:
-        _draw_axes(image, project, centre, length)
+        _draw_axes(image, project, centre, length, max(1, splat - 1))
     return image, Caption(f"{view} the camera; axes {_metres(length)}")
 
 
-def _draw_axes(image: np.ndarray, project, centre: np.ndarray, length: float) -> None:
-    """Arrows of ``length`` metres along +x, +y, +z from ``centre``, labelled, in place."""
+def _draw_axes(image: np.ndarray, project, centre: np.ndarray, length: float,
+               thickness: int = 1) -> None:
+    """Arrows of ``length`` metres along +x, +y, +z from ``centre``, labelled, in place, lines
+    ``thickness`` pixels wide."""
     height, width = image.shape[:2]
     u0, v0, _, ahead0 = project(centre)
     font_size = max(0.3, min(width, height) / 400)
@@ -384,15 +523,16 @@ def _draw_axes(image: np.ndarray, project, centre: np.ndarray, length: float) ->
             continue
         start = (int(round(u0[0])), int(round(v0[0])))
         end = (int(round(u1[0])), int(round(v1[0])))
-        cv2.arrowedLine(image, start, end, colour, 1, cv2.LINE_8, tipLength=0.25)
+        cv2.arrowedLine(image, start, end, colour, thickness, cv2.LINE_8, tipLength=0.25)
         direction = np.array([end[0] - start[0], end[1] - start[1]], np.float64)
         direction /= max(float(np.linalg.norm(direction)), 1e-9)
-        (text_w, text_h), _ = cv2.getTextSize(name, cv2.FONT_HERSHEY_SIMPLEX, font_size, 1)
+        (text_w, text_h), _ = cv2.getTextSize(name, cv2.FONT_HERSHEY_SIMPLEX, font_size,
+                                              thickness)
         label = (int(round(end[0] + 4 * direction[0] - text_w / 2 + text_w / 2 * direction[0])),
                  int(round(end[1] + 4 * direction[1] + text_h / 2 + text_h / 2 * direction[1])))
         label = (min(max(label[0], 0), width - text_w - 1),           # inside the image
                  min(max(label[1], text_h + 1), height - 2))
-        cv2.putText(image, name, label, cv2.FONT_HERSHEY_SIMPLEX, font_size, colour, 1,
+        cv2.putText(image, name, label, cv2.FONT_HERSHEY_SIMPLEX, font_size, colour, thickness,
                     cv2.LINE_8)
 
 
@@ -400,13 +540,39 @@ _TITLE_H = 26
 """Height of a panel's title line, pixels."""
 _LEGEND_H = 22
 """Height of the colour-bar line under the panels of a grid that has legends, pixels."""
+MIN_PANEL_WIDTH = 320
+"""A grid's panels are at least this wide, pixels (smaller images are enlarged)."""
+MAX_GRID_WIDTH = 1920
+"""A grid is at most this wide (a screen), pixels, unless its panels are then narrower than
+:data:`MIN_PANEL_WIDTH`: larger images are reduced, so that titles and legends, drawn at one
+size, stay legible when the figure is seen whole (a rig's 1280x720 frames made a 5120 px
+overview with 15 px titles)."""
+
+
+def grid_scale(width: int, columns: int) -> float:
+    """The resize factor :func:`panel_grid` gives panels of ``width`` pixels in ``columns``
+    columns: up to :data:`MIN_PANEL_WIDTH`, down to :data:`MAX_GRID_WIDTH` / ``columns``
+    (not below :data:`MIN_PANEL_WIDTH`), else 1."""
+    widest = max(MIN_PANEL_WIDTH, MAX_GRID_WIDTH // max(int(columns), 1))
+    if width > widest:
+        return widest / width
+    return max(1.0, MIN_PANEL_WIDTH / width)
+
+
+def point_radius(width: int, panel_width: float) -> int:
+    """The ``radius`` of :func:`depth_colours` for a sparse map ``width`` pixels wide that a grid
+    shows ``panel_width`` pixels wide (``first image's width * grid_scale(...)``): 0 where it is
+    not reduced, else half the reduction (rounded up), so that a one-pixel map point stays at
+    least a pixel wide in the grid."""
+    reduction = width / panel_width
+    return 0 if reduction <= 1.0 else int(np.ceil(reduction / 2))
 
 
 def panel_grid(images: list[np.ndarray], titles: list[str], columns: int = 3,
                scale: float | None = None,
-               legends: list[Legend | Caption | None] | None = None) -> np.ndarray:
+               legends: list[Legend | Swatches | Caption | None] | None = None) -> np.ndarray:
     """Images side by side in a grid, each with its title above it and, optionally, a colour
-    bar or a caption under it.
+    bar, swatches or a caption under it.
 
     Parameters
     ----------
@@ -415,10 +581,12 @@ def panel_grid(images: list[np.ndarray], titles: list[str], columns: int = 3,
         Written in a smaller font where they would not fit the panel's width.
     columns : int
     scale : float, optional
-        Resize factor of every panel (default: so that a panel is at least 320 px wide).
-    legends : list of Legend, Caption or None, optional
-        One per image: the colour bar or the line of text drawn under it (None: none). When
-        any is given, every row of the grid gets a legend line.
+        Resize factor of every panel (default :func:`grid_scale`: at least 320 px wide, and
+        the grid at most 1920 px wide where the panels can stay 320 px wide). Reduced panels
+        are area-averaged (draw sparse points larger, :func:`point_radius`).
+    legends : list of Legend, Swatches, Caption or None, optional
+        One per image: the colour bar, the swatches or the line of text drawn under it (None:
+        none). When any is given, every row of the grid gets a legend line.
 
     Returns
     -------
@@ -429,8 +597,9 @@ def panel_grid(images: list[np.ndarray], titles: list[str], columns: int = 3,
         raise ValueError(f"need one title and one legend (or None) per image, got "
                          f"{len(images)} images, {len(titles)} titles, {len(legends)} legends")
     height, width = images[0].shape[:2]
-    scale = scale or max(1.0, 320.0 / width)
+    scale = scale or grid_scale(width, columns)
     w, h = int(round(width * scale)), int(round(height * scale))
+    resize = cv2.INTER_AREA if scale < 1 else cv2.INTER_NEAREST
     legend_h = _LEGEND_H if any(legend is not None for legend in legends) else 0
     row_h = _TITLE_H + h + legend_h
     rows = -(-len(images) // columns)
@@ -440,7 +609,7 @@ def panel_grid(images: list[np.ndarray], titles: list[str], columns: int = 3,
             image = cv2.resize(image, (width, height), interpolation=cv2.INTER_NEAREST)
         if image.ndim == 2:
             image = cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
-        tile = cv2.resize(image, (w, h), interpolation=cv2.INTER_NEAREST)
+        tile = cv2.resize(image, (w, h), interpolation=resize)
         r, c = divmod(k, columns)
         y0, x0 = r * row_h, c * w
         canvas[y0 + _TITLE_H:y0 + _TITLE_H + h, x0:x0 + w] = tile
@@ -450,6 +619,8 @@ def panel_grid(images: list[np.ndarray], titles: list[str], columns: int = 3,
         if isinstance(legend, Caption):
             cv2.putText(strip, legend.text, (6, (legend_h + 8) // 2), cv2.FONT_HERSHEY_SIMPLEX,
                         _fitting_size(legend.text, 0.4, w - 12), (0, 0, 0), 1, cv2.LINE_AA)
+        elif isinstance(legend, Swatches):
+            _draw_swatches(strip, legend.keys)
         elif legend is not None:
             _draw_legend(strip, legend)
     return canvas
@@ -462,9 +633,42 @@ def _fitting_size(text: str, size: float, width: int, smallest: float = 0.3) -> 
     return size if text_w <= width else max(smallest, size * width / text_w)
 
 
+def _swatch(strip: np.ndarray, x: int, colour: tuple[int, int, int]) -> None:
+    """A 10x10 swatch of ``colour`` outlined in black, its left side at ``x``, centred in the
+    strip's height, in place."""
+    top = (strip.shape[0] - 10) // 2
+    strip[top:top + 10, x:x + 10] = colour
+    cv2.rectangle(strip, (x, top), (x + 9, top + 9), (0, 0, 0), 1)
+
+
+def _draw_swatches(strip: np.ndarray, keys: tuple[tuple[str, tuple[int, int, int]], ...]
+                   ) -> None:
+    """Draw ``[ ] name  [ ] name ...`` from the left into a white strip, in place."""
+    font, size = cv2.FONT_HERSHEY_SIMPLEX, 0.4
+    (_, text_h), _ = cv2.getTextSize("0", font, size, 1)
+    baseline = (strip.shape[0] + text_h) // 2
+    x = 6
+    for name, colour in keys:
+        _swatch(strip, x, colour)
+        cv2.putText(strip, name, (x + 14, baseline), font, size, (0, 0, 0), 1, cv2.LINE_AA)
+        x += 14 + cv2.getTextSize(name, font, size, 1)[0][0] + 14
+
+
+def _end_triangle(strip: np.ndarray, x: int, colour: tuple[int, int, int], left: bool) -> None:
+    """A 10 px high, 8 px wide triangle of ``colour``, outlined in black, pointing left (from
+    ``x`` to ``x + 7``) or right (from ``x + 7`` back to ``x``), in place: the colour beyond an end
+    of a colour bar."""
+    top = (strip.shape[0] - 10) // 2
+    tip, base = (x, x + 7) if left else (x + 7, x)             # the tip outwards
+    corners = np.array([[tip, top + 5], [base, top], [base, top + 9]], np.int32)
+    cv2.fillConvexPoly(strip, corners, colour)
+    cv2.polylines(strip, [corners], True, (0, 0, 0), 1)
+
+
 def _draw_legend(strip: np.ndarray, legend: Legend) -> None:
-    """Draw ``low [colour bar] high  [ ] key ...`` into a white (legend_h, w, 3) strip, in
-    place; the keys come first, the bar gets what is left (none below 8 px)."""
+    """Draw ``low [<][colour bar][>] high  [ ] key ...`` into a white (legend_h, w, 3) strip, in
+    place; the keys come first, the bar gets what is left (none below 8 px); the triangles
+    only where the legend has an ``under`` / ``over`` colour."""
     font, size = cv2.FONT_HERSHEY_SIMPLEX, 0.4
     height, width = strip.shape[:2]
     (_, text_h), _ = cv2.getTextSize("0", font, size, 1)
@@ -475,9 +679,7 @@ def _draw_legend(strip: np.ndarray, legend: Legend) -> None:
         cv2.putText(strip, name, (right - name_w, baseline), font, size, (0, 0, 0), 1,
                     cv2.LINE_AA)
         right -= name_w + 4 + 10
-        top = (height - 10) // 2
-        strip[top:top + 10, right:right + 10] = colour
-        cv2.rectangle(strip, (right, top), (right + 9, top + 9), (0, 0, 0), 1)
+        _swatch(strip, right, colour)
         right -= 10
     (low_w, _), _ = cv2.getTextSize(legend.low, font, size, 1)
     (high_w, _), _ = cv2.getTextSize(legend.high, font, size, 1)
@@ -485,8 +687,14 @@ def _draw_legend(strip: np.ndarray, legend: Legend) -> None:
     cv2.putText(strip, legend.high, (right - high_w, baseline), font, size, (0, 0, 0), 1,
                 cv2.LINE_AA)
     left, right = 6 + low_w + 8, right - high_w - 8
-    if right - left < 8:
+    if right - left < 8 + 18 * ((legend.under is not None) + (legend.over is not None)):
         return
+    if legend.under is not None:
+        _end_triangle(strip, left, legend.under, left=True)
+        left += 10
+    if legend.over is not None:
+        _end_triangle(strip, right - 8, legend.over, left=False)
+        right -= 10
     bar = cv2.resize(np.asarray(legend.colours, np.uint8)[None, :, :], (right - left, 1),
                      interpolation=cv2.INTER_NEAREST)
     top = (height - 10) // 2

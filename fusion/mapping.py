@@ -479,6 +479,8 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
         "dsi_mev_per_s": used / dsi_time / 1e6 if dsi_time > 0 else None,
         "dsi_timing": DSI_TIMING,
         "outlier_radius_m": radius, "outliers_removed": int((~inlier).sum()),
+        # the map's own depths (blind): what `evfuse twin --depth` asks for; None without points
+        "depth_median_m": float(np.median(depth[mask])) if mask.any() else None,
         "timings": timings,
     }
     # Scoring, the only step that reads the exact depth (a simulated sequence's), and only after

@@ -38,10 +38,13 @@ from fusion.figures import (
     depth_colours,
     depth_scale,
     error_panel,
+    event_legend,
+    grid_scale,
     highlight_pixels,
     label_colours,
     panel_grid,
     point_cloud_view,
+    point_radius,
     write_image,
 )
 from fusion.jsonio import to_json
@@ -378,13 +381,15 @@ def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndar
     """The overview of a run, from its saved files: frame, events, semi-dense map, segmentation
     (for a filling method without one, the frame with the filled pixels in green), dense map,
     with ground truth the exact depth and the error of the dense map, and the point cloud;
-    depth and error panels carry their colour scale, the point cloud its viewpoint and axes. A
-    run whose DSI range came from the exact depth (``report["oracle"]``) says so in a header
-    line above the panels.
+    depth and error panels carry their colour scale, the events panel its ON/OFF swatches, the
+    point cloud its viewpoint and axes. A run whose DSI range came from the exact depth
+    (``report["oracle"]``) says so in a header line above the panels.
 
     The depth panels share one scale: the exact depth's range where there is one, else the maps'
-    1st-99th percentile, its ends marked where map depths are clipped
-    (:func:`fusion.figures.depth_scale`).
+    1st-99th percentile; map depths beyond it are drawn in colours of their own, which the
+    legend shows at the ends of its bar (:func:`fusion.figures.depth_scale`). Large frames are
+    reduced to a grid at most 1920 px wide (:func:`fusion.figures.grid_scale`), their sparse
+    points drawn larger so that they stay visible.
 
     Parameters
     ----------
@@ -398,13 +403,18 @@ def draw_overview(run_folder: str | Path, report: dict | None = None) -> np.ndar
     (H', W', 3) uint8 ndarray, BGR
     """
     panels, titles, legends, header = _overview_panels(run_folder, report)
-    grid = panel_grid(panels, titles, columns=4 if len(panels) > 6 else 3, legends=legends)
+    grid = panel_grid(panels, titles, columns=_overview_columns(len(panels)), legends=legends)
     return add_header(grid, header)
 
 
 OVERVIEW_INPUTS = ("fill/fill.json", "fill/segments.png", "fill/filled_mask.png",
                    "fill/dense_depth.exr", "fill/dense.ply", "map/semidense_depth.exr")
 """The files of a run folder, besides ``report.json``, that its overview is drawn from."""
+
+
+def _overview_columns(panels: int) -> int:
+    """Columns of the overview's grid: 4 for the 8 panels of a run with an exact depth, else 3."""
+    return 4 if panels > 6 else 3
 
 
 def _overview_panels(run_folder: str | Path, report: dict | None = None
@@ -463,6 +473,9 @@ def _overview_panels(run_folder: str | Path, report: dict | None = None
     scale = depth_scale(semidense, dense, truth=truth)
     lo_hi = (scale.lo, scale.hi) if scale else (None, None)
     legend = scale.legend() if scale else None
+    # a large frame is reduced in the grid: sparse points are drawn that much larger
+    shown = width * grid_scale(width, _overview_columns(8 if truth is not None else 6))
+    radius, frame_radius = point_radius(semidense.shape[1], shown), point_radius(width, shown)
     cloud, _ = read_ply(run_folder / "fill" / "dense.ply")
     points = np.stack([cloud["x"], cloud["y"], cloud["z"]], 1)
     colours = np.stack([cloud["blue"], cloud["green"], cloud["red"]], 1)
@@ -471,17 +484,19 @@ def _overview_panels(run_folder: str | Path, report: dict | None = None
     map_title = (f"semi-dense map (N1 = {n1})" if in_frame is None
                  else f"semi-dense map (N1 = {n1}, {in_frame} in the frame)")
     panels = [cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR), events_image,
-              depth_colours(semidense, *lo_hi), segments, depth_colours(dense, *lo_hi)]
+              depth_colours(semidense, *lo_hi, radius=radius), segments,
+              depth_colours(dense, *lo_hi, radius=frame_radius)]
     titles = [f"frame at {t:.3f} s", f"events +-10 ms ({len(events)})", map_title,
               segments_title,
               f"dense map (N2 = {report['N2']}, beta {report['beta']:.3f})"]
-    legends = [None, None, legend, None, legend]
+    legends = [None, event_legend(), legend, None, legend]
     if truth is not None:
-        error, error_key = error_panel(dense, truth)
+        error, error_key = error_panel(dense, truth, radius=frame_radius)
         panels += [depth_colours(truth, *lo_hi), error]
         titles += ["exact depth", "|error| of the dense map"]
         legends += [legend, error_key]
-    view, caption = point_cloud_view(points, colours, (width, height))
+    view, caption = point_cloud_view(points, colours, (width, height),
+                                     splat=max(2, 2 * frame_radius + 1))
     panels.append(view)
     titles.append("point cloud: map points red, filled green")
     legends.append(caption)

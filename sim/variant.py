@@ -288,3 +288,23 @@ def use_variant(variant: str | None = None) -> str:
 def active_variant() -> str | None:
     """The variant activated by :func:`use_variant` in this process, or None."""
     return _active
+
+
+def _main(argv: list[str]) -> int:
+    """``python sim/variant.py --find-llvm``: print the LLVM library evfuse would try first
+    (:func:`find_llvm_libraries`) and exit 0, or exit 1 when there is none. The Makefile's
+    ``llvm`` target asks this, so that it and evfuse agree on what is installed; it needs only
+    the standard library (it runs before the virtual environment exists)."""
+    if argv != ["--find-llvm"]:
+        print("usage: python sim/variant.py --find-llvm", file=sys.stderr)
+        return 2
+    libraries = find_llvm_libraries()
+    if not libraries:
+        return 1
+    first = libraries[0]
+    print(f"LLVM {first.version} at {first.path}" if first.version else first.path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))

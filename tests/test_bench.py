@@ -241,3 +241,30 @@ def test_the_canny_input_is_the_exact_depth_on_the_frames_edges(tiny_map):
     canny = inputs["oracle-canny"]
     assert edges.any() and np.array_equal(canny > 0, edges & (base.truth > 0))
     np.testing.assert_array_equal(canny[canny > 0], base.truth[canny > 0].astype(np.float32))
+
+
+def test_bench_md_records_the_family_command_that_was_run(monkeypatch, tmp_path):
+    """A --family run printed `--scenes complex` (the unused default) in bench.md: the command
+    it records must be one that runs the same bench again."""
+    import shlex
+
+    import fusion.benchmark
+    from fusion.cli import _parser
+
+    asked = {}
+
+    def run_bench(methods, scenes, inputs, out, **kwargs):
+        asked.update(scenes=scenes, command=kwargs["command"])
+        return []
+
+    monkeypatch.setattr(fusion.benchmark, "run_bench", run_bench)
+    argv = ["bench", "--family", "staircase", "--steps", "3,5", "--input", "oracle,emvs",
+            "--method", "plane", "--noise", "0.03", "--out", str(tmp_path / "b"), "--quiet"]
+    assert main(argv) == 0
+    command = asked["command"]
+    assert "--scenes" not in command and "--family staircase --steps 3,5" in command, command
+    words = shlex.split(command)
+    assert words[:2] == ["evfuse", "bench"]
+    again, given = _parser().parse_args(words[1:]), _parser().parse_args(argv)
+    for key in ("family", "steps", "input", "method", "noise", "outliers", "scenes", "out"):
+        assert getattr(again, key) == getattr(given, key), key

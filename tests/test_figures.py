@@ -57,7 +57,7 @@ def test_depth_scale_spans_the_exact_depth_and_marks_what_it_clips():
     estimate[1, 1] = 0.3                                  # and one in front of it, and said so
     scale = depth_scale(None, estimate, truth=truth)
     assert (scale.lo, scale.hi, scale.below, scale.above) == (0.8, 1.73, True, True)
-    assert (scale.legend().low, scale.legend().high) == ("<= 0.8 m", ">= 1.73 m")
+    assert (scale.legend().low, scale.legend().high) == ("< 0.8 m", "> 1.73 m")
     # without truth: the maps' 1st-99th percentile, so one outlier does not flatten the panels
     maps_only = depth_scale(estimate)
     assert maps_only.source.startswith("maps") and maps_only.above and maps_only.below
@@ -232,3 +232,115 @@ def test_add_header_puts_lines_above_and_leaves_the_image_as_it_is():
     assert out.shape == (24 + 30, 400, 3)
     np.testing.assert_array_equal(out[24:], image)
     assert (out[:24] != 255).any()                          # the text is drawn
+
+
+def _contrast(bgr_a, bgr_b) -> float:
+    """WCAG 2.1 contrast ratio of two sRGB colours (given BGR): 3 is its minimum for graphics."""
+    def luminance(bgr):
+        c = np.asarray(bgr, np.float64) / 255
+        c = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+        return 0.0722 * c[..., 0] + 0.7152 * c[..., 1] + 0.2126 * c[..., 2]
+    a, b = luminance(bgr_a), luminance(bgr_b)
+    return (np.maximum(a, b) + 0.05) / (np.minimum(a, b) + 0.05)
+
+
+def test_depth_beyond_the_scale_is_drawn_in_a_colour_the_scale_does_not_use():
+    # dynamic_6dof's map: points on the DSI's first and last planes (0.5 m, 5 m) drawn on the
+    # scale of the exact depth (0.8-1.73 m) must not take the colours of 0.8 m and 1.73 m
+    truth = np.zeros((4, 50))
+    truth[:2] = np.linspace(0.8, 1.73, 50)
+    estimate = np.zeros((4, 50))
+    estimate[2, :3] = (1.0, 0.5, 5.0)
+    scale = depth_scale(estimate, truth=truth)
+    image = depth_colours(estimate, scale.lo, scale.hi)
+    legend = scale.legend()
+    ramp = legend.colours.astype(float)
+    for u in (1, 2):                                      # 0.5 m and 5 m
+        distance = np.linalg.norm(ramp - image[2, u].astype(float), axis=1)
+        assert distance.min() > 100, (u, image[2, u])     # no colour of the scale
+    assert tuple(image[2, 1]) != tuple(image[2, 2])       # nearer and farther told apart
+    assert np.linalg.norm(ramp - image[2, 0].astype(float), axis=1).min() < 10   # 1 m: on it
+    # the legend shows both colours, at the ends of its bar, and says what they are
+    assert (legend.low, legend.high) == ("< 0.8 m", "> 1.73 m")
+    assert tuple(legend.under) == tuple(image[2, 1]) and tuple(legend.over) == tuple(image[2, 2])
+    grid = panel_grid([image], ["map"], columns=1, legends=[legend], scale=8)
+    strip = grid[-22:]
+    for colour in (legend.under, legend.over):
+        assert (strip == colour).all(axis=2).sum() >= 20, colour
+    inside = depth_scale(np.full((2, 2), 1.2), truth=truth).legend()   # nothing beyond
+    assert inside.under is None and inside.over is None and inside.low == "0.8 m"
+
+
+def test_every_depth_colour_stands_out_from_the_no_value_grey():
+    # far map points on the dark "no value" background must be visible: WCAG's 3:1 for
+    # graphics against it, for every colour of the scale and for the two beyond it
+    no_value = depth_colours(np.zeros((1, 1)))[0, 0]
+    legend = depth_legend(0.5, 2.0, below=True, above=True)
+    contrast = _contrast(legend.colours, no_value)
+    assert contrast.min() >= 3.0, (contrast.argmin(), legend.colours[contrast.argmin()])
+    assert _contrast(legend.under, no_value) >= 3 and _contrast(legend.over, no_value) >= 3
+
+
+def test_bench_figure_draws_every_method_on_one_error_scale(monkeypatch):
+    import fusion.figures
+    from fusion.benchmark import _figure
+
+    truth = np.ones((20, 40))
+    good = truth + 0.05                                   # 5 cm everywhere
+    bad = truth + 0.05
+    bad[:, 20:] += 1.0                                    # 5 cm on the left, 105 cm on the right
+    rows = [{"status": "ok", "method": name, "mae_cm": 100 * float(np.abs(d - truth).mean()),
+             "_dense": d, "_truth": truth, "_frame": np.full((20, 40), 128, np.uint8)}
+            for name, d in (("good", good), ("bad", bad))]
+    drawn = {}
+    real = fusion.figures.panel_grid
+
+    def keep(images, titles, columns=3, scale=None, legends=None):
+        drawn.update(images=images, titles=titles, legends=legends)
+        return real(images, titles, columns, scale, legends)
+
+    monkeypatch.setattr(fusion.figures, "panel_grid", keep)
+    _figure(rows)
+    errors = [k for k, title in enumerate(drawn["titles"]) if title.startswith("|error|")]
+    assert len(errors) == 2
+    good_panel, bad_panel = (drawn["images"][k] for k in errors)
+    # the same 5 cm error: the same colour in both panels
+    np.testing.assert_array_equal(good_panel[5, 5], bad_panel[5, 5])
+    assert not np.array_equal(bad_panel[5, 5], bad_panel[5, 30])
+    legends = [drawn["legends"][k] for k in errors]
+    assert legends[0].high == legends[1].high and legends[0].low == legends[1].low
+    np.testing.assert_array_equal(legends[0].colours, legends[1].colours)
+
+
+def test_a_rig_sized_overview_stays_screen_wide_and_keeps_its_map_points():
+    # eight 1280x720 panels in four columns were 5120 px wide, with 15 px titles
+    frame = np.full((720, 1280, 3), 90, np.uint8)
+    grid = panel_grid([frame] * 8, [f"panel {k}" for k in range(8)], columns=4)
+    assert grid.shape[1] <= 1920
+    from fusion.figures import grid_scale, point_radius
+
+    assert panel_grid([frame[:180, :240]] * 8, ["x"] * 8, columns=4).shape[1] == 4 * 320
+    # a sparse map's one-pixel points stay visible in the reduced panel
+    sparse = np.zeros((720, 1280))
+    sparse[100:600:50, 100:1200:50] = 1.0
+    shown = 1280 * grid_scale(1280, 4)
+    image = depth_colours(sparse, 0.5, 2.0, radius=point_radius(1280, shown))
+    tile = panel_grid([image] * 4, ["map"] * 4, columns=4)[26:, :int(shown)]
+    on_scale = depth_colours(np.array([[1.0]]), 0.5, 2.0)[0, 0].astype(int)
+    close = np.abs(tile.astype(int) - on_scale).max(axis=2) <= 12   # the point's own colour
+    assert close.sum() >= np.count_nonzero(sparse)
+    assert point_radius(240, 320) == 0                    # not reduced: one pixel, as before
+
+
+def test_events_stats_figure_says_which_colour_is_on_and_which_off(plane_sequence, tmp_path):
+    from fusion.cli import main
+    from sim.sequence import load_sequence
+
+    camera = load_sequence(plane_sequence).camera
+    out = tmp_path / "frame.png"
+    assert main(["events", str(plane_sequence), "--stats", "--out", str(out)]) == 0
+    image = cv2.imread(str(out))
+    assert image.shape[0] > camera.height                 # a legend line under the frame
+    strip = image[-22:]
+    on, off = (0, 0, 255), (255, 0, 0)                    # BGR: red ON, blue OFF
+    assert (strip == on).all(axis=2).sum() >= 64 and (strip == off).all(axis=2).sum() >= 64

@@ -297,3 +297,16 @@ def test_map_is_scored_in_its_own_undistorted_grid(tmp_path):
         assert right["mae_cm"] < 1e-3 and right["precision_1pct"] == 1.0, name
         wrong = depth_errors(semidense, distorted)
         assert wrong["mae_cm"] > 1.0 and wrong["precision_1pct"] < 0.99, name   # the old grid
+
+
+def test_map_json_and_the_summary_give_the_maps_median_depth(plane_sequence, tmp_path, capsys):
+    """`evfuse twin --depth` asks for "the median depth of `evfuse map`": both say it."""
+    out = tmp_path / "map"
+    assert main(["map", str(plane_sequence), "--out", str(out), "--min-depth", "0.5",
+                 "--max-depth", "3", "--planes", "30", "--quiet"]) == 0
+    meta = json.loads((out / "map.json").read_text())
+    depth = read_depth(out / "semidense_depth.exr")
+    median = float(np.median(depth[depth > 0]))            # from the map's own file
+    assert meta["depth_median_m"] == pytest.approx(median, rel=1e-6)
+    assert abs(median - 1.0) < 0.1                         # the wall, 1 m away
+    assert f"median depth {median:.3f} m" in capsys.readouterr().out

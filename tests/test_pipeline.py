@@ -193,11 +193,14 @@ def test_overview_scales_cover_the_exact_depth_and_titles_name_each_count(tiny_r
     # and says where map depths fall outside it.
     assert truth[truth > 0].min() == pytest.approx(1.0, abs=1e-6) == truth.max()
     values = np.concatenate([d[d > 0] for d in maps])
-    low = "<= 0.95 m" if (values < 0.95).any() else "0.95 m"
-    high = ">= 1.05 m" if (values > 1.05).any() else "1.05 m"
+    low = "< 0.95 m" if (values < 0.95).any() else "0.95 m"
+    high = "> 1.05 m" if (values > 1.05).any() else "1.05 m"
     panels, titles, legends, header = _overview_panels(out, report)
     for k in (2, 4, 5):                          # semi-dense, dense, exact: one shared scale
         assert (legends[k].low, legends[k].high) == (low, high), titles[k]
+    # the events panel says which colour is ON and which OFF (red, blue: BGR)
+    assert dict(legends[1].keys)["OFF"] == (255, 0, 0)
+    assert [colour for name, colour in legends[1].keys if name.startswith("ON")] == [(0, 0, 255)]
     assert titles[6] == "|error| of the dense map"
     assert [name for name, _ in legends[6].keys] == ["no value", "no surface"]
     assert legends[6].high.endswith(" cm")

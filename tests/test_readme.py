@@ -37,3 +37,40 @@ def test_every_name_the_readme_python_example_imports_exists():
         package = __import__(module)
         for name in (n.strip() for n in (grouped or single).split(",") if n.strip()):
             assert hasattr(package, name), f"README imports {name} from {module}"
+
+
+def test_the_readme_counts_the_built_in_scenes_as_evfuse_scenes_lists_them():
+    from scenes import builtin_scenes
+
+    counts = re.findall(r"(\d+) built-in scenes|lists all (\d+)", " ".join(README.split()))
+    assert counts
+    for pair in counts:
+        assert int("".join(pair)) == len(builtin_scenes())
+
+
+def test_every_object_type_the_readme_lists_is_accepted():
+    listed = re.search(r'type = "rectangle" +# (.+)', README).group(1)
+    shapes = [s.strip() for s in listed.split(",")]
+    assert "box" in shapes and "mesh" in shapes
+    block = re.findall(r"```toml\n(.*?)```", README, flags=re.S)[0]
+    head = block.split("[[objects]]")[0]
+    fields = {"rectangle": "size = [1.0, 1.0]", "box": "size = [0.3, 0.3, 0.3]",
+              "sphere": "radius = 0.2", "cylinder": "radius = 0.2\nheight = 0.5",
+              "heightfield": "size = [1.0, 1.0]\namplitude = 0.05\nwavelength = [0.4, 0.4]"}
+    for shape in shapes:
+        if shape == "mesh":                                # needs a file: its own tests
+            continue
+        text = (f'{head}[[objects]]\ntype = "{shape}"\ncenter = [0.0, 1.5, 0.0]\n'
+                f"{fields.get(shape, '')}\n")
+        assert parse_scene(text, "README.md").objects[0].shape == shape
+
+
+def test_the_readmes_say_that_look_at_is_a_point():
+    scenes_readme = (ROOT / "scenes" / "README.md").read_text()
+    for text in (README, scenes_readme):
+        line = re.search(r"^look_at = .*$", text, flags=re.M).group(0)
+        assert "point" in line.lower(), line
+    # and it is one: the README's camera at (-0.2, 0, 0) looks at (-0.2, 1, 0), along +y
+    scene = parse_scene(re.findall(r"```toml\n(.*?)```", README, flags=re.S)[0], "README.md")
+    optical_axis = scene.trajectory.pose(0.0)[:3, 2]
+    assert abs(optical_axis[1] - 1.0) < 1e-9

@@ -135,7 +135,8 @@ def test_cli_events_stats_and_convert(tiny_run, tmp_path, capsys):
     assert main(["events", str(result.out), "--stats", "--out", str(png)]) == 0
     printed = capsys.readouterr().out
     assert f"count                    {result.n_events}" in printed and "on_fraction" in printed
-    assert cv2.imread(str(png)).shape == (48, 64, 3)
+    # the 64x48 event frame enlarged 5x (panels are >= 320 px), its title and its ON/OFF legend
+    assert cv2.imread(str(png)).shape == (26 + 5 * 48 + 22, 5 * 64, 3)
     h5, txt = tmp_path / "copy.h5", tmp_path / "copy.txt"
     assert main(["convert", str(result.out / "events.txt"), str(h5)]) == 0
     assert main(["convert", str(h5), str(txt)]) == 0
