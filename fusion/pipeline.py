@@ -239,6 +239,17 @@ def _run_identity(source: str | Path, scene, params: RunParams) -> dict:
         "params": asdict(params), "version": _evfuse_version()}))
 
 
+def _flat(tree: dict, prefix: str = "") -> dict:
+    """``{"a": {"b": 1}}`` as ``{"a.b": 1}``."""
+    flat = {}
+    for key, value in tree.items():
+        if isinstance(value, dict) and value:
+            flat.update(_flat(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
 def _check_run_resumable(out: Path, overwrite: bool, inputs: list, identity: dict) -> None:
     """Raise ValueError unless ``<out>.partial`` holds an interrupted run like this one."""
     if out.is_dir() and not out.is_symlink() and any(out.iterdir()) and not overwrite:
@@ -257,9 +268,8 @@ def _check_run_resumable(out: Path, overwrite: bool, inputs: list, identity: dic
                           "with resume=False to start one",
                           f"there is no interrupted run of {out} to resume ({what}); run "
                           "without --resume to start one")
-    old = json.loads(saved.read_text())
-    differences = [key for key in sorted(set(old) | set(identity))
-                   if old.get(key) != identity.get(key)]
+    old, new = _flat(json.loads(saved.read_text())), _flat(identity)
+    differences = [key for key in sorted(set(old) | set(new)) if old.get(key) != new.get(key)]
     if differences:
         raise ValueError(f"{partial} was left by a run with other inputs ({', '.join(differences)}"
                          " differ); expected the same source, scene file, parameters and "

@@ -111,13 +111,14 @@ def check_not_input(out: str | Path, inputs: SequenceABC[str | Path] = (),
     out : str or Path
         The output folder or file about to be written (it may not exist yet).
     inputs : sequence of str or Path
-        Every file and folder the command reads; those that do not exist are skipped.
+        Every file and folder the command reads (or a cache it reads and fills, which may not
+        exist yet); None entries are skipped.
     what : str
         How the message names ``out`` (``output``, ``output folder``, ``output file``).
     """
     real_out = _real(out)
     for item in inputs:
-        if item is None or not (Path(item).exists() or Path(item).is_symlink()):
+        if item is None:
             continue
         real_in = _real(item)
         if real_in == real_out:
