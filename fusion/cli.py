@@ -19,6 +19,10 @@ for millimetres (the ECD's 0.47-2.4 m written 470-2400) and refused. Event-based
 window's baseline (centimetres to metres) resolves no depth out there anyway."""
 
 
+OVERWRITE_HELP = ("replace OUT if it is a folder evfuse wrote (it holds evfuse's .evfuse marker), "
+                  "once the new one is complete; any other folder is never replaced")
+
+
 def _check_depth_flags(args: argparse.Namespace) -> None:
     """Refuse depth bounds that are implausible in metres, before any work."""
     for flag, value in (("--min-depth", args.min_depth), ("--max-depth", args.max_depth)):
@@ -771,7 +775,7 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--cache", default=None,
                        help="folder of simulated and mapped windows, re-used (default "
                             "OUT-cache)")
-    bench.add_argument("--overwrite", action="store_true")
+    bench.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     bench.add_argument("--quiet", action="store_true", help="no progress bar")
     bench.set_defaults(run=_cmd_bench)
 
@@ -793,8 +797,7 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("--variant", default=None,
                           help="Mitsuba variant: cuda_ad_rgb, llvm_ad_rgb or scalar_rgb "
                                "(default: EVFUSE_VARIANT, else the fastest that works)")
-    simulate.add_argument("--overwrite", action="store_true",
-                          help="replace an existing output folder once the new one is complete")
+    simulate.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     simulate.add_argument("--quiet", action="store_true", help="no progress bar")
     simulate.add_argument("--contrast", type=float, default=0.2,
                           help="contrast thresholds C+ = C- of the event camera (default 0.2)")
@@ -878,8 +881,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="the recording's frames are 255 * light^(1/GAMMA) (default 1: linear, "
                            "as a DAVIS APS; 2.2 for a gamma-encoded camera)")
     twin.add_argument("--out", required=True, help="folder to write")
-    twin.add_argument("--overwrite", action="store_true",
-                      help="replace OUT if it is a folder evfuse wrote")
+    twin.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     twin.set_defaults(run=_cmd_twin)
 
     mapping = sub.add_parser(
@@ -894,7 +896,7 @@ def _parser() -> argparse.ArgumentParser:
                          help="reference view time, s (default: the standard frame nearest the "
                               "middle of the window, the frame the map is filled with)")
     _add_map_options(mapping)
-    mapping.add_argument("--overwrite", action="store_true")
+    mapping.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     mapping.add_argument("--quiet", action="store_true", help="no progress bar")
     mapping.set_defaults(run=_cmd_map)
 
@@ -915,7 +917,7 @@ def _parser() -> argparse.ArgumentParser:
     fill.add_argument("--truth", default=None, help="EXR exact depth of that frame, to score")
     fill.add_argument("--out", required=True, help="folder to write")
     _add_dense_options(fill)
-    fill.add_argument("--overwrite", action="store_true")
+    fill.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     fill.set_defaults(run=_cmd_fill)
 
     run = sub.add_parser(
@@ -929,9 +931,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--spp", type=int, default=None, help="samples per pixel (scenes)")
     run.add_argument("--seed", type=int, default=None, help="simulation seed (scenes)")
     _add_dense_options(run)
-    run.add_argument("--overwrite", action="store_true",
-                     help="replace OUT if it is a folder evfuse wrote (once the new one is "
-                          "complete)")
+    run.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted run of the same command from OUT.partial: "
                           "its simulation resumes from its checkpoint (as simulate --resume), "
@@ -979,7 +979,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="a setting of every --method entry of METHOD (repeatable); a bare "
                             "KEY=VALUE only with one --method. Never changes the paper's "
                             "tables; `evfuse methods --params` lists the settings")
-    repro.add_argument("--overwrite", action="store_true")
+    repro.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     repro.add_argument("--quiet", action="store_true", help="no progress bar")
     repro.set_defaults(run=_cmd_reproduce)
 

@@ -62,7 +62,7 @@ less than a microsecond; frames are never closer than that."""
 
 MARKER = ".evfuse"
 """The file evfuse writes into every output folder it creates (JSON: ``written_by``,
-``command``, ``version``, ``time``, ``inputs``): ``overwrite`` replaces only a folder that has
+``command``, ``version``, ``inputs``): ``overwrite`` replaces only a folder that has
 it, so that it never deletes a folder evfuse did not write."""
 
 
@@ -202,13 +202,11 @@ def _evfuse_version() -> str:
 def write_marker(folder: str | Path, command: str = "",
                  inputs: SequenceABC[str | Path] = ()) -> Path:
     """Write evfuse's :data:`MARKER` into ``folder``: JSON with ``written_by`` ("evfuse"),
-    ``command`` (which writer), ``version`` (evfuse's), ``time`` (UTC, ISO 8601) and
-    ``inputs`` (their real paths)."""
-    from datetime import UTC, datetime
-
+    ``command`` (which writer), ``version`` (evfuse's) and ``inputs`` (their real paths). No
+    time (the file's own is there): the same command writes the same bytes, so that a resumed
+    or repeated simulation stays identical to an uninterrupted one."""
     path = Path(folder) / MARKER
     document = {"written_by": "evfuse", "command": command, "version": _evfuse_version(),
-                "time": datetime.now(UTC).isoformat(timespec="seconds"),
                 "inputs": [str(_real(p)) for p in inputs if p is not None]}
     path.write_text(json.dumps(document, indent=1) + "\n")
     return path
