@@ -217,3 +217,47 @@ def test_an_interrupted_run_resumes_without_simulating_again(tmp_path, monkeypat
     _refused(capsys, run_cli(["show", str(out), "--out", str(out / "o.png")]), "show",
              "lies inside the input")
     assert tree_hashes(out) == before
+
+
+def test_a_run_interrupted_in_its_simulation_resumes_from_the_checkpoint(tmp_path,
+                                                                          monkeypatch, capsys):
+    import importlib
+
+    from sim.render import Renderer
+    from tests.test_resume import _assert_same_sequence
+
+    simulate_module = importlib.import_module("sim.simulate")
+    scene = tmp_path / "wall.toml"
+    extra = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n"
+    scene.write_text(scene_text(WALL, trajectory=FAST, duration=0.2, extra=extra))
+    argv = ["run", str(scene), "--spp", "1", *MAP]
+    assert run_cli([*argv, "--out", str(tmp_path / "whole")]) == 0
+    real_luminance, renders, resumed = Renderer.luminance, [], []
+
+    def third_frame_interrupts(renderer, *args, **kwargs):
+        renders.append(1)
+        if len(renders) == 3:
+            raise KeyboardInterrupt
+        return real_luminance(renderer, *args, **kwargs)
+
+    real_simulate = simulate_module.simulate
+
+    def recorded(*args, **kwargs):
+        resumed.append(kwargs.get("resume"))
+        return real_simulate(*args, **kwargs)
+
+    monkeypatch.setattr(Renderer, "luminance", third_frame_interrupts)
+    monkeypatch.setattr(simulate_module, "simulate", recorded)
+    out = tmp_path / "run"
+    assert run_cli([*argv, "--out", str(out)]) == 130
+    assert "--resume" in capsys.readouterr().err
+    checkpoint = tmp_path / "run.partial" / "sequence.partial" / ".checkpoint"
+    assert (checkpoint / "checkpoint.json").is_file()
+    assert run_cli([*argv, "--out", str(out), "--resume"]) == 0
+    assert resumed == [False, True]                   # the simulation went on from there
+    _assert_same_sequence(tmp_path / "whole" / "sequence", out / "sequence")
+    whole, again = (json.loads((f / "report.json").read_text()) for f in (tmp_path / "whole", out))
+    assert again["N1"] == whole["N1"] and again["N2"] == whole["N2"]
+    assert _listing(tmp_path) == ["run", "wall.toml", "whole"]
+    # every folder evfuse wrote is marked, nested ones too: `make demo`'s --overwrite replaces it
+    assert all((out / sub / MARKER).is_file() for sub in ("", "sequence", "map", "fill"))
