@@ -623,7 +623,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
             width, height = camera.width, camera.height
     read = [args.src] + [Path(args.src).resolve().parent / name for name in
                          ("calib.txt", "images.txt", "sequence.json")]       # for its size
-    check_output_file(args.dst, read)
+    check_output_file(args.dst, read, flag="DST")
     if Path(args.dst).exists() and not args.overwrite:
         raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
     convert_events(args.src, args.dst, width=width, height=height)

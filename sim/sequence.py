@@ -102,7 +102,7 @@ def _real(path: str | Path) -> Path:
 
 
 def check_not_input(out: str | Path, inputs: SequenceABC[str | Path] = (),
-                    what: str = "output") -> None:
+                    what: str = "output", flag: str = "--out") -> None:
     """Raise :class:`OutputError` if ``out`` is one of ``inputs``, contains one, or lies inside
     one, comparing real paths (symlinks resolved).
 
@@ -115,6 +115,8 @@ def check_not_input(out: str | Path, inputs: SequenceABC[str | Path] = (),
         exist yet); None entries are skipped.
     what : str
         How the message names ``out`` (``output``, ``output folder``, ``output file``).
+    flag : str
+        The command line's name for ``out``, in :attr:`OutputError.cli_message`.
     """
     real_out = _real(out)
     for item in inputs:
@@ -133,7 +135,7 @@ def check_not_input(out: str | Path, inputs: SequenceABC[str | Path] = (),
         message = (f"{what} {out}{shown} {relation} {item}; evfuse never writes into, replaces "
                    "or deletes what it reads")
         raise OutputError(f"{message}: choose another output path",
-                          f"{message}: choose another --out")
+                          f"{message}: choose another {flag}")
 
 
 def _check_marked(folder: Path, out: Path, overwrite: bool) -> None:
@@ -182,10 +184,12 @@ def check_output_dir(out: str | Path, overwrite: bool = False,
         _check_marked(out, out, overwrite)
 
 
-def check_output_file(out: str | Path, inputs: SequenceABC[str | Path] = ()) -> None:
+def check_output_file(out: str | Path, inputs: SequenceABC[str | Path] = (),
+                      flag: str = "--out") -> None:
     """Raise :class:`OutputError` if the file ``out`` would be written into, over or around one
-    of ``inputs`` (:func:`check_not_input`), or is an existing folder."""
-    check_not_input(out, inputs, "output file")
+    of ``inputs`` (:func:`check_not_input`; ``flag`` names ``out`` on the command line), or is
+    an existing folder."""
+    check_not_input(out, inputs, "output file", flag)
     if Path(out).is_dir():
         raise OutputError(f"output file {out} is an existing folder; expected a file path")
 

@@ -261,3 +261,15 @@ def test_a_run_interrupted_in_its_simulation_resumes_from_the_checkpoint(tmp_pat
     assert _listing(tmp_path) == ["run", "wall.toml", "whole"]
     # every folder evfuse wrote is marked, nested ones too: `make demo`'s --overwrite replaces it
     assert all((out / sub / MARKER).is_file() for sub in ("", "sequence", "map", "fill"))
+
+
+def test_a_failed_convert_leaves_no_partial_file_and_never_writes_over_its_source(tmp_path,
+                                                                                   capsys):
+    rows = "".join(f"0.{k:09d} {k % 60} {k % 40} {k % 2}\n" for k in range(1, 200))
+    src = tmp_path / "events.txt"
+    src.write_text(rows + "0.5 3 three 1\n")                    # malformed at the end
+    _refused(capsys, run_cli(["convert", str(src), str(tmp_path / "out.txt")]), "convert",
+             "events.txt:200")
+    assert _listing(tmp_path) == ["events.txt"]
+    _refused(capsys, run_cli(["convert", str(src), str(src), "--overwrite"]), "convert",
+             "is the input", "choose another DST")
