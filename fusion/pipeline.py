@@ -8,7 +8,8 @@ The one place where the stages are wired together::
 A real recording (an Event-Camera Dataset folder) or an existing simulated sequence folder is read
 where it is; a scene (a built-in name or a ``.toml`` file) is simulated into ``<out>/sequence``
 over the time window only. Everything is written into ``<out>.partial`` and renamed to ``<out>``
-when complete.
+when complete; an interrupted run leaves ``<out>.partial`` for ``resume`` (its simulation goes on
+from its checkpoint). ``<out>`` never is, holds or lies in the source.
 """
 
 from __future__ import annotations
