@@ -488,6 +488,21 @@ def _figure(rows: list[dict]) -> np.ndarray:
     return panel_grid(images, titles, columns=columns, legends=legends)
 
 
+def bench_sources(scenes: list[str], cache: str | Path) -> list[Path]:
+    """What a bench reads (its output must not be, hold or lie in any): the cache, and the
+    scene files and map folders among ``scenes`` with the sequence folders the maps name."""
+    from fusion.pipeline import fill_sources
+
+    sources = [Path(cache)]
+    for item in scenes:
+        path = Path(item)
+        if (path / "map.json").is_file():
+            sources += fill_sources(path)
+        elif path.is_file():
+            sources.append(path)
+    return sources
+
+
 def run_bench(methods: list, scenes: list[str], inputs: list[str], out: str | Path,
               cache: str | Path | None = None, params: BenchParams | None = None,
               overwrite: bool = False, progress: bool = True, command: str = "evfuse bench"
@@ -503,12 +518,14 @@ def run_bench(methods: list, scenes: list[str], inputs: list[str], out: str | Pa
     from fusion.figures import write_image
 
     out = Path(out)
-    check_output_dir(out, overwrite)
     cache = Path(cache) if cache is not None else out.with_name(out.name + "-cache")
+    read = bench_sources(scenes, cache)
+    check_output_dir(out, overwrite, read)                  # before the cache is made
     start = time.perf_counter()
     rows = bench(methods, scenes, inputs, cache, params, progress)
     seconds = time.perf_counter() - start
-    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+    with atomic_output_dir(out, overwrite=overwrite, inputs=read,
+                           command="evfuse bench") as tmp:
         (tmp / "bench.md").write_text(_markdown(rows, seconds, command))
         (tmp / "bench.csv").write_text(_csv(rows))
         (tmp / "figures").mkdir()

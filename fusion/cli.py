@@ -24,6 +24,10 @@ from sim.validation import (
 __all__ = ["main"]
 
 
+OVERWRITE_HELP = ("replace OUT if it is a folder evfuse wrote (it holds evfuse's .evfuse marker), "
+                  "once the new one is complete; any other folder is never replaced")
+
+
 def _check_depth_flags(args: argparse.Namespace) -> None:
     """Refuse depth bounds that are implausible in metres (:func:`sim.validation.depth_metres`),
     before any work."""
@@ -200,10 +204,11 @@ def _family_files(args: argparse.Namespace) -> list[str]:
                              "by commas") from None
     cache = Path(args.cache) if args.cache else Path(args.out).with_name(
         Path(args.out).name + "-cache")
+    texts = family_variants(args.family, knobs)           # refused knobs: before any folder
     folder = cache / "families"
     folder.mkdir(parents=True, exist_ok=True)
     files = []
-    for text in family_variants(args.family, knobs):
+    for text in texts:
         name = text.split('name = "', 1)[1].split('"', 1)[0]
         path = folder / f"{name}.toml"
         path.write_text(text)
@@ -239,8 +244,9 @@ def _bench_command(args: argparse.Namespace, given: list[str]) -> str:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from fusion.benchmark import BenchParams, run_bench
+    from fusion.benchmark import INPUTS, BenchParams, bench_sources, run_bench
     from fusion.methods import MethodVariant, available_methods, split_labels
+    from sim.sequence import check_output_dir
 
     given = split_labels(",".join(args.method or []))
     variants = _method_variants(given, args.param or [])
@@ -249,6 +255,15 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if not methods:
         raise ValueError("--only needs at least one --method")
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()]
+    inputs = [s.strip() for s in args.input.split(",") if s.strip()]
+    # Everything refusable is refused before the cache (and a family's files in it) is made.
+    if not inputs or not set(inputs) <= set(INPUTS):
+        raise ValueError(f"--input {args.input}: expected among {', '.join(INPUTS)}")
+    params = BenchParams(noise=args.noise, outliers=args.outliers)
+    cache = Path(args.cache) if args.cache else Path(args.out).with_name(
+        Path(args.out).name + "-cache")
+    check_output_dir(args.out, args.overwrite, bench_sources([] if args.family else scenes,
+                                                             cache))
     if args.family:
         scenes = _family_files(args)
     else:
@@ -257,9 +272,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise ValueError(f"--{knobs[0].replace('_', '-')} is a knob of a scene family: "
                              "give --family too (staircase, sphere, cylinder, slanted, "
                              "heightfield)")
-    inputs = [s.strip() for s in args.input.split(",") if s.strip()]
-    rows = run_bench(methods, scenes, inputs, args.out, cache=args.cache,
-                     params=BenchParams(noise=args.noise, outliers=args.outliers),
+    rows = run_bench(methods, scenes, inputs, args.out, cache=args.cache, params=params,
                      overwrite=args.overwrite, progress=not args.quiet,
                      command=_bench_command(args, given))
     failed = sum(row["status"] != "ok" for row in rows)
@@ -371,11 +384,16 @@ def _cmd_events(args: argparse.Namespace) -> int:
     import cv2
 
     from fusion.figures import event_legend, panel_grid, write_image
+    from sim.sequence import check_output_file
     from sim.statistics import compare_stats, event_frame
 
     folder = Path(args.sequence)
     if args.compare is not None and not args.stats:
         raise ValueError("--compare compares statistics: add --stats")
+    if args.out is not None and not args.stats:
+        raise ValueError("--out is the event frame of --stats: add --stats")
+    if args.out is not None:                     # never into a recording it reads
+        check_output_file(args.out, [folder, args.compare])
     sequence, path, events = _read_recording(folder)
     if not args.stats:
         print(f"{path}: {len(events)} events (add --stats for statistics)")
@@ -395,7 +413,10 @@ def _cmd_events(args: argparse.Namespace) -> int:
         for key, a, b, ratio in compare_stats(stats, other):
             print(f"  {key:<24} {show(a):>12} {show(b):>12} "
                   f"{'' if ratio is None else f'{ratio:.3g}':>8}")
-    out = Path(args.out) if args.out else folder / "event_frame.png"
+    if args.out is None:
+        print("(add --out PNG to draw the event frame; evfuse never writes into the recording)")
+        return 0
+    out = Path(args.out)
     window = events
     if args.window is not None and len(events):
         t_end = int(events["t"][0] + args.window * 1e9)
@@ -420,7 +441,7 @@ def _cmd_twin(args: argparse.Namespace) -> int:
             raise ValueError(f"--window: expected T0,T1 in seconds (finite), got "
                              f"{args.window!r}")
     scene = write_twin(args.recording, args.out, args.depth, window, args.illuminance,
-                       args.frame_sensor, args.frame_gamma)
+                       args.frame_sensor, args.frame_gamma, overwrite=args.overwrite)
     print(f"twin scene written to {scene}; simulate it with: evfuse simulate {scene} "
           f"--out SEQUENCE")
     return 0
@@ -432,7 +453,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
     from sim.sequence import check_output_dir
 
     _check_depth_flags(args)
-    check_output_dir(args.out, args.overwrite)                  # fail before the long work
+    check_output_dir(args.out, args.overwrite, [args.sequence])   # fail before the long work
     result, params = map_window(
         args.sequence, args.out, args.t0, args.t1, ref_time=args.ref_time,
         min_depth=args.min_depth, max_depth=args.max_depth,
@@ -510,7 +531,7 @@ def _fill_method(args: argparse.Namespace):
 def _cmd_fill(args: argparse.Namespace) -> int:
     from fusion.dense import fill_frame, write_fill
     from fusion.methods import method_label
-    from fusion.pipeline import fill_window
+    from fusion.pipeline import fill_sources, fill_window
     from sim.camera import read_calib
     from sim.exr import read_depth
     from sim.sequence import check_output_dir
@@ -519,7 +540,9 @@ def _cmd_fill(args: argparse.Namespace) -> int:
     single = (args.frame, args.sparse_depth, args.calib)
     if args.map is not None and any(single):
         raise ValueError("give either a map folder or --frame, --sparse-depth and --calib")
-    check_output_dir(args.out, args.overwrite)
+    inputs = (fill_sources(args.map) if args.map is not None
+              else [p for p in (*single, args.truth) if p is not None])
+    check_output_dir(args.out, args.overwrite, inputs)
     if args.map is not None:
         result = fill_window(args.map, args.out, params, overwrite=args.overwrite,
                              method=method, method_params=method_params)
@@ -530,7 +553,7 @@ def _cmd_fill(args: argparse.Namespace) -> int:
         result = fill_frame(frame, read_depth(args.sparse_depth), camera, params, truth,
                             info={"frame": str(args.frame), "sparse_depth": str(args.sparse_depth)},
                             method=method, method_params=method_params)
-        write_fill(result, args.out, params, overwrite=args.overwrite)
+        write_fill(result, args.out, params, overwrite=args.overwrite, inputs=inputs)
     else:
         raise ValueError("give a map folder, or all of --frame, --sparse-depth and --calib")
     out = Path(args.out)
@@ -561,7 +584,7 @@ def _read_gray(path):
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.emvs import DepthMapParams
-    from fusion.pipeline import RunParams, run_pipeline
+    from fusion.pipeline import RunParams, is_sequence_folder, run_pipeline
 
     _check_depth_flags(args)
     _check_seed(args)
@@ -573,8 +596,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
                        dense=dense, method=method, method_params=method_params,
                        spp=args.spp, seed=args.seed,
                        clip_window=args.clip_window)
+    if is_sequence_folder(args.source):       # nothing to resume: map and fill start over
+        args.interrupted = ("no complete output was written; the same command starts over "
+                            "(it maps and fills again)")
     report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,
-                          progress=not args.quiet)
+                          progress=not args.quiet, resume=args.resume)
     _print_report(report, Path(args.out))
     return 0
 
@@ -621,10 +647,12 @@ def _print_report(report: dict, out: Path) -> None:
 
 def _cmd_show(args: argparse.Namespace) -> int:
     from fusion.figures import write_image
-    from fusion.pipeline import draw_overview
+    from fusion.pipeline import draw_overview, run_sources
+    from sim.sequence import check_output_file
 
+    out = Path(args.out)
+    check_output_file(out, run_sources(args.run_folder))   # the run folder is only read
     image = draw_overview(args.run_folder)
-    out = Path(args.out) if args.out else Path(args.run_folder) / "overview.png"
     write_image(out, image)
     print(f"written to {out}")
     return 0
@@ -650,6 +678,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 def _cmd_convert(args: argparse.Namespace) -> int:
     from sim.eventio import convert_events
+    from sim.sequence import check_output_file
 
     width = height = None
     if args.sensor:
@@ -664,6 +693,9 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
             camera = load_sequence(folder).camera
             width, height = camera.width, camera.height
+    read = [args.src] + [Path(args.src).resolve().parent / name for name in
+                         ("calib.txt", "images.txt", "sequence.json")]       # for its size
+    check_output_file(args.dst, read, flag="DST")
     if Path(args.dst).exists() and not args.overwrite:
         raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
     convert_events(args.src, args.dst, width=width, height=height)
@@ -848,7 +880,7 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--cache", default=None,
                        help="folder of simulated and mapped windows, re-used (default "
                             "OUT-cache)")
-    bench.add_argument("--overwrite", action="store_true")
+    bench.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     bench.add_argument("--quiet", action="store_true", help="no progress bar")
     bench.set_defaults(run=_cmd_bench)
 
@@ -870,8 +902,7 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("--variant", default=None,
                           help="Mitsuba variant: cuda_ad_rgb, llvm_ad_rgb or scalar_rgb "
                                "(default: EVFUSE_VARIANT, else the fastest that works)")
-    simulate.add_argument("--overwrite", action="store_true",
-                          help="replace an existing output folder once the new one is complete")
+    simulate.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     simulate.add_argument("--quiet", action="store_true", help="no progress bar")
     simulate.add_argument("--contrast", type=_FINITE, default=0.2,
                           help="contrast thresholds C+ = C- of the event camera (default 0.2)")
@@ -919,12 +950,14 @@ def _parser() -> argparse.ArgumentParser:
     events = sub.add_parser("events", help="statistics and an event frame of a sequence's events")
     events.add_argument("sequence", help="sequence folder with events.h5 or events.txt")
     events.add_argument("--stats", action="store_true",
-                        help="print count, rate, ON/OFF balance and write an event-frame PNG")
+                        help="print count, rate, ON/OFF balance (and draw the event frame into "
+                             "--out)")
     events.add_argument("--window", type=_POSITIVE, default=None,
                         help="seconds of events from the start drawn in the event frame "
                              "(default: all)")
     events.add_argument("--out", default=None,
-                        help="event-frame PNG (default: SEQUENCE/event_frame.png)")
+                        help="with --stats: the event-frame PNG to write (default none; never "
+                             "inside SEQUENCE or OTHER, which are only read)")
     events.add_argument("--compare", default=None, metavar="OTHER",
                         help="with --stats: another sequence folder (a twin and its recording), "
                              "printed side by side with the ratio OTHER / SEQUENCE")
@@ -954,6 +987,7 @@ def _parser() -> argparse.ArgumentParser:
                       help="the recording's frames are 255 * light^(1/GAMMA) (default 1: linear, "
                            "as a DAVIS APS; 2.2 for a gamma-encoded camera)")
     twin.add_argument("--out", required=True, help="folder to write")
+    twin.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     twin.set_defaults(run=_cmd_twin)
 
     mapping = sub.add_parser(
@@ -968,7 +1002,7 @@ def _parser() -> argparse.ArgumentParser:
                          help="reference view time, s (default: the standard frame nearest the "
                               "middle of the window, the frame the map is filled with)")
     _add_map_options(mapping)
-    mapping.add_argument("--overwrite", action="store_true")
+    mapping.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     mapping.add_argument("--quiet", action="store_true", help="no progress bar")
     mapping.set_defaults(run=_cmd_map)
 
@@ -989,7 +1023,7 @@ def _parser() -> argparse.ArgumentParser:
     fill.add_argument("--truth", default=None, help="EXR exact depth of that frame, to score")
     fill.add_argument("--out", required=True, help="folder to write")
     _add_dense_options(fill)
-    fill.add_argument("--overwrite", action="store_true")
+    fill.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     fill.set_defaults(run=_cmd_fill)
 
     run = sub.add_parser(
@@ -1003,13 +1037,20 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--spp", type=_count_type(1), default=None, help="samples per pixel (scenes)")
     run.add_argument("--seed", type=_count_type(0), default=None, help="simulation seed (scenes)")
     _add_dense_options(run)
-    run.add_argument("--overwrite", action="store_true")
+    run.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    run.add_argument("--resume", action="store_true",
+                     help="continue an interrupted run of the same command from OUT.partial: "
+                          "its simulation resumes from its checkpoint (as simulate --resume), "
+                          "then the map and the fill are made again")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
-    run.set_defaults(run=_cmd_run)
+    run.set_defaults(run=_cmd_run,
+                     interrupted="resume with the same command plus --resume (a simulation "
+                                 "continues from its last checkpoint)")
 
     show = sub.add_parser("show", help="re-draw the overview of a run from its saved results")
     show.add_argument("run_folder", metavar="RUN", help="folder written by evfuse run")
-    show.add_argument("--out", default=None, help="PNG to write (default RUN/overview.png)")
+    show.add_argument("--out", required=True,
+                      help="PNG to write (outside RUN: the run folder is only read)")
     show.set_defaults(run=_cmd_show)
 
     repro = sub.add_parser(
@@ -1044,7 +1085,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="a setting of every --method entry of METHOD (repeatable); a bare "
                             "KEY=VALUE only with one --method. Never changes the paper's "
                             "tables; `evfuse methods --params` lists the settings")
-    repro.add_argument("--overwrite", action="store_true")
+    repro.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     repro.add_argument("--quiet", action="store_true", help="no progress bar")
     repro.set_defaults(run=_cmd_reproduce)
 
@@ -1165,7 +1206,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         if args.debug:
             raise
-        print(f"evfuse {args.command}: error: {exc}", file=sys.stderr)
+        # an output refusal (sim.sequence.OutputError) has its own line in flags
+        print(f"evfuse {args.command}: error: {getattr(exc, 'cli_message', exc)}",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         return _interrupted(args, exc)

@@ -31,6 +31,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -661,7 +662,7 @@ def _cloud(result: DenseResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
-               overwrite: bool = False) -> Path:
+               overwrite: bool = False, inputs: Iterable[str | Path] = ()) -> Path:
     """Write ``dense_depth.exr``, ``segments.png``, ``filled_mask.png``, ``figure.png``,
     ``dense.ply`` and ``fill.json`` (plus ``error.png`` with a truth, and ``confidence.exr``,
     float32 channel ``Y`` in [0, 1], where the method returned a confidence) into ``out``,
@@ -669,6 +670,10 @@ def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
 
     For a method that does not segment the frame, ``segments.png`` is all 0 and ``fill.json``'s
     ``params`` holds only ``band`` (the paper's stages did not run).
+
+    ``inputs``: the files and folders the fill read besides ``result.info``'s ``map`` and
+    ``sequence`` (e.g. the frame and sparse depth of a single frame); ``out`` must not be, hold or
+    lie in any of them (:func:`sim.sequence.atomic_output_dir`).
     """
     segmented = result.regions is not None
     files = {"segments.png": ("region labels, 16-bit (0 = region too small)" if segmented else
@@ -677,7 +682,10 @@ def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
     if result.confidence is not None:
         files["confidence.exr"] = (f"confidence of {result.method} in each pixel, float32 "
                                    "channel Y, 0 to 1")
-    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+    read = [*inputs, *(result.info[key] for key in ("map", "sequence")
+                       if isinstance(result.info.get(key), str | Path))]
+    with atomic_output_dir(out, overwrite=overwrite, inputs=read,
+                           command="evfuse fill") as tmp:
         write_depth(tmp / "dense_depth.exr", result.dense)
         labels16 = np.clip(result.labels, 0, 65535).astype(np.uint16)
         if not cv2.imwrite(str(tmp / "segments.png"), labels16):

@@ -540,9 +540,11 @@ def _overlay(result: MapResult) -> np.ndarray:
 def write_map(result: MapResult, out: str | Path, params: MapParams,
               overwrite: bool = False) -> Path:
     """Write ``semidense_depth.exr``, ``confidence.exr``, ``mask.png``, ``overlay.png``,
-    ``map.ply`` and ``map.json`` into ``out`` (atomically)."""
+    ``map.ply`` and ``map.json`` into ``out`` (atomically; :func:`sim.sequence.atomic_output_dir`
+    refuses an ``out`` that is, holds or lies in the sequence folder)."""
     sequence = result.sequence
-    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+    with atomic_output_dir(out, overwrite=overwrite, inputs=[sequence.folder],
+                           command="evfuse map") as tmp:
         write_depth(tmp / "semidense_depth.exr", result.depth)
         write_exr_channels(tmp / "confidence.exr", {"Y": result.confidence})
         cv2.imwrite(str(tmp / "mask.png"), result.mask.astype(np.uint8) * 255)

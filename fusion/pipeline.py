@@ -8,16 +8,18 @@ The one place where the stages are wired together::
 A real recording (an Event-Camera Dataset folder) or an existing simulated sequence folder is read
 where it is; a scene (a built-in name or a ``.toml`` file) is simulated into ``<out>/sequence``
 over the time window only. Everything is written into ``<out>.partial`` and renamed to ``<out>``
-when complete.
+when complete; an interrupted run leaves ``<out>.partial`` for ``resume`` (its simulation goes on
+from its checkpoint). ``<out>`` never is, holds or lies in the source.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -54,7 +56,15 @@ from fusion.pointcloud import read_ply
 from sim.eventio import read_window
 from sim.exr import read_depth
 from sim.progress import progress as progress_stage
-from sim.sequence import PARTIAL_SUFFIX, atomic_output_dir, check_output_dir, load_sequence
+from sim.sequence import (
+    MARKER,
+    PARTIAL_SUFFIX,
+    OutputError,
+    atomic_output_dir,
+    check_output_dir,
+    load_sequence,
+    partial_dir,
+)
 from sim.statistics import event_frame
 from sim.validation import finite
 
@@ -182,6 +192,7 @@ def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = 
     params = MapParams(DSIParams(dsi_range.min_depth, dsi_range.max_depth, planes=planes),
                        depth or DepthMapParams(), t0=t0, t1=t1, ref_time=ref_time,
                        clip_window=clip_window, dsi_range=dsi_range)
+    check_output_dir(out, overwrite, inputs=[sequence_folder])     # before the long work
     mapped = map_sequence(sequence_folder, params, progress=progress)
     write_map(mapped, out, params, overwrite=overwrite)
     return mapped, params
@@ -193,15 +204,95 @@ def fill_window(map_folder: str | Path, out: str | Path, params: DenseParams | N
     """The fill stage as ``evfuse fill`` and ``evfuse run`` both run it: fill, score, files.
 
     ``method`` is the filling method (default: the paper's with ``params.fill.weighting``,
-    :func:`fusion.dense.resolve_method`), ``method_params`` its own settings."""
+    :func:`fusion.dense.resolve_method`), ``method_params`` its own settings. ``out`` must
+    not be, hold or lie in the map folder or its sequence folder (refused before any work)."""
     _, params = resolve_method(method, params, method_params)
+    check_output_dir(out, overwrite, inputs=fill_sources(map_folder))
     filled = fill_map(map_folder, params, method, method_params)
     write_fill(filled, out, params, overwrite=overwrite)
     return filled
 
 
+def fill_sources(map_folder: str | Path) -> list[Path]:
+    """What filling ``map_folder`` reads: the folder and the sequence folder its ``map.json``
+    names (when it names one; a malformed ``map.json`` is refused later, by the fill)."""
+    map_folder = Path(map_folder)
+    sources = [map_folder]
+    try:
+        sources.append(map_folder / json.loads((map_folder / "map.json").read_text())["sequence"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return sources
+
+
+def run_sources(run_folder: str | Path) -> list[Path]:
+    """What re-drawing a run reads: its folder and the sequence folder its ``report.json``
+    names (when it names one; a missing report is refused later, by the drawing)."""
+    run_folder = Path(run_folder)
+    sources = [run_folder]
+    try:
+        report = json.loads((run_folder / "report.json").read_text())
+        sources.append(run_folder / report["sequence"])
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return sources
+
+
+RESUME_FILE = ".run.json"
+"""The identity of an unfinished ``evfuse run`` in ``<out>.partial`` (source, the scene file's
+SHA-256, every parameter, evfuse's version), compared by a resumed run."""
+
+
+def _run_identity(source: str | Path, scene, params: RunParams) -> dict:
+    """What a resumed run must share with the interrupted one."""
+    from sim.sequence import _evfuse_version
+
+    return json.loads(to_json({
+        "source": str(source),
+        "scene_sha256": None if scene is None else hashlib.sha256(
+            scene.text.encode()).hexdigest(),
+        "params": asdict(params), "version": _evfuse_version()}))
+
+
+def _flat(tree: dict, prefix: str = "") -> dict:
+    """``{"a": {"b": 1}}`` as ``{"a.b": 1}``."""
+    flat = {}
+    for key, value in tree.items():
+        if isinstance(value, dict) and value:
+            flat.update(_flat(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def _check_run_resumable(out: Path, overwrite: bool, inputs: list, identity: dict) -> None:
+    """Raise ValueError unless ``<out>.partial`` holds an interrupted run like this one."""
+    if out.is_dir() and not out.is_symlink() and any(out.iterdir()) and not overwrite:
+        raise OutputError(
+            f"output folder {out} is already complete; there is nothing to resume (with "
+            "overwrite=True a resumed run replaces it)",
+            f"output folder {out} is already complete; there is nothing to resume (add "
+            "--overwrite to continue an interrupted run that replaces it)")
+    check_output_dir(out, overwrite, inputs)
+    partial = partial_dir(out)
+    saved = partial / RESUME_FILE
+    if not saved.is_file():
+        what = (f"{partial} does not exist" if not partial.exists()
+                else f"{partial} has no {RESUME_FILE}")
+        raise OutputError(f"there is no interrupted run of {out} to resume ({what}); run "
+                          "with resume=False to start one",
+                          f"there is no interrupted run of {out} to resume ({what}); run "
+                          "without --resume to start one")
+    old, new = _flat(json.loads(saved.read_text())), _flat(identity)
+    differences = [key for key in sorted(set(old) | set(new)) if old.get(key) != new.get(key)]
+    if differences:
+        raise ValueError(f"{partial} was left by a run with other inputs ({', '.join(differences)}"
+                         " differ); expected the same source, scene file, parameters and "
+                         "software to resume (or run without resuming to start again)")
+
+
 def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None = None,
-                 overwrite: bool = False, progress: bool = True) -> dict:
+                 overwrite: bool = False, progress: bool = True, resume: bool = False) -> dict:
     """Run simulate -> map -> fill -> score on a scene or a sequence folder.
 
     Parameters
@@ -213,21 +304,50 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
         ``overview.png``, ``report.json``.
     params : RunParams, optional
     overwrite : bool
-        Replace an existing ``out`` once the new one is complete.
+        Replace an existing ``out`` (a folder evfuse wrote) once the new one is complete.
     progress : bool
         Progress bars.
+    resume : bool
+        Continue the run an interruption left in ``<out>.partial`` (Ctrl-C, SIGTERM, a crash):
+        its simulation resumes from its checkpoint (as :func:`sim.simulate.simulate` with
+        ``resume``) or is re-used when it was complete; the map and the fill are made again.
+        Refused when the source, the scene file or a parameter differ.
 
     Returns
     -------
     dict
         The content of ``report.json``.
+
+    Raises
+    ------
+    ValueError
+        Bad input; an ``out`` that is, holds or lies in the source (a sequence folder, the scene
+        file or a file it names), an existing ``out`` without ``overwrite`` or not written by
+        evfuse (:func:`sim.sequence.check_output_dir`), all before any work.
+
+    Notes
+    -----
+    Interrupted while it simulates a scene, the run leaves ``<out>.partial`` for ``resume``;
+    a failure on bad input removes it.
     """
+    from scenes import resolve_scene
+    from sim.scene import load_scene
+    from sim.simulate import scene_files
+
     params = params or RunParams()
     method, _ = resolve_method(params.method, params.dense, params.method_params)  # up front
     out = Path(out)
-    check_output_dir(out, overwrite)
+    scene = (None if is_sequence_folder(source)
+             else load_scene(resolve_scene(source), seed=params.seed))
+    inputs = [Path(source)] if scene is None else scene_files(scene)
+    identity = _run_identity(source, scene, params)
+    if resume:
+        _check_run_resumable(out, overwrite, inputs, identity)
+    else:
+        check_output_dir(out, overwrite, inputs)
     try:
-        return _run(source, out, params, method, overwrite, progress)
+        return _run(source, scene, out, params, method, overwrite, progress, resume, inputs,
+                    identity)
     except ValueError as exc:
         # Bad input (found after the run folder was started): nothing worth keeping. The
         # message must not send the user to the folder deleted here: it names the run folder.
@@ -238,18 +358,20 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
         raise
 
 
-def _run(source, out: Path, params: RunParams, method: FillMethod, overwrite: bool,
-         progress: bool) -> dict:
+def _run(source, scene, out: Path, params: RunParams, method: FillMethod, overwrite: bool,
+         progress: bool, resume: bool, inputs: list, identity: dict) -> dict:
     clock = time.perf_counter()
     timings: dict[str, float] = {}
-    with atomic_output_dir(out, overwrite=overwrite) as tmp:
-        if is_sequence_folder(source):
+    with atomic_output_dir(out, overwrite=overwrite, resume=resume, inputs=inputs,
+                           command="evfuse run", keep_failed=scene is not None) as tmp:
+        (tmp / RESUME_FILE).write_text(json.dumps(identity))
+        if scene is None:
             sequence_folder = Path(source)
             simulated_here = False
             t0, t1 = params.t0, params.t1
         else:
-            sequence_folder, t0, t1 = _simulate_window(source, tmp / "sequence", params,
-                                                       progress, timings)
+            sequence_folder, t0, t1 = _simulate_window(scene, tmp / "sequence", params,
+                                                       progress, timings, resume)
             simulated_here = True
         tick = time.perf_counter()
         # A window simulated here is all the data there is: a rig's clock offsets (sim.rig)
@@ -259,7 +381,8 @@ def _run(source, out: Path, params: RunParams, method: FillMethod, overwrite: bo
             sequence_folder, tmp / "map", t0, t1, min_depth=params.min_depth,
             max_depth=params.max_depth, oracle_depth_range=params.oracle_depth_range,
             planes=params.planes, depth=params.depth,
-            clip_window=params.clip_window or simulated_here, progress=progress)
+            clip_window=params.clip_window or simulated_here, overwrite=resume,
+            progress=progress)
         timings["map_s"] = time.perf_counter() - tick
         tick = time.perf_counter()
         if paper_weighting(method) is not None:
@@ -269,7 +392,7 @@ def _run(source, out: Path, params: RunParams, method: FillMethod, overwrite: bo
             stage = progress_stage(desc="fill", unit="px", noun=f"pixels filled by "
                                    f"{method.name}", enabled=progress)
         filled = fill_window(tmp / "map", tmp / "fill", params.dense, method=method.name,
-                             method_params=params.method_params)
+                             method_params=params.method_params, overwrite=resume)
         stage.update(filled.info["regions_filled"] if filled.regions is not None
                      else filled.n2 - filled.n1_in_frame)
         stage.close()
@@ -310,6 +433,7 @@ def _run(source, out: Path, params: RunParams, method: FillMethod, overwrite: bo
         timings["total_s"] = time.perf_counter() - clock
         report["timings"] = timings
         (tmp / "report.json").write_text(to_json(report))
+        (tmp / RESUME_FILE).unlink()
     return report
 
 
@@ -348,12 +472,12 @@ def _errors_summary(map_errors: dict | None, fill_errors: dict | None) -> dict |
                for name, key in (("map_in_frame", "map"), ("filled", "filled"), ("all", "all"))}}
 
 
-def _simulate_window(source, folder: Path, params: RunParams, progress: bool, timings: dict):
-    from scenes import resolve_scene
-    from sim.scene import load_scene
-    from sim.simulate import simulate
+def _simulate_window(scene, folder: Path, params: RunParams, progress: bool, timings: dict,
+                     resume: bool = False):
+    """Simulate the window into ``folder``; with ``resume``, re-use a complete ``folder`` or
+    continue the checkpoint an interruption left in its ``.partial``."""
+    from sim.simulate import CHECKPOINT_FOLDER, simulate
 
-    scene = load_scene(resolve_scene(source), seed=params.seed)
     t0 = 0.0 if params.t0 is None else float(params.t0)
     t1 = min(t0 + DEFAULT_WINDOW, scene.duration) if params.t1 is None else float(params.t1)
     end = t1                        # simulated to here; t1 is what the map is asked
@@ -372,7 +496,11 @@ def _simulate_window(source, folder: Path, params: RunParams, progress: bool, ti
     if not end > t0:
         raise ValueError(f"empty time window [{t0}, {end}] s")
     tick = time.perf_counter()
-    simulate(scene, folder, start=t0, duration=end - t0, spp=params.spp, progress=progress)
+    if resume and (folder / MARKER).is_file():
+        return folder, t0, t1                 # simulated before the interruption
+    simulate(scene, folder, start=t0, duration=end - t0, spp=params.spp, progress=progress,
+             resume=resume and (partial_dir(folder) / CHECKPOINT_FOLDER
+                                / "checkpoint.json").is_file())
     timings["simulate_s"] = time.perf_counter() - tick
     return folder, t0, t1
 

@@ -296,15 +296,16 @@ def reproduce(out: str | Path, params: ReproduceParams | None = None,
     """
     params = params or ReproduceParams()
     out = Path(out)
-    check_output_dir(out, overwrite)
     cache = Path(cache) if cache is not None else out.with_name(out.name + "-cache")
-    cache.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out, overwrite, [cache])        # the cache is read: out stays clear of it
     jobs = _jobs(params)
     if not jobs:
         raise ValueError("nothing to reproduce: no scene of the chosen tables was selected")
+    cache.mkdir(parents=True, exist_ok=True)         # only once everything is validated
     clock = time.perf_counter()
     rows = []
-    with atomic_output_dir(out, overwrite=overwrite) as tmp:
+    with atomic_output_dir(out, overwrite=overwrite, inputs=[cache],
+                           command="evfuse reproduce") as tmp:
         bar = progress_stage(jobs, desc="reproduce", unit="window", noun="windows",
                              enabled=progress)
         for job in bar:

@@ -1395,7 +1395,8 @@ def convert_events(src: str | Path, dst: str | Path, width: int | None = None,
     ------
     ValueError
         Unknown suffixes, ``src`` and ``dst`` are the same file, the sensor size is unknown for
-        an HDF5 output, or the source is malformed (as :func:`iter_event_chunks`).
+        an HDF5 output, or the source is malformed (as :func:`iter_event_chunks`); then, as on
+        any failure, no ``dst`` and no ``<dst>.partial`` is left.
     """
     src, dst = Path(src), Path(dst)
     src_kind, dst_kind = _kind(src), _kind(dst)
@@ -1421,6 +1422,10 @@ def convert_events(src: str | Path, dst: str | Path, width: int | None = None,
         writer = H5EventWriter(dst, width, height, t_offset_us=t_offset_us)
     else:
         writer = TextEventWriter(dst)
-    with writer:
-        for chunk in iter_event_chunks(src, 1 << 20, width=width, height=height):
-            writer.write(chunk)
+    try:
+        with writer:
+            for chunk in iter_event_chunks(src, 1 << 20, width=width, height=height):
+                writer.write(chunk)
+    except BaseException:                 # a failed conversion leaves nothing (not resumable)
+        writer.partial.unlink(missing_ok=True)
+        raise

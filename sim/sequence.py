@@ -32,10 +32,11 @@ if TYPE_CHECKING:
 
 __all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "FRAME_CAMERA_FOLDER", "SEQUENCE_FOLDER_NEEDS",
            "FileIndex", "FrameCameraFiles", "Sequence",
-           "atomic_output_dir",
-           "check_output_dir", "describe_data_file", "frame_name", "load_sequence",
+           "MARKER", "OutputError", "atomic_output_dir", "check_not_input",
+           "check_output_dir", "check_output_file", "describe_data_file", "frame_name",
+           "load_sequence",
            "partial_dir", "read_index", "read_sequence_json", "write_index",
-           "write_sequence_json"]
+           "write_marker", "write_sequence_json"]
 
 SEQUENCE_FOLDER_NEEDS = ("calib.txt (one line 'fx fy cx cy k1 k2 p1 p2 k3'), images.txt with "
                          "images/, groundtruth.txt (poses) and events.txt or events.h5")
@@ -59,23 +60,160 @@ less than a microsecond; frames are never closer than that."""
 
 # --- atomic output ---------------------------------------------------------------------------
 
+MARKER = ".evfuse"
+"""The file evfuse writes into every output folder it creates (JSON: ``written_by``,
+``command``, ``version``, ``inputs``): ``overwrite`` replaces only a folder that has
+it, so that it never deletes a folder evfuse did not write."""
+
+
+class OutputError(ValueError):
+    """An output path refused before any work, in the library's terms (``str``), with the same
+    sentence in the command line's terms in :attr:`cli_message` (flags instead of parameters).
+
+    Parameters
+    ----------
+    message : str
+        One line naming the path, what is wrong and how to proceed (parameter names).
+    cli_message : str, optional
+        The same in flags (``--out``, ``--overwrite``); default ``message``.
+    """
+
+    def __init__(self, message: str, cli_message: str | None = None) -> None:
+        super().__init__(message)
+        self.cli_message = cli_message or message
+
+
 def _is_nonempty_dir(path: Path) -> bool:
     with os.scandir(path) as entries:
         return any(True for _ in entries)
 
 
-def check_output_dir(out: str | Path, overwrite: bool = False) -> None:
-    """Raise ValueError if :func:`atomic_output_dir` would refuse ``out`` (call it early, before
-    long work, to fail fast)."""
+def _holds_nothing(folder: Path) -> bool:
+    """True if ``folder`` holds no file but :data:`MARKER` (empty folders aside)."""
+    for _, _, files in os.walk(folder):
+        if any(name != MARKER for name in files):
+            return False
+    return True
+
+
+def _real(path: str | Path) -> Path:
+    """``path`` with every symlink resolved, made absolute (existing or not)."""
+    return Path(os.path.realpath(Path(path).expanduser()))
+
+
+def check_not_input(out: str | Path, inputs: SequenceABC[str | Path] = (),
+                    what: str = "output", flag: str = "--out") -> None:
+    """Raise :class:`OutputError` if ``out`` is one of ``inputs``, contains one, or lies inside
+    one, comparing real paths (symlinks resolved).
+
+    Parameters
+    ----------
+    out : str or Path
+        The output folder or file about to be written (it may not exist yet).
+    inputs : sequence of str or Path
+        Every file and folder the command reads (or a cache it reads and fills, which may not
+        exist yet); None entries are skipped.
+    what : str
+        How the message names ``out`` (``output``, ``output folder``, ``output file``).
+    flag : str
+        The command line's name for ``out``, in :attr:`OutputError.cli_message`.
+    """
+    real_out = _real(out)
+    for item in inputs:
+        if item is None:
+            continue
+        real_in = _real(item)
+        if real_in == real_out:
+            relation = "is the input"
+        elif real_out in real_in.parents:
+            relation = "contains the input"
+        elif real_in in real_out.parents:
+            relation = "lies inside the input"
+        else:
+            continue
+        shown = "" if str(real_out) == str(out) else f" ({real_out})"
+        message = (f"{what} {out}{shown} {relation} {item}; evfuse never writes into, replaces "
+                   "or deletes what it reads")
+        raise OutputError(f"{message}: choose another output path",
+                          f"{message}: choose another {flag}")
+
+
+def _check_marked(folder: Path, out: Path, overwrite: bool) -> None:
+    """Raise :class:`OutputError` unless the non-empty ``folder`` (``out`` or its ``.partial``)
+    may be replaced: ``overwrite`` and evfuse's marker in it."""
+    if folder == out and not overwrite:
+        raise OutputError(
+            f"output folder {out} exists and is not empty; choose another output folder, or "
+            "pass overwrite=True to replace a folder evfuse wrote",
+            f"output folder {out} exists and is not empty; choose another --out, or add "
+            "--overwrite to replace a folder evfuse wrote")
+    marker = folder / MARKER
+    if not marker.is_file() or marker.is_symlink():
+        what = "output folder" if folder == out else f"unfinished output of {out},"
+        message = (f"{what} {folder} was not written by evfuse (it has no {MARKER} file; "
+                   "folders written before evfuse marked its outputs have none either), so "
+                   "evfuse does not replace it")
+        raise OutputError(f"{message}: choose another output folder, or delete it yourself",
+                          f"{message}: choose another --out, or delete it yourself")
+
+
+def check_output_dir(out: str | Path, overwrite: bool = False,
+                     inputs: SequenceABC[str | Path] = ()) -> None:
+    """Raise :class:`OutputError` (a ValueError) if :func:`atomic_output_dir` would refuse
+    ``out``; call it early, before any work, to fail fast.
+
+    Refused: ``out`` that is, contains or lies inside one of ``inputs`` (real paths,
+    :func:`check_not_input`); an existing file or link; an existing non-empty folder without
+    ``overwrite``, or without evfuse's :data:`MARKER` file (a folder evfuse did not write is
+    never replaced); a non-empty ``<out>.partial`` without the marker (it would be deleted).
+    """
     out = Path(out)
+    if not out.name:
+        raise OutputError(f"output path {str(out)!r} has no folder name")
+    check_not_input(out, inputs, "output folder")
+    partial = partial_dir(out)
+    check_not_input(partial, inputs, "output folder (its unfinished copy)")
+    if partial.is_dir() and not partial.is_symlink() and _is_nonempty_dir(partial):
+        _check_marked(partial, out, True)
     if not out.exists() and not out.is_symlink():
         return
     if not out.is_dir() or out.is_symlink():
-        raise ValueError(f"output {out} exists and is not a folder (a file or a link); expected "
-                         "a folder or a new path (anything else is never replaced)")
-    if not overwrite and _is_nonempty_dir(out):
-        raise ValueError(f"output folder {out} exists and is not empty; pass --overwrite "
-                         "(overwrite=True) to replace it, or choose another path")
+        raise OutputError(f"output {out} exists and is not a folder (a file or a link); expected "
+                          "a folder or a new path (anything else is never replaced)")
+    if _is_nonempty_dir(out):
+        _check_marked(out, out, overwrite)
+
+
+def check_output_file(out: str | Path, inputs: SequenceABC[str | Path] = (),
+                      flag: str = "--out") -> None:
+    """Raise :class:`OutputError` if the file ``out`` would be written into, over or around one
+    of ``inputs`` (:func:`check_not_input`; ``flag`` names ``out`` on the command line), or is
+    an existing folder."""
+    check_not_input(out, inputs, "output file", flag)
+    if Path(out).is_dir():
+        raise OutputError(f"output file {out} is an existing folder; expected a file path")
+
+
+def _evfuse_version() -> str:
+    from importlib import metadata
+
+    try:
+        return metadata.version("evfuse")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+def write_marker(folder: str | Path, command: str = "",
+                 inputs: SequenceABC[str | Path] = ()) -> Path:
+    """Write evfuse's :data:`MARKER` into ``folder``: JSON with ``written_by`` ("evfuse"),
+    ``command`` (which writer), ``version`` (evfuse's) and ``inputs`` (their real paths). No
+    time (the file's own is there): the same command writes the same bytes, so that a resumed
+    or repeated simulation stays identical to an uninterrupted one."""
+    path = Path(folder) / MARKER
+    document = {"written_by": "evfuse", "command": command, "version": _evfuse_version(),
+                "inputs": [str(_real(p)) for p in inputs if p is not None]}
+    path.write_text(json.dumps(document, indent=1) + "\n")
+    return path
 
 
 def partial_dir(out: str | Path) -> Path:
@@ -86,7 +224,8 @@ def partial_dir(out: str | Path) -> Path:
 
 @contextmanager
 def atomic_output_dir(out: str | Path, overwrite: bool = False, *,
-                      resume: bool = False) -> Iterator[Path]:
+                      resume: bool = False, inputs: SequenceABC[str | Path] = (),
+                      command: str = "", keep_failed: bool = False) -> Iterator[Path]:
     """Write a folder under a temporary name and rename it into place when complete.
 
     Parameters
@@ -94,37 +233,43 @@ def atomic_output_dir(out: str | Path, overwrite: bool = False, *,
     out : str or Path
         The folder to create. Its parents are created if needed.
     overwrite : bool
-        Replace an existing non-empty ``out``. The old folder is removed only once the new one
-        is complete: it is renamed aside, the new one renamed in, then the old one deleted.
-        An existing empty folder is replaced without ``overwrite``.
+        Replace an existing non-empty ``out`` that evfuse wrote (it holds :data:`MARKER`); a
+        folder without the marker is never replaced. The old folder is removed only once the
+        new one is complete: it is renamed aside, the new one renamed in, then the old one
+        deleted. An existing empty folder is replaced without ``overwrite``.
     resume : bool
         Keep the ``.partial`` folder an earlier, interrupted run left, with its contents, for
         the body to continue (it is created if there is none). The body must check that what
         it holds is what it expects.
+    inputs : sequence of str or Path
+        Every file and folder the writer reads: ``out`` must not be, contain or lie inside
+        one (:func:`check_output_dir`). Recorded in the marker.
+    command : str
+        The writer, recorded in the marker (e.g. ``"evfuse map"``).
+    keep_failed : bool
+        Leave the ``.partial`` folder when the body raises (a writer that can resume from
+        it); by default it is removed, so that a failed or interrupted writer leaves nothing.
 
     Yields
     ------
     Path
-        The folder ``<out.parent>/<out.name>.partial`` to write into: fresh and empty (a
-        stale one from an earlier failed run is removed first) unless ``resume``.
+        The folder ``<out.parent>/<out.name>.partial`` to write into, holding the marker: fresh
+        (a stale one from an earlier failed run, marked, is removed first) unless ``resume``.
 
     Raises
     ------
-    ValueError
-        ``out`` exists and is not a folder, or is a non-empty folder and ``overwrite`` is
-        false (checked on entry, and again before the rename).
+    OutputError
+        The refusals of :func:`check_output_dir` (checked on entry, and again before the
+        rename).
 
     Notes
     -----
-    If the body raises, the ``.partial`` folder is left for inspection or for a run with
-    ``resume`` to continue (its name cannot be mistaken for a complete result), ``out`` is
-    untouched, and the exception propagates.
-    ``out`` itself is never seen half-written.
+    If the body raises, ``out`` is untouched and the exception propagates; the ``.partial``
+    folder is removed unless ``keep_failed`` (its name cannot be mistaken for a complete
+    result). ``out`` itself is never seen half-written.
     """
     out = Path(out)
-    if not out.name:
-        raise ValueError(f"output path {str(out)!r} has no folder name")
-    check_output_dir(out, overwrite)
+    check_output_dir(out, overwrite, inputs)
     out.parent.mkdir(parents=True, exist_ok=True)
     partial = partial_dir(out)
     if partial.is_symlink() or partial.is_file():
@@ -132,8 +277,14 @@ def atomic_output_dir(out: str | Path, overwrite: bool = False, *,
     elif partial.exists() and not resume:
         shutil.rmtree(partial)
     partial.mkdir(exist_ok=resume)
-    yield partial
-    check_output_dir(out, overwrite)
+    try:
+        write_marker(partial, command, inputs)
+        yield partial
+    except BaseException:
+        if not keep_failed or _holds_nothing(partial):
+            shutil.rmtree(partial, ignore_errors=True)
+        raise
+    check_output_dir(out, overwrite, inputs)
     old = None
     if out.exists():
         old = out.with_name(f"{out.name}.old-{uuid.uuid4().hex[:12]}")

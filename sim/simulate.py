@@ -96,6 +96,7 @@ from sim.sampling import (
 )
 from sim.scene import Scene
 from sim.sequence import (
+    OutputError,
     atomic_output_dir,
     check_output_dir,
     frame_name,
@@ -106,7 +107,8 @@ from sim.sequence import (
 from sim.trajectory import sample_times, write_trajectory
 from sim.two_camera import simulate_frame_camera
 
-__all__ = ["CHECKPOINT_SAMPLES", "CHECKPOINT_SECONDS", "SimulationResult", "simulate"]
+__all__ = ["CHECKPOINT_SAMPLES", "CHECKPOINT_SECONDS", "SimulationResult", "scene_files",
+           "simulate"]
 
 CHECKPOINT_SECONDS = 1.0
 """Wall-clock seconds between two checkpoints of the event stage."""
@@ -164,6 +166,33 @@ class SimulationResult:
     event_renders: int = 0
     event_pixel_samples: int = 0
     sampler: str | None = None
+
+
+def scene_files(scene: Scene) -> list[Path]:
+    """The files a scene reads: its scene file (for a built-in scene, the packaged one) and
+    every file it names (``path`` keys: a trajectory, a texture image, a mesh), relative to its
+    folder as the parser takes them. An output must not be, hold or lie in any of them."""
+    import tomllib
+
+    if scene.source is None:
+        return []
+    files = [Path(scene.source)]
+    try:
+        raw = tomllib.loads(scene.text)
+    except (tomllib.TOMLDecodeError, TypeError):
+        return files
+    stack: list = [raw]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, dict):
+            for key, value in item.items():
+                if key == "path" and isinstance(value, str):
+                    files.append(scene.base_dir / value)
+                else:
+                    stack.append(value)
+        elif isinstance(item, list):
+            stack.extend(item)
+    return files
 
 
 def _versions() -> dict[str, str]:
@@ -302,10 +331,11 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     identity = _identity(scene, start, duration, spp, events if with_events else None, sampling,
                          event_formats, sampler)
     identity["motion_truth"] = bool(motion_truth)
+    inputs = scene_files(scene)
     if resume:                                        # refuse before loading the renderer
-        _check_resumable(out, overwrite, identity)
+        _check_resumable(out, overwrite, identity, inputs)
     else:
-        check_output_dir(out, overwrite)
+        check_output_dir(out, overwrite, inputs)
     timings = {"setup": 0.0, "render": 0.0, "depth": 0.0, "write": 0.0, "event_render": 0.0,
                "emulate": 0.0, "event_write": 0.0, "event_depth": 0.0, "checkpoint": 0.0}
     clock = time.perf_counter()
@@ -314,7 +344,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     if with_events:
         sampler, why = _choose_sampler(scene, renderer.variant, sampler)
     timings["setup"] = time.perf_counter() - clock
-    with atomic_output_dir(out, overwrite=overwrite, resume=resume) as tmp:
+    with atomic_output_dir(out, overwrite=overwrite, resume=resume, inputs=inputs,
+                           command="evfuse simulate", keep_failed=True) as tmp:
         checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
         rig_record = _write_rig(tmp, scene, sample_times(start, end, scene.render.pose_rate))
         tick = time.perf_counter()
@@ -900,16 +931,21 @@ def _write_atomically(path: Path, data: bytes) -> None:
     os.replace(partial, path)
 
 
-def _check_resumable(out: Path, overwrite: bool, identity: dict) -> None:
+def _check_resumable(out: Path, overwrite: bool, identity: dict, inputs: list) -> None:
     """Raise ValueError unless ``<out>.partial`` holds a checkpoint of a run like this one."""
     if out.is_dir() and not out.is_symlink() and any(out.iterdir()) and not overwrite:
-        raise ValueError(f"output folder {out} is already complete; there is nothing to resume "
-                         "(add --overwrite to continue an interrupted run that replaces it)")
-    check_output_dir(out, overwrite)
+        raise OutputError(
+            f"output folder {out} is already complete; there is nothing to resume (with "
+            "overwrite=True a resumed run replaces it)",
+            f"output folder {out} is already complete; there is nothing to resume (add "
+            "--overwrite to continue an interrupted run that replaces it)")
+    check_output_dir(out, overwrite, inputs)
     partial = partial_dir(out)
     if not partial.is_dir():
-        raise ValueError(f"there is no interrupted run of {out} to resume ({partial} does not "
-                         "exist); run without --resume to start one")
+        raise OutputError(f"there is no interrupted run of {out} to resume ({partial} does not "
+                          "exist); run with resume=False to start one",
+                          f"there is no interrupted run of {out} to resume ({partial} does not "
+                          "exist); run without --resume to start one")
     saved = _Checkpoint.read(partial / CHECKPOINT_FOLDER)["identity"]
     differences = _differences(saved, identity, skip=("variant",))
     if differences:

@@ -37,7 +37,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sim.sequence import load_sequence
+from sim.sequence import atomic_output_dir, check_output_dir, load_sequence
 from sim.statistics import frame_noise
 from sim.textures import linear_to_srgb
 from sim.validation import depth_metres, positive
@@ -52,7 +52,8 @@ def _window_poses(trajectory, t0: float, t1: float) -> np.ndarray:
 
 def write_twin(recording: str | Path, out: str | Path, depth: float,
                window: tuple[float, float] | None = None, illuminance: float = 400.0,
-               frame_sensor: str = "davis240c_aps", frame_gamma: float = 1.0) -> Path:
+               frame_sensor: str = "davis240c_aps", frame_gamma: float = 1.0,
+               overwrite: bool = False) -> Path:
     """Write a scene folder that simulates ``recording``'s camera and trajectory.
 
     Parameters
@@ -75,6 +76,9 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     frame_gamma : float
         The recording's frames are ``255 * light ** (1 / frame_gamma)`` (default 1: linear, as
         a DAVIS APS; 2.2 for a gamma-encoded camera).
+    overwrite : bool
+        Replace an existing ``out`` that evfuse wrote (:func:`sim.sequence.atomic_output_dir`;
+        ``out`` is written atomically and must not be, hold or lie in ``recording``).
 
     Returns
     -------
@@ -95,6 +99,7 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
         raise ValueError(f"--frame-gamma must be a positive number, got {frame_gamma}")
     if not (math.isfinite(illuminance) and illuminance > 0):
         raise ValueError(f"--illuminance must be a positive number of lux, got {illuminance}")
+    check_output_dir(out, overwrite, [recording])
     sequence = load_sequence(recording)
     if sequence.groundtruth_path is None or not len(sequence.image_paths):
         raise ValueError(f"{recording}: a twin needs groundtruth.txt and images.txt")
@@ -143,9 +148,7 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     normal = -rotation[:, 2]                  # facing the camera
     up = -rotation[:, 1]                      # texture rows run along the camera's y (down)
 
-    out.mkdir(parents=True, exist_ok=True)
     light = (poster.astype(np.float64) / 255.0) ** frame_gamma
-    cv2.imwrite(str(out / "poster.png"), np.round(linear_to_srgb(light) * 65535).astype(np.uint16))
     # A scene's time starts at 0: the poses are copied with t - t0 (the twin's t = 0 is the
     # recording's t0), those from just before t0 to just after t1.
     rows = np.loadtxt(sequence.groundtruth_path, ndmin=2)
@@ -155,7 +158,6 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
                             & (rows[:, 0] <= rows[rows[:, 0] >= t1, 0].min()))
     rows = rows[keep]
     rows[:, 0] -= t0
-    np.savetxt(out / "groundtruth.txt", rows, fmt="%.9f")
     # The times are written to the nanosecond, the last pose's rounded to the nearest: the
     # duration, rounded down to the nanosecond, stays inside the poses as they are read back.
     duration = math.floor(round((t1 - t0) * 1e9, 3)) / 1e9
@@ -204,5 +206,10 @@ normal = {vec(normal)}
 up = {vec(up)}
 material = {{ texture = {{ type = "image", path = "poster.png" }} }}
 """
-    (out / "scene.toml").write_text(scene)
+    with atomic_output_dir(out, overwrite=overwrite, inputs=[recording],
+                           command="evfuse twin") as tmp:
+        cv2.imwrite(str(tmp / "poster.png"),
+                    np.round(linear_to_srgb(light) * 65535).astype(np.uint16))
+        np.savetxt(tmp / "groundtruth.txt", rows, fmt="%.9f")
+        (tmp / "scene.toml").write_text(scene)
     return out / "scene.toml"

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import hashlib
+import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import pytest
@@ -26,6 +29,66 @@ def scene_text(objects: str, *, camera: str | None = None, trajectory: str | Non
     )
     return (f'name = "test"\ndescription = "test scene"\nduration = {duration}\nseed = 3\n'
             f"{extra}\n{camera}\n{trajectory}\n{lights}\n{objects}\n")
+
+
+def tree_hashes(*paths: str | Path) -> dict[str, str]:
+    """SHA-256 of every file under each of ``paths`` (a file or a folder), by path; a folder as
+    ``<dir>``, a link as ``-> target``, a missing path as ``<missing>``: two calls compare equal
+    only if no file was written, added, removed or replaced."""
+    hashes: dict[str, str] = {}
+
+    def add(path: Path) -> None:
+        if path.is_symlink():
+            hashes[str(path)] = f"-> {os.readlink(path)}"
+        elif path.is_dir():
+            hashes[str(path)] = "<dir>"
+            for child in sorted(path.iterdir()):
+                add(child)
+        elif path.is_file():
+            hashes[str(path)] = hashlib.sha256(path.read_bytes()).hexdigest()
+        else:
+            hashes[str(path)] = "<missing>"
+
+    for path in paths:
+        add(Path(path))
+    return hashes
+
+
+_WRITTEN = {"--out", "--cache"}
+"""Flags whose value a command writes (its output), never hashed as an input."""
+
+
+def cli_inputs(argv: Sequence[str]) -> list[Path]:
+    """The existing paths among ``argv`` that the command only reads: every argument naming an
+    existing file or folder except the value of ``--out`` / ``--cache`` (and ``convert``'s DST)."""
+    argv = list(argv)
+    written = {k + 1 for k, arg in enumerate(argv[:-1]) if arg in _WRITTEN}
+    if argv and argv[0] == "convert":
+        positional = [k for k, arg in enumerate(argv) if k and not arg.startswith("-")]
+        written |= set(positional[1:2])
+    return [Path(arg) for k, arg in enumerate(argv)
+            if k not in written and k and not arg.startswith("-") and Path(arg).exists()]
+
+
+def run_cli(argv: Sequence[str], inputs: Sequence[str | Path] | None = None) -> int:
+    """``fusion.cli.main(argv)``, asserting that no file of its inputs changed (CONVENTIONS:
+    inputs are sacred): every file under ``inputs`` (default :func:`cli_inputs`) is hashed
+    before and after, whatever the exit status.
+
+    Returns
+    -------
+    int
+        The exit status of ``main``.
+    """
+    from fusion.cli import main
+
+    inputs = cli_inputs(argv) if inputs is None else list(inputs)
+    before = tree_hashes(*inputs)
+    code = main(list(argv))
+    after = tree_hashes(*inputs)
+    changed = sorted(k for k in set(before) | set(after) if before.get(k) != after.get(k))
+    assert not changed, f"evfuse {' '.join(map(str, argv))} changed its inputs: {changed[:5]}"
+    return code
 
 
 @pytest.fixture(scope="session")

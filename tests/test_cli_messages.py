@@ -10,9 +10,9 @@ import h5py
 import numpy as np
 import pytest
 
-from fusion.cli import PLAUSIBLE_DEPTH_M, main
+from fusion.cli import PLAUSIBLE_DEPTH_M
 from sim.eventio import H5EventWriter, TextEventWriter, make_events
-from tests.conftest import FAST, WALL, scene_text
+from tests.conftest import FAST, WALL, run_cli, scene_text
 
 WIDTH, HEIGHT = 64, 48
 
@@ -61,12 +61,12 @@ def _one_line(capsys, code, command):
 def test_a_folder_without_calib_says_so_and_what_a_sequence_folder_needs(tmp_path, capsys):
     folder = _sequence(tmp_path / "seq")
     (folder / "calib.txt").unlink()
-    line = _one_line(capsys, main(["run", str(folder), "--out", str(tmp_path / "o")]), "run")
+    line = _one_line(capsys, run_cli(["run", str(folder), "--out", str(tmp_path / "o")]), "run")
     assert f"{folder}: this folder lacks calib.txt" in line and "not a sequence folder" in line
     assert "no such scene file" not in line
     assert all(part in line for part in ("fx fy cx cy", "images.txt", "groundtruth.txt",
                                          "events.h5"))
-    line = _one_line(capsys, main(["map", str(folder), "--out", str(tmp_path / "o")]), "map")
+    line = _one_line(capsys, run_cli(["map", str(folder), "--out", str(tmp_path / "o")]), "map")
     assert f"sequence folder {folder} has no calib.txt" in line and "groundtruth.txt" in line
     assert not (tmp_path / "o").exists()
 
@@ -76,7 +76,7 @@ def test_a_folder_without_calib_says_so_and_what_a_sequence_folder_needs(tmp_pat
 @pytest.mark.parametrize("name, kind", [("events.txt", "ECD text"), ("events.h5", "HDF5")])
 def test_an_event_file_as_source_is_named_with_the_folder_to_give(name, kind, tmp_path, capsys):
     folder = _sequence(tmp_path / "seq")
-    code = main(["run", str(folder / name), "--out", str(tmp_path / "o")])
+    code = run_cli(["run", str(folder / name), "--out", str(tmp_path / "o")])
     line = _one_line(capsys, code, "run")
     assert f"{folder / name} is an event file ({kind}" in line and "not a scene" in line
     assert f"give the sequence folder holding it, {folder.resolve()}" in line
@@ -86,7 +86,7 @@ def test_an_event_file_as_source_is_named_with_the_folder_to_give(name, kind, tm
 def test_an_event_file_outside_a_sequence_folder_says_what_is_missing(tmp_path, capsys):
     path = tmp_path / "events.txt"
     path.write_text("0.1 1 2 1\n0.2 3 4 0\n")
-    line = _one_line(capsys, main(["run", str(path), "--out", str(tmp_path / "o")]), "run")
+    line = _one_line(capsys, run_cli(["run", str(path), "--out", str(tmp_path / "o")]), "run")
     assert "is an event file" in line and f"{tmp_path.resolve()} has no calib.txt" in line
 
 
@@ -96,12 +96,12 @@ def test_an_event_file_outside_a_sequence_folder_says_what_is_missing(tmp_path, 
 def test_depth_bounds_in_millimetres_are_refused_up_front(command, tmp_path, capsys):
     folder = _sequence(tmp_path / "seq")
     out = tmp_path / "o"
-    code = main([command, str(folder), "--out", str(out), "--min-depth", "470", "--max-depth",
+    code = run_cli([command, str(folder), "--out", str(out), "--min-depth", "470", "--max-depth",
                  "2400", "--quiet"])
     line = _one_line(capsys, code, command)
     assert "depths are in metres: --min-depth 470 looks like millimetres (0.47 m?)" in line
     assert f"{PLAUSIBLE_DEPTH_M:g} m" in line
-    code = main([command, str(folder), "--out", str(out), "--max-depth", "2400", "--quiet"])
+    code = run_cli([command, str(folder), "--out", str(out), "--max-depth", "2400", "--quiet"])
     assert "--max-depth 2400 looks like millimetres" in _one_line(capsys, code, command)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]
 
@@ -114,7 +114,7 @@ def test_a_run_error_never_names_the_deleted_partial_folder(tmp_path, capsys, mo
 
     monkeypatch.setattr(fusion.pipeline, "_simulate_window", failing)
     out = tmp_path / "run"
-    line = _one_line(capsys, main(["run", "slider_close", "--out", str(out), "--quiet"]), "run")
+    line = _one_line(capsys, run_cli(["run", "slider_close", "--out", str(out), "--quiet"]), "run")
     assert ".partial" not in line and f"{out}/sequence/frame.png: no map point" in line
     assert list(tmp_path.iterdir()) == []              # the .partial folder is gone indeed
 
@@ -131,7 +131,7 @@ def test_an_events_h5_in_nanoseconds_is_named(command, keep_ms_to_idx, tmp_path,
                                       "--max-depth", "2", "--quiet"])
     if command == "events":
         argv.append("--stats")
-    line = _one_line(capsys, main(argv), command)
+    line = _one_line(capsys, run_cli(argv), command)
     against = "of ms_to_idx" if keep_ms_to_idx else "against 0-1 s of poses"
     assert f"{folder / 'events.h5'}: events/t looks like nanoseconds" in line, line
     assert against in line and "DSEC layout stores microseconds" in line
@@ -140,7 +140,7 @@ def test_an_events_h5_in_nanoseconds_is_named(command, keep_ms_to_idx, tmp_path,
 
 def test_a_default_window_is_printed_as_used_never_as_none(tmp_path, capsys):
     folder = _sequence(tmp_path / "seq", t0=5.0, t1=6.0, poses=(0.0, 1.0))   # same unit, later
-    code = main(["run", str(folder), "--out", str(tmp_path / "o"), "--min-depth", "0.5",
+    code = run_cli(["run", str(folder), "--out", str(tmp_path / "o"), "--min-depth", "0.5",
                  "--max-depth", "2", "--quiet"])
     line = _one_line(capsys, code, "run")
     assert "None" not in line and "do not overlap (events [5.0" in line
@@ -155,7 +155,7 @@ def test_a_default_window_is_printed_as_used_never_as_none(tmp_path, capsys):
     (["--min-rate", "1e5"], "--min-rate 100000 and --max-rate 20000: expected 0 < --min-rate"),
 ])
 def test_simulate_flags_are_named_as_typed(flags, message, tmp_path, capsys):
-    code = main(["simulate", "slider_close", "--out", str(tmp_path / "o"), *flags])
+    code = run_cli(["simulate", "slider_close", "--out", str(tmp_path / "o"), *flags])
     line = _one_line(capsys, code, "simulate")
     assert message in line and "Params" not in line
 
@@ -163,7 +163,7 @@ def test_simulate_flags_are_named_as_typed(flags, message, tmp_path, capsys):
 def test_the_per_pixel_sampler_is_refused_where_its_premise_fails(tmp_path, capsys):
     from sim.simulate import _choose_sampler
 
-    code = main(["simulate", "dynamic_6dof", "--out", str(tmp_path / "o"), "--sampler", "pixel",
+    code = run_cli(["simulate", "dynamic_6dof", "--out", str(tmp_path / "o"), "--sampler", "pixel",
                  "--duration", "0.05"])
     line = _one_line(capsys, code, "simulate")
     assert "dynamic_6dof has moving objects" in line and "--sampler frame" in line
@@ -184,7 +184,7 @@ def test_a_short_run_logs_one_line_per_stage_and_no_carriage_return(tmp_path, ca
     scene = tmp_path / "wall.toml"
     extra = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n"
     scene.write_text(scene_text(WALL, trajectory=FAST, duration=0.2, extra=extra))
-    assert main(["run", str(scene), "--out", str(tmp_path / "run"), "--spp", "1"]) == 0
+    assert run_cli(["run", str(scene), "--out", str(tmp_path / "run"), "--spp", "1"]) == 0
     err = capsys.readouterr().err
     assert "\r" not in err
     lines = err.strip().splitlines()
@@ -196,7 +196,7 @@ def test_a_short_run_logs_one_line_per_stage_and_no_carriage_return(tmp_path, ca
     assert " frames, " in events and " pixel samples in " in events
     assert re.search(r"^map: [\d,]+ events in \d+\.\d s$", err, re.M), err
     assert re.search(r"^fill: \d+ regions filled in \d+\.\d s$", err, re.M), err
-    assert main(["simulate", str(scene), "--out", str(tmp_path / "quiet"), "--spp", "1",
+    assert run_cli(["simulate", str(scene), "--out", str(tmp_path / "quiet"), "--spp", "1",
                  "--event-format", "h5", "--quiet"]) == 0
     err = capsys.readouterr().err
     assert "simulate test" not in err and "events test" not in err and "\r" not in err
@@ -204,11 +204,11 @@ def test_a_short_run_logs_one_line_per_stage_and_no_carriage_return(tmp_path, ca
 
 def test_map_logs_one_line_and_quiet_silences_it(ecd_slider, tmp_path, capsys):
     argv = ["map", str(ecd_slider), "--min-depth", "0.47", "--max-depth", "2.4"]
-    assert main([*argv, "--out", str(tmp_path / "a")]) == 0
+    assert run_cli([*argv, "--out", str(tmp_path / "a")]) == 0
     err = capsys.readouterr().err
     assert "\r" not in err and err.startswith("map: 50,000 events in "), err
     assert len(err.strip().splitlines()) == 1
-    assert main([*argv, "--out", str(tmp_path / "b"), "--quiet"]) == 0
+    assert run_cli([*argv, "--out", str(tmp_path / "b"), "--quiet"]) == 0
     assert capsys.readouterr().err == ""
 
 
@@ -227,7 +227,7 @@ def test_the_hand_made_sequence_is_a_valid_one(tmp_path):
                                      "reproduce --out {out} --tables 1"])
 def test_an_unknown_frame_sensor_is_refused_naming_the_flag(tmp_path, capsys, command):
     argv = command.format(out=tmp_path / "out").split() + ["--frame-sensor", "davis"]
-    assert main(argv) == 2
+    assert run_cli(argv) == 2
     err = capsys.readouterr().err.strip()
     assert err.endswith("--frame-sensor 'davis': expected one of ideal, davis240c_aps, "
                         "machine_vision") and len(err.splitlines()) == 1, err
@@ -243,7 +243,7 @@ def _line(capsys, code, command):
 
 def test_simulate_of_a_sequence_folder_says_it_is_one(tmp_path, capsys):
     folder = _sequence(tmp_path / "seq")
-    line = _line(capsys, main(["simulate", str(folder), "--out", str(tmp_path / "o")]),
+    line = _line(capsys, run_cli(["simulate", str(folder), "--out", str(tmp_path / "o")]),
                  "simulate")
     assert line == (f"{folder} is a sequence folder, not a scene: a scene is a built-in name or a "
                     ".toml file; evfuse run, map, events and twin take a sequence folder")
@@ -267,7 +267,7 @@ def test_a_forced_cuda_variant_without_a_device_names_the_variant_to_use(tmp_pat
                         lambda: [variant.LlvmLibrary("/usr/lib/libLLVM-19.so", 19)])
     monkeypatch.setenv("EVFUSE_VARIANT", "cuda_ad_rgb")
     out = tmp_path / "o"
-    code = main(["simulate", "slider_close", "--out", str(out), "--duration", "0.05"])
+    code = run_cli(["simulate", "slider_close", "--out", str(out), "--duration", "0.05"])
     assert _line(capsys, code, "simulate") == (
         "cuda_ad_rgb was asked for (from --variant or EVFUSE_VARIANT), but no CUDA device works "
         "here; use llvm_ad_rgb")
@@ -281,13 +281,13 @@ def test_a_forced_cuda_variant_without_a_device_names_the_variant_to_use(tmp_pat
 
 def test_resume_messages_name_flags_not_python_parameters(tmp_path, capsys):
     out = tmp_path / "o"
-    line = _line(capsys, main(["simulate", "slider_close", "--out", str(out), "--resume"]),
+    line = _line(capsys, run_cli(["simulate", "slider_close", "--out", str(out), "--resume"]),
                  "simulate")
     assert line == (f"there is no interrupted run of {out} to resume ({out}.partial does not "
                     "exist); run without --resume to start one")
     out.mkdir()
     (out / "f").write_text("x")
-    line = _line(capsys, main(["simulate", "slider_close", "--out", str(out), "--resume"]),
+    line = _line(capsys, run_cli(["simulate", "slider_close", "--out", str(out), "--resume"]),
                  "simulate")
     assert line == (f"output folder {out} is already complete; there is nothing to resume (add "
                     "--overwrite to continue an interrupted run that replaces it)")
@@ -296,7 +296,7 @@ def test_resume_messages_name_flags_not_python_parameters(tmp_path, capsys):
 @pytest.mark.parametrize("command", ["simulate", "run"])
 def test_a_negative_seed_is_blamed_on_the_flag_not_the_scene_file(command, tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:
-        main([command, "slider_close", "--out", str(tmp_path / "o"), "--seed", "-1"])
+        run_cli([command, "slider_close", "--out", str(tmp_path / "o"), "--seed", "-1"])
     assert _line(capsys, stop.value.code, command) == (
         "argument --seed: expected an integer >= 0, got '-1'")
     assert list(tmp_path.iterdir()) == []
@@ -322,14 +322,14 @@ def test_a_light_s_intensity_must_be_positive(value, message, tmp_path, capsys):
     scene = tmp_path / "lit.toml"
     light = f'[[lights]]\ntype = "point"\nposition = [0.0, 0.0, 0.0]\nintensity_cd = {value}\n'
     scene.write_text(scene_text(WALL, lights=light))
-    line = _line(capsys, main(["simulate", str(scene), "--out", str(tmp_path / "o")]),
+    line = _line(capsys, run_cli(["simulate", str(scene), "--out", str(tmp_path / "o")]),
                  "simulate")
     assert line == f"{scene}: [[lights]][0].intensity_cd: {message}"
 
 
 def test_a_reversed_twin_window_is_called_reversed(tmp_path, capsys):
     folder = _sequence(tmp_path / "seq")
-    code = main(["twin", str(folder), "--out", str(tmp_path / "o"), "--depth", "1",
+    code = run_cli(["twin", str(folder), "--out", str(tmp_path / "o"), "--depth", "1",
                  "--window", "0.8,0.2"])
     assert _line(capsys, code, "twin") == ("--window 0.8,0.2: expected T0 < T1 (the window's "
                                            "start before its end, in seconds)")
@@ -337,7 +337,7 @@ def test_a_reversed_twin_window_is_called_reversed(tmp_path, capsys):
 
 def test_fill_of_a_missing_folder_says_it_does_not_exist(tmp_path, capsys):
     missing = tmp_path / "nosuch"
-    code = main(["fill", str(missing), "--out", str(tmp_path / "o")])
+    code = run_cli(["fill", str(missing), "--out", str(tmp_path / "o")])
     assert _line(capsys, code, "fill") == (f"map folder {missing} does not exist or is not a "
                                            "folder (write a map with evfuse map first)")
 
@@ -350,7 +350,7 @@ def test_reproduce_names_a_scene_its_tables_lack(scenes, tables, named, tmp_path
     from fusion.reproduce import COMPLEX, SLIDERS, TABLE1_SCENES
 
     out, cache = tmp_path / "report", tmp_path / "cache"
-    code = main(["reproduce", "--out", str(out), "--cache", str(cache), "--scenes", scenes,
+    code = run_cli(["reproduce", "--out", str(out), "--cache", str(cache), "--scenes", scenes,
                  "--tables", tables])
     offered = TABLE1_SCENES + (SLIDERS + COMPLEX if tables != "1" else ())
     assert _line(capsys, code, "reproduce") == (f"--scenes {named}: not among the scenes of "
@@ -387,7 +387,7 @@ def test_version_comes_from_the_package_metadata_or_the_source_tree(capsys, monk
     except metadata.PackageNotFoundError:
         installed = f"{declared} (source tree {root}, not installed)"
     with pytest.raises(SystemExit) as info:
-        main(["--version"])
+        run_cli(["--version"])
     assert info.value.code == 0 and capsys.readouterr().out == f"evfuse {installed}\n"
 
     def not_installed(name):
@@ -395,14 +395,14 @@ def test_version_comes_from_the_package_metadata_or_the_source_tree(capsys, monk
 
     monkeypatch.setattr(metadata, "version", not_installed)
     with pytest.raises(SystemExit):
-        main(["--version"])
+        run_cli(["--version"])
     assert capsys.readouterr().out == f"evfuse {declared} (source tree {root}, not installed)\n"
 
 
 def test_opencv_s_own_warnings_stay_out_of_the_log(tmp_path, capfd):
     level = cv2.utils.logging.getLogLevel()
     try:
-        assert main(["scenes"]) == 0
+        assert run_cli(["scenes"]) == 0
         capfd.readouterr()
         assert cv2.imread(str(tmp_path / "missing.png")) is None
         assert capfd.readouterr().err == ""
@@ -427,7 +427,7 @@ def test_mitsuba_s_warnings_come_out_as_one_plain_line(capfd):
 def ecd_run(ecd_slider, tmp_path_factory):
     """``evfuse run`` on the real ECD slider prefix (map and fill, no rendering)."""
     out = tmp_path_factory.mktemp("ecd") / "run"
-    assert main(["run", str(ecd_slider), "--out", str(out), "--min-depth", "0.47",
+    assert run_cli(["run", str(ecd_slider), "--out", str(out), "--min-depth", "0.47",
                  "--max-depth", "2.4", "--quiet"]) == 0
     return out
 
@@ -440,11 +440,11 @@ def test_show_names_a_missing_or_unreadable_file_of_the_run(ecd_run, tmp_path, c
     capfd.readouterr()
     mask = run / "fill" / "filled_mask.png"
     mask.unlink()
-    line = _line(capfd, main(["show", str(run), "--out", str(tmp_path / "o.png")]), "show")
+    line = _line(capfd, run_cli(["show", str(run), "--out", str(tmp_path / "o.png")]), "show")
     assert line.startswith(f"{mask} does not exist; evfuse show needs the files evfuse run "
                            "writes (fill/fill.json, "), line
     mask.write_text("not a PNG")
-    line = _line(capfd, main(["show", str(run), "--out", str(tmp_path / "o.png")]), "show")
+    line = _line(capfd, run_cli(["show", str(run), "--out", str(tmp_path / "o.png")]), "show")
     assert line == f"cannot read {mask}"
 
 
@@ -454,7 +454,7 @@ def test_events_stats_name_an_unreadable_frame(tmp_path, capsys):
     frame.write_text("not a PNG")
     with (folder / "images.txt").open("a") as handle:
         handle.write("0.6 images/frame_00000001.png\n")
-    line = _line(capsys, main(["events", str(folder), "--stats"]), "events")
+    line = _line(capsys, run_cli(["events", str(folder), "--stats"]), "events")
     assert line == f"{frame}: not a readable image"
 
 
@@ -474,14 +474,14 @@ def test_a_user_s_method_module_imports_from_the_current_folder(ecd_run, tmp_pat
     monkeypatch.setattr(sys, "path", [p for p in sys.path
                                       if os.path.realpath(p or os.curdir) != here])
     try:
-        code = main(["fill", str(ecd_run / "map"), "--out", str(tmp_path / "fill"), "--method",
+        code = run_cli(["fill", str(ecd_run / "map"), "--out", str(tmp_path / "fill"), "--method",
                      f"{name}:fill"])
         assert code == 0, capsys.readouterr().err
     finally:
         sys.modules.pop(name, None)
     assert json.loads((tmp_path / "fill" / "fill.json").read_text())["method"] == f"{name}:fill"
     capsys.readouterr()
-    code = main(["fill", str(ecd_run / "map"), "--out", str(tmp_path / "fill2"), "--method",
+    code = run_cli(["fill", str(ecd_run / "map"), "--out", str(tmp_path / "fill2"), "--method",
                  "evfuse_no_such_module:fill"])
     line = _line(capsys, code, "fill")
     assert line.endswith("cannot import module 'evfuse_no_such_module' (ModuleNotFoundError: No "

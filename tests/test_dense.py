@@ -9,13 +9,13 @@ import cv2
 import numpy as np
 import pytest
 
-from fusion.cli import main
 from fusion.dense import DenseParams, densify, fill_frame, project_map
 from fusion.filling import filling_score
 from fusion.pointcloud import read_ply
 from sim.camera import Camera, write_calib
 from sim.exr import read_depth, write_depth, write_exr_channels
 from sim.se3 import make_pose
+from tests.conftest import run_cli
 
 
 def test_project_map_is_the_identity_at_the_reference_view_and_shifts_with_parallax():
@@ -65,7 +65,7 @@ def test_fill_of_any_frame_through_the_command_line(tmp_path, capsys):
     write_depth(tmp_path / "t.exr", truth)
     write_calib(tmp_path / "calib.txt", Camera(40, 30, 35.0, 30.0, 19.5, 14.5))
     out = tmp_path / "out"
-    assert main(["fill", "--frame", str(tmp_path / "f.png"), "--sparse-depth",
+    assert run_cli(["fill", "--frame", str(tmp_path / "f.png"), "--sparse-depth",
                  str(tmp_path / "d.exr"), "--calib", str(tmp_path / "calib.txt"), "--truth",
                  str(tmp_path / "t.exr"), "--out", str(out)]) == 0
     for name in ("dense_depth.exr", "segments.png", "filled_mask.png", "figure.png",
@@ -107,23 +107,23 @@ def test_bad_fill_input_gives_one_clear_line(tmp_path, capsys):
     for k, (depth, message) in enumerate([("small.exr", "must be the same size"),
                                           ("empty.exr", "no map point"),
                                           ("nan.exr", "NaN")]):
-        code = main([*base, "--sparse-depth", str(tmp_path / depth), "--out",
+        code = run_cli([*base, "--sparse-depth", str(tmp_path / depth), "--out",
                      str(tmp_path / f"o{k}")])
         err = capsys.readouterr().err
         assert code == 2 and message in err and "Traceback" not in err, (depth, err)
         assert not (tmp_path / f"o{k}").exists()
-    assert main(["fill", str(tmp_path / "nomap"), "--out", str(tmp_path / "o9")]) == 2
+    assert run_cli(["fill", str(tmp_path / "nomap"), "--out", str(tmp_path / "o9")]) == 2
     assert f"map folder {tmp_path / 'nomap'} does not exist" in capsys.readouterr().err
     (tmp_path / "nomap").mkdir()
-    assert main(["fill", str(tmp_path / "nomap"), "--out", str(tmp_path / "o9")]) == 2
+    assert run_cli(["fill", str(tmp_path / "nomap"), "--out", str(tmp_path / "o9")]) == 2
     assert f"{tmp_path / 'nomap'}: no map.json" in capsys.readouterr().err
 
 
 def test_fill_of_a_simulated_plane_map_is_scored_against_exact_depth(plane_sequence, tmp_path):
     mapped, out = tmp_path / "map", tmp_path / "fill"
-    assert main(["map", str(plane_sequence), "--out", str(mapped), "--min-depth", "0.5",
+    assert run_cli(["map", str(plane_sequence), "--out", str(mapped), "--min-depth", "0.5",
                  "--max-depth", "3", "--planes", "30", "--quiet"]) == 0
-    assert main(["fill", str(mapped), "--out", str(out)]) == 0
+    assert run_cli(["fill", str(mapped), "--out", str(out)]) == 0
     meta = json.loads((out / "fill.json").read_text())
     map_meta = json.loads((mapped / "map.json").read_text())
     assert meta["N1"] == map_meta["N1"] >= meta["N1_in_frame"] > 30
@@ -144,7 +144,7 @@ def test_fill_of_a_simulated_plane_map_is_scored_against_exact_depth(plane_seque
 
 def test_run_on_the_real_ecd_prefix_and_show_redraws_it(ecd_slider, tmp_path, capsys):
     out = tmp_path / "real"
-    assert main(["run", str(ecd_slider), "--out", str(out), "--min-depth", "0.47",
+    assert run_cli(["run", str(ecd_slider), "--out", str(out), "--min-depth", "0.47",
                  "--max-depth", "2.4", "--quiet"]) == 0
     printed = capsys.readouterr().out
     assert "no ground truth" in printed and str(out / "overview.png") in printed
@@ -162,9 +162,8 @@ def test_run_on_the_real_ecd_prefix_and_show_redraws_it(ecd_slider, tmp_path, ca
     assert fill["camera"]["distortion"][0] == pytest.approx(-0.138592767408)   # undistorting
     before = cv2.imread(str(out / "overview.png"))
     assert before.shape == (2 * (26 + 240 + 22), 3 * 320, 3)   # no exact depth, no error panel
-    (out / "overview.png").unlink()
-    assert main(["show", str(out)]) == 0
-    np.testing.assert_array_equal(cv2.imread(str(out / "overview.png")), before)
+    assert run_cli(["show", str(out), "--out", str(tmp_path / "again.png")]) == 0
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "again.png")), before)
 
 
 def test_fill_frame_refuses_a_calibration_of_another_size():

@@ -16,12 +16,11 @@ import json
 import numpy as np
 import pytest
 
-from fusion.cli import main
 from fusion.mapping import _ground_truth_depth
 from fusion.scoring import depth_errors, discontinuity_band
 from sim.exr import read_depth
 from sim.sequence import load_sequence
-from tests.conftest import scene_text
+from tests.conftest import run_cli, scene_text
 
 CAMERA = ("[camera]\nwidth = 96\nheight = 72\nfx = 90.0\nfy = 80.0\ncx = 47.3\ncy = 35.6\n"
           "distortion = [-0.3, 0.1, 0.001, -0.0005, 0.0]\n")
@@ -71,7 +70,7 @@ def boxes_run(tmp_path_factory):
     scene.write_text(scene_text(OBJECTS, camera=CAMERA, trajectory=TRAJECTORY, duration=0.3,
                                 extra=EXTRA))
     out = folder / "out"
-    assert main(["run", str(scene), "--t0", "0.0", "--t1", "0.3", "--out", str(out),
+    assert run_cli(["run", str(scene), "--t0", "0.0", "--t1", "0.3", "--out", str(out),
                  "--quiet"]) == 0
     return out
 

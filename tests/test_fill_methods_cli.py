@@ -11,10 +11,10 @@ import cv2
 import numpy as np
 import pytest
 
-from fusion.cli import main
 from fusion.dense import DenseParams, densify
 from fusion.filling import FillParams, filling_score
 from sim.exr import read_depth, read_exr_channels, write_depth
+from tests.conftest import run_cli
 from tests.test_cli_messages import _one_line
 
 H, W = 30, 40
@@ -77,7 +77,7 @@ def test_the_hand_made_map_projects_into_the_frame_unchanged(tmp_path):
 def test_fill_with_nearest_writes_every_file_without_a_segmentation(tmp_path, capsys):
     frame, sparse = _ramp_scene()
     out = tmp_path / "out"
-    assert main(["fill", str(_map_folder(tmp_path)), "--method", "nearest", "--out",
+    assert run_cli(["fill", str(_map_folder(tmp_path)), "--method", "nearest", "--out",
                  str(out)]) == 0
     for name in ("dense_depth.exr", "segments.png", "filled_mask.png", "figure.png",
                  "dense.ply", "fill.json", "error.png"):
@@ -115,7 +115,7 @@ def test_paper_idw_is_the_default_byte_for_byte(tmp_path):
             "gaussian": ["--method", "paper-gaussian"],
             "gaussian_flag": ["--weighting", "gaussian"]}
     for name, flags in runs.items():
-        assert main(["fill", str(mapped), "--out", str(tmp_path / name), *flags]) == 0, name
+        assert run_cli(["fill", str(mapped), "--out", str(tmp_path / name), *flags]) == 0, name
 
     def files(name):
         return {f: (tmp_path / name / f).read_bytes()
@@ -188,7 +188,7 @@ def test_a_module_function_fills_and_its_confidence_is_written(tmp_path, user_mo
     write_calib(tmp_path / "calib.txt", Camera(W, H, 35.0, 30.0, 19.5, 14.5))
     out = tmp_path / "out"
     spec = f"{user_module}:flat"
-    assert main(["fill", "--frame", str(tmp_path / "f.png"), "--sparse-depth",
+    assert run_cli(["fill", "--frame", str(tmp_path / "f.png"), "--sparse-depth",
                  str(tmp_path / "d.exr"), "--calib", str(tmp_path / "calib.txt"), "--method",
                  spec, "--out", str(out)]) == 0
     meta = json.loads((out / "fill.json").read_text())
@@ -226,7 +226,7 @@ def test_the_figure_of_another_method_says_what_it_did_not_use(tmp_path, user_mo
 
 
 def test_a_method_that_drops_map_points_is_refused(tmp_path, user_module, capsys):
-    code = main(["fill", str(_map_folder(tmp_path)), "--method", f"{user_module}:forgetful",
+    code = run_cli(["fill", str(_map_folder(tmp_path)), "--method", f"{user_module}:forgetful",
                  "--out", str(tmp_path / "out")])
     line = _one_line(capsys, code, "fill")
     assert f"filling method {user_module}:forgetful left 108 of the 108 map points" in line
@@ -238,12 +238,12 @@ def test_an_unknown_method_is_refused_in_one_line(command, tmp_path, capsys):
     """Refused before anything else: evfuse run would otherwise say its SOURCE is missing."""
     source = str(_map_folder(tmp_path) if command == "fill" else tmp_path / "no-source")
     out = tmp_path / "out"
-    code = main([command, source, "--method", "no-such-method", "--out", str(out)])
+    code = run_cli([command, source, "--method", "no-such-method", "--out", str(out)])
     line = _one_line(capsys, code, command)
     assert "--method no-such-method: unknown filling method 'no-such-method'" in line
     assert "nearest" in line and "module:function" in line       # what is expected
     assert not out.exists()
-    code = main([command, source, "--method", "no_such_module_xyz:fill", "--out", str(out)])
+    code = run_cli([command, source, "--method", "no_such_module_xyz:fill", "--out", str(out)])
     line = _one_line(capsys, code, command)
     assert "cannot import module 'no_such_module_xyz'" in line and not out.exists()
 
@@ -265,20 +265,20 @@ def test_contradictory_flags_are_refused_in_one_line(command, flags, message, tm
     """Refused before anything else: evfuse run would otherwise say its SOURCE is missing."""
     source = str(_map_folder(tmp_path) if command == "fill" else tmp_path / "no-source")
     out = tmp_path / "out"
-    line = _one_line(capsys, main([command, source, "--out", str(out), *flags]), command)
+    line = _one_line(capsys, run_cli([command, source, "--out", str(out), *flags]), command)
     assert message in line
     assert not out.exists()
 
 
 def test_flags_at_their_default_do_not_contradict_another_method(tmp_path):
-    assert main(["fill", str(_map_folder(tmp_path)), "--method", "nearest", "--threshold", "3",
+    assert run_cli(["fill", str(_map_folder(tmp_path)), "--method", "nearest", "--threshold", "3",
                  "--out", str(tmp_path / "out")]) == 0
 
 
 @pytest.mark.parametrize("command", ["fill", "run"])
 def test_help_gives_the_method_and_its_default(command, capsys):
     with pytest.raises(SystemExit) as stop:
-        main([command, "--help"])
+        run_cli([command, "--help"])
     assert stop.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
     assert "--method METHOD" in text and "(default paper-idw, the paper's;" in text
@@ -296,7 +296,7 @@ def test_param_settings_reach_the_method_and_fill_json_records_them(tmp_path, us
     mapped = _map_folder(tmp_path)
     _, sparse = _ramp_scene()
     out = tmp_path / "shifted"
-    assert main(["fill", str(mapped), "--method", f"{user_module}:shifted", "--param",
+    assert run_cli(["fill", str(mapped), "--method", f"{user_module}:shifted", "--param",
                  "depth=2.5", "--param", "note=abc", "--out", str(out)]) == 0
     dense = read_depth(out / "dense_depth.exr")
     assert np.all(dense[sparse == 0] == 2.5)                   # the setting reached the method
@@ -312,13 +312,13 @@ def test_param_settings_reach_the_method_and_fill_json_records_them(tmp_path, us
                        "plane.min_points=4"],
             "inline": ["--method", "plane{residual_rel=1,min_points=4}"]}
     for name, flags in runs.items():
-        assert main(["fill", str(mapped), "--out", str(tmp_path / name), *flags]) == 0, name
+        assert run_cli(["fill", str(mapped), "--out", str(tmp_path / name), *flags]) == 0, name
     assert _meta(tmp_path / "flags") == _meta(tmp_path / "scoped") == _meta(tmp_path / "inline")
     recorded = _meta(tmp_path / "flags")["method_params"]
     assert recorded == {"residual_rel": 1.0, "min_points": 4}
     assert type(recorded["residual_rel"]) is float and type(recorded["min_points"]) is int
     assert "method plane{min_points=4,residual_rel=1.0}" in capsys.readouterr().out
-    assert main(["fill", str(mapped), "--out", str(tmp_path / "default")]) == 0
+    assert run_cli(["fill", str(mapped), "--out", str(tmp_path / "default")]) == 0
     assert _meta(tmp_path / "default")["method_params"] == {}
 
 
@@ -326,11 +326,11 @@ def test_a_paper_method_s_length_set_by_param_is_its_flag(tmp_path):
     """``--weighting gaussian --param sigma=3`` is ``--sigma 3``: the same fill, the same
     paper's parameters; only method_params says how it was asked."""
     mapped = _map_folder(tmp_path)
-    assert main(["fill", str(mapped), "--out", str(tmp_path / "param"), "--weighting",
+    assert run_cli(["fill", str(mapped), "--out", str(tmp_path / "param"), "--weighting",
                  "gaussian", "--param", "sigma=3"]) == 0
-    assert main(["fill", str(mapped), "--out", str(tmp_path / "flag"), "--method",
+    assert run_cli(["fill", str(mapped), "--out", str(tmp_path / "flag"), "--method",
                  "paper-gaussian", "--sigma", "3"]) == 0
-    assert main(["fill", str(mapped), "--out", str(tmp_path / "five"), "--method",
+    assert run_cli(["fill", str(mapped), "--out", str(tmp_path / "five"), "--method",
                  "paper-gaussian"]) == 0
     param, flag = _meta(tmp_path / "param"), _meta(tmp_path / "flag")
     assert param["params"]["fill"] == flag["params"]["fill"] == {
@@ -375,6 +375,6 @@ def test_a_bad_param_is_refused_in_one_line_before_any_work(command, flags, mess
     """Refused before anything else: evfuse run would otherwise say its SOURCE is missing."""
     source = str(_map_folder(tmp_path) if command == "fill" else tmp_path / "no-source")
     out = tmp_path / "out"
-    line = _one_line(capsys, main([command, source, "--out", str(out), *flags]), command)
+    line = _one_line(capsys, run_cli([command, source, "--out", str(out), *flags]), command)
     assert message in line
     assert not out.exists()

@@ -223,6 +223,8 @@ def test_a_default_window_past_the_scene_end_is_refused_naming_t0(tmp_path, caps
 
     from fusion.cli import main
     from fusion.pipeline import RunParams, _simulate_window
+    from scenes import resolve_scene
+    from sim.scene import load_scene
 
     module = importlib.import_module("sim.simulate")
     calls = []
@@ -240,7 +242,8 @@ def test_a_default_window_past_the_scene_end_is_refused_naming_t0(tmp_path, caps
     for params, window in ((RunParams(t0=6.4, clip_window=True), (6.4, 6.5, 7.4)),
                            (RunParams(t0=5.5), (5.5, 6.5, 6.5))):
         calls.clear()
-        _, t0, t1 = _simulate_window("slider_far", tmp_path / "s", params, False, {})
+        scene = load_scene(resolve_scene("slider_far"))
+        _, t0, t1 = _simulate_window(scene, tmp_path / "s", params, False, {})
         assert (t0, calls[0][0] + calls[0][1], t1) == pytest.approx(window)
 
 

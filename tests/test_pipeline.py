@@ -10,9 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
-from fusion.cli import main
 from sim.exr import read_depth
-from tests.conftest import FAST, WALL, scene_text
+from tests.conftest import FAST, WALL, run_cli, scene_text
 
 EXTRA = ("depth_range = [0.4, 2.5]\n"
          "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 4\n")
@@ -24,7 +23,7 @@ def tiny_run(tmp_path_factory):
     scene = folder / "wall.toml"
     scene.write_text(scene_text(WALL, trajectory=FAST, duration=0.3, extra=EXTRA))
     out = folder / "out"
-    code = main(["run", str(scene), "--t0", "0.0", "--t1", "0.3", "--out", str(out), "--quiet"])
+    code = run_cli(["run", str(scene), "--t0", "0.0", "--t1", "0.3", "--out", str(out), "--quiet"])
     return code, out
 
 
@@ -79,9 +78,9 @@ def test_run_and_map_then_fill_give_the_same_numbers(tiny_run, tmp_path, capsys)
     _, out = tiny_run
     report = json.loads((out / "report.json").read_text())
     window = ["--t0", "0.0", "--t1", "0.3"]
-    assert main(["map", str(out / "sequence"), "--out", str(tmp_path / "map"), "--quiet",
+    assert run_cli(["map", str(out / "sequence"), "--out", str(tmp_path / "map"), "--quiet",
                  *window]) == 0
-    assert main(["fill", str(tmp_path / "map"), "--out", str(tmp_path / "fill")]) == 0
+    assert run_cli(["fill", str(tmp_path / "map"), "--out", str(tmp_path / "fill")]) == 0
     assert "scene file (declared working range)" in capsys.readouterr().out
     mapped = json.loads((tmp_path / "map" / "map.json").read_text())
     fill = json.loads((tmp_path / "fill" / "fill.json").read_text())
@@ -97,7 +96,7 @@ def test_run_and_map_then_fill_give_the_same_numbers(tiny_run, tmp_path, capsys)
 def test_the_oracle_range_is_opt_in_and_every_output_says_so(tiny_run, tmp_path, capsys):
     _, out = tiny_run
     run = tmp_path / "oracle"
-    assert main(["run", str(out / "sequence"), "--out", str(run), "--t0", "0.0", "--t1", "0.3",
+    assert run_cli(["run", str(out / "sequence"), "--out", str(run), "--t0", "0.0", "--t1", "0.3",
                  "--depth-range", "oracle", "--quiet"]) == 0
     report = json.loads((run / "report.json").read_text())
     assert report["oracle"] is True and report["depth_range_from"].startswith("oracle")
@@ -109,14 +108,14 @@ def test_the_oracle_range_is_opt_in_and_every_output_says_so(tiny_run, tmp_path,
         oracle, blind = (cv2.imread(str(f / name)).shape for f in (run, out))
         assert oracle[0] > blind[0] and oracle[1] == blind[1], name
     capsys.readouterr()
-    assert main(["map", str(out / "sequence"), "--out", str(tmp_path / "m"), "--depth-range",
+    assert run_cli(["map", str(out / "sequence"), "--out", str(tmp_path / "m"), "--depth-range",
                  "oracle", "--min-depth", "0.5", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "drop --min-depth/--max-depth" in err[0]
 
 
 def test_the_oracle_range_is_refused_on_a_real_recording(ecd_slider, tmp_path, capsys):
-    assert main(["run", str(ecd_slider), "--out", str(tmp_path / "o"), "--depth-range",
+    assert run_cli(["run", str(ecd_slider), "--out", str(tmp_path / "o"), "--depth-range",
                  "oracle", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "needs the exact depth of a simulated sequence" in err[0]
@@ -160,7 +159,7 @@ def test_run_records_the_method_s_settings(tiny_run, tmp_path, capsys):
     _, out = tiny_run
     assert json.loads((out / "report.json").read_text())["method_params"] == {}
     run = tmp_path / "telea"
-    assert main(["run", str(out / "sequence"), "--out", str(run), "--t0", "0.0", "--t1", "0.3",
+    assert run_cli(["run", str(out / "sequence"), "--out", str(run), "--t0", "0.0", "--t1", "0.3",
                  "--method", "telea", "--param", "radius=2", "--quiet"]) == 0
     report = json.loads((run / "report.json").read_text())
     fill = json.loads((run / "fill" / "fill.json").read_text())
@@ -172,7 +171,7 @@ def test_run_records_the_method_s_settings(tiny_run, tmp_path, capsys):
 def test_show_redraws_the_same_overview(tiny_run, tmp_path):
     _, out = tiny_run
     target = tmp_path / "again.png"
-    assert main(["show", str(out), "--out", str(target)]) == 0
+    assert run_cli(["show", str(out), "--out", str(target)]) == 0
     np.testing.assert_array_equal(cv2.imread(str(target)), cv2.imread(str(out / "overview.png")))
 
 
@@ -222,8 +221,9 @@ def test_overview_scales_cover_the_exact_depth_and_titles_name_each_count(tiny_r
 def test_a_run_is_never_overwritten_silently(tiny_run, capsys):
     _, out = tiny_run
     before = (out / "report.json").read_bytes()
-    assert main(["run", str(out / "sequence"), "--out", str(out), "--quiet"]) == 2
-    assert "--overwrite" in capsys.readouterr().err
+    assert run_cli(["run", str(out / "sequence"), "--out", str(out), "--quiet"]) == 2
+    assert "contains the input" in capsys.readouterr().err       # and would delete it
+    assert run_cli(["run", str(out / "sequence"), "--out", str(out), "--quiet", "--overwrite"]) == 2
     assert (out / "report.json").read_bytes() == before
 
 
@@ -234,7 +234,7 @@ BAD_TOML = 'name = "x"\nduration = [1.0\n'
     (["map", "{tmp}/missing", "--out", "{tmp}/o"], "does not exist"),
     (["run", "{tmp}/missing", "--out", "{tmp}/o"], "no such scene file"),
     (["fill", "{tmp}/missing", "--out", "{tmp}/o"], "does not exist"),
-    (["show", "{tmp}/missing"], "no report.json"),
+    (["show", "{tmp}/missing", "--out", "{tmp}/o.png"], "no report.json"),
     (["simulate", "{tmp}/bad.toml", "--out", "{tmp}/o"], "bad.toml"),
     (["events", "{tmp}/badevents", "--stats"], "events.txt:2: x 'three'"),
     (["map", "{tmp}/badevents", "--out", "{tmp}/o", "--t0", "0", "--t1", "0.2", "--quiet"],
@@ -249,7 +249,7 @@ def test_bad_input_gives_one_line_and_exit_status_2(argv, message, tmp_path, cap
         (bad / name).write_bytes((plane_sequence / name).read_bytes())
     (bad / "images").symlink_to(plane_sequence / "images")
     (bad / "events.txt").write_text("0.001 3 4 1\n0.002 three 4 0\n")
-    code = main([a.format(tmp=tmp_path) for a in argv])
+    code = run_cli([a.format(tmp=tmp_path) for a in argv])
     err = capsys.readouterr().err
     assert code == 2, err
     lines = err.strip().splitlines()
@@ -261,7 +261,7 @@ def test_bad_input_gives_one_line_and_exit_status_2(argv, message, tmp_path, cap
 def test_debug_shows_the_traceback(tmp_path, where):
     argv = ["map", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]
     with pytest.raises(ValueError, match="does not exist"):
-        main(["--debug", *argv] if where == "before" else [*argv, "--debug"])
+        run_cli(["--debug", *argv] if where == "before" else [*argv, "--debug"])
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -274,7 +274,7 @@ def test_debug_shows_the_traceback(tmp_path, where):
 def test_bad_runs_on_the_real_recording_leave_nothing_behind(argv, message, ecd_slider, tmp_path,
                                                              capsys):
     out = tmp_path / "run"
-    assert main(["run", str(ecd_slider), "--out", str(out), "--quiet", *argv]) == 2
+    assert run_cli(["run", str(ecd_slider), "--out", str(out), "--quiet", *argv]) == 2
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
@@ -288,7 +288,7 @@ def test_an_unexpected_failure_is_still_one_line(tiny_run, monkeypatch, capsys):
 
     _, out = tiny_run
     monkeypatch.setattr(fusion.pipeline, "draw_overview", broken)
-    assert main(["show", str(out), "--out", str(out.parent / "x.png")]) == 1
+    assert run_cli(["show", str(out), "--out", str(out.parent / "x.png")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["evfuse show: unexpected error: RuntimeError: disk on fire (run with --debug "
                    "for the traceback)"]
@@ -302,7 +302,7 @@ def test_run_with_telea_records_it_and_its_overview_draws(tiny_run, tmp_path, ca
     _, out = tiny_run
     run = tmp_path / "telea"
     capsys.readouterr()
-    assert main(["run", str(out / "sequence"), "--out", str(run), "--t0", "0.0", "--t1", "0.3",
+    assert run_cli(["run", str(out / "sequence"), "--out", str(run), "--t0", "0.0", "--t1", "0.3",
                  "--method", "telea"]) == 0
     captured = capsys.readouterr()
     report = json.loads((run / "report.json").read_text())
@@ -326,5 +326,5 @@ def test_run_with_telea_records_it_and_its_overview_draws(tiny_run, tmp_path, ca
     filled = cv2.imread(str(run / "fill" / "filled_mask.png"), cv2.IMREAD_GRAYSCALE) > 0
     green = panels[3][..., 1].astype(int) - panels[3][..., 2]
     assert (green[filled] > 0).all() and (green[~filled] == 0).all()
-    assert main(["show", str(run), "--out", str(tmp_path / "again.png")]) == 0
+    assert run_cli(["show", str(run), "--out", str(tmp_path / "again.png")]) == 0
     np.testing.assert_array_equal(cv2.imread(str(tmp_path / "again.png")), overview)

@@ -11,6 +11,7 @@ import pytest
 
 from sim.exr import write_depth
 from sim.sequence import (
+    MARKER,
     atomic_output_dir,
     frame_name,
     load_sequence,
@@ -29,27 +30,42 @@ def test_success_renames_partial_into_place(tmp_path):
     out = tmp_path / "deep" / "er" / "seq"                # parents are created
     with atomic_output_dir(out) as tmp:
         assert tmp == tmp_path / "deep" / "er" / "seq.partial"
-        assert tmp.is_dir() and not any(tmp.iterdir())
+        assert tmp.is_dir() and sorted(p.name for p in tmp.iterdir()) == [MARKER]
         assert not out.exists()                           # nothing visible while writing
         (tmp / "a.txt").write_text("new")
     assert (out / "a.txt").read_text() == "new"
+    marker = json.loads((out / MARKER).read_text())       # evfuse's own folder, so marked
+    assert marker["written_by"] == "evfuse" and marker["version"]
     assert not tmp.exists()
 
 
-def test_exception_leaves_partial_and_no_output(tmp_path):
+def test_exception_leaves_no_output_and_no_partial(tmp_path):
     out = tmp_path / "seq"
     with pytest.raises(RuntimeError, match="boom"), atomic_output_dir(out) as tmp:
         (tmp / "half.txt").write_text("half")
         raise RuntimeError("boom")
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_resumable_writer_keeps_its_partial_but_never_an_empty_one(tmp_path):
+    out = tmp_path / "seq"
+    with pytest.raises(RuntimeError), atomic_output_dir(out, keep_failed=True) as tmp:
+        (tmp / "half.txt").write_text("half")
+        raise RuntimeError("boom")
     assert not out.exists()
     assert (tmp_path / "seq.partial" / "half.txt").read_text() == "half"
+    other = tmp_path / "other"
+    with pytest.raises(RuntimeError), atomic_output_dir(other, keep_failed=True) as tmp:
+        (tmp / "empty").mkdir()
+        raise RuntimeError("boom")
+    assert not (tmp_path / "other.partial").exists()
 
 
 def test_refuses_to_overwrite_a_non_empty_folder(tmp_path):
     out = tmp_path / "seq"
     out.mkdir()
     (out / "old.txt").write_text("old")
-    with pytest.raises(ValueError, match=r"seq exists and is not empty.*--overwrite"), \
+    with pytest.raises(ValueError, match=r"seq exists and is not empty.*overwrite=True"), \
             atomic_output_dir(out):
         pytest.fail("the body must not run")
     assert (out / "old.txt").read_text() == "old"
@@ -61,7 +77,7 @@ def test_an_existing_empty_folder_is_fine_without_overwrite(tmp_path):
     out.mkdir()
     with atomic_output_dir(out) as tmp:
         (tmp / "a.txt").write_text("new")
-    assert sorted(p.name for p in out.iterdir()) == ["a.txt"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "a.txt"]
 
 
 def test_a_file_in_the_way_is_never_replaced(tmp_path):
@@ -73,36 +89,43 @@ def test_a_file_in_the_way_is_never_replaced(tmp_path):
     assert out.read_text() == "precious"
 
 
+def _evfuse_folder(out):
+    """A folder as evfuse leaves it: written through atomic_output_dir, with ``old.txt``."""
+    with atomic_output_dir(out) as tmp:
+        (tmp / "old.txt").write_text("old")
+    return out
+
+
 def test_overwrite_replaces_only_after_success(tmp_path):
-    out = tmp_path / "seq"
-    out.mkdir()
-    (out / "old.txt").write_text("old")
+    out = _evfuse_folder(tmp_path / "seq")
     with atomic_output_dir(out, overwrite=True) as tmp:
         assert (out / "old.txt").read_text() == "old"     # still intact while writing
         (tmp / "new.txt").write_text("new")
-    assert sorted(p.name for p in out.iterdir()) == ["new.txt"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "new.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]   # no aside copy left
 
 
 def test_overwrite_keeps_the_old_folder_when_the_new_one_fails(tmp_path):
-    out = tmp_path / "seq"
-    out.mkdir()
-    (out / "old.txt").write_text("old")
-    with pytest.raises(KeyboardInterrupt), atomic_output_dir(out, overwrite=True) as tmp:
+    out = _evfuse_folder(tmp_path / "seq")
+    with pytest.raises(KeyboardInterrupt), \
+            atomic_output_dir(out, overwrite=True, keep_failed=True) as tmp:
         (tmp / "new.txt").write_text("new")
         raise KeyboardInterrupt
-    assert sorted(p.name for p in out.iterdir()) == ["old.txt"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "old.txt"]
     assert (tmp_path / "seq.partial" / "new.txt").exists()
 
 
 def test_a_stale_partial_folder_is_cleared_first(tmp_path):
     stale = tmp_path / "seq.partial"
-    stale.mkdir()
-    (stale / "junk.txt").write_text("junk")
+    with pytest.raises(KeyboardInterrupt), \
+            atomic_output_dir(tmp_path / "seq", keep_failed=True) as tmp:
+        (tmp / "junk.txt").write_text("junk")
+        raise KeyboardInterrupt
+    assert (stale / "junk.txt").is_file()
     with atomic_output_dir(tmp_path / "seq") as tmp:
-        assert tmp == stale and not any(tmp.iterdir())
+        assert tmp == stale and sorted(p.name for p in tmp.iterdir()) == [MARKER]
         (tmp / "a.txt").write_text("a")
-    assert sorted(p.name for p in (tmp_path / "seq").iterdir()) == ["a.txt"]
+    assert sorted(p.name for p in (tmp_path / "seq").iterdir()) == [MARKER, "a.txt"]
 
 
 # --- index files -----------------------------------------------------------------------------

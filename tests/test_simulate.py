@@ -110,7 +110,7 @@ def test_same_seed_same_files_different_seed_different_texture(tiny_scene_file, 
 
 def test_existing_output_is_not_overwritten_silently(tiny_run):
     scene, result = tiny_run
-    with pytest.raises(ValueError, match="--overwrite"):
+    with pytest.raises(ValueError, match="overwrite=True"):       # the library's terms
         simulate(scene, result.out, progress=False)
 
 

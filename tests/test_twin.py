@@ -14,11 +14,11 @@ import cv2
 import numpy as np
 import pytest
 
-from fusion.cli import main
 from scenes import resolve_scene
 from sim import load_scene, read_calib, read_depth, simulate
 from sim.statistics import compare_stats, frame_noise
 from sim.twin import write_twin
+from tests.conftest import run_cli
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "ecd_slider_depth_first50k"
 
@@ -96,20 +96,20 @@ def test_twin_refuses_what_it_cannot_copy(recording, tmp_path):
         write_twin(recording, tmp_path / "t", 0.0)
     with pytest.raises(ValueError, match="window .* is not inside groundtruth.txt's poses"):
         write_twin(recording, tmp_path / "t", 0.2, (0.0, 50.0))
-    assert main(["twin", str(recording), "--depth", "0.2", "--window", "1", "--out",
+    assert run_cli(["twin", str(recording), "--depth", "0.2", "--window", "1", "--out",
                  str(tmp_path / "t")]) == 2
 
 
 @pytest.mark.skipif(not SHARED.is_dir(), reason="the shared ECD recording is absent")
 def test_events_stats_compare_prints_two_recordings_side_by_side(capsys, tmp_path):
-    assert main(["events", str(SHARED), "--stats", "--compare", str(SHARED), "--out",
+    assert run_cli(["events", str(SHARED), "--stats", "--compare", str(SHARED), "--out",
                  str(tmp_path / "ef.png")]) == 0
     lines = capsys.readouterr().out.splitlines()
     rate = next(line for line in lines if line.split()[0] == "rate_ev_per_s")
     assert rate.split()[1:] == ["293522", "293522", "1"]
     noise = next(line for line in lines if line.split()[0] == "frame_noise")
     assert 0.5 < float(noise.split()[1]) < 5                # a real APS frame's noise, DN
-    assert main(["events", str(SHARED), "--compare", str(SHARED)]) == 2
+    assert run_cli(["events", str(SHARED), "--compare", str(SHARED)]) == 2
     assert "--compare compares statistics: add --stats" in capsys.readouterr().err
 
 
