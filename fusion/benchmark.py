@@ -48,6 +48,7 @@ import cv2
 import numpy as np
 
 from sim.sequence import atomic_output_dir, check_output_dir
+from sim.validation import integer
 
 __all__ = ["CSV_COLUMNS", "CURVE_SHARES", "INPUTS", "SCENE_GROUPS", "BenchParams", "bench",
            "coverage_curve", "run_bench"]
@@ -106,6 +107,7 @@ class BenchParams:
                              f"and {self.outliers}")
         if not (isinstance(self.workers, int) and self.workers >= 1):
             raise ValueError(f"workers must be an integer >= 1, got {self.workers!r}")
+        integer("seed", self.seed, 0)
 
 
 def _scene_names(scenes: list[str]) -> list[str]:

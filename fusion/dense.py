@@ -76,6 +76,7 @@ from sim.exr import read_depth, write_depth, write_exr_channels
 from sim.se3 import invert_pose
 from sim.sequence import FrameCameraFiles, atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
+from sim.validation import integer
 
 __all__ = ["PAPER_METHODS", "DenseParams", "DenseResult", "dense_errors", "densify", "fill_frame",
            "fill_map", "paper_weighting", "project_map", "project_map_rolling", "resolve_method",
@@ -107,6 +108,9 @@ class DenseParams:
     selection: SelectionParams = field(default_factory=SelectionParams)
     fill: FillParams = field(default_factory=FillParams)
     band: int = 3
+
+    def __post_init__(self) -> None:
+        integer("band (pixels)", self.band, 0)
 
     def as_dict(self) -> dict:
         """The parameters as plain JSON-ready values."""

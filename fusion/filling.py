@@ -53,6 +53,7 @@ import numba
 import numpy as np
 
 from fusion.segmentation import region_contours
+from sim.validation import integer
 
 __all__ = ["WEIGHTINGS", "FillParams", "RegionStats", "SelectionParams", "Weighting",
            "exponential_weights",
@@ -214,8 +215,7 @@ class SelectionParams:
     max_inside_ratio: float = 0.05
 
     def __post_init__(self) -> None:
-        if int(self.ring) != self.ring or self.ring < 1:
-            raise ValueError(f"ring must be an integer >= 1 pixel, got {self.ring}")
+        integer("ring (pixels)", self.ring, 1)
         if not (np.isfinite(self.min_ring_ratio) and self.min_ring_ratio >= 0):
             raise ValueError(f"min_ring_ratio must be a finite number >= 0, got "
                              f"{self.min_ring_ratio}")

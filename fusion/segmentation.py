@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from sim.validation import integer
+
 __all__ = ["SegmentationParams", "default_min_region", "region_contours", "segment_regions"]
 
 
@@ -64,8 +66,8 @@ class SegmentationParams:
         if not (np.isfinite(self.threshold) and self.threshold >= 0):
             raise ValueError(f"threshold must be a finite number >= 0 gray levels, got "
                              f"{self.threshold}")
-        if self.min_region is not None and self.min_region < 1:
-            raise ValueError(f"min_region must be >= 1 pixel or None, got {self.min_region}")
+        if self.min_region is not None:
+            integer("min_region (pixels)", self.min_region, 1)
 
 
 @numba.njit(cache=True)

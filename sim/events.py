@@ -61,6 +61,7 @@ from sim.noise import (
     threshold_map,
 )
 from sim.radiometry import DVS_DARK_LUMINANCE, DVS_RESPONSIVITY, photocurrent
+from sim.validation import integer
 
 __all__ = [
     "CROSSING_TOLERANCE_NS",
@@ -120,6 +121,7 @@ class EventParams:
                 raise ValueError(f"EventParams.{name} must be a finite number > 0, got {value!r}")
         if not isinstance(self.noise, NoiseParams):
             raise ValueError(f"EventParams.noise must be a NoiseParams, got {self.noise!r}")
+        integer("EventParams.seed", self.seed, 0)
 
     @property
     def dark_current(self) -> float:

@@ -290,10 +290,13 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     last checkpoint in ``.checkpoint/``.
     """
     start = float(start)
-    duration = float(scene.duration - start if duration is None else duration)
     traj = scene.trajectory
     if not np.isfinite(start):
         raise ValueError(f"start must be a finite time in seconds, got {start}")
+    if duration is None and not start < scene.duration:       # the rest of a scene it is past
+        raise ValueError(f"start {start:g} s is not before the end of scene {scene.name} "
+                         f"({scene.duration:g} s)")
+    duration = float(scene.duration - start if duration is None else duration)
     if not duration > 0:
         raise ValueError(f"duration must be positive, got {duration}")
     end = start + duration

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-__all__ = ["PLAUSIBLE_DEPTH_M", "depth_metres", "finite", "non_negative", "positive"]
+__all__ = ["PLAUSIBLE_DEPTH_M", "depth_metres", "finite", "integer", "non_negative", "positive"]
 
 PLAUSIBLE_DEPTH_M = 100.0
 """Largest depth accepted where a depth is given (a scene's ``depth_range``, ``--min-depth`` /
@@ -47,6 +47,16 @@ def non_negative(name: str, value: object) -> float:
     if not (math.isfinite(value) and value >= 0):
         raise ValueError(f"{name} must be a finite number >= 0, got {value}")
     return value
+
+
+def integer(name: str, value: object, minimum: int) -> int:
+    """``value`` as an int >= ``minimum`` (an integral float such as 3.0 is taken), or a
+    ValueError naming ``name`` (a bool, NaN, an infinity or a fraction is refused)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.number):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    if not (math.isfinite(value) and float(value).is_integer() and value >= minimum):
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
 
 
 def depth_metres(name: str, value: object) -> float:

@@ -326,3 +326,35 @@ def test_a_twin_of_the_whole_recording_is_accepted_by_simulate(ecd_slider, tmp_p
     monkeypatch.setattr(module, "Renderer", renderer)
     with pytest.raises(Validated):
         module.simulate(scene, tmp_path / "seq", progress=False)
+
+
+@pytest.mark.parametrize("value", [float("nan"), float("inf"), 2.5, True])
+def test_library_integer_fields_refuse_non_integers(value):
+    """Counts and seeds of the parameter dataclasses took NaN (or raised OverflowError on an
+    infinity) from the Python API; each is refused in one line naming the field."""
+    from fusion.benchmark import BenchParams
+    from fusion.dense import DenseParams
+    from fusion.filling import SelectionParams
+    from fusion.segmentation import SegmentationParams
+    from sim.events import EventParams
+
+    for make, name in ((lambda v: EventParams(seed=v), "EventParams.seed"),
+                       (lambda v: BenchParams(seed=v), "seed"),
+                       (lambda v: SegmentationParams(min_region=v), "min_region (pixels)"),
+                       (lambda v: DenseParams(band=v), "band (pixels)"),
+                       (lambda v: SelectionParams(ring=v), "ring (pixels)")):
+        with pytest.raises(ValueError) as info:
+            make(value)
+        assert str(info.value).startswith(f"{name} must be an integer >= "), str(info.value)
+    assert DenseParams(band=2.0).band == 2.0 and SelectionParams(ring=3).ring == 3
+
+
+def test_a_start_past_the_scene_end_names_the_start(tmp_path, capsys):
+    """`simulate slider_close --start 100` said "duration must be positive, got -93.5"."""
+    from tests.conftest import run_cli
+
+    assert run_cli(["simulate", "slider_close", "--start", "100", "--out",
+                    str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.strip() == ("evfuse simulate: error: start 100 s is not "
+                                               "before the end of scene slider_close (6.5 s)")
+    assert list(tmp_path.iterdir()) == []
