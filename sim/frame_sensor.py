@@ -101,7 +101,8 @@ class FrameSensor:
         ``cos4`` or ``none``.
     auto_exposure : bool
         Choose each frame's exposure from the previous frame (module docstring); the scene's
-        ``[frames] exposure`` is then the longest exposure allowed.
+        ``[frames] max_exposure`` (default its ``exposure``) is then the longest exposure
+        allowed.
     min_exposure : float, seconds
         Shortest exposure auto-exposure may choose.
     """

@@ -16,7 +16,8 @@ gray value through its sensor (``FrameParams.sensor``):
 
 Frame k's exposure window is ``[k / rate, k / rate + exposure]`` and its timestamp the middle
 of it, ``k / rate + exposure / 2`` (see :func:`frame_times`). A sensor with auto-exposure
-chooses a shorter exposure ``e_k <= exposure`` per frame, centred on the same timestamp.
+chooses its own exposure ``e_k <= max_exposure`` per frame (``max_exposure`` defaults to
+``exposure``), centred on the timestamp of a window laid out with ``max_exposure``.
 """
 
 from __future__ import annotations
@@ -56,7 +57,12 @@ class FrameParams:
     rate : float, Hz
         Frame rate. The DAVIS240C frames of the ECD come at about 24 Hz.
     exposure : float, seconds
-        Exposure time, > 0 and at most the frame period ``1 / rate``.
+        Exposure time, > 0 and at most the frame period ``1 / rate``: the ``ideal`` camera's
+        and a sensor's without auto-exposure.
+    max_exposure : float or None, seconds
+        The longest exposure a sensor's auto-exposure may choose, > 0 and at most ``1 / rate``;
+        None (default): ``exposure``. Not used by the ``ideal`` camera or a sensor without
+        auto-exposure (see :attr:`longest_exposure`).
     exposure_samples : int
         Renders averaged over the exposure (motion blur), >= 1.
     gamma : float or None
@@ -79,6 +85,7 @@ class FrameParams:
     gamma: float | None = None
     gain: float | None = None
     sensor: str | FrameSensor = IDEAL
+    max_exposure: float | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -87,6 +94,11 @@ class FrameParams:
         if self.exposure > 1.0 / self.rate:
             raise ValueError(f"FrameParams.exposure must be at most the frame period 1/rate = "
                              f"{1.0 / self.rate} s, got {self.exposure} s")
+        if self.max_exposure is not None:
+            set_(self, "max_exposure", positive("FrameParams.max_exposure", self.max_exposure))
+            if self.max_exposure > 1.0 / self.rate:
+                raise ValueError(f"FrameParams.max_exposure must be at most the frame period "
+                                 f"1/rate = {1.0 / self.rate} s, got {self.max_exposure} s")
         samples = self.exposure_samples
         if isinstance(samples, bool) or not isinstance(samples, int | np.integer) or samples < 1:
             raise ValueError(f"FrameParams.exposure_samples must be an integer >= 1, "
@@ -129,6 +141,20 @@ class FrameParams:
         return IDEAL if self.ideal else self.sensor.name
 
     @property
+    def auto_exposure(self) -> bool:
+        """Whether each frame's exposure is chosen by the sensor's auto-exposure."""
+        return not self.ideal and self.sensor.auto_exposure
+
+    @property
+    def longest_exposure(self) -> float:
+        """The longest exposure a frame may have, seconds: ``max_exposure`` (else ``exposure``)
+        under auto-exposure, else ``exposure``. Frames are laid out with it
+        (:func:`frame_times`)."""
+        if self.auto_exposure and self.max_exposure is not None:
+            return self.max_exposure
+        return self.exposure
+
+    @property
     def output_gamma(self) -> float:
         """``gamma`` if given, else 2.2 for ``ideal`` and 1.0 (linear) for a sensor."""
         if self.gamma is not None:
@@ -142,7 +168,9 @@ def frame_times(duration: float, params: FrameParams) -> np.ndarray:
     Frame k's exposure is ``[k / rate, k / rate + exposure]``, so its timestamp is
     ``k / rate + exposure / 2``: the first exposure starts at t = 0 and frames are kept while
     the whole exposure ends by ``duration`` (up to floating-point rounding, 1e-9 of a frame
-    period). No exposure falls outside ``[0, duration]``.
+    period). No exposure falls outside ``[0, duration]``. ``exposure`` is
+    :attr:`FrameParams.longest_exposure`: under auto-exposure a frame's own, shorter exposure
+    is centred on the same timestamp.
 
     Parameters
     ----------
@@ -158,10 +186,11 @@ def frame_times(duration: float, params: FrameParams) -> np.ndarray:
     duration = float(duration)
     if not (math.isfinite(duration) and duration >= 0):
         raise ValueError(f"duration must be a finite number of seconds >= 0, got {duration}")
-    if duration < params.exposure:
+    exposure = params.longest_exposure
+    if duration < exposure:
         return np.zeros(0, dtype=np.float64)
-    count = math.floor((duration - params.exposure) * params.rate + _TIME_TOLERANCE) + 1
-    return np.arange(count, dtype=np.float64) / params.rate + params.exposure / 2
+    count = math.floor((duration - exposure) * params.rate + _TIME_TOLERANCE) + 1
+    return np.arange(count, dtype=np.float64) / params.rate + exposure / 2
 
 
 def exposure_sample_times(t_mid: float, params: FrameParams,
@@ -178,8 +207,8 @@ def exposure_sample_times(t_mid: float, params: FrameParams,
         Mid-exposure timestamp of the frame.
     params : FrameParams
     exposure : float or None, seconds
-        This frame's exposure (auto-exposure), at most ``params.exposure``; default
-        ``params.exposure``.
+        This frame's exposure (auto-exposure), at most :attr:`FrameParams.longest_exposure`;
+        default that longest exposure (``params.exposure`` without auto-exposure).
 
     Returns
     -------
@@ -189,10 +218,11 @@ def exposure_sample_times(t_mid: float, params: FrameParams,
     t_mid = float(t_mid)
     if not math.isfinite(t_mid):
         raise ValueError(f"t_mid must be a finite time in seconds, got {t_mid}")
-    exposure = params.exposure if exposure is None else positive("exposure", exposure)
-    if exposure > params.exposure * (1 + _TIME_TOLERANCE):
+    longest = params.longest_exposure
+    exposure = longest if exposure is None else positive("exposure", exposure)
+    if exposure > longest * (1 + _TIME_TOLERANCE):
         raise ValueError(f"exposure {exposure} s is longer than the frame's longest exposure "
-                         f"{params.exposure} s")
+                         f"{longest} s")
     n = params.exposure_samples
     offsets = (np.arange(n, dtype=np.float64) + 0.5) / n - 0.5
     return t_mid + exposure * offsets

@@ -542,7 +542,7 @@ def _parse_frames(ctx: _Ctx, raw: Any) -> FrameParams:
             raise ctx.fail(f"{key} {gone}", "the frame noise is now a sensor's: use sensor = "
                            "\"davis240c_aps\" or \"machine_vision\", or sensor = { preset = "
                            f"..., {gone} = ... }} in electrons")
-    names = {"rate", "exposure", "exposure_samples", "gamma", "gain", "sensor"}
+    names = {"rate", "exposure", "max_exposure", "exposure_samples", "gamma", "gain", "sensor"}
     ctx.keys(table, key, set(), names)
     values: dict[str, Any] = {}
     for name, item in table.items():
@@ -560,6 +560,11 @@ def _parse_frames(ctx: _Ctx, raw: Any) -> FrameParams:
         given = "" if "exposure" in values else " (the default)"
         rate_given = "" if "rate" in values else ", the default"
         raise ctx.fail(f"{key} exposure = {exposure:g}{given}",
+                       f"must be at most the frame interval 1/rate = {1.0 / rate:.4g} s (rate = "
+                       f"{rate:g} Hz{rate_given})")
+    if values.get("max_exposure", 0.0) > 1.0 / rate:
+        rate_given = "" if "rate" in values else ", the default"
+        raise ctx.fail(f"{key} max_exposure = {values['max_exposure']:g}",
                        f"must be at most the frame interval 1/rate = {1.0 / rate:.4g} s (rate = "
                        f"{rate:g} Hz{rate_given})")
     try:

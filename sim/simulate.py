@@ -315,7 +315,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     times = start + frame_times(duration, params)
     if len(times) == 0:
         raise ValueError(f"duration {duration} s is too short for one frame at {params.rate} Hz "
-                         f"with a {params.exposure} s exposure")
+                         f"with a {params.longest_exposure} s exposure")
     events = events or EventParams(seed=scene.seed)
     sampling = sampling or SamplingParams()
     event_formats = tuple(event_formats)
@@ -576,9 +576,10 @@ def _frame_exposure(scene: Scene, renderer: Renderer, t: float, pattern: FixedPa
     if not sensor.auto_exposure:
         return params.exposure
     if previous is None:
-        return settled_exposure(renderer.luminance(t), sensor, pattern, params.exposure)
+        return settled_exposure(renderer.luminance(t), sensor, pattern,
+                                params.longest_exposure)
     return next_exposure(previous, previous_exposure, sensor, params.output_gamma,
-                         params.exposure)
+                         params.longest_exposure)
 
 
 # --- events ------------------------------------------------------------------------------------

@@ -160,6 +160,26 @@ def test_exposure_samples_follow_a_shorter_auto_exposure():
         exposure_sample_times(1.0, params, 0.005)
 
 
+def test_max_exposure_bounds_auto_exposure_and_leaves_the_ideal_camera_alone():
+    """Issue 21: a sensor's auto-exposure may run longer than the ideal camera's exposure; its
+    frames are laid out with the longest one, the ideal camera's as before."""
+    ideal = FrameParams(rate=24.0, exposure=0.005, max_exposure=0.04)
+    assert ideal.longest_exposure == 0.005
+    np.testing.assert_allclose(frame_times(0.5, ideal), frame_times(0.5, FrameParams()))
+    davis = ideal.with_sensor("davis240c_aps")
+    assert davis.longest_exposure == 0.04
+    times = frame_times(0.5, davis)
+    np.testing.assert_allclose(times, 0.02 + np.arange(12) / 24.0, atol=1e-15)
+    assert times[-1] + 0.02 <= 0.5
+    np.testing.assert_allclose(exposure_sample_times(1.0, davis, 0.03),
+                               [0.98875, 0.99625, 1.00375, 1.01125], atol=1e-15)
+    with pytest.raises(ValueError, match="longer than the frame's longest exposure 0.04 s"):
+        exposure_sample_times(1.0, davis, 0.041)
+    with pytest.raises(ValueError, match="FrameParams.max_exposure must be at most the frame "
+                                         "period"):
+        FrameParams(rate=24.0, max_exposure=0.05)
+
+
 @pytest.mark.parametrize(("luminance", "gain", "message"), [
     (np.ones((2, 2, 3), np.float32), 1.0, r"\(H, W\) array, got shape \(2, 2, 3\)"),
     (np.array([[1.0, np.nan]], np.float32), 1.0, "NaN or infinite"),

@@ -192,9 +192,10 @@ def test_hdr_twin_dark_half_fires_within_a_factor_3_of_the_bright_half():
     light (t = 0.05 s, camera at x = -0.32 m) and 0.2 s inside the spot (t = 4.05 s, x =
     0.08 m). The poster's texture repeats every 0.4 m, so both windows see the same texture
     moving the same way under lights three decades apart: a logarithmic sensor fires about
-    as often in both; only the dark current (about the dark half's luminance) thins the dark
-    half. Rendered at 1 kHz (0.09 px of motion per render), ideal sensor, C = 0.2. Measured:
-    2.1 times fewer events in the dark (6.7 times with the former arbitrary units;
+    as often in both; only the dark current (0.43 cd/m^2, half the crop's median luminance in
+    the fill light) thins the dark half. Rendered at 1 kHz (0.09 px of motion per render),
+    ideal sensor, C = 0.2. Measured: 1.15 times fewer events in the dark (2.1 times with
+    issue 14's lights, ten times dimmer; 6.7 times with the former arbitrary units;
     ``benchmarks/bench_radiometry.py``)."""
     text = resolve_scene("slider_hdr_close").read_text()
     crop = ("width = 48\nheight = 36\nfx = 199.092366542\nfy = 198.82882047\n"

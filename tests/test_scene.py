@@ -277,6 +277,11 @@ def test_frame_errors_name_the_toml_key_not_the_dataclass(tmp_path):
     message = _error(scene_text(BOX, extra="[frames]\nexposure = 0.5\n"), tmp_path)
     assert "[frames] exposure = 0.5: must be at most the frame interval" in message
     assert "0.04167 s" in message and "24 Hz" in message and "FrameParams" not in message
+    message = _error(scene_text(BOX, extra="[frames]\nmax_exposure = 0.05\n"), tmp_path)
+    assert "[frames] max_exposure = 0.05: must be at most the frame interval" in message
+    assert "0.04167 s" in message and "FrameParams" not in message
+    message = _error(scene_text(BOX, extra="[frames]\nmax_exposure = -1.0\n"), tmp_path)
+    assert "[frames].max_exposure" in message and "FrameParams" not in message, message
     message = _error(scene_text(BOX, extra="[frames]\nrate = 500.0\n"), tmp_path)
     assert "[frames] exposure = 0.005 (the default)" in message and "0.002 s" in message
     for key, value in (("rate", "-1.0"), ("gamma", "0.0"), ("gain", "0.0")):
