@@ -27,6 +27,8 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
+from sim.textfile import text_lines
+
 if TYPE_CHECKING:
     from sim.camera import Camera
 
@@ -248,31 +250,30 @@ def read_index(path: str | Path, check_files: bool = True) -> tuple[np.ndarray, 
         raise ValueError(f"index file {path} does not exist")
     times: list[float] = []
     relpaths: list[str] = []
-    with path.open(encoding="utf-8") as handle:
-        for number, line in enumerate(handle, start=1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            where = f"{path}:{number}"
-            columns = text.split()
-            if len(columns) != 2:
-                raise ValueError(f"{where}: expected 2 columns 't[s] relpath', got "
-                                 f"{len(columns)}: {text!r}")
-            try:
-                t = float(columns[0])
-            except ValueError:
-                raise ValueError(f"{where}: expected a time in seconds, got "
-                                 f"{columns[0]!r}") from None
-            if not math.isfinite(t):
-                raise ValueError(f"{where}: expected a finite time in seconds, got {columns[0]!r}")
-            if times and t <= times[-1]:
-                raise ValueError(f"{where}: time {columns[0]} is not after the previous "
-                                 f"line's {times[-1]:.9f}; expected strictly increasing times")
-            if check_files and not (path.parent / columns[1]).is_file():
-                raise ValueError(f"{where}: listed file {path.parent / columns[1]} does not "
-                                 "exist")
-            times.append(t)
-            relpaths.append(columns[1])
+    for number, line in text_lines(path):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        where = f"{path}:{number}"
+        columns = text.split()
+        if len(columns) != 2:
+            raise ValueError(f"{where}: expected 2 columns 't[s] relpath', got "
+                             f"{len(columns)}: {text!r}")
+        try:
+            t = float(columns[0])
+        except ValueError:
+            raise ValueError(f"{where}: expected a time in seconds, got "
+                             f"{columns[0]!r}") from None
+        if not math.isfinite(t):
+            raise ValueError(f"{where}: expected a finite time in seconds, got {columns[0]!r}")
+        if times and t <= times[-1]:
+            raise ValueError(f"{where}: time {columns[0]} is not after the previous "
+                             f"line's {times[-1]:.9f}; expected strictly increasing times")
+        if check_files and not (path.parent / columns[1]).is_file():
+            raise ValueError(f"{where}: listed file {path.parent / columns[1]} does not "
+                             "exist")
+        times.append(t)
+        relpaths.append(columns[1])
     return np.array(times, dtype=np.float64), relpaths
 
 
@@ -336,6 +337,8 @@ def read_sequence_json(path: str | Path) -> dict:
         raise ValueError(f"JSON file {path} does not exist")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (byte {exc.start}); expected JSON") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}:{exc.lineno}: invalid JSON: {exc.msg} (column "
                          f"{exc.colno})") from None
@@ -709,8 +712,7 @@ def _read_extrinsic(path: Path) -> np.ndarray:
     form = "one line 'px py pz qx qy qz qw' (metres, quaternion scalar last)"
     if not path.is_file():
         raise ValueError(f"{path} does not exist; expected {form}")
-    lines = [(n, line.split()) for n, line in
-             enumerate(path.read_text(encoding="utf-8").splitlines(), start=1) if line.strip()]
+    lines = [(n, line.split()) for n, line in text_lines(path) if line.strip()]
     if len(lines) != 1 or len(lines[0][1]) != 7:
         where = f"{path}:{lines[1][0] if len(lines) > 1 else lines[0][0]}" if lines else path
         raise ValueError(f"{where}: expected {form}")

@@ -406,46 +406,49 @@ def _apply_h5_edit(path: Path, edit: dict) -> None:
         path.write_bytes(bytes(data))
         return
     try:
-        file = h5py.File(path, "r+")
-    except OSError:
-        return                                   # an earlier edit broke the file: leave it so
-    with file:
-        field = edit["field"]
-        if edit["kind"] == "attrs":
-            file.attrs[edit["attr"]] = edit["value"] if edit["index"] % 2 else edit["float"]
-            return
-        if field not in file:
-            return
-        data = file[field][()]
-        if edit["kind"] == "drop_dataset":
-            del file[field]
-            return
-        if np.ndim(data) == 0:
-            del file[field]
-            file.create_dataset(field, data=np.array(edit["value"] % 2**62))
-            return
-        data = np.array(data)
-        i = edit["index"] % max(len(data), 1)
-        if edit["kind"] == "dtype":
-            try:
-                data = data.astype(edit["dtype"])
-            except (ValueError, OverflowError):
-                data = np.zeros(len(data), edit["dtype"])
-            if data.dtype.kind == "f" and len(data):
-                data[i] = edit["float"]
-        elif edit["kind"] == "unsorted" and len(data) > 1:
-            data[i], data[(i + 1) % len(data)] = data[(i + 1) % len(data)], data[i]
-            data[i] = data[i] - abs(edit["value"]) % 10**6 if data.dtype.kind == "i" else data[i]
-        elif edit["kind"] == "values" and len(data):
-            info = np.iinfo(data.dtype) if data.dtype.kind in "iu" else None
-            value = edit["value"]
-            if info is not None:
-                value = int(np.clip(value, info.min, info.max))
-            data[i] = value
-        elif edit["kind"] == "length":
-            data = np.resize(data, edit["length"]) if len(data) else data
+        with h5py.File(path, "r+") as file:
+            _edit_h5(file, edit)
+    except Exception:        # an earlier edit broke the file so that h5py cannot edit it
+        return
+
+
+def _edit_h5(file: Any, edit: dict) -> None:
+    field = edit["field"]
+    if edit["kind"] == "attrs":
+        file.attrs[edit["attr"]] = edit["value"] if edit["index"] % 2 else edit["float"]
+        return
+    if field not in file:
+        return
+    data = file[field][()]
+    if edit["kind"] == "drop_dataset":
         del file[field]
-        file.create_dataset(field, data=data)
+        return
+    if np.ndim(data) == 0:
+        del file[field]
+        file.create_dataset(field, data=np.array(edit["value"] % 2**62))
+        return
+    data = np.array(data)
+    i = edit["index"] % max(len(data), 1)
+    if edit["kind"] == "dtype":
+        try:
+            data = data.astype(edit["dtype"])
+        except (ValueError, OverflowError):
+            data = np.zeros(len(data), edit["dtype"])
+        if data.dtype.kind == "f" and len(data):
+            data[i] = edit["float"]
+    elif edit["kind"] == "unsorted" and len(data) > 1:
+        data[i], data[(i + 1) % len(data)] = data[(i + 1) % len(data)], data[i]
+        data[i] = data[i] - abs(edit["value"]) % 10**6 if data.dtype.kind == "i" else data[i]
+    elif edit["kind"] == "values" and len(data):
+        info = np.iinfo(data.dtype) if data.dtype.kind in "iu" else None
+        value = edit["value"]
+        if info is not None:
+            value = int(np.clip(value, info.min, info.max))
+        data[i] = value
+    elif edit["kind"] == "length":
+        data = np.resize(data, edit["length"]) if len(data) else data
+    del file[field]
+    file.create_dataset(field, data=data)
 
 
 def check_events_h5(edits: list[dict]) -> None:
