@@ -15,6 +15,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 import shutil
 import uuid
 from collections.abc import Iterator
@@ -336,16 +337,31 @@ def read_sequence_json(path: str | Path) -> dict:
     if not path.is_file():
         raise ValueError(f"JSON file {path} does not exist")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        data = json.loads(text)
     except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: not UTF-8 text (byte {exc.start}); expected JSON") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}:{exc.lineno}: invalid JSON: {exc.msg} (column "
                          f"{exc.colno})") from None
+    _refuse_non_finite_json(path, text)
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object at the top level, got "
                          f"{type(data).__name__}")
     return data
+
+
+_JSON_NON_FINITE = re.compile(r'"(?:[^"\\]|\\.)*"|(-?Infinity|NaN)')
+
+
+def _refuse_non_finite_json(path: Path, text: str) -> None:
+    """Python's JSON reader takes ``NaN`` and ``Infinity``, which strict JSON (and every writer
+    of the project) has not: refuse them, naming the line."""
+    for match in _JSON_NON_FINITE.finditer(text):
+        if match[1]:
+            line = text.count("\n", 0, match.start()) + 1
+            raise ValueError(f"{path}:{line}: {match[1]} is not a finite number; expected "
+                             "strict JSON (finite numbers)")
 
 
 # --- what a file is ---------------------------------------------------------------------------
