@@ -182,3 +182,39 @@ def test_h5_attributes_that_are_not_integers_in_range_are_refused(tmp_path, attr
         read_events(path)
     assert one_line(exc_info).startswith(f"{path}: the attribute {attr} is {value!r}; expected "
                                          "an integer number of ")
+
+
+# --- depth EXR ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf, -0.5])
+def test_depth_exr_with_a_non_finite_or_negative_pixel_is_refused(tmp_path, value):
+    """write_depth refuses them; read_depth passed them on (a NaN depth scored as an error of
+    NaN, an inf one as a point at infinity)."""
+    from sim.exr import read_depth, write_exr_channels
+
+    depth = np.ones((4, 5), np.float32)
+    depth[2, 3] = value
+    path = tmp_path / "depth.exr"
+    write_exr_channels(path, {"Z": depth})
+    with pytest.raises(ValueError) as exc_info:
+        read_depth(path)
+    assert one_line(exc_info) == (f"{path}: pixel (u=3, v=2) of channel 'Z' holds {value!r} "
+                                  "(1 pixel like it); expected finite depths in metres >= 0 "
+                                  "(0 = none)")
+
+
+def test_per_event_depth_that_is_not_finite_is_refused(tmp_path):
+    """events/depth (float32 metres) of an events.h5 passed NaN on to the scoring."""
+    from sim.event_depth import read_event_depth
+
+    path = tmp_path / "events.h5"
+    write_h5(path, np.arange(100) * 1000)
+    with h5py.File(path, "r+") as f:
+        depth = np.ones(100, np.float32)
+        depth[7] = np.nan
+        f.create_dataset("events/depth", data=depth)
+        f.create_dataset("events/depth_flag", data=np.zeros(100, np.uint8))
+    with pytest.raises(ValueError) as exc_info:
+        read_event_depth(path)
+    assert one_line(exc_info) == (f"{path}: event 7: events/depth = nan; expected a finite "
+                                  "depth in metres >= 0 (0 = none)")
