@@ -1,4 +1,4 @@
-"""The readers' faults that fuzzing found (issue 21), each pinned by the smallest case.
+"""The faults that fuzzing found (issue 21), each pinned by the smallest case.
 
 Every refusal is one line naming the file (and the line or event); see tests/test_fuzz.py for
 the property-based search that found them.
@@ -218,3 +218,18 @@ def test_per_event_depth_that_is_not_finite_is_refused(tmp_path):
         read_event_depth(path)
     assert one_line(exc_info) == (f"{path}: event 7: events/depth = nan; expected a finite "
                                   "depth in metres >= 0 (0 = none)")
+
+
+# --- evfuse map --median ------------------------------------------------------------------------
+
+def test_median_window_far_beyond_the_image_is_the_whole_image_window():
+    """``evfuse map --median 999999`` died with MemoryError (exit 1, "unexpected error"): the
+    compiled median allocated a window of 999999^2 values. A window past the image on every side
+    sees the whole image, so any larger one gives the same medians."""
+    from fusion.emvs import masked_median
+
+    values = np.arange(12, dtype=np.float32).reshape(3, 4)
+    mask = values % 3 != 0
+    whole = np.where(mask, np.median(values[mask]), values)
+    np.testing.assert_array_equal(masked_median(values, mask, 9), whole)
+    np.testing.assert_array_equal(masked_median(values, mask, 999_999), whole)
