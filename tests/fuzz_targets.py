@@ -622,6 +622,36 @@ def check_params(case: tuple[str, list[str]]) -> None:
             assert_finite(variant.params)
 
 
+# --- sweep parameters (evfuse bench --family and its knobs) ---------------------------------
+
+@st.composite
+def _sweep_case(draw: Any) -> tuple[str, dict[str, list[float]]]:
+    from fusion.families import FAMILIES
+
+    family = draw(st.sampled_from([*sorted(FAMILIES), "nosuch"]))
+    names = sorted({*FAMILIES.get(family, {}), "texture", "steps", "radius"})
+    knobs = draw(st.dictionaries(st.sampled_from(names), st.lists(st.one_of(
+        st.floats(allow_nan=True, allow_infinity=True), st.integers(-5, 20).map(float),
+        st.floats(0.0, 80.0)), min_size=1, max_size=2), max_size=2))
+    return family, knobs
+
+
+SWEEP_CASES = _sweep_case()
+
+
+def check_sweep(case: tuple[str, dict[str, list[float]]]) -> None:
+    """``evfuse bench --family F --KNOB V,...``: every member the knobs make is a scene that
+    parses (with finite figures), or one line naming the family or the knob."""
+    from fusion.families import family_variants
+    from sim.scene import parse_scene
+
+    family, knobs = case
+    flags = ("--family", *(f"--{name.replace('_', '-')}" for name in knobs))
+    texts = refused_or_result(lambda: family_variants(family, knobs), (), flags)
+    for text in texts or []:
+        assert_finite(parse_scene(text, f"{family}.toml"))
+
+
 # --- numeric flags of the command line -----------------------------------------------------------
 
 NUMERIC_FLAGS = {
@@ -776,6 +806,7 @@ TARGETS: dict[str, tuple[st.SearchStrategy, Callable[[Any], None]]] = {
     "events.txt (sim.eventio readers)": (EVENTS_TXT_CASES, check_events_txt),
     "events.h5 (sim.eventio readers)": (H5_CASES, check_events_h5),
     "method parameters (--method/--param)": (PARAM_CASES, check_params),
+    "sweep parameters (bench --family knobs)": (SWEEP_CASES, check_sweep),
     "numeric flags (evfuse map/fill/simulate)": (FLAG_CASES, check_flag),
 }
 """Every fuzz target: its name, the strategy of its cases and the property a case must keep."""

@@ -19,6 +19,7 @@ from tests.fuzz_targets import (
     IMAGES_CASES,
     PARAM_CASES,
     SCENE_CASES,
+    SWEEP_CASES,
     check_calib,
     check_events_h5,
     check_events_txt,
@@ -27,6 +28,7 @@ from tests.fuzz_targets import (
     check_images,
     check_params,
     check_scene,
+    check_sweep,
 )
 
 
@@ -63,6 +65,11 @@ def test_fuzz_events_h5(edits):
 @given(PARAM_CASES)
 def test_fuzz_method_params(case):
     check_params(case)
+
+
+@given(SWEEP_CASES)
+def test_fuzz_sweep_params(case):
+    check_sweep(case)
 
 
 @given(FLAG_CASES)
