@@ -431,7 +431,8 @@ def _edit_h5(file: Any, edit: dict) -> None:
     i = edit["index"] % max(len(data), 1)
     if edit["kind"] == "dtype":
         try:
-            data = data.astype(edit["dtype"])
+            with np.errstate(invalid="ignore", over="ignore"):
+                data = data.astype(edit["dtype"])
         except (ValueError, OverflowError):
             data = np.zeros(len(data), edit["dtype"])
         if data.dtype.kind == "f" and len(data):
