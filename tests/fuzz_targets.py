@@ -436,7 +436,8 @@ def _edit_h5(file: Any, edit: dict) -> None:
         except (ValueError, OverflowError):
             data = np.zeros(len(data), edit["dtype"])
         if data.dtype.kind == "f" and len(data):
-            data[i] = edit["float"]
+            with np.errstate(over="ignore"):
+                data[i] = edit["float"]
     elif edit["kind"] == "unsorted" and len(data) > 1:
         data[i], data[(i + 1) % len(data)] = data[(i + 1) % len(data)], data[i]
         data[i] = data[i] - abs(edit["value"]) % 10**6 if data.dtype.kind == "i" else data[i]
