@@ -1100,11 +1100,7 @@ class _H5Source:
         index_s = self.ms_to_idx.shape[0] * 1e-3
         if last_s <= 0 or agree(last_s, index_s):
             return
-        unsorted = self._first_unsorted()
-        if unsorted is not None:                  # not a unit: the last time is out of order
-            i, t_us, t_prev_us = unsorted
-            raise ValueError(f"{self.path}: event {i}: events/t = {t_us} us is before the "
-                             f"previous event's {t_prev_us} us; expected events sorted by t")
+        self._refuse_unsorted()                   # not a unit: the last time is out of order
         span_s = last_s - float(self.t[0]) * 1e-6
         unit = _unit_name(last_s / index_s, "microseconds")
         if agree(span_s, index_s):
@@ -1118,6 +1114,15 @@ class _H5Source:
         raise ValueError(f"{self.path}: events/t looks like {unit} (span {last_s:.4g} s from "
                          f"t_offset against {index_s:.4g} s of ms_to_idx); DSEC layout stores "
                          "microseconds")
+
+    def _refuse_unsorted(self) -> None:
+        """Name the first event of ``events/t`` out of order, if any (the cause of an index or
+        a span that disagrees with the times)."""
+        unsorted = self._first_unsorted()
+        if unsorted is not None:
+            i, t_us, t_prev_us = unsorted
+            raise ValueError(f"{self.path}: event {i}: events/t = {t_us} us is before the "
+                             f"previous event's {t_prev_us} us; expected events sorted by t")
 
     def _first_unsorted(self, block: int = 1 << 20) -> tuple[int, int, int] | None:
         """The first event whose ``events/t`` is below its predecessor's: (index, its t, the
@@ -1176,6 +1181,7 @@ class _H5Source:
             if not (0 <= index <= self.size
                     and (index == 0 or int(self.t[index - 1]) < bound)
                     and (index == self.size or int(self.t[index]) >= bound)):
+                self._refuse_unsorted()           # the cause, where events/t is out of order
                 raise ValueError(f"{self.path}: ms_to_idx[{ms}] = {index} is not the index of "
                                  f"the first event at or after {ms} ms (of {self.size} events); "
                                  "expected the DSEC layout's index")

@@ -233,3 +233,16 @@ def test_median_window_far_beyond_the_image_is_the_whole_image_window():
     whole = np.where(mask, np.median(values[mask]), values)
     np.testing.assert_array_equal(masked_median(values, mask, 9), whole)
     np.testing.assert_array_equal(masked_median(values, mask, 999_999), whole)
+
+
+def test_h5_window_behind_an_out_of_order_time_names_that_event(tmp_path):
+    """Event 49 moved to 9.999 ms: a window from 5 ms finds ms_to_idx[5] = 50 wrong against
+    events/t, and the cause, event 50 before event 49, is named (not the index, not a chunk)."""
+    path = tmp_path / "events.h5"
+    write_h5(path, np.arange(100) * 100_000)
+    with h5py.File(path, "r+") as f:
+        f["events/t"][49] = 9999
+    with pytest.raises(ValueError) as exc_info:
+        read_window(path, 5 * 10**6, 8 * 10**6)
+    assert one_line(exc_info) == (f"{path}: event 50: events/t = 5000 us is before the "
+                                  "previous event's 9999 us; expected events sorted by t")
