@@ -187,8 +187,9 @@ def read_depth(path: str | Path) -> np.ndarray:
     bad = ~np.isfinite(depth) | (depth < 0)
     if bad.any():
         v, u = (int(i) for i in np.argwhere(bad)[0])
-        count = int(bad.sum())
+        count, value = int(bad.sum()), float(depth[v, u])
+        shown = "NaN" if value != value else repr(value)
         raise ValueError(f"{path}: pixel (u={u}, v={v}) of channel {DEPTH_CHANNEL!r} holds "
-                         f"{float(depth[v, u])!r} ({count} pixel{'s' if count > 1 else ''} "
+                         f"{shown} ({count} pixel{'s' if count > 1 else ''} "
                          "like it); expected finite depths in metres >= 0 (0 = none)")
     return depth

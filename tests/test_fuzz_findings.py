@@ -198,7 +198,8 @@ def test_depth_exr_with_a_non_finite_or_negative_pixel_is_refused(tmp_path, valu
     write_exr_channels(path, {"Z": depth})
     with pytest.raises(ValueError) as exc_info:
         read_depth(path)
-    assert one_line(exc_info) == (f"{path}: pixel (u=3, v=2) of channel 'Z' holds {value!r} "
+    shown = "NaN" if np.isnan(value) else repr(value)
+    assert one_line(exc_info) == (f"{path}: pixel (u=3, v=2) of channel 'Z' holds {shown} "
                                   "(1 pixel like it); expected finite depths in metres >= 0 "
                                   "(0 = none)")
 
