@@ -575,6 +575,12 @@ def check_scene(text: str) -> None:
     scene = refused_or_result(lambda: parse_scene(text, SCENE_SOURCE), (), (SCENE_SOURCE,))
     if scene is not None:
         assert_finite(scene)
+        poses = scene.trajectory.pose(np.linspace(0.0, scene.duration, 5))
+        assert np.isfinite(poses).all(), "success with non-finite camera poses"
+        for light in scene.lights:
+            if light.direction is not None:
+                assert abs(np.linalg.norm(light.direction) - 1) < 1e-9, \
+                    f"success with a light direction {light.direction} that is not a unit vector"
 
 
 # --- method parameters (--param, fusion.methods) ----------------------------------------------

@@ -247,3 +247,30 @@ def test_h5_window_behind_an_out_of_order_time_names_that_event(tmp_path):
         read_window(path, 5 * 10**6, 8 * 10**6)
     assert one_line(exc_info) == (f"{path}: event 50: events/t = 5000 us is before the "
                                   "previous event's 9999 us; expected events sorted by t")
+
+
+# --- scene TOML (huge numbers) -------------------------------------------------------------------
+
+def test_scene_light_direction_at_a_huge_scale_stays_a_unit_vector():
+    """direction = [1e308, 1e308, 0]: its norm overflowed, and the light travelled along
+    [0, 0, 0] (parsed without a word)."""
+    from sim.scene import parse_scene
+    from tests.conftest import WALL, scene_text
+
+    lights = ('[[lights]]\ntype = "directional"\ndirection = [1e308, 1e308, 0.0]\n'
+              "illuminance_lux = 400.0\n")
+    scene = parse_scene(scene_text(WALL, lights=lights), "huge.toml")
+    np.testing.assert_allclose(scene.lights[0].direction, [2**-0.5, 2**-0.5, 0.0])
+
+
+def test_scene_whose_camera_position_overflows_is_refused():
+    """velocity = [1e308, 1e308, 0] over 3 s: the poses reached inf (parsed without a word)."""
+    from sim.scene import SceneError, parse_scene
+    from tests.conftest import WALL, scene_text
+
+    trajectory = ('[trajectory]\ntype = "linear"\nposition = [0.0, 0.0, 0.0]\n'
+                  "velocity = [1e308, 1e308, 0.0]\nlook_at = [0.0, 1.0, 0.0]\n")
+    with pytest.raises(SceneError) as exc_info:
+        parse_scene(scene_text(WALL, trajectory=trajectory, duration=3.0), "huge.toml")
+    assert one_line(exc_info) == ("huge.toml: [trajectory]: the camera's position overflows over "
+                                  "[0, duration] (expected metres and m/s of a real scene)")
