@@ -274,3 +274,18 @@ def test_scene_whose_camera_position_overflows_is_refused():
         parse_scene(scene_text(WALL, trajectory=trajectory, duration=3.0), "huge.toml")
     assert one_line(exc_info) == ("huge.toml: [trajectory]: the camera's position overflows over "
                                   "[0, duration] (expected metres and m/s of a real scene)")
+
+
+# --- evfuse fill --min-region ---------------------------------------------------------------------
+
+def test_min_region_past_int64_keeps_no_region():
+    """``evfuse fill --min-region 18446744073709551616`` died with OverflowError (exit 1): the
+    bound went to the compiled loop as is. No region is larger than the frame, so any bound past
+    it keeps none."""
+    from fusion.segmentation import SegmentationParams, segment_regions
+
+    frame = np.zeros((6, 8), np.uint8)
+    frame[:, 4:] = 200                                       # two regions of 24 pixels
+    assert segment_regions(frame, SegmentationParams(min_region=24)).max() == 2
+    for bound in (49, 2**64):
+        assert not segment_regions(frame, SegmentationParams(min_region=bound)).any()
