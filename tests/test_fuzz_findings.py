@@ -289,3 +289,18 @@ def test_min_region_past_int64_keeps_no_region():
     assert segment_regions(frame, SegmentationParams(min_region=24)).max() == 2
     for bound in (49, 2**64):
         assert not segment_regions(frame, SegmentationParams(min_region=bound)).any()
+
+
+def test_ring_past_int64_is_the_whole_frame_band():
+    """``evfuse fill --ring 18446744073709551616`` died with OverflowError (exit 1). A band
+    wider than the frame covers all of it, so any wider one counts the same map points."""
+    from fusion.filling import SelectionParams, select_regions
+
+    labels = np.ones((6, 8), np.int32)
+    labels[:, 4:] = 2
+    sparse = np.zeros((6, 8), np.float32)
+    sparse[0, 0] = sparse[5, 7] = 1.0
+    wide = select_regions(labels, sparse, SelectionParams(ring=8))
+    huge = select_regions(labels, sparse, SelectionParams(ring=2**64))
+    np.testing.assert_array_equal(huge.ring_events, wide.ring_events)
+    np.testing.assert_array_equal(huge.ring_events[1:], [2, 2])       # both points, both bands
