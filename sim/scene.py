@@ -979,7 +979,8 @@ def _check_metres(ctx: _Ctx, objects: tuple[SceneObject, ...], trajectory: Traje
                                f"scenes are in metres: {value.max():g} m is larger than the "
                                f"{MAX_OBJECT_SIZE_M:g} m an object may measure (millimetres?)")
     times = np.linspace(max(trajectory.t_start, 0.0), min(trajectory.t_end, duration), 100)
-    positions = trajectory.pose(times)[:, :3, 3]
+    with np.errstate(over="ignore", invalid="ignore"):      # checked just below
+        positions = trajectory.pose(times)[:, :3, 3]
     if not np.isfinite(positions).all():
         raise ctx.fail("[trajectory]", "the camera's position overflows over [0, duration] "
                                        "(expected metres and m/s of a real scene)")
