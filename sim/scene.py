@@ -797,7 +797,7 @@ def _parse_light(ctx: _Ctx, raw: Any, key: str) -> Light:
                      cutoff_angle=cutoff, beam_width=beam)
     ctx.keys(table, key, {"type", "direction", "illuminance_lux"}, set())
     direction = vec3(ctx, table["direction"], f"{key}.direction")
-    if np.linalg.norm(direction) == 0:
+    if not np.abs(direction).max() > 0:
         raise ctx.fail(f"{key}.direction", "expected a non-zero vector")
     direction = direction / np.abs(direction).max()     # at any scale: no overflow in the norm
     return Light(kind, _photometric(ctx, table, key, "illuminance_lux"),
