@@ -304,3 +304,12 @@ def test_ring_past_int64_is_the_whole_frame_band():
     huge = select_regions(labels, sparse, SelectionParams(ring=2**64))
     np.testing.assert_array_equal(huge.ring_events, wide.ring_events)
     np.testing.assert_array_equal(huge.ring_events[1:], [2, 2])       # both points, both bands
+
+
+def test_scene_up_at_a_huge_scale_stays_a_unit_vector():
+    """up = [1e308, 0, 1e308] was parsed as (0, 0, 0): its norm overflowed to inf."""
+    from sim.scene import parse_scene
+    from tests.conftest import WALL, scene_text
+
+    scene = parse_scene(scene_text(WALL, extra="up = [1e308, 0.0, 1e308]"), "huge.toml")
+    np.testing.assert_allclose(scene.up, [2**-0.5, 0.0, 2**-0.5])
