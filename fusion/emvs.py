@@ -326,8 +326,11 @@ def masked_median(values: np.ndarray, mask: np.ndarray, size: int) -> np.ndarray
     """
     if size <= 1:
         return np.array(values, copy=True)
+    # A window reaching past the image on every side sees the whole image: the same medians
+    # as any larger one, without allocating for a size far beyond the image.
+    half = min(size // 2, max(np.shape(values)))
     return _masked_median(np.ascontiguousarray(values), np.ascontiguousarray(mask, dtype=bool),
-                          size // 2)
+                          half)
 
 
 def semidense_depth(dsi: np.ndarray, planes: np.ndarray, params: DepthMapParams | None = None

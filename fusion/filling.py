@@ -383,8 +383,10 @@ def select_regions(labels: np.ndarray, sparse_depth: np.ndarray,
     ev_y, ev_x = np.nonzero(sparse > 0)
     on_contour = region_contours(labels)
     contour_labels = np.where(on_contour, labels, 0).astype(np.int32)
-    ring_events, inside = _count_events(labels, contour_labels, ev_y, ev_x, n_labels,
-                                        int(params.ring))
+    # A band wider than the frame covers all of it, as one of the frame's size does (and a
+    # width past int64 would not reach the compiled loop).
+    ring = min(int(params.ring), max(labels.shape))
+    ring_events, inside = _count_events(labels, contour_labels, ev_y, ev_x, n_labels, ring)
     area = np.bincount(labels.ravel(), minlength=n_labels).astype(np.int64)
     contour = np.bincount(labels[on_contour], minlength=n_labels).astype(np.int64)
     # Products rounded to 1e-9 so that decimal ratios act as written (0.07 x 100 is 7, not 7 + ulp).
@@ -392,7 +394,7 @@ def select_regions(labels: np.ndarray, sparse_depth: np.ndarray,
                 & (inside < np.round(params.max_inside_ratio * area, 9)))
     selected[0] = False
     return RegionStats(area=area, contour=contour, ring_events=ring_events,
-                       inside_events=inside, selected=selected, ring=int(params.ring))
+                       inside_events=inside, selected=selected, ring=ring)
 
 
 # --------------------------------------------------------------------------- filling

@@ -152,7 +152,9 @@ def segment_regions(frame: np.ndarray, params: SegmentationParams | None = None)
     min_region = params.min_region
     if min_region is None:
         min_region = default_min_region(*frame.shape)
-    return _grow(image, float(params.threshold), int(min_region))
+    # No region is larger than the frame: any larger bound keeps none, as frame size + 1 does
+    # (and a bound past int64 would not reach the compiled loop).
+    return _grow(image, float(params.threshold), min(int(min_region), image.size + 1))
 
 
 def region_contours(labels: np.ndarray) -> np.ndarray:

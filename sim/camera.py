@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from sim.textfile import parse_floats
+from sim.textfile import parse_floats, text_lines
 
 __all__ = [
     "CAMERA_PRESETS",
@@ -390,17 +390,16 @@ def read_calib(path: str | Path, width: int, height: int) -> Camera:
     """
     path = Path(path)
     found: tuple[int, list[str]] | None = None
-    with path.open(encoding="utf-8") as f:
-        for lineno, line in enumerate(f, start=1):
-            fields = line.split()
-            if not fields:
-                continue
-            if found is not None:
-                raise ValueError(
-                    f"{path}:{lineno}: unexpected second non-empty line (the first is line "
-                    f"{found[0]}); expected exactly one line {_CALIB_FORMAT}"
-                )
-            found = (lineno, fields)
+    for lineno, line in text_lines(path):
+        fields = line.split()
+        if not fields:
+            continue
+        if found is not None:
+            raise ValueError(
+                f"{path}:{lineno}: unexpected second non-empty line (the first is line "
+                f"{found[0]}); expected exactly one line {_CALIB_FORMAT}"
+            )
+        found = (lineno, fields)
     if found is None:
         raise ValueError(f"{path}: file has no non-empty line; expected one line {_CALIB_FORMAT}")
     lineno, fields = found

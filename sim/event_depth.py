@@ -375,7 +375,7 @@ class EventOutputs:
 # --- reading -----------------------------------------------------------------------------------
 
 def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | None:
-    from sim.eventio import _H5Source
+    from sim.eventio import _H5Source, _reading
 
     source = _H5Source(path)
     try:
@@ -387,10 +387,16 @@ def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | N
         out = np.empty(len(events), EVENT_DEPTH_DTYPE)
         for name in EVENT_DTYPE.names:
             out[name] = events[name]
-        out["depth"] = source.file["events/depth"][start:start + len(events)]
-        out["flag"] = source.file["events/depth_flag"][start:start + len(events)]
+        with _reading(path):
+            out["depth"] = source.file["events/depth"][start:start + len(events)]
+            out["flag"] = source.file["events/depth_flag"][start:start + len(events)]
     finally:
         source.close()
+    bad = np.flatnonzero(~np.isfinite(out["depth"]) | (out["depth"] < 0))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"{path}: event {start + i}: events/depth = {float(out['depth'][i])!r}; "
+                         "expected a finite depth in metres >= 0 (0 = none)")
     return out
 
 

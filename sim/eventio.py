@@ -33,10 +33,11 @@ which names the first bad line (``file:line: ...``) and what was expected.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
@@ -986,38 +987,100 @@ class H5EventWriter(_StreamingWriter):
         self._file.close()
 
 
+_H5_LAYOUT = "expected an events.h5 in the DSEC layout"
+_MAX_T_US = np.iinfo(np.int64).max // 1000 - 1   # largest time in µs whose ns fit in int64
+
+
+@contextlib.contextmanager
+def _reading(path: Path) -> Iterator[None]:
+    """Turn what h5py raises on a damaged file (overwritten or truncated bytes: OSError,
+    KeyError, RuntimeError, or a ValueError that does not name the file) into one ValueError
+    line that names the file and what is wrong."""
+    try:
+        yield
+    except ValueError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise _damaged(path, exc) from None
+    except (OSError, KeyError, RuntimeError) as exc:
+        raise _damaged(path, exc) from None
+
+
+def _damaged(path: Path, exc: BaseException) -> ValueError:
+    detail = " ".join(str(exc).strip("'\"").split()) or type(exc).__name__
+    return ValueError(f"{path}: the HDF5 file is damaged (h5py: {detail}); expected an intact "
+                      "events.h5 in the DSEC layout: copy or convert it again")
+
+
 class _H5Source:
-    """An open ``events.h5`` (DSEC layout, with or without evfuse's ``t_ns_rem``)."""
+    """An open ``events.h5`` (DSEC layout, with or without evfuse's ``t_ns_rem``).
+
+    Every read names the file when it fails: a damaged file (bytes overwritten, truncated), a
+    missing dataset, a dataset of the wrong type, or values outside what the layout allows.
+    """
+
+    _INTEGER = {"events/t": "integer microseconds (int64)", "events/x": "integer pixels (uint16)",
+                "events/y": "integer pixels (uint16)", "events/p": "integers 0/1 (uint8)",
+                "events/t_ns_rem": "integer nanoseconds (uint16)",
+                "ms_to_idx": "integer event indexes (int64)"}
 
     def __init__(self, path: Path) -> None:
         h5py = _import_h5py()
-        try:
-            self.file = h5py.File(path, "r")
-        except OSError as exc:
-            raise ValueError(f"{path}: cannot open as HDF5 ({exc}); expected an events.h5 in "
-                             "the DSEC layout") from None
         self.path = path
+        with _reading(path):
+            try:
+                self.file = h5py.File(path, "r")
+            except OSError as exc:
+                raise ValueError(f"{path}: cannot open as HDF5 ({exc}); {_H5_LAYOUT}") from None
+            try:
+                self._open()
+            except BaseException:
+                self.file.close()
+                raise
+
+    def _open(self) -> None:
+        path = self.path
         missing = [f"events/{name}" for name in "txyp" if f"events/{name}" not in self.file]
         if missing:
-            self.file.close()
             raise ValueError(f"{path}: no dataset {', '.join(missing)}; expected the DSEC layout "
                              "(events/t, events/x, events/y, events/p)")
+        for name, what in self._INTEGER.items():
+            if name not in self.file:
+                continue
+            dataset = self.file[name]
+            if not isinstance(dataset, _import_h5py().Dataset):
+                raise ValueError(f"{path}: {name} is a group, not a dataset; expected "
+                                 f"{what}")
+            if dataset.dtype.kind not in "iu":
+                raise ValueError(f"{path}: {name} has dtype {dataset.dtype}; expected {what}")
         self.t, self.x, self.y, self.p = (self.file[f"events/{name}"] for name in "txyp")
         self.rem = self.file["events/t_ns_rem"] if "events/t_ns_rem" in self.file else None
         self.ms_to_idx = self.file["ms_to_idx"] if "ms_to_idx" in self.file else None
-        self.size = self.t.shape[0]
         lengths = {ds.name: ds.shape for ds in (self.t, self.x, self.y, self.p, self.rem)
                    if ds is not None}
         if len(set(lengths.values())) != 1 or self.t.ndim != 1:
-            self.file.close()
             raise ValueError(f"{path}: event datasets must be 1-D of one length, got {lengths}")
+        self.size = self.t.shape[0]
+        if self.ms_to_idx is not None and self.ms_to_idx.ndim != 1:
+            raise ValueError(f"{path}: ms_to_idx must be 1-D, got shape {self.ms_to_idx.shape}")
         if "t_offset" in self.file:
-            self.t_offset_us = int(self.file["t_offset"][()])
+            offset = self.file["t_offset"][()]
+            where = "the dataset t_offset"
         else:
-            self.t_offset_us = int(self.file.attrs.get("t_offset", 0))
+            offset, where = self.file.attrs.get("t_offset", 0), "the attribute t_offset"
+        self.t_offset_us = self._integer(offset, where, 0, _MAX_T_US, "microseconds")
         self.width = self._size_attr("width")
         self.height = self._size_attr("height")
         self._check_ms_to_idx()
+
+    def _integer(self, value: Any, where: str, low: int, high: int, what: str) -> int:
+        """A scalar attribute or dataset as an int in [low, high], or a ValueError naming it."""
+        value = np.asarray(value)
+        if value.shape not in ((), (1,)) or value.dtype.kind not in "iu" \
+                or not low <= int(value.reshape(-1)[0]) <= high:
+            raise ValueError(f"{self.path}: {where} is {value.tolist()!r}; expected an integer "
+                             f"number of {what} in [{low}, {high}]")
+        return int(value.reshape(-1)[0])
 
     def _check_ms_to_idx(self) -> None:
         """Refuse ``events/t`` in another unit than ``ms_to_idx`` says (nanoseconds, typically).
@@ -1037,9 +1100,9 @@ class _H5Source:
         index_s = self.ms_to_idx.shape[0] * 1e-3
         if last_s <= 0 or agree(last_s, index_s):
             return
+        self._refuse_unsorted()                   # not a unit: the last time is out of order
         span_s = last_s - float(self.t[0]) * 1e-6
         unit = _unit_name(last_s / index_s, "microseconds")
-        self.file.close()
         if agree(span_s, index_s):
             raise ValueError(f"{self.path}: ms_to_idx covers {index_s:.4g} s from the first "
                              f"event, but events/t runs to {last_s:.4g} s after t_offset; DSEC "
@@ -1052,9 +1115,35 @@ class _H5Source:
                          f"t_offset against {index_s:.4g} s of ms_to_idx); DSEC layout stores "
                          "microseconds")
 
+    def _refuse_unsorted(self) -> None:
+        """Name the first event of ``events/t`` out of order, if any (the cause of an index or
+        a span that disagrees with the times)."""
+        unsorted = self._first_unsorted()
+        if unsorted is not None:
+            i, t_us, t_prev_us = unsorted
+            raise ValueError(f"{self.path}: event {i}: events/t = {t_us} us is before the "
+                             f"previous event's {t_prev_us} us; expected events sorted by t")
+
+    def _first_unsorted(self, block: int = 1 << 20) -> tuple[int, int, int] | None:
+        """The first event whose ``events/t`` is below its predecessor's: (index, its t, the
+        previous t), in µs relative to t_offset; None when they are sorted."""
+        previous = None
+        for start in range(0, self.size, block):
+            t = self.t[start:start + block].astype(np.int64)
+            if previous is not None:
+                t = np.concatenate(([previous], t))
+            bad = np.flatnonzero(t[1:] < t[:-1])
+            if bad.size:
+                i = int(bad[0]) + 1
+                return start + i - (previous is not None), int(t[i]), int(t[i - 1])
+            previous = int(t[-1]) if t.size else previous
+        return None
+
     def _size_attr(self, name: str) -> int | None:
         value = self.file.attrs.get(name)
-        return None if value is None else int(value)
+        if value is None:
+            return None
+        return self._integer(value, f"the attribute {name}", 1, _MAX_COORD + 1, "pixels")
 
     def close(self) -> None:
         self.file.close()
@@ -1068,7 +1157,7 @@ class _H5Source:
             return 0
         if ms >= self.ms_to_idx.shape[0]:
             return self.size
-        return int(self.ms_to_idx[ms])
+        return self._index(ms)
 
     def index_before(self, t_ns: int) -> int:
         """An upper bound of the index after the last event before ``t_ns`` (via ms_to_idx)."""
@@ -1081,30 +1170,59 @@ class _H5Source:
             return 0
         if ms >= self.ms_to_idx.shape[0]:
             return self.size
-        return int(self.ms_to_idx[ms])
+        return self._index(ms)
+
+    def _index(self, ms: int) -> int:
+        """``ms_to_idx[ms]``, checked against ``events/t``: the first event at or after ``ms``
+        milliseconds (a wrong index would silently drop or add events to a window)."""
+        with _reading(self.path):
+            index = int(self.ms_to_idx[ms])
+            bound = ms * 1000
+            if not (0 <= index <= self.size
+                    and (index == 0 or int(self.t[index - 1]) < bound)
+                    and (index == self.size or int(self.t[index]) >= bound)):
+                self._refuse_unsorted()           # the cause, where events/t is out of order
+                raise ValueError(f"{self.path}: ms_to_idx[{ms}] = {index} is not the index of "
+                                 f"the first event at or after {ms} ms (of {self.size} events); "
+                                 "expected the DSEC layout's index")
+        return index
 
     def read(self, start: int, stop: int) -> np.ndarray:
-        """Events [start, stop) as EVENT_DTYPE, p checked to be 0/1 and t_ns_rem < 1000."""
+        """Events [start, stop) as EVENT_DTYPE, every value checked against the layout: p 0/1,
+        t_ns_rem < 1000, x and y in [0, 65535], times from 0 to int64 nanoseconds."""
+        with _reading(self.path):
+            return self._read(start, stop)
+
+    def _first_bad(self, start: int, bad: np.ndarray, message: Callable[[int], str]) -> None:
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(f"{self.path}: event {start + i}: {message(i)}")
+
+    def _read(self, start: int, stop: int) -> np.ndarray:
         events = np.empty(stop - start, EVENT_DTYPE)
         t_us = self.t[start:stop].astype(np.int64)
         p = self.p[start:stop]
-        bad = np.flatnonzero((p != 0) & (p != 1))
-        if bad.size:
-            i = int(bad[0])
-            raise ValueError(f"{self.path}: event {start + i}: events/p = {int(p[i])}; expected "
-                             "1 (ON) or 0 (OFF)")
+        self._first_bad(start, np.flatnonzero((p != 0) & (p != 1)),
+                        lambda i: f"events/p = {int(p[i])}; expected 1 (ON) or 0 (OFF)")
+        low, high = -self.t_offset_us, _MAX_T_US - self.t_offset_us
+        self._first_bad(start, np.flatnonzero((t_us < low) | (t_us > high)),
+                        lambda i: f"events/t = {int(t_us[i])} us (t_offset {self.t_offset_us} "
+                                  f"us) is outside [{low}, {high}]; expected times from 0 to "
+                                  "int64 nanoseconds")
         t_ns = (t_us + self.t_offset_us) * 1000
         if self.rem is not None:
-            rem = self.rem[start:stop]
-            bad = np.flatnonzero(rem >= 1000)
-            if bad.size:
-                i = int(bad[0])
-                raise ValueError(f"{self.path}: event {start + i}: events/t_ns_rem = "
-                                 f"{int(rem[i])}; expected 0 to 999 ns")
+            rem = self.rem[start:stop].astype(np.int64)
+            self._first_bad(start, np.flatnonzero((rem < 0) | (rem >= 1000)),
+                            lambda i: f"events/t_ns_rem = {int(rem[i])}; expected 0 to 999 ns")
             t_ns += rem
         events["t"] = t_ns
-        events["x"] = self.x[start:stop]
-        events["y"] = self.y[start:stop]
+        for name, dataset in (("x", self.x), ("y", self.y)):
+            values = dataset[start:stop]
+            if values.dtype != np.uint16 and values.dtype != np.uint8:
+                self._first_bad(start, np.flatnonzero((values < 0) | (values > _MAX_COORD)),
+                                lambda i, v=values, n=name: f"events/{n} = {int(v[i])}; "
+                                f"expected pixel coordinates in [0, {_MAX_COORD}]")
+            events[name] = values
         events["p"] = np.where(p == 1, 1, -1)
         return events
 

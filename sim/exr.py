@@ -173,7 +173,8 @@ def read_depth(path: str | Path) -> np.ndarray:
     ------
     ValueError
         The file is missing, is not an EXR file, has no ``Z`` channel (the message lists the
-        channels it has) or its ``Z`` channel is not floating point.
+        channels it has), its ``Z`` channel is not floating point, or a pixel holds NaN, inf
+        or a negative depth (what :func:`write_depth` refuses to write; the first is named).
     """
     channels = read_exr_channels(path)
     if DEPTH_CHANNEL not in channels:
@@ -183,4 +184,12 @@ def read_depth(path: str | Path) -> np.ndarray:
     if depth.dtype != np.float32:
         raise ValueError(f"{path}: channel {DEPTH_CHANNEL!r} holds {depth.dtype} values, "
                          "expected float32 (or half) metres")
+    bad = ~np.isfinite(depth) | (depth < 0)
+    if bad.any():
+        v, u = (int(i) for i in np.argwhere(bad)[0])
+        count, value = int(bad.sum()), float(depth[v, u])
+        shown = "NaN" if value != value else repr(value)
+        raise ValueError(f"{path}: pixel (u={u}, v={v}) of channel {DEPTH_CHANNEL!r} holds "
+                         f"{shown} ({count} pixel{'s' if count > 1 else ''} "
+                         "like it); expected finite depths in metres >= 0 (0 = none)")
     return depth

@@ -618,6 +618,7 @@ def _parse_rig(ctx: _Ctx, raw: Any) -> RigParams:
 def _parse_up(ctx: _Ctx, value: Any, key: str) -> tuple[float, float, float]:
     """Top-level ``up``: a non-zero 3-vector, normalised."""
     vec = _vector(ctx, value, key, 3)
+    vec = vec / max(np.abs(vec).max(), np.finfo(float).tiny)   # at any scale: no overflow
     norm = float(np.linalg.norm(vec))
     if not norm > 0:
         raise ctx.fail(key, f"expected a non-zero direction [x, y, z], got {_show(value)}")
@@ -812,8 +813,9 @@ def _parse_light(ctx: _Ctx, raw: Any, key: str) -> Light:
                      cutoff_angle=cutoff, beam_width=beam)
     ctx.keys(table, key, {"type", "direction", "illuminance_lux"}, set())
     direction = vec3(ctx, table["direction"], f"{key}.direction")
-    if np.linalg.norm(direction) == 0:
+    if not np.abs(direction).max() > 0:
         raise ctx.fail(f"{key}.direction", "expected a non-zero vector")
+    direction = direction / np.abs(direction).max()     # at any scale: no overflow in the norm
     return Light(kind, _photometric(ctx, table, key, "illuminance_lux"),
                  direction=direction / np.linalg.norm(direction))
 
@@ -993,7 +995,11 @@ def _check_metres(ctx: _Ctx, objects: tuple[SceneObject, ...], trajectory: Traje
                                f"scenes are in metres: {value.max():g} m is larger than the "
                                f"{MAX_OBJECT_SIZE_M:g} m an object may measure (millimetres?)")
     times = np.linspace(max(trajectory.t_start, 0.0), min(trajectory.t_end, duration), 100)
-    positions = trajectory.pose(times)[:, :3, 3]
+    with np.errstate(over="ignore", invalid="ignore"):      # checked just below
+        positions = trajectory.pose(times)[:, :3, 3]
+    if not np.isfinite(positions).all():
+        raise ctx.fail("[trajectory]", "the camera's position overflows over [0, duration] "
+                                       "(expected metres and m/s of a real scene)")
     nearest, which = np.inf, None
     for i, obj in enumerate(objects):
         if obj.shape == "mesh":                     # its extent is unknown before loading

@@ -15,6 +15,7 @@ import dataclasses
 import json
 import math
 import os
+import re
 import shutil
 import uuid
 from collections.abc import Iterator
@@ -26,6 +27,8 @@ from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
+
+from sim.textfile import text_lines
 
 if TYPE_CHECKING:
     from sim.camera import Camera
@@ -399,31 +402,30 @@ def read_index(path: str | Path, check_files: bool = True) -> tuple[np.ndarray, 
         raise ValueError(f"index file {path} does not exist")
     times: list[float] = []
     relpaths: list[str] = []
-    with path.open(encoding="utf-8") as handle:
-        for number, line in enumerate(handle, start=1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            where = f"{path}:{number}"
-            columns = text.split()
-            if len(columns) != 2:
-                raise ValueError(f"{where}: expected 2 columns 't[s] relpath', got "
-                                 f"{len(columns)}: {text!r}")
-            try:
-                t = float(columns[0])
-            except ValueError:
-                raise ValueError(f"{where}: expected a time in seconds, got "
-                                 f"{columns[0]!r}") from None
-            if not math.isfinite(t):
-                raise ValueError(f"{where}: expected a finite time in seconds, got {columns[0]!r}")
-            if times and t <= times[-1]:
-                raise ValueError(f"{where}: time {columns[0]} is not after the previous "
-                                 f"line's {times[-1]:.9f}; expected strictly increasing times")
-            if check_files and not (path.parent / columns[1]).is_file():
-                raise ValueError(f"{where}: listed file {path.parent / columns[1]} does not "
-                                 "exist")
-            times.append(t)
-            relpaths.append(columns[1])
+    for number, line in text_lines(path):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        where = f"{path}:{number}"
+        columns = text.split()
+        if len(columns) != 2:
+            raise ValueError(f"{where}: expected 2 columns 't[s] relpath', got "
+                             f"{len(columns)}: {text!r}")
+        try:
+            t = float(columns[0])
+        except ValueError:
+            raise ValueError(f"{where}: expected a time in seconds, got "
+                             f"{columns[0]!r}") from None
+        if not math.isfinite(t):
+            raise ValueError(f"{where}: expected a finite time in seconds, got {columns[0]!r}")
+        if times and t <= times[-1]:
+            raise ValueError(f"{where}: time {columns[0]} is not after the previous "
+                             f"line's {times[-1]:.9f}; expected strictly increasing times")
+        if check_files and not (path.parent / columns[1]).is_file():
+            raise ValueError(f"{where}: listed file {path.parent / columns[1]} does not "
+                             "exist")
+        times.append(t)
+        relpaths.append(columns[1])
     return np.array(times, dtype=np.float64), relpaths
 
 
@@ -486,14 +488,31 @@ def read_sequence_json(path: str | Path) -> dict:
     if not path.is_file():
         raise ValueError(f"JSON file {path} does not exist")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        data = json.loads(text)
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (byte {exc.start}); expected JSON") from None
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}:{exc.lineno}: invalid JSON: {exc.msg} (column "
                          f"{exc.colno})") from None
+    _refuse_non_finite_json(path, text)
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object at the top level, got "
                          f"{type(data).__name__}")
     return data
+
+
+_JSON_NON_FINITE = re.compile(r'"(?:[^"\\]|\\.)*"|(-?Infinity|NaN)')
+
+
+def _refuse_non_finite_json(path: Path, text: str) -> None:
+    """Python's JSON reader takes ``NaN`` and ``Infinity``, which strict JSON (and every writer
+    of the project) has not: refuse them, naming the line."""
+    for match in _JSON_NON_FINITE.finditer(text):
+        if match[1]:
+            line = text.count("\n", 0, match.start()) + 1
+            raise ValueError(f"{path}:{line}: {match[1]} is not a finite number; expected "
+                             "strict JSON (finite numbers)")
 
 
 # --- what a file is ---------------------------------------------------------------------------
@@ -860,8 +879,7 @@ def _read_extrinsic(path: Path) -> np.ndarray:
     form = "one line 'px py pz qx qy qz qw' (metres, quaternion scalar last)"
     if not path.is_file():
         raise ValueError(f"{path} does not exist; expected {form}")
-    lines = [(n, line.split()) for n, line in
-             enumerate(path.read_text(encoding="utf-8").splitlines(), start=1) if line.strip()]
+    lines = [(n, line.split()) for n, line in text_lines(path) if line.strip()]
     if len(lines) != 1 or len(lines[0][1]) != 7:
         where = f"{path}:{lines[1][0] if len(lines) > 1 else lines[0][0]}" if lines else path
         raise ValueError(f"{where}: expected {form}")

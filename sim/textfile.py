@@ -6,7 +6,40 @@ import math
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-__all__ = ["numeric_rows", "parse_floats"]
+__all__ = ["numeric_rows", "parse_floats", "text_lines"]
+
+
+def text_lines(path: str | Path) -> Iterator[tuple[int, str]]:
+    """The lines of a UTF-8 text file, numbered from 1, without their line ends.
+
+    Lines end at ``\\n`` (a ``\\r`` before it is dropped), as in the event files' reader, and
+    each line is decoded on its own, so that bytes that are not UTF-8 are named by their line.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Yields
+    ------
+    lineno : int, 1-based
+    line : str
+
+    Raises
+    ------
+    ValueError
+        ``"{path}:{lineno}: not UTF-8 text (byte 0x80 at column 1); expected ..."``.
+    OSError
+        The file cannot be opened.
+    """
+    path = Path(path)
+    with path.open("rb") as handle:
+        for lineno, raw in enumerate(handle, start=1):
+            try:
+                line = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise ValueError(f"{path}:{lineno}: not UTF-8 text (byte 0x{raw[exc.start]:02x} "
+                                 f"at column {exc.start + 1}); expected a text file") from None
+            yield lineno, line.rstrip("\r\n")
 
 
 def parse_floats(
@@ -71,13 +104,11 @@ def numeric_rows(path: str | Path, columns: int, expected: str
         ``"{path}:{lineno}: expected ..., got N fields"`` or :func:`parse_floats`'s messages.
     """
     path = Path(path)
-    with path.open(encoding="utf-8") as f:
-        for lineno, line in enumerate(f, start=1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            fields = text.split()
-            if len(fields) != columns:
-                raise ValueError(f"{path}:{lineno}: expected {expected}, got {len(fields)} "
-                                 "fields")
-            yield lineno, fields, parse_floats(fields, path, lineno, expected)
+    for lineno, line in text_lines(path):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        fields = text.split()
+        if len(fields) != columns:
+            raise ValueError(f"{path}:{lineno}: expected {expected}, got {len(fields)} fields")
+        yield lineno, fields, parse_floats(fields, path, lineno, expected)

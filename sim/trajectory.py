@@ -726,6 +726,10 @@ class SampledTrajectory(_TimedTrajectory):
 
 _TRAJECTORY_FORMAT = "'t px py pz qx qy qz qw' (8 numbers)"
 TUM_HEADER = "# timestamp tx ty tz qx qy qz qw"
+MAX_POSITION_M = 1e9
+"""Largest position coordinate :func:`read_trajectory` accepts, metres: far beyond any Earth-fixed
+frame (ECEF ~6.4e6 m, UTM northings ~1e7 m); beyond it the relative motions between poses, which
+the interpolation works on, lose every digit (and overflow near 1e154)."""
 
 
 def read_trajectory(path: str | Path) -> SampledTrajectory:
@@ -760,6 +764,19 @@ def read_trajectory(path: str | Path) -> SampledTrajectory:
                 f"{path}:{lineno}: the quaternion (qx, qy, qz, qw) is zero; "
                 "expected a non-zero (normally unit) quaternion"
             )
+        far = next((name for name, v in zip("xyz", values[1:4], strict=True)
+                    if abs(v) > MAX_POSITION_M), None)
+        if far is not None:
+            raise ValueError(
+                f"{path}:{lineno}: position p{far} = {fields[1 + 'xyz'.index(far)]} is beyond "
+                f"{MAX_POSITION_M:g} m; expected positions in metres"
+            )
+        # Scaled by its largest component before quat_to_rot normalises it, so that a quaternion
+        # written at any scale (1e200 or 1e-200, whose squares overflow or vanish) keeps its
+        # direction.
+        quaternion = values[4:]
+        largest = max(abs(v) for v in quaternion)
+        values[4:] = [v / largest for v in quaternion]
         if times and values[0] <= times[-1]:
             raise ValueError(
                 f"{path}:{lineno}: time {fields[0]} is not after {times[-1]!r} (line "

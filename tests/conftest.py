@@ -148,3 +148,21 @@ def filtered_reference_events(u, omega, t_end: float, contrast: float, y0: float
                 out.append((grid[k - 1] + frac * step, sign))
                 ref = level
     return out
+
+
+# Hypothesis profiles for the fuzz targets (tests/test_fuzz.py, benchmarks/fuzz.py): "ci" (the
+# default) tries a few hundred cases per target, derandomized so that every run tries the same
+# ones; HYPOTHESIS_PROFILE=long tries many more with a random seed.
+try:
+    from hypothesis import HealthCheck, settings
+except ImportError:  # pragma: no cover - the test extra installs it
+    pass
+else:
+    _QUIET = [HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much]
+    settings.register_profile("ci", max_examples=200, deadline=None, derandomize=True,
+                              suppress_health_check=_QUIET, print_blob=True)
+    settings.register_profile("long", max_examples=5000, deadline=None,
+                              suppress_health_check=_QUIET, print_blob=True)
+    import os as _os
+
+    settings.load_profile(_os.environ.get("HYPOTHESIS_PROFILE", "ci"))
