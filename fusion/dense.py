@@ -110,7 +110,7 @@ class DenseParams:
     band: int = 3
 
     def __post_init__(self) -> None:
-        integer("band (pixels)", self.band, 0)
+        integer("band", self.band, 0)
 
     def as_dict(self) -> dict:
         """The parameters as plain JSON-ready values."""

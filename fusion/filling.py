@@ -215,7 +215,7 @@ class SelectionParams:
     max_inside_ratio: float = 0.05
 
     def __post_init__(self) -> None:
-        integer("ring (pixels)", self.ring, 1)
+        integer("ring", self.ring, 1)
         if not (np.isfinite(self.min_ring_ratio) and self.min_ring_ratio >= 0):
             raise ValueError(f"min_ring_ratio must be a finite number >= 0, got "
                              f"{self.min_ring_ratio}")

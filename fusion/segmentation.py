@@ -67,7 +67,7 @@ class SegmentationParams:
             raise ValueError(f"threshold must be a finite number >= 0 gray levels, got "
                              f"{self.threshold}")
         if self.min_region is not None:
-            integer("min_region (pixels)", self.min_region, 1)
+            integer("min_region", self.min_region, 1)
 
 
 @numba.njit(cache=True)

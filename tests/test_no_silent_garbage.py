@@ -340,9 +340,9 @@ def test_library_integer_fields_refuse_non_integers(value):
 
     for make, name in ((lambda v: EventParams(seed=v), "EventParams.seed"),
                        (lambda v: BenchParams(seed=v), "seed"),
-                       (lambda v: SegmentationParams(min_region=v), "min_region (pixels)"),
-                       (lambda v: DenseParams(band=v), "band (pixels)"),
-                       (lambda v: SelectionParams(ring=v), "ring (pixels)")):
+                       (lambda v: SegmentationParams(min_region=v), "min_region"),
+                       (lambda v: DenseParams(band=v), "band"),
+                       (lambda v: SelectionParams(ring=v), "ring")):
         with pytest.raises(ValueError) as info:
             make(value)
         assert str(info.value).startswith(f"{name} must be an integer >= "), str(info.value)
