@@ -163,6 +163,9 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     duration = math.floor(round((t1 - t0) * 1e9, 3)) / 1e9
     frame_times = np.asarray(sequence.image_times)
     rate = 1.0 / float(np.median(np.diff(frame_times))) if len(frame_times) > 1 else 24.0
+    # Auto-exposure may go to 40 ms, as on the built-in twins (a DAVIS240C APS frame at an
+    # office's 300-500 lux needs 15-40 ms), and never past the frame period.
+    max_exposure = min(0.04, math.floor(1e6 / float(f"{rate:.6g}")) / 1e6)   # rate as written
     name = f"twin_{recording.resolve().name}"
     vec = lambda v: "[" + ", ".join(f"{x:.9g}" for x in v) + "]"  # noqa: E731
     scene = f"""# Twin of the recording {recording.resolve()} (evfuse twin): its camera, its
@@ -187,6 +190,7 @@ distortion = {vec(camera.distortion)}
 [frames]
 rate = {rate:.6g}
 sensor = "{frame_sensor}"
+max_exposure = {max_exposure:.6f}   # s: auto-exposure's longest (office light needs 15-40 ms)
 
 [trajectory]
 type = "file"

@@ -52,11 +52,12 @@ def _reference_times(name: str, scene) -> list[float]:
     return [scene.duration / 2]
 
 
-@pytest.mark.parametrize("name", sorted(builtin_scenes()))
-def test_builtin_scene_gives_mid_grey_frames_with_a_realistic_sensor(name):
-    scene = load_scene(builtin_scenes()[name])
-    rig = scene.frame_camera is not None
-    times = _reference_times(name, scene)
+def realistic_frame_greys(scene, times: list[float], rig: bool = False
+                          ) -> tuple[list[float], list[float], str]:
+    """Mean grey (of 255) and exposure (ms) of ``scene``'s frames at ``times`` as ``evfuse
+    simulate`` makes them with a realistic sensor (the scene's own, else ``davis240c_aps``, or
+    ``machine_vision`` for a rig's frame camera), rendered :data:`WIDTH` pixels wide; and the
+    sensor's name."""
     if rig:
         scene = frame_camera_scene(scene)
     frames = scene.frames
@@ -75,7 +76,15 @@ def test_builtin_scene_gives_mid_grey_frames_with_a_realistic_sensor(name):
                              np.random.default_rng(0))
         means.append(round(float(frame.mean()), 1))
         exposures.append(round(exposure * 1e3, 2))
+    return means, exposures, frames.sensor.name
+
+
+@pytest.mark.parametrize("name", sorted(builtin_scenes()))
+def test_builtin_scene_gives_mid_grey_frames_with_a_realistic_sensor(name):
+    scene = load_scene(builtin_scenes()[name])
+    times = _reference_times(name, scene)
+    means, exposures, sensor = realistic_frame_greys(scene, times, scene.frame_camera is not None)
     low, high = MEAN_GREY
     assert all(low <= m <= high for m in means), (
-        f"{name} ({frames.sensor.name}): mean grey {means} at t = {times} s (exposures "
+        f"{name} ({sensor}): mean grey {means} at t = {times} s (exposures "
         f"{exposures} ms), expected within [{low:.0f}, {high:.0f}]")

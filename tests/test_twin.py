@@ -136,3 +136,17 @@ def test_the_twin_of_slider_depth_fires_like_the_recording(tmp_path):
     noise = [frame_noise(cv2.imread(str(p), 0)) for p in sorted((out / "images").glob("*.png"))]
     real_noise = frame_noise(cv2.imread(str(SHARED / "images" / "frame_00000000.png"), 0))
     assert 0.5 < np.median(noise) / real_noise < 2
+
+
+def test_a_twin_gives_mid_grey_frames_with_its_realistic_sensor(ecd_slider, tmp_path):
+    """A twin's davis240c_aps frames stopped at the sensor's 5 ms: on 400 lux a mean grey of a
+    few levels, which region growing merges (issue 21). Its auto-exposure may now go to 40 ms,
+    as the built-in twins'."""
+    from sim.scene import load_scene
+    from sim.twin import write_twin
+    from tests.test_builtin_frames import MEAN_GREY, realistic_frame_greys
+
+    scene = load_scene(write_twin(ecd_slider, tmp_path / "twin", 0.6, window=(0.5, 1.0)))
+    assert scene.frames.max_exposure <= 1.0 / scene.frames.rate
+    means, exposures, _ = realistic_frame_greys(scene, [0.25])
+    assert MEAN_GREY[0] <= means[0] <= MEAN_GREY[1], (means, exposures)
