@@ -190,9 +190,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                + "".join(f" --method {shlex.quote(m)}" for m in given)
                + "".join(f" --param {shlex.quote(p)}" for p in args.param or [])
                + (" --only" if args.only else "")
+               + (" --keep-boundary-planes" if args.keep_boundary_planes else "")
                + f" --out {args.out}")
     rows = run_bench(methods, scenes, inputs, args.out, cache=args.cache,
-                     params=BenchParams(noise=args.noise, outliers=args.outliers),
+                     params=BenchParams(noise=args.noise, outliers=args.outliers,
+                                        keep_boundary_planes=args.keep_boundary_planes),
                      overwrite=args.overwrite, progress=not args.quiet, command=command)
     failed = sum(row["status"] != "ok" for row in rows)
     print(f"{len(rows)} fills ({failed} failed) of {len(methods)} methods; written to "
@@ -367,7 +369,8 @@ def _cmd_map(args: argparse.Namespace) -> int:
         args.sequence, args.out, args.t0, args.t1, ref_time=args.ref_time,
         min_depth=args.min_depth, max_depth=args.max_depth,
         oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
-        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
+        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median,
+                             keep_boundary_planes=args.keep_boundary_planes),
         clip_window=args.clip_window, overwrite=args.overwrite, progress=not args.quiet)
     out = Path(args.out)
     info = result.info
@@ -496,7 +499,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
                        max_depth=args.max_depth,
                        oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
-                       depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
+                       depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median,
+                             keep_boundary_planes=args.keep_boundary_planes),
                        dense=dense, method=method, method_params=method_params,
                        spp=args.spp, seed=args.seed,
                        clip_window=args.clip_window)
@@ -567,7 +571,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
                                      args.param or []))
     params = ReproduceParams(window=args.window, long_window=args.long_window, tables=tables,
                              scenes=scenes, methods=methods, frame_sensor=args.frame_sensor,
-                             event_noise=args.event_noise)
+                             event_noise=args.event_noise,
+                             keep_boundary_planes=args.keep_boundary_planes)
     report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
                        progress=not args.quiet)
     print(f"{len(report['rows'])} windows in {report['total_s'] / 60:.1f} min")
@@ -596,6 +601,12 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     convert_events(args.src, args.dst, width=width, height=height)
     print(f"converted {args.src} to {args.dst}")
     return 0
+
+
+KEEP_BOUNDARY_HELP = ("keep the map points whose DSI maximum lies on the first or the last "
+                      "depth plane, as rpg_emvs does (default: dropped, and counted in "
+                      "map.json's boundary_plane_points: such a maximum says the depth lies "
+                      "outside the range, not at its edge)")
 
 
 def _add_map_options(parser: argparse.ArgumentParser) -> None:
@@ -630,6 +641,8 @@ def _add_map_options(parser: argparse.ArgumentParser) -> None:
                              "sliders: 7)")
     parser.add_argument("--median", type=int, default=5,
                         help="median filter size, px (default 5, rpg_emvs's)")
+    parser.add_argument("--keep-boundary-planes", action="store_true",
+                        help=KEEP_BOUNDARY_HELP)
 
 
 def _add_dense_options(parser: argparse.ArgumentParser) -> None:
@@ -732,6 +745,7 @@ def _parser() -> argparse.ArgumentParser:
                        ("texture", "every family: 1 textured, 0 plain (default 1)")):
         bench.add_argument(f"--{knob.replace('_', '-')}", dest=knob, default=None,
                            help=f"comma-separated values; {what}")
+    bench.add_argument("--keep-boundary-planes", action="store_true", help=KEEP_BOUNDARY_HELP)
     bench.add_argument("--only", action="store_true",
                        help="bench only the --method ones, not every built-in")
     bench.add_argument("--noise", type=float, default=0.02,
@@ -937,6 +951,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="a setting of every --method entry of METHOD (repeatable); a bare "
                             "KEY=VALUE only with one --method. Never changes the paper's "
                             "tables; `evfuse methods --params` lists the settings")
+    repro.add_argument("--keep-boundary-planes", action="store_true", help=KEEP_BOUNDARY_HELP)
     repro.add_argument("--overwrite", action="store_true")
     repro.add_argument("--quiet", action="store_true", help="no progress bar")
     repro.set_defaults(run=_cmd_reproduce)

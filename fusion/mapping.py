@@ -356,8 +356,13 @@ def _check_range_contains(truth: np.ndarray, dsi: DSIParams) -> None:
                          "--min-depth/--max-depth around it")
 
 
-def _check_no_pile_up(depths: np.ndarray, planes: np.ndarray, dsi: DSIParams) -> None:
+def _check_no_pile_up(depths: np.ndarray, planes: np.ndarray, dsi: DSIParams,
+                      dropped_near: int = 0, dropped_far: int = 0) -> None:
     """Refuse a map whose points pile up at one end of the range: the scene lies beyond it.
+
+    ``dropped_near`` and ``dropped_far`` are the points dropped from the map for their maximum
+    on the first, resp. the last plane (:class:`fusion.emvs.DepthMapParams`
+    ``keep_boundary_planes``): they count as points on the planes at that end.
 
     Rays of a scene outside the range meet in no plane, and the argmax then sits on the plane
     nearest to where they would: the first or last ones. Measured on the real ECD slider prefix
@@ -365,13 +370,16 @@ def _check_no_pile_up(depths: np.ndarray, planes: np.ndarray, dsi: DSIParams) ->
     A range entirely in front of a scene does not pile up this way; with ground truth it is
     caught by the exact depth instead.
     """
-    if depths.size < 50:
+    total = depths.size + dropped_near + dropped_far
+    if total < 50:
         return
-    ends = np.isin(np.asarray(depths, np.float32), np.asarray(planes, np.float32)[[0, 1, -2, -1]])
-    near = np.isin(np.asarray(depths, np.float32), np.asarray(planes, np.float32)[[0, 1]])
-    share = float(np.mean(ends))
+    values = np.asarray(depths, np.float32)
+    ends = int(np.isin(values, np.asarray(planes, np.float32)[[0, 1, -2, -1]]).sum()
+               ) + dropped_near + dropped_far
+    near = int(np.isin(values, np.asarray(planes, np.float32)[[0, 1]]).sum()) + dropped_near
+    share = ends / total
     if share > PILE_UP_SHARE:
-        where = "nearer than" if near.sum() >= ends.sum() - near.sum() else "beyond"
+        where = "nearer than" if near >= ends - near else "beyond"
         raise ValueError(f"depth range [{dsi.min_depth:g}, {dsi.max_depth:g}] m does not seem to "
                          f"contain the scene: {100 * share:.0f} % of the map points lie on the "
                          f"planes at its ends (the scene is probably {where} that range); "
@@ -460,7 +468,8 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
                          f"the poses [{trajectory.t_start}, {trajectory.t_end}] s")
     tick = time.perf_counter()
     planes = depth_planes(params.dsi)
-    depth, confidence, mask = semidense_depth(dsi, planes, params.depth)
+    boundary: dict = {}
+    depth, confidence, mask = semidense_depth(dsi, planes, params.depth, counts=boundary)
     v, u = np.nonzero(mask)
     points = camera.backproject(np.stack([u, v], 1), depth[v, u])
     radius = params.outlier_radius * min(1.0, float(np.median(depth[mask])) if mask.any()
@@ -479,6 +488,7 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
         "dsi_mev_per_s": used / dsi_time / 1e6 if dsi_time > 0 else None,
         "dsi_timing": DSI_TIMING,
         "outlier_radius_m": radius, "outliers_removed": int((~inlier).sum()),
+        "boundary_plane_points": boundary,
         "timings": timings,
     }
     # Scoring, the only step that reads the exact depth (a simulated sequence's), and only after
@@ -487,7 +497,9 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     if truth is not None and params.check_depth_range:
         _check_range_contains(truth, params.dsi)
     if params.check_depth_range:
-        _check_no_pile_up(depth[mask], planes, params.dsi)
+        _check_no_pile_up(depth[mask], planes, params.dsi,
+                          0 if params.depth.keep_boundary_planes else boundary["near"],
+                          0 if params.depth.keep_boundary_planes else boundary["far"])
     if truth is not None:
         info["errors"] = depth_errors(depth, truth)
     return MapResult(depth, confidence, mask, camera, t_ref, T_world_ref, info, sequence)

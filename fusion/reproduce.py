@@ -113,6 +113,9 @@ class ReproduceParams:
         (``plane{residual_rel=0.03}``) or :class:`fusion.methods.MethodVariant`; the report adds
         a table of their errors beside the paper's inverse-distance fill, each method by its
         label; the paper's tables are unchanged (always the paper's settings).
+    keep_boundary_planes : bool
+        The event maps keep their points on the DSI's first and last planes, as rpg_emvs
+        (:class:`fusion.emvs.DepthMapParams`; default False, dropped and counted).
     """
 
     window: float = 1.0
@@ -130,6 +133,7 @@ class ReproduceParams:
     methods: tuple = ()
     frame_sensor: str | FrameSensor | None = None
     event_noise: str = "ideal"
+    keep_boundary_planes: bool = False
 
     def __post_init__(self) -> None:
         if self.event_noise not in ("ideal", "realistic"):
@@ -226,7 +230,8 @@ def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
 def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams) -> dict:
     """Map one window and fill it with each weighting (the stages as ``evfuse run`` wires
     them); the figures it needs, its numbers."""
-    depth = DepthMapParams(kernel=15, c=7.0) if job["slider"] else DepthMapParams()
+    depth = (DepthMapParams(kernel=15, c=7.0) if job["slider"] else DepthMapParams())
+    depth = dataclasses.replace(depth, keep_boundary_planes=params.keep_boundary_planes)
     name = f"{job['scene']}_{job['t0']:.2f}"
     mapped, map_params = map_window(sequence_folder, out / name / "map", job["t0"],
                                     job["t0"] + job["length"], depth=depth, overwrite=True,
