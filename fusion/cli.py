@@ -382,6 +382,14 @@ def _cmd_map(args: argparse.Namespace) -> int:
     if "errors" in info and info["errors"].get("points"):
         line += f"; against exact depth: {_error_line(info['errors'])}"
     print(line)
+    boundary = info["boundary_plane_points"]
+    if boundary["near"] or boundary["far"]:
+        print(f"{boundary['near'] + boundary['far']} points with their DSI maximum on the first "
+              f"({boundary['near']}) or last ({boundary['far']}) plane: "
+              + ("dropped (their depth lies outside the range; --keep-boundary-planes keeps "
+                 "them)" if boundary["dropped"] else "kept (--keep-boundary-planes)"))
+    for text in _motion_lines(info.get("errors_by_motion"), "  "):
+        print(text)
     print(f"written to {out}")
     return 0
 
@@ -476,6 +484,8 @@ def _cmd_fill(args: argparse.Namespace) -> int:
         e = info["errors"]
         for name, key in (("map points", "map"), ("filled pixels", "filled"), ("dense map", "all")):
             print(f"  {name}: {_error_line(e[key]['overall'])}")
+            for text in _motion_lines((info.get("errors_by_motion") or {}).get(key), "    "):
+                print(text)
     print(f"written to {out}")
     return 0
 
@@ -510,13 +520,34 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+MOTION_NAMES = {"moving": "on moving objects", "crossed": "static, crossed by one",
+                "static": "static, the rest"}
+
+
+def _motion_lines(split: dict | None, indent: str) -> list[str]:
+    """The errors of a scene with moving objects, split (fusion.scoring.errors_by_motion):
+    one line per region with its share of the error, MAE and median."""
+    if not split:
+        return []
+    lines = []
+    for key, name in MOTION_NAMES.items():
+        e = split[key]
+        share = e["error_share"]
+        what = (f"{e['points']:,} points, none on a surface" if not e["n"] else
+                f"{100 * share:.0f} % of the error, MAE {e['mae_cm']:.2f} cm, median "
+                f"{e['median_cm']:.2f} cm on {e['n']:,} px")
+        lines.append(f"{indent}{name}: {what}")
+    return lines
+
+
 def _error_line(e: dict | None) -> str:
     """One line of errors with the coverage they were measured on (a depth_errors dict)."""
     if e is None:
         return "not scored (no exact depth in this view)"
     if not e.get("points"):
         return "no point to score"
-    mae = "no point on a surface" if not e["n"] else f"MAE {e['mae_cm']:.2f} cm on {e['n']:,} px"
+    mae = ("no point on a surface" if not e["n"] else
+           f"MAE {e['mae_cm']:.2f} cm (median {e['median_cm']:.2f} cm) on {e['n']:,} px")
     return (f"{mae} (completeness {100 * e['completeness']:.1f} %), precision "
             f"{100 * e['precision_5pct']:.1f} % within 5 % / {100 * e['precision_1pct']:.1f} % "
             f"within 1 % of {e['points']:,} points ({e['no_surface']:,} off any surface)")
@@ -534,10 +565,11 @@ def _print_report(report: dict, out: Path) -> None:
     if summary is None:
         rows.append(("errors", "no ground truth (real data): not scored"))
     else:
-        rows += [("event map", _error_line(summary["map"])),
-                 ("map in the frame", _error_line(summary["map_in_frame"])),
-                 ("filled pixels", _error_line(summary["filled"])),
-                 ("dense map", _error_line(summary["all"]))]
+        split = report.get("errors_by_motion") or {}
+        for name, key in (("event map", "map"), ("map in the frame", "map_in_frame"),
+                          ("filled pixels", "filled"), ("dense map", "all")):
+            rows.append((name, _error_line(summary[key])))
+            rows += [("", text) for text in _motion_lines(split.get(key), "  ")]
     width = max(len(k) for k, _ in rows)
     print()
     for key, value in rows:

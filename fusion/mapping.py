@@ -36,7 +36,7 @@ from fusion.emvs import (
 from fusion.figures import add_header, depth_colours, depth_scale, panel_grid
 from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
-from fusion.scoring import depth_errors
+from fusion.scoring import depth_errors, errors_by_motion, motion_regions
 from sim.camera import Camera
 from sim.eventio import check_time_units, event_time_span, iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
@@ -336,6 +336,30 @@ def _ground_truth_depth(sequence: Sequence, t_ref: float) -> np.ndarray | None:
     return Renderer(scene, spp=1).depth(t_true, pose=pose)
 
 
+def _motion_regions(sequence: Sequence, t_ref: float, window: tuple[float, float]
+                    ) -> np.ndarray | None:
+    """:func:`fusion.scoring.motion_regions` of the reference view (the true camera, undistorted,
+    at the true pose and time, as :func:`_ground_truth_depth`), or None for a real recording
+    or a scene whose objects do not move. Scoring only."""
+    meta = sequence.metadata or {}
+    toml = (meta.get("scene") or {}).get("toml")
+    if not toml:
+        return None
+    from sim.rig import exact_camera, exact_trajectory, true_time
+    from sim.scene import parse_scene
+
+    source = (meta.get("scene") or {}).get("source") or "<sequence.json>"
+    scene = parse_scene(toml, source, seed=meta.get("seed"))
+    if not scene.is_dynamic:
+        return None
+    sensor = exact_camera(sequence)
+    camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
+    t_true = true_time(meta, t_ref, "poses")
+    pose = exact_trajectory(sequence).pose(t_true)
+    return motion_regions(scene, camera, pose, t_true,
+                          tuple(true_time(meta, t, "events") for t in window))
+
+
 RANGE_SHARE = 0.5
 """Share of the reference view's exact depth that the DSI's depth range must contain."""
 PILE_UP_SHARE = 0.3
@@ -502,6 +526,9 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
                           0 if params.depth.keep_boundary_planes else boundary["far"])
     if truth is not None:
         info["errors"] = depth_errors(depth, truth)
+        regions = _motion_regions(sequence, t_ref, (t0, t1))
+        if regions is not None:
+            info["errors_by_motion"] = errors_by_motion(depth, truth, regions)
     return MapResult(depth, confidence, mask, camera, t_ref, T_world_ref, info, sequence)
 
 
