@@ -171,3 +171,82 @@ def test_map_fill_and_run_split_the_errors_of_a_scene_with_moving_objects(plane_
     assert main(["map", str(plane_sequence), "--out", str(static), "--min-depth", "0.5",
                  "--max-depth", "3", "--planes", "30", "--quiet"]) == 0
     assert "errors_by_motion" not in json.loads((static / "map.json").read_text())
+
+
+def test_reproduce_adds_a_frozen_control_and_splits_the_dynamic_row(plane_sequence, tmp_path,
+                                                                     monkeypatch):
+    """reproduce's dynamic_6dof row (stood in for by the wall sequence with a swinging ball in
+    its scene) is split by region in report.md, and followed by its frozen control, frozen at
+    the moving row's reference time."""
+    import importlib
+    import shutil
+
+    repro = importlib.import_module("fusion.reproduce")      # the package exports a function
+
+    moving = tmp_path / "moving"
+    shutil.copytree(plane_sequence, moving)
+    meta = json.loads((moving / "sequence.json").read_text())
+    meta["scene"]["toml"] += ('\n[[objects]]\nname = "ball"\ntype = "sphere"\n'
+                              "center = [0.0, 0.6, 0.0]\nradius = 0.1\n"
+                              'motion = { type = "sine", amplitude = [0.1, 0.0, 0.0], '
+                              "frequency = 1.0 }\n")
+    (moving / "sequence.json").write_text(json.dumps(meta))
+    asked = []
+
+    def simulated(job, params, cache):
+        asked.append(job)
+        return plane_sequence if "frozen_of" in job else moving
+
+    monkeypatch.setattr(repro, "_simulated", simulated)
+    params = repro.ReproduceParams(tables=("1",), scenes=("dynamic_6dof",), table1_start=0.0,
+                                   long_window=0.3)
+    report = repro.reproduce(tmp_path / "report", params, cache=tmp_path / "cache",
+                             progress=False)
+    rows = report["rows"]
+    assert [r["scene"] for r in rows] == ["dynamic_6dof", "dynamic_6dof_frozen"]
+    assert "failed" not in rows[0] and "failed" not in rows[1], rows
+    assert asked[1]["frozen_of"] == "dynamic_6dof" and asked[1]["frozen_at"] == rows[0]["t_ref"]
+    assert rows[1]["frozen_at"] == rows[0]["t_ref"]
+    assert set(rows[0]["map_errors_by_motion"]) == {"moving", "crossed", "static"}
+    assert set(rows[0]["fills"]["idw"]["errors_by_motion"]) == {"map", "filled", "all"}
+    assert "map_errors_by_motion" not in rows[1]
+    text = (tmp_path / "report" / "report.md").read_text()
+    assert "| dynamic_6dof_frozen | 0.00-0.30 |" in text                  # in Table 1
+    assert "### Scenes with moving objects" in text
+    for region in ("all", "on moving objects", "static, the rest",
+                   "static, crossed by a moving object during the window"):
+        assert f"| dynamic_6dof | event map | {region} |" in text, region
+        assert f"| dynamic_6dof | dense map | {region} |" in text, region
+    assert "| dynamic_6dof_frozen | event map | all (frozen control) |" in text
+    assert "## DSI boundary planes" in text and "| dynamic_6dof | 0.00-0.30 |" in text
+
+
+def test_reproduce_simulates_the_frozen_control_as_the_moving_scene(tmp_path, monkeypatch):
+    import importlib
+
+    repro = importlib.import_module("fusion.reproduce")
+
+    seen = {}
+
+    def fake_simulate(scene, folder, **kwargs):
+        seen.update(scene=scene, **kwargs)
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(importlib.import_module("sim.simulate"), "simulate", fake_simulate)
+    params = repro.ReproduceParams(tables=("1",), scenes=("dynamic_6dof",))
+    jobs = repro._jobs(params)
+    assert [j["scene"] for j in jobs] == ["dynamic_6dof", "dynamic_6dof_frozen"]
+    with pytest.raises(RuntimeError, match="stop"):
+        repro._simulated({**jobs[1], "frozen_at": 7.2}, params, tmp_path)
+    scene = seen["scene"]
+    assert not scene.is_dynamic and seen["sampler"] == "frame"
+    assert scene.render.event_spp == params.moving_event_spp
+    assert seen["sampling"].lam == params.moving_lam
+    assert seen["start"] == 6.2 and seen["duration"] == 2.0
+    from scenes import resolve_scene
+    from sim.scene import load_scene
+
+    original = load_scene(resolve_scene("dynamic_6dof"))
+    for a, b in zip(original.objects, scene.objects, strict=True):
+        np.testing.assert_allclose(b.pose(0.0), a.pose(7.2), atol=1e-12)
+    assert scene.frames == original.frames
