@@ -547,7 +547,7 @@ def _error_line(e: dict | None) -> str:
     if not e.get("points"):
         return "no point to score"
     mae = ("no point on a surface" if not e["n"] else
-           f"MAE {e['mae_cm']:.2f} cm (median {e['median_cm']:.2f} cm) on {e['n']:,} px")
+           f"MAE {e['mae_cm']:.2f} cm on {e['n']:,} px, median {e['median_cm']:.2f} cm")
     return (f"{mae} (completeness {100 * e['completeness']:.1f} %), precision "
             f"{100 * e['precision_5pct']:.1f} % within 5 % / {100 * e['precision_1pct']:.1f} % "
             f"within 1 % of {e['points']:,} points ({e['no_surface']:,} off any surface)")
