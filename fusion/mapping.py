@@ -380,13 +380,34 @@ def _check_range_contains(truth: np.ndarray, dsi: DSIParams) -> None:
                          "--min-depth/--max-depth around it")
 
 
-def _check_no_pile_up(depths: np.ndarray, planes: np.ndarray, dsi: DSIParams,
-                      dropped_near: int = 0, dropped_far: int = 0) -> None:
+def _extract(dsi: np.ndarray, planes: np.ndarray, depth_params: DepthMapParams,
+             camera: Camera, params: MapParams, counts: dict | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int]:
+    """The map of a DSI: :func:`fusion.emvs.semidense_depth`, then the radius outliers removed.
+
+    Returns
+    -------
+    depth, confidence, mask : as :func:`fusion.emvs.semidense_depth`'s, outliers removed
+    radius : float, metres, the outlier radius used
+    removed : int, outliers removed
+    """
+    depth, confidence, mask = semidense_depth(dsi, planes, depth_params, counts=counts)
+    v, u = np.nonzero(mask)
+    points = camera.backproject(np.stack([u, v], 1), depth[v, u])
+    radius = params.outlier_radius * min(1.0, float(np.median(depth[mask])) if mask.any()
+                                         else 1.0)
+    inlier = radius_outliers(points, radius, params.outlier_neighbours)
+    mask[v[~inlier], u[~inlier]] = False
+    depth[~mask] = 0.0
+    return depth, confidence, mask, radius, int((~inlier).sum())
+
+
+def _check_no_pile_up(depths: np.ndarray, planes: np.ndarray, dsi: DSIParams) -> None:
     """Refuse a map whose points pile up at one end of the range: the scene lies beyond it.
 
-    ``dropped_near`` and ``dropped_far`` are the points dropped from the map for their maximum
-    on the first, resp. the last plane (:class:`fusion.emvs.DepthMapParams`
-    ``keep_boundary_planes``): they count as points on the planes at that end.
+    ``depths`` are the points of rpg_emvs's map (the points whose DSI maximum lies on the first
+    or last plane kept, :class:`fusion.emvs.DepthMapParams` ``keep_boundary_planes``): they are
+    the evidence.
 
     Rays of a scene outside the range meet in no plane, and the argmax then sits on the plane
     nearest to where they would: the first or last ones. Measured on the real ECD slider prefix
@@ -394,16 +415,13 @@ def _check_no_pile_up(depths: np.ndarray, planes: np.ndarray, dsi: DSIParams,
     A range entirely in front of a scene does not pile up this way; with ground truth it is
     caught by the exact depth instead.
     """
-    total = depths.size + dropped_near + dropped_far
-    if total < 50:
+    if depths.size < 50:
         return
-    values = np.asarray(depths, np.float32)
-    ends = int(np.isin(values, np.asarray(planes, np.float32)[[0, 1, -2, -1]]).sum()
-               ) + dropped_near + dropped_far
-    near = int(np.isin(values, np.asarray(planes, np.float32)[[0, 1]]).sum()) + dropped_near
-    share = ends / total
+    ends = np.isin(np.asarray(depths, np.float32), np.asarray(planes, np.float32)[[0, 1, -2, -1]])
+    near = np.isin(np.asarray(depths, np.float32), np.asarray(planes, np.float32)[[0, 1]])
+    share = float(np.mean(ends))
     if share > PILE_UP_SHARE:
-        where = "nearer than" if near >= ends - near else "beyond"
+        where = "nearer than" if near.sum() >= ends.sum() - near.sum() else "beyond"
         raise ValueError(f"depth range [{dsi.min_depth:g}, {dsi.max_depth:g}] m does not seem to "
                          f"contain the scene: {100 * share:.0f} % of the map points lie on the "
                          f"planes at its ends (the scene is probably {where} that range); "
@@ -493,14 +511,8 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     tick = time.perf_counter()
     planes = depth_planes(params.dsi)
     boundary: dict = {}
-    depth, confidence, mask = semidense_depth(dsi, planes, params.depth, counts=boundary)
-    v, u = np.nonzero(mask)
-    points = camera.backproject(np.stack([u, v], 1), depth[v, u])
-    radius = params.outlier_radius * min(1.0, float(np.median(depth[mask])) if mask.any()
-                                         else 1.0)
-    inlier = radius_outliers(points, radius, params.outlier_neighbours)
-    mask[v[~inlier], u[~inlier]] = False
-    depth[~mask] = 0.0
+    depth, confidence, mask, radius, removed = _extract(dsi, planes, params.depth, camera,
+                                                        params, boundary)
     timings["depth_map_s"] = time.perf_counter() - tick
     timings["total_s"] = time.perf_counter() - start
     info = {
@@ -511,7 +523,7 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
         "window_requested_s": list(window.requested), "window_clipped": window.clipped,
         "dsi_mev_per_s": used / dsi_time / 1e6 if dsi_time > 0 else None,
         "dsi_timing": DSI_TIMING,
-        "outlier_radius_m": radius, "outliers_removed": int((~inlier).sum()),
+        "outlier_radius_m": radius, "outliers_removed": removed,
         "boundary_plane_points": boundary,
         "timings": timings,
     }
@@ -521,9 +533,10 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     if truth is not None and params.check_depth_range:
         _check_range_contains(truth, params.dsi)
     if params.check_depth_range:
-        _check_no_pile_up(depth[mask], planes, params.dsi,
-                          0 if params.depth.keep_boundary_planes else boundary["near"],
-                          0 if params.depth.keep_boundary_planes else boundary["far"])
+        # on rpg_emvs's map, the end planes' points kept: those are what pile up
+        kept = depth if params.depth.keep_boundary_planes else _extract(
+            dsi, planes, replace(params.depth, keep_boundary_planes=True), camera, params)[0]
+        _check_no_pile_up(kept[kept > 0], planes, params.dsi)
     if truth is not None:
         info["errors"] = depth_errors(depth, truth)
         regions = _motion_regions(sequence, t_ref, (t0, t1))
