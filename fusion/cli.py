@@ -510,7 +510,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
                        max_depth=args.max_depth,
                        oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
                        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median,
-                             keep_boundary_planes=args.keep_boundary_planes),
+                                            keep_boundary_planes=args.keep_boundary_planes),
                        dense=dense, method=method, method_params=method_params,
                        spp=args.spp, seed=args.seed,
                        clip_window=args.clip_window)

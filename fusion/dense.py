@@ -75,9 +75,8 @@ from sim.sequence import FrameCameraFiles, atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
 
 __all__ = ["PAPER_METHODS", "DenseParams", "DenseResult", "dense_errors", "densify", "fill_frame",
-           "frame_motion_regions",
-           "fill_map", "paper_weighting", "project_map", "project_map_rolling", "resolve_method",
-           "write_fill"]
+           "fill_map", "frame_motion_regions", "paper_weighting", "project_map",
+           "project_map_rolling", "resolve_method", "write_fill"]
 
 PAPER_METHODS = {"paper-idw": "idw", "paper-gaussian": "gaussian",
                  "paper-exponential": "exponential"}
