@@ -94,12 +94,16 @@ class BenchParams:
         Seed of ``oracle-noisy``.
     workers : int
         Worker processes for the methods (default 2: the development machine's cores).
+    keep_boundary_planes : bool
+        The event maps keep their points on the DSI's first and last planes
+        (:class:`fusion.emvs.DepthMapParams`; default False, dropped).
     """
 
     noise: float = 0.02
     outliers: float = 0.05
     seed: int = 0
     workers: int = 2
+    keep_boundary_planes: bool = False
 
     def __post_init__(self) -> None:
         if not (0 <= self.noise < 1 and 0 <= self.outliers <= 1):
@@ -148,8 +152,11 @@ def _window(name: str) -> tuple[float, float]:
     return (1.0, 2.0)
 
 
-def _mapped(name: str, cache: Path, progress: bool) -> Path:
-    """The cached map folder of a scene's window (simulated and mapped when missing)."""
+def _mapped(name: str, cache: Path, progress: bool, keep_boundary_planes: bool = False) -> Path:
+    """The cached map folder of a scene's window (simulated and mapped when missing, mapped
+    again when its ``map.json`` was made with another ``keep_boundary_planes``; a map from
+    before that setting existed kept those points)."""
+    from fusion.emvs import DepthMapParams
     from fusion.pipeline import map_window
     from scenes import resolve_scene
     from sim.scene import load_scene
@@ -164,13 +171,16 @@ def _mapped(name: str, cache: Path, progress: bool) -> Path:
     digest = hashlib.sha256(scene_file.read_bytes()).hexdigest()[:10]
     folder = cache / f"{_label(name)}_{t0:.3f}_{t1:.3f}_{digest}"
     if (folder / "map" / "map.json").is_file():
-        return folder / "map"
+        made = json.loads((folder / "map" / "map.json").read_text(encoding="utf-8"))
+        if made["params"]["depth"].get("keep_boundary_planes", True) == keep_boundary_planes:
+            return folder / "map"
     sequence = folder / "sequence"
     if not (sequence / "sequence.json").is_file():
         scene = load_scene(scene_file)
         simulate(scene, sequence, start=t0, duration=t1 - t0, progress=progress,
                  overwrite=True)
-    map_window(sequence, folder / "map", t0, t1, overwrite=True, progress=progress)
+    map_window(sequence, folder / "map", t0, t1, overwrite=True, progress=progress,
+               depth=DepthMapParams(keep_boundary_planes=keep_boundary_planes))
     return folder / "map"
 
 
@@ -338,7 +348,8 @@ def bench(methods: list, scenes: list[str], inputs: list[str] = INPUTS,
     # Fresh worker processes (spawn): forking a process that holds Dr.Jit's threads can hang.
     with ProcessPoolExecutor(params.workers, mp_context=get_context("spawn")) as pool:
         for name in names:
-            base, sparse_inputs = _inputs(_mapped(name, cache, progress), params)
+            mapped = _mapped(name, cache, progress, params.keep_boundary_planes)
+            base, sparse_inputs = _inputs(mapped, params)
             for input_name in inputs:
                 sparse = sparse_inputs[input_name]
                 futures = [(variant, pool.submit(_run_one, variant, base.frame, sparse,

@@ -235,6 +235,7 @@ def _bench_command(args: argparse.Namespace, given: list[str]) -> str:
     for param in args.param or []:
         words += ["--param", param]
     words += ["--only"] if args.only else []
+    words += ["--keep-boundary-planes"] if args.keep_boundary_planes else []
     for flag, value, default in (("--noise", args.noise, BenchParams.noise),
                                  ("--outliers", args.outliers, BenchParams.outliers)):
         if value != default:
@@ -259,7 +260,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     # Everything refusable is refused before the cache (and a family's files in it) is made.
     if not inputs or not set(inputs) <= set(INPUTS):
         raise ValueError(f"--input {args.input}: expected among {', '.join(INPUTS)}")
-    params = BenchParams(noise=args.noise, outliers=args.outliers)
+    params = BenchParams(noise=args.noise, outliers=args.outliers,
+                         keep_boundary_planes=args.keep_boundary_planes)
     cache = Path(args.cache) if args.cache else Path(args.out).with_name(
         Path(args.out).name + "-cache")
     check_output_dir(args.out, args.overwrite, bench_sources([] if args.family else scenes,
@@ -458,7 +460,8 @@ def _cmd_map(args: argparse.Namespace) -> int:
         args.sequence, args.out, args.t0, args.t1, ref_time=args.ref_time,
         min_depth=args.min_depth, max_depth=args.max_depth,
         oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
-        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
+        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median,
+                             keep_boundary_planes=args.keep_boundary_planes),
         clip_window=args.clip_window, overwrite=args.overwrite, progress=not args.quiet)
     out = Path(args.out)
     info = result.info
@@ -472,6 +475,14 @@ def _cmd_map(args: argparse.Namespace) -> int:
     if "errors" in info and info["errors"].get("points"):
         line += f"; against exact depth: {_error_line(info['errors'])}"
     print(line)
+    boundary = info["boundary_plane_points"]
+    if boundary["near"] or boundary["far"]:
+        print(f"{boundary['near'] + boundary['far']} points with their DSI maximum on the first "
+              f"({boundary['near']}) or last ({boundary['far']}) plane: "
+              + ("dropped (their depth lies outside the range; --keep-boundary-planes keeps "
+                 "them)" if boundary["dropped"] else "kept (--keep-boundary-planes)"))
+    for text in _motion_lines(info.get("errors_by_motion"), "  "):
+        print(text)
     print(f"written to {out}")
     return 0
 
@@ -568,6 +579,8 @@ def _cmd_fill(args: argparse.Namespace) -> int:
         e = info["errors"]
         for name, key in (("map points", "map"), ("filled pixels", "filled"), ("dense map", "all")):
             print(f"  {name}: {_error_line(e[key]['overall'])}")
+            for text in _motion_lines((info.get("errors_by_motion") or {}).get(key), "    "):
+                print(text)
     print(f"written to {out}")
     return 0
 
@@ -592,7 +605,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
                        max_depth=args.max_depth,
                        oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
-                       depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median),
+                       depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median,
+                                            keep_boundary_planes=args.keep_boundary_planes),
                        dense=dense, method=method, method_params=method_params,
                        spp=args.spp, seed=args.seed,
                        clip_window=args.clip_window)
@@ -605,13 +619,34 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+MOTION_NAMES = {"moving": "on moving objects", "crossed": "static, crossed by one",
+                "static": "static, the rest"}
+
+
+def _motion_lines(split: dict | None, indent: str) -> list[str]:
+    """The errors of a scene with moving objects, split (fusion.scoring.errors_by_motion):
+    one line per region with its share of the error, MAE and median."""
+    if not split:
+        return []
+    lines = []
+    for key, name in MOTION_NAMES.items():
+        e = split[key]
+        share = e["error_share"]
+        what = (f"{e['points']:,} points, none on a surface" if not e["n"] else
+                f"{100 * share:.0f} % of the error, MAE {e['mae_cm']:.2f} cm, median "
+                f"{e['median_cm']:.2f} cm on {e['n']:,} px")
+        lines.append(f"{indent}{name}: {what}")
+    return lines
+
+
 def _error_line(e: dict | None) -> str:
     """One line of errors with the coverage they were measured on (a depth_errors dict)."""
     if e is None:
         return "not scored (no exact depth in this view)"
     if not e.get("points"):
         return "no point to score"
-    mae = "no point on a surface" if not e["n"] else f"MAE {e['mae_cm']:.2f} cm on {e['n']:,} px"
+    mae = ("no point on a surface" if not e["n"] else
+           f"MAE {e['mae_cm']:.2f} cm on {e['n']:,} px, median {e['median_cm']:.2f} cm")
     return (f"{mae} (completeness {100 * e['completeness']:.1f} %), precision "
             f"{100 * e['precision_5pct']:.1f} % within 5 % / {100 * e['precision_1pct']:.1f} % "
             f"within 1 % of {e['points']:,} points ({e['no_surface']:,} off any surface)")
@@ -629,10 +664,11 @@ def _print_report(report: dict, out: Path) -> None:
     if summary is None:
         rows.append(("errors", "no ground truth (real data): not scored"))
     else:
-        rows += [("event map", _error_line(summary["map"])),
-                 ("map in the frame", _error_line(summary["map_in_frame"])),
-                 ("filled pixels", _error_line(summary["filled"])),
-                 ("dense map", _error_line(summary["all"]))]
+        split = report.get("errors_by_motion") or {}
+        for name, key in (("event map", "map"), ("map in the frame", "map_in_frame"),
+                          ("filled pixels", "filled"), ("dense map", "all")):
+            rows.append((name, _error_line(summary[key])))
+            rows += [("", text) for text in _motion_lines(split.get(key), "  ")]
     width = max(len(k) for k, _ in rows)
     print()
     for key, value in rows:
@@ -668,7 +704,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
                                      args.param or []))
     params = ReproduceParams(window=args.window, long_window=args.long_window, tables=tables,
                              scenes=scenes, methods=methods, frame_sensor=args.frame_sensor,
-                             event_noise=args.event_noise)
+                             event_noise=args.event_noise,
+                             keep_boundary_planes=args.keep_boundary_planes)
     report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
                        progress=not args.quiet)
     print(f"{len(report['rows'])} windows in {report['total_s'] / 60:.1f} min")
@@ -701,6 +738,12 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     convert_events(args.src, args.dst, width=width, height=height)
     print(f"converted {args.src} to {args.dst}")
     return 0
+
+
+KEEP_BOUNDARY_HELP = ("keep the map points whose DSI maximum lies on the first or the last "
+                      "depth plane, as rpg_emvs does (default: dropped, and counted in "
+                      "map.json's boundary_plane_points: such a maximum says the depth lies "
+                      "outside the range, not at its edge)")
 
 
 def _add_map_options(parser: argparse.ArgumentParser) -> None:
@@ -736,6 +779,8 @@ def _add_map_options(parser: argparse.ArgumentParser) -> None:
                              "sliders: 7)")
     parser.add_argument("--median", type=_count_type(1), default=5,
                         help="median filter size, px (default 5, rpg_emvs's)")
+    parser.add_argument("--keep-boundary-planes", action="store_true",
+                        help=KEEP_BOUNDARY_HELP)
 
 
 def _add_dense_options(parser: argparse.ArgumentParser) -> None:
@@ -870,6 +915,7 @@ def _parser() -> argparse.ArgumentParser:
                        ("texture", "every family: 1 textured, 0 plain (default 1)")):
         bench.add_argument(f"--{knob.replace('_', '-')}", dest=knob, default=None,
                            help=f"comma-separated values; {what}")
+    bench.add_argument("--keep-boundary-planes", action="store_true", help=KEEP_BOUNDARY_HELP)
     bench.add_argument("--only", action="store_true",
                        help="bench only the --method ones, not every built-in")
     bench.add_argument("--noise", type=_NON_NEGATIVE, default=0.02,
@@ -1085,6 +1131,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="a setting of every --method entry of METHOD (repeatable); a bare "
                             "KEY=VALUE only with one --method. Never changes the paper's "
                             "tables; `evfuse methods --params` lists the settings")
+    repro.add_argument("--keep-boundary-planes", action="store_true", help=KEEP_BOUNDARY_HELP)
     repro.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     repro.add_argument("--quiet", action="store_true", help="no progress bar")
     repro.set_defaults(run=_cmd_reproduce)

@@ -69,7 +69,7 @@ from fusion.frame_projection import (
 from fusion.jsonio import to_json
 from fusion.methods import FillMethod, check_params, get_method, run_method
 from fusion.pointcloud import write_ply
-from fusion.scoring import depth_errors, discontinuity_band
+from fusion.scoring import depth_errors, discontinuity_band, errors_by_motion, motion_regions
 from fusion.segmentation import SegmentationParams, segment_regions
 from sim.camera import Camera
 from sim.exr import read_depth, write_depth, write_exr_channels
@@ -79,8 +79,8 @@ from sim.trajectory import read_trajectory
 from sim.validation import integer
 
 __all__ = ["PAPER_METHODS", "DenseParams", "DenseResult", "dense_errors", "densify", "fill_frame",
-           "fill_map", "paper_weighting", "project_map", "project_map_rolling", "resolve_method",
-           "write_fill"]
+           "fill_map", "frame_motion_regions", "paper_weighting", "project_map",
+           "project_map_rolling", "resolve_method", "write_fill"]
 
 PAPER_METHODS = {"paper-idw": "idw", "paper-gaussian": "gaussian",
                  "paper-exponential": "exponential"}
@@ -343,7 +343,8 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                params: DenseParams | None = None, truth: np.ndarray | None = None,
                T_world_frame: np.ndarray | None = None, info: dict | None = None,
                n1: int | None = None, method: str | None = None,
-               method_params: dict | None = None) -> DenseResult:
+               method_params: dict | None = None,
+               motion: np.ndarray | None = None) -> DenseResult:
     """Fill any frame from its event image (the ``--frame --sparse-depth`` form of the command).
 
     Parameters
@@ -365,6 +366,10 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     method_params : dict, optional
         The method's own settings (:func:`fusion.methods.check_params`; default none, its
         defaults); for the paper's, they replace those of ``params.fill``.
+    motion : (H, W) uint8 ndarray, optional
+        :func:`fusion.scoring.motion_regions` of the frame (a scene whose objects move): with
+        ``truth``, ``info["errors_by_motion"]`` holds the errors of each kind of depth (``map``,
+        ``filled``, ``all``) split by region (:func:`fusion.scoring.errors_by_motion`).
 
     Returns
     -------
@@ -430,6 +435,11 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
             raise ValueError(f"the exact depth is {truth.shape[1]}x{truth.shape[0]} but the frame "
                              f"is {sparse.shape[1]}x{sparse.shape[0]}")
         document["errors"] = dense_errors(dense, sparse, truth, params.band)
+        if motion is not None:
+            filled = np.where(sparse > 0, 0.0, dense).astype(np.float32)
+            document["errors_by_motion"] = {
+                name: errors_by_motion(depth, truth, motion)
+                for name, depth in (("map", sparse), ("filled", filled), ("all", dense))}
     return DenseResult(np.asarray(frame), sparse, labels, regions, dense, camera,
                        T_world_frame, truth, document, fill_method.name, confidence)
 
@@ -500,7 +510,33 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None,
     inputs = fill_inputs(map_folder)
     return fill_frame(inputs.frame, inputs.sparse, inputs.camera, params, inputs.truth,
                       inputs.T_world_frame, inputs.info, n1=inputs.n1, method=method,
-                      method_params=method_params)
+                      method_params=method_params, motion=frame_motion_regions(inputs))
+
+
+def frame_motion_regions(inputs: FillInputs) -> np.ndarray | None:
+    """:func:`fusion.scoring.motion_regions` of the frame to fill (the scene's own camera at its
+    true pose and time, the view its exact depth was rendered in; the event window is the
+    map's), or None: no exact depth, a scene whose objects do not move, or a two-camera rig
+    (not split). Scoring only."""
+    if inputs.truth is None or inputs.info.get("rig") is not None:
+        return None
+    sequence = load_sequence(inputs.info["sequence"])
+    meta = sequence.metadata or {}
+    toml = (meta.get("scene") or {}).get("toml")
+    if not toml:
+        return None
+    from sim.rig import true_time
+    from sim.scene import parse_scene
+
+    scene = parse_scene(toml, (meta.get("scene") or {}).get("source") or "<sequence.json>",
+                        seed=meta.get("seed"))
+    if not scene.is_dynamic:
+        return None
+    window = json.loads((Path(inputs.info["map"]) / "map.json").read_text())["window_s"]
+    t_true = true_time(meta, inputs.info["t_frame"], "frames")
+    camera = scene.camera.with_resolution(inputs.frame.shape[1], inputs.frame.shape[0])
+    return motion_regions(scene, camera, scene.trajectory.pose(t_true), t_true,
+                          tuple(true_time(meta, t, "events") for t in window))
 
 
 def fill_inputs(map_folder: str | Path) -> FillInputs:

@@ -271,12 +271,19 @@ class DepthMapParams:
         Size of the median filter of the depth inside the mask (odd, default 5; 1 = off).
     border : int
         Pixels cleared along the image border (default 1).
+    keep_boundary_planes : bool
+        Keep the points whose DSI maximum lies on the first or the last plane (default False:
+        they are dropped before the median filter). Rays of a surface outside the depth range
+        meet in no plane, and their argmax then sits on the plane nearest to where they would
+        meet: such a maximum says the depth lies outside the range, not at its edge. rpg_emvs
+        keeps them (True gives its maps).
     """
 
     kernel: int = 5
     c: float = 5.0
     median: int = 5
     border: int = 1
+    keep_boundary_planes: bool = False
 
     def __post_init__(self) -> None:
         for name in ("kernel", "median", "border"):
@@ -290,6 +297,9 @@ class DepthMapParams:
             raise ValueError(f"median must be an odd integer >= 1, got {self.median}")
         if self.border < 0:
             raise ValueError(f"border must be >= 0, got {self.border}")
+        if not isinstance(self.keep_boundary_planes, bool):
+            raise ValueError(f"keep_boundary_planes must be True or False, got "
+                             f"{self.keep_boundary_planes!r}")
 
 
 @numba.njit(cache=True)
@@ -333,20 +343,27 @@ def masked_median(values: np.ndarray, mask: np.ndarray, size: int) -> np.ndarray
                           half)
 
 
-def semidense_depth(dsi: np.ndarray, planes: np.ndarray, params: DepthMapParams | None = None
+def semidense_depth(dsi: np.ndarray, planes: np.ndarray, params: DepthMapParams | None = None,
+                    *, counts: dict | None = None
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Semi-dense depth, confidence and mask from a DSI, as rpg_emvs extracts them.
 
     Depth per pixel is the depth of the plane with most votes and confidence that count; a
     pixel is kept where the confidence, normalised to 8 bits, exceeds its Gaussian-weighted local
-    mean by more than ``c`` (OpenCV's adaptive threshold); the depth is then median-filtered
-    inside the mask and the border cleared.
+    mean by more than ``c`` (OpenCV's adaptive threshold) and the border is cleared; unless
+    ``params.keep_boundary_planes``, the kept pixels whose most-voted plane is the first or the
+    last are then dropped (their depth lies outside the range); the depth is median-filtered
+    inside the mask.
 
     Parameters
     ----------
     dsi : (planes, H, W) float ndarray
     planes : (planes,) float ndarray, metres
     params : DepthMapParams, optional
+    counts : dict, optional
+        Receives ``near`` and ``far`` (int): the pixels that passed the threshold and the border
+        with their maximum on the first, resp. the last plane (dropped unless
+        ``params.keep_boundary_planes``), and ``dropped`` (bool).
 
     Returns
     -------
@@ -363,6 +380,8 @@ def semidense_depth(dsi: np.ndarray, planes: np.ndarray, params: DepthMapParams 
     confidence = np.take_along_axis(dsi, best[None], axis=0)[0].astype(np.float32)
     depth = np.asarray(planes, dtype=np.float32)[best]
     top = float(confidence.max())
+    if counts is not None:
+        counts.update(near=0, far=0, dropped=not params.keep_boundary_planes)
     if top <= 0:
         return np.zeros_like(depth), confidence, np.zeros(depth.shape, bool)
     confidence_8bit = np.round(confidence * (255.0 / top)).astype(np.uint8)
@@ -371,6 +390,11 @@ def semidense_depth(dsi: np.ndarray, planes: np.ndarray, params: DepthMapParams 
     if params.border:
         b = params.border
         mask[:b], mask[-b:], mask[:, :b], mask[:, -b:] = False, False, False, False
+    near, far = mask & (best == 0), mask & (best == len(planes) - 1)
+    if counts is not None:
+        counts.update(near=int(near.sum()), far=int(far.sum()))
+    if not params.keep_boundary_planes:
+        mask &= ~(near | far)
     depth = masked_median(depth, mask, params.median)
     depth[~mask] = 0.0
     return depth.astype(np.float32), confidence, mask

@@ -36,7 +36,7 @@ from fusion.emvs import (
 from fusion.figures import add_header, depth_colours, depth_scale, panel_grid
 from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
-from fusion.scoring import depth_errors
+from fusion.scoring import depth_errors, errors_by_motion, motion_regions
 from sim.camera import Camera
 from sim.eventio import check_time_units, event_time_span, iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
@@ -336,6 +336,30 @@ def _ground_truth_depth(sequence: Sequence, t_ref: float) -> np.ndarray | None:
     return Renderer(scene, spp=1).depth(t_true, pose=pose)
 
 
+def _motion_regions(sequence: Sequence, t_ref: float, window: tuple[float, float]
+                    ) -> np.ndarray | None:
+    """:func:`fusion.scoring.motion_regions` of the reference view (the true camera, undistorted,
+    at the true pose and time, as :func:`_ground_truth_depth`), or None for a real recording
+    or a scene whose objects do not move. Scoring only."""
+    meta = sequence.metadata or {}
+    toml = (meta.get("scene") or {}).get("toml")
+    if not toml:
+        return None
+    from sim.rig import exact_camera, exact_trajectory, true_time
+    from sim.scene import parse_scene
+
+    source = (meta.get("scene") or {}).get("source") or "<sequence.json>"
+    scene = parse_scene(toml, source, seed=meta.get("seed"))
+    if not scene.is_dynamic:
+        return None
+    sensor = exact_camera(sequence)
+    camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
+    t_true = true_time(meta, t_ref, "poses")
+    pose = exact_trajectory(sequence).pose(t_true)
+    return motion_regions(scene, camera, pose, t_true,
+                          tuple(true_time(meta, t, "events") for t in window))
+
+
 RANGE_SHARE = 0.5
 """Share of the reference view's exact depth that the DSI's depth range must contain."""
 PILE_UP_SHARE = 0.3
@@ -356,8 +380,34 @@ def _check_range_contains(truth: np.ndarray, dsi: DSIParams) -> None:
                          "--min-depth/--max-depth around it")
 
 
+def _extract(dsi: np.ndarray, planes: np.ndarray, depth_params: DepthMapParams,
+             camera: Camera, params: MapParams, counts: dict | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int]:
+    """The map of a DSI: :func:`fusion.emvs.semidense_depth`, then the radius outliers removed.
+
+    Returns
+    -------
+    depth, confidence, mask : as :func:`fusion.emvs.semidense_depth`'s, outliers removed
+    radius : float, metres, the outlier radius used
+    removed : int, outliers removed
+    """
+    depth, confidence, mask = semidense_depth(dsi, planes, depth_params, counts=counts)
+    v, u = np.nonzero(mask)
+    points = camera.backproject(np.stack([u, v], 1), depth[v, u])
+    radius = params.outlier_radius * min(1.0, float(np.median(depth[mask])) if mask.any()
+                                         else 1.0)
+    inlier = radius_outliers(points, radius, params.outlier_neighbours)
+    mask[v[~inlier], u[~inlier]] = False
+    depth[~mask] = 0.0
+    return depth, confidence, mask, radius, int((~inlier).sum())
+
+
 def _check_no_pile_up(depths: np.ndarray, planes: np.ndarray, dsi: DSIParams) -> None:
     """Refuse a map whose points pile up at one end of the range: the scene lies beyond it.
+
+    ``depths`` are the points of rpg_emvs's map (the points whose DSI maximum lies on the first
+    or last plane kept, :class:`fusion.emvs.DepthMapParams` ``keep_boundary_planes``): they are
+    the evidence.
 
     Rays of a scene outside the range meet in no plane, and the argmax then sits on the plane
     nearest to where they would: the first or last ones. Measured on the real ECD slider prefix
@@ -460,14 +510,9 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
                          f"the poses [{trajectory.t_start}, {trajectory.t_end}] s")
     tick = time.perf_counter()
     planes = depth_planes(params.dsi)
-    depth, confidence, mask = semidense_depth(dsi, planes, params.depth)
-    v, u = np.nonzero(mask)
-    points = camera.backproject(np.stack([u, v], 1), depth[v, u])
-    radius = params.outlier_radius * min(1.0, float(np.median(depth[mask])) if mask.any()
-                                         else 1.0)
-    inlier = radius_outliers(points, radius, params.outlier_neighbours)
-    mask[v[~inlier], u[~inlier]] = False
-    depth[~mask] = 0.0
+    boundary: dict = {}
+    depth, confidence, mask, radius, removed = _extract(dsi, planes, params.depth, camera,
+                                                        params, boundary)
     timings["depth_map_s"] = time.perf_counter() - tick
     timings["total_s"] = time.perf_counter() - start
     info = {
@@ -478,7 +523,8 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
         "window_requested_s": list(window.requested), "window_clipped": window.clipped,
         "dsi_mev_per_s": used / dsi_time / 1e6 if dsi_time > 0 else None,
         "dsi_timing": DSI_TIMING,
-        "outlier_radius_m": radius, "outliers_removed": int((~inlier).sum()),
+        "outlier_radius_m": radius, "outliers_removed": removed,
+        "boundary_plane_points": boundary,
         # the map's own depths (blind): what `evfuse twin --depth` asks for; None without points
         "depth_median_m": float(np.median(depth[mask])) if mask.any() else None,
         "timings": timings,
@@ -489,9 +535,15 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     if truth is not None and params.check_depth_range:
         _check_range_contains(truth, params.dsi)
     if params.check_depth_range:
-        _check_no_pile_up(depth[mask], planes, params.dsi)
+        # on rpg_emvs's map, the end planes' points kept: those are what pile up
+        kept = depth if params.depth.keep_boundary_planes else _extract(
+            dsi, planes, replace(params.depth, keep_boundary_planes=True), camera, params)[0]
+        _check_no_pile_up(kept[kept > 0], planes, params.dsi)
     if truth is not None:
         info["errors"] = depth_errors(depth, truth)
+        regions = _motion_regions(sequence, t_ref, (t0, t1))
+        if regions is not None:
+            info["errors_by_motion"] = errors_by_motion(depth, truth, regions)
     return MapResult(depth, confidence, mask, camera, t_ref, T_world_ref, info, sequence)
 
 

@@ -424,6 +424,12 @@ def _run(source, scene, out: Path, params: RunParams, method: FillMethod, overwr
             "mae_cm": None if summary is None else {
                 k: None if v is None else v["mae_cm"] for k, v in summary.items()},
             "map_errors_at_reference": mapped.info.get("errors"),
+            # a scene whose objects move: the errors split by fusion.scoring.motion_regions
+            "errors_by_motion": None if "errors_by_motion" not in mapped.info else {
+                "map": mapped.info["errors_by_motion"],
+                **{name: (info.get("errors_by_motion") or {}).get(key)
+                   for name, key in (("map_in_frame", "map"), ("filled", "filled"),
+                                     ("all", "all"))}},
             "files": {"overview": "overview.png", "map": "map/", "fill": "fill/",
                       "figure": "fill/figure.png", "point_cloud": "fill/dense.ply",
                       **({} if filled.confidence is None
@@ -437,8 +443,8 @@ def _run(source, scene, out: Path, params: RunParams, method: FillMethod, overwr
     return report
 
 
-SUMMARY_KEYS = ("mae_cm", "n", "completeness", "points", "no_surface", "precision_5pct",
-                "precision_1pct")
+SUMMARY_KEYS = ("mae_cm", "median_cm", "n", "completeness", "points", "no_surface",
+                "precision_5pct", "precision_1pct")
 """The figures of each :func:`fusion.scoring.depth_errors` block kept in ``errors_summary``."""
 
 

@@ -14,7 +14,12 @@ windows on the 6-DoF scenes (Table 1's ``window_s``), 2-s windows on the complex
 the event camera at ``evfuse simulate``'s defaults (4 samples per pixel, lam = 0.5): the
 per-pixel sampler (:mod:`sim.pixel_sampling`) makes that fit in about half an hour on 2 cores.
 ``dynamic_6dof``, whose objects move, is sampled by whole frames, at 1 sample per pixel and
-lam = 1.0 (``moving_event_spp``, ``moving_lam``); the report says so.
+lam = 1.0 (``moving_event_spp``, ``moving_lam``); the report says so. Its errors are split
+into the points on moving objects, the static points one crossed during the window and the
+rest (:func:`fusion.scoring.errors_by_motion`), and Table 1 adds a control row,
+``dynamic_6dof_frozen``: the same scene with its objects frozen where they are at the moving
+row's reference time (:func:`sim.scene.freeze_scene`), simulated the same way (whole frames,
+the same samples and lam) over the same window.
 Shorter windows can be asked for (``--window``, ``--long-window``); the
 report says what was used.
 """
@@ -48,6 +53,9 @@ SLIDERS = ("slider_close", "slider_far", "slider_hdr_close", "slider_hdr_far")
 COMPLEX = ("complex_sphere", "complex_cylinder", "complex_slanted_plane", "complex_staircase",
            "complex_heightfield")
 WEIGHTINGS = ("idw", "gaussian", "exponential")
+FROZEN_CONTROLS = ("dynamic_6dof",)
+"""Table 1 scenes whose objects move, each followed by a control row: the same scene with its
+objects frozen at the moving row's reference time."""
 
 PAPER = {
     "table1": {"boxes_6dof": {"window_s": (3.5, 5.5), "N1": 2289, "N2": 10489, "beta": 0.1898},
@@ -115,6 +123,9 @@ class ReproduceParams:
         (``plane{residual_rel=0.03}``) or :class:`fusion.methods.MethodVariant`; the report adds
         a table of their errors beside the paper's inverse-distance fill, each method by its
         label; the paper's tables are unchanged (always the paper's settings).
+    keep_boundary_planes : bool
+        The event maps keep their points on the DSI's first and last planes, as rpg_emvs
+        (:class:`fusion.emvs.DepthMapParams`; default False, dropped and counted).
     """
 
     window: float = 1.0
@@ -132,6 +143,7 @@ class ReproduceParams:
     methods: tuple = ()
     frame_sensor: str | FrameSensor | None = None
     event_noise: str = "ideal"
+    keep_boundary_planes: bool = False
 
     def __post_init__(self) -> None:
         if self.event_noise not in ("ideal", "realistic"):
@@ -167,10 +179,15 @@ def _jobs(params: ReproduceParams) -> list[dict]:
     jobs = []
     keep = (lambda name: True) if params.scenes is None else (lambda name: name in params.scenes)
     if "1" in params.tables:
-        jobs += [{"scene": s, "t0": (PAPER["table1"][s]["window_s"][0]
-                                     if params.table1_start is None else params.table1_start),
-                  "length": params.long_window, "table": "1", "slider": False}
-                 for s in TABLE1_SCENES if keep(s)]
+        for s in TABLE1_SCENES:
+            if not keep(s):
+                continue
+            job = {"scene": s, "t0": (PAPER["table1"][s]["window_s"][0]
+                                      if params.table1_start is None else params.table1_start),
+                   "length": params.long_window, "table": "1", "slider": False}
+            jobs.append(job)
+            if s in FROZEN_CONTROLS:              # its control: the objects frozen
+                jobs.append({**job, "scene": f"{s}_frozen", "frozen_of": s})
     if "2" in params.tables or "3" in params.tables:
         for s in SLIDERS:
             if keep(s):
@@ -216,12 +233,19 @@ def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
     from sim.scene import load_scene
     from sim.simulate import simulate
 
-    scene = load_scene(resolve_scene(job["scene"]))
+    scene = load_scene(resolve_scene(job.get("frozen_of", job["scene"])))
     if params.frame_sensor is not None:
         scene = dataclasses.replace(scene, frames=scene.frames.with_sensor(params.frame_sensor))
     spp, lam = _event_quality(scene, params)
-    folder = cache / (f"{job['scene']}_{job['t0']:.3f}_{job['length']:.3f}_spp{spp}_lam{lam}"
-                      f"_{_sensor_tag(scene.frames)}"
+    sampler = None
+    frozen = ""
+    if "frozen_of" in job:                        # the control: as the moving scene's row
+        from sim.scene import freeze_scene
+
+        scene = dataclasses.replace(freeze_scene(scene, job["frozen_at"]), frames=scene.frames)
+        sampler, frozen = "frame", f"_at{job['frozen_at']:.6f}"
+    folder = cache / (f"{job['scene']}{frozen}_{job['t0']:.3f}_{job['length']:.3f}_spp{spp}"
+                      f"_lam{lam}_{_sensor_tag(scene.frames)}"
                       + ("" if params.event_noise == "ideal" else f"_ev-{params.event_noise}"))
     if (folder / "sequence.json").is_file():
         return folder
@@ -230,14 +254,15 @@ def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
         raise ValueError(f"{job['scene']} lasts {scene.duration} s: no window at {job['t0']} s")
     simulate(scene, folder, start=job["t0"], duration=job["length"], progress=False,
              sampling=SamplingParams(lam=lam), overwrite=True,
-             events=EventParams(noise=noise_preset(params.event_noise)))
+             events=EventParams(noise=noise_preset(params.event_noise)), sampler=sampler)
     return folder
 
 
 def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams) -> dict:
     """Map one window and fill it with each weighting (the stages as ``evfuse run`` wires
     them); the figures it needs, its numbers."""
-    depth = DepthMapParams(kernel=15, c=7.0) if job["slider"] else DepthMapParams()
+    depth = (DepthMapParams(kernel=15, c=7.0) if job["slider"] else DepthMapParams())
+    depth = dataclasses.replace(depth, keep_boundary_planes=params.keep_boundary_planes)
     name = f"{job['scene']}_{job['t0']:.2f}"
     mapped, map_params = map_window(sequence_folder, out / name / "map", job["t0"],
                                     job["t0"] + job["length"], depth=depth, overwrite=True,
@@ -246,9 +271,14 @@ def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams) -
            job["t0"] + job["length"]], "t_ref": mapped.t_ref,
            **map_params.dsi_range.as_dict(),
            "events": mapped.info["events_used"], "map_errors": mapped.info.get("errors"),
+           "boundary_plane_points": mapped.info["boundary_plane_points"],
            "fills": {}}
+    if "errors_by_motion" in mapped.info:
+        row["map_errors_by_motion"] = mapped.info["errors_by_motion"]
     if "k" in job:
         row["k"] = job["k"]
+    if "frozen_of" in job:
+        row["frozen_of"], row["frozen_at"] = job["frozen_of"], job["frozen_at"]
     weightings = WEIGHTINGS if job["table"] in ("2", "complex") else ("idw",)
     if job["table"] == "2" and "3" not in params.tables:
         weightings = ("idw",)
@@ -262,6 +292,8 @@ def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams) -
                                                          "N2_over_N1_in_frame", "regions",
                                                          "regions_filled")}
         row["fills"][weighting]["errors"] = info.get("errors")
+        if "errors_by_motion" in info:
+            row["fills"][weighting]["errors_by_motion"] = info["errors_by_motion"]
     if params.methods:
         row["methods"] = {}
     for k, variant in enumerate(params.methods):
@@ -311,13 +343,22 @@ def reproduce(out: str | Path, params: ReproduceParams | None = None,
         for job in bar:
             bar.set_postfix_str(f"{job['scene']} [{job['t0']:.2f} s]")
             tick = time.perf_counter()
+            failed = {"scene": job["scene"], "table": job["table"],
+                      "window_s": [job["t0"], job["t0"] + job["length"]]}
+            if "frozen_of" in job:               # frozen at the moving row's reference time
+                moving = [r for r in rows if r["scene"] == job["frozen_of"]
+                          and r["window_s"] == failed["window_s"] and "t_ref" in r]
+                if not moving:
+                    rows.append({**failed, "failed": f"no reference time to freeze "
+                                 f"{job['frozen_of']}'s objects at: its own row failed"})
+                    continue
+                job = {**job, "frozen_at": moving[0]["t_ref"]}
             folder = _simulated(job, params, cache)
             simulated = time.perf_counter() - tick
             try:
                 row = _row(job, folder, tmp / "runs", params)
             except ValueError as exc:            # e.g. a map with too little parallax
-                row = {"scene": job["scene"], "table": job["table"], "failed": str(exc),
-                       "window_s": [job["t0"], job["t0"] + job["length"]]}
+                row = {**failed, "failed": str(exc)}
             row["frame_sensor"] = _frame_sensor_of(folder)
             row["seconds"] = {"simulate (0 when cached)": simulated,
                               "map_fill": time.perf_counter() - tick - simulated}
@@ -416,6 +457,15 @@ def _markdown(report: dict, params: ReproduceParams) -> str:
                   "that land in the frame after projection; beta = (N2 - N1 in frame) / "
                   "(Res + N1 in frame / Res), "
                   "Res = 43,200.", ""]
+        frozen = [r for r in table1 if "frozen_of" in r]
+        if frozen:
+            lines += [", ".join(f"{r['scene']}" for r in frozen) + ": a control, the same "
+                      "scene with its moving objects frozen where they are at the moving row's "
+                      "reference time (" + ", ".join(f"{r['frozen_at']:.3f} s" for r in frozen)
+                      + "), simulated as the moving row (whole frames, "
+                      f"{params.moving_event_spp} sample(s) per pixel, lam = "
+                      f"{params.moving_lam:g}) over the same window.", ""]
+        lines += _motion_section(table1)
     table2 = [r for r in rows if r["table"] == "2"]
     if table2:
         lines += ["## Table 2: absolute depth error on the sliders (cm)", "",
@@ -510,6 +560,7 @@ def _markdown(report: dict, params: ReproduceParams) -> str:
             lines += [f"| {r['scene']} | {w} | {spec} | {_f(_mae(e, 'all'))} | "
                       f"{_coverage(e, 'all')} | {n2} |" for spec, e, n2 in entries]
         lines.append("")
+    lines += _boundary_section(rows)
     ranges = {r["scene"]: r for r in rows}
     if ranges:
         lines += ["## DSI depth ranges", "", "| scene | range (m) | from |", "|---|---|---|"]
@@ -525,6 +576,80 @@ def _markdown(report: dict, params: ReproduceParams) -> str:
     for scene, path in report["figures"].items():
         lines += [f"### {scene}", "", f"![{scene}]({path})", ""]
     return "\n".join(lines)
+
+
+MOTION_ROWS = (("moving", "on moving objects"),
+               ("crossed", "static, crossed by a moving object during the window"),
+               ("static", "static, the rest"))
+
+
+def _motion_section(rows: list[dict]) -> list[str]:
+    """The errors of each row whose scene has moving objects, split by region
+    (:func:`fusion.scoring.errors_by_motion`), with its frozen control beside."""
+    moving = [r for r in rows if r.get("map_errors_by_motion")]
+    if not moving:
+        return []
+    lines = ["### Scenes with moving objects: where the error is", "",
+             "The event map (at the reference view) and the dense map (inverse distance, in "
+             "the frame) split into the points on moving objects, the static points in front "
+             "of which a moving object passed during the window (seen from the reference view, "
+             "the objects sampled every 10 ms), and the rest: each region's points, share of "
+             "the absolute error, MAE and median (cm), and share within 5 % of the exact depth. "
+             "The frozen control's errors follow, unsplit.", "",
+             "| scene | depth | region | points scored | share of error (%) | MAE (cm) | "
+             "median (cm) | within 5 % (%) |", "|---|---|---|---|---|---|---|---|"]
+
+    def cells(e: dict | None, share: float | None) -> str:
+        if e is None:
+            return "- | - | - | - | -"
+        within = None if not e["n"] else 100 * e["delta_1.05"]
+        return (f"{e['n']} | {_f(None if share is None else 100 * share, 1)} | "
+                f"{_f(e['mae_cm'])} | {_f(e['median_cm'])} | {_f(within, 1)}")
+
+    for r in moving:
+        idw = r["fills"].get("idw", {})
+        for depth, split, whole in (("event map", r["map_errors_by_motion"], r["map_errors"]),
+                                    ("dense map", (idw.get("errors_by_motion") or {}).get("all"),
+                                     ((idw.get("errors") or {}).get("all") or {}).get(
+                                         "overall"))):
+            if split is None:
+                continue
+            lines.append(f"| {r['scene']} | {depth} | all | {cells(whole, 1.0)} |")
+            lines += [f"| {r['scene']} | {depth} | {name} | "
+                      f"{cells(split[key], split[key]['error_share'])} |"
+                      for key, name in MOTION_ROWS]
+        for c in rows:
+            if c.get("frozen_of") == r["scene"] and c["window_s"] == r["window_s"]:
+                ce = c["fills"].get("idw", {}).get("errors")
+                lines.append(f"| {c['scene']} | event map | all (frozen control) | "
+                             f"{cells(c['map_errors'], 1.0)} |")
+                if ce:
+                    lines.append(f"| {c['scene']} | dense map | all (frozen control) | "
+                                 f"{cells(ce['all']['overall'], 1.0)} |")
+    return lines + [""]
+
+
+def _boundary_section(rows: list[dict]) -> list[str]:
+    """How many points of each window's map had their DSI maximum on the first or last plane
+    (:class:`fusion.emvs.DepthMapParams` ``keep_boundary_planes``)."""
+    counted = [r for r in rows if "boundary_plane_points" in r]
+    if not counted:
+        return []
+    dropped = counted[0]["boundary_plane_points"]["dropped"]
+    lines = ["## DSI boundary planes", "",
+             "Points that passed the threshold with their DSI maximum on the first or the last "
+             "depth plane: such a maximum says the depth lies outside the range, not at its "
+             "edge. " + ("They were dropped from the maps (the default; "
+                         "`--keep-boundary-planes` keeps them, as rpg_emvs does)."
+                         if dropped else "They were kept, as rpg_emvs does "
+                         "(`--keep-boundary-planes`)."), "",
+             "| scene | window (s) | first plane | last plane | N1 |", "|---|---|---|---|---|"]
+    for r in counted:
+        b = r["boundary_plane_points"]
+        n1 = r["fills"]["idw"]["N1"] if "idw" in r["fills"] else "-"
+        lines.append(f"| {r['scene']} | {r['window_s'][0]:.2f}-{r['window_s'][1]:.2f} | "
+                     f"{b['near']} | {b['far']} | {n1} |")
+    return lines + [""]
 
 
 def _nanmean(values) -> float | None:

@@ -8,15 +8,24 @@ the coverage they were measured on: completeness (how much of the truth has a de
 precision (how many of *all* the estimated points, those in front of no surface included, lie
 within 5 % or 1 % of the exact surface). This module is the only definition of these figures:
 ``map.json`` and ``fill.json`` both hold :func:`depth_errors`.
+
+In a scene whose objects move, the errors are also split by :func:`motion_regions` into the
+points on moving objects, the static points that a moving object crossed during the window, and
+the rest (:func:`errors_by_motion`): a static-scene method such as EMVS cannot map what moves,
+and the first two sets say how much of the error that explains.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
+
 import cv2
 import numpy as np
 
-__all__ = ["DELTAS", "ERROR_NO_SURFACE", "ERROR_NO_VALUE", "PRECISIONS", "depth_errors",
-           "discontinuity_band", "error_image"]
+__all__ = ["DELTAS", "ERROR_NO_SURFACE", "ERROR_NO_VALUE", "MOTION_REGIONS", "MOTION_STEP_S",
+           "PRECISIONS", "depth_errors", "discontinuity_band", "error_image",
+           "errors_by_motion", "motion_regions"]
 
 DELTAS = (1.25, 1.05, 1.01)
 """Ratio thresholds of the delta accuracies, ``max(d / gt, gt / d) < delta``."""
@@ -203,3 +212,97 @@ def error_image(depth: np.ndarray, gt: np.ndarray, max_error: float | None = Non
     image[~both] = ERROR_NO_VALUE
     image[(depth > 0) & (gt == 0)] = ERROR_NO_SURFACE
     return image
+
+
+MOTION_REGIONS = {"moving": 1, "crossed": 2, "static": 0}
+"""Labels of :func:`motion_regions`: a moving object at the view's time; a static surface (or
+nothing) whose line of sight a moving object covered during the window; the rest."""
+MOTION_STEP_S = 0.01
+"""Time step (s) at which :func:`motion_regions` samples the objects' motion over the window
+(dynamic_6dof's fastest object, its ball, moves 6 mm in that time)."""
+
+
+def motion_regions(scene, camera, pose: np.ndarray, t_view: float,
+                   window: tuple[float, float], step: float = MOTION_STEP_S
+                   ) -> np.ndarray | None:
+    """Which pixels of a view see a moving object, or were crossed by one during a window.
+
+    Ground truth, for scoring only. The view (camera, pose) is held fixed and the objects are
+    moved: a pixel is ``moving`` where its ray hits a moving object at ``t_view``, ``crossed``
+    where it does not but hits one at some time of ``window`` (sampled every ``step`` s, both
+    ends included), ``static`` elsewhere. So ``crossed`` is the set of static pixels in front of
+    which a moving object passed, seen from the reference view: the rays along which the
+    object's events, back-projected as if the scene were static, put votes at the object's
+    depth instead of the surface's. It leaves out the camera's own motion during the window
+    (the object seen from the other poses of the window sweeps a slightly different set, by
+    the parallax of the camera's baseline against the object's distance).
+
+    Parameters
+    ----------
+    scene : sim.scene.Scene
+        The scene the sequence was simulated from.
+    camera : sim.camera.Camera
+        The view's camera (the pixel grid of the map or frame to score).
+    pose : (4, 4) ndarray
+        The view's true ``T_world_camera``.
+    t_view : float, seconds, true time
+        The view's time (where the objects are in the map or frame).
+    window : (float, float), seconds, true time
+        The event window.
+    step : float, seconds
+
+    Returns
+    -------
+    (H, W) uint8 ndarray of :data:`MOTION_REGIONS` labels, or None when no object moves.
+    """
+    moving_ids = [i + 1 for i, obj in enumerate(scene.objects) if obj.motion is not None]
+    if not moving_ids:
+        return None
+    t0, t1 = (float(t) for t in window)
+    if not (math.isfinite(t0) and math.isfinite(t1) and t0 <= t1):
+        raise ValueError(f"window must be two finite times t0 <= t1 (s), got {window}")
+    if not (math.isfinite(step) and step > 0):
+        raise ValueError(f"step must be a finite time > 0 s, got {step}")
+    from sim.render import Renderer
+
+    renderer = Renderer(replace(scene, camera=camera), spp=1)
+    moving = np.isin(renderer.object_ids(float(t_view), pose=pose), moving_ids)
+    crossed = np.zeros_like(moving)
+    for t in np.linspace(t0, t1, max(2, math.ceil((t1 - t0) / step) + 1)):
+        crossed |= np.isin(renderer.object_ids(float(t), pose=pose), moving_ids)
+    labels = np.full(moving.shape, MOTION_REGIONS["static"], np.uint8)
+    labels[crossed & ~moving] = MOTION_REGIONS["crossed"]
+    labels[moving] = MOTION_REGIONS["moving"]
+    return labels
+
+
+def errors_by_motion(depth: np.ndarray, gt: np.ndarray, regions: np.ndarray) -> dict:
+    """:func:`depth_errors` on each of the :func:`motion_regions`, with its share of the error.
+
+    Parameters
+    ----------
+    depth : (H, W) float ndarray, metres, 0 where unknown
+    gt : (H, W) float ndarray, metres, 0 where no surface
+    regions : (H, W) uint8 ndarray of :data:`MOTION_REGIONS` labels
+
+    Returns
+    -------
+    dict
+        ``{"moving" | "crossed" | "static": depth_errors(...) + {"error_share": float}}``;
+        ``error_share`` is the region's part of the sum of ``|d - gt|`` over all the pixels
+        with both depths (the three add up to 1; NaN when there is no such pixel).
+    """
+    depth, gt, _ = _check_pair(depth, gt, None)
+    regions = np.asarray(regions)
+    if regions.shape != gt.shape:
+        raise ValueError(f"regions has shape {regions.shape} but gt has shape {gt.shape}: "
+                         "expected the same (H, W)")
+    both = (depth > 0) & (gt > 0)
+    err = np.where(both, np.abs(depth - gt), 0.0)
+    total = float(err.sum())
+    out = {}
+    for name, label in MOTION_REGIONS.items():
+        inside = regions == label
+        share = float(err[inside].sum()) / total if total > 0 else float("nan")
+        out[name] = {**depth_errors(depth, gt, inside), "error_share": share}
+    return out

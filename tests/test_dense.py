@@ -90,7 +90,8 @@ def test_fill_of_any_frame_through_the_command_line(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "N1 = 108 (108 in the frame), N2 = 228" in printed
     # every printed error carries its coverage: the filled square is 120 of the 1200 true pixels
-    assert ("filled pixels: MAE 0.00 cm on 120 px (completeness 10.0 %), precision 100.0 % "
+    assert ("filled pixels: MAE 0.00 cm on 120 px, median 0.00 cm (completeness 10.0 %), "
+            "precision 100.0 % "
             "within 5 %") in printed
 
 

@@ -169,3 +169,87 @@ def test_votes_match_a_per_event_reference_on_any_number_of_threads():
     dsi = disparity_space_image(np.array([[0.0, 0.0], [0.0, 0.0]]), np.zeros(2), still,
                                 np.eye(4), corner, DSIParams(1.0, 2.0, planes=3))
     assert dsi[:, 5, 7].tolist() == [2.0, 2.0, 2.0] and dsi.sum() == 6.0
+
+
+def test_maxima_on_the_first_and_last_planes_are_dropped_and_counted():
+    """Issue 21: a DSI maximum on the first or last plane says the depth lies outside the
+    range; such points are dropped by default (and counted), kept with keep_boundary_planes."""
+    from fusion.emvs import DepthMapParams, semidense_depth
+
+    planes = depth_planes(DSIParams(0.5, 3.0, planes=20))
+    rng = np.random.default_rng(4)
+    dsi = rng.uniform(0, 2, (20, 40, 50)).astype(np.float32)
+    dsi[0, 5:35, 10] = 60.0                       # an edge nearer than the range: plane 0
+    dsi[19, 5:35, 25] = 60.0                      # one beyond it: the last plane
+    dsi[7, 5:35, 40] = 60.0                       # one inside it
+    counts: dict = {}
+    depth, _, mask = semidense_depth(dsi, planes, DepthMapParams(), counts=counts)
+    kept_counts: dict = {}
+    kept, _, kept_mask = semidense_depth(dsi, planes, DepthMapParams(keep_boundary_planes=True),
+                                         counts=kept_counts)
+    assert kept_mask[6:34, 10].all() and kept_mask[6:34, 25].all()       # rpg_emvs keeps them
+    assert not mask[:, 8:13].any() and not mask[:, 23:28].any()
+    assert counts == {"near": int(kept_mask[:, 10].sum()), "far": int(kept_mask[:, 25].sum()),
+                      "dropped": True}
+    assert kept_counts == {**counts, "dropped": False}
+    assert counts["near"] >= 28 and counts["far"] >= 28
+    np.testing.assert_array_equal(mask[:, 35:], kept_mask[:, 35:])       # inside: unaffected
+    np.testing.assert_allclose(depth[10:30, 40], planes[7], rtol=1e-6)
+    np.testing.assert_array_equal(depth[:, 35:], kept[:, 35:])
+
+
+def test_points_beyond_the_range_land_on_the_last_plane_and_are_dropped():
+    """Analytic events of points inside a 0.6-3 m range and of points at 6 m: those beyond the
+    range peak on the last plane and leave the map; those inside keep their depth."""
+    from fusion.emvs import DepthMapParams, semidense_depth
+
+    camera = Camera(80, 60, 70.0, 65.0, 39.5, 29.5)
+    rng = np.random.default_rng(1)
+    n_points = 16
+    depth = np.concatenate([rng.uniform(0.8, 2.5, n_points // 2), np.full(n_points // 2, 6.0)])
+    uv_ref = np.empty((0, 2))
+    while len(uv_ref) < n_points:                 # 8 px apart, so that no two peaks merge
+        uv = rng.uniform([15, 12], [65, 48])
+        if len(uv_ref) == 0 or np.min(np.linalg.norm(uv_ref - uv, axis=1)) > 8:
+            uv_ref = np.vstack([uv_ref, uv])
+    points = camera.backproject(uv_ref, depth)
+    trajectory = LinearTrajectory(np.array([-0.5, -0.05, 0.0]), np.array([1.0, 0.1, 0.0]),
+                                  np.eye(3))
+    T_world_ref = trajectory.pose(0.5)
+    points_world = points + T_world_ref[:3, 3]
+    xy, t_all = [], []
+    for t in np.linspace(0.0, 1.0, 400):
+        T = trajectory.pose(t)
+        local = (points_world - T[:3, 3]) @ T[:3, :3]
+        xy.append(local[:, :2] / local[:, 2:3])
+        t_all.append(np.full(n_points, t))
+    params = DSIParams(0.6, 3.0, planes=30, packet_size=n_points)
+    dsi = disparity_space_image(np.concatenate(xy), np.concatenate(t_all), trajectory,
+                                T_world_ref, camera, params)
+    planes = depth_planes(params)
+    settings = DepthMapParams(kernel=5, c=5, median=1)
+    counts: dict = {}
+    out, _, mask = semidense_depth(dsi, planes, settings, counts=counts)
+    kept, _, kept_mask = semidense_depth(
+        dsi, planes, DepthMapParams(kernel=5, c=5, median=1, keep_boundary_planes=True))
+    far = np.zeros(mask.shape, bool)
+    for (u, v), z in zip(uv_ref, depth, strict=True):
+        # its rays on the last plane (3 m) spread +-70 px * 0.5 m * (1/3 - 1/6 m) = 6 px along x
+        window = (slice(int(v) - 2, int(v) + 4), slice(int(u) - 8, int(u) + 10))
+        if z > 3.0:
+            far[window] = True
+            peak = (slice(int(v), int(v) + 2), slice(int(u), int(u) + 2))  # its votes' 2x2
+            on_last = kept_mask[peak] & (kept[peak] == np.float32(planes[-1]))
+            assert on_last.any(), (u, v)                        # rpg_emvs puts it at 3 m
+            assert not mask[peak][on_last].any(), (u, v)
+    assert counts["far"] == int((kept_mask & (kept == np.float32(planes[-1]))).sum()) > 0
+    assert counts["near"] == 0
+    on_end = kept_mask & np.isin(kept, planes[[0, -1]].astype(np.float32))
+    assert on_end[~far].sum() <= 0.1 * on_end[far].sum()   # the points beyond the range
+    np.testing.assert_array_equal(mask, kept_mask & ~on_end)   # nothing else is touched
+    np.testing.assert_array_equal(out[~on_end], kept[~on_end])
+    spacing = abs(1 / planes[1] - 1 / planes[0])
+    for (u, v), z in zip(uv_ref[depth < 3.0], depth[depth < 3.0], strict=True):
+        peak = (slice(int(v), int(v) + 2), slice(int(u), int(u) + 2))
+        assert mask[peak].any(), (u, v)                    # inside the range: still mapped
+        assert np.all(np.abs(1 / out[peak][mask[peak]] - 1 / z) <= 2 * spacing), (u, v, z)

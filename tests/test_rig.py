@@ -270,14 +270,15 @@ def test_the_reference_time_is_read_on_the_poses_clock(tmp_path, shift):
 def test_pose_noise_makes_the_map_error_grow(plane_sequence, tmp_path):
     """End to end on the plane (64x48, 0.3 s): the same events mapped with poses jittered by 2 mm
     and 1 degree (white) are worse against the exact depth than with the perfect poses: median
-    error at least doubled, precision within 5 % down by at least 0.05. Measured (seed 3):
-    median 1.03 -> 2.85 cm, precision 0.79 -> 0.69."""
+    error up by at least half, precision within 5 % down by at least 0.05. Measured (seed 3),
+    the points on the DSI's end planes dropped (the default): median 1.03 -> 2.00 cm, precision
+    0.92 -> 0.69; kept (--keep-boundary-planes): 1.03 -> 3.43 cm, 0.80 -> 0.61."""
     rig = RigParams(position_sigma=2e-3, rotation_sigma=math.radians(1.0))
     noisy = simulate(_plane_scene(), tmp_path / "noisy", progress=False, rig=rig).out
     params = MapParams(DSIParams(0.5, 2.0, 50))
     perfect = map_sequence(plane_sequence, params, progress=False).info["errors"]
     jittered = map_sequence(noisy, params, progress=False).info["errors"]
-    assert jittered["median_cm"] >= 2 * perfect["median_cm"]
+    assert jittered["median_cm"] >= 1.5 * perfect["median_cm"]
     assert jittered["precision_5pct"] <= perfect["precision_5pct"] - 0.05
 
 
