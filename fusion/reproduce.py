@@ -224,6 +224,19 @@ def _frame_sensor_of(folder: Path) -> str:
     return sensor if isinstance(sensor, str) else sensor["name"]
 
 
+def _content_tag(scene) -> str:
+    """A hash of the files a scene is made of (its scene file and every file it names), for a
+    cache folder's name: a window simulated from an earlier version of the scene (other lights,
+    exposure limits, objects) is never taken for one of this scene."""
+    from sim.simulate import scene_files
+
+    digest = hashlib.sha256()
+    for path in scene_files(scene):
+        digest.update(str(path.name).encode() + b"\0")
+        digest.update(path.read_bytes() if path.is_file() else b"(missing)")
+    return digest.hexdigest()[:10]
+
+
 def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
     """The cached simulation of a job's window (simulated when missing)."""
     from scenes import resolve_scene
@@ -246,7 +259,8 @@ def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
         sampler, frozen = "frame", f"_at{job['frozen_at']:.6f}"
     folder = cache / (f"{job['scene']}{frozen}_{job['t0']:.3f}_{job['length']:.3f}_spp{spp}"
                       f"_lam{lam}_{_sensor_tag(scene.frames)}"
-                      + ("" if params.event_noise == "ideal" else f"_ev-{params.event_noise}"))
+                      + ("" if params.event_noise == "ideal" else f"_ev-{params.event_noise}")
+                      + f"_{_content_tag(scene)}")
     if (folder / "sequence.json").is_file():
         return folder
     scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render, event_spp=spp))
