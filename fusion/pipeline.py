@@ -59,11 +59,11 @@ from sim.progress import progress as progress_stage
 from sim.sequence import (
     MARKER,
     PARTIAL_SUFFIX,
-    OutputError,
     atomic_output_dir,
     check_output_dir,
     load_sequence,
     partial_dir,
+    resumable_partial,
 )
 from sim.statistics import event_frame
 from sim.validation import finite
@@ -267,22 +267,8 @@ def _flat(tree: dict, prefix: str = "") -> dict:
 
 def _check_run_resumable(out: Path, overwrite: bool, inputs: list, identity: dict) -> None:
     """Raise ValueError unless ``<out>.partial`` holds an interrupted run like this one."""
-    if out.is_dir() and not out.is_symlink() and any(out.iterdir()) and not overwrite:
-        raise OutputError(
-            f"output folder {out} is already complete; there is nothing to resume (with "
-            "overwrite=True a resumed run replaces it)",
-            f"output folder {out} is already complete; there is nothing to resume (add "
-            "--overwrite to continue an interrupted run that replaces it)")
-    check_output_dir(out, overwrite, inputs)
-    partial = partial_dir(out)
+    partial = resumable_partial(out, overwrite, inputs, needs=RESUME_FILE)
     saved = partial / RESUME_FILE
-    if not saved.is_file():
-        what = (f"{partial} does not exist" if not partial.exists()
-                else f"{partial} has no {RESUME_FILE}")
-        raise OutputError(f"there is no interrupted run of {out} to resume ({what}); run "
-                          "with resume=False to start one",
-                          f"there is no interrupted run of {out} to resume ({what}); run "
-                          "without --resume to start one")
     old, new = _flat(json.loads(saved.read_text())), _flat(identity)
     differences = [key for key in sorted(set(old) | set(new)) if old.get(key) != new.get(key)]
     if differences:

@@ -38,7 +38,7 @@ __all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "FRAME_CAMERA_FOLDER", "SEQUENCE_FOLD
            "MARKER", "OutputError", "atomic_output_dir", "check_not_input",
            "check_output_dir", "check_output_file", "describe_data_file", "frame_name",
            "load_sequence",
-           "partial_dir", "read_index", "read_sequence_json", "write_index",
+           "partial_dir", "read_index", "read_sequence_json", "resumable_partial", "write_index",
            "write_marker", "write_sequence_json"]
 
 SEQUENCE_FOLDER_NEEDS = ("calib.txt (one line 'fx fy cx cy k1 k2 p1 p2 k3'), images.txt with "
@@ -185,6 +185,49 @@ def check_output_dir(out: str | Path, overwrite: bool = False,
                           "a folder or a new path (anything else is never replaced)")
     if _is_nonempty_dir(out):
         _check_marked(out, out, overwrite)
+
+
+def resumable_partial(out: str | Path, overwrite: bool, inputs: SequenceABC[str | Path] = (),
+                      needs: str | None = None) -> Path:
+    """The ``<out>.partial`` an interrupted run left, for a run that resumes it; checked as
+    :func:`check_output_dir` checks ``out``.
+
+    Parameters
+    ----------
+    out : str or Path
+        The output folder of the interrupted run.
+    overwrite : bool
+        Whether the resumed run may replace a complete ``out`` (else a complete one is refused:
+        there is nothing to resume).
+    inputs : sequence of str or Path
+        What the run reads (never an output).
+    needs : str, optional
+        A file or folder inside ``<out>.partial`` that an interrupted run of this kind leaves
+        (checked when given; the folder itself always is).
+
+    Raises
+    ------
+    OutputError
+        A complete ``out`` without ``overwrite``, an ``out`` :func:`check_output_dir` refuses,
+        or no ``<out>.partial`` (or no ``needs`` in it) to resume.
+    """
+    out = Path(out)
+    if out.is_dir() and not out.is_symlink() and any(out.iterdir()) and not overwrite:
+        raise OutputError(
+            f"output folder {out} is already complete; there is nothing to resume (with "
+            "overwrite=True a resumed run replaces it)",
+            f"output folder {out} is already complete; there is nothing to resume (add "
+            "--overwrite to continue an interrupted run that replaces it)")
+    check_output_dir(out, overwrite, inputs)
+    partial = partial_dir(out)
+    if not partial.is_dir() or (needs is not None and not (partial / needs).exists()):
+        what = (f"{partial} does not exist" if not partial.is_dir()
+                else f"{partial} has no {needs}")
+        raise OutputError(f"there is no interrupted run of {out} to resume ({what}); run "
+                          "with resume=False to start one",
+                          f"there is no interrupted run of {out} to resume ({what}); run "
+                          "without --resume to start one")
+    return partial
 
 
 def check_output_file(out: str | Path, inputs: SequenceABC[str | Path] = (),

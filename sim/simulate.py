@@ -96,11 +96,10 @@ from sim.sampling import (
 )
 from sim.scene import Scene
 from sim.sequence import (
-    OutputError,
     atomic_output_dir,
     check_output_dir,
     frame_name,
-    partial_dir,
+    resumable_partial,
     write_index,
     write_sequence_json,
 )
@@ -937,19 +936,7 @@ def _write_atomically(path: Path, data: bytes) -> None:
 
 def _check_resumable(out: Path, overwrite: bool, identity: dict, inputs: list) -> None:
     """Raise ValueError unless ``<out>.partial`` holds a checkpoint of a run like this one."""
-    if out.is_dir() and not out.is_symlink() and any(out.iterdir()) and not overwrite:
-        raise OutputError(
-            f"output folder {out} is already complete; there is nothing to resume (with "
-            "overwrite=True a resumed run replaces it)",
-            f"output folder {out} is already complete; there is nothing to resume (add "
-            "--overwrite to continue an interrupted run that replaces it)")
-    check_output_dir(out, overwrite, inputs)
-    partial = partial_dir(out)
-    if not partial.is_dir():
-        raise OutputError(f"there is no interrupted run of {out} to resume ({partial} does not "
-                          "exist); run with resume=False to start one",
-                          f"there is no interrupted run of {out} to resume ({partial} does not "
-                          "exist); run without --resume to start one")
+    partial = resumable_partial(out, overwrite, inputs)
     saved = _Checkpoint.read(partial / CHECKPOINT_FOLDER)["identity"]
     differences = _differences(saved, identity, skip=("variant",))
     if differences:
