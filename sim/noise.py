@@ -79,6 +79,7 @@ import numba
 import numpy as np
 
 from sim.radiometry import OFFICE_WHITE_LUMINANCE
+from sim.validation import bounded
 
 __all__ = [
     "NOISE_PRESETS",
@@ -109,23 +110,6 @@ THRESHOLD_FLOOR = 0.01
 
 _MAX_SENSOR_SIDE = np.iinfo(np.uint16).max + 1
 """Pixel coordinates are uint16, so a sensor side is at most 65536 pixels."""
-
-
-def _number(cls: str, name: str, value, *, low: float = 0.0, low_open: bool = False,
-            high: float | None = None, high_open: bool = False) -> float:
-    """``value`` as a float in the given range, or a ValueError naming ``cls.name``."""
-    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
-        raise ValueError(f"{cls}.{name} must be a number, got {value!r}")
-    value = float(value)
-    too_low = value <= low if low_open else value < low
-    too_high = high is not None and (value >= high if high_open else value > high)
-    if not math.isfinite(value) or too_low or too_high:
-        left = "(" if low_open else "["
-        right = "]" if high is None else (")" if high_open else "]")
-        upper = "inf)" if high is None else f"{high:g}{right}"
-        raise ValueError(f"{cls}.{name} must be a finite number in {left}{low:g}, {upper}, "
-                         f"got {value!r}")
-    return value
 
 
 @dataclass(frozen=True)
@@ -207,7 +191,7 @@ class NoiseParams:
         for f in fields(self):
             if f.name == "initial_phase":
                 continue
-            value = _number("NoiseParams", f.name, getattr(self, f.name), **ranges.get(f.name, {}))
+            value = bounded("NoiseParams", f.name, getattr(self, f.name), **ranges.get(f.name, {}))
             object.__setattr__(self, f.name, value)
         if not isinstance(self.initial_phase, bool | np.bool_):
             raise ValueError(f"NoiseParams.initial_phase must be a bool, "
@@ -304,7 +288,7 @@ def _check_interval(t0_ns, t1_ns) -> tuple[int, int]:
 
 
 def _check_dt(where: str, dt) -> float:
-    return _number(where, "dt", dt, low_open=True)
+    return bounded(where, "dt", dt, low_open=True)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -339,10 +323,10 @@ def threshold_map(shape: tuple[int, int], C_on: float, C_off: float, sigma: floa
         crossing time of the ideal sensor by a rounding error.
     """
     height, width = _check_shape(shape)
-    C_on = _number("threshold_map", "C_on", C_on, low_open=True)
-    C_off = _number("threshold_map", "C_off", C_off, low_open=True)
-    sigma = _number("threshold_map", "sigma", sigma)
-    floor = _number("threshold_map", "floor", floor, low_open=True)
+    C_on = bounded("threshold_map", "C_on", C_on, low_open=True)
+    C_off = bounded("threshold_map", "C_off", C_off, low_open=True)
+    sigma = bounded("threshold_map", "sigma", sigma)
+    floor = bounded("threshold_map", "floor", floor, low_open=True)
     rng = _check_rng(rng)
     maps = []
     for nominal in (C_on, C_off):
@@ -556,7 +540,7 @@ def leak_drift(dt: float, c_on: np.ndarray, leak_rates: np.ndarray, params: Nois
         ``-dt * leak_rates * max(0, 1 - leak_jitter * N(0, 1)) * c_on``: add it to the
         reference, which moves *down*, so that a static pixel emits ON events (v2e).
     """
-    dt = _number("leak_drift", "dt", dt)
+    dt = bounded("leak_drift", "dt", dt)
     params = _check_params(params)
     rng = _check_rng(rng)
     leak_rates = np.asarray(leak_rates, dtype=np.float64)
@@ -693,7 +677,7 @@ def hot_pixel_mask(shape: tuple[int, int], fraction: float, rng: np.random.Gener
         True at the hot pixels.
     """
     height, width = _check_shape(shape)
-    fraction = _number("hot_pixel_mask", "fraction", fraction, high=1.0)
+    fraction = bounded("hot_pixel_mask", "fraction", fraction, high=1.0)
     rng = _check_rng(rng)
     mask = np.zeros(height * width, dtype=bool)
     mask[rng.choice(height * width, size=round(fraction * height * width), replace=False)] = True
@@ -725,7 +709,7 @@ def hot_pixel_events(t0_ns: int, t1_ns: int, hot_mask: np.ndarray, rate: float,
         raise ValueError(f"hot_mask must be an (H, W) bool array, got {hot_mask.dtype} "
                          f"with shape {hot_mask.shape}")
     _check_shape(hot_mask.shape)
-    rate = _number("hot_pixel_events", "rate", rate)
+    rate = bounded("hot_pixel_events", "rate", rate)
     rng = _check_rng(rng)
     flat_index = np.flatnonzero(hot_mask)
     if t1_ns == t0_ns or rate == 0 or flat_index.size == 0:

@@ -38,6 +38,8 @@ import math
 
 import numpy as np
 
+from sim.validation import bounded
+
 __all__ = [
     "DAVIS240C_F_NUMBER",
     "DAVIS240C_PHOTODIODE_AREA",
@@ -189,8 +191,5 @@ def lambertian_luminance(illuminance: np.ndarray | float, albedo: np.ndarray | f
 
 
 def _positive(name: str, value: float) -> None:
-    """Refuse a value that is not a finite number > 0 (the noise module's validator, imported
-    here because :mod:`sim.noise` imports this module)."""
-    from sim.noise import _number
-
-    _number("radiometry", name, value, low_open=True)
+    """Refuse a value that is not a finite number > 0 (:func:`sim.validation.bounded`)."""
+    bounded("radiometry", name, value, low_open=True)

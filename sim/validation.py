@@ -10,7 +10,8 @@ import math
 
 import numpy as np
 
-__all__ = ["PLAUSIBLE_DEPTH_M", "depth_metres", "finite", "integer", "non_negative", "positive"]
+__all__ = ["PLAUSIBLE_DEPTH_M", "bounded", "depth_metres", "finite", "integer", "non_negative",
+           "positive"]
 
 PLAUSIBLE_DEPTH_M = 100.0
 """Largest depth accepted where a depth is given (a scene's ``depth_range``, ``--min-depth`` /
@@ -68,4 +69,25 @@ def depth_metres(name: str, value: object) -> float:
         raise ValueError(f"depths are in metres: {name} {value:g} looks like millimetres "
                          f"({value / 1000:g} m?); depths above {PLAUSIBLE_DEPTH_M:g} m are "
                          "refused")
+    return value
+
+
+def bounded(cls: str, name: str, value, *, low: float = 0.0, low_open: bool = False,
+            high: float | None = None, high_open: bool = False) -> float:
+    """``value`` as a float in the given range, or a ValueError naming ``cls.name``.
+
+    The range is ``[low, high]``, each end open where ``low_open`` / ``high_open``; no ``high``:
+    no upper bound (used by :mod:`sim.noise` and :mod:`sim.radiometry`).
+    """
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{cls}.{name} must be a number, got {value!r}")
+    value = float(value)
+    too_low = value <= low if low_open else value < low
+    too_high = high is not None and (value >= high if high_open else value > high)
+    if not math.isfinite(value) or too_low or too_high:
+        left = "(" if low_open else "["
+        right = "]" if high is None else (")" if high_open else "]")
+        upper = "inf)" if high is None else f"{high:g}{right}"
+        raise ValueError(f"{cls}.{name} must be a finite number in {left}{low:g}, {upper}, "
+                         f"got {value!r}")
     return value
