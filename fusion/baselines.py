@@ -101,7 +101,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 import scipy.sparse.linalg
 
-from fusion.methods import register
+from fusion._registry import register
 from sim.camera import Camera
 
 __all__ = ["BilateralParams", "ColorizationParams", "FastBilateralParams", "GuidedParams",

@@ -38,6 +38,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from fusion._registry import FillMethod, check_params, get_method, run_method
 from fusion.dsi_range import oracle_header
 from fusion.figures import (
     add_header,
@@ -67,7 +68,6 @@ from fusion.frame_projection import (
     rolling_shutter_project,
 )
 from fusion.jsonio import to_json
-from fusion.methods import FillMethod, check_params, get_method, run_method
 from fusion.pointcloud import write_ply
 from fusion.scoring import depth_errors, discontinuity_band, errors_by_motion, motion_regions
 from fusion.segmentation import SegmentationParams, segment_regions

@@ -66,8 +66,8 @@ import numba
 import numpy as np
 from scipy import ndimage
 
+from fusion._registry import register
 from fusion.filling import RegionStats, _region_events, select_regions
-from fusion.methods import register
 from fusion.segmentation import default_min_region, segment_regions
 from sim.camera import Camera
 
