@@ -1,8 +1,8 @@
 """Speed figures that can be trusted (issue 11, item 13).
 
-map.json's DSI throughput excludes numba's compilation and says so; the README quotes the
-external anchors the benchmarks print (rpg_emvs and esim_py as measured beside evfuse) and calls
-the in-process baselines regression guards.
+map.json's DSI throughput excludes numba's compilation and says so; the README's speed figures
+agree with each other and with the external anchors the benchmarks print (rpg_emvs and esim_py
+as measured beside evfuse), checked by computing them, not by matching its sentences.
 """
 
 from __future__ import annotations
