@@ -46,7 +46,8 @@ SEQUENCE_FOLDER_NEEDS = ("calib.txt (one line 'fx fy cx cy k1 k2 p1 p2 k3'), ima
 """What a sequence folder needs to be mapped (CONVENTIONS.md), as the messages say it."""
 
 PARTIAL_SUFFIX = ".partial"
-"""Suffix of the folder a sequence is written into before it is complete."""
+"""Suffix of a folder or file written under a temporary name until it is complete (the output
+folders here, the event files of :mod:`sim.eventio`, which imports it)."""
 
 _FRAME_FOLDERS = {"png": "images", "exr": "depth"}
 

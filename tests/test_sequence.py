@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -353,3 +354,23 @@ def test_nearest_frame_and_depth_map(tmp_path):
     write_sequence_json(root / "sequence.json", {"camera": {"width": 64, "height": 48}})
     with pytest.raises(ValueError, match=r"images\.txt lists no frames"):
         load_sequence(root).nearest_frame(0.0)
+
+
+def test_partial_suffix_is_defined_once():
+    # One suffix for everything written under a temporary name (output folders, event files):
+    # defined in one module, imported by the others.
+    import ast
+
+    import sim.eventio
+
+    root = Path(__file__).resolve().parent.parent
+    definitions = []
+    for package in ("sim", "fusion", "scenes"):
+        for path in sorted((root / package).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                targets = node.targets if isinstance(node, ast.Assign) else (
+                    [node.target] if isinstance(node, ast.AnnAssign) else [])
+                if any(isinstance(t, ast.Name) and t.id == "PARTIAL_SUFFIX" for t in targets):
+                    definitions.append(f"{path.relative_to(root)}:{node.lineno}")
+    assert len(definitions) == 1, definitions
+    assert sim.eventio.PARTIAL_SUFFIX is sim.sequence.PARTIAL_SUFFIX
