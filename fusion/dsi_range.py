@@ -17,11 +17,12 @@ JSON, a line on its figures), since its errors used the answer.
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from sim.scene import declared_depth_range
 from sim.sequence import Sequence
 from sim.validation import depth_metres
 
@@ -69,18 +70,22 @@ def oracle_header(oracle: bool) -> list[str]:
 def declared_range(sequence: Sequence) -> tuple[float, float] | None:
     """The working range (m) declared by the scene file a simulated sequence was made from.
 
+    Read from the scene text kept in ``sequence.json`` by the scene parser
+    (:func:`sim.scene.declared_depth_range`).
+
     Returns None for a real recording or a scene without ``depth_range``.
+
+    Raises
+    ------
+    ValueError
+        The recorded scene is not valid TOML or its ``depth_range`` is not ``[near, far]``
+        metres with ``0 < near < far``; the message names ``sequence.json`` and the key.
     """
     text = ((sequence.metadata or {}).get("scene") or {}).get("toml")
     if not text:
         return None
-    try:
-        value = tomllib.loads(text).get("depth_range")
-    except tomllib.TOMLDecodeError:
-        return None
-    if not (isinstance(value, list) and len(value) == 2):
-        return None
-    return float(value[0]), float(value[1])
+    source = f"the scene recorded in {Path(sequence.folder) / 'sequence.json'}"
+    return declared_depth_range(text, source)
 
 
 def _oracle(sequence: Sequence, t_ref: float | None) -> DSIRange:
@@ -124,14 +129,17 @@ def resolve_dsi_range(sequence: Sequence, min_depth: float | None = None,
     ------
     ValueError
         Oracle with a given bound or without exact depth; a range with near >= far; a bound
-        in millimetres (:func:`sim.validation.depth_metres`).
+        in millimetres (:func:`sim.validation.depth_metres`); a bound missing and the
+        recorded scene's ``depth_range`` malformed (:func:`declared_range`).
     """
     if oracle:
         if min_depth is not None or max_depth is not None:
             raise ValueError("--depth-range oracle takes the range from the exact depth: drop "
                              "--min-depth/--max-depth, or drop --depth-range oracle")
         return _oracle(sequence, t_ref)
-    declared = declared_range(sequence)
+    # The scene's range is read (and a malformed one refused) only when a bound is missing.
+    declared = None if (min_depth is not None and max_depth is not None) else \
+        declared_range(sequence)
     fallback = (declared, "scene file (declared working range)") if declared else (
         DEFAULT_RANGE, f"default {DEFAULT_RANGE[0]:g}-{DEFAULT_RANGE[1]:g} m")
     low = fallback[0][0] if min_depth is None else float(min_depth)

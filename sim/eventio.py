@@ -45,6 +45,8 @@ from typing import Any, Self
 import numba
 import numpy as np
 
+from sim.sequence import PARTIAL_SUFFIX  # the one suffix of everything not yet complete
+
 __all__ = [
     "EVENT_DTYPE",
     "H5EventWriter",
@@ -63,9 +65,6 @@ __all__ = [
 
 EVENT_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")])
 """Events in memory: t int64 ns, x/y uint16 pixels, p int8 (+1 ON, -1 OFF)."""
-
-PARTIAL_SUFFIX = ".partial"
-"""Suffix of the file an event writer writes into until it is closed successfully."""
 
 MAX_EMPTY_MS = 10**7
 """Most consecutive empty milliseconds (about 2.8 hours: 80 MB of ``ms_to_idx``) an ``events.h5``

@@ -43,6 +43,7 @@ __all__ = [
     "Scene",
     "SceneError",
     "SceneObject",
+    "declared_depth_range",
     "load_scene",
     "parse_scene",
 ]
@@ -1056,7 +1057,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
         raise SceneError(f"seed {seed!r} (given to replace the seed of {source}): expected an "
                          "integer >= 0")
     seed = file_seed if seed is None else seed
-    depth_range = _get(ctx, raw, "", "depth_range", _depth_range)
+    depth_range = _declared_depth_range(ctx, raw)
     camera, frame_camera = _parse_cameras(ctx, raw)
     frames = _parse_frames(ctx, raw.get("frames", {}))
     render = _parse_render(ctx, raw.get("render", {}))
@@ -1088,6 +1089,42 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
                        "render); remove the objects' motion or use shutter = \"global\"")
     return Scene(name, description, duration, seed, camera, frames, render, trajectory, lights,
                  objects, source_path, text, depth_range, rig, up, imu, frame_camera)
+
+
+def _declared_depth_range(ctx: _Ctx, raw: Mapping[str, Any]) -> tuple[float, float] | None:
+    return _get(ctx, raw, "", "depth_range", _depth_range)
+
+
+def declared_depth_range(text: str, source: str | Path = "<scene>") -> tuple[float, float] | None:
+    """The working depth range a scene's TOML text declares (top-level ``depth_range``).
+
+    The one reader of ``depth_range``: :func:`parse_scene` uses it, and so does whoever needs the
+    range of a scene kept as text (the scene a simulated sequence recorded in its
+    ``sequence.json``) without building the whole scene.
+
+    Parameters
+    ----------
+    text : str
+        TOML document of a scene.
+    source : str or Path
+        Where it came from, for messages.
+
+    Returns
+    -------
+    (float, float) or None, metres
+        ``(near, far)``, or None when the scene declares none.
+
+    Raises
+    ------
+    SceneError
+        Invalid TOML, or a ``depth_range`` that is not ``[near, far]`` metres with
+        ``0 < near < far``; the message names ``source`` and the key.
+    """
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{source}: not valid TOML: {exc}") from None
+    return _declared_depth_range(_Ctx(str(source)), raw)
 
 
 def load_scene(path: str | Path, *, seed: int | None = None) -> Scene:

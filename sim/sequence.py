@@ -37,16 +37,16 @@ __all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "FRAME_CAMERA_FOLDER", "SEQUENCE_FOLD
            "FileIndex", "FrameCameraFiles", "Sequence",
            "MARKER", "OutputError", "atomic_output_dir", "check_not_input",
            "check_output_dir", "check_output_file", "describe_data_file", "frame_name",
-           "load_sequence",
-           "partial_dir", "read_index", "read_sequence_json", "resumable_partial", "write_index",
-           "write_marker", "write_sequence_json"]
+           "json_text", "load_sequence", "partial_dir", "read_index", "read_sequence_json",
+           "resumable_partial", "write_index", "write_marker", "write_sequence_json"]
 
 SEQUENCE_FOLDER_NEEDS = ("calib.txt (one line 'fx fy cx cy k1 k2 p1 p2 k3'), images.txt with "
                          "images/, groundtruth.txt (poses) and events.txt or events.h5")
 """What a sequence folder needs to be mapped (CONVENTIONS.md), as the messages say it."""
 
 PARTIAL_SUFFIX = ".partial"
-"""Suffix of the folder a sequence is written into before it is complete."""
+"""Suffix of a folder or file written under a temporary name until it is complete (the output
+folders here, the event files of :mod:`sim.eventio`, which imports it)."""
 
 _FRAME_FOLDERS = {"png": "images", "exr": "depth"}
 
@@ -474,18 +474,57 @@ def read_index(path: str | Path, check_files: bool = True) -> tuple[np.ndarray, 
 
 # --- sequence.json ---------------------------------------------------------------------------
 
-def _to_json(value: Any) -> Any:
+def _plain(value: Any) -> Any:
+    """``value`` with only JSON types: dicts (keys as strings), lists, str, int, float, bool,
+    None. NumPy scalars and arrays become numbers and lists, paths strings, dataclasses dicts,
+    sets sorted lists; a float that is NaN or infinite becomes None."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
     if isinstance(value, np.ndarray):
-        return value.tolist()
+        return _plain(value.tolist())
     if isinstance(value, np.generic):
-        return value.item()
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
     if isinstance(value, Path):
         return str(value)
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return dataclasses.asdict(value)
+        return _plain(dataclasses.asdict(value))
     if isinstance(value, set | frozenset):
-        return sorted(value)
+        return _plain(sorted(value))
+    if value is None or isinstance(value, str | int | float):
+        return value
     raise TypeError(f"cannot write a {type(value).__name__} to JSON: {value!r}")
+
+
+def json_text(document: dict) -> str:
+    """The one JSON form of evfuse's files: indented by 2, keys sorted, strict JSON.
+
+    Strict JSON has no NaN or infinity: a figure that is undefined (NaN in memory, e.g. an
+    error over no pixel) is written ``null``, and the document carries its coverage beside it.
+    ``sequence.json`` (:func:`write_sequence_json`) and the results of ``fusion``
+    (``map.json``, ``fill.json``, ``report.json``: :func:`fusion.jsonio.to_json`) are written
+    by it.
+
+    Parameters
+    ----------
+    document : dict
+        Nested dicts, lists, tuples, numbers (NumPy scalars and arrays included), strings,
+        None; paths, dataclasses and sets are converted.
+
+    Returns
+    -------
+    str
+        The text, ending in a newline.
+
+    Raises
+    ------
+    TypeError
+        A value that has no JSON form.
+    """
+    return json.dumps(_plain(document), indent=2, sort_keys=True, allow_nan=False) + "\n"
 
 
 def write_sequence_json(path: str | Path, data: dict) -> None:
@@ -496,22 +535,22 @@ def write_sequence_json(path: str | Path, data: dict) -> None:
     path : str or Path
         File to write.
     data : dict
-        JSON-able data; NumPy scalars and arrays, paths, dataclasses and sets are converted.
-        Keys are sorted and indented by 2, so files diff cleanly.
+        JSON-able data, written by :func:`json_text`: NumPy scalars and arrays, paths,
+        dataclasses and sets are converted, NaN and infinity are written ``null``. Keys are
+        sorted and indented by 2, so files diff cleanly.
 
     Raises
     ------
     ValueError
-        ``data`` is not a dict, holds a value that has no JSON form, or holds NaN or inf
-        (strict JSON has neither).
+        ``data`` is not a dict, or holds a value that has no JSON form.
     """
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a dict at the top level, got {type(data).__name__}")
     try:
-        text = json.dumps(data, sort_keys=True, indent=2, default=_to_json, allow_nan=False)
+        text = json_text(data)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: cannot write as JSON: {exc}") from None
-    Path(path).write_text(text + "\n", encoding="utf-8")
+    Path(path).write_text(text, encoding="utf-8")
 
 
 def read_sequence_json(path: str | Path) -> dict:

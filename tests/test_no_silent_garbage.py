@@ -292,10 +292,34 @@ def test_the_library_refuses_dsi_bounds_in_millimetres():
     # A sequence simulated from a scene in millimetres before scene files were checked for it.
     old = SimpleNamespace(folder=Path("seq"),
                           metadata={"scene": {"toml": "depth_range = [500, 3000]"}})
-    with pytest.raises(ValueError, match=r"depth_range of the scene in seq/sequence.json 500 "
-                                         r"looks like millimetres"):
+    with pytest.raises(ValueError, match=r"^the scene recorded in seq/sequence.json: depths are "
+                                         r"in metres: depth_range 500 looks like millimetres"):
         resolve_dsi_range(old)
     assert resolve_dsi_range(old, 0.5, 2.4).min_depth == 0.5            # both given: used
+
+
+@pytest.mark.parametrize("toml, expected", [
+    ("depth_range = [0.5]", r"depth_range: expected"),
+    ("depth_range = [2.0, 0.5]", r"depth_range: expected \[near, far\] metres with near < far"),
+    ('depth_range = ["a", "b"]', r"depth_range: expected a list of 2 positive numbers"),
+    ("depth_range = 3", r"depth_range: expected"),
+    ("depth_range = [0.5, 2.0", r"not valid TOML"),
+])
+def test_a_malformed_recorded_depth_range_is_refused_not_ignored(toml, expected):
+    from types import SimpleNamespace
+
+    from fusion.dsi_range import resolve_dsi_range
+
+    # Read by the scene parser from the scene text sequence.json keeps: one line naming the
+    # file and the key, never a silent fall-back to the default range.
+    sequence = SimpleNamespace(folder=Path("seq"), metadata={"scene": {"toml": toml}})
+    where = r"^the scene recorded in seq/sequence.json: "
+    with pytest.raises(ValueError, match=where + expected) as err:
+        resolve_dsi_range(sequence)
+    assert "\n" not in str(err.value)
+    with pytest.raises(ValueError, match=expected):
+        resolve_dsi_range(sequence, min_depth=0.3)                      # the other bound from it
+    assert resolve_dsi_range(sequence, 0.3, 3.0).source.startswith("given")
 
 
 # --------------------------------------------------------------------------------------------

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -225,8 +226,6 @@ def test_sequence_json_converts_numpy_and_sorts_keys(tmp_path):
 
 def test_sequence_json_errors(tmp_path):
     path = tmp_path / "s.json"
-    with pytest.raises(ValueError, match=r"s\.json: cannot write as JSON.*not JSON compliant"):
-        write_sequence_json(path, {"error": float("nan")})
     with pytest.raises(ValueError, match="cannot write a object"):
         write_sequence_json(path, {"thing": object()})
     path.write_text('{\n  "a": 1,\n  "b": oops\n}\n')
@@ -353,3 +352,43 @@ def test_nearest_frame_and_depth_map(tmp_path):
     write_sequence_json(root / "sequence.json", {"camera": {"width": 64, "height": 48}})
     with pytest.raises(ValueError, match=r"images\.txt lists no frames"):
         load_sequence(root).nearest_frame(0.0)
+
+
+def test_partial_suffix_is_defined_once():
+    # One suffix for everything written under a temporary name (output folders, event files):
+    # defined in one module, imported by the others.
+    import ast
+
+    import sim.eventio
+
+    root = Path(__file__).resolve().parent.parent
+    definitions = []
+    for package in ("sim", "fusion", "scenes"):
+        for path in sorted((root / package).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                targets = node.targets if isinstance(node, ast.Assign) else (
+                    [node.target] if isinstance(node, ast.AnnAssign) else [])
+                if any(isinstance(t, ast.Name) and t.id == "PARTIAL_SUFFIX" for t in targets):
+                    definitions.append(f"{path.relative_to(root)}:{node.lineno}")
+    assert len(definitions) == 1, definitions
+    assert sim.eventio.PARTIAL_SUFFIX is sim.sequence.PARTIAL_SUFFIX
+
+
+def test_both_json_writers_write_an_undefined_figure_as_null(tmp_path):
+    # One policy for every JSON file evfuse writes: strict JSON has no NaN, so an undefined
+    # figure (an error over no pixel) is null, with its coverage beside it, in sequence.json as
+    # in map.json / fill.json; no NaN or Infinity token, no refusal of one writer only.
+    from fusion.jsonio import to_json
+
+    document = {"mae_cm": float("nan"), "coverage": 0.0, "n_pixels": np.int64(0),
+                "per_class": {"far": np.float32("nan"), "near": np.float64(1.5)},
+                "errors": np.array([1.0, np.inf, -np.inf]), "bounds": (np.nan, 2)}
+    expected = {"mae_cm": None, "coverage": 0.0, "n_pixels": 0,
+                "per_class": {"far": None, "near": 1.5}, "errors": [1.0, None, None],
+                "bounds": [None, 2]}
+    path = tmp_path / "s.json"
+    write_sequence_json(path, document)
+    written = path.read_text(encoding="utf-8")
+    assert "NaN" not in written and "Infinity" not in written
+    assert json.loads(written) == expected == read_sequence_json(path)
+    assert to_json(document) == written                    # the same bytes from both writers
