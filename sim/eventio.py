@@ -45,7 +45,7 @@ from typing import Any, Self
 import numba
 import numpy as np
 
-from sim.sequence import PARTIAL_SUFFIX  # the one suffix of everything not yet complete
+from sim._atomic import PARTIAL_SUFFIX  # the one suffix of everything not yet complete
 
 __all__ = [
     "EVENT_DTYPE",

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
+from sim._atomic import PARTIAL_SUFFIX
 from sim.textfile import text_lines
 
 if TYPE_CHECKING:
@@ -44,9 +45,6 @@ SEQUENCE_FOLDER_NEEDS = ("calib.txt (one line 'fx fy cx cy k1 k2 p1 p2 k3'), ima
                          "images/, groundtruth.txt (poses) and events.txt or events.h5")
 """What a sequence folder needs to be mapped (CONVENTIONS.md), as the messages say it."""
 
-PARTIAL_SUFFIX = ".partial"
-"""Suffix of a folder or file written under a temporary name until it is complete (the output
-folders here, the event files of :mod:`sim.eventio`, which imports it)."""
 
 _FRAME_FOLDERS = {"png": "images", "exr": "depth"}
 
