@@ -247,15 +247,27 @@ def _evfuse_version() -> str:
         return "unknown"
 
 
+def _marker_path(path: str | Path, folder: str | Path) -> str:
+    """An input's path as a marker records it: its real path, or, for an input inside the same
+    unfinished output as ``folder`` (``run``'s ``map/`` reads ``<out>.partial/sequence``), its
+    path relative to ``folder``, which stays true once ``<out>.partial`` is renamed to ``<out>``."""
+    real, here = _real(path), _real(folder)
+    for ancestor in here.parents:
+        if ancestor.name.endswith(PARTIAL_SUFFIX) and real.is_relative_to(ancestor):
+            return os.path.relpath(real, here)
+    return str(real)
+
+
 def write_marker(folder: str | Path, command: str = "",
                  inputs: SequenceABC[str | Path] = ()) -> Path:
     """Write evfuse's :data:`MARKER` into ``folder``: JSON with ``written_by`` ("evfuse"),
-    ``command`` (which writer), ``version`` (evfuse's) and ``inputs`` (their real paths). No
+    ``command`` (which writer), ``version`` (evfuse's) and ``inputs`` (their real paths; one
+    inside the same unfinished output, relative to ``folder``). No
     time (the file's own is there): the same command writes the same bytes, so that a resumed
     or repeated simulation stays identical to an uninterrupted one."""
     path = Path(folder) / MARKER
     document = {"written_by": "evfuse", "command": command, "version": _evfuse_version(),
-                "inputs": [str(_real(p)) for p in inputs if p is not None]}
+                "inputs": [_marker_path(p, folder) for p in inputs if p is not None]}
     path.write_text(json.dumps(document, indent=1) + "\n")
     return path
 

@@ -273,3 +273,25 @@ def test_a_failed_convert_leaves_no_partial_file_and_never_writes_over_its_sourc
     assert _listing(tmp_path) == ["events.txt"]
     _refused(capsys, run_cli(["convert", str(src), str(src), "--overwrite"]), "convert",
              "is the input", "choose another DST")
+
+
+def test_a_nested_output_s_marker_names_its_sibling_input_as_it_will_be(tmp_path):
+    """`run` writes map/ from sequence/ inside `<out>.partial`: its marker recorded
+    `<out>.partial/sequence`, a path gone once the run is renamed into place. An input inside the
+    same unfinished output is recorded relative to the marker's folder; any other by its real
+    path."""
+    import json
+
+    from sim.sequence import MARKER, write_marker
+
+    outer = tmp_path / "run.partial"
+    (outer / "sequence").mkdir(parents=True)
+    (outer / "map.partial").mkdir()
+    other = tmp_path / "scene.toml"
+    other.write_text("")
+    write_marker(outer / "map.partial", "evfuse map", [outer / "sequence", other])
+    (outer / "map.partial").rename(outer / "map")
+    outer.rename(tmp_path / "run")
+    marker = json.loads((tmp_path / "run" / "map" / MARKER).read_text())
+    assert marker["inputs"] == ["../sequence", str(other.resolve())]
+    assert (tmp_path / "run" / "map" / marker["inputs"][0]).is_dir()
