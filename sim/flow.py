@@ -34,13 +34,13 @@ Files (written by :func:`write_motion_ground_truth` into a sequence folder; inde
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import cv2
 import numba
 import numpy as np
 
+from sim._atomic import atomic_file, write_bytes_atomically
 from sim.camera import Camera
 from sim.exr import read_depth, read_exr_channels, write_exr_channels
 from sim.scene import Scene, SceneObject
@@ -417,9 +417,8 @@ def _names(kind: str, index: int, ext: str = "exr") -> str:
 
 
 def _write_exr(path: Path, channels: dict[str, np.ndarray]) -> None:
-    partial = path.with_name(path.name + ".tmp")
-    write_exr_channels(partial, channels)
-    os.replace(partial, path)
+    with atomic_file(path) as partial:
+        write_exr_channels(partial, channels)
 
 
 def _write_flow(path: Path, flow: np.ndarray, flags: np.ndarray) -> None:
@@ -430,9 +429,7 @@ def _write_mask(path: Path, ids: np.ndarray) -> None:
     ok, png = cv2.imencode(".png", ids.astype(np.uint16))
     if not ok:
         raise OSError(f"cannot encode {path} as PNG")
-    partial = path.with_name(path.name + ".tmp")
-    partial.write_bytes(png.tobytes())
-    os.replace(partial, path)
+    write_bytes_atomically(path, png.tobytes())
 
 
 def write_motion_ground_truth(scene: Scene, renderer, folder: Path, times: np.ndarray,

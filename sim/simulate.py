@@ -29,7 +29,6 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
 import platform
 import sys
 import time
@@ -42,6 +41,7 @@ import cv2
 import numba
 import numpy as np
 
+from sim._atomic import atomic_file, write_bytes_atomically
 from sim.camera import write_calib
 from sim.event_depth import (
     DEPTH_TXT,
@@ -546,10 +546,9 @@ def _simulate_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.n
         ok, png = cv2.imencode(".png", frame)
         if not ok:
             raise OSError(f"cannot encode {image} as PNG")
-        _write_atomically(image, png.tobytes())
-        partial = depth_map.with_name(depth_map.name + ".tmp")
-        write_depth(partial, depth)
-        os.replace(partial, depth_map)
+        write_bytes_atomically(image, png.tobytes())
+        with atomic_file(depth_map) as partial:
+            write_depth(partial, depth)
         timings["render"] += tock - tick
         timings["depth"] += tack - tock
         timings["write"] += time.perf_counter() - tack
@@ -924,16 +923,6 @@ def _differences(saved: dict, current: dict, skip: tuple[str, ...] = ()) -> list
             if key.split(".")[0] not in skip and old.get(key, missing) != new.get(key, missing)]
 
 
-def _write_atomically(path: Path, data: bytes) -> None:
-    """Write ``path`` under a temporary name and rename it into place: never half-written."""
-    partial = path.with_name(path.name + ".tmp")
-    with partial.open("wb") as handle:
-        handle.write(data)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(partial, path)
-
-
 def _check_resumable(out: Path, overwrite: bool, identity: dict, inputs: list) -> None:
     """Raise ValueError unless ``<out>.partial`` holds a checkpoint of a run like this one."""
     partial = resumable_partial(out, overwrite, inputs)
@@ -1008,7 +997,7 @@ class _Checkpoint:
 
     def _save(self) -> None:
         text = json.dumps(self.data, sort_keys=True, indent=1, allow_nan=False)
-        _write_atomically(self.folder / "checkpoint.json", text.encode("utf-8"))
+        write_bytes_atomically(self.folder / "checkpoint.json", text.encode("utf-8"))
 
     @property
     def gain(self) -> float | None:
@@ -1050,7 +1039,7 @@ class _Checkpoint:
         buffer = io.BytesIO()
         np.savez(buffer, sample_luminance=sample.luminance, sample_log=sample.log,
                  state=np.array(json.dumps(state)), **arrays, **extra)
-        _write_atomically(self.folder / "events.npz", buffer.getvalue())
+        write_bytes_atomically(self.folder / "events.npz", buffer.getvalue())
 
     def load_events(self) -> tuple[dict, dict] | None:
         """The arrays and state saved by :meth:`save_events`, or None if there are none."""

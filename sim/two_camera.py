@@ -24,13 +24,13 @@ banded or interpolated: the only approximation is the exposure's, as for a globa
 
 from __future__ import annotations
 
-import os
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sim._atomic import atomic_file
 from sim.camera import write_calib
 from sim.exr import write_depth
 from sim.frame_camera import FrameCamera, RigTrajectory
@@ -174,9 +174,8 @@ def simulate_frame_camera(scene: Scene, event_renderer: Renderer, folder: Path,
     for name, t in zip(names, times, strict=True):
         path = folder / name
         if not path.is_file():                             # written atomically: complete
-            partial = path.with_name(path.name + ".tmp")
-            write_depth(partial, event_renderer.depth(float(t)))
-            os.replace(partial, path)
+            with atomic_file(path) as partial:
+                write_depth(partial, event_renderer.depth(float(t)))
     write_index(folder / "images.txt", times[:0], [])
     write_index(folder / "depthmaps.txt", times + frames_offset, names)
     view = (view_scene, renderer.renderer if rig.rolling else renderer, sub, depth_names,
