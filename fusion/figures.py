@@ -7,7 +7,6 @@ the files a run saved.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import cv2
 import numpy as np
 
 from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
+from sim._atomic import write_bytes_atomically
 
 __all__ = ["FARTHER_COLOUR", "NEARER_COLOUR", "Caption", "DepthScale", "Legend", "Swatches",
            "add_header", "depth_colours", "depth_legend", "depth_scale", "error_legend",
@@ -731,7 +731,8 @@ def add_header(image: np.ndarray, lines: list[str], colour: tuple[int, int, int]
 
 
 def write_image(path: str | Path, image: np.ndarray) -> Path:
-    """Write an image atomically: to ``.<name>.partial<ext>`` beside it, then renamed.
+    """Write an image atomically (:func:`sim._atomic.write_bytes_atomically`: to
+    ``<name>.partial`` beside it, then renamed).
 
     Parameters
     ----------
@@ -744,9 +745,8 @@ def write_image(path: str | Path, image: np.ndarray) -> Path:
     Path
     """
     path = Path(path)
-    partial = path.with_name(f".{path.stem}.partial{path.suffix}")
-    if not cv2.imwrite(str(partial), image):
-        partial.unlink(missing_ok=True)
+    ok, encoded = cv2.imencode(path.suffix, image)       # the bytes cv2.imwrite would write
+    if not ok:
         raise OSError(f"cannot write {path}")
-    os.replace(partial, path)
+    write_bytes_atomically(path, encoded.tobytes())
     return path

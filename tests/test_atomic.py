@@ -57,3 +57,31 @@ def test_flow_exr_writer_leaves_no_temporary_file_when_writing_fails(tmp_path, m
     with pytest.raises(OSError, match="cannot write"):
         sim.flow._write_exr(target, {"du": np.zeros((2, 2), np.float32)})
     assert list(tmp_path.iterdir()) == []
+
+
+def test_figures_write_image_goes_through_the_one_policy_with_the_same_bytes(tmp_path,
+                                                                            monkeypatch):
+    """``write_image`` had its own style (``.<stem>.partial<ext>``, no fsync): it now writes
+    ``<name>.partial``, syncs it, and writes the bytes ``cv2.imwrite`` writes."""
+    import os
+
+    import cv2
+
+    from fusion.figures import write_image
+
+    image = np.random.default_rng(3).integers(0, 256, (24, 32, 3), dtype=np.uint8)
+    reference = tmp_path / "reference.png"
+    assert cv2.imwrite(str(reference), image)
+    synced = []
+    real_fsync = os.fsync
+
+    def fsync(fd):
+        synced.append(os.readlink(f"/proc/self/fd/{fd}"))
+        real_fsync(fd)
+
+    monkeypatch.setattr("os.fsync", fsync)
+    target = tmp_path / "figure.png"
+    write_image(target, image)
+    assert synced == [str(tmp_path / ("figure.png" + PARTIAL_SUFFIX))]
+    assert target.read_bytes() == reference.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["figure.png", "reference.png"]
