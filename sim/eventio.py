@@ -45,7 +45,7 @@ from typing import Any, Self
 import numba
 import numpy as np
 
-from sim._atomic import PARTIAL_SUFFIX  # the one suffix of everything not yet complete
+from sim._atomic import PARTIAL_SUFFIX, partial_path  # the one suffix of everything unfinished
 
 __all__ = [
     "EVENT_DTYPE",
@@ -213,9 +213,12 @@ def check_events(events: np.ndarray, width: int | None = None, height: int | Non
 # --- atomic files ----------------------------------------------------------------------------
 
 def _partial_path(path: Path) -> Path:
+    """``<path>.partial`` (:func:`sim._atomic.partial_path`). The streaming writers keep their own
+    class, not :func:`sim._atomic.atomic_file`: they hold the file open for a whole simulation and
+    keep the ``.partial`` file when interrupted, for a resumed run."""
     if not path.name:
         raise ValueError(f"output path {str(path)!r} has no file name")
-    return path.with_name(path.name + PARTIAL_SUFFIX)
+    return partial_path(path)
 
 
 class _StreamingWriter:
