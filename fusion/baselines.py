@@ -92,7 +92,6 @@ not denoising), as in the paper's method; the frame is the (H, W) uint8 standard
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from functools import partial
 
 import cv2
 import numba
@@ -103,6 +102,7 @@ import scipy.sparse.linalg
 
 from fusion._registry import register
 from sim.camera import Camera
+from sim.validation import integer, positive
 
 __all__ = ["BilateralParams", "ColorizationParams", "FastBilateralParams", "GuidedParams",
            "bilateral_grid", "colorization_completion", "colorization_weights",
@@ -112,24 +112,20 @@ __all__ = ["BilateralParams", "ColorizationParams", "FastBilateralParams", "Guid
 
 # --------------------------------------------------------------------------- parameters
 
-def _radius(value: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-        raise ValueError(f"radius must be an integer >= 1 pixel, got {value!r}")
-
-
-def _positive(name: str, value: float) -> None:
-    if not (np.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+_INTEGER_FIELDS = ("radius", "num_iter")
 
 
 @dataclass(frozen=True)
 class _Params:
-    """Settings of a method: ``radius`` an integer >= 1, every other field a number > 0."""
+    """Settings of a method: ``radius`` and ``num_iter`` integers >= 1, every other field a
+    number > 0 (checked by :mod:`sim.validation`, stored as int / float)."""
 
     def __post_init__(self):
         for field in fields(self):
-            check = _radius if field.name == "radius" else partial(_positive, field.name)
-            check(getattr(self, field.name))
+            value = getattr(self, field.name)
+            value = (integer(field.name, value, 1) if field.name in _INTEGER_FIELDS
+                     else positive(field.name, value))
+            object.__setattr__(self, field.name, value)
 
     @classmethod
     def from_dict(cls, method: str, params: dict):
@@ -233,11 +229,6 @@ class FastBilateralParams(_Params):
     num_iter: int = 200
     max_tol: float = 1e-5
 
-    def __post_init__(self):
-        super().__post_init__()
-        if isinstance(self.num_iter, bool) or not isinstance(self.num_iter, int | np.integer):
-            raise ValueError(f"num_iter must be an integer >= 1, got {self.num_iter!r}")
-
 
 def _inputs(frame: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     frame = np.asarray(frame)
@@ -293,8 +284,8 @@ def guided_filter(guide: np.ndarray, source: np.ndarray, radius: int, eps: float
     (H, W) or (H, W, C) float64 ndarray
         The filtered ``q``, linear in ``p``.
     """
-    _radius(radius)
-    _positive("eps", eps)
+    radius = integer("radius", radius, 1)
+    eps = positive("eps", eps)
     guide = np.asarray(guide, dtype=np.float64)
     source = np.asarray(source, dtype=np.float64)
     if guide.ndim != 2 or source.shape[:2] != guide.shape or source.ndim not in (2, 3):
@@ -547,8 +538,8 @@ def bilateral_grid(frame: np.ndarray, sigma_spatial: float, sigma_luma: float
     blur : (V, V) float64 scipy.sparse.csr_matrix
         ``B``, symmetric, 6 on the diagonal and 1 between grid neighbours.
     """
-    _positive("sigma_spatial", sigma_spatial)
-    _positive("sigma_luma", sigma_luma)
+    sigma_spatial = positive("sigma_spatial", sigma_spatial)
+    sigma_luma = positive("sigma_luma", sigma_luma)
     frame = np.asarray(frame)
     rows, cols = np.indices(frame.shape)
     coords = [np.floor(values / sigma).astype(np.int64).ravel() + 1      # + 1: room for -1

@@ -61,7 +61,7 @@ from sim.noise import (
     threshold_map,
 )
 from sim.radiometry import DVS_DARK_LUMINANCE, DVS_RESPONSIVITY, photocurrent
-from sim.validation import integer
+from sim.validation import integer, positive
 
 __all__ = [
     "CROSSING_TOLERANCE_NS",
@@ -115,10 +115,7 @@ class EventParams:
 
     def __post_init__(self) -> None:
         for name in ("contrast_on", "contrast_off", "log_eps", "responsivity"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not (isinstance(value, int | float)
-                                               and math.isfinite(value) and value > 0):
-                raise ValueError(f"EventParams.{name} must be a finite number > 0, got {value!r}")
+            positive(f"EventParams.{name}", getattr(self, name))
         if not isinstance(self.noise, NoiseParams):
             raise ValueError(f"EventParams.noise must be a NoiseParams, got {self.noise!r}")
         integer("EventParams.seed", self.seed, 0)

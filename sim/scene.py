@@ -33,7 +33,7 @@ from sim.trajectory import (
     Trajectory,
     read_trajectory,
 )
-from sim.validation import depth_metres
+from sim.validation import depth_metres, finite
 
 __all__ = [
     "Light",
@@ -359,13 +359,17 @@ def _show(value: Any) -> str:
 
 
 def _number(ctx: _Ctx, value: Any, key: str, *, positive=False, nonneg=False) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ctx.fail(key, f"expected a finite number, got {_show(value)}")
-    if positive and value <= 0:
+    """``value`` checked by :func:`sim.validation.finite`, refused in the scene file's terms
+    (file and key) by ``ctx``."""
+    try:
+        number = finite(key, value)
+    except ValueError:
+        raise ctx.fail(key, f"expected a finite number, got {_show(value)}") from None
+    if positive and number <= 0:
         raise ctx.fail(key, f"expected a positive number, got {value}")
-    if nonneg and value < 0:
+    if nonneg and number < 0:
         raise ctx.fail(key, f"expected a number >= 0, got {value}")
-    return float(value)
+    return number
 
 
 def _integer(ctx: _Ctx, value: Any, key: str, *, minimum: int | None = None) -> int:
@@ -390,11 +394,13 @@ def _vector(ctx: _Ctx, value: Any, key: str, n: int, *, positive=False, nonneg=F
         raise ctx.fail(key, f"expected {what}, got {_show(value)}")
     out = []
     for i, item in enumerate(value):
-        if isinstance(item, bool) or not isinstance(item, int | float) or not math.isfinite(item):
-            raise ctx.fail(key, f"expected {what}, got {_show(value)} (item {i})")
+        try:
+            item = finite(key, item)
+        except ValueError:
+            raise ctx.fail(key, f"expected {what}, got {_show(value)} (item {i})") from None
         if (positive and item <= 0) or (nonneg and item < 0):
             raise ctx.fail(key, f"expected {what}, got {_show(value)} (item {i})")
-        out.append(float(item))
+        out.append(item)
     return np.array(out)
 
 

@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from numbers import Real
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +44,7 @@ from sim.se3 import (
     so3_right_jacobian_rate,
 )
 from sim.textfile import numeric_rows
+from sim.validation import non_negative, positive
 
 __all__ = [
     "HandheldTrajectory",
@@ -351,11 +351,7 @@ class HandheldTrajectory(Trajectory):
         object.__setattr__(self, "frequencies",
                            _vector(self.frequencies, "frequencies", 6, nonneg=True))
         object.__setattr__(self, "phases", _vector(self.phases, "phases", 6))
-        chirp = self.chirp
-        if isinstance(chirp, bool) or not isinstance(chirp, Real) or not math.isfinite(chirp) \
-                or chirp < 0:
-            raise ValueError(f"chirp must be a finite number >= 0 (1/s), got {chirp!r}")
-        object.__setattr__(self, "chirp", float(chirp))
+        object.__setattr__(self, "chirp", non_negative("chirp", self.chirp))
 
     def _phase(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         tt = t[:, None]
@@ -844,8 +840,7 @@ def sample_times(t0: float, t1: float, rate: float) -> np.ndarray:
     """
     if not (math.isfinite(t0) and math.isfinite(t1) and t1 >= t0):
         raise ValueError(f"expected finite times with t1 >= t0, got t0={t0!r}, t1={t1!r}")
-    if not (math.isfinite(rate) and rate > 0):
-        raise ValueError(f"rate must be a finite positive number of Hz, got {rate!r}")
+    rate = positive("rate", rate)
     # The 1e-9 guards against (t1 - t0) * rate landing just above an integer by rounding.
     steps = math.ceil((t1 - t0) * rate - 1e-9)
     if steps <= 0:

@@ -95,10 +95,8 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
 
     recording, out = Path(recording), Path(out)
     depth = depth_metres("--depth", positive("--depth", depth))
-    if not (math.isfinite(frame_gamma) and frame_gamma > 0):
-        raise ValueError(f"--frame-gamma must be a positive number, got {frame_gamma}")
-    if not (math.isfinite(illuminance) and illuminance > 0):
-        raise ValueError(f"--illuminance must be a positive number of lux, got {illuminance}")
+    frame_gamma = positive("--frame-gamma", frame_gamma)
+    illuminance = positive("--illuminance", illuminance)
     check_output_dir(out, overwrite, [recording])
     sequence = load_sequence(recording)
     if sequence.groundtruth_path is None or not len(sequence.image_paths):

@@ -96,6 +96,11 @@ def test_twin_refuses_what_it_cannot_copy(recording, tmp_path):
         write_twin(recording, tmp_path / "t", 0.0)
     with pytest.raises(ValueError, match="window .* is not inside groundtruth.txt's poses"):
         write_twin(recording, tmp_path / "t", 0.2, (0.0, 50.0))
+    # Checked as --depth is (sim.validation.positive): a non-number is a ValueError too.
+    with pytest.raises(ValueError, match="--frame-gamma must be a number, got '1'"):
+        write_twin(recording, tmp_path / "t", 0.2, frame_gamma="1")
+    with pytest.raises(ValueError, match="--illuminance must be a finite number > 0, got 0"):
+        write_twin(recording, tmp_path / "t", 0.2, illuminance=0)
     assert run_cli(["twin", str(recording), "--depth", "0.2", "--window", "1", "--out",
                  str(tmp_path / "t")]) == 2
 
