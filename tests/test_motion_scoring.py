@@ -129,22 +129,29 @@ def test_every_built_in_scene_survives_being_written_back_as_toml():
             again.camera.__dict__, default=str)
 
 
-def test_map_fill_and_run_split_the_errors_of_a_scene_with_moving_objects(plane_sequence,
-                                                                          tmp_path, capsys):
-    """The wall sequence, its scene given a ball swinging in front of the wall (the events are
-    the wall's alone: this checks what the scoring reports, not how well EMVS maps a ball)."""
+def _with_a_moving_ball(plane_sequence, folder):
+    """A copy of ``plane_sequence`` in ``folder`` whose recorded scene (the one scoring reads)
+    also holds a ball 0.6 m ahead swinging 0.1 m along x at 1 Hz."""
     import shutil
 
-    from fusion.cli import main
-
-    sequence = tmp_path / "sequence"
-    shutil.copytree(plane_sequence, sequence)
-    meta = json.loads((sequence / "sequence.json").read_text())
+    shutil.copytree(plane_sequence, folder)
+    meta = json.loads((folder / "sequence.json").read_text())
     meta["scene"]["toml"] += ('\n[[objects]]\nname = "ball"\ntype = "sphere"\n'
                               "center = [0.0, 0.6, 0.0]\nradius = 0.1\n"
                               'motion = { type = "sine", amplitude = [0.1, 0.0, 0.0], '
                               "frequency = 1.0 }\n")
-    (sequence / "sequence.json").write_text(json.dumps(meta))
+    (folder / "sequence.json").write_text(json.dumps(meta))
+    return folder
+
+
+def test_map_fill_and_run_split_the_errors_of_a_scene_with_moving_objects(plane_sequence,
+                                                                          tmp_path, capsys):
+    """The wall sequence, its scene given a ball swinging in front of the wall (the events are
+    the wall's alone: this checks what the scoring reports, not how well EMVS maps a ball)."""
+
+    from fusion.cli import main
+
+    sequence = _with_a_moving_ball(plane_sequence, tmp_path / "sequence")
     run = tmp_path / "run"
     assert main(["run", str(sequence), "--out", str(run), "--min-depth", "0.5",
                  "--max-depth", "3", "--planes", "30", "--quiet"]) == 0
@@ -179,18 +186,10 @@ def test_reproduce_adds_a_frozen_control_and_splits_the_dynamic_row(plane_sequen
     its scene) is split by region in report.md, and followed by its frozen control, frozen at
     the moving row's reference time."""
     import importlib
-    import shutil
 
     repro = importlib.import_module("fusion.reproduce")      # the package exports a function
 
-    moving = tmp_path / "moving"
-    shutil.copytree(plane_sequence, moving)
-    meta = json.loads((moving / "sequence.json").read_text())
-    meta["scene"]["toml"] += ('\n[[objects]]\nname = "ball"\ntype = "sphere"\n'
-                              "center = [0.0, 0.6, 0.0]\nradius = 0.1\n"
-                              'motion = { type = "sine", amplitude = [0.1, 0.0, 0.0], '
-                              "frequency = 1.0 }\n")
-    (moving / "sequence.json").write_text(json.dumps(meta))
+    moving = _with_a_moving_ball(plane_sequence, tmp_path / "moving")
     asked = []
 
     def simulated(job, params, cache):
