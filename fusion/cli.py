@@ -67,13 +67,6 @@ _POSITIVE = _number_type(positive, "a finite number > 0")
 _NON_NEGATIVE = _number_type(non_negative, "a finite number >= 0")
 
 
-def _check_seed(args: argparse.Namespace) -> None:
-    """Refuse a negative ``--seed`` in the flag's terms (the scene parser would name its
-    ``seed`` argument)."""
-    if args.seed is not None and args.seed < 0:
-        raise ValueError(f"--seed {args.seed}: expected an integer >= 0")
-
-
 def _cmd_scenes(args: argparse.Namespace) -> int:
     from scenes import describe_scenes
 
@@ -301,7 +294,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if not 0 < args.min_rate <= args.max_rate:
         raise ValueError(f"--min-rate {args.min_rate:g} and --max-rate {args.max_rate:g}: "
                          "expected 0 < --min-rate <= --max-rate (Hz)")
-    _check_seed(args)
     scene = load_scene(resolve_scene(args.scene), seed=args.seed)
     rig = None if args.rig is None else RigParams.from_preset(args.rig)
     if args.frame_sensor is not None:
@@ -600,7 +592,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.pipeline import RunParams, is_sequence_folder, run_pipeline
 
     _check_depth_flags(args)
-    _check_seed(args)
     method, method_params, dense = _fill_method(args)
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
                        max_depth=args.max_depth,
