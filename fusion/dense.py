@@ -69,7 +69,13 @@ from fusion.frame_projection import (
 )
 from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
-from fusion.scoring import depth_errors, discontinuity_band, errors_by_motion, motion_regions
+from fusion.scoring import (
+    depth_errors,
+    discontinuity_band,
+    errors_by_motion,
+    motion_regions,
+    recorded_scene,
+)
 from fusion.segmentation import SegmentationParams, segment_regions
 from sim.camera import Camera
 from sim.exr import read_depth, write_depth, write_exr_channels
@@ -522,16 +528,11 @@ def frame_motion_regions(inputs: FillInputs) -> np.ndarray | None:
         return None
     sequence = load_sequence(inputs.info["sequence"])
     meta = sequence.metadata or {}
-    toml = (meta.get("scene") or {}).get("toml")
-    if not toml:
+    scene = recorded_scene(meta)
+    if scene is None or not scene.is_dynamic:
         return None
     from sim.rig import true_time
-    from sim.scene import parse_scene
 
-    scene = parse_scene(toml, (meta.get("scene") or {}).get("source") or "<sequence.json>",
-                        seed=meta.get("seed"))
-    if not scene.is_dynamic:
-        return None
     window = json.loads((Path(inputs.info["map"]) / "map.json").read_text())["window_s"]
     t_true = true_time(meta, inputs.info["t_frame"], "frames")
     camera = scene.camera.with_resolution(inputs.frame.shape[1], inputs.frame.shape[0])

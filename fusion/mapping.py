@@ -36,7 +36,7 @@ from fusion.emvs import (
 from fusion.figures import add_header, depth_colours, depth_scale, panel_grid
 from fusion.jsonio import to_json
 from fusion.pointcloud import write_ply
-from fusion.scoring import depth_errors, errors_by_motion, motion_regions
+from fusion.scoring import depth_errors, errors_by_motion, motion_regions, recorded_scene
 from sim.camera import Camera
 from sim.eventio import check_time_units, event_time_span, iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
@@ -328,11 +328,9 @@ def _ground_truth_depth(sequence: Sequence, t_ref: float) -> np.ndarray | None:
     if k is not None:
         return read_depth(sequence.depth_paths[k])
     from sim.render import Renderer
-    from sim.scene import parse_scene
 
     pose = exact_trajectory(sequence).pose(t_true)
-    source = (meta.get("scene") or {}).get("source") or "<sequence.json>"
-    scene = replace(parse_scene(toml, source, seed=meta.get("seed")), camera=camera)
+    scene = replace(recorded_scene(meta), camera=camera)
     return Renderer(scene, spp=1).depth(t_true, pose=pose)
 
 
@@ -342,16 +340,11 @@ def _motion_regions(sequence: Sequence, t_ref: float, window: tuple[float, float
     at the true pose and time, as :func:`_ground_truth_depth`), or None for a real recording
     or a scene whose objects do not move. Scoring only."""
     meta = sequence.metadata or {}
-    toml = (meta.get("scene") or {}).get("toml")
-    if not toml:
+    scene = recorded_scene(meta)
+    if scene is None or not scene.is_dynamic:
         return None
     from sim.rig import exact_camera, exact_trajectory, true_time
-    from sim.scene import parse_scene
 
-    source = (meta.get("scene") or {}).get("source") or "<sequence.json>"
-    scene = parse_scene(toml, source, seed=meta.get("seed"))
-    if not scene.is_dynamic:
-        return None
     sensor = exact_camera(sequence)
     camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
     t_true = true_time(meta, t_ref, "poses")

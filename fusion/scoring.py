@@ -25,7 +25,7 @@ import numpy as np
 
 __all__ = ["DELTAS", "ERROR_NO_SURFACE", "ERROR_NO_VALUE", "MOTION_REGIONS", "MOTION_STEP_S",
            "PRECISIONS", "depth_errors", "discontinuity_band", "error_image",
-           "errors_by_motion", "motion_regions"]
+           "errors_by_motion", "motion_regions", "recorded_scene"]
 
 DELTAS = (1.25, 1.05, 1.01)
 """Ratio thresholds of the delta accuracies, ``max(d / gt, gt / d) < delta``."""
@@ -220,6 +220,30 @@ nothing) whose line of sight a moving object covered during the window; the rest
 MOTION_STEP_S = 0.01
 """Time step (s) at which :func:`motion_regions` samples the objects' motion over the window
 (dynamic_6dof's fastest object, its ball, moves 6 mm in that time)."""
+
+
+def recorded_scene(metadata: dict | None):
+    """The scene a simulated sequence was made from, parsed from the TOML its ``sequence.json``
+    recorded (with its seed), or None for a recording without one (a real recording). Ground
+    truth: for scoring only.
+
+    Parameters
+    ----------
+    metadata : dict or None
+        The sequence's ``sequence.json`` (:attr:`sim.sequence.Sequence.metadata`).
+
+    Returns
+    -------
+    sim.scene.Scene or None
+    """
+    meta = metadata or {}
+    toml = (meta.get("scene") or {}).get("toml")
+    if not toml:
+        return None
+    from sim.scene import parse_scene
+
+    source = (meta.get("scene") or {}).get("source") or "<sequence.json>"
+    return parse_scene(toml, source, seed=meta.get("seed"))
 
 
 def motion_regions(scene, camera, pose: np.ndarray, t_view: float,
