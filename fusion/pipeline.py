@@ -64,6 +64,7 @@ from sim.sequence import (
     load_sequence,
     partial_dir,
     resumable_partial,
+    resume_differences,
 )
 from sim.statistics import event_frame
 from sim.validation import finite
@@ -254,27 +255,17 @@ def _run_identity(source: str | Path, scene, params: RunParams) -> dict:
         "params": asdict(params), "version": _evfuse_version()}))
 
 
-def _flat(tree: dict, prefix: str = "") -> dict:
-    """``{"a": {"b": 1}}`` as ``{"a.b": 1}``."""
-    flat = {}
-    for key, value in tree.items():
-        if isinstance(value, dict) and value:
-            flat.update(_flat(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
-
-
 def _check_run_resumable(out: Path, overwrite: bool, inputs: list, identity: dict) -> None:
     """Raise ValueError unless ``<out>.partial`` holds an interrupted run like this one."""
     partial = resumable_partial(out, overwrite, inputs, needs=RESUME_FILE)
     saved = partial / RESUME_FILE
-    old, new = _flat(json.loads(saved.read_text())), _flat(identity)
-    differences = [key for key in sorted(set(old) | set(new)) if old.get(key) != new.get(key)]
+    differences = resume_differences(json.loads(saved.read_text()), identity,
+                                     saved_as="in the interrupted run")
     if differences:
-        raise ValueError(f"{partial} was left by a run with other inputs ({', '.join(differences)}"
-                         " differ); expected the same source, scene file, parameters and "
-                         "software to resume (or run without resuming to start again)")
+        raise ValueError(f"{partial} was left by a run with other inputs: "
+                         f"{'; '.join(differences)}; expected the same source, scene file, "
+                         "parameters and software to resume (or run without resuming to start "
+                         "again)")
 
 
 def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None = None,

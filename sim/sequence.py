@@ -39,7 +39,8 @@ __all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "FRAME_CAMERA_FOLDER", "SEQUENCE_FOLD
            "MARKER", "OutputError", "atomic_output_dir", "check_not_input",
            "check_output_dir", "check_output_file", "describe_data_file", "frame_name",
            "json_text", "load_sequence", "partial_dir", "read_index", "read_sequence_json",
-           "resumable_partial", "write_index", "write_marker", "write_sequence_json"]
+           "resumable_partial", "resume_differences", "write_index", "write_marker",
+           "write_sequence_json"]
 
 SEQUENCE_FOLDER_NEEDS = ("calib.txt (one line 'fx fy cx cy k1 k2 p1 p2 k3'), images.txt with "
                          "images/, groundtruth.txt (poses) and events.txt or events.h5")
@@ -183,6 +184,29 @@ def check_output_dir(out: str | Path, overwrite: bool = False,
                           "a folder or a new path (anything else is never replaced)")
     if _is_nonempty_dir(out):
         _check_marked(out, out, overwrite)
+
+
+def _flatten(value: object, prefix: str = "") -> dict:
+    """``{"a": {"b": 1}}`` as ``{"a.b": 1}``."""
+    if not isinstance(value, dict):
+        return {prefix: value}
+    flat: dict = {}
+    for key, item in value.items():
+        flat.update(_flatten(item, f"{prefix}.{key}" if prefix else str(key)))
+    return flat
+
+
+def resume_differences(saved: dict, current: dict, skip: tuple[str, ...] = (),
+                       saved_as: str = "in the checkpoint") -> list[str]:
+    """What differs between the identity an interrupted run saved and this run's: ``key (saved
+    value SAVED_AS, current value now)`` for every dotted key (nested dicts flattened) whose
+    values differ, keys whose first part is in ``skip`` aside."""
+    old, new = _flatten(saved), _flatten(current)
+    missing = "(none)"
+    return [f"{key} ({str(old.get(key, missing))[:40]} {saved_as}, "
+            f"{str(new.get(key, missing))[:40]} now)"
+            for key in sorted(set(old) | set(new))
+            if key.split(".")[0] not in skip and old.get(key, missing) != new.get(key, missing)]
 
 
 def resumable_partial(out: str | Path, overwrite: bool, inputs: SequenceABC[str | Path] = (),

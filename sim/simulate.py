@@ -100,6 +100,7 @@ from sim.sequence import (
     check_output_dir,
     frame_name,
     resumable_partial,
+    resume_differences,
     write_index,
     write_sequence_json,
 )
@@ -904,30 +905,11 @@ def _fingerprint(identity: dict) -> str:
     return hashlib.sha256(json.dumps(identity, sort_keys=True).encode("utf-8")).hexdigest()
 
 
-def _flatten(value: object, prefix: str = "") -> dict:
-    if not isinstance(value, dict):
-        return {prefix: value}
-    flat: dict = {}
-    for key, item in value.items():
-        flat.update(_flatten(item, f"{prefix}.{key}" if prefix else str(key)))
-    return flat
-
-
-def _differences(saved: dict, current: dict, skip: tuple[str, ...] = ()) -> list[str]:
-    """``key (saved value in the checkpoint, current value now)`` for every key that differs."""
-    old, new = _flatten(saved), _flatten(current)
-    missing = "(none)"
-    return [f"{key} ({str(old.get(key, missing))[:40]} in the checkpoint, "
-            f"{str(new.get(key, missing))[:40]} now)"
-            for key in sorted(set(old) | set(new))
-            if key.split(".")[0] not in skip and old.get(key, missing) != new.get(key, missing)]
-
-
 def _check_resumable(out: Path, overwrite: bool, identity: dict, inputs: list) -> None:
     """Raise ValueError unless ``<out>.partial`` holds a checkpoint of a run like this one."""
     partial = resumable_partial(out, overwrite, inputs)
     saved = _Checkpoint.read(partial / CHECKPOINT_FOLDER)["identity"]
-    differences = _differences(saved, identity, skip=("variant",))
+    differences = resume_differences(saved, identity, skip=("variant",))
     if differences:
         raise ValueError(_mismatch(partial, differences))
 
@@ -970,7 +952,7 @@ class _Checkpoint:
         if resume:
             self.data = self.read(folder)
             if self.data["fingerprint"] != fingerprint:
-                differences = _differences(self.data["identity"], identity)
+                differences = resume_differences(self.data["identity"], identity)
                 raise ValueError(_mismatch(folder.parent, differences or ["fingerprint"]))
         else:
             folder.mkdir()
