@@ -816,28 +816,6 @@ def _add_dense_options(parser: argparse.ArgumentParser) -> None:
                              "(default 1, the paper's exp(-d))")
 
 
-def _version() -> str:
-    """evfuse's version: the installed package's (its metadata), else that of the source tree
-    this module was imported from (its ``pyproject.toml``, said so), else ``unknown``."""
-    from importlib import metadata
-
-    try:
-        return metadata.version("evfuse")
-    except metadata.PackageNotFoundError:
-        pass
-    import tomllib
-
-    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
-    try:
-        with pyproject.open("rb") as handle:
-            project = tomllib.load(handle)["project"]
-        if project["name"] == "evfuse":
-            return f"{project['version']} (source tree {pyproject.parent}, not installed)"
-    except (OSError, ValueError, KeyError, TypeError):
-        pass
-    return "unknown (not installed, and no pyproject.toml of evfuse beside the source)"
-
-
 class _OneLineParser(argparse.ArgumentParser):
     """An argument parser whose refusals are one line (``evfuse CMD: error: ...``, exit 2), as
     every other refusal of evfuse is, instead of argparse's usage block before the error."""
@@ -847,13 +825,15 @@ class _OneLineParser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
+    from sim.sequence import evfuse_version
+
     parser = _OneLineParser(
         prog="evfuse",
         description="Simulate event and standard cameras in ground-truthed scenes, and fuse them "
                     "into dense depth.",
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
-    parser.add_argument("--version", action="version", version=f"evfuse {_version()}",
+    parser.add_argument("--version", action="version", version=f"evfuse {evfuse_version()}",
                         help="print evfuse's version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
 

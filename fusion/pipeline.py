@@ -246,13 +246,13 @@ SHA-256, every parameter, evfuse's version), compared by a resumed run."""
 
 def _run_identity(source: str | Path, scene, params: RunParams) -> dict:
     """What a resumed run must share with the interrupted one."""
-    from sim.sequence import _evfuse_version
+    from sim.sequence import evfuse_version
 
     return json.loads(to_json({
         "source": str(source),
         "scene_sha256": None if scene is None else hashlib.sha256(
             scene.text.encode()).hexdigest(),
-        "params": asdict(params), "version": _evfuse_version()}))
+        "params": asdict(params), "version": evfuse_version()}))
 
 
 def _check_run_resumable(out: Path, overwrite: bool, inputs: list, identity: dict) -> None:

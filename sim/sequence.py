@@ -37,7 +37,8 @@ if TYPE_CHECKING:
 __all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "FRAME_CAMERA_FOLDER", "SEQUENCE_FOLDER_NEEDS",
            "FileIndex", "FrameCameraFiles", "Sequence",
            "MARKER", "OutputError", "atomic_output_dir", "check_not_input",
-           "check_output_dir", "check_output_file", "describe_data_file", "frame_name",
+           "check_output_dir", "check_output_file", "describe_data_file", "evfuse_version",
+           "frame_name",
            "json_text", "load_sequence", "partial_dir", "read_index", "read_sequence_json",
            "resumable_partial", "resume_differences", "write_index", "write_marker",
            "write_sequence_json"]
@@ -262,13 +263,26 @@ def check_output_file(out: str | Path, inputs: SequenceABC[str | Path] = (),
         raise OutputError(f"output file {out} is an existing folder; expected a file path")
 
 
-def _evfuse_version() -> str:
+def evfuse_version() -> str:
+    """evfuse's version: the installed package's (its metadata), else that of the source tree
+    this package was imported from (its ``pyproject.toml``, said so), else ``unknown``."""
     from importlib import metadata
 
     try:
         return metadata.version("evfuse")
     except metadata.PackageNotFoundError:
-        return "unknown"
+        pass
+    import tomllib
+
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    try:
+        with pyproject.open("rb") as handle:
+            project = tomllib.load(handle)["project"]
+        if project["name"] == "evfuse":
+            return f"{project['version']} (source tree {pyproject.parent}, not installed)"
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    return "unknown (not installed, and no pyproject.toml of evfuse beside the source)"
 
 
 def _marker_path(path: str | Path, folder: str | Path) -> str:
@@ -290,7 +304,7 @@ def write_marker(folder: str | Path, command: str = "",
     time (the file's own is there): the same command writes the same bytes, so that a resumed
     or repeated simulation stays identical to an uninterrupted one."""
     path = Path(folder) / MARKER
-    document = {"written_by": "evfuse", "command": command, "version": _evfuse_version(),
+    document = {"written_by": "evfuse", "command": command, "version": evfuse_version(),
                 "inputs": [_marker_path(p, folder) for p in inputs if p is not None]}
     path.write_text(json.dumps(document, indent=1) + "\n")
     return path

@@ -98,6 +98,7 @@ from sim.scene import Scene
 from sim.sequence import (
     atomic_output_dir,
     check_output_dir,
+    evfuse_version,
     frame_name,
     resumable_partial,
     resume_differences,
@@ -196,9 +197,9 @@ def scene_files(scene: Scene) -> list[Path]:
 
 
 def _versions() -> dict[str, str]:
-    versions = {"python": platform.python_version()}
-    for package in ("evfuse", "mitsuba", "drjit", "numpy", "opencv-python-headless",
-                    "scikit-image", "OpenEXR"):
+    versions = {"python": platform.python_version(), "evfuse": evfuse_version()}
+    for package in ("mitsuba", "drjit", "numpy", "opencv-python-headless", "scikit-image",
+                    "OpenEXR"):
         try:
             versions[package] = metadata.version(package)
         except metadata.PackageNotFoundError:
