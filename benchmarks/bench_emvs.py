@@ -1,4 +1,4 @@
-"""DSI construction throughput of ``fusion.emvs.disparity_space_image``, and a 2-s window.
+"""DSI construction throughput of ``fusion.map.emvs.disparity_space_image``, and a 2-s window.
 
 Million events per second (events / wall time of building the DSI, as rpg_emvs logs it) at
 240x180x100 and 640x480x100 planes, on 1 and 2 threads, for 1 M events, either uniformly random
@@ -38,8 +38,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from fusion.emvs import DepthMapParams, DSIParams, depth_planes, disparity_space_image
-from fusion.mapping import MapParams, map_sequence
+from fusion.map.emvs import DepthMapParams, DSIParams, depth_planes, disparity_space_image
+from fusion.map.mapping import MapParams, map_sequence
 from sim.camera import camera_preset
 from sim.trajectory import LinearTrajectory
 
@@ -86,7 +86,7 @@ def _rpg_emvs_loop(coeffs, inv_depth, fx, fy, cx, cy, packet_size, dsi):  # prag
 
 
 def _guard(xy, times, trajectory, T_world_ref, camera, params):
-    from fusion.emvs import ray_coefficients
+    from fusion.map.emvs import ray_coefficients
     from sim.se3 import invert_pose
 
     n_packets = -(-len(xy) // params.packet_size)

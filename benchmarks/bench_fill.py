@@ -30,14 +30,14 @@ import cv2
 import numba
 import numpy as np
 
-from fusion.filling import (
+from fusion.fill.filling import (
     WEIGHTINGS,
     FillParams,
     fill_regions,
     filling_score,
     select_regions,
 )
-from fusion.segmentation import segment_regions
+from fusion.fill.segmentation import segment_regions
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SIZES = ((240, 180), (640, 480), (1280, 720))

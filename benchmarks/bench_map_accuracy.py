@@ -20,8 +20,8 @@ import sys
 import time
 from pathlib import Path
 
-from fusion.emvs import DepthMapParams, DSIParams
-from fusion.mapping import MapParams, map_sequence
+from fusion.map.emvs import DepthMapParams, DSIParams
+from fusion.map.mapping import MapParams, map_sequence
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"

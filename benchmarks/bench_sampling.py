@@ -5,7 +5,8 @@ For each scene, in one process: ``simulate`` with ``--sampler pixel`` and ``--sa
 Reported per sampler: pixel samples per simulated second (a whole frame counts H W), whole-frame
 renders, events, and the wall time of the event camera (rendering, emulation, writing; the
 frames of the standard camera and the set-up are not counted); the ratio frame / pixel of the
-wall times; and the agreement of each with the reference (:func:`sim.agreement.event_agreement`:
+wall times; and the agreement of each with the reference
+(:func:`benchmarks.agreement.event_agreement`:
 count error, worst 16x16 block with >= 100 events, median and 95th percentile of the matched
 events' time differences).
 
@@ -30,8 +31,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from benchmarks.agreement import event_agreement
 from scenes import resolve_scene
-from sim.agreement import event_agreement
 from sim.eventio import read_events
 from sim.sampling import SamplingParams
 from sim.scene import load_scene

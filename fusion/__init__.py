@@ -2,19 +2,22 @@
 
 Stages, each a set of pure functions on arrays with a frozen dataclass of parameters:
 
-* :mod:`fusion.emvs` -- the disparity space image and the semi-dense depth (EMVS),
-* :mod:`fusion.segmentation` -- region growing on the standard frame,
-* :mod:`fusion.filling` -- region selection, weighted filling and the filling score,
+* :mod:`fusion.map.emvs` -- the disparity space image and the semi-dense depth (EMVS),
+* :mod:`fusion.fill.segmentation` -- region growing on the standard frame,
+* :mod:`fusion.fill.filling` -- region selection, weighted filling and the filling score,
 * :mod:`fusion.methods` -- filling methods by name (the paper's and baselines, or a user's),
 * :mod:`fusion.scoring` -- errors against exact depth.
 
-Wired together by :mod:`fusion.mapping` (``evfuse map``), :mod:`fusion.dense` (``evfuse fill``),
-:mod:`fusion.pipeline` (``evfuse run``) and :mod:`fusion.reproduce` (``evfuse reproduce``); the
-command line (:mod:`fusion.cli`) only parses arguments and calls these.
+Wired together by :mod:`fusion.map.mapping` (``evfuse map``), :mod:`fusion.fill.dense`
+(``evfuse fill``), :mod:`fusion.pipeline` (``evfuse run``) and :mod:`fusion.experiments.reproduce`
+(``evfuse reproduce``); the command line (:mod:`fusion.cli`) only parses arguments and calls these.
 """
 
-from fusion.benchmark import BenchParams, bench, run_bench
-from fusion.dense import (
+import sys
+
+from fusion.experiments.bench import BenchParams, bench, run_bench
+from fusion.experiments.reproduce import ReproduceParams, reproduce
+from fusion.fill.dense import (
     DenseParams,
     DenseResult,
     FillInputs,
@@ -26,15 +29,7 @@ from fusion.dense import (
     project_map,
     write_fill,
 )
-from fusion.dsi_range import DSIRange, resolve_dsi_range
-from fusion.emvs import (
-    DepthMapParams,
-    DSIParams,
-    depth_planes,
-    disparity_space_image,
-    semidense_depth,
-)
-from fusion.filling import (
+from fusion.fill.filling import (
     FillParams,
     RegionStats,
     SelectionParams,
@@ -45,7 +40,24 @@ from fusion.filling import (
     inverse_distance_weights,
     select_regions,
 )
-from fusion.mapping import MapParams, MapResult, TimeWindow, map_sequence, time_window, write_map
+from fusion.fill.segmentation import SegmentationParams, segment_regions
+from fusion.io import read_ply, write_ply
+from fusion.map.dsi_range import DSIRange, resolve_dsi_range
+from fusion.map.emvs import (
+    DepthMapParams,
+    DSIParams,
+    depth_planes,
+    disparity_space_image,
+    semidense_depth,
+)
+from fusion.map.mapping import (
+    MapParams,
+    MapResult,
+    TimeWindow,
+    map_sequence,
+    time_window,
+    write_map,
+)
 from fusion.methods import (
     FillMethod,
     MethodError,
@@ -56,10 +68,8 @@ from fusion.methods import (
     run_method,
 )
 from fusion.pipeline import RunParams, draw_overview, fill_window, map_window, run_pipeline
-from fusion.pointcloud import read_ply, write_ply
-from fusion.reproduce import ReproduceParams, reproduce
 from fusion.scoring import depth_errors, discontinuity_band, error_image
-from fusion.segmentation import SegmentationParams, segment_regions
+from sim._moved import alias_modules as _alias_modules
 
 __all__ = [
     "BenchParams", "DSIParams", "DSIRange", "DenseParams", "DenseResult", "DepthMapParams",
@@ -75,3 +85,22 @@ __all__ = [
     "segment_regions", "select_regions", "semidense_depth", "time_window", "write_fill",
     "write_map", "write_ply",
 ]
+
+# Old module paths (before the subpackages of issue 22), kept importable: see sim._moved.
+_alias_modules(sys.modules[__name__], {
+    "fusion.emvs": "fusion.map.emvs",
+    "fusion.dsi_range": "fusion.map.dsi_range",
+    "fusion.mapping": "fusion.map.mapping",
+    "fusion.segmentation": "fusion.fill.segmentation",
+    "fusion.filling": "fusion.fill.filling",
+    "fusion.frame_projection": "fusion.fill.projection",
+    "fusion.dense": "fusion.fill.dense",
+    "fusion.baselines": "fusion.methods.baselines",
+    "fusion.mesh_fill": "fusion.methods.mesh",
+    "fusion.surface_fit": "fusion.methods.surface_fit",
+    "fusion.benchmark": "fusion.experiments.bench",
+    "fusion.reproduce": "fusion.experiments.reproduce",
+    "fusion.families": "fusion.experiments.families",
+    "fusion.jsonio": "fusion.io",
+    "fusion.pointcloud": "fusion.io",
+})

@@ -178,12 +178,12 @@ def _method_variants(methods: list[str], params: list[str], single: bool = False
 
 _KNOBS = ("steps", "step_depth", "radius", "distance", "shadow", "angle", "amplitude",
           "wavelength", "texture")
-"""The difficulty knobs of ``evfuse bench --family`` (see :mod:`fusion.families`)."""
+"""The difficulty knobs of ``evfuse bench --family`` (see :mod:`fusion.experiments.families`)."""
 
 
 def _family_files(args: argparse.Namespace) -> list[str]:
     """Write each member of ``--family`` over the knobs' values; return the scene files."""
-    from fusion.families import family_variants
+    from fusion.experiments.families import family_variants
 
     knobs = {}
     for name in _KNOBS:
@@ -212,7 +212,7 @@ def _family_files(args: argparse.Namespace) -> list[str]:
 def _bench_command(args: argparse.Namespace, given: list[str]) -> str:
     """The command line of a bench run, for ``bench.md``: every flag that changes what it
     benches, as given (a ``--family`` run names its family and knobs, not ``--scenes``)."""
-    from fusion.benchmark import BenchParams
+    from fusion.experiments.bench import BenchParams
 
     words = ["evfuse", "bench"]
     if args.family:
@@ -238,7 +238,7 @@ def _bench_command(args: argparse.Namespace, given: list[str]) -> str:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from fusion.benchmark import INPUTS, BenchParams, bench_sources, run_bench
+    from fusion.experiments.bench import INPUTS, BenchParams, bench_sources, run_bench
     from fusion.methods import MethodVariant, available_methods, split_labels
     from sim.sequence import check_output_dir
 
@@ -278,8 +278,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from scenes import resolve_scene
+    from sim.capture_errors import RigParams
     from sim.events import EventParams
-    from sim.rig import RigParams
     from sim.sampling import SamplingParams
     from sim.scene import load_scene
     from sim.simulate import simulate
@@ -442,7 +442,7 @@ def _cmd_twin(args: argparse.Namespace) -> int:
 
 
 def _cmd_map(args: argparse.Namespace) -> int:
-    from fusion.emvs import DepthMapParams
+    from fusion.map.emvs import DepthMapParams
     from fusion.pipeline import map_window
     from sim.sequence import check_output_dir
 
@@ -481,17 +481,17 @@ def _cmd_map(args: argparse.Namespace) -> int:
 
 def _fill_method(args: argparse.Namespace):
     """The filling method the flags name, its own settings (``--param``) and the parameters of
-    the paper's stages that go with it (:class:`fusion.dense.DenseParams`), or a ValueError
+    the paper's stages that go with it (:class:`fusion.fill.dense.DenseParams`), or a ValueError
     naming the flags: a bad setting (:func:`_method_variants`), or two that contradict each
     other: ``--weighting`` against a paper's method of another weighting, any flag of the
     paper's stages set off its default with a method that has no such stage, or ``--sigma`` /
     ``--scale`` and the same setting of a paper's method."""
     from dataclasses import replace
 
-    from fusion.dense import PAPER_METHODS, DenseParams, paper_weighting
-    from fusion.filling import FillParams, SelectionParams
+    from fusion.fill.dense import PAPER_METHODS, DenseParams, paper_weighting
+    from fusion.fill.filling import FillParams, SelectionParams
+    from fusion.fill.segmentation import SegmentationParams
     from fusion.methods import get_method, method_label
-    from fusion.segmentation import SegmentationParams
 
     spec = args.method or f"paper-{args.weighting or 'idw'}"
     variant = _method_variants([spec], args.param or [], single=True)[0]
@@ -532,7 +532,7 @@ def _fill_method(args: argparse.Namespace):
 
 
 def _cmd_fill(args: argparse.Namespace) -> int:
-    from fusion.dense import fill_frame, write_fill
+    from fusion.fill.dense import fill_frame, write_fill
     from fusion.methods import method_label
     from fusion.pipeline import fill_sources, fill_window
     from sim.camera import read_calib
@@ -588,7 +588,7 @@ def _read_gray(path):
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from fusion.emvs import DepthMapParams
+    from fusion.map.emvs import DepthMapParams
     from fusion.pipeline import RunParams, is_sequence_folder, run_pipeline
 
     _check_depth_flags(args)
@@ -686,8 +686,8 @@ def _cmd_show(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from fusion.experiments.reproduce import ReproduceParams, reproduce
     from fusion.methods import split_labels
-    from fusion.reproduce import ReproduceParams, reproduce
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     scenes = tuple(s.strip() for s in args.scenes.split(",")) if args.scenes else None
@@ -874,7 +874,7 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--family", default=None,
                        help="instead of --scenes, a scene family with a difficulty knob: "
                             "staircase, sphere, cylinder, slanted, heightfield (see "
-                            "fusion.families); vary its knobs with the flags below")
+                            "fusion.experiments.families); vary its knobs with the flags below")
     for knob, what in (("steps", "staircase: boxes (default 4)"),
                        ("step_depth", "staircase: m between steps (default 0.2)"),
                        ("radius", "sphere / cylinder: m (default 0.25 / 0.2)"),

@@ -25,16 +25,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fusion.dense import (
-    DenseParams,
-    DenseResult,
-    fill_map,
-    paper_weighting,
-    resolve_method,
-    write_fill,
-)
-from fusion.dsi_range import oracle_header, resolve_dsi_range
-from fusion.emvs import DepthMapParams, DSIParams
 from fusion.figures import (
     add_header,
     depth_colours,
@@ -49,10 +39,19 @@ from fusion.figures import (
     point_radius,
     write_image,
 )
-from fusion.jsonio import to_json
-from fusion.mapping import MapParams, MapResult, map_sequence, time_window, write_map
+from fusion.fill.dense import (
+    DenseParams,
+    DenseResult,
+    fill_map,
+    paper_weighting,
+    resolve_method,
+    write_fill,
+)
+from fusion.io import read_ply, to_json
+from fusion.map.dsi_range import oracle_header, resolve_dsi_range
+from fusion.map.emvs import DepthMapParams, DSIParams
+from fusion.map.mapping import MapParams, MapResult, map_sequence, time_window, write_map
 from fusion.methods import FillMethod
-from fusion.pointcloud import read_ply
 from sim.eventio import read_window
 from sim.exr import read_depth
 from sim.progress import progress as progress_stage
@@ -89,7 +88,7 @@ class RunParams:
         events.
     min_depth, max_depth : float or None, metres
         Depth range of the DSI. Default: the working range the scene file declares, else
-        0.2 to 5 m (:func:`fusion.dsi_range.resolve_dsi_range`); never the exact depth.
+        0.2 to 5 m (:func:`fusion.map.dsi_range.resolve_dsi_range`); never the exact depth.
     oracle_depth_range : bool
         Opt in to the exact depth of the reference view, widened by 20 %, as the DSI's range
         (``--depth-range oracle``); every output then says so.
@@ -102,7 +101,7 @@ class RunParams:
     method : str or None
         The filling method, a name or ``module:function`` (:mod:`fusion.methods`); None (the
         default): the paper's with ``dense.fill.weighting``, ``paper-idw``
-        (:func:`fusion.dense.resolve_method`).
+        (:func:`fusion.fill.dense.resolve_method`).
     method_params : dict
         The method's own settings (:func:`fusion.methods.check_params`; default none: its
         defaults), recorded in ``report.json``.
@@ -154,14 +153,14 @@ def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = 
 
     The reference view defaults to the standard frame nearest the middle of the window (the
     frame the map is filled with); the DSI's range comes from
-    :func:`fusion.dsi_range.resolve_dsi_range` (the user's bounds, the scene's declared range,
+    :func:`fusion.map.dsi_range.resolve_dsi_range` (the user's bounds, the scene's declared range,
     or 0.2-5 m; the exact depth only with ``oracle_depth_range``).
 
     Parameters
     ----------
     sequence_folder : str or Path
     out : str or Path
-        Map folder to write (:func:`fusion.mapping.write_map`).
+        Map folder to write (:func:`fusion.map.mapping.write_map`).
     t0, t1 : float or None, seconds
         Event window (default: the data's span).
     ref_time : float or None, seconds
@@ -205,7 +204,7 @@ def fill_window(map_folder: str | Path, out: str | Path, params: DenseParams | N
     """The fill stage as ``evfuse fill`` and ``evfuse run`` both run it: fill, score, files.
 
     ``method`` is the filling method (default: the paper's with ``params.fill.weighting``,
-    :func:`fusion.dense.resolve_method`), ``method_params`` its own settings. ``out`` must
+    :func:`fusion.fill.dense.resolve_method`), ``method_params`` its own settings. ``out`` must
     not be, hold or lie in the map folder or its sequence folder (refused before any work)."""
     _, params = resolve_method(method, params, method_params)
     check_output_dir(out, overwrite, inputs=fill_sources(map_folder))
@@ -351,7 +350,8 @@ def _run(source, scene, out: Path, params: RunParams, method: FillMethod, overwr
                                                        progress, timings, resume)
             simulated_here = True
         tick = time.perf_counter()
-        # A window simulated here is all the data there is: a rig's clock offsets (sim.rig)
+        # A window simulated here is all the data there is: a rig's clock offsets
+        # (sim.capture_errors)
         # leave its events and poses a few ms short of it at one end, so it is clipped to them
         # (recorded as clipped) instead of refused.
         mapped, map_params = map_window(
@@ -433,7 +433,7 @@ def _errors_summary(map_errors: dict | None, fill_errors: dict | None) -> dict |
     map_errors : dict or None
         ``map.json``'s ``errors``: the N1 map points in the reference view's own grid.
     fill_errors : dict or None
-        ``fill.json``'s ``errors`` (:func:`fusion.dense.dense_errors`), in the frame's pixels.
+        ``fill.json``'s ``errors`` (:func:`fusion.fill.dense.dense_errors`), in the frame's pixels.
 
     Returns
     -------

@@ -4,6 +4,9 @@ Importing ``sim`` does not import Mitsuba: the variant is chosen (and announced 
 :class:`Renderer`, or explicitly with :func:`use_variant`.
 """
 
+import sys
+
+from sim._moved import alias_modules as _alias_modules
 from sim.camera import CAMERA_PRESETS, Camera, camera_preset, read_calib, write_calib
 from sim.event_depth import read_event_depth
 from sim.eventio import (
@@ -94,3 +97,6 @@ __all__ = [
     "write_depth",
     "write_trajectory",
 ]
+
+# Old module paths (before the moves of issue 22), kept importable: see sim._moved.
+_alias_modules(sys.modules[__name__], {"sim.rig": "sim.capture_errors"})

@@ -553,7 +553,7 @@ def json_text(document: dict) -> str:
     Strict JSON has no NaN or infinity: a figure that is undefined (NaN in memory, e.g. an
     error over no pixel) is written ``null``, and the document carries its coverage beside it.
     ``sequence.json`` (:func:`write_sequence_json`) and the results of ``fusion``
-    (``map.json``, ``fill.json``, ``report.json``: :func:`fusion.jsonio.to_json`) are written
+    (``map.json``, ``fill.json``, ``report.json``: :func:`fusion.io.to_json`) are written
     by it.
 
     Parameters

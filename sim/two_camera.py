@@ -9,7 +9,7 @@ sequence folder as an ECD folder of the EVENT camera, with the frame camera besi
   sensor's (:func:`sim.simulate._simulate_frames`: exposure samples, sensor, noise);
 - ``frame_camera/depthmaps.txt`` + ``depth/``: its exact z-depth at the same times;
 - ``frame_camera/calib.txt`` and ``frame_camera/T_event_frame.txt`` (exact: the rig's
-  imperfections, :mod:`sim.rig`, apply to the event camera's files only);
+  imperfections, :mod:`sim.capture_errors`, apply to the event camera's files only);
 - ``depthmaps.txt`` + ``depth/`` at the top: the event camera's exact z-depth at the frame
   camera's frame times; ``images.txt`` lists no frames (the event camera has none).
 

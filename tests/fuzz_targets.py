@@ -634,7 +634,7 @@ def check_params(case: tuple[str, list[str]]) -> None:
 
 @st.composite
 def _sweep_case(draw: Any) -> tuple[str, dict[str, list[float]]]:
-    from fusion.families import FAMILIES
+    from fusion.experiments.families import FAMILIES
 
     family = draw(st.sampled_from([*sorted(FAMILIES), "nosuch"]))
     names = sorted({*FAMILIES.get(family, {}), "texture", "steps", "radius"})
@@ -650,7 +650,7 @@ SWEEP_CASES = _sweep_case()
 def check_sweep(case: tuple[str, dict[str, list[float]]]) -> None:
     """``evfuse bench --family F --KNOB V,...``: every member the knobs make is a scene that
     parses (with finite figures), or one line naming the family or the knob."""
-    from fusion.families import family_variants
+    from fusion.experiments.families import family_variants
     from sim.scene import parse_scene
 
     family, knobs = case

@@ -1,4 +1,5 @@
-"""Image-guided baselines (fusion.baselines): guided filter, joint bilateral, colorization and the
+"""Image-guided baselines (fusion.methods.baselines): guided filter, joint bilateral, colorization
+and the
 fast bilateral solver as filling methods, each against analytic cases on 80x60 frames (as
 tests/test_methods.py)."""
 
@@ -7,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import fusion.baselines  # noqa: F401  (registers the baselines until fusion.methods imports it)
-from fusion.baselines import (
+import fusion.methods.baselines  # noqa: F401  (registers the baselines until fusion.methods imports it)
+from fusion.methods import MethodError, available_methods, run_method
+from fusion.methods.baselines import (
     BilateralParams,
     FastBilateralParams,
     GuidedParams,
@@ -18,7 +20,6 @@ from fusion.baselines import (
     fast_bilateral_solve,
     guided_filter,
 )
-from fusion.methods import MethodError, available_methods, run_method
 from sim.camera import Camera
 
 H, W = 60, 80

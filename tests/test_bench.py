@@ -10,8 +10,8 @@ import json
 import numpy as np
 import pytest
 
-from fusion.benchmark import CSV_COLUMNS, bench
 from fusion.cli import main
+from fusion.experiments.bench import CSV_COLUMNS, bench
 from tests.conftest import FAST, WALL, scene_text
 
 EXTRA = ("depth_range = [0.4, 2.5]\n"
@@ -130,7 +130,7 @@ def test_without_only_the_built_ins_run_at_their_defaults_beside_the_settings(mo
                                                                             tmp_path):
     """What is benched, before any work: every built-in at its defaults, then the --method
     entries with their settings; an entry equal to a built-in's is one row."""
-    import fusion.benchmark
+    import fusion.experiments.bench
     from fusion.methods import available_methods
 
     asked = {}
@@ -139,7 +139,7 @@ def test_without_only_the_built_ins_run_at_their_defaults_beside_the_settings(mo
         asked["methods"] = methods
         return []
 
-    monkeypatch.setattr(fusion.benchmark, "run_bench", run_bench)
+    monkeypatch.setattr(fusion.experiments.bench, "run_bench", run_bench)
     assert main(["bench", "--method", "plane,nearest", "--param", "plane.residual_rel=0.03",
                  "--out", str(tmp_path / "o"), "--quiet"]) == 0
     labels = [variant.label for variant in asked["methods"]]
@@ -180,7 +180,7 @@ def test_bad_bench_arguments_are_refused_in_one_line(argv, message, tmp_path, ca
 
 def test_a_family_expands_into_one_scene_per_knob_value(tmp_path):
     from fusion.cli import _parser
-    from fusion.families import FAMILIES, family_scene, family_variants
+    from fusion.experiments.families import FAMILIES, family_scene, family_variants
     from sim.scene import parse_scene
 
     names = [parse_scene(text).name for text in family_variants("staircase",
@@ -209,14 +209,14 @@ def test_a_family_expands_into_one_scene_per_knob_value(tmp_path):
     ("staircase", {"steps": 8, "step_depth": 0.3}, "would stand at or behind the wall"),
 ])
 def test_a_bad_family_or_knob_is_named(family, knobs, message):
-    from fusion.families import family_scene
+    from fusion.experiments.families import family_scene
 
     with pytest.raises(ValueError, match=message):
         family_scene(family, **knobs)
 
 
 def test_the_coverage_curve_keeps_the_most_confident_pixels_first():
-    from fusion.benchmark import coverage_curve
+    from fusion.experiments.bench import coverage_curve
 
     truth = np.full((2, 5), 2.0, np.float32)
     sparse = np.zeros_like(truth)
@@ -234,7 +234,7 @@ def test_the_coverage_curve_keeps_the_most_confident_pixels_first():
 def test_the_canny_input_is_the_exact_depth_on_the_frames_edges(tiny_map):
     import cv2
 
-    from fusion.benchmark import CANNY_THRESHOLDS, BenchParams, _inputs
+    from fusion.experiments.bench import CANNY_THRESHOLDS, BenchParams, _inputs
 
     base, inputs = _inputs(tiny_map / "run" / "map", BenchParams())
     edges = cv2.Canny(base.frame, *CANNY_THRESHOLDS) > 0
@@ -248,7 +248,7 @@ def test_bench_md_records_the_family_command_that_was_run(monkeypatch, tmp_path)
     it records must be one that runs the same bench again."""
     import shlex
 
-    import fusion.benchmark
+    import fusion.experiments.bench
     from fusion.cli import _parser
 
     asked = {}
@@ -257,7 +257,7 @@ def test_bench_md_records_the_family_command_that_was_run(monkeypatch, tmp_path)
         asked.update(scenes=scenes, command=kwargs["command"])
         return []
 
-    monkeypatch.setattr(fusion.benchmark, "run_bench", run_bench)
+    monkeypatch.setattr(fusion.experiments.bench, "run_bench", run_bench)
     argv = ["bench", "--family", "staircase", "--steps", "3,5", "--input", "oracle,emvs",
             "--method", "plane", "--noise", "0.03", "--out", str(tmp_path / "b"), "--quiet"]
     assert main(argv) == 0

@@ -25,7 +25,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from fusion.reproduce import COMPLEX, PAPER, SLIDERS, ReproduceParams
+from fusion.experiments.reproduce import COMPLEX, PAPER, SLIDERS, ReproduceParams
 from scenes import builtin_scenes
 from sim.frame_sensor import AE_TARGET, sensor_frame
 from sim.render import Renderer

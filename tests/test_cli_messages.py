@@ -347,7 +347,7 @@ def test_fill_of_a_missing_folder_says_it_does_not_exist(tmp_path, capsys):
     ("shapes_6dof,slider_close,nosuch", "1", "slider_close,nosuch"),
 ])
 def test_reproduce_names_a_scene_its_tables_lack(scenes, tables, named, tmp_path, capsys):
-    from fusion.reproduce import COMPLEX, SLIDERS, TABLE1_SCENES
+    from fusion.experiments.reproduce import COMPLEX, SLIDERS, TABLE1_SCENES
 
     out, cache = tmp_path / "report", tmp_path / "cache"
     code = run_cli(["reproduce", "--out", str(out), "--cache", str(cache), "--scenes", scenes,

@@ -118,12 +118,12 @@ def test_overwrite_replaces_an_evfuse_folder_atomically(sequence, tmp_path, monk
     assert marker["inputs"] == [str(sequence.resolve())]
     written = tree_hashes(out)
     # Interrupted while it writes the new map: the old one stays whole, nothing else is left.
-    import fusion.mapping
+    import fusion.map.mapping
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(fusion.mapping, "write_ply", interrupted)
+    monkeypatch.setattr(fusion.map.mapping, "write_ply", interrupted)
     assert run_cli(["map", str(sequence), "--out", str(out), "--overwrite", *MAP]) == 130
     assert tree_hashes(out) == written
     assert _listing(tmp_path) == ["m", "sim1"]

@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from fusion.dense import DenseParams, densify, fill_frame, project_map
-from fusion.filling import filling_score
-from fusion.pointcloud import read_ply
+from fusion.fill.dense import DenseParams, densify, fill_frame, project_map
+from fusion.fill.filling import filling_score
+from fusion.io import read_ply
 from sim.camera import Camera, write_calib
 from sim.exr import read_depth, write_depth, write_exr_channels
 from sim.se3 import make_pose
@@ -191,7 +191,7 @@ def test_n1_is_the_map_and_n1_in_frame_what_lands_in_it():
 
 
 def test_fill_frame_takes_a_method_and_keeps_the_paper_s_weighting_consistent():
-    from fusion.filling import FillParams
+    from fusion.fill.filling import FillParams
 
     frame, sparse = _two_patch_scene()
     camera = Camera(40, 30, 35.0, 30.0, 19.5, 14.5)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fusion.emvs import DSIParams, depth_planes, disparity_space_image, ray_coefficients
+from fusion.map.emvs import DSIParams, depth_planes, disparity_space_image, ray_coefficients
 from sim.camera import Camera
 from sim.se3 import make_pose, so3_exp
 from sim.trajectory import LinearTrajectory
@@ -86,7 +86,7 @@ def test_empty_input_and_shapes():
 
 
 def test_semidense_depth_keeps_the_peaks_and_their_plane():
-    from fusion.emvs import DepthMapParams, semidense_depth
+    from fusion.map.emvs import DepthMapParams, semidense_depth
 
     planes = depth_planes(DSIParams(0.5, 3.0, planes=20))
     rng = np.random.default_rng(4)
@@ -105,7 +105,7 @@ def test_semidense_depth_keeps_the_peaks_and_their_plane():
 
 
 def test_masked_median_removes_an_outlier_but_only_uses_masked_neighbours():
-    from fusion.emvs import masked_median
+    from fusion.map.emvs import masked_median
 
     values = np.full((7, 7), 2.0)
     values[3, 3] = 9.0                                            # outlier on the edge
@@ -174,7 +174,7 @@ def test_votes_match_a_per_event_reference_on_any_number_of_threads():
 def test_maxima_on_the_first_and_last_planes_are_dropped_and_counted():
     """Issue 21: a DSI maximum on the first or last plane says the depth lies outside the
     range; such points are dropped by default (and counted), kept with keep_boundary_planes."""
-    from fusion.emvs import DepthMapParams, semidense_depth
+    from fusion.map.emvs import DepthMapParams, semidense_depth
 
     planes = depth_planes(DSIParams(0.5, 3.0, planes=20))
     rng = np.random.default_rng(4)
@@ -201,7 +201,7 @@ def test_maxima_on_the_first_and_last_planes_are_dropped_and_counted():
 def test_points_beyond_the_range_land_on_the_last_plane_and_are_dropped():
     """Analytic events of points inside a 0.6-3 m range and of points at 6 m: those beyond the
     range peak on the last plane and leave the map; those inside keep their depth."""
-    from fusion.emvs import DepthMapParams, semidense_depth
+    from fusion.map.emvs import DepthMapParams, semidense_depth
 
     camera = Camera(80, 60, 70.0, 65.0, 39.5, 29.5)
     rng = np.random.default_rng(1)

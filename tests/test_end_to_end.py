@@ -16,7 +16,7 @@ import json
 import numpy as np
 import pytest
 
-from fusion.mapping import _ground_truth_depth
+from fusion.map.mapping import _ground_truth_depth
 from fusion.scoring import depth_errors, discontinuity_band
 from sim.exr import read_depth
 from sim.sequence import load_sequence

@@ -6,7 +6,6 @@ import cv2
 import numpy as np
 import pytest
 
-from fusion.dense import DenseParams, _figure_panels, fill_frame, write_fill
 from fusion.figures import (
     AXIS_COLOURS,
     Caption,
@@ -20,6 +19,7 @@ from fusion.figures import (
     panel_grid,
     point_cloud_view,
 )
+from fusion.fill.dense import DenseParams, _figure_panels, fill_frame, write_fill
 from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
 from sim.camera import Camera
 
@@ -283,7 +283,7 @@ def test_every_depth_colour_stands_out_from_the_no_value_grey():
 
 def test_bench_figure_draws_every_method_on_one_error_scale(monkeypatch):
     import fusion.figures
-    from fusion.benchmark import _figure
+    from fusion.experiments.bench import _figure
 
     truth = np.ones((20, 40))
     good = truth + 0.05                                   # 5 cm everywhere

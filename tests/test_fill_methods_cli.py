@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from fusion.dense import DenseParams, densify
-from fusion.filling import FillParams, filling_score
+from fusion.fill.dense import DenseParams, densify
+from fusion.fill.filling import FillParams, filling_score
 from sim.exr import read_depth, read_exr_channels, write_depth
 from tests.conftest import run_cli
 from tests.test_cli_messages import _one_line
@@ -65,7 +65,7 @@ def _map_folder(root):
 
 def test_the_hand_made_map_projects_into_the_frame_unchanged(tmp_path):
     """The cases below rest on it: the event image is the semi-dense map itself."""
-    from fusion.dense import fill_map
+    from fusion.fill.dense import fill_map
 
     frame, sparse = _ramp_scene()
     result = fill_map(_map_folder(tmp_path))
@@ -204,7 +204,7 @@ def test_a_module_function_fills_and_its_confidence_is_written(tmp_path, user_mo
 
 
 def test_the_figure_of_another_method_says_what_it_did_not_use(tmp_path, user_module):
-    from fusion.dense import _figure_panels, fill_frame
+    from fusion.fill.dense import _figure_panels, fill_frame
     from sim.camera import Camera
 
     frame, sparse = _ramp_scene()

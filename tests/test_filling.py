@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fusion.cli import main
-from fusion.filling import (
+from fusion.fill.filling import (
     WEIGHTINGS,
     FillParams,
     SelectionParams,
@@ -20,7 +20,7 @@ from fusion.filling import (
     inverse_distance_weights,
     select_regions,
 )
-from fusion.segmentation import SegmentationParams, segment_regions
+from fusion.fill.segmentation import SegmentationParams, segment_regions
 
 RES_DAVIS = 240 * 180
 
@@ -94,7 +94,7 @@ def test_fill_options_say_their_defaults_and_where_they_come_from(capsys):
     """Each of fill's options names its default, the same as the parameters' dataclasses (the
     one place defaults live), and whether it is the paper's or ours."""
     from fusion.cli import _parser
-    from fusion.segmentation import SegmentationParams
+    from fusion.fill.segmentation import SegmentationParams
 
     with pytest.raises(SystemExit):
         main(["fill", "--help"])

@@ -227,7 +227,7 @@ def test_median_window_far_beyond_the_image_is_the_whole_image_window():
     """``evfuse map --median 999999`` died with MemoryError (exit 1, "unexpected error"): the
     compiled median allocated a window of 999999^2 values. A window past the image on every side
     sees the whole image, so any larger one gives the same medians."""
-    from fusion.emvs import masked_median
+    from fusion.map.emvs import masked_median
 
     values = np.arange(12, dtype=np.float32).reshape(3, 4)
     mask = values % 3 != 0
@@ -282,7 +282,7 @@ def test_min_region_past_int64_keeps_no_region():
     """``evfuse fill --min-region 18446744073709551616`` died with OverflowError (exit 1): the
     bound went to the compiled loop as is. No region is larger than the frame, so any bound past
     it keeps none."""
-    from fusion.segmentation import SegmentationParams, segment_regions
+    from fusion.fill.segmentation import SegmentationParams, segment_regions
 
     frame = np.zeros((6, 8), np.uint8)
     frame[:, 4:] = 200                                       # two regions of 24 pixels
@@ -294,7 +294,7 @@ def test_min_region_past_int64_keeps_no_region():
 def test_ring_past_int64_is_the_whole_frame_band():
     """``evfuse fill --ring 18446744073709551616`` died with OverflowError (exit 1). A band
     wider than the frame covers all of it, so any wider one counts the same map points."""
-    from fusion.filling import SelectionParams, select_regions
+    from fusion.fill.filling import SelectionParams, select_regions
 
     labels = np.ones((6, 8), np.int32)
     labels[:, 4:] = 2

@@ -10,9 +10,9 @@ What counts as an import:
 - Every ``import`` statement, at a module's top level *and* inside a function: a function-level
   import is a deferred import, and a loop through one is still a loop (the known
   ``sim.noise`` <-> ``sim.radiometry`` loop existed only through a function-level import, and
-  ``fusion.methods`` -> ``fusion.dense`` was one too). Both checks use the same graph.
+  ``fusion.methods`` -> ``fusion.fill.dense`` was one too). Both checks use the same graph.
 - Not counted: imports under ``if TYPE_CHECKING:`` (never run), and the implicit import of a
-  parent package (importing ``fusion.dense`` runs ``fusion/__init__.py``, which re-exports the
+  parent package (importing ``fusion.fill.dense`` runs ``fusion/__init__.py``, which re-exports the
   package's modules; counting that would make every package a loop by construction).
 
 The layering: ``sim`` makes the data (rendering, events, sequences), ``fusion`` consumes it
@@ -183,11 +183,12 @@ def _upward(graph: dict[str, dict[str, int]]) -> list[str]:
 def test_graph_sees_the_project():
     """The reader finds the modules and edges it must (so that an empty graph cannot pass)."""
     graph = import_graph()
-    assert {"sim.noise", "sim.radiometry", "sim.validation", "fusion.methods", "fusion.dense",
-            "fusion.baselines", "scenes"} <= set(graph)
-    assert "sim.camera" in graph["fusion.dense"]            # a top-level import
-    assert "fusion.filling" in graph["fusion.surface_fit"]
-    assert "sim.rig" in graph["fusion.dense"]               # a function-level import
+    assert {"sim.noise", "sim.radiometry", "sim.validation", "fusion.methods", "fusion.fill.dense",
+            "fusion.methods.baselines", "scenes"} <= set(graph)
+    assert "sim.camera" in graph["fusion.fill.dense"]            # a top-level import
+    assert "fusion.fill.filling" in graph["fusion.methods.surface_fit"]
+    # a function-level import
+    assert "sim.capture_errors" in graph["fusion.fill.dense"]
 
 
 def test_cycle_finder_on_a_known_graph():

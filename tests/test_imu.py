@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from sim.capture_errors import RigParams
 from sim.imu import (
     IMU_PRESETS,
     ImuParams,
@@ -20,7 +21,6 @@ from sim.imu import (
     read_velocity,
     write_motion_truth,
 )
-from sim.rig import RigParams
 from sim.scene import SceneError, parse_scene
 from sim.se3 import (
     hat,
@@ -255,7 +255,7 @@ def test_noise_is_seeded_and_its_own_stream():
     c, _ = imu_noise(100, params, imu_generator(4))
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, c)
-    from sim.rig import rig_generator
+    from sim.capture_errors import rig_generator
     assert not np.allclose(imu_generator(3).standard_normal(5),
                            rig_generator(3, "poses").standard_normal(5))
 

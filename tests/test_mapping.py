@@ -223,7 +223,7 @@ def test_map_json_records_the_window_used(argv, used, clipped, plane_sequence, t
 
 
 def test_time_window_checks_once_for_map_and_run(plane_sequence):
-    from fusion.mapping import time_window
+    from fusion.map.mapping import time_window
     from sim.sequence import load_sequence
 
     sequence = load_sequence(plane_sequence)
@@ -270,7 +270,7 @@ def _box_depth(camera) -> np.ndarray:
 def test_map_is_scored_in_its_own_undistorted_grid(tmp_path):
     """A perfect map (the analytic depth of the undistorted view) scores 0 against the exact
     depth the mapping uses, but not against the distorted depth/ of the same time."""
-    from fusion.mapping import _ground_truth_depth
+    from fusion.map.mapping import _ground_truth_depth
     from fusion.scoring import depth_errors
     from sim.camera import Camera
     from sim.scene import parse_scene
@@ -320,8 +320,8 @@ def test_a_wall_beyond_the_range_piles_on_the_last_plane_and_is_dropped(plane_se
     """Issue 21: the wall is 1 m away; with a 0.4-0.8 m range its rays meet beyond the last
     plane, so rpg_emvs's maps put it at 0.8 m. By default those points are dropped and counted
     in map.json's boundary_plane_points; keep_boundary_planes keeps them (rpg_emvs's parity)."""
-    from fusion.emvs import DepthMapParams, DSIParams
-    from fusion.mapping import MapParams, map_sequence
+    from fusion.map.emvs import DepthMapParams, DSIParams
+    from fusion.map.mapping import MapParams, map_sequence
 
     def mapped(keep: bool):
         params = MapParams(DSIParams(0.4, 0.8, planes=30),

@@ -1,4 +1,4 @@
-"""The ``mesh`` filling method (fusion.mesh_fill) on analytic cases.
+"""The ``mesh`` filling method (fusion.methods.mesh) on analytic cases.
 
 Frames are 80x60. A *textured* frame (seeded noise, gray 0-255) splits into many tiny regions
 that region growing discards, so the paper's regions (stages 1, 3, 4) are empty and the mesh
@@ -12,7 +12,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from fusion.mesh_fill import (
+from fusion.methods import MethodError, run_method
+from fusion.methods.mesh import (
     MeshParams,
     _cubic_patch,
     _locate,
@@ -21,7 +22,6 @@ from fusion.mesh_fill import (
     clean_map,
     mesh_fill,
 )
-from fusion.methods import MethodError, run_method
 from sim.camera import Camera
 
 H, W = 60, 80

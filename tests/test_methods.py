@@ -155,8 +155,8 @@ def test_an_unknown_method_is_named(spec, message):
 def test_every_built_in_declares_its_settings_and_methods_params_lists_them(capsys):
     """``evfuse methods --params`` keeps each method's line as ``evfuse methods`` prints it and
     adds one line of its settings with their defaults (the dataclass's own)."""
-    from fusion.baselines import GuidedParams
     from fusion.methods import param_defaults
+    from fusion.methods.baselines import GuidedParams
 
     built_in = [m for m in available_methods().values() if m.origin == "built-in"]
     assert all(method.params is not None for method in built_in)
@@ -259,8 +259,8 @@ def test_a_label_names_a_variant_and_reads_back():
 
 def test_settings_reach_the_method_and_a_user_s_undeclared_ones_pass_unchecked(tmp_path,
                                                                                monkeypatch):
-    from fusion.dense import DenseParams, densify
-    from fusion.filling import FillParams
+    from fusion.fill.dense import DenseParams, densify
+    from fusion.fill.filling import FillParams
     from fusion.methods import check_params
 
     (tmp_path / "my_shift.py").write_text(

@@ -187,7 +187,8 @@ def test_reproduce_adds_a_frozen_control_and_splits_the_dynamic_row(plane_sequen
     the moving row's reference time."""
     import importlib
 
-    repro = importlib.import_module("fusion.reproduce")      # the package exports a function
+    # the package exports a function
+    repro = importlib.import_module("fusion.experiments.reproduce")
 
     moving = _with_a_moving_ball(plane_sequence, tmp_path / "moving")
     asked = []
@@ -223,7 +224,7 @@ def test_reproduce_adds_a_frozen_control_and_splits_the_dynamic_row(plane_sequen
 def test_reproduce_simulates_the_frozen_control_as_the_moving_scene(tmp_path, monkeypatch):
     import importlib
 
-    repro = importlib.import_module("fusion.reproduce")
+    repro = importlib.import_module("fusion.experiments.reproduce")
 
     seen = {}
 

@@ -41,7 +41,7 @@ def _exact_depth_span(scene, times: int = 3, size: tuple[int, int] = (32, 24)):
 def _family_members():
     """Every family's knob-range corners and a few interior values (texture does not move
     geometry; shadow only adds a light)."""
-    from fusion.families import FAMILIES
+    from fusion.experiments.families import FAMILIES
 
     for family, knobs in FAMILIES.items():
         names = list(knobs)
@@ -52,7 +52,7 @@ def _family_members():
 
 
 def test_every_family_member_declares_a_range_that_contains_its_exact_depth():
-    from fusion.families import FAMILIES, family_scene
+    from fusion.experiments.families import FAMILIES, family_scene
     from sim.scene import parse_scene
 
     made = {family: 0 for family in FAMILIES}
@@ -76,7 +76,7 @@ def test_every_family_member_declares_a_range_that_contains_its_exact_depth():
 
 
 def test_a_sphere_or_cylinder_touching_the_camera_is_refused():
-    from fusion.families import family_scene
+    from fusion.experiments.families import family_scene
 
     for family in ("sphere", "cylinder"):
         with pytest.raises(ValueError, match="--radius 0.5 with --distance 0.5"):
@@ -186,9 +186,9 @@ def test_method_settings_refuse_non_finite_numbers(tmp_path, capsys):
 
 
 def test_library_parameters_refuse_non_finite_numbers():
-    from fusion.emvs import DepthMapParams
+    from fusion.experiments.reproduce import ReproduceParams
+    from fusion.map.emvs import DepthMapParams
     from fusion.pipeline import RunParams
-    from fusion.reproduce import ReproduceParams
     from sim.sampling import SamplingParams
 
     for make, message in [
@@ -282,7 +282,7 @@ def test_a_twin_depth_in_millimetres_is_refused_before_reading(tmp_path, capsys)
 def test_the_library_refuses_dsi_bounds_in_millimetres():
     from types import SimpleNamespace
 
-    from fusion.dsi_range import resolve_dsi_range
+    from fusion.map.dsi_range import resolve_dsi_range
 
     # resolve_dsi_range reads a sequence's folder and the scene TOML kept in sequence.json.
     sequence = SimpleNamespace(folder=Path("seq"), metadata={"scene": {"toml": "x = 1"}})
@@ -308,7 +308,7 @@ def test_the_library_refuses_dsi_bounds_in_millimetres():
 def test_a_malformed_recorded_depth_range_is_refused_not_ignored(toml, expected):
     from types import SimpleNamespace
 
-    from fusion.dsi_range import resolve_dsi_range
+    from fusion.map.dsi_range import resolve_dsi_range
 
     # Read by the scene parser from the scene text sequence.json keeps: one line naming the
     # file and the key, never a silent fall-back to the default range.
@@ -356,10 +356,10 @@ def test_a_twin_of_the_whole_recording_is_accepted_by_simulate(ecd_slider, tmp_p
 def test_library_integer_fields_refuse_non_integers(value):
     """Counts and seeds of the parameter dataclasses took NaN (or raised OverflowError on an
     infinity) from the Python API; each is refused in one line naming the field."""
-    from fusion.benchmark import BenchParams
-    from fusion.dense import DenseParams
-    from fusion.filling import SelectionParams
-    from fusion.segmentation import SegmentationParams
+    from fusion.experiments.bench import BenchParams
+    from fusion.fill.dense import DenseParams
+    from fusion.fill.filling import SelectionParams
+    from fusion.fill.segmentation import SegmentationParams
     from sim.events import EventParams
 
     for make, name in ((lambda v: EventParams(seed=v), "EventParams.seed"),

@@ -11,7 +11,7 @@ from sim.noise import noise_preset
 
 # The paper's Table 1 row for shapes_6dof, typed from its LaTeX source (Table "Density Evaluation
 # Experiment", ../shared/paper/000_26ee4c18baf48d76.txt): window 2.0s-4.0s, N1 954, N2 2137,
-# beta 0.0274. Not read back from fusion.reproduce.PAPER, which this checks.
+# beta 0.0274. Not read back from fusion.experiments.reproduce.PAPER, which this checks.
 PAPER_SHAPES_6DOF = {"t0": 2.0, "N1": "954", "N2": "2137", "beta": "0.0274"}
 
 
@@ -126,7 +126,7 @@ def test_a_cached_window_is_not_taken_for_a_changed_scene(tmp_path):
     files (:func:`sim.simulate.scene_files`: the scene file and every file it names)."""
     from types import SimpleNamespace
 
-    from fusion.reproduce import _content_tag
+    from fusion.experiments.reproduce import _content_tag
     from scenes import resolve_scene
     from sim.scene import load_scene
 

@@ -1,4 +1,5 @@
-"""Imperfect rigs (sim/rig.py): pose noise, clock offsets and calibration error on the written
+"""Imperfect rigs (sim/capture_errors.py): pose noise, clock offsets and calibration error on the
+written
 files, the truth kept apart, and a map scored against the TRUE reference view."""
 
 from __future__ import annotations
@@ -13,15 +14,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import fusion.mapping as mapping
+import fusion.map.mapping as mapping
 from fusion.cli import main
-from fusion.dense import fill_map
-from fusion.emvs import DSIParams
-from fusion.mapping import MapParams, map_sequence, write_map
+from fusion.fill.dense import fill_map
+from fusion.map.emvs import DSIParams
+from fusion.map.mapping import MapParams, map_sequence, write_map
 from sim.camera import Camera, read_calib, write_calib
-from sim.eventio import read_events
-from sim.render import Renderer
-from sim.rig import (
+from sim.capture_errors import (
     EXACT_CALIB,
     EXACT_POSES,
     RIG_PRESETS,
@@ -30,6 +29,8 @@ from sim.rig import (
     pose_noise,
     rig_generator,
 )
+from sim.eventio import read_events
+from sim.render import Renderer
 from sim.scene import SceneError, parse_scene
 from sim.se3 import so3_log
 from sim.sequence import load_sequence, read_index
@@ -324,7 +325,7 @@ def test_an_imperfect_rig_without_its_exact_files_is_not_scored(rig_sequence, tm
     """Scoring never falls back to the noisy files of an imperfect rig."""
     import shutil
 
-    from sim.rig import exact_camera, exact_trajectory
+    from sim.capture_errors import exact_camera, exact_trajectory
 
     copy = tmp_path / "copy"
     shutil.copytree(rig_sequence, copy)

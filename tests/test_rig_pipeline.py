@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion.benchmark import run_bench
-from fusion.dense import fill_frame, fill_inputs
-from fusion.frame_projection import rolling_shutter_project
-from fusion.mapping import _reference_image
+from fusion.experiments.bench import run_bench
+from fusion.fill.dense import fill_frame, fill_inputs
+from fusion.fill.projection import rolling_shutter_project
+from fusion.map.mapping import _reference_image
 from fusion.pipeline import fill_window
 from sim.camera import Camera
 from sim.exr import read_depth, write_depth
@@ -222,7 +222,7 @@ def test_fill_inputs_projects_into_the_frame_camera(rig):
     relative = np.abs(inputs.sparse[at] / inputs.truth[at] - 1)
     assert relative.max() < 3e-3 and np.median(relative) < 1e-3
     # the frame camera's own pose matters: the event camera's would put the points elsewhere
-    from fusion.dense import project_map
+    from fusion.fill.dense import project_map
 
     depth_ref = read_depth(rig / "semidense_depth.exr")
     wrong = project_map(depth_ref, EVENT, pose(T_REF)[0], FRAME, pose(0.09)[0])

@@ -10,8 +10,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from benchmarks.agreement import event_agreement
 from scenes import resolve_scene
-from sim.agreement import event_agreement
 from sim.eventio import read_events
 from sim.sampling import SamplingParams
 from sim.scene import load_scene

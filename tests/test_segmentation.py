@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fusion.segmentation import (
+from fusion.fill.segmentation import (
     SegmentationParams,
     default_min_region,
     region_contours,

@@ -378,7 +378,7 @@ def test_both_json_writers_write_an_undefined_figure_as_null(tmp_path):
     # One policy for every JSON file evfuse writes: strict JSON has no NaN, so an undefined
     # figure (an error over no pixel) is null, with its coverage beside it, in sequence.json as
     # in map.json / fill.json; no NaN or Infinity token, no refusal of one writer only.
-    from fusion.jsonio import to_json
+    from fusion.io import to_json
 
     document = {"mae_cm": float("nan"), "coverage": 0.0, "n_pixels": np.int64(0),
                 "per_class": {"far": np.float32("nan"), "near": np.float64(1.5)},

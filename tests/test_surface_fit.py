@@ -1,4 +1,4 @@
-"""The ``plane`` and ``hybrid`` filling methods (fusion.surface_fit) on analytic cases.
+"""The ``plane`` and ``hybrid`` filling methods (fusion.methods.surface_fit) on analytic cases.
 
 Frames are flat gray patches (80x60): an 8-px border at gray 20 around an inner rectangle (rows
 8-51, columns 8-71), so that region growing gives exactly two regions. Map points lie on the
@@ -12,10 +12,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-import fusion.surface_fit  # noqa: F401  (registers plane and hybrid; fusion.methods will import it)
+import fusion.methods.surface_fit  # noqa: F401  (registers plane and hybrid; fusion.methods will import it)
+from fusion.fill.segmentation import segment_regions
 from fusion.methods import MethodError, run_method
-from fusion.segmentation import segment_regions
-from fusion.surface_fit import HybridParams, SurfaceFitParams, hybrid_fill, surface_fill
+from fusion.methods.surface_fit import HybridParams, SurfaceFitParams, hybrid_fill, surface_fill
 from sim.camera import Camera
 
 H, W = 60, 80

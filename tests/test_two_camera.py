@@ -396,7 +396,7 @@ def test_the_pipeline_maps_in_the_event_camera_and_fills_in_the_frame_camera(rig
                                                                              tmp_path):
     # End to end on the simulated rig: events of the 64x48 camera mapped there, the map
     # projected into the 80x60 distorted frame camera 10 cm away, filled and scored there.
-    from fusion.emvs import DepthMapParams
+    from fusion.map.emvs import DepthMapParams
     from fusion.pipeline import RunParams, fill_window, run_pipeline
     from sim.exr import write_depth
     from sim.sequence import load_sequence

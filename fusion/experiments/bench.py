@@ -18,7 +18,7 @@ negative depth gets a row saying why, the others go on. Methods run in two worke
 A method may run under settings of its own (a :class:`fusion.methods.MethodVariant`, given as
 ``plane{residual_rel=0.03}``), the same method under several: each is a row, labelled so.
 
-Scores (:func:`fusion.dense.dense_errors`, the definitions of ``evfuse fill``): MAE, RMSE,
+Scores (:func:`fusion.fill.dense.dense_errors`, the definitions of ``evfuse fill``): MAE, RMSE,
 AbsRel, delta < 1.05, completeness and precision within 5 % of the dense map (``all``), its
 filled pixels (``filled``: pixels that were not input points) and the band within 3 px of a true
 depth discontinuity apart. Methods fill different shares of the image, so each table shows the
@@ -96,7 +96,7 @@ class BenchParams:
         Worker processes for the methods (default 2: the development machine's cores).
     keep_boundary_planes : bool
         The event maps keep their points on the DSI's first and last planes
-        (:class:`fusion.emvs.DepthMapParams`; default False, dropped).
+        (:class:`fusion.map.emvs.DepthMapParams`; default False, dropped).
     """
 
     noise: float = 0.02
@@ -156,7 +156,7 @@ def _mapped(name: str, cache: Path, progress: bool, keep_boundary_planes: bool =
     """The cached map folder of a scene's window (simulated and mapped when missing, mapped
     again when its ``map.json`` was made with another ``keep_boundary_planes``; a map from
     before that setting existed kept those points)."""
-    from fusion.emvs import DepthMapParams
+    from fusion.map.emvs import DepthMapParams
     from fusion.pipeline import map_window
     from scenes import resolve_scene
     from sim.scene import load_scene
@@ -185,9 +185,9 @@ def _mapped(name: str, cache: Path, progress: bool, keep_boundary_planes: bool =
 
 
 def _inputs(map_folder: Path, params: BenchParams) -> tuple[object, dict[str, np.ndarray]]:
-    """The frame's fill inputs (:class:`fusion.dense.FillInputs`: frame, camera, truth) and
+    """The frame's fill inputs (:class:`fusion.fill.dense.FillInputs`: frame, camera, truth) and
     each input's sparse depth."""
-    from fusion.dense import fill_inputs
+    from fusion.fill.dense import fill_inputs
     from sim.eventio import read_window
 
     base = fill_inputs(map_folder)
@@ -251,7 +251,7 @@ def _value(errors: dict | None, key: str):
 
 def _scores(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray,
             confidence: np.ndarray | None) -> dict:
-    from fusion.dense import dense_errors
+    from fusion.fill.dense import dense_errors
 
     errors = dense_errors(dense, sparse, truth)
     whole, filled, band = errors["all"]["overall"], errors["filled"]["overall"], \
@@ -313,7 +313,7 @@ def bench(methods: list, scenes: list[str], inputs: list[str] = INPUTS,
         :class:`fusion.methods.MethodVariant`; the settings are checked before any work.
     scenes : list of str
         Built-in scene names, groups (:data:`SCENE_GROUPS`), scene files (``.toml``, e.g. from
-        :mod:`fusion.families`) or map folders of simulated sequences (``evfuse map`` /
+        :mod:`fusion.experiments.families`) or map folders of simulated sequences (``evfuse map`` /
         ``evfuse run`` outputs).
     inputs : list of str
         Among :data:`INPUTS` (default all).

@@ -17,10 +17,11 @@ one for any smooth surface).
 ``plane`` (:func:`surface_fill`), on the paper's regions:
 
 1. Segment the frame and select the regions as the paper does
-   (:func:`fusion.segmentation.segment_regions`, :func:`fusion.filling.select_regions`, their
+   (:func:`fusion.fill.segmentation.segment_regions`, :func:`fusion.fill.filling.select_regions`,
+   their
    default parameters: threshold 3, band 3 px, ring ratio 30 %, inside ratio 5 %).
 2. A region's points are its map points *and* those of its band (both sides of its contour),
-   exactly those the paper interpolates from (``fusion.filling._region_events``, the helper
+   exactly those the paper interpolates from (``fusion.fill.filling._region_events``, the helper
    that defines them).
 3. Fit ``1 / z`` by RANSAC (MSAC score) and least-squares refinement, the residual being the
    relative depth error ``z_fit / z - 1``, inliers within ``residual_rel`` (2 %). Random samples
@@ -66,9 +67,9 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from fusion._registry import register
-from fusion.filling import RegionStats, _region_events, select_regions
-from fusion.segmentation import default_min_region, segment_regions
+from fusion.fill.filling import RegionStats, _region_events, select_regions
+from fusion.fill.segmentation import default_min_region, segment_regions
+from fusion.methods._registry import register
 from sim.camera import Camera
 
 __all__ = ["HybridParams", "SurfaceFill", "SurfaceFit", "SurfaceFitParams", "fit_surface",
@@ -184,7 +185,7 @@ class HybridParams(SurfaceFitParams):
         measures 24).
     min_subregion : int or None, pixels
         Smallest piece fitted; None (default) is the segmentation's smallest region,
-        :func:`fusion.segmentation.default_min_region` of the frame's size.
+        :func:`fusion.fill.segmentation.default_min_region` of the frame's size.
     """
 
     canny_low: float = 20.0

@@ -4,7 +4,7 @@ A map lives in the event camera's reference view; it is filled in a standard fra
 sensor's (a DAVIS-like camera) or, on a two-camera rig, the frame camera's, whose pose is
 ``T_world_frame(t) = T_world_event(t) @ T_event_frame`` with its own lens and size
 (:meth:`sim.sequence.Sequence.standard_frames`). A global shutter sees the whole frame at one
-pose (:func:`fusion.dense.project_map`); a rolling shutter exposes row ``r`` at its own time
+pose (:func:`fusion.fill.dense.project_map`); a rolling shutter exposes row ``r`` at its own time
 (:meth:`sim.sequence.FrameCameraFiles.row_times`), so a point must be projected with the pose of
 the row it lands on (:func:`rolling_shutter_project`).
 """

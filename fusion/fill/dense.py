@@ -2,8 +2,8 @@
 
 Steps 2-4 of "Standard and Event Cameras Fusion for Dense Mapping", wired together: the map
 points are projected into the standard frame (the *event image*), the frame is segmented by
-region growing (:mod:`fusion.segmentation`), the regions bounded by map points are selected and
-filled (:mod:`fusion.filling`), and the filling score is computed. With the exact depth of the
+region growing (:mod:`fusion.fill.segmentation`), the regions bounded by map points are selected and
+filled (:mod:`fusion.fill.filling`), and the filling score is computed. With the exact depth of the
 frame (a simulated sequence) the result is scored (:mod:`fusion.scoring`): separately for the map
 points, the filled pixels and all, and apart in a band around true depth discontinuities.
 
@@ -12,7 +12,7 @@ The frame is the standard frame nearest in time to the map's reference view
 points are projected with the frame's own pose and its camera's calibration (distortion
 included), so a frame a little off the reference time, a distorted real frame, or a rig's frame
 camera (pose ``T_world_event(t) @ T_event_frame``, its own lens and size; a rolling shutter row by
-row, :mod:`fusion.frame_projection`) still gets its map points where they belong. The dense depth
+row, :mod:`fusion.fill.projection`) still gets its map points where they belong. The dense depth
 lives in the frame's pixels and is scored against that camera's exact depth.
 
 The filling method is selectable (``--method``, :mod:`fusion.methods`): the paper's
@@ -38,8 +38,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fusion._registry import FillMethod, check_params, get_method, run_method
-from fusion.dsi_range import oracle_header
 from fusion.figures import (
     add_header,
     depth_colours,
@@ -52,7 +50,7 @@ from fusion.figures import (
     point_cloud_view,
     point_radius,
 )
-from fusion.filling import (
+from fusion.fill.filling import (
     FillParams,
     RegionStats,
     SelectionParams,
@@ -60,15 +58,17 @@ from fusion.filling import (
     filling_score,
     select_regions,
 )
-from fusion.frame_projection import (
+from fusion.fill.projection import (
     ROLLING_ITERATIONS,
     frame_record,
     map_points_world,
     nearest_per_pixel,
     rolling_shutter_project,
 )
-from fusion.jsonio import to_json
-from fusion.pointcloud import write_ply
+from fusion.fill.segmentation import SegmentationParams, segment_regions
+from fusion.io import to_json, write_ply
+from fusion.map.dsi_range import oracle_header
+from fusion.methods._registry import FillMethod, check_params, get_method, run_method
 from fusion.scoring import (
     depth_errors,
     discontinuity_band,
@@ -76,7 +76,6 @@ from fusion.scoring import (
     motion_regions,
     recorded_scene,
 )
-from fusion.segmentation import SegmentationParams, segment_regions
 from sim.camera import Camera
 from sim.exr import read_depth, write_depth, write_exr_channels
 from sim.se3 import invert_pose
@@ -202,7 +201,7 @@ def project_map_rolling(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: 
                         frames: FrameCameraFiles, trajectory, t_frame: float
                         ) -> tuple[np.ndarray, float]:
     """The event image of a rolling-shutter frame: each map point projected with the pose of
-    the row it lands on (:func:`fusion.frame_projection.rolling_shutter_project`).
+    the row it lands on (:func:`fusion.fill.projection.rolling_shutter_project`).
 
     Parameters
     ----------
@@ -531,7 +530,7 @@ def frame_motion_regions(inputs: FillInputs) -> np.ndarray | None:
     scene = recorded_scene(meta)
     if scene is None or not scene.is_dynamic:
         return None
-    from sim.rig import true_time
+    from sim.capture_errors import true_time
 
     window = json.loads((Path(inputs.info["map"]) / "map.json").read_text())["window_s"]
     t_true = true_time(meta, inputs.info["t_frame"], "frames")

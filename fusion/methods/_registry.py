@@ -4,9 +4,10 @@
 grammar, method lookup (built-in, ``module:function``, entry point) and :func:`run_method`.
 Everything here is re-exported by :mod:`fusion.methods`, which is the public path.
 
-It imports no method module, so the modules that define methods (:mod:`fusion.baselines`,
-:mod:`fusion.surface_fit`, :mod:`fusion.mesh_fill`, and :mod:`fusion.methods` itself) and the
-code that runs them (:mod:`fusion.dense`) import it without an import loop; a method module
+It imports no method module, so the modules that define methods (:mod:`fusion.methods.baselines`,
+:mod:`fusion.methods.surface_fit`, :mod:`fusion.methods.mesh`, and :mod:`fusion.methods` itself)
+and the
+code that runs them (:mod:`fusion.fill.dense`) import it without an import loop; a method module
 registers on import, and :mod:`fusion.methods` imports them all, so that the built-ins are
 registered once ``fusion.methods`` (or ``fusion``) is imported.
 """

@@ -163,7 +163,7 @@ def region_contours(labels: np.ndarray) -> np.ndarray:
     A 4-neighbour outside the region is one with another label, 0 included; the image border is
     not a contour (nothing beyond it can hold a map point), so a region touching the border has a
     contour only where it meets other regions. The contour length of a region, as
-    :func:`fusion.filling.select_regions` uses it, is its number of contour pixels.
+    :func:`fusion.fill.filling.select_regions` uses it, is its number of contour pixels.
 
     Parameters
     ----------

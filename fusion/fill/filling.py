@@ -1,7 +1,8 @@
 """Map filling: selection of regions and interpolation of their depth (steps 3 and 4 of the method).
 
 "Standard and Event Cameras Fusion for Dense Mapping" fills the regions of the standard frame
-(:mod:`fusion.segmentation`) that the semi-dense event map bounds. Its map points, projected into
+(:mod:`fusion.fill.segmentation`) that the semi-dense event map bounds. Its map points, projected
+into
 the frame, form an *event image*: a sparse depth map, one depth per pixel (the nearest point where
 several land on one pixel), 0 elsewhere. Then:
 
@@ -19,7 +20,7 @@ several land on one pixel), 0 elsewhere. Then:
 Definitions chosen here, where the paper leaves a choice:
 
 * **Contour** of a region: its pixels with a 4-neighbour of another label (0 included) inside the
-  image (:func:`fusion.segmentation.region_contours`); its length is their number.
+  image (:func:`fusion.fill.segmentation.region_contours`); its length is their number.
 * **Ring** (band) of a region ``r``: the pixels within Chebyshev distance ``ring`` of one of its
   contour pixels, on *both* sides of the contour, inside ``r`` and outside it. The paper counts the
   projected events "in the 3-pixel ring of the region" because the DSI's discretisation puts them
@@ -52,7 +53,7 @@ from functools import partial
 import numba
 import numpy as np
 
-from fusion.segmentation import region_contours
+from fusion.fill.segmentation import region_contours
 from sim.validation import integer
 
 __all__ = ["WEIGHTINGS", "FillParams", "RegionStats", "SelectionParams", "Weighting",
@@ -363,7 +364,7 @@ def select_regions(labels: np.ndarray, sparse_depth: np.ndarray,
     Parameters
     ----------
     labels : (H, W) int ndarray
-        Regions 1..K of the frame (:func:`fusion.segmentation.segment_regions`), 0 = ignored.
+        Regions 1..K of the frame (:func:`fusion.fill.segmentation.segment_regions`), 0 = ignored.
     sparse_depth : (H, W) float ndarray, metres, 0 where no map point
         The event image: the map points projected into the frame.
     params : SelectionParams, optional

@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion.dense import DenseParams
-from fusion.emvs import DepthMapParams
-from fusion.filling import FillParams
-from fusion.jsonio import to_json
+from fusion.fill.dense import DenseParams
+from fusion.fill.filling import FillParams
+from fusion.io import to_json
+from fusion.map.emvs import DepthMapParams
 from fusion.pipeline import fill_window, map_window
 from sim.frame_sensor import FRAME_SENSORS, FrameSensor
 from sim.progress import progress as progress_stage
@@ -125,7 +125,7 @@ class ReproduceParams:
         label; the paper's tables are unchanged (always the paper's settings).
     keep_boundary_planes : bool
         The event maps keep their points on the DSI's first and last planes, as rpg_emvs
-        (:class:`fusion.emvs.DepthMapParams`; default False, dropped and counted).
+        (:class:`fusion.map.emvs.DepthMapParams`; default False, dropped and counted).
     """
 
     window: float = 1.0
@@ -645,7 +645,7 @@ def _motion_section(rows: list[dict]) -> list[str]:
 
 def _boundary_section(rows: list[dict]) -> list[str]:
     """How many points of each window's map had their DSI maximum on the first or last plane
-    (:class:`fusion.emvs.DepthMapParams` ``keep_boundary_planes``)."""
+    (:class:`fusion.map.emvs.DepthMapParams` ``keep_boundary_planes``)."""
     counted = [r for r in rows if "boundary_plane_points" in r]
     if not counted:
         return []

@@ -34,14 +34,14 @@ Built-ins, each with its own analytic test (``tests/test_methods.py``):
 - ``morphological``: an unguided morphological fill in the manner of IP-Basic (Ku et al. 2018):
   inverted depth (so that the nearer surface wins where two meet), dilation with a 5x5 diamond,
   closing, hole filling with growing kernels, median and Gaussian smoothing, un-inverted.
-- ``guided``, ``bilateral``, ``colorization``, ``fbs`` (:mod:`fusion.baselines`): image-guided
-  completion by He et al.'s guided filter, a joint-bilateral normalised convolution, Levin
-  et al.'s colorization in inverse depth, and Barron & Poole's fast bilateral solver in inverse
-  depth.
-- ``plane``, ``hybrid`` (:mod:`fusion.surface_fit`): a robust per-region surface fit in inverse
-  depth that leaves regions it cannot explain empty, and the same after cutting rejected
+- ``guided``, ``bilateral``, ``colorization``, ``fbs`` (:mod:`fusion.methods.baselines`):
+  image-guided completion by He et al.'s guided filter, a joint-bilateral normalised
+  convolution, Levin et al.'s colorization in inverse depth, and Barron & Poole's fast bilateral
+  solver in inverse depth.
+- ``plane``, ``hybrid`` (:mod:`fusion.methods.surface_fit`): a robust per-region surface fit in
+  inverse depth that leaves regions it cannot explain empty, and the same after cutting rejected
   regions along the frame's edges.
-- ``mesh`` (:mod:`fusion.mesh_fill`): ``plane``'s fits, then a Delaunay mesh of the cleaned map
+- ``mesh`` (:mod:`fusion.methods.mesh`): ``plane``'s fits, then a Delaunay mesh of the cleaned map
   across triangles whose corners lie on one surface, then the paper's fill in the paper's
   regions.
 """
@@ -56,7 +56,8 @@ from importlib import metadata  # noqa: F401  (kept on this path: tests patch it
 import cv2
 import numpy as np
 
-from fusion._registry import (  # noqa: F401  (re-exported; _BUILT_IN for tests)
+from fusion.fill.filling import FillParams
+from fusion.methods._registry import (  # noqa: F401  (re-exported; _BUILT_IN for tests)
     _BUILT_IN,
     ENTRY_POINT_GROUP,
     FillMethod,
@@ -75,7 +76,6 @@ from fusion._registry import (  # noqa: F401  (re-exported; _BUILT_IN for tests)
     run_method,
     split_labels,
 )
-from fusion.filling import FillParams
 from sim.camera import Camera
 
 __all__ = ["ENTRY_POINT_GROUP", "FillMethod", "MethodError", "MethodVariant",
@@ -97,7 +97,7 @@ class _NoParams:
 
 @dataclass(frozen=True)
 class PaperGaussianParams:
-    """Settings of ``paper-gaussian``: the length of :class:`fusion.filling.FillParams`.
+    """Settings of ``paper-gaussian``: the length of :class:`fusion.fill.filling.FillParams`.
 
     Attributes
     ----------
@@ -113,7 +113,7 @@ class PaperGaussianParams:
 
 @dataclass(frozen=True)
 class PaperExponentialParams:
-    """Settings of ``paper-exponential``: the length of :class:`fusion.filling.FillParams`.
+    """Settings of ``paper-exponential``: the length of :class:`fusion.fill.filling.FillParams`.
 
     Attributes
     ----------
@@ -129,7 +129,7 @@ class PaperExponentialParams:
 
 def _paper(weighting: str, params_class: type) -> Callable:
     def method(frame, sparse, camera, params):
-        from fusion.dense import DenseParams, densify
+        from fusion.fill.dense import DenseParams, densify
 
         fill = FillParams(weighting, **asdict(params_class(**params)))
         return densify(frame, sparse, DenseParams(fill=fill))[2]
@@ -233,8 +233,9 @@ def morphological(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params:
     return np.where(depth > 0.1 * top, top - depth, 0).astype(np.float32)
 
 
-# Methods defined in their own modules register on import (fusion._registry.register); imported
-# at the end so that the built-ins above come first in available_methods().
-import fusion.baselines  # noqa: E402,F401  (registers guided, bilateral, colorization, fbs)
-import fusion.mesh_fill  # noqa: E402,F401  (registers mesh)
-import fusion.surface_fit  # noqa: E402,F401  (registers plane and hybrid)
+
+# Methods defined in their own modules register on import (fusion.methods._registry.register);
+# imported at the end so that the built-ins above come first in available_methods().
+import fusion.methods.baselines  # noqa: E402,F401  (registers guided, bilateral, colorization, fbs)
+import fusion.methods.mesh  # noqa: E402,F401  (registers mesh)
+import fusion.methods.surface_fit  # noqa: E402,F401  (registers plane and hybrid)

@@ -1,5 +1,11 @@
-"""Point clouds as binary PLY: float32 x, y, z in a camera frame, that frame's world pose in a
-header comment, optional per-point colours and a per-point source flag."""
+"""fusion's result files: JSON documents and point clouds.
+
+* JSON (``map.json``, ``fill.json``, ``report.json``): strict JSON through sim's one writer
+  (:func:`sim.sequence.json_text`): a metric with nothing to evaluate is NaN in memory and ``null``
+  on disk; NumPy scalars and arrays are written as numbers and lists.
+* Point clouds as binary PLY: float32 x, y, z in a camera frame, that frame's world pose in a
+  header comment, optional per-point colours and a per-point source flag.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +13,25 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["read_ply", "write_ply"]
+from sim.sequence import json_text
+
+__all__ = ["read_ply", "to_json", "write_ply"]
+
+
+def to_json(document: dict) -> str:
+    """The document as indented, key-sorted, strict JSON text (:func:`sim.sequence.json_text`,
+    the one writer of evfuse's JSON: NaN and infinity are ``null``).
+
+    Parameters
+    ----------
+    document : dict
+        Nested dicts, lists, numbers (NumPy included), strings, None.
+
+    Returns
+    -------
+    str
+    """
+    return json_text(document)
 
 
 def write_ply(path: str | Path, points: np.ndarray, T_world_frame: np.ndarray,

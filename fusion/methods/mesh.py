@@ -2,11 +2,12 @@
 map where its points agree, and never a depth between two surfaces the map tells apart.
 
 The paper fills a selected region with one weighted *mean* depth; ``plane``
-(:mod:`fusion.surface_fit`) fits one surface per region and leaves a region empty when no plane
+(:mod:`fusion.methods.surface_fit`) fits one surface per region and leaves a region empty when no
+plane
 or quadric explains it, which is most of a height field. ``mesh`` keeps ``plane``'s fits and
 fills much of the rest from a Delaunay triangulation of the map, interpolating *inverse depth*
 in the undistorted normalised coordinates of the pixels (exact for any plane: see
-:mod:`fusion.surface_fit`), but only across triangles whose corners lie on one surface.
+:mod:`fusion.methods.surface_fit`), but only across triangles whose corners lie on one surface.
 
 Steps, each on the output of the one before:
 
@@ -18,8 +19,9 @@ Steps, each on the output of the one before:
    Points along an edge or on a slanted surface support each other; an isolated wrong depth
    (an EMVS outlier, ``oracle-noisy``'s outliers) does not. Every later step sees the kept
    points only.
-2. **Surfaces** (stage 1): ``plane`` on the kept points (:func:`fusion.surface_fit.surface_fill`
-   with this method's ``SurfaceFitParams`` fields): accepted regions take the fitted surface.
+2. **Surfaces** (stage 1): ``plane`` on the kept points
+   (:func:`fusion.methods.surface_fit.surface_fill` with this method's ``SurfaceFitParams``
+   fields): accepted regions take the fitted surface.
 3. **Consistent triangles** (stage 2): each kept point's local plane is fitted again, among
    the kept points only and the point itself weighted 10. A Delaunay triangle of the kept points is
    *consistent* when each corner's local plane predicts the other two corners' depths within
@@ -28,7 +30,7 @@ Steps, each on the output of the one before:
    a consistent triangle take the barycentric (linear) interpolation of its corners' inverse
    depths: exact for a plane, wherever the triangle is.
 4. **Other triangles of the paper's regions** (stage 3): in the regions the paper selects
-   (:func:`fusion.filling.select_regions` on the kept points), pixels still empty in a triangle
+   (:func:`fusion.fill.filling.select_regions` on the kept points), pixels still empty in a triangle
    whose corners' depths span at most ``max_jump_rel`` (20 %) take a cubic interpolation of
    inverse depth, clipped to the range of the triangle's corners (``smooth=False``: linear):
    one cubic Bezier triangle per triangle, from its corners' values and gradients (PN
@@ -76,7 +78,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from fusion.surface_fit import (
+from fusion.methods.surface_fit import (
     SurfaceFitParams,
     _check_frame,
     _method,
@@ -664,7 +666,7 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     module).
 
     ``frame``, ``sparse``, ``camera`` and the errors raised are those of
-    :func:`fusion.surface_fit.surface_fill`; ``params`` defaults to ``MeshParams()``.
+    :func:`fusion.methods.surface_fit.surface_fill`; ``params`` defaults to ``MeshParams()``.
     Returns a :class:`MeshFill`.
     """
     params = params or MeshParams()

@@ -100,7 +100,7 @@ import scipy.sparse
 import scipy.sparse.csgraph
 import scipy.sparse.linalg
 
-from fusion._registry import register
+from fusion.methods._registry import register
 from sim.camera import Camera
 from sim.validation import integer, positive
 

@@ -2,7 +2,7 @@
 
 Reads a sequence folder (simulated, or a real Event-Camera Dataset folder), streams the events
 of a time window into a disparity space image at a reference view, extracts the semi-dense depth
-(:mod:`fusion.emvs`), removes radius outliers from the point cloud and, when the sequence was
+(:mod:`fusion.map.emvs`), removes radius outliers from the point cloud and, when the sequence was
 simulated, scores the map against the exact depth of the reference view with
 :func:`fusion.scoring.depth_errors` (errors, completeness and precision), the exact depth taken in
 the map's own pixel grid: rendered in the undistorted virtual camera when the sensor has
@@ -25,17 +25,16 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fusion.dsi_range import DSIRange, oracle_header
-from fusion.emvs import (
+from fusion.figures import add_header, depth_colours, depth_scale, panel_grid
+from fusion.io import to_json, write_ply
+from fusion.map.dsi_range import DSIRange, oracle_header
+from fusion.map.emvs import (
     DepthMapParams,
     DSIParams,
     depth_planes,
     disparity_space_image,
     semidense_depth,
 )
-from fusion.figures import add_header, depth_colours, depth_scale, panel_grid
-from fusion.jsonio import to_json
-from fusion.pointcloud import write_ply
 from fusion.scoring import depth_errors, errors_by_motion, motion_regions, recorded_scene
 from sim.camera import Camera
 from sim.eventio import check_time_units, event_time_span, iter_event_chunks, read_window
@@ -80,7 +79,7 @@ class MapParams:
         simulated sequence, when its scoring finds less than half of the exact depth in the
         range (checked after the map is made: no stage but the scoring reads the exact depth).
     dsi_range : DSIRange or None
-        Where the DSI's depth range came from (:func:`fusion.dsi_range.resolve_dsi_range`),
+        Where the DSI's depth range came from (:func:`fusion.map.dsi_range.resolve_dsi_range`),
         recorded in ``map.json``; None: given by the caller.
     """
 
@@ -290,7 +289,8 @@ def _ground_truth_depth(sequence: Sequence, t_ref: float) -> np.ndarray | None:
 
     The map is the depth seen from the reference view: the camera whose pose ``groundtruth.txt``
     gives at ``t_ref``, in that camera's undistorted pixels. With a perfect rig that is the pose
-    and calibration the map was built with. With an imperfect one (:mod:`sim.rig`) the truth is
+    and calibration the map was built with. With an imperfect one (:mod:`sim.capture_errors`) the
+    truth is
     the TRUE camera at that instant: the exact pose (``groundtruth_exact.txt``) at the true time
     ``t_ref - poses_offset``, and the true intrinsics (``calib_exact.txt``) without distortion.
     So a map built from noisy poses or a wrong calibration is scored against what it should have
@@ -316,7 +316,7 @@ def _ground_truth_depth(sequence: Sequence, t_ref: float) -> np.ndarray | None:
     toml = (meta.get("scene") or {}).get("toml")
     if not toml:
         return None
-    from sim.rig import exact_camera, exact_trajectory, true_time
+    from sim.capture_errors import exact_camera, exact_trajectory, true_time
 
     sensor = exact_camera(sequence)
     camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
@@ -343,7 +343,7 @@ def _motion_regions(sequence: Sequence, t_ref: float, window: tuple[float, float
     scene = recorded_scene(meta)
     if scene is None or not scene.is_dynamic:
         return None
-    from sim.rig import exact_camera, exact_trajectory, true_time
+    from sim.capture_errors import exact_camera, exact_trajectory, true_time
 
     sensor = exact_camera(sequence)
     camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
@@ -376,11 +376,11 @@ def _check_range_contains(truth: np.ndarray, dsi: DSIParams) -> None:
 def _extract(dsi: np.ndarray, planes: np.ndarray, depth_params: DepthMapParams,
              camera: Camera, params: MapParams, counts: dict | None = None
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int]:
-    """The map of a DSI: :func:`fusion.emvs.semidense_depth`, then the radius outliers removed.
+    """The map of a DSI: :func:`fusion.map.emvs.semidense_depth`, then the radius outliers removed.
 
     Returns
     -------
-    depth, confidence, mask : as :func:`fusion.emvs.semidense_depth`'s, outliers removed
+    depth, confidence, mask : as :func:`fusion.map.emvs.semidense_depth`'s, outliers removed
     radius : float, metres, the outlier radius used
     removed : int, outliers removed
     """
@@ -399,7 +399,7 @@ def _check_no_pile_up(depths: np.ndarray, planes: np.ndarray, dsi: DSIParams) ->
     """Refuse a map whose points pile up at one end of the range: the scene lies beyond it.
 
     ``depths`` are the points of rpg_emvs's map (the points whose DSI maximum lies on the first
-    or last plane kept, :class:`fusion.emvs.DepthMapParams` ``keep_boundary_planes``): they are
+    or last plane kept, :class:`fusion.map.emvs.DepthMapParams` ``keep_boundary_planes``): they are
     the evidence.
 
     Rays of a scene outside the range meet in no plane, and the argmax then sits on the plane

@@ -43,6 +43,16 @@ import numpy as np
 
 from sim._atomic import atomic_file, write_bytes_atomically
 from sim.camera import write_calib
+from sim.capture_errors import (
+    EXACT_CALIB,
+    EXACT_POSES,
+    RIG_STREAM,
+    RigParams,
+    calibration_error,
+    noisy_poses,
+    pose_noise,
+    rig_generator,
+)
 from sim.event_depth import (
     DEPTH_TXT,
     EventDepth,
@@ -76,16 +86,6 @@ from sim.imu import write_motion_truth
 from sim.pixel_sampling import PixelEventEmulator, PixelSamplingStats, pixel_blocks
 from sim.progress import progress as progress_stage
 from sim.render import Renderer
-from sim.rig import (
-    EXACT_CALIB,
-    EXACT_POSES,
-    RIG_STREAM,
-    RigParams,
-    calibration_error,
-    noisy_poses,
-    pose_noise,
-    rig_generator,
-)
 from sim.sampling import (
     AT_MAX_RATE_NOTE,
     Sample,
@@ -262,8 +262,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         ``sequence.json``.
     rig : RigParams, optional
         Pose noise, clock offsets and calibration error of the written files (default the
-        scene's ``[rig]``, perfect unless it says otherwise; :mod:`sim.rig`). The truth is
-        written beside them: ``groundtruth_exact.txt``, ``calib_exact.txt``; ``depth/`` is
+        scene's ``[rig]``, perfect unless it says otherwise; :mod:`sim.capture_errors`). The truth
+        is written beside them: ``groundtruth_exact.txt``, ``calib_exact.txt``; ``depth/`` is
         always exact, indexed by the frames' written times.
     motion_truth : bool
         Write the motion ground truth (default True): camera velocity and IMU
@@ -433,8 +433,9 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
 # --- the rig: written poses and calibration, the exact ones beside them -----------------------
 
 def _write_rig(folder: Path, scene: Scene, pose_times: np.ndarray) -> dict:
-    """Write ``calib.txt`` and ``groundtruth.txt`` as the rig gives them (:mod:`sim.rig`), and
-    ``calib_exact.txt`` and ``groundtruth_exact.txt`` (the truth, for scoring only); return
+    """Write ``calib.txt`` and ``groundtruth.txt`` as the rig gives them
+    (:mod:`sim.capture_errors`), and ``calib_exact.txt`` and ``groundtruth_exact.txt`` (the
+    truth, for scoring only); return
     ``sequence.json``'s ``rig`` record. A perfect rig writes the same bytes twice."""
     rig, seed = scene.rig, scene.seed
     poses = scene.trajectory.pose(pose_times)

@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 
 from sim.camera import Camera, camera_preset
+from sim.capture_errors import RIG_PRESETS, RigParams
 from sim.frame_camera import SHUTTERS, FrameCamera
 from sim.frame_sensor import FRAME_SENSORS, FrameSensor
 from sim.frames import FRAME_SENSOR_NAMES, FrameParams
 from sim.imu import IMU_PRESETS, ImuParams
-from sim.rig import RIG_PRESETS, RigParams
 from sim.se3 import look_at, make_pose, quat_to_rot, rotation_from_euler, so3_exp
 from sim.trajectory import (
     HandheldTrajectory,
@@ -285,7 +285,7 @@ class Scene:
         rpg_emvs's configs declare one per sequence), never computed from the exact depth.
     rig : RigParams
         How the written poses, clocks and calibration depart from the truth (``[rig]``;
-        default perfect, :mod:`sim.rig`).
+        default perfect, :mod:`sim.capture_errors`).
     up : (3,) tuple of float
         Which way is up in the world (top-level ``up``, normalised; default ``+z``, as in the
         built-in scenes): gravity points along ``-up``.
