@@ -15,6 +15,7 @@ from typing import NoReturn
 
 from sim.validation import (
     PLAUSIBLE_DEPTH_M,  # noqa: F401  (the bound of --min/--max-depth)
+    ParameterError,
     depth_metres,
     finite,
     non_negative,
@@ -723,7 +724,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
             width, height = camera.width, camera.height
     read = [args.src] + [Path(args.src).resolve().parent / name for name in
                          ("calib.txt", "images.txt", "sequence.json")]       # for its size
-    check_output_file(args.dst, read, flag="DST")
+    check_output_file(args.dst, read, parameter="dst")
     if Path(args.dst).exists() and not args.overwrite:
         raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
     convert_events(args.src, args.dst, width=width, height=height)
@@ -1117,9 +1118,12 @@ def _parser() -> argparse.ArgumentParser:
                          help="sensor size WxH for HDF5 output (default: from the sequence "
                               "folder of SRC)")
     convert.set_defaults(run=_cmd_convert)
+    convert.set_defaults(flag_names={"dst": "DST"})
     for command in sub.choices.values():         # --debug after the command works too
         command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                              help="show tracebacks on errors")
+        # the flags a library error's parameters may be named by (see _in_flags)
+        command.set_defaults(option_strings=frozenset(command._option_string_actions))
     return parser
 
 
@@ -1189,6 +1193,21 @@ def _quit_on_closed_stdout() -> int:
     return 128 + signal.SIGPIPE if hasattr(signal, "SIGPIPE") else 1
 
 
+def _in_flags(exc: Exception, args: argparse.Namespace) -> str:
+    """A library error in the command line's terms: each parameter a
+    :class:`sim.validation.ParameterError` names becomes the subcommand's flag of that name
+    (``out`` -> ``--out``, ``overwrite`` -> ``--overwrite``), or the flag the subcommand maps it
+    to (``args.flag_names``, set with ``set_defaults``); a parameter with no flag keeps the
+    library's wording. Any other error is printed as it is."""
+    if not isinstance(exc, ParameterError):
+        return str(exc)
+    options = getattr(args, "option_strings", ())
+    names = {name: f"--{name.replace('_', '-')}" for name in exc.terms
+             if f"--{name.replace('_', '-')}" in options}
+    names.update(getattr(args, "flag_names", {}))
+    return exc.rephrase(names)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``evfuse`` command line.
 
@@ -1224,9 +1243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, OSError) as exc:
         if args.debug:
             raise
-        # an output refusal (sim.sequence.OutputError) has its own line in flags
-        print(f"evfuse {args.command}: error: {getattr(exc, 'cli_message', exc)}",
-              file=sys.stderr)
+        print(f"evfuse {args.command}: error: {_in_flags(exc, args)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         return _interrupted(args, exc)

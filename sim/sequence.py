@@ -30,6 +30,7 @@ import numpy as np
 
 from sim._atomic import PARTIAL_SUFFIX
 from sim.textfile import text_lines
+from sim.validation import ParameterError
 
 if TYPE_CHECKING:
     from sim.camera import Camera
@@ -42,6 +43,8 @@ __all__ = ["EXACT_TIME_S", "FLOW_INDEXES", "FRAME_CAMERA_FOLDER", "SEQUENCE_FOLD
            "json_text", "load_sequence", "partial_dir", "read_index", "read_sequence_json",
            "resumable_partial", "resume_differences", "write_index", "write_marker",
            "write_sequence_json"]
+
+_literal = ParameterError.literal
 
 SEQUENCE_FOLDER_NEEDS = ("calib.txt (one line 'fx fy cx cy k1 k2 p1 p2 k3'), images.txt with "
                          "images/, groundtruth.txt (poses) and events.txt or events.h5")
@@ -69,21 +72,10 @@ MARKER = ".evfuse"
 it, so that it never deletes a folder evfuse did not write."""
 
 
-class OutputError(ValueError):
-    """An output path refused before any work, in the library's terms (``str``), with the same
-    sentence in the command line's terms in :attr:`cli_message` (flags instead of parameters).
-
-    Parameters
-    ----------
-    message : str
-        One line naming the path, what is wrong and how to proceed (parameter names).
-    cli_message : str, optional
-        The same in flags (``--out``, ``--overwrite``); default ``message``.
-    """
-
-    def __init__(self, message: str, cli_message: str | None = None) -> None:
-        super().__init__(message)
-        self.cli_message = cli_message or message
+class OutputError(ParameterError):
+    """An output path refused before any work (a :class:`sim.validation.ParameterError`: its
+    message names the output parameter and ``overwrite`` / ``resume`` as placeholders, which the
+    command line renames to its flags)."""
 
 
 def _is_nonempty_dir(path: Path) -> bool:
@@ -105,7 +97,7 @@ def _real(path: str | Path) -> Path:
 
 
 def check_not_input(out: str | Path, inputs: SequenceABC[str | Path] = (),
-                    what: str = "output", flag: str = "--out") -> None:
+                    what: str = "output", parameter: str = "out") -> None:
     """Raise :class:`OutputError` if ``out`` is one of ``inputs``, contains one, or lies inside
     one, comparing real paths (symlinks resolved).
 
@@ -118,8 +110,9 @@ def check_not_input(out: str | Path, inputs: SequenceABC[str | Path] = (),
         exist yet); None entries are skipped.
     what : str
         How the message names ``out`` (``output``, ``output folder``, ``output file``).
-    flag : str
-        The command line's name for ``out``, in :attr:`OutputError.cli_message`.
+    parameter : str
+        The caller's name for ``out`` (``out``; ``dst`` for a conversion), which the message
+        names as a parameter (:class:`sim.validation.ParameterError`).
     """
     real_out = _real(out)
     for item in inputs:
@@ -137,8 +130,8 @@ def check_not_input(out: str | Path, inputs: SequenceABC[str | Path] = (),
         shown = "" if str(real_out) == str(out) else f" ({real_out})"
         message = (f"{what} {out}{shown} {relation} {item}; evfuse never writes into, replaces "
                    "or deletes what it reads")
-        raise OutputError(f"{message}: choose another output path",
-                          f"{message}: choose another {flag}")
+        raise OutputError(f"{_literal(message)}: choose another {{{parameter}}}",
+                          **{parameter: "output path"})
 
 
 def _check_marked(folder: Path, out: Path, overwrite: bool) -> None:
@@ -146,18 +139,17 @@ def _check_marked(folder: Path, out: Path, overwrite: bool) -> None:
     may be replaced: ``overwrite`` and evfuse's marker in it."""
     if folder == out and not overwrite:
         raise OutputError(
-            f"output folder {out} exists and is not empty; choose another output folder, or "
-            "pass overwrite=True to replace a folder evfuse wrote",
-            f"output folder {out} exists and is not empty; choose another --out, or add "
-            "--overwrite to replace a folder evfuse wrote")
+            f"output folder {_literal(out)} exists and is not empty; choose another {{out}}, or "
+            "add {overwrite} to replace a folder evfuse wrote",
+            out="output folder", overwrite="overwrite=True")
     marker = folder / MARKER
     if not marker.is_file() or marker.is_symlink():
         what = "output folder" if folder == out else f"unfinished output of {out},"
         message = (f"{what} {folder} was not written by evfuse (it has no {MARKER} file; "
                    "folders written before evfuse marked its outputs have none either), so "
                    "evfuse does not replace it")
-        raise OutputError(f"{message}: choose another output folder, or delete it yourself",
-                          f"{message}: choose another --out, or delete it yourself")
+        raise OutputError(f"{_literal(message)}: choose another {{out}}, or delete it yourself",
+                          out="output folder")
 
 
 def check_output_dir(out: str | Path, overwrite: bool = False,
@@ -172,7 +164,7 @@ def check_output_dir(out: str | Path, overwrite: bool = False,
     """
     out = Path(out)
     if not out.name:
-        raise OutputError(f"output path {str(out)!r} has no folder name")
+        raise OutputError(f"output path {_literal(repr(str(out)))} has no folder name")
     check_not_input(out, inputs, "output folder")
     partial = partial_dir(out)
     check_not_input(partial, inputs, "output folder (its unfinished copy)")
@@ -181,8 +173,8 @@ def check_output_dir(out: str | Path, overwrite: bool = False,
     if not out.exists() and not out.is_symlink():
         return
     if not out.is_dir() or out.is_symlink():
-        raise OutputError(f"output {out} exists and is not a folder (a file or a link); expected "
-                          "a folder or a new path (anything else is never replaced)")
+        raise OutputError(f"output {_literal(out)} exists and is not a folder (a file or a link); "
+                          "expected a folder or a new path (anything else is never replaced)")
     if _is_nonempty_dir(out):
         _check_marked(out, out, overwrite)
 
@@ -237,30 +229,30 @@ def resumable_partial(out: str | Path, overwrite: bool, inputs: SequenceABC[str 
     out = Path(out)
     if out.is_dir() and not out.is_symlink() and any(out.iterdir()) and not overwrite:
         raise OutputError(
-            f"output folder {out} is already complete; there is nothing to resume (with "
-            "overwrite=True a resumed run replaces it)",
-            f"output folder {out} is already complete; there is nothing to resume (add "
-            "--overwrite to continue an interrupted run that replaces it)")
+            f"output folder {_literal(out)} is already complete; there is nothing to resume "
+            "(add {overwrite} to continue an interrupted run that replaces it)",
+            overwrite="overwrite=True")
     check_output_dir(out, overwrite, inputs)
     partial = partial_dir(out)
     if not partial.is_dir() or (needs is not None and not (partial / needs).exists()):
         what = (f"{partial} does not exist" if not partial.is_dir()
                 else f"{partial} has no {needs}")
-        raise OutputError(f"there is no interrupted run of {out} to resume ({what}); run "
-                          "with resume=False to start one",
-                          f"there is no interrupted run of {out} to resume ({what}); run "
-                          "without --resume to start one")
+        raise OutputError(f"there is no interrupted run of {_literal(out)} to resume "
+                          f"({_literal(what)}); run without {{resume}} to start one",
+                          resume="resume=True")
     return partial
 
 
 def check_output_file(out: str | Path, inputs: SequenceABC[str | Path] = (),
-                      flag: str = "--out") -> None:
+                      parameter: str = "out") -> None:
     """Raise :class:`OutputError` if the file ``out`` would be written into, over or around one
-    of ``inputs`` (:func:`check_not_input`; ``flag`` names ``out`` on the command line), or is
-    an existing folder."""
-    check_not_input(out, inputs, "output file", flag)
+    of ``inputs`` (:func:`check_not_input`; ``parameter`` is the caller's name for ``out``), or
+    is an existing folder."""
+    check_not_input(out, inputs, "output file", parameter)
     if Path(out).is_dir():
-        raise OutputError(f"output file {out} is an existing folder; expected a file path")
+        raise OutputError(f"output file {_literal(out)} is an existing folder; expected a file "
+                          "path")
+
 
 
 def evfuse_version() -> str:

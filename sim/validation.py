@@ -1,23 +1,95 @@
-"""Number validators shared by the parameter dataclasses of :mod:`sim`.
+"""Number validators shared by the parameter dataclasses of :mod:`sim`, and the error that names a
+parameter so that a front end can name its own flag instead.
 
-Each returns the value as a float or raises ``ValueError`` naming the field, so that a
+Each validator returns the value as a float or raises ``ValueError`` naming the field, so that a
 dataclass's ``__post_init__`` says what was wrong in one line.
 """
 
 from __future__ import annotations
 
 import math
+import re
+from collections.abc import Mapping
 
 import numpy as np
 
-__all__ = ["PLAUSIBLE_DEPTH_M", "bounded", "depth_metres", "finite", "integer", "non_negative",
-           "positive"]
+__all__ = ["PLAUSIBLE_DEPTH_M", "ParameterError", "bounded", "depth_metres", "finite", "integer",
+           "non_negative", "positive"]
 
 PLAUSIBLE_DEPTH_M = 100.0
 """Largest depth accepted where a depth is given (a scene's ``depth_range``, ``--min-depth`` /
 ``--max-depth``, a twin's poster depth), metres: beyond it the value is taken for millimetres
 (the ECD's 0.47-2.4 m written 470-2400) and refused. Event-based mapping over a window's
 baseline (centimetres to metres) resolves no depth out there anyway."""
+
+
+class ParameterError(ValueError):
+    """A refused request, in the library's terms, whose parameters a front end can name its way.
+
+    The library speaks of its own parameters (``out``, ``overwrite=True``, ``t0``); a command
+    line speaks of flags (``--out``, ``--overwrite``, ``--t0``). The message is written once, with
+    each parameter it mentions as a ``{name}`` placeholder; ``str(error)`` fills each with the
+    library's wording given in ``terms``, and :meth:`rephrase` with the front end's. So the
+    library never names a flag, and the command line never re-words a library sentence.
+
+    Parameters
+    ----------
+    message : str
+        One line; ``{name}`` for each parameter of ``terms``. Text that may hold braces (a path)
+        goes in through :meth:`literal`; other braces are left as they are.
+    **terms : str
+        Parameter name -> the library's wording of it (``overwrite="overwrite=True"``).
+
+    Examples
+    --------
+    >>> error = ParameterError("pass {overwrite} to replace it", overwrite="overwrite=True")
+    >>> str(error)
+    'pass overwrite=True to replace it'
+    >>> error.rephrase({"overwrite": "--overwrite"})
+    'pass --overwrite to replace it'
+    """
+
+    def __init__(self, message: str, **terms: str) -> None:
+        self.template = message
+        self.terms = terms
+        super().__init__(self.rephrase({}))
+
+    def rephrase(self, names: Mapping[str, str]) -> str:
+        """The message with each parameter named by ``names`` (the library's term where absent).
+
+        Parameters
+        ----------
+        names : mapping of str to str
+            Parameter name -> a front end's name for it (a flag).
+
+        Returns
+        -------
+        str
+        """
+        def fill(match: re.Match) -> str:
+            name = match.group(1)
+            if name is None:                       # a doubled brace from literal()
+                return match.group(0)[0]
+            if name not in self.terms:
+                return match.group(0)
+            return names.get(name, self.terms[name])
+        return re.sub(r"\{\{|\}\}|\{(\w+)\}", fill, self.template)
+
+    @staticmethod
+    def literal(value: object) -> str:
+        """``value`` as text to put in a message as it is (its braces doubled, so that a path
+        holding ``{out}`` is never taken for a placeholder).
+
+        Parameters
+        ----------
+        value : object
+            A path, a number, any text.
+
+        Returns
+        -------
+        str
+        """
+        return str(value).replace("{", "{{").replace("}", "}}")
 
 
 def finite(name: str, value: object) -> float:

@@ -487,3 +487,21 @@ def test_a_user_s_method_module_imports_from_the_current_folder(ecd_run, tmp_pat
     assert line.endswith("cannot import module 'evfuse_no_such_module' (ModuleNotFoundError: No "
                          "module named 'evfuse_no_such_module'; looked in the current folder "
                          f"{tmp_path} and on PYTHONPATH)"), line
+
+
+def test_parameter_error_names_parameters_in_either_terms():
+    """A library error names its parameters once; the library's wording and the command line's
+    flags both come from the same sentence, and a path's own braces are never taken for a
+    parameter (issue 22: library errors speak in the library's terms, the CLI translates)."""
+    from sim.validation import ParameterError
+
+    path = ParameterError.literal("runs/{out}/a}b")
+    error = ParameterError(f"folder {path} exists; choose another {{out}} or add {{overwrite}}",
+                           out="output folder", overwrite="overwrite=True")
+    assert str(error) == ("folder runs/{out}/a}b exists; choose another output folder or add "
+                          "overwrite=True")
+    assert error.rephrase({"out": "--out", "overwrite": "--overwrite"}) == (
+        "folder runs/{out}/a}b exists; choose another --out or add --overwrite")
+    assert error.rephrase({"out": "DST"}) == (
+        "folder runs/{out}/a}b exists; choose another DST or add overwrite=True")
+
