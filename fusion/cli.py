@@ -1,32 +1,39 @@
-"""The ``evfuse`` command line: parses, validates and calls the public API, nothing more."""
+"""The ``evfuse`` command line: parses, validates and calls the public API, nothing more.
+
+:func:`main` is the entry point. This module holds the fusion commands (``map``, ``fill``,
+``run``, ``show``, ``bench``, ``reproduce``, ``methods``); the simulator's (``simulate``,
+``events``, ``twin``, ``convert``, ``scenes``) and the parser pieces both share live in
+:mod:`sim.cli`, which this parser composes.
+"""
 
 from __future__ import annotations
 
 import argparse
-import math
 import os
-import shlex
 import signal
 import sys
 import threading
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
 
+import numpy as np
+
+from sim.cli import (
+    FINITE,
+    NON_NEGATIVE,
+    OVERWRITE_HELP,
+    POSITIVE,
+    OneLineParser,
+    add_command,
+    count_type,
+)
 from sim.validation import (
     PLAUSIBLE_DEPTH_M,  # noqa: F401  (the bound of --min/--max-depth)
     ParameterError,
     depth_metres,
-    finite,
-    non_negative,
-    positive,
 )
 
 __all__ = ["main"]
-
-
-OVERWRITE_HELP = ("replace OUT if it is a folder evfuse wrote (it holds evfuse's .evfuse marker), "
-                  "once the new one is complete; any other folder is never replaced")
 
 
 def _check_depth_flags(args: argparse.Namespace) -> None:
@@ -35,47 +42,6 @@ def _check_depth_flags(args: argparse.Namespace) -> None:
     for flag, value in (("--min-depth", args.min_depth), ("--max-depth", args.max_depth)):
         if value is not None:
             depth_metres(flag, value)
-
-
-def _number_type(check, what: str):
-    """An argparse ``type=``: the text as a float that passes ``check`` (a validator of
-    :mod:`sim.validation`), else argparse's usage and one error line naming the flag."""
-    def parse(text: str) -> float:
-        try:
-            return check("value", float(text))
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
-    parse.__name__ = what
-    return parse
-
-
-def _count_type(minimum: int):
-    """An argparse ``type=``: the text as an integer >= ``minimum``."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or value < minimum:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
-        return value
-    parse.__name__ = f"integer >= {minimum}"
-    return parse
-
-
-_FINITE = _number_type(finite, "a finite number")
-_POSITIVE = _number_type(positive, "a finite number > 0")
-_NON_NEGATIVE = _number_type(non_negative, "a finite number >= 0")
-
-
-def _cmd_scenes(args: argparse.Namespace) -> int:
-    from scenes import describe_scenes
-
-    scenes = describe_scenes()
-    width = max(len(name) for name in scenes)
-    for name, description in scenes.items():
-        print(f"{name:<{width}}  {description}")
-    return 0
 
 
 def _cmd_methods(args: argparse.Namespace) -> int:
@@ -177,69 +143,16 @@ def _method_variants(methods: list[str], params: list[str], single: bool = False
     return variants
 
 
-_KNOBS = ("steps", "step_depth", "radius", "distance", "shadow", "angle", "amplitude",
-          "wavelength", "texture")
-"""The difficulty knobs of ``evfuse bench --family`` (see :mod:`fusion.experiments.families`)."""
-
-
-def _family_files(args: argparse.Namespace) -> list[str]:
-    """Write each member of ``--family`` over the knobs' values; return the scene files."""
-    from fusion.experiments.families import family_variants
-
-    knobs = {}
-    for name in _KNOBS:
-        text = getattr(args, name)
-        if text is None:
-            continue
-        try:
-            knobs[name] = [float(v) for v in text.split(",") if v.strip()]
-        except ValueError:
-            raise ValueError(f"--{name.replace('_', '-')} {text}: expected numbers separated "
-                             "by commas") from None
-    cache = Path(args.cache) if args.cache else Path(args.out).with_name(
-        Path(args.out).name + "-cache")
-    texts = family_variants(args.family, knobs)           # refused knobs: before any folder
-    folder = cache / "families"
-    folder.mkdir(parents=True, exist_ok=True)
-    files = []
-    for text in texts:
-        name = text.split('name = "', 1)[1].split('"', 1)[0]
-        path = folder / f"{name}.toml"
-        path.write_text(text)
-        files.append(str(path))
-    return files
-
-
-def _bench_command(args: argparse.Namespace, given: list[str]) -> str:
-    """The command line of a bench run, for ``bench.md``: every flag that changes what it
-    benches, as given (a ``--family`` run names its family and knobs, not ``--scenes``)."""
-    from fusion.experiments.bench import BenchParams
-
-    words = ["evfuse", "bench"]
-    if args.family:
-        words += ["--family", args.family]
-        for name in _KNOBS:
-            if getattr(args, name) is not None:
-                words += [f"--{name.replace('_', '-')}", getattr(args, name)]
-    else:
-        words += ["--scenes", args.scenes]
-    words += ["--input", args.input]
-    for method in given:
-        words += ["--method", method]
-    for param in args.param or []:
-        words += ["--param", param]
-    words += ["--only"] if args.only else []
-    words += ["--keep-boundary-planes"] if args.keep_boundary_planes else []
-    for flag, value, default in (("--noise", args.noise, BenchParams.noise),
-                                 ("--outliers", args.outliers, BenchParams.outliers)):
-        if value != default:
-            words += [flag, f"{value:g}"]
-    words += ["--cache", str(args.cache)] if args.cache else []
-    return shlex.join([*words, "--out", str(args.out)])
-
-
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from fusion.experiments.bench import INPUTS, BenchParams, bench_sources, run_bench
+    from fusion.experiments.bench import (
+        INPUTS,
+        BenchParams,
+        bench_cache,
+        bench_command,
+        bench_sources,
+        run_bench,
+    )
+    from fusion.experiments.families import KNOBS, write_family
     from fusion.methods import MethodVariant, available_methods, split_labels
     from sim.sequence import check_output_dir
 
@@ -256,189 +169,33 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         raise ValueError(f"--input {args.input}: expected among {', '.join(INPUTS)}")
     params = BenchParams(noise=args.noise, outliers=args.outliers,
                          keep_boundary_planes=args.keep_boundary_planes)
-    cache = Path(args.cache) if args.cache else Path(args.out).with_name(
-        Path(args.out).name + "-cache")
+    cache = bench_cache(args.out, args.cache)
     check_output_dir(args.out, args.overwrite, bench_sources([] if args.family else scenes,
                                                              cache))
+    given_knobs = {k: getattr(args, k) for k in KNOBS if getattr(args, k) is not None}
     if args.family:
-        scenes = _family_files(args)
-    else:
-        knobs = [k for k in _KNOBS if getattr(args, k) is not None]
-        if knobs:
-            raise ValueError(f"--{knobs[0].replace('_', '-')} is a knob of a scene family: "
-                             "give --family too (staircase, sphere, cylinder, slanted, "
-                             "heightfield)")
+        values = {}
+        for name, text in given_knobs.items():
+            try:
+                values[name] = [float(v) for v in text.split(",") if v.strip()]
+            except ValueError:
+                raise ValueError(f"--{name.replace('_', '-')} {text}: expected numbers "
+                                 "separated by commas") from None
+        scenes = [str(path) for path in write_family(args.family, values, cache / "families")]
+    elif given_knobs:
+        raise ValueError(f"--{next(iter(given_knobs)).replace('_', '-')} is a knob of a scene "
+                         "family: give --family too (staircase, sphere, cylinder, slanted, "
+                         "heightfield)")
+    command = bench_command(args.out, scenes=args.scenes, inputs=args.input, methods=given,
+                            params=args.param or [], only=args.only,
+                            keep_boundary_planes=args.keep_boundary_planes, noise=args.noise,
+                            outliers=args.outliers, cache=args.cache, family=args.family,
+                            knobs=given_knobs)
     rows = run_bench(methods, scenes, inputs, args.out, cache=args.cache, params=params,
-                     overwrite=args.overwrite, progress=not args.quiet,
-                     command=_bench_command(args, given))
+                     overwrite=args.overwrite, progress=not args.quiet, command=command)
     failed = sum(row["status"] != "ok" for row in rows)
     print(f"{len(rows)} fills ({failed} failed) of {len(methods)} methods; written to "
           f"{Path(args.out) / 'bench.md'}, bench.csv, figures/")
-    return 0
-
-
-def _cmd_simulate(args: argparse.Namespace) -> int:
-    from scenes import resolve_scene
-    from sim.capture_errors import RigParams
-    from sim.events import EventParams
-    from sim.sampling import SamplingParams
-    from sim.scene import load_scene
-    from sim.simulate import simulate
-
-    # Said in the flags' terms, before the dataclasses would say it in their fields' names.
-    if not (math.isfinite(args.contrast) and args.contrast > 0):
-        raise ValueError(f"--contrast {args.contrast:g}: expected a contrast threshold > 0 (log "
-                         "intensity units, e.g. 0.2)")
-    if not 0 < args.lam <= 1:
-        raise ValueError(f"--lambda {args.lam:g}: expected a fraction of the contrast threshold "
-                         "in (0, 1]")
-    if not 0 < args.min_rate <= args.max_rate:
-        raise ValueError(f"--min-rate {args.min_rate:g} and --max-rate {args.max_rate:g}: "
-                         "expected 0 < --min-rate <= --max-rate (Hz)")
-    scene = load_scene(resolve_scene(args.scene), seed=args.seed)
-    rig = None if args.rig is None else RigParams.from_preset(args.rig)
-    if args.frame_sensor is not None:
-        scene = _with_frame_sensor(scene, args.frame_sensor)
-    events = EventParams.preset(args.noise, contrast=args.contrast, seed=scene.seed)
-    sampling = SamplingParams(lam=args.lam, min_rate=args.min_rate, max_rate=args.max_rate)
-    formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
-    result = simulate(scene, args.out, duration=args.duration, start=args.start, spp=args.spp,
-                      variant=args.variant, overwrite=args.overwrite, progress=not args.quiet,
-                      events=events, sampling=sampling, with_events=not args.no_events,
-                      event_formats=formats, resume=args.resume, sampler=args.sampler, rig=rig,
-                      motion_truth=not args.no_motion_truth)
-    what = f"{result.n_frames} frames and depth maps ({result.n_renders} renders)"
-    if result.n_events is not None and result.sampler == "pixel":
-        what += (f", {result.n_events} events ({result.event_renders} frames and "
-                 f"{result.event_pixel_samples:,} pixel samples)")
-    elif result.n_events is not None:
-        what += f", {result.n_events} events ({result.event_renders} renders)"
-    if not args.no_motion_truth:
-        parts = ["velocity", "IMU", "flow", "motion field", "object masks"]
-        if result.n_events is not None and "h5" in formats:
-            parts.append("per-event depth")
-        what += f", the motion ground truth ({', '.join(parts)})"
-    print(f"wrote {what} with {result.variant} in {result.timings['total']:.1f} s to "
-          f"{result.out}")
-    return 0
-
-
-def _with_frame_sensor(scene, name: str):
-    """The scene with its standard camera's sensor replaced (``--frame-sensor``)."""
-    import dataclasses
-
-    from sim.frames import FRAME_SENSOR_NAMES
-
-    if name not in FRAME_SENSOR_NAMES:
-        raise ValueError(f"--frame-sensor {name!r}: expected one of "
-                         f"{', '.join(FRAME_SENSOR_NAMES)}")
-    try:
-        return dataclasses.replace(scene, frames=scene.frames.with_sensor(name))
-    except ValueError as exc:
-        raise ValueError(f"--frame-sensor {name}: {exc}") from None
-
-
-def _events_file(folder: Path) -> Path:
-    for name in ("events.h5", "events.txt"):
-        if (folder / name).is_file():
-            return folder / name
-    raise ValueError(f"{folder}: no events.h5 or events.txt in this folder")
-
-
-def _read_recording(folder: Path) -> tuple[object, Path, object]:
-    """A sequence folder's sequence, events file and events; event times in the wrong unit
-    (against the poses) are refused."""
-    from sim.eventio import check_time_units, read_events
-    from sim.sequence import load_sequence
-    from sim.trajectory import read_trajectory
-
-    sequence = load_sequence(folder)
-    path = _events_file(folder)
-    events = read_events(path, sequence.camera.width, sequence.camera.height)
-    if len(events) and sequence.groundtruth_path is not None:      # times in the wrong unit
-        poses = read_trajectory(sequence.groundtruth_path)
-        check_time_units(path, events["t"][0] * 1e-9, events["t"][-1] * 1e-9, poses.t_start,
-                         poses.t_end)
-    return sequence, path, events
-
-
-def _recording_stats(sequence, events) -> dict:
-    """A recording's event figures (:func:`sim.statistics.event_stats`) plus ``frame_noise``
-    (gray levels, the median over its first 10 frames; NaN without frames)."""
-    import numpy as np
-
-    from sim.statistics import event_stats, frame_noise
-
-    stats = event_stats(events, sequence.camera.width, sequence.camera.height)
-    noise = [frame_noise(_read_gray(p)) for p in list(sequence.image_paths)[:10]]
-    stats["frame_noise"] = float(np.median(noise)) if noise else float("nan")
-    return stats
-
-
-def _cmd_events(args: argparse.Namespace) -> int:
-    import cv2
-
-    from fusion.figures import event_legend, panel_grid, write_image
-    from sim.sequence import check_output_file
-    from sim.statistics import compare_stats, event_frame
-
-    folder = Path(args.sequence)
-    if args.compare is not None and not args.stats:
-        raise ValueError("--compare compares statistics: add --stats")
-    if args.out is not None and not args.stats:
-        raise ValueError("--out is the event frame of --stats: add --stats")
-    if args.out is not None:                     # never into a recording it reads
-        check_output_file(args.out, [folder, args.compare])
-    sequence, path, events = _read_recording(folder)
-    if not args.stats:
-        print(f"{path}: {len(events)} events (add --stats for statistics)")
-        return 0
-    stats = _recording_stats(sequence, events)
-    width, height = sequence.camera.width, sequence.camera.height
-    show = lambda v: f"{v:.6g}" if isinstance(v, float) else str(v)  # noqa: E731
-    if args.compare is None:
-        print(f"{path}  ({width}x{height})")
-        for key, value in stats.items():
-            print(f"  {key:<24} {show(value)}")
-    else:
-        other_sequence, other_path, other_events = _read_recording(Path(args.compare))
-        other = _recording_stats(other_sequence, other_events)
-        print(f"A: {path}\nB: {other_path}")
-        print(f"  {'':<24} {'A':>12} {'B':>12} {'B / A':>8}")
-        for key, a, b, ratio in compare_stats(stats, other):
-            print(f"  {key:<24} {show(a):>12} {show(b):>12} "
-                  f"{'' if ratio is None else f'{ratio:.3g}':>8}")
-    if args.out is None:
-        print("(add --out PNG to draw the event frame; evfuse never writes into the recording)")
-        return 0
-    out = Path(args.out)
-    window = events
-    if args.window is not None and len(events):
-        t_end = int(events["t"][0] + args.window * 1e9)
-        window = events[events["t"] < t_end]
-    frame = cv2.cvtColor(event_frame(window, width, height), cv2.COLOR_RGB2BGR)
-    write_image(out, panel_grid([frame], [f"event frame: latest polarity of {len(window)} events"],
-                                columns=1, legends=[event_legend()]))
-    print(f"event frame of {len(window)} events written to {out}")
-    return 0
-
-
-def _cmd_twin(args: argparse.Namespace) -> int:
-    from sim.twin import write_twin
-
-    window = None
-    if args.window is not None:
-        try:
-            window = tuple(float(v) for v in args.window.split(","))
-        except ValueError:
-            window = ()
-        if len(window) != 2 or not all(math.isfinite(t) for t in window):
-            raise ValueError(f"--window: expected T0,T1 in seconds (finite), got "
-                             f"{args.window!r}")
-    scene = write_twin(args.recording, args.out, args.depth, window, args.illuminance,
-                       args.frame_sensor, args.frame_gamma, overwrite=args.overwrite)
-    print(f"twin scene written to {scene}; simulate it with: evfuse simulate {scene} "
-          f"--out SEQUENCE")
     return 0
 
 
@@ -539,6 +296,7 @@ def _cmd_fill(args: argparse.Namespace) -> int:
     from sim.camera import read_calib
     from sim.exr import read_depth
     from sim.sequence import check_output_dir
+    from sim.statistics import read_gray
 
     method, method_params, params = _fill_method(args)
     single = (args.frame, args.sparse_depth, args.calib)
@@ -551,7 +309,7 @@ def _cmd_fill(args: argparse.Namespace) -> int:
         result = fill_window(args.map, args.out, params, overwrite=args.overwrite,
                              method=method, method_params=method_params)
     elif all(single):
-        frame = _read_gray(args.frame)
+        frame = read_gray(args.frame)
         camera = read_calib(args.calib, frame.shape[1], frame.shape[0])
         truth = read_depth(args.truth) if args.truth else None
         result = fill_frame(frame, read_depth(args.sparse_depth), camera, params, truth,
@@ -576,16 +334,6 @@ def _cmd_fill(args: argparse.Namespace) -> int:
                 print(text)
     print(f"written to {out}")
     return 0
-
-
-def _read_gray(path):
-    """A gray 8-bit image, or a ValueError naming the file."""
-    import cv2
-
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise ValueError(f"{path}: not a readable image")
-    return image
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -705,33 +453,6 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_convert(args: argparse.Namespace) -> int:
-    from sim.eventio import convert_events
-    from sim.sequence import check_output_file
-
-    width = height = None
-    if args.sensor:
-        try:
-            width, height = (int(v) for v in args.sensor.lower().split("x"))
-        except ValueError:
-            raise ValueError(f"--sensor must look like 240x180, got {args.sensor!r}") from None
-    else:
-        folder = Path(args.src).resolve().parent
-        if (folder / "images.txt").is_file() or (folder / "sequence.json").is_file():
-            from sim.sequence import load_sequence
-
-            camera = load_sequence(folder).camera
-            width, height = camera.width, camera.height
-    read = [args.src] + [Path(args.src).resolve().parent / name for name in
-                         ("calib.txt", "images.txt", "sequence.json")]       # for its size
-    check_output_file(args.dst, read, parameter="dst")
-    if Path(args.dst).exists() and not args.overwrite:
-        raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
-    convert_events(args.src, args.dst, width=width, height=height)
-    print(f"converted {args.src} to {args.dst}")
-    return 0
-
-
 KEEP_BOUNDARY_HELP = ("keep the map points whose DSI maximum lies on the first or the last "
                       "depth plane, as rpg_emvs does (default: dropped, and counted in "
                       "map.json's boundary_plane_points: such a maximum says the depth lies "
@@ -739,20 +460,20 @@ KEEP_BOUNDARY_HELP = ("keep the map points whose DSI maximum lies on the first o
 
 
 def _add_map_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--t0", type=_FINITE, default=None,
+    parser.add_argument("--t0", type=FINITE, default=None,
                         help="window start, s (default: where the events and the poses begin; "
                              "for a scene, 0)")
-    parser.add_argument("--t1", type=_FINITE, default=None,
+    parser.add_argument("--t1", type=FINITE, default=None,
                         help="window end, s (default: where the events or the poses end; for a "
                              "scene, 1 s after --t0, refused where the scene ends sooner)")
     parser.add_argument("--clip-window", action="store_true",
                         help="map the part of --t0/--t1 that the events and poses (or the "
                              "scene) cover (recorded in map.json) instead of refusing a window "
                              "past them")
-    parser.add_argument("--min-depth", type=_FINITE, default=None,
+    parser.add_argument("--min-depth", type=FINITE, default=None,
                         help="nearest DSI plane, m (default: the near end of the working range "
                              "the scene file declares, else 0.2 m)")
-    parser.add_argument("--max-depth", type=_FINITE, default=None,
+    parser.add_argument("--max-depth", type=FINITE, default=None,
                         help="farthest DSI plane, m (default: the far end of the working range "
                              "the scene file declares, else 5 m)")
     parser.add_argument("--depth-range", choices=("auto", "oracle"), default="auto",
@@ -760,16 +481,16 @@ def _add_map_options(parser: argparse.ArgumentParser) -> None:
                              "range, else 0.2-5 m, never the exact depth; oracle: the exact "
                              "depth at the reference view widened by 20 %% (simulated sequences "
                              "only; every output then says it used the answer)")
-    parser.add_argument("--planes", type=_count_type(2), default=100,
+    parser.add_argument("--planes", type=count_type(2), default=100,
                         help="depth planes, uniform in inverse depth (default 100, the paper's "
                              "240x180x100 grid)")
-    parser.add_argument("--kernel", type=_count_type(3), default=5,
+    parser.add_argument("--kernel", type=count_type(3), default=5,
                         help="adaptive threshold block size, odd (default 5, rpg_emvs's; the "
                              "paper's sliders: 15)")
-    parser.add_argument("--c", type=_FINITE, default=5.0,
+    parser.add_argument("--c", type=FINITE, default=5.0,
                         help="adaptive threshold constant (default 5, rpg_emvs's; the paper's "
                              "sliders: 7)")
-    parser.add_argument("--median", type=_count_type(1), default=5,
+    parser.add_argument("--median", type=count_type(1), default=5,
                         help="median filter size, px (default 5, rpg_emvs's)")
     parser.add_argument("--keep-boundary-planes", action="store_true",
                         help=KEEP_BOUNDARY_HELP)
@@ -790,19 +511,19 @@ def _add_dense_options(parser: argparse.ArgumentParser) -> None:
                              "else as text, and coerced to the setting's type. `evfuse methods "
                              "--params` lists each method's settings and defaults; recorded as "
                              "method_params in fill.json / report.json")
-    parser.add_argument("--threshold", type=_NON_NEGATIVE, default=3.0,
+    parser.add_argument("--threshold", type=NON_NEGATIVE, default=3.0,
                         help="region growing threshold, gray levels (default 3, the paper's)")
-    parser.add_argument("--min-region", type=_count_type(1), default=None,
+    parser.add_argument("--min-region", type=count_type(1), default=None,
                         help="smallest region kept, pixels (default max(20, Res / 1000), ours: "
                              "the paper ignores 'small regions' without a size)")
-    parser.add_argument("--ring", type=_count_type(1), default=3,
+    parser.add_argument("--ring", type=count_type(1), default=3,
                         help="half-width of the band on both sides of a region's contour where "
                              "its map points are counted, px (default 3, the paper's "
                              "'3-pixel ring')")
-    parser.add_argument("--min-ring-ratio", type=_NON_NEGATIVE, default=0.30,
+    parser.add_argument("--min-ring-ratio", type=NON_NEGATIVE, default=0.30,
                         help="band map points per contour pixel needed to fill (default 0.30, "
                              "the paper's '30 %% of the contour length')")
-    parser.add_argument("--max-inside-ratio", type=_NON_NEGATIVE, default=0.05,
+    parser.add_argument("--max-inside-ratio", type=NON_NEGATIVE, default=0.05,
                         help="map points inside, off the band, per region pixel allowed "
                              "(default 0.05, the paper's '5 %% of the region size')")
     parser.add_argument("--weighting", choices=("idw", "gaussian", "exponential"),
@@ -810,25 +531,28 @@ def _add_dense_options(parser: argparse.ArgumentParser) -> None:
                         help="interpolation weights (default idw, the first of the paper's "
                              "Table 3, which finds the errors insensitive to it); --weighting W "
                              "is --method paper-W")
-    parser.add_argument("--sigma", type=_POSITIVE, default=5.0,
+    parser.add_argument("--sigma", type=POSITIVE, default=5.0,
                         help="Gaussian weights' sigma, px (default 5, the paper's)")
-    parser.add_argument("--scale", type=_POSITIVE, default=1.0,
+    parser.add_argument("--scale", type=POSITIVE, default=1.0,
                         help="exponential weights' decay length, px: exp(-d / scale) "
                              "(default 1, the paper's exp(-d))")
 
 
-class _OneLineParser(argparse.ArgumentParser):
-    """An argument parser whose refusals are one line (``evfuse CMD: error: ...``, exit 2), as
-    every other refusal of evfuse is, instead of argparse's usage block before the error."""
+def _write_event_figure(path: Path, frame: np.ndarray, title: str) -> None:
+    """``evfuse events --out``'s figure: the event frame (``(H, W, 3) uint8`` RGB) under its
+    title, with the polarity legend, written to ``path``."""
+    import cv2
 
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message}\n")
+    from fusion.figures import event_legend, panel_grid, write_image
+
+    write_image(path, panel_grid([cv2.cvtColor(frame, cv2.COLOR_RGB2BGR)], [title], columns=1,
+                                 legends=[event_legend()]))
 
 
 def _parser() -> argparse.ArgumentParser:
     from sim.sequence import evfuse_version
 
-    parser = _OneLineParser(
+    parser = OneLineParser(
         prog="evfuse",
         description="Simulate event and standard cameras in ground-truthed scenes, and fuse them "
                     "into dense depth.",
@@ -838,8 +562,7 @@ def _parser() -> argparse.ArgumentParser:
                         help="print evfuse's version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    scenes = sub.add_parser("scenes", help="list the built-in scenes")
-    scenes.set_defaults(run=_cmd_scenes)
+    add_command(sub, "scenes")
     methods = sub.add_parser("methods", help="list the filling methods, one line each, name "
                                              "first (built-in and installed)")
     methods.add_argument("--params", action="store_true",
@@ -890,9 +613,9 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--keep-boundary-planes", action="store_true", help=KEEP_BOUNDARY_HELP)
     bench.add_argument("--only", action="store_true",
                        help="bench only the --method ones, not every built-in")
-    bench.add_argument("--noise", type=_NON_NEGATIVE, default=0.02,
+    bench.add_argument("--noise", type=NON_NEGATIVE, default=0.02,
                        help="relative depth noise of oracle-noisy (default 0.02)")
-    bench.add_argument("--outliers", type=_NON_NEGATIVE, default=0.05,
+    bench.add_argument("--outliers", type=NON_NEGATIVE, default=0.05,
                        help="share of outliers in oracle-noisy (default 0.05)")
     bench.add_argument("--out", required=True, help="folder to write")
     bench.add_argument("--cache", default=None,
@@ -902,111 +625,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--quiet", action="store_true", help="no progress bar")
     bench.set_defaults(run=_cmd_bench)
 
-    simulate = sub.add_parser(
-        "simulate", help="render a scene into a sequence folder",
-        description="Render a built-in scene (by name, see `evfuse scenes`) or a scene file into "
-                    "a sequence folder: calib.txt, groundtruth.txt, images/, depth/, "
-                    "sequence.json.")
-    simulate.add_argument("scene", help="built-in scene name or path of a .toml scene file")
-    simulate.add_argument("--out", required=True, help="sequence folder to write")
-    simulate.add_argument("--duration", type=_POSITIVE, default=None,
-                          help="seconds to simulate (default: the scene's duration)")
-    simulate.add_argument("--start", type=_FINITE, default=0.0,
-                          help="time of the scene's trajectory to start at, s (default 0)")
-    simulate.add_argument("--seed", type=_count_type(0), default=None,
-                          help="seed of every random draw (default: the scene's seed)")
-    simulate.add_argument("--spp", type=_count_type(1), default=None,
-                          help="samples per pixel, a perfect square (default: the scene's)")
-    simulate.add_argument("--variant", default=None,
-                          help="Mitsuba variant: cuda_ad_rgb, llvm_ad_rgb or scalar_rgb "
-                               "(default: EVFUSE_VARIANT, else the fastest that works)")
-    simulate.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    simulate.add_argument("--quiet", action="store_true", help="no progress bar")
-    simulate.add_argument("--contrast", type=_FINITE, default=0.2,
-                          help="contrast thresholds C+ = C- of the event camera (default 0.2)")
-    simulate.add_argument("--noise", choices=("ideal", "realistic"), default="ideal",
-                          help="event-camera noise preset (default ideal: no noise)")
-    simulate.add_argument("--frame-sensor", default=None, metavar="NAME",
-                          help="the standard camera's sensor: ideal (no noise), davis240c_aps "
-                               "or machine_vision (default: the scene's [frames] sensor)")
-    simulate.add_argument("--lambda", dest="lam", type=_FINITE, default=0.5,
-                          help="adaptive sampling: largest change of log intensity between "
-                               "renders, as a fraction of C (default 0.5)")
-    simulate.add_argument("--min-rate", type=_FINITE, default=100.0,
-                          help="lowest render rate for the event camera, Hz (default 100)")
-    simulate.add_argument("--max-rate", type=_FINITE, default=20000.0,
-                          help="highest render rate for the event camera, Hz (default 20000)")
-    simulate.add_argument("--sampler", choices=("pixel", "frame"), default=None,
-                          help="how the event camera is sampled: pixel (each pixel at its own "
-                               "adaptive times; static scenes) or frame (whole frames at one "
-                               "adaptive rate) (default: pixel for static scenes on a JIT "
-                               "variant, else frame)")
-    simulate.add_argument("--event-format", default="h5,txt",
-                          help="event files to write, comma-separated: h5 (with per-event "
-                               "depth, events/depth), txt, depth-txt (events_depth.txt: t x y p "
-                               "depth flag) (default h5,txt)")
-    simulate.add_argument("--no-events", action="store_true",
-                          help="render frames and depth only")
-    simulate.add_argument("--no-motion-truth", action="store_true",
-                          help="skip the motion ground truth (velocity.txt, imu.txt, optical "
-                               "flow, motion fields, object masks, per-event depth): frames, "
-                               "depth maps, poses and events only")
-    simulate.add_argument("--rig", choices=("perfect", "mocap", "lab"), default=None,
-                          help="pose noise, clock offsets and calibration error of the written "
-                               "groundtruth.txt, time stamps and calib.txt: perfect, mocap "
-                               "(0.5 mm / 0.1 deg jitter, drift, poses 3 ms late) or lab (mocap "
-                               "plus calibration error); the truth is kept in "
-                               "groundtruth_exact.txt and calib_exact.txt (default: the scene's "
-                               "[rig], else perfect)")
-    simulate.add_argument("--resume", action="store_true",
-                          help="continue an interrupted run of the same command from the "
-                               "checkpoint it left in OUT.partial (the result is the same as an "
-                               "uninterrupted run's)")
-    simulate.set_defaults(run=_cmd_simulate,
-                          interrupted="resume with the same command plus --resume")
-
-    events = sub.add_parser("events", help="statistics and an event frame of a sequence's events")
-    events.add_argument("sequence", help="sequence folder with events.h5 or events.txt")
-    events.add_argument("--stats", action="store_true",
-                        help="print count, rate, ON/OFF balance (and draw the event frame into "
-                             "--out)")
-    events.add_argument("--window", type=_POSITIVE, default=None,
-                        help="seconds of events from the start drawn in the event frame "
-                             "(default: all)")
-    events.add_argument("--out", default=None,
-                        help="with --stats: the event-frame PNG to write (default none; never "
-                             "inside SEQUENCE or OTHER, which are only read)")
-    events.add_argument("--compare", default=None, metavar="OTHER",
-                        help="with --stats: another sequence folder (a twin and its recording), "
-                             "printed side by side with the ratio OTHER / SEQUENCE")
-    events.set_defaults(run=_cmd_events)
-
-    twin = sub.add_parser(
-        "twin", help="write a scene that simulates a recording's camera and trajectory",
-        description="Writes OUT/scene.toml, OUT/groundtruth.txt (the recording's poses of the "
-                    "window, times shifted to start at 0) and OUT/poster.png (the recording's "
-                    "frame at the window's start, undistorted): the recording's camera, "
-                    "trajectory and frame rate, and a poster like its view at --depth.")
-    twin.add_argument("recording", help="an Event-Camera Dataset folder (calib.txt, "
-                                        "groundtruth.txt, images.txt)")
-    twin.add_argument("--depth", type=_POSITIVE, required=True,
-                      help="the poster's depth, m, in the camera at the window's start (e.g. "
-                           "the median depth that `evfuse map` prints for the recording and "
-                           "writes to map.json as depth_median_m)")
-    twin.add_argument("--window", default=None, metavar="T0,T1",
-                      help="seconds of the recording to copy (default: its poses' span)")
-    twin.add_argument("--illuminance", type=_POSITIVE, default=400.0,
-                      help="lux on the poster, from a light along the optical axis (default 400, "
-                           "an office)")
-    twin.add_argument("--frame-sensor", default="davis240c_aps",
-                      choices=("ideal", "davis240c_aps", "machine_vision"),
-                      help="the standard camera's sensor (default davis240c_aps, the ECD's)")
-    twin.add_argument("--frame-gamma", type=_POSITIVE, default=1.0,
-                      help="the recording's frames are 255 * light^(1/GAMMA) (default 1: linear, "
-                           "as a DAVIS APS; 2.2 for a gamma-encoded camera)")
-    twin.add_argument("--out", required=True, help="folder to write")
-    twin.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    twin.set_defaults(run=_cmd_twin)
+    for name in ("simulate", "events", "twin"):
+        add_command(sub, name, event_figure=_write_event_figure)
 
     mapping = sub.add_parser(
         "map", help="semi-dense depth map of a sequence from its events and poses (EMVS)",
@@ -1016,7 +636,7 @@ def _parser() -> argparse.ArgumentParser:
                     "simulated sequences).")
     mapping.add_argument("sequence", help="sequence folder (simulated or ECD)")
     mapping.add_argument("--out", required=True, help="folder to write the map into")
-    mapping.add_argument("--ref-time", type=_FINITE, default=None,
+    mapping.add_argument("--ref-time", type=FINITE, default=None,
                          help="reference view time, s (default: the standard frame nearest the "
                               "middle of the window, the frame the map is filled with)")
     _add_map_options(mapping)
@@ -1052,8 +672,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("source", help="scene name, scene file or sequence folder")
     run.add_argument("--out", required=True, help="run folder to write")
     _add_map_options(run)
-    run.add_argument("--spp", type=_count_type(1), default=None, help="samples per pixel (scenes)")
-    run.add_argument("--seed", type=_count_type(0), default=None, help="simulation seed (scenes)")
+    run.add_argument("--spp", type=count_type(1), default=None, help="samples per pixel (scenes)")
+    run.add_argument("--seed", type=count_type(0), default=None, help="simulation seed (scenes)")
     _add_dense_options(run)
     run.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     run.add_argument("--resume", action="store_true",
@@ -1079,9 +699,9 @@ def _parser() -> argparse.ArgumentParser:
     repro.add_argument("--out", required=True, help="report folder to write")
     repro.add_argument("--cache", default=None,
                        help="folder of simulated windows, re-used (default OUT-cache)")
-    repro.add_argument("--window", type=_POSITIVE, default=1.0,
+    repro.add_argument("--window", type=POSITIVE, default=1.0,
                        help="slider window length, s (default 1, as the paper)")
-    repro.add_argument("--long-window", type=_POSITIVE, default=2.0,
+    repro.add_argument("--long-window", type=POSITIVE, default=2.0,
                        help="6-DoF and complex-surface window length, s (default 2, as the "
                             "paper's Table 1)")
     repro.add_argument("--tables", default="1,2,3,complex",
@@ -1108,17 +728,7 @@ def _parser() -> argparse.ArgumentParser:
     repro.add_argument("--quiet", action="store_true", help="no progress bar")
     repro.set_defaults(run=_cmd_reproduce)
 
-    convert = sub.add_parser("convert", help="convert events between ECD text and HDF5",
-                             description="Convert events.txt (ECD) <-> events.h5 (DSEC layout), "
-                                         "streaming. The format follows the file suffix.")
-    convert.add_argument("src", help="events.txt or events.h5")
-    convert.add_argument("dst", help="events.h5 or events.txt")
-    convert.add_argument("--overwrite", action="store_true", help="replace an existing DST")
-    convert.add_argument("--sensor", default=None,
-                         help="sensor size WxH for HDF5 output (default: from the sequence "
-                              "folder of SRC)")
-    convert.set_defaults(run=_cmd_convert)
-    convert.set_defaults(flag_names={"dst": "DST"})
+    add_command(sub, "convert")
     for command in sub.choices.values():         # --debug after the command works too
         command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                              help="show tracebacks on errors")

@@ -29,10 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.frame_sensor import FRAME_SENSORS, FrameSensor
-from sim.validation import positive
+from sim.validation import ParameterError, positive
 
 __all__ = ["FRAME_SENSOR_NAMES", "FrameParams", "auto_gain", "exposure_sample_times", "frame_times",
-           "luminance_to_frame"]
+           "luminance_to_frame", "with_frame_sensor"]
 
 AUTO_GAIN_PERCENTILE = 99.0
 """Percentile of the luminance that :func:`auto_gain` maps to ``AUTO_GAIN_LEVEL``."""
@@ -294,3 +294,35 @@ def luminance_to_frame(luminance: np.ndarray, gain: float, params: FrameParams) 
     signal = np.clip(gain * array.astype(np.float64), 0.0, 1.0)
     value = 255.0 * signal ** (1.0 / params.output_gamma)
     return np.clip(np.floor(value + 0.5), 0, 255).astype(np.uint8)
+
+
+def with_frame_sensor(scene, sensor: str):
+    """A scene with its standard camera's sensor replaced by a preset.
+
+    Parameters
+    ----------
+    scene : sim.scene.Scene
+        Any object with a ``frames`` (:class:`FrameParams`) field, a frozen dataclass.
+    sensor : str
+        One of :data:`FRAME_SENSOR_NAMES`.
+
+    Returns
+    -------
+    sim.scene.Scene
+        A copy with ``frames.with_sensor(sensor)`` (:meth:`FrameParams.with_sensor`).
+
+    Raises
+    ------
+    ParameterError
+        An unknown preset, or one the scene's frames refuse (a realistic sensor while their
+        ``gain`` is set); the parameter is ``frame_sensor``.
+    """
+    if sensor not in FRAME_SENSOR_NAMES:
+        raise ParameterError(f"{{frame_sensor}} {ParameterError.literal(repr(sensor))}: expected "
+                             f"one of {', '.join(FRAME_SENSOR_NAMES)}", frame_sensor="frame_sensor")
+    try:
+        return dataclasses.replace(scene, frames=scene.frames.with_sensor(sensor))
+    except ValueError as exc:
+        raise ParameterError(f"{{frame_sensor}} {ParameterError.literal(sensor)}: "
+                             f"{ParameterError.literal(exc)}",
+                             frame_sensor="frame_sensor") from None

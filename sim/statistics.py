@@ -1,5 +1,6 @@
 """Figures of an event stream and of frames: counts, rates, polarity balance, the event frame,
-and the noise of a frame's flat areas.
+and the noise of a frame's flat areas; and the reading of a recording's events for them
+(:func:`read_recording`, :func:`recording_stats`).
 
 The one place where evfuse summarises a recording, simulated or real, so that a twin and its
 recording are compared with the same numbers (``evfuse events --stats --compare``).
@@ -8,14 +9,21 @@ recording are compared with the same numbers (``evfuse events --stats --compare`
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import cv2
 import numpy as np
 
-from sim.eventio import check_events
+from sim.eventio import check_events, check_time_units, read_events
+from sim.sequence import Sequence, load_sequence
+from sim.trajectory import read_trajectory
 
 __all__ = ["OFF_COLOUR", "ON_COLOUR", "compare_stats", "event_frame", "event_stats",
-           "frame_noise"]
+           "events_file", "first_seconds", "frame_noise", "read_gray", "read_recording",
+           "recording_stats"]
+
+EVENT_FILES = ("events.h5", "events.txt")
+"""The event files of a sequence folder, the one read first."""
 
 
 def event_stats(events: np.ndarray, width: int, height: int) -> dict[str, int | float]:
@@ -200,3 +208,129 @@ def compare_stats(first: dict, second: dict) -> list[tuple[str, object, object, 
         ratio = b / a if numeric and a and math.isfinite(a) and math.isfinite(b) else None
         rows.append((name, a, b, ratio))
     return rows
+
+
+def read_gray(path: str | Path) -> np.ndarray:
+    """A gray 8-bit image.
+
+    Parameters
+    ----------
+    path : str or Path
+        Any image file OpenCV reads (a frame, a PNG).
+
+    Returns
+    -------
+    (H, W) uint8 ndarray
+
+    Raises
+    ------
+    ValueError
+        ``PATH: not a readable image``.
+    """
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise ValueError(f"{path}: not a readable image")
+    return image
+
+
+def events_file(folder: str | Path) -> Path:
+    """The event file of a sequence folder: ``events.h5``, else ``events.txt``.
+
+    Parameters
+    ----------
+    folder : str or Path
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ValueError
+        Neither file is in ``folder``.
+    """
+    folder = Path(folder)
+    for name in EVENT_FILES:
+        if (folder / name).is_file():
+            return folder / name
+    raise ValueError(f"{folder}: no events.h5 or events.txt in this folder")
+
+
+def read_recording(folder: str | Path) -> tuple[Sequence, Path, np.ndarray]:
+    """A sequence folder's sequence, event file and events.
+
+    Parameters
+    ----------
+    folder : str or Path
+        A sequence folder (simulated or an Event-Camera Dataset recording) with an event file
+        (:func:`events_file`).
+
+    Returns
+    -------
+    sequence : Sequence
+        :func:`sim.sequence.load_sequence` of ``folder``.
+    path : Path
+        The event file read.
+    events : (N,) EVENT_DTYPE ndarray
+        Its events, checked against the sensor size.
+
+    Raises
+    ------
+    ValueError
+        No event file, an unreadable one, or event times in another unit than the poses'
+        (:func:`sim.eventio.check_time_units`).
+    """
+    folder = Path(folder)
+    sequence = load_sequence(folder)
+    path = events_file(folder)
+    events = read_events(path, sequence.camera.width, sequence.camera.height)
+    if len(events) and sequence.groundtruth_path is not None:      # times in the wrong unit
+        poses = read_trajectory(sequence.groundtruth_path)
+        check_time_units(path, events["t"][0] * 1e-9, events["t"][-1] * 1e-9, poses.t_start,
+                         poses.t_end)
+    return sequence, path, events
+
+
+def recording_stats(sequence: Sequence, events: np.ndarray, frames: int = 10) -> dict:
+    """A recording's figures: :func:`event_stats` plus ``frame_noise``.
+
+    Parameters
+    ----------
+    sequence : Sequence
+        The recording (its sensor size and frames).
+    events : (N,) EVENT_DTYPE ndarray
+        Its events.
+    frames : int
+        How many of its first frames ``frame_noise`` is measured on (default 10).
+
+    Returns
+    -------
+    dict
+        :func:`event_stats`' figures, then ``frame_noise`` (gray levels, the median of
+        :func:`frame_noise` over those frames; NaN without frames).
+    """
+    stats = event_stats(events, sequence.camera.width, sequence.camera.height)
+    noise = [frame_noise(read_gray(p)) for p in list(sequence.image_paths)[:frames]]
+    stats["frame_noise"] = float(np.median(noise)) if noise else float("nan")
+    return stats
+
+
+def first_seconds(events: np.ndarray, seconds: float | None) -> np.ndarray:
+    """The events of the first ``seconds`` of a stream (from its first event's time).
+
+    Parameters
+    ----------
+    events : (N,) EVENT_DTYPE ndarray
+        Time-sorted events, ``t`` in ns.
+    seconds : float or None, s
+        None: all of them.
+
+    Returns
+    -------
+    (M,) EVENT_DTYPE ndarray
+        Those with ``t < t_first + seconds``.
+    """
+    if seconds is None or not len(events):
+        return events
+    t_end = int(events["t"][0] + seconds * 1e9)
+    return events[events["t"] < t_end]

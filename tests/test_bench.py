@@ -194,25 +194,48 @@ def test_a_family_expands_into_one_scene_per_knob_value(tmp_path):
             parse_scene(family_scene(family, texture=texture))
     shadow = [len(parse_scene(family_scene("sphere", shadow=s)).lights) for s in (0, 1)]
     assert shadow == [1, 2]
-    args = _parser().parse_args(["bench", "--family", "sphere", "--radius", "0.1,0.3",
-                                 "--texture", "0,1", "--out", str(tmp_path / "b")])
-    from fusion.cli import _family_files
+    from fusion.experiments.families import write_family
 
-    files = _family_files(args)
-    assert len(files) == 4 and all(path.endswith(".toml") for path in files)
+    files = write_family("sphere", {"radius": [0.1, 0.3], "texture": [0, 1]}, tmp_path / "f")
+    assert len(files) == 4 and all(path.suffix == ".toml" for path in files)
+    assert [parse_scene(path.read_text()).name for path in files] == [path.stem for path in files]
 
 
 @pytest.mark.parametrize("family, knobs, message", [
-    ("tower", {}, "--family tower: expected one of staircase"),
-    ("sphere", {"steps": 3}, "has no knob 'steps'"),
-    ("slanted", {"angle": 80}, "--angle 80: expected 0 to 75"),
-    ("staircase", {"steps": 8, "step_depth": 0.3}, "would stand at or behind the wall"),
+    ("tower", {}, "family tower: expected one of staircase"),
+    ("sphere", {"steps": 3}, "family sphere has no knob 'steps'"),
+    ("slanted", {"angle": 80}, "angle 80: expected 0 to 75"),
+    ("staircase", {"steps": 8, "step_depth": 0.3}, "steps 8 with step_depth 0.3: the last step "
+                                                   "would stand at or behind the wall"),
+    ("sphere", {"radius": 0.5, "distance": 0.6}, "radius 0.5 with distance 0.6: the sphere's "
+                                                  "front"),
 ])
 def test_a_bad_family_or_knob_is_named(family, knobs, message):
+    """The library names its parameters, never a flag."""
     from fusion.experiments.families import family_scene
 
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ValueError) as info:
         family_scene(family, **knobs)
+    assert str(info.value).startswith(message) and "--" not in str(info.value)
+
+
+@pytest.mark.parametrize("argv, line", [
+    (["--family", "tower"], "--family tower: expected one of staircase, sphere"),
+    (["--family", "sphere", "--steps", "3"], "--family sphere has no knob 'steps'"),
+    (["--family", "slanted", "--angle", "80"], "--angle 80: expected 0 to 75 for the slanted "
+                                               "family"),
+    (["--family", "staircase", "--steps", "8", "--step-depth", "0.3"],
+     "--steps 8 with --step-depth 0.3: the last step would stand at or behind the wall"),
+    (["--family", "sphere", "--radius", "0.5", "--distance", "0.6"],
+     "--radius 0.5 with --distance 0.6: the sphere's front"),
+    (["--scenes", "nowhere"], "--scenes nowhere: unknown scene 'nowhere'; expected built-in"),
+])
+def test_a_bad_family_or_scene_is_refused_in_the_flags_terms(tmp_path, capsys, argv, line):
+    """``evfuse bench`` prints the family's and the scenes' refusals in its flags (as before
+    they were raised in the library's terms), before any folder is made."""
+    assert main(["bench", *argv, "--out", str(tmp_path / "b")]) == 2
+    assert capsys.readouterr().err.startswith(f"evfuse bench: error: {line}")
+    assert not list(tmp_path.iterdir())
 
 
 def test_the_coverage_curve_keeps_the_most_confident_pixels_first():

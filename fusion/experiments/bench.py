@@ -38,6 +38,7 @@ import csv
 import hashlib
 import io
 import json
+import shlex
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -48,10 +49,10 @@ import cv2
 import numpy as np
 
 from sim.sequence import atomic_output_dir, check_output_dir
-from sim.validation import integer
+from sim.validation import ParameterError, integer
 
 __all__ = ["CSV_COLUMNS", "CURVE_SHARES", "INPUTS", "SCENE_GROUPS", "BenchParams", "bench",
-           "coverage_curve", "run_bench"]
+           "bench_cache", "bench_command", "bench_sources", "coverage_curve", "run_bench"]
 
 INPUTS = ("emvs", "oracle", "oracle-edges", "oracle-noisy", "oracle-canny")
 CANNY_THRESHOLDS = (50, 150)
@@ -127,9 +128,10 @@ def _scene_names(scenes: list[str]) -> list[str]:
             continue
         for name in SCENE_GROUPS.get(item, (item,)):
             if name not in known:
-                raise ValueError(f"--scenes {item}: unknown scene {name!r}; expected built-in "
-                                 f"scene names, {', '.join(SCENE_GROUPS)}, or a map folder of a "
-                                 "simulated sequence")
+                raise ParameterError(f"{{scenes}} {ParameterError.literal(item)}: unknown scene "
+                                     f"{ParameterError.literal(repr(name))}; expected built-in "
+                                     f"scene names, {', '.join(SCENE_GROUPS)}, or a map folder "
+                                     "of a simulated sequence", scenes="scenes")
             if name not in names:
                 names.append(name)
     return names
@@ -335,7 +337,8 @@ def bench(methods: list, scenes: list[str], inputs: list[str] = INPUTS,
     params = params or BenchParams()
     unknown = [name for name in inputs if name not in INPUTS]
     if unknown or not inputs:
-        raise ValueError(f"--input {','.join(inputs)}: expected among {', '.join(INPUTS)}")
+        raise ParameterError(f"{{inputs}} {ParameterError.literal(','.join(inputs))}: expected "
+                             f"among {', '.join(INPUTS)}", inputs="inputs")
     # Unknown names and bad settings refused up front; one row per label.
     variants = list({v.label: v for v in (MethodVariant.of(m).checked() for m in methods)}
                     .values())
@@ -501,6 +504,79 @@ def _figure(rows: list[dict]) -> np.ndarray:
     return panel_grid(images, titles, columns=columns, legends=legends)
 
 
+def bench_cache(out: str | Path, cache: str | Path | None = None) -> Path:
+    """The cache folder of a bench writing ``out``: ``cache``, by default ``<out>-cache``
+    beside it.
+
+    Parameters
+    ----------
+    out : str or Path
+    cache : str or Path, optional
+
+    Returns
+    -------
+    Path
+    """
+    out = Path(out)
+    return Path(cache) if cache else out.with_name(out.name + "-cache")
+
+
+def bench_command(out: str | Path, *, scenes: str | None, inputs: str, methods: list[str],
+                  params: list[str], only: bool = False, keep_boundary_planes: bool = False,
+                  noise: float = BenchParams.noise, outliers: float = BenchParams.outliers,
+                  cache: str | Path | None = None, family: str | None = None,
+                  knobs: dict[str, str] | None = None) -> str:
+    """The ``evfuse bench`` command line of a bench, for ``bench.md``: every setting that
+    changes what it benches, as given.
+
+    Parameters
+    ----------
+    out : str or Path
+        The output folder.
+    scenes : str or None
+        The scenes as given (comma-separated); left out for a family's bench.
+    inputs : str
+        The inputs as given (comma-separated).
+    methods, params : list of str
+        The method labels and the ``METHOD.KEY=VALUE`` settings, as given.
+    only, keep_boundary_planes : bool
+        The switches (written where set).
+    noise, outliers : float
+        :class:`BenchParams`' (written where off their defaults).
+    cache : str or Path, optional
+        The cache folder, where given.
+    family : str, optional
+        A family's bench (:mod:`fusion.experiments.families`): its name instead of the scenes.
+    knobs : dict of str to str, optional
+        Its knobs' values as given, by knob name.
+
+    Returns
+    -------
+    str
+        The command, shell-quoted.
+    """
+    words = ["evfuse", "bench"]
+    if family:
+        words += ["--family", family]
+        for name, value in (knobs or {}).items():
+            words += [f"--{name.replace('_', '-')}", value]
+    else:
+        words += ["--scenes", scenes]
+    words += ["--input", inputs]
+    for method in methods:
+        words += ["--method", method]
+    for param in params:
+        words += ["--param", param]
+    words += ["--only"] if only else []
+    words += ["--keep-boundary-planes"] if keep_boundary_planes else []
+    for flag, value, default in (("--noise", noise, BenchParams.noise),
+                                 ("--outliers", outliers, BenchParams.outliers)):
+        if value != default:
+            words += [flag, f"{value:g}"]
+    words += ["--cache", str(cache)] if cache else []
+    return shlex.join([*words, "--out", str(out)])
+
+
 def bench_sources(scenes: list[str], cache: str | Path) -> list[Path]:
     """What a bench reads (its output must not be, hold or lie in any): the cache, and the
     scene files and map folders among ``scenes`` with the sequence folders the maps name."""
@@ -531,7 +607,7 @@ def run_bench(methods: list, scenes: list[str], inputs: list[str], out: str | Pa
     from fusion.figures import write_image
 
     out = Path(out)
-    cache = Path(cache) if cache is not None else out.with_name(out.name + "-cache")
+    cache = bench_cache(out, cache)
     read = bench_sources(scenes, cache)
     check_output_dir(out, overwrite, read)                  # before the cache is made
     start = time.perf_counter()

@@ -31,12 +31,15 @@ nearest object to the wall.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
 from sim.scene import parse_scene
+from sim.validation import ParameterError
 
-__all__ = ["FAMILIES", "family_scene", "family_variants", "geometry_depth_range"]
+__all__ = ["FAMILIES", "KNOBS", "family_scene", "family_variants", "geometry_depth_range",
+           "write_family"]
 
 MIN_FRONT_M = 0.2
 """Nearest a sphere's or cylinder's front (``distance - radius``) may come to the camera, m."""
@@ -82,6 +85,10 @@ FAMILIES: dict[str, dict[str, tuple[float, float, float]]] = {
 }
 """Each family's knobs: (default, lowest, highest); ``texture`` (0 or 1, default 1) on top."""
 
+KNOBS = ("steps", "step_depth", "radius", "distance", "shadow", "angle", "amplitude",
+         "wavelength", "texture")
+"""Every knob of every family, in the order ``evfuse bench`` lists them."""
+
 
 def _material(textured: bool, kind: str) -> str:
     if not textured:
@@ -91,18 +98,20 @@ def _material(textured: bool, kind: str) -> str:
 
 def _checked(family: str, knobs: dict) -> dict:
     if family not in FAMILIES:
-        raise ValueError(f"--family {family}: expected one of {', '.join(FAMILIES)}")
+        raise ParameterError(f"{{family}} {ParameterError.literal(family)}: expected one of "
+                             f"{', '.join(FAMILIES)}", family="family")
     allowed = {**FAMILIES[family], "texture": (1, 0, 1)}
     unknown = sorted(set(knobs) - set(allowed))
     if unknown:
-        raise ValueError(f"--family {family} has no knob {unknown[0]!r}; its knobs: "
-                         f"{', '.join(allowed)}")
+        raise ParameterError(f"{{family}} {family} has no knob "
+                             f"{ParameterError.literal(repr(unknown[0]))}; its knobs: "
+                             f"{', '.join(allowed)}", family="family")
     values = {}
     for name, (default, low, high) in allowed.items():
         value = float(knobs.get(name, default))
         if not (math.isfinite(value) and low <= value <= high):
-            raise ValueError(f"--{name.replace('_', '-')} {value:g}: expected {low:g} to {high:g} "
-                             f"for the {family} family")
+            raise ParameterError(f"{{{name}}} {value:g}: expected {low:g} to {high:g} for the "
+                                 f"{family} family", **{name: name})
         values[name] = value
     return values
 
@@ -138,15 +147,17 @@ def family_scene(family: str, **knobs: float) -> str:
     objects = []
     lights = ""
     if family in ("sphere", "cylinder") and k["distance"] - k["radius"] < MIN_FRONT_M:
-        raise ValueError(f"--radius {k['radius']:g} with --distance {k['distance']:g}: the "
-                         f"{family}'s front would come within {MIN_FRONT_M:g} m of the camera; "
-                         f"expected distance - radius >= {MIN_FRONT_M:g} m")
+        raise ParameterError(f"{{radius}} {k['radius']:g} with {{distance}} {k['distance']:g}: "
+                             f"the {family}'s front would come within {MIN_FRONT_M:g} m of the "
+                             f"camera; expected distance - radius >= {MIN_FRONT_M:g} m",
+                             radius="radius", distance="distance")
     if family == "staircase":
         steps = int(round(k["steps"]))
         if 0.6 + (steps - 1) * k["step_depth"] > 1.4:
-            raise ValueError(f"--steps {steps} with --step-depth {k['step_depth']:g}: the last "
-                             "step would stand at or behind the wall (1.6 m); expected "
-                             "0.6 + (steps - 1) step_depth <= 1.4 m")
+            raise ParameterError(f"{{steps}} {steps} with {{step_depth}} {k['step_depth']:g}: the "
+                                 "last step would stand at or behind the wall (1.6 m); expected "
+                                 "0.6 + (steps - 1) step_depth <= 1.4 m", steps="steps",
+                                 step_depth="step_depth")
         for i in range(steps):
             depth = 0.6 + i * k["step_depth"]
             height = 0.3 + 0.15 * i
@@ -248,3 +259,38 @@ def family_variants(family: str, knobs: dict[str, list[float]]) -> list[str]:
     for name, values in knobs.items():
         combos = [{**combo, name: value} for combo in combos for value in values]
     return [family_scene(family, **combo) for combo in combos]
+
+
+def write_family(family: str, knobs: dict[str, list[float]], folder: str | Path) -> list[Path]:
+    """Write the scene file of each member of a family (:func:`family_variants`) into a folder.
+
+    Parameters
+    ----------
+    family : str
+        One of :data:`FAMILIES`.
+    knobs : dict of str to list of float
+        Values of each knob to vary.
+    folder : str or Path
+        Created if missing; each member is written to ``<folder>/<its scene name>.toml``
+        (replacing a file of that name).
+
+    Returns
+    -------
+    list of Path
+        The scene files, in the order of :func:`family_variants`.
+
+    Raises
+    ------
+    ParameterError
+        An unknown family or knob, or a value out of range (before any file is written).
+    """
+    texts = family_variants(family, knobs)           # refused knobs: before any folder
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    files = []
+    for text in texts:
+        name = text.split('name = "', 1)[1].split('"', 1)[0]
+        path = folder / f"{name}.toml"
+        path.write_text(text)
+        files.append(path)
+    return files

@@ -44,7 +44,7 @@ from fusion.pipeline import fill_window, map_window
 from sim.frame_sensor import FRAME_SENSORS, FrameSensor
 from sim.progress import progress as progress_stage
 from sim.sequence import atomic_output_dir, check_output_dir
-from sim.validation import finite, positive
+from sim.validation import ParameterError, finite, positive
 
 __all__ = ["PAPER", "ReproduceParams", "reproduce"]
 
@@ -147,7 +147,8 @@ class ReproduceParams:
 
     def __post_init__(self) -> None:
         if self.event_noise not in ("ideal", "realistic"):
-            raise ValueError(f"--event-noise {self.event_noise!r}: expected ideal or realistic")
+            raise ParameterError(f"{{event_noise}} {ParameterError.literal(repr(self.event_noise))}"
+                                 ": expected ideal or realistic", event_noise="event_noise")
         for name in ("window", "long_window", "lam", "moving_lam"):
             positive(name, getattr(self, name))
         for name in ("complex_start", "table1_start"):
@@ -161,12 +162,15 @@ class ReproduceParams:
             offered = [s for t in self.tables for s in tables[t]]
             missing = [s for s in self.scenes if s not in offered]
             if missing:
-                raise ValueError(f"--scenes {','.join(missing)}: not among the scenes of --tables "
-                                 f"{','.join(self.tables)} ({', '.join(dict.fromkeys(offered))})")
+                raise ParameterError(
+                    f"{{scenes}} {ParameterError.literal(','.join(missing))}: not among the "
+                    f"scenes of {{tables}} {ParameterError.literal(','.join(self.tables))} "
+                    f"({', '.join(dict.fromkeys(offered))})", scenes="scenes", tables="tables")
         if (isinstance(self.frame_sensor, str) and self.frame_sensor != "ideal"
                 and self.frame_sensor not in FRAME_SENSORS):
-            raise ValueError(f"--frame-sensor {self.frame_sensor!r}: expected one of ideal, "
-                             f"{', '.join(FRAME_SENSORS)}")
+            sensor = ParameterError.literal(repr(self.frame_sensor))
+            raise ParameterError(f"{{frame_sensor}} {sensor}: expected one of ideal, "
+                                 f"{', '.join(FRAME_SENSORS)}", frame_sensor="frame_sensor")
         from fusion.methods import MethodVariant
 
         # An unknown method or a bad setting is refused up front; kept checked and coerced.

@@ -1,0 +1,407 @@
+"""The simulator's commands of ``evfuse``: ``simulate``, ``events``, ``twin``, ``convert`` and
+``scenes`` (each a parser builder and a handler that parses, calls :mod:`sim`'s public API and
+prints), and the parser pieces every evfuse command shares: the typed number flags, the
+one-line refusal parser and the help of ``--overwrite``.
+
+:func:`fusion.cli.main` is the ``evfuse`` entry point: it adds these commands to its parser with
+:func:`add_command` and runs them. This module never imports :mod:`fusion` (the simulator is the
+lower layer); the one figure ``events --out`` draws is made by a function the caller passes in.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import NoReturn
+
+import numpy as np
+
+from sim.validation import finite, non_negative, positive
+
+__all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "POSITIVE", "OneLineParser",
+           "add_command", "count_type", "number_type"]
+
+COMMANDS = ("scenes", "simulate", "events", "twin", "convert")
+"""The subcommands this module builds (:func:`add_command`)."""
+
+OVERWRITE_HELP = ("replace OUT if it is a folder evfuse wrote (it holds evfuse's .evfuse marker), "
+                  "once the new one is complete; any other folder is never replaced")
+"""The help of every command's ``--overwrite`` that replaces a folder."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose refusals are one line (``evfuse CMD: error: ...``, exit 2), as
+    every other refusal of evfuse is, instead of argparse's usage block before the error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def number_type(check: Callable[[str, object], float], what: str) -> Callable[[str], float]:
+    """An argparse ``type=``: the text as a float that passes ``check``.
+
+    Parameters
+    ----------
+    check : callable
+        A validator of :mod:`sim.validation` (``check(name, value)`` returns the float or raises
+        ValueError).
+    what : str
+        What is expected, for the refusal (``a finite number > 0``).
+
+    Returns
+    -------
+    callable
+        ``str -> float``; argparse prints ``argument --flag: expected WHAT, got 'TEXT'``.
+    """
+    def parse(text: str) -> float:
+        try:
+            return check("value", float(text))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+    parse.__name__ = what
+    return parse
+
+
+def count_type(minimum: int) -> Callable[[str], int]:
+    """An argparse ``type=``: the text as an integer >= ``minimum``.
+
+    Parameters
+    ----------
+    minimum : int
+
+    Returns
+    -------
+    callable
+        ``str -> int``.
+    """
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
+        return value
+    parse.__name__ = f"integer >= {minimum}"
+    return parse
+
+
+FINITE = number_type(finite, "a finite number")
+"""``type=`` of a flag that takes any finite number."""
+POSITIVE = number_type(positive, "a finite number > 0")
+"""``type=`` of a flag that takes a finite number > 0."""
+NON_NEGATIVE = number_type(non_negative, "a finite number >= 0")
+"""``type=`` of a flag that takes a finite number >= 0."""
+
+
+def _cmd_scenes(args: argparse.Namespace) -> int:
+    from scenes import describe_scenes
+
+    scenes = describe_scenes()
+    width = max(len(name) for name in scenes)
+    for name, description in scenes.items():
+        print(f"{name:<{width}}  {description}")
+    return 0
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from scenes import resolve_scene
+    from sim.capture_errors import RigParams
+    from sim.events import EventParams
+    from sim.frames import with_frame_sensor
+    from sim.sampling import SamplingParams
+    from sim.scene import load_scene
+    from sim.simulate import simulate
+
+    # Said in the flags' terms, before the dataclasses would say it in their fields' names.
+    if not (math.isfinite(args.contrast) and args.contrast > 0):
+        raise ValueError(f"--contrast {args.contrast:g}: expected a contrast threshold > 0 (log "
+                         "intensity units, e.g. 0.2)")
+    if not 0 < args.lam <= 1:
+        raise ValueError(f"--lambda {args.lam:g}: expected a fraction of the contrast threshold "
+                         "in (0, 1]")
+    if not 0 < args.min_rate <= args.max_rate:
+        raise ValueError(f"--min-rate {args.min_rate:g} and --max-rate {args.max_rate:g}: "
+                         "expected 0 < --min-rate <= --max-rate (Hz)")
+    scene = load_scene(resolve_scene(args.scene), seed=args.seed)
+    rig = None if args.rig is None else RigParams.from_preset(args.rig)
+    if args.frame_sensor is not None:
+        scene = with_frame_sensor(scene, args.frame_sensor)
+    events = EventParams.preset(args.noise, contrast=args.contrast, seed=scene.seed)
+    sampling = SamplingParams(lam=args.lam, min_rate=args.min_rate, max_rate=args.max_rate)
+    formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
+    result = simulate(scene, args.out, duration=args.duration, start=args.start, spp=args.spp,
+                      variant=args.variant, overwrite=args.overwrite, progress=not args.quiet,
+                      events=events, sampling=sampling, with_events=not args.no_events,
+                      event_formats=formats, resume=args.resume, sampler=args.sampler, rig=rig,
+                      motion_truth=not args.no_motion_truth)
+    what = f"{result.n_frames} frames and depth maps ({result.n_renders} renders)"
+    if result.n_events is not None and result.sampler == "pixel":
+        what += (f", {result.n_events} events ({result.event_renders} frames and "
+                 f"{result.event_pixel_samples:,} pixel samples)")
+    elif result.n_events is not None:
+        what += f", {result.n_events} events ({result.event_renders} renders)"
+    if not args.no_motion_truth:
+        parts = ["velocity", "IMU", "flow", "motion field", "object masks"]
+        if result.n_events is not None and "h5" in formats:
+            parts.append("per-event depth")
+        what += f", the motion ground truth ({', '.join(parts)})"
+    print(f"wrote {what} with {result.variant} in {result.timings['total']:.1f} s to "
+          f"{result.out}")
+    return 0
+
+
+def _cmd_events(args: argparse.Namespace) -> int:
+    from sim.sequence import check_output_file
+    from sim.statistics import (
+        compare_stats,
+        event_frame,
+        first_seconds,
+        read_recording,
+        recording_stats,
+    )
+
+    folder = Path(args.sequence)
+    if args.compare is not None and not args.stats:
+        raise ValueError("--compare compares statistics: add --stats")
+    if args.out is not None and not args.stats:
+        raise ValueError("--out is the event frame of --stats: add --stats")
+    if args.out is not None:                     # never into a recording it reads
+        check_output_file(args.out, [folder, args.compare])
+    sequence, path, events = read_recording(folder)
+    if not args.stats:
+        print(f"{path}: {len(events)} events (add --stats for statistics)")
+        return 0
+    stats = recording_stats(sequence, events)
+    width, height = sequence.camera.width, sequence.camera.height
+    show = lambda v: f"{v:.6g}" if isinstance(v, float) else str(v)  # noqa: E731
+    if args.compare is None:
+        print(f"{path}  ({width}x{height})")
+        for key, value in stats.items():
+            print(f"  {key:<24} {show(value)}")
+    else:
+        other_sequence, other_path, other_events = read_recording(Path(args.compare))
+        other = recording_stats(other_sequence, other_events)
+        print(f"A: {path}\nB: {other_path}")
+        print(f"  {'':<24} {'A':>12} {'B':>12} {'B / A':>8}")
+        for key, a, b, ratio in compare_stats(stats, other):
+            print(f"  {key:<24} {show(a):>12} {show(b):>12} "
+                  f"{'' if ratio is None else f'{ratio:.3g}':>8}")
+    if args.out is None:
+        print("(add --out PNG to draw the event frame; evfuse never writes into the recording)")
+        return 0
+    out = Path(args.out)
+    window = first_seconds(events, args.window)
+    args.event_figure(out, event_frame(window, width, height),
+                      f"event frame: latest polarity of {len(window)} events")
+    print(f"event frame of {len(window)} events written to {out}")
+    return 0
+
+
+def _cmd_twin(args: argparse.Namespace) -> int:
+    from sim.twin import write_twin
+
+    window = None
+    if args.window is not None:
+        try:
+            window = tuple(float(v) for v in args.window.split(","))
+        except ValueError:
+            window = ()
+        if len(window) != 2 or not all(math.isfinite(t) for t in window):
+            raise ValueError(f"--window: expected T0,T1 in seconds (finite), got "
+                             f"{args.window!r}")
+    scene = write_twin(args.recording, args.out, args.depth, window, args.illuminance,
+                       args.frame_sensor, args.frame_gamma, overwrite=args.overwrite)
+    print(f"twin scene written to {scene}; simulate it with: evfuse simulate {scene} "
+          f"--out SEQUENCE")
+    return 0
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    from sim.eventio import convert_events
+    from sim.sequence import check_output_file, load_sequence
+
+    width = height = None
+    if args.sensor:
+        try:
+            width, height = (int(v) for v in args.sensor.lower().split("x"))
+        except ValueError:
+            raise ValueError(f"--sensor must look like 240x180, got {args.sensor!r}") from None
+    else:
+        folder = Path(args.src).resolve().parent
+        if (folder / "images.txt").is_file() or (folder / "sequence.json").is_file():
+            camera = load_sequence(folder).camera
+            width, height = camera.width, camera.height
+    read = [args.src] + [Path(args.src).resolve().parent / name for name in
+                         ("calib.txt", "images.txt", "sequence.json")]       # for its size
+    check_output_file(args.dst, read, parameter="dst")
+    if Path(args.dst).exists() and not args.overwrite:
+        raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
+    convert_events(args.src, args.dst, width=width, height=height)
+    print(f"converted {args.src} to {args.dst}")
+    return 0
+
+
+def _add_scenes(sub) -> None:
+    scenes = sub.add_parser("scenes", help="list the built-in scenes")
+    scenes.set_defaults(run=_cmd_scenes)
+
+
+def _add_simulate(sub) -> None:
+    simulate = sub.add_parser(
+        "simulate", help="render a scene into a sequence folder",
+        description="Render a built-in scene (by name, see `evfuse scenes`) or a scene file into "
+                    "a sequence folder: calib.txt, groundtruth.txt, images/, depth/, "
+                    "sequence.json.")
+    simulate.add_argument("scene", help="built-in scene name or path of a .toml scene file")
+    simulate.add_argument("--out", required=True, help="sequence folder to write")
+    simulate.add_argument("--duration", type=POSITIVE, default=None,
+                          help="seconds to simulate (default: the scene's duration)")
+    simulate.add_argument("--start", type=FINITE, default=0.0,
+                          help="time of the scene's trajectory to start at, s (default 0)")
+    simulate.add_argument("--seed", type=count_type(0), default=None,
+                          help="seed of every random draw (default: the scene's seed)")
+    simulate.add_argument("--spp", type=count_type(1), default=None,
+                          help="samples per pixel, a perfect square (default: the scene's)")
+    simulate.add_argument("--variant", default=None,
+                          help="Mitsuba variant: cuda_ad_rgb, llvm_ad_rgb or scalar_rgb "
+                               "(default: EVFUSE_VARIANT, else the fastest that works)")
+    simulate.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    simulate.add_argument("--quiet", action="store_true", help="no progress bar")
+    simulate.add_argument("--contrast", type=FINITE, default=0.2,
+                          help="contrast thresholds C+ = C- of the event camera (default 0.2)")
+    simulate.add_argument("--noise", choices=("ideal", "realistic"), default="ideal",
+                          help="event-camera noise preset (default ideal: no noise)")
+    simulate.add_argument("--frame-sensor", default=None, metavar="NAME",
+                          help="the standard camera's sensor: ideal (no noise), davis240c_aps "
+                               "or machine_vision (default: the scene's [frames] sensor)")
+    simulate.add_argument("--lambda", dest="lam", type=FINITE, default=0.5,
+                          help="adaptive sampling: largest change of log intensity between "
+                               "renders, as a fraction of C (default 0.5)")
+    simulate.add_argument("--min-rate", type=FINITE, default=100.0,
+                          help="lowest render rate for the event camera, Hz (default 100)")
+    simulate.add_argument("--max-rate", type=FINITE, default=20000.0,
+                          help="highest render rate for the event camera, Hz (default 20000)")
+    simulate.add_argument("--sampler", choices=("pixel", "frame"), default=None,
+                          help="how the event camera is sampled: pixel (each pixel at its own "
+                               "adaptive times; static scenes) or frame (whole frames at one "
+                               "adaptive rate) (default: pixel for static scenes on a JIT "
+                               "variant, else frame)")
+    simulate.add_argument("--event-format", default="h5,txt",
+                          help="event files to write, comma-separated: h5 (with per-event "
+                               "depth, events/depth), txt, depth-txt (events_depth.txt: t x y p "
+                               "depth flag) (default h5,txt)")
+    simulate.add_argument("--no-events", action="store_true",
+                          help="render frames and depth only")
+    simulate.add_argument("--no-motion-truth", action="store_true",
+                          help="skip the motion ground truth (velocity.txt, imu.txt, optical "
+                               "flow, motion fields, object masks, per-event depth): frames, "
+                               "depth maps, poses and events only")
+    simulate.add_argument("--rig", choices=("perfect", "mocap", "lab"), default=None,
+                          help="pose noise, clock offsets and calibration error of the written "
+                               "groundtruth.txt, time stamps and calib.txt: perfect, mocap "
+                               "(0.5 mm / 0.1 deg jitter, drift, poses 3 ms late) or lab (mocap "
+                               "plus calibration error); the truth is kept in "
+                               "groundtruth_exact.txt and calib_exact.txt (default: the scene's "
+                               "[rig], else perfect)")
+    simulate.add_argument("--resume", action="store_true",
+                          help="continue an interrupted run of the same command from the "
+                               "checkpoint it left in OUT.partial (the result is the same as an "
+                               "uninterrupted run's)")
+    simulate.set_defaults(run=_cmd_simulate,
+                          interrupted="resume with the same command plus --resume")
+
+
+def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) -> None:
+    events = sub.add_parser("events", help="statistics and an event frame of a sequence's events")
+    events.add_argument("sequence", help="sequence folder with events.h5 or events.txt")
+    events.add_argument("--stats", action="store_true",
+                        help="print count, rate, ON/OFF balance (and draw the event frame into "
+                             "--out)")
+    events.add_argument("--window", type=POSITIVE, default=None,
+                        help="seconds of events from the start drawn in the event frame "
+                             "(default: all)")
+    events.add_argument("--out", default=None,
+                        help="with --stats: the event-frame PNG to write (default none; never "
+                             "inside SEQUENCE or OTHER, which are only read)")
+    events.add_argument("--compare", default=None, metavar="OTHER",
+                        help="with --stats: another sequence folder (a twin and its recording), "
+                             "printed side by side with the ratio OTHER / SEQUENCE")
+    events.set_defaults(run=_cmd_events, event_figure=event_figure)
+
+
+def _add_twin(sub) -> None:
+    twin = sub.add_parser(
+        "twin", help="write a scene that simulates a recording's camera and trajectory",
+        description="Writes OUT/scene.toml, OUT/groundtruth.txt (the recording's poses of the "
+                    "window, times shifted to start at 0) and OUT/poster.png (the recording's "
+                    "frame at the window's start, undistorted): the recording's camera, "
+                    "trajectory and frame rate, and a poster like its view at --depth.")
+    twin.add_argument("recording", help="an Event-Camera Dataset folder (calib.txt, "
+                                        "groundtruth.txt, images.txt)")
+    twin.add_argument("--depth", type=POSITIVE, required=True,
+                      help="the poster's depth, m, in the camera at the window's start (e.g. "
+                           "the median depth that `evfuse map` prints for the recording and "
+                           "writes to map.json as depth_median_m)")
+    twin.add_argument("--window", default=None, metavar="T0,T1",
+                      help="seconds of the recording to copy (default: its poses' span)")
+    twin.add_argument("--illuminance", type=POSITIVE, default=400.0,
+                      help="lux on the poster, from a light along the optical axis (default 400, "
+                           "an office)")
+    twin.add_argument("--frame-sensor", default="davis240c_aps",
+                      choices=("ideal", "davis240c_aps", "machine_vision"),
+                      help="the standard camera's sensor (default davis240c_aps, the ECD's)")
+    twin.add_argument("--frame-gamma", type=POSITIVE, default=1.0,
+                      help="the recording's frames are 255 * light^(1/GAMMA) (default 1: linear, "
+                           "as a DAVIS APS; 2.2 for a gamma-encoded camera)")
+    twin.add_argument("--out", required=True, help="folder to write")
+    twin.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    twin.set_defaults(run=_cmd_twin)
+
+
+def _add_convert(sub) -> None:
+    convert = sub.add_parser("convert", help="convert events between ECD text and HDF5",
+                             description="Convert events.txt (ECD) <-> events.h5 (DSEC layout), "
+                                         "streaming. The format follows the file suffix.")
+    convert.add_argument("src", help="events.txt or events.h5")
+    convert.add_argument("dst", help="events.h5 or events.txt")
+    convert.add_argument("--overwrite", action="store_true", help="replace an existing DST")
+    convert.add_argument("--sensor", default=None,
+                         help="sensor size WxH for HDF5 output (default: from the sequence "
+                              "folder of SRC)")
+    convert.set_defaults(run=_cmd_convert)
+    convert.set_defaults(flag_names={"dst": "DST"})
+
+
+def add_command(subparsers, name: str, *,
+                event_figure: Callable[[Path, np.ndarray, str], object] | None = None) -> None:
+    """Add one of the simulator's subcommands to a command line.
+
+    Parameters
+    ----------
+    subparsers : argparse subparsers action
+        What ``ArgumentParser.add_subparsers`` returned; the subcommand is added last.
+    name : str
+        One of :data:`COMMANDS`. Each handler is set as the subcommand's ``run`` default and
+        takes the parsed arguments, returning the exit status.
+    event_figure : callable, optional
+        Needed for ``events``: ``event_figure(path, frame, title)`` writes the event frame
+        (``(H, W, 3) uint8`` RGB, :func:`sim.statistics.event_frame`) as a titled PNG.
+
+    Raises
+    ------
+    ValueError
+        An unknown name, or ``events`` without ``event_figure``.
+    """
+    if name == "events":
+        if event_figure is None:
+            raise ValueError("add_command: the events command needs event_figure")
+        _add_events(subparsers, event_figure)
+        return
+    builders = {"scenes": _add_scenes, "simulate": _add_simulate, "twin": _add_twin,
+                "convert": _add_convert}
+    if name not in builders:
+        raise ValueError(f"add_command: {name!r} is not one of {', '.join(COMMANDS)}")
+    builders[name](subparsers)
