@@ -453,6 +453,10 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+MAP_FLAG_NAMES = {"oracle": "--depth-range oracle"}
+"""The library parameters that ``map`` and ``run`` name by another flag (see :func:`_in_flags`):
+``resolve_dsi_range(oracle=True)`` is ``--depth-range oracle``."""
+
 KEEP_BOUNDARY_HELP = ("keep the map points whose DSI maximum lies on the first or the last "
                       "depth plane, as rpg_emvs does (default: dropped, and counted in "
                       "map.json's boundary_plane_points: such a maximum says the depth lies "
@@ -623,7 +627,7 @@ def _parser() -> argparse.ArgumentParser:
                             "OUT-cache)")
     bench.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     bench.add_argument("--quiet", action="store_true", help="no progress bar")
-    bench.set_defaults(run=_cmd_bench)
+    bench.set_defaults(run=_cmd_bench, flag_names={"inputs": "--input"})
 
     for name in ("simulate", "events", "twin"):
         add_command(sub, name, event_figure=_write_event_figure)
@@ -642,7 +646,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_map_options(mapping)
     mapping.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     mapping.add_argument("--quiet", action="store_true", help="no progress bar")
-    mapping.set_defaults(run=_cmd_map)
+    mapping.set_defaults(run=_cmd_map, flag_names=MAP_FLAG_NAMES)
 
     fill = sub.add_parser(
         "fill", help="fill a semi-dense map into a dense one with the standard frame",
@@ -681,7 +685,7 @@ def _parser() -> argparse.ArgumentParser:
                           "its simulation resumes from its checkpoint (as simulate --resume), "
                           "then the map and the fill are made again")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
-    run.set_defaults(run=_cmd_run,
+    run.set_defaults(run=_cmd_run, flag_names={**MAP_FLAG_NAMES, "ref_time": "--ref-time"},
                      interrupted="resume with the same command plus --resume (a simulation "
                                  "continues from its last checkpoint)")
 

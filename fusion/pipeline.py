@@ -68,8 +68,8 @@ from sim.sequence import (
 from sim.statistics import event_frame
 from sim.validation import finite
 
-__all__ = ["RunParams", "draw_overview", "fill_window", "is_sequence_folder", "map_window",
-           "run_pipeline"]
+__all__ = ["RunParams", "draw_overview", "fill_sources", "fill_window", "is_sequence_folder",
+           "map_window", "run_pipeline", "run_sources"]
 
 DEFAULT_WINDOW = 1.0
 """Seconds of a scene simulated and mapped when no window is given."""

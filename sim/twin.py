@@ -40,7 +40,7 @@ import numpy as np
 from sim.sequence import atomic_output_dir, check_output_dir, load_sequence
 from sim.statistics import frame_noise
 from sim.textures import linear_to_srgb
-from sim.validation import depth_metres, positive
+from sim.validation import ParameterError, check_parameter, depth_metres, positive
 
 __all__ = ["write_twin"]
 
@@ -88,15 +88,17 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     Raises
     ------
     ValueError
-        One line naming the file or value: no poses, a reversed or empty window, a window
-        outside the poses, ``depth <= 0`` or in millimetres (:func:`sim.validation.depth_metres`).
+        One line naming the file or value: no poses, a window outside the poses; a
+        :class:`sim.validation.ParameterError` naming the parameter for a reversed or empty
+        ``window``, ``depth <= 0`` or in millimetres (:func:`sim.validation.depth_metres`), or
+        ``frame_gamma`` / ``illuminance`` not a finite number > 0.
     """
     from sim.trajectory import read_trajectory
 
     recording, out = Path(recording), Path(out)
-    depth = depth_metres("--depth", positive("--depth", depth))
-    frame_gamma = positive("--frame-gamma", frame_gamma)
-    illuminance = positive("--illuminance", illuminance)
+    depth = check_parameter(depth_metres, "depth", check_parameter(positive, "depth", depth))
+    frame_gamma = check_parameter(positive, "frame_gamma", frame_gamma)
+    illuminance = check_parameter(positive, "illuminance", illuminance)
     check_output_dir(out, overwrite, [recording])
     sequence = load_sequence(recording)
     if sequence.groundtruth_path is None or not len(sequence.image_paths):
@@ -105,8 +107,8 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     t_start, t_end = float(trajectory.t_start), float(trajectory.t_end)
     t0, t1 = window if window is not None else (t_start, t_end)
     if not t0 < t1:
-        raise ValueError(f"--window {t0:g},{t1:g}: expected T0 < T1 (the window's start before its "
-                         "end, in seconds)")
+        raise ParameterError(f"{{window}} {t0:g},{t1:g}: expected T0 < T1 (the window's start "
+                             "before its end, in seconds)", window="window")
     if not (t_start <= t0 < t1 <= t_end):
         raise ValueError(f"window [{t0}, {t1}] s is not inside {sequence.groundtruth_path.name}'s "
                          f"poses [{t_start:.6f}, {t_end:.6f}] s")

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
-__all__ = ["PLAUSIBLE_DEPTH_M", "ParameterError", "bounded", "depth_metres", "finite", "integer",
-           "non_negative", "positive"]
+__all__ = ["PLAUSIBLE_DEPTH_M", "ParameterError", "bounded", "check_parameter", "depth_metres",
+           "finite", "integer", "non_negative", "positive"]
 
 PLAUSIBLE_DEPTH_M = 100.0
 """Largest depth accepted where a depth is given (a scene's ``depth_range``, ``--min-depth`` /
@@ -163,3 +163,36 @@ def bounded(cls: str, name: str, value, *, low: float = 0.0, low_open: bool = Fa
         raise ValueError(f"{cls}.{name} must be a finite number in {left}{low:g}, {upper}, "
                          f"got {value!r}")
     return value
+
+
+def check_parameter(check: Callable[[str, object], float], name: str, value: object) -> float:
+    """``check(name, value)`` for a library function's parameter ``name``: a refusal is a
+    :class:`ParameterError` naming the parameter, so that a front end names its own flag.
+
+    Parameters
+    ----------
+    check : callable
+        A validator of this module (:func:`positive`, :func:`depth_metres`, ...).
+    name : str
+        The parameter's name (``depth``), a ``{name}`` placeholder in the message.
+    value : object
+
+    Returns
+    -------
+    float
+        What ``check`` returns.
+
+    Examples
+    --------
+    >>> try:
+    ...     check_parameter(positive, "depth", -1)
+    ... except ParameterError as error:
+    ...     print(error, "|", error.rephrase({"depth": "--depth"}))
+    depth must be a finite number > 0, got -1.0 | --depth must be a finite number > 0, got -1.0
+    """
+    try:
+        return check(f"{{{name}}}", value)
+    except ParameterError:
+        raise
+    except ValueError as exc:
+        raise ParameterError(str(exc), **{name: name}) from None

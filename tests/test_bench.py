@@ -179,7 +179,6 @@ def test_bad_bench_arguments_are_refused_in_one_line(argv, message, tmp_path, ca
 
 
 def test_a_family_expands_into_one_scene_per_knob_value(tmp_path):
-    from fusion.cli import _parser
     from fusion.experiments.families import FAMILIES, family_scene, family_variants
     from sim.scene import parse_scene
 

@@ -270,7 +270,7 @@ def test_a_twin_depth_in_millimetres_is_refused_before_reading(tmp_path, capsys)
     from fusion.cli import main
     from sim.twin import write_twin
 
-    with pytest.raises(ValueError, match=r"^depths are in metres: --depth 880 looks like "
+    with pytest.raises(ValueError, match=r"^depths are in metres: depth 880 looks like "
                                          r"millimetres \(0.88 m\?\)"):
         write_twin(tmp_path / "nowhere", tmp_path / "t", 880.0)
     code = main(["twin", str(tmp_path / "nowhere"), "--depth", "880", "--out",

@@ -92,15 +92,18 @@ def test_the_twin_of_a_poster_at_its_own_depth_is_the_same_view(recording, tmp_p
 
 
 def test_twin_refuses_what_it_cannot_copy(recording, tmp_path):
-    with pytest.raises(ValueError, match="--depth must be a finite number > 0"):
+    """The library's refusals name write_twin's parameters, never a flag."""
+    with pytest.raises(ValueError, match="^depth must be a finite number > 0"):
         write_twin(recording, tmp_path / "t", 0.0)
     with pytest.raises(ValueError, match="window .* is not inside groundtruth.txt's poses"):
         write_twin(recording, tmp_path / "t", 0.2, (0.0, 50.0))
-    # Checked as --depth is (sim.validation.positive): a non-number is a ValueError too.
-    with pytest.raises(ValueError, match="--frame-gamma must be a number, got '1'"):
+    # Checked as depth is (sim.validation.positive): a non-number is a ValueError too.
+    with pytest.raises(ValueError, match="^frame_gamma must be a number, got '1'"):
         write_twin(recording, tmp_path / "t", 0.2, frame_gamma="1")
-    with pytest.raises(ValueError, match="--illuminance must be a finite number > 0, got 0"):
+    with pytest.raises(ValueError, match="^illuminance must be a finite number > 0, got 0"):
         write_twin(recording, tmp_path / "t", 0.2, illuminance=0)
+    with pytest.raises(ValueError, match=r"^window 0.8,0.2: expected T0 < T1 \(the window's"):
+        write_twin(recording, tmp_path / "t", 0.2, (0.8, 0.2))
     assert run_cli(["twin", str(recording), "--depth", "0.2", "--window", "1", "--out",
                  str(tmp_path / "t")]) == 2
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from sim.scene import declared_depth_range
 from sim.sequence import Sequence
-from sim.validation import depth_metres
+from sim.validation import ParameterError, check_parameter, depth_metres
 
 __all__ = ["DEFAULT_RANGE", "ORACLE_MARGIN", "DSIRange", "declared_range", "oracle_header",
            "resolve_dsi_range"]
@@ -88,20 +88,25 @@ def declared_range(sequence: Sequence) -> tuple[float, float] | None:
     return declared_depth_range(text, source)
 
 
+ORACLE_TERMS = {"oracle": "oracle=True", "min_depth": "min_depth", "max_depth": "max_depth"}
+"""The parameters the oracle's refusals name (:class:`sim.validation.ParameterError`)."""
+
+
 def _oracle(sequence: Sequence, t_ref: float | None) -> DSIRange:
-    where = sequence.folder
+    where = ParameterError.literal(sequence.folder)
     if not sequence.depth_paths:
-        raise ValueError(f"--depth-range oracle needs the exact depth of a simulated sequence; "
-                         f"{where} has none (a real recording): give --min-depth/--max-depth")
+        raise ParameterError(f"{{oracle}} needs the exact depth of a simulated sequence; {where} "
+                             "has none (a real recording): give {min_depth}/{max_depth}",
+                             **ORACLE_TERMS)
     if t_ref is None:
-        raise ValueError("--depth-range oracle needs the reference time")
+        raise ParameterError("{oracle} needs the reference time", **ORACLE_TERMS)
     from sim.exr import read_depth
 
     depth = read_depth(sequence.depth_paths[sequence.nearest_depth(t_ref, tolerance=np.inf)])
     valid = depth[depth > 0]
     if valid.size == 0:
-        raise ValueError(f"--depth-range oracle: the exact depth at {t_ref:.6f} s in {where} "
-                         "holds no surface")
+        raise ParameterError(f"{{oracle}}: the exact depth at {t_ref:.6f} s in {where} holds no "
+                             "surface", **ORACLE_TERMS)
     return DSIRange(float(valid.min()) / ORACLE_MARGIN, float(valid.max()) * ORACLE_MARGIN,
                     "oracle: exact depth at the reference view, widened by 20 %", True)
 
@@ -134,8 +139,8 @@ def resolve_dsi_range(sequence: Sequence, min_depth: float | None = None,
     """
     if oracle:
         if min_depth is not None or max_depth is not None:
-            raise ValueError("--depth-range oracle takes the range from the exact depth: drop "
-                             "--min-depth/--max-depth, or drop --depth-range oracle")
+            raise ParameterError("{oracle} takes the range from the exact depth: drop "
+                                 "{min_depth}/{max_depth}, or drop {oracle}", **ORACLE_TERMS)
         return _oracle(sequence, t_ref)
     # The scene's range is read (and a malformed one refused) only when a bound is missing.
     declared = None if (min_depth is not None and max_depth is not None) else \
@@ -153,9 +158,13 @@ def resolve_dsi_range(sequence: Sequence, min_depth: float | None = None,
     else:
         source = fallback[1]
     if not (np.isfinite(low) and np.isfinite(high) and 0 < low < high):
-        raise ValueError(f"depth range [{low:g}, {high:g}] m ({source}): expected "
-                         "0 < --min-depth < --max-depth, in metres")
+        raise ParameterError(f"depth range [{low:g}, {high:g}] m ({ParameterError.literal(source)})"
+                             ": expected 0 < {min_depth} < {max_depth}, in metres",
+                             min_depth="min_depth", max_depth="max_depth")
     declared_key = f"depth_range of the scene in {sequence.folder / 'sequence.json'}"
-    for flag, value, was_given in (("--min-depth", low, given[0]), ("--max-depth", high, given[1])):
-        depth_metres(flag if was_given else declared_key, value)          # millimetres?
+    for name, value, was_given in (("min_depth", low, given[0]), ("max_depth", high, given[1])):
+        if was_given:                                                      # millimetres?
+            check_parameter(depth_metres, name, value)
+        else:
+            depth_metres(declared_key, value)
     return DSIRange(low, high, source)

@@ -42,6 +42,7 @@ from sim.exr import read_depth, write_depth, write_exr_channels
 from sim.progress import progress as progress_stage
 from sim.sequence import EXACT_TIME_S, Sequence, atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
+from sim.validation import ParameterError
 
 __all__ = ["MapParams", "MapResult", "TimeWindow", "map_sequence", "radius_outliers",
            "time_window", "write_map"]
@@ -140,6 +141,10 @@ def radius_outliers(points: np.ndarray, radius: float, neighbours: int) -> np.nd
     return counts - 1 >= neighbours
 
 
+WINDOW_TERMS = {"t0": "t0", "t1": "t1", "ref_time": "ref_time", "clip_window": "clip_window=True"}
+"""The parameters a refused time window names (:class:`sim.validation.ParameterError`)."""
+RANGE_TERMS = {"min_depth": "min_depth", "max_depth": "max_depth"}
+"""The parameters a refused depth range names."""
 WINDOW_SLACK_S = 1e-3
 """How far (s) a window asked for may reach past the data and still be used without
 ``clip_window`` (it is then clipped, and recorded as clipped): the first and last events of a
@@ -254,32 +259,32 @@ def time_window(sequence: Sequence, t0: float | None = None, t1: float | None = 
     b = hi if t1 is None else float(t1)
     asked = f"time window [{a:g}, {b:g}] s"
     if not a < b:
-        raise ValueError(f"empty {asked}; expected --t0 < --t1")
+        raise ParameterError(f"empty {asked}; expected {{t0}} < {{t1}}", **WINDOW_TERMS)
     # a bound within EXACT_TIME_S of the data's is the same instant (float round-off of t0 + length)
     used = (a if a >= lo - EXACT_TIME_S else lo, b if b <= hi + EXACT_TIME_S else hi)
     if not used[0] < used[1]:
-        raise ValueError(f"{asked} lies outside the data ({data}); choose --t0/--t1 within "
-                         f"{_span((lo, hi))}")
+        raise ParameterError(f"{asked} lies outside the data ({data}); choose {{t0}}/{{t1}} "
+                             f"within {_span((lo, hi))}", **WINDOW_TERMS)
     past = max(lo - a, b - hi)
     if past > WINDOW_SLACK_S and not clip:
-        raise ValueError(f"{asked} reaches {past:.3g} s past the data ({data}); choose "
-                         f"--t0/--t1 within {_span((lo, hi))}, or add --clip-window to map "
-                         f"{_span(used)}")
+        raise ParameterError(f"{asked} reaches {past:.3g} s past the data ({data}); choose "
+                             f"{{t0}}/{{t1}} within {_span((lo, hi))}, or add {{clip_window}} to "
+                             f"map {_span(used)}", **WINDOW_TERMS)
     clipped = (t0 is not None and used[0] != a) or (t1 is not None and used[1] != b)
     t_ref = 0.5 * (used[0] + used[1]) if ref_time is None else float(ref_time)
     if not poses[0] <= t_ref <= poses[1]:
-        raise ValueError(f"reference time {t_ref} s is outside the poses {_span(poses)}; choose "
-                         "--ref-time within them")
+        raise ParameterError(f"reference time {t_ref} s is outside the poses {_span(poses)}; "
+                             "choose {ref_time} within them", **WINDOW_TERMS)
     if t0 is not None or t1 is not None or ref_time is not None:
         half = max(REF_TOLERANCE_SHARE * (used[1] - used[0]), REF_TOLERANCE_MIN_S)
         near = (max(t_ref - half, used[0]), min(t_ref + half, used[1]))
         count = len(read_window(events_path, int(round(near[0] * 1e9)),
                                 int(round(near[1] * 1e9)))) if near[1] > near[0] else 0
         if count < REF_MIN_EVENTS:
-            raise ValueError(f"the reference view at {t_ref:.6f} s has {count} events of the "
-                             f"window {_span(used)} within {1e3 * half:.0f} ms of it (at least "
-                             f"{REF_MIN_EVENTS} needed; {data}); move --t0/--t1 (or --ref-time)"
-                             " to where the events are")
+            raise ParameterError(f"the reference view at {t_ref:.6f} s has {count} events of "
+                                 f"the window {_span(used)} within {1e3 * half:.0f} ms of it (at "
+                                 f"least {REF_MIN_EVENTS} needed; {data}); move {{t0}}/{{t1}} (or "
+                                 "{ref_time}) to where the events are", **WINDOW_TERMS)
     return TimeWindow((t0, t1), used[0], used[1], clipped, t_ref, events, poses)
 
 
@@ -367,10 +372,10 @@ def _check_range_contains(truth: np.ndarray, dsi: DSIParams) -> None:
     inside = float(np.mean((valid >= dsi.min_depth) & (valid <= dsi.max_depth)))
     if inside < RANGE_SHARE:
         low, high = np.percentile(valid, [1, 99])
-        raise ValueError(f"depth range [{dsi.min_depth:g}, {dsi.max_depth:g}] m does not contain "
-                         f"the scene: {100 * inside:.0f} % of the reference view's exact depth "
-                         f"lies in it (the scene spans {low:.3g}-{high:.3g} m); set "
-                         "--min-depth/--max-depth around it")
+        raise ParameterError(f"depth range [{dsi.min_depth:g}, {dsi.max_depth:g}] m does not "
+                             f"contain the scene: {100 * inside:.0f} % of the reference view's "
+                             f"exact depth lies in it (the scene spans {low:.3g}-{high:.3g} m); "
+                             "set {min_depth}/{max_depth} around it", **RANGE_TERMS)
 
 
 def _extract(dsi: np.ndarray, planes: np.ndarray, depth_params: DepthMapParams,
@@ -415,10 +420,10 @@ def _check_no_pile_up(depths: np.ndarray, planes: np.ndarray, dsi: DSIParams) ->
     share = float(np.mean(ends))
     if share > PILE_UP_SHARE:
         where = "nearer than" if near.sum() >= ends.sum() - near.sum() else "beyond"
-        raise ValueError(f"depth range [{dsi.min_depth:g}, {dsi.max_depth:g}] m does not seem to "
-                         f"contain the scene: {100 * share:.0f} % of the map points lie on the "
-                         f"planes at its ends (the scene is probably {where} that range); "
-                         "set --min-depth/--max-depth around it")
+        raise ParameterError(f"depth range [{dsi.min_depth:g}, {dsi.max_depth:g}] m does not "
+                             f"seem to contain the scene: {100 * share:.0f} % of the map points "
+                             f"lie on the planes at its ends (the scene is probably {where} that "
+                             "range); set {min_depth}/{max_depth} around it", **RANGE_TERMS)
 
 
 DSI_TIMING = ("excludes compilation: the DSI kernels are compiled (or loaded from numba's "
@@ -458,9 +463,9 @@ def map_sequence(folder: str | Path, params: MapParams, progress: bool = True) -
     dsi_bytes = 4 * params.dsi.planes * sensor.width * sensor.height
     if dsi_bytes > DSI_MEMORY_LIMIT:
         limit = DSI_MEMORY_LIMIT / 2**30
-        raise ValueError(f"a {sensor.width}x{sensor.height}x{params.dsi.planes} DSI needs "
+        raise ParameterError(f"a {sensor.width}x{sensor.height}x{params.dsi.planes} DSI needs "
                          f"{dsi_bytes / 2**30:.1f} GiB, more than the {limit:.0f} GiB allowed: "
-                         "use fewer --planes")
+                         "use fewer {planes}", planes="planes")
     window = time_window(sequence, params.t0, params.t1, ref_time=params.ref_time,
                          clip=params.clip_window)
     t0, t1, t_ref = window.t0, window.t1, window.t_ref
