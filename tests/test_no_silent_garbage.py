@@ -54,6 +54,7 @@ def _family_members():
 def test_every_family_member_declares_a_range_that_contains_its_exact_depth():
     from fusion.experiments.families import FAMILIES, family_scene
     from sim.scene import parse_scene
+    from sim.validation import ParameterError
 
     made = {family: 0 for family in FAMILIES}
     seen = set()
@@ -61,7 +62,9 @@ def test_every_family_member_declares_a_range_that_contains_its_exact_depth():
         try:
             text = family_scene(family, **knobs)
         except ValueError as exc:                  # a refused combination says so in one line
-            assert "\n" not in str(exc) and str(exc).startswith("--")
+            # ... naming its knobs as parameters, the first word (a flag on the command line)
+            assert isinstance(exc, ParameterError) and "\n" not in str(exc)
+            assert exc.rephrase({name: f"--{name}" for name in exc.terms}).startswith("--")
             continue
         scene = parse_scene(text)
         geometry = repr([(o.shape, o.center, o.rotation, o.params) for o in scene.objects])
@@ -79,7 +82,7 @@ def test_a_sphere_or_cylinder_touching_the_camera_is_refused():
     from fusion.experiments.families import family_scene
 
     for family in ("sphere", "cylinder"):
-        with pytest.raises(ValueError, match="--radius 0.5 with --distance 0.5"):
+        with pytest.raises(ValueError, match="^radius 0.5 with distance 0.5: the"):
             family_scene(family, radius=0.5, distance=0.5)
 
 
@@ -286,7 +289,8 @@ def test_the_library_refuses_dsi_bounds_in_millimetres():
 
     # resolve_dsi_range reads a sequence's folder and the scene TOML kept in sequence.json.
     sequence = SimpleNamespace(folder=Path("seq"), metadata={"scene": {"toml": "x = 1"}})
-    with pytest.raises(ValueError, match="--max-depth 2400 looks like millimetres"):
+    with pytest.raises(ValueError, match="^depths are in metres: max_depth 2400 looks like "
+                                         "millimetres"):              # the parameter, not a flag
         resolve_dsi_range(sequence, 0.5, 2400.0)
     assert resolve_dsi_range(sequence, 0.5, 2.4).max_depth == 2.4
     # A sequence simulated from a scene in millimetres before scene files were checked for it.
