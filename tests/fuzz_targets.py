@@ -649,13 +649,14 @@ SWEEP_CASES = _sweep_case()
 
 def check_sweep(case: tuple[str, dict[str, list[float]]]) -> None:
     """``evfuse bench --family F --KNOB V,...``: every member the knobs make is a scene that
-    parses (with finite figures), or one line naming the family or the knob."""
+    parses (with finite figures), or one line naming the family or the knob (as the library's
+    parameters: the command line names them by its flags)."""
     from fusion.experiments.families import family_variants
     from sim.scene import parse_scene
 
     family, knobs = case
-    flags = ("--family", *(f"--{name.replace('_', '-')}" for name in knobs))
-    texts = refused_or_result(lambda: family_variants(family, knobs), (), flags)
+    names = ("family", *knobs)
+    texts = refused_or_result(lambda: family_variants(family, knobs), (), names)
     for text in texts or []:
         assert_finite(parse_scene(text, f"{family}.toml"))
 
