@@ -583,7 +583,8 @@ def test_times_in_another_unit_are_named_against_the_poses(tmp_path):
 
 
 def test_a_text_file_span_is_read_once_and_again_when_the_file_changes(tmp_path):
-    from sim.eventio import _text_time_span, event_time_span
+    from sim.eventio import event_time_span
+    from sim.eventio._read import _text_time_span
 
     path = tmp_path / "events.txt"
     path.write_text("0.001 3 4 1\n0.002 5 6 0\n")
