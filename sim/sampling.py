@@ -187,6 +187,13 @@ def max_rate_warning(at_max_rate: int, intervals: int, max_rate: float, bound: f
     str or None
         One line naming the count, the share, the bound, the rate, the likely causes and the
         remedies; None when there is nothing to say.
+
+    Notes
+    -----
+    A warning, not a refusal: :func:`sim.simulate.simulate` prints it and records it as it is in
+    ``sequence.json`` (``events.sampling_warning``). Its wording is therefore part of that file,
+    and it names the remedy both ways, ``--max-rate (SamplingParams.max_rate)``, rather than
+    through a :class:`sim.validation.ParameterError` placeholder.
     """
     if not (0 <= at_max_rate <= intervals):
         raise ValueError(f"expected 0 <= at_max_rate <= intervals, got {at_max_rate} of "

@@ -9,6 +9,7 @@ from sim.eventio._formats import _kind
 from sim.eventio._hdf5 import H5EventWriter, _H5Source
 from sim.eventio._read import iter_event_chunks
 from sim.eventio._text import TextEventWriter
+from sim.validation import ParameterError
 
 __all__ = ["convert_events"]
 
@@ -32,7 +33,8 @@ def convert_events(src: str | Path, dst: str | Path, width: int | None = None,
     ------
     ValueError
         Unknown suffixes, ``src`` and ``dst`` are the same file, the sensor size is unknown for
-        an HDF5 output, or the source is malformed (as :func:`iter_event_chunks`); then, as on
+        an HDF5 output (a :class:`sim.validation.ParameterError` whose ``sensor`` a front end
+        names its way), or the source is malformed (as :func:`iter_event_chunks`); then, as on
         any failure, no ``dst`` and no ``<dst>.partial`` is left.
     """
     src, dst = Path(src), Path(dst)
@@ -53,9 +55,10 @@ def convert_events(src: str | Path, dst: str | Path, width: int | None = None,
     writer: TextEventWriter | H5EventWriter
     if dst_kind == "h5":
         if width is None or height is None:
-            raise ValueError(f"converting {src} to {dst}: an events.h5 needs the sensor size; "
-                             "expected width and height (evfuse convert reads them from the "
-                             "sequence folder, or pass --sensor WxH)")
+            literal = ParameterError.literal
+            raise ParameterError(f"converting {literal(src)} to {literal(dst)}: an events.h5 "
+                                 "needs the sensor size; expected width and height ({sensor})",
+                                 sensor="pass width= and height=")
         writer = H5EventWriter(dst, width, height, t_offset_us=t_offset_us)
     else:
         writer = TextEventWriter(dst)
