@@ -538,6 +538,7 @@ def test_an_unknown_variant_is_refused_in_the_library_terms_and_named_as_a_flag(
     assert str(caught.value) == ("unknown Mitsuba variant 'cuda_rgb' (from variant= or "
                                  "EVFUSE_VARIANT); expected one of cuda_ad_rgb, llvm_ad_rgb, "
                                  "scalar_rgb")
+    monkeypatch.setattr(variant, "_active", None)     # as in a fresh process
     monkeypatch.setenv("EVFUSE_VARIANT", "cuda_rgb")
     out = tmp_path / "o"
     for argv in (["simulate", "slider_close", "--out", str(out), "--duration", "0.05"],
