@@ -5,13 +5,13 @@ reader that checks every value it reads against the layout and names the file wh
 from __future__ import annotations
 
 import contextlib
-import os
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sim._atomic import atomic_file
 from sim.eventio._events import _MAX_COORD, EVENT_DTYPE, _check_size
 from sim.eventio._units import UNIT_SLACK, _unit_name
 from sim.eventio._writer import _StreamingWriter
@@ -294,10 +294,9 @@ class H5EventWriter(_StreamingWriter):
         uninterrupted one write the same bytes, and the same seed gives the same file.
         """
         h5py = _import_h5py()
-        packed = self.partial.with_name(self.partial.name + ".pack")
         offset = np.int64(0 if self.t_offset_us is None else self.t_offset_us)
         block = self.chunk_size * max(1, 2**20 // self.chunk_size)
-        try:
+        with atomic_file(self.partial) as packed:          # replaces the .partial file whole
             with h5py.File(self.partial, "r") as source, h5py.File(packed, "w") as target:
                 ms_to_idx = source["ms_to_idx"]
                 datasets, target_ms = self._layout(target, self._stored, ms_to_idx.shape[0])
@@ -309,9 +308,6 @@ class H5EventWriter(_StreamingWriter):
                 target.attrs["t_offset"] = offset
                 target.attrs["width"] = np.int64(self._width)
                 target.attrs["height"] = np.int64(self._height)
-            os.replace(packed, self.partial)
-        finally:
-            packed.unlink(missing_ok=True)
 
     def _abort(self) -> None:
         self._file.close()
