@@ -24,8 +24,6 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from sim.validation import ParameterError
-
 __all__ = ["KNOWN_VARIANTS", "LlvmLibrary", "active_variant", "find_llvm_libraries", "use_variant"]
 
 KNOWN_VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
@@ -209,6 +207,10 @@ def _route_mitsuba_log(mi) -> None:
 
 def _choose(forced: str | None) -> tuple[str, str | None, str]:
     """Return (variant, llvm library path or None, why)."""
+    # Imported here: ``python sim/variant.py --find-llvm`` (make llvm) runs this file alone, with
+    # the standard library only.
+    from sim.validation import ParameterError
+
     libraries = find_llvm_libraries()
     if forced:
         if forced not in KNOWN_VARIANTS:
