@@ -837,6 +837,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"evfuse {evfuse_version()}",
                         help="print evfuse's version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
+    # A forced Mitsuba variant is named --variant (simulate's flag; the other commands that render
+    # take it from EVFUSE_VARIANT) by every command, as before; a command's own flag_names replace
+    # this table (convert, which renders nothing).
+    parser.set_defaults(flag_names={"variant": "--variant"})
 
     scenes = sub.add_parser("scenes", help="list the built-in scenes")
     scenes.set_defaults(run=_cmd_scenes)
@@ -1118,7 +1122,8 @@ def _parser() -> argparse.ArgumentParser:
                          help="sensor size WxH for HDF5 output (default: from the sequence "
                               "folder of SRC)")
     convert.set_defaults(run=_cmd_convert)
-    convert.set_defaults(flag_names={"dst": "DST"})
+    convert.set_defaults(flag_names={"dst": "DST", "sensor": "evfuse convert reads them from "
+                                     "the sequence folder, or pass --sensor WxH"})
     for command in sub.choices.values():         # --debug after the command works too
         command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                              help="show tracebacks on errors")
