@@ -453,7 +453,11 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
-MAP_FLAG_NAMES = {"oracle": "--depth-range oracle"}
+VARIANT_FLAG_NAMES = {"variant": "--variant"}
+"""Every command's name of a forced Mitsuba variant (see :func:`_in_flags`); a command's own
+``flag_names`` replace this table, so those of commands that render include it."""
+
+MAP_FLAG_NAMES = {**VARIANT_FLAG_NAMES, "oracle": "--depth-range oracle"}
 """The library parameters that ``map`` and ``run`` name by another flag (see :func:`_in_flags`):
 ``resolve_dsi_range(oracle=True)`` is ``--depth-range oracle``."""
 
@@ -565,6 +569,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"evfuse {evfuse_version()}",
                         help="print evfuse's version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
+    # A forced Mitsuba variant is named --variant (simulate's flag; the other commands that render
+    # take it from EVFUSE_VARIANT) by every command, as before; a command's own flag_names replace
+    # this table (convert, which renders nothing).
+    parser.set_defaults(flag_names=VARIANT_FLAG_NAMES)
 
     add_command(sub, "scenes")
     methods = sub.add_parser("methods", help="list the filling methods, one line each, name "
@@ -627,7 +635,7 @@ def _parser() -> argparse.ArgumentParser:
                             "OUT-cache)")
     bench.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     bench.add_argument("--quiet", action="store_true", help="no progress bar")
-    bench.set_defaults(run=_cmd_bench, flag_names={"inputs": "--input"})
+    bench.set_defaults(run=_cmd_bench, flag_names={**VARIANT_FLAG_NAMES, "inputs": "--input"})
 
     for name in ("simulate", "events", "twin"):
         add_command(sub, name, event_figure=_write_event_figure)

@@ -99,4 +99,5 @@ __all__ = [
 ]
 
 # Old module paths (before the moves of issue 22), kept importable: see sim._moved.
-_alias_modules(sys.modules[__name__], {"sim.rig": "sim.capture_errors"})
+_alias_modules(sys.modules[__name__], {"sim.rig": "sim.capture_errors",
+                                     "sim.sensor": "sim.mitsuba_sensor"})

@@ -372,7 +372,8 @@ def _add_convert(sub) -> None:
                          help="sensor size WxH for HDF5 output (default: from the sequence "
                               "folder of SRC)")
     convert.set_defaults(run=_cmd_convert)
-    convert.set_defaults(flag_names={"dst": "DST"})
+    convert.set_defaults(flag_names={"dst": "DST", "sensor": "evfuse convert reads them from "
+                                     "the sequence folder, or pass --sensor WxH"})
 
 
 def add_command(subparsers, name: str, *,

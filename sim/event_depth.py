@@ -375,7 +375,7 @@ class EventOutputs:
 # --- reading -----------------------------------------------------------------------------------
 
 def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | None:
-    from sim.eventio import _H5Source, _reading
+    from sim.eventio._hdf5 import _H5Source, _reading
 
     source = _H5Source(path)
     try:

@@ -257,7 +257,7 @@ class Renderer:
         import drjit as dr
         import mitsuba as mi
 
-        from sim.sensor import SENSOR_PLUGIN, register_sensor
+        from sim.mitsuba_sensor import SENSOR_PLUGIN, register_sensor
 
         register_sensor()
         self.scene = scene

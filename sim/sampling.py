@@ -14,7 +14,7 @@ when the interval does. When an interval breaks the bound, its midpoint is rende
 pixel whose change splits between the two halves (the first half holds between ``SPLIT`` and
 ``1 - SPLIT`` of it) is changing continuously, and the first half is refined further; if every
 violating pixel changed in one half only (steps), both halves are kept (no render is wasted)
-and sampling goes on. Such samples have ``refined`` True and may have ``bound_met`` False.
+and sampling goes on. Such samples have ``subdivided`` True and may have ``bound_met`` False.
 
 Each pixel's own threshold. With threshold mismatch every pixel has its own ``C_p`` (the smaller
 of its ON and OFF thresholds, :func:`sim.noise.threshold_map`), and the bound is ``lam * C_p``
@@ -107,8 +107,10 @@ class Sample:
         scaled by ``C / C_p`` when the thresholds differ (:func:`contrast_scale`).
     bound_met : bool
         max_change <= lam * C (C the smallest threshold): every pixel met its own bound.
-    refined : bool
-        The interval was shortened after the render at the predicted time broke the bound.
+    subdivided : bool
+        The interval was shortened (its midpoint rendered, once or more) after the render at the
+        predicted time broke the bound. A checkpoint stores it under the key ``refined``
+        (:meth:`state`), as before the name was split from :attr:`SamplingStats.refined`.
     tail_pending : bool
         The second half of the same interval (kept after a step, see the module docstring)
         is the next sample. Sampling can be continued from a sample (``after`` of
@@ -120,8 +122,28 @@ class Sample:
     log: np.ndarray
     max_change: float
     bound_met: bool
-    refined: bool = False
+    subdivided: bool = False
     tail_pending: bool = False
+
+    def state(self) -> dict:
+        """The sample without its images, JSON-able, for a checkpoint: ``t``, ``max_change``,
+        ``bound_met`` and ``refined`` (the key of :attr:`subdivided` in checkpoint files)."""
+        return {"t": self.t, "max_change": self.max_change, "bound_met": self.bound_met,
+                "refined": self.subdivided}
+
+    @classmethod
+    def from_state(cls, state: dict, luminance: np.ndarray, log: np.ndarray) -> Sample:
+        """The sample a checkpoint saved: :meth:`state` and its two images.
+
+        Parameters
+        ----------
+        state : dict
+            From :meth:`state`.
+        luminance : (H, W) float32 ndarray, linear
+        log : (H, W) float64 ndarray
+        """
+        return cls(state["t"], luminance, log, state["max_change"], state["bound_met"],
+                   subdivided=state["refined"])
 
 
 @dataclass
@@ -129,9 +151,11 @@ class SamplingStats:
     """Counts of an adaptive run (filled while iterating).
 
     ``renders`` counts every render (rejected ones too), ``accepted`` the samples yielded,
-    ``refined`` the midpoint renders, ``steps`` the intervals whose only violations were
-    sub-pixel-sample steps, ``at_max_rate`` the samples that still broke the bound at the
-    maximum rate.
+    ``refined`` the midpoint renders (a count; each sample shortened by them has
+    :attr:`Sample.subdivided`; the name is kept: checkpoints store these fields by name, and
+    ``sequence.json`` records it as ``midpoint_renders``), ``steps`` the intervals whose only
+    violations were sub-pixel-sample steps, ``at_max_rate`` the samples that still broke the
+    bound at the maximum rate.
     """
 
     renders: int = 0
@@ -163,6 +187,13 @@ def max_rate_warning(at_max_rate: int, intervals: int, max_rate: float, bound: f
     str or None
         One line naming the count, the share, the bound, the rate, the likely causes and the
         remedies; None when there is nothing to say.
+
+    Notes
+    -----
+    A warning, not a refusal: :func:`sim.simulate.simulate` prints it and records it as it is in
+    ``sequence.json`` (``events.sampling_warning``). Its wording is therefore part of that file,
+    and it names the remedy both ways, ``--max-rate (SamplingParams.max_rate)``, rather than
+    through a :class:`sim.validation.ParameterError` placeholder.
     """
     if not (0 <= at_max_rate <= intervals):
         raise ValueError(f"expected 0 <= at_max_rate <= intervals, got {at_max_rate} of "
@@ -299,7 +330,7 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
     Sample
         In increasing time; consecutive samples differ by at most ``lam * C`` per pixel, unless
         the interval was refined (down to the maximum rate, or until only sub-pixel-sample steps
-        broke the bound); ``bound_met`` and ``refined`` say which.
+        broke the bound); ``bound_met`` and ``subdivided`` say which.
 
     Raises
     ------
@@ -345,7 +376,7 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
         t_next = min(t + dt, t1)
         lum_next, log_next = render(t_next)
         change = _scaled(np.abs(log_next - log), scale)
-        refined = False
+        subdivided = False
         tail: tuple | None = None                      # a second half kept after a step
         while True:
             violating = change > bound
@@ -355,7 +386,7 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
             lum_half, log_half = render(t_half)
             first = _scaled(np.abs(log_half - log), scale)
             stats.refined += 1
-            refined = True
+            subdivided = True
             share = first[violating] / change[violating]
             if not np.any((share > SPLIT) & (share < 1 - SPLIT)):
                 stats.steps += 1                       # steps only: keep both halves
@@ -373,7 +404,8 @@ def adaptive_samples(renderer, t0: float, t1: float, contrast: float, log_eps: f
                 stats.at_max_rate += 1
             stats.accepted += 1
             t, log = t_s, log_s
-            yield Sample(t, lum_s, log, largest, met, refined, tail_pending=k + 1 < len(kept))
+            yield Sample(t, lum_s, log, largest, met, subdivided,
+                         tail_pending=k + 1 < len(kept))
         if math.isclose(t, t1, rel_tol=0, abs_tol=1e-12):
             break
 

@@ -28,6 +28,9 @@ __all__ = ["KNOWN_VARIANTS", "LlvmLibrary", "active_variant", "find_llvm_librari
 
 KNOWN_VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
 MIN_LLVM_VERSION = 16
+VARIANT_TERM = "variant="
+"""How a refusal names the forced variant's parameter (:func:`use_variant`'s ``variant``): the
+``{variant}`` of a :class:`~sim.validation.ParameterError`, which a front end names its way."""
 
 _LLVM_GLOBS = (
     "/usr/lib/x86_64-linux-gnu/libLLVM*.so*",
@@ -204,13 +207,17 @@ def _route_mitsuba_log(mi) -> None:
 
 def _choose(forced: str | None) -> tuple[str, str | None, str]:
     """Return (variant, llvm library path or None, why)."""
+    # Imported here: ``python sim/variant.py --find-llvm`` (make llvm) runs this file alone, with
+    # the standard library only.
+    from sim.validation import ParameterError
+
     libraries = find_llvm_libraries()
     if forced:
         if forced not in KNOWN_VARIANTS:
-            raise ValueError(
-                f"unknown Mitsuba variant {forced!r} (from --variant or EVFUSE_VARIANT); "
-                f"expected one of {', '.join(KNOWN_VARIANTS)}"
-            )
+            raise ParameterError(
+                f"unknown Mitsuba variant {ParameterError.literal(repr(forced))} (from {{variant}} "
+                f"or EVFUSE_VARIANT); expected one of {', '.join(KNOWN_VARIANTS)}",
+                variant=VARIANT_TERM)
         if forced == "llvm_ad_rgb":
             working = next((lib for lib in libraries if _probe(forced, lib.path)), None)
             if working is None:
@@ -225,8 +232,9 @@ def _choose(forced: str | None) -> tuple[str, str | None, str]:
                 and _probe(forced, libraries[0].path if libraries else None)):
             instead = next(("llvm_ad_rgb" for lib in libraries
                             if _probe("llvm_ad_rgb", lib.path)), "scalar_rgb")
-            raise ValueError(f"cuda_ad_rgb was asked for (from --variant or EVFUSE_VARIANT), but "
-                             f"no CUDA device works here; use {instead}")
+            raise ParameterError(f"cuda_ad_rgb was asked for (from {{variant}} or "
+                                 f"EVFUSE_VARIANT), but no CUDA device works here; use {instead}",
+                                 variant=VARIANT_TERM)
         return forced, libraries[0].path if libraries else None, "forced"
     if _cuda_driver_present() and _probe("cuda_ad_rgb", libraries[0].path if libraries else None):
         return "cuda_ad_rgb", libraries[0].path if libraries else None, "a GPU works"
@@ -261,7 +269,8 @@ def use_variant(variant: str | None = None) -> str:
     ValueError
         For an unknown variant, a forced ``llvm_ad_rgb`` with no working LLVM, a forced
         ``cuda_ad_rgb`` with no working CUDA device (probed, as ``llvm_ad_rgb``, in a child
-        process; the message names the variant to use instead), or a second call
+        process; the message names the variant to use instead; these two are
+        :class:`~sim.validation.ParameterError` naming the parameter ``variant``), or a second call
         that asks for a different variant than the one already active (Dr.Jit cannot reload).
     """
     global _active

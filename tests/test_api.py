@@ -74,3 +74,16 @@ def test_the_readme_file_io_example_runs_on_a_sequence(plane_sequence, tmp_path,
     inside = events[(events["t"] >= t_ns - 5_000_000) & (events["t"] < t_ns + 5_000_000)]
     assert np.array_equal(window, inside)                  # .h5 window == .txt file, same events
     assert set(np.unique(events["p"])) <= {-1, 1}
+
+
+def test_the_mitsuba_sensor_module_keeps_its_old_path():
+    """sim/sensor.py (the Mitsuba plugin) is now sim/mitsuba_sensor.py; the old path is an alias
+    of the same module (sim._moved), not a copy."""
+    import sim.sensor
+    from sim.sensor import SENSOR_PLUGIN, register_sensor
+
+    import sim.mitsuba_sensor
+
+    assert sim.sensor is sim.mitsuba_sensor
+    assert (SENSOR_PLUGIN, register_sensor) == ("evfuse_pinhole",
+                                                sim.mitsuba_sensor.register_sensor)

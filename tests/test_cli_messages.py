@@ -505,3 +505,45 @@ def test_parameter_error_names_parameters_in_either_terms():
     assert error.rephrase({"out": "DST"}) == (
         "folder runs/{out}/a}b exists; choose another DST or add overwrite=True")
 
+
+
+# --- issue 22: library refusals in the library's terms, the command line's line unchanged -------
+
+def test_convert_to_h5_without_a_sensor_size_names_the_flag(tmp_path, capsys):
+    """sim.eventio says ``pass width= and height=``; evfuse convert says where it looks for the
+    size and names --sensor WxH, as before the library stopped naming the flag."""
+    from sim.eventio import convert_events
+    from sim.validation import ParameterError
+
+    src, dst = tmp_path / "events.txt", tmp_path / "events.h5"
+    with TextEventWriter(src) as writer:
+        writer.write(make_events([0, 10], [1, 2], [3, 4], [1, -1]))
+    with pytest.raises(ParameterError) as caught:
+        convert_events(src, dst)
+    assert str(caught.value) == (f"converting {src} to {dst}: an events.h5 needs the sensor "
+                                 "size; expected width and height (pass width= and height=)")
+    assert _line(capsys, run_cli(["convert", str(src), str(dst)]), "convert") == (
+        f"converting {src} to {dst}: an events.h5 needs the sensor size; expected width and "
+        "height (evfuse convert reads them from the sequence folder, or pass --sensor WxH)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["events.txt"]
+
+
+def test_an_unknown_variant_is_refused_in_the_library_terms_and_named_as_a_flag(tmp_path, capsys,
+                                                                               monkeypatch):
+    from sim import variant
+    from sim.validation import ParameterError
+
+    with pytest.raises(ParameterError) as caught:
+        variant._choose("cuda_rgb")
+    assert str(caught.value) == ("unknown Mitsuba variant 'cuda_rgb' (from variant= or "
+                                 "EVFUSE_VARIANT); expected one of cuda_ad_rgb, llvm_ad_rgb, "
+                                 "scalar_rgb")
+    monkeypatch.setattr(variant, "_active", None)     # as in a fresh process
+    monkeypatch.setenv("EVFUSE_VARIANT", "cuda_rgb")
+    out = tmp_path / "o"
+    for argv in (["simulate", "slider_close", "--out", str(out), "--duration", "0.05"],
+                 ["run", "slider_close", "--out", str(out), "--spp", "1"]):
+        assert _line(capsys, run_cli(argv), argv[0]) == (
+            "unknown Mitsuba variant 'cuda_rgb' (from --variant or EVFUSE_VARIANT); expected one "
+            "of cuda_ad_rgb, llvm_ad_rgb, scalar_rgb")
+    assert list(tmp_path.iterdir()) == []

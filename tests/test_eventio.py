@@ -368,30 +368,32 @@ def test_a_window_must_not_end_before_it_starts(tmp_path):
 # --- streaming writers -----------------------------------------------------------------------
 
 def split_randomly(events: np.ndarray, seed: int) -> list[np.ndarray]:
-    """200 random cuts, with empty chunks on purpose: the first and last chunks and one in the
-    middle (a cut repeated)."""
+    """200 random cuts, and empty chunks on purpose: the first, the last and one in the middle."""
     rng = np.random.default_rng(seed)
-    cuts = rng.integers(1, events.size, 200)
-    return np.split(events, np.sort(np.concatenate([[0, events.size], cuts, cuts[:1]])))
+    chunks = np.split(events, np.sort(rng.integers(1, events.size, 200)))
+    empty = events[:0]
+    return [empty, *chunks[:100], empty, *chunks[100:], empty]
 
 
 def test_writing_in_many_chunks_equals_writing_once(tmp_path):
+    """The same events written at once and in 201 chunks (empty ones too) give the same bytes:
+    text, and HDF5 too (its close() rewrites the file so that its bytes depend on its contents,
+    not on where the chunks were cut)."""
     events = random_events(40_000, seed=14)
     chunks = split_randomly(events, seed=15)
-    empty = [i for i, c in enumerate(chunks) if c.size == 0]
-    assert empty[0] == 0 and empty[-1] == len(chunks) - 1 and len(empty) >= 3   # edges and middle
     write_text(tmp_path / "once.txt", events)
-    write_h5(tmp_path / "once.h5", events)
+    write_h5(tmp_path / "once.h5", events, chunk_size=1000)
     with TextEventWriter(tmp_path / "many.txt") as text, \
             H5EventWriter(tmp_path / "many.h5", 240, 180, chunk_size=1000) as h5:
         for chunk in chunks:
             text.write(chunk)
             h5.write(chunk)
     assert (tmp_path / "many.txt").read_bytes() == (tmp_path / "once.txt").read_bytes()
-    with h5py.File(tmp_path / "once.h5", "r") as a, h5py.File(tmp_path / "many.h5", "r") as b:
-        for name in ("events/t", "events/x", "events/y", "events/p", "events/t_ns_rem",
-                     "ms_to_idx", "t_offset"):
-            np.testing.assert_array_equal(a[name][()], b[name][()], err_msg=name)
+    assert (tmp_path / "many.h5").read_bytes() == (tmp_path / "once.h5").read_bytes()
+    with h5py.File(tmp_path / "many.h5", "r") as b:
+        np.testing.assert_array_equal(b["events/t"][()] * 1000 + b["events/t_ns_rem"][()],
+                                      events["t"])
+        np.testing.assert_array_equal(b["events/p"][()], (events["p"] > 0).astype(np.uint8))
 
 
 @pytest.mark.parametrize("kind", ["txt", "h5"])
@@ -583,7 +585,8 @@ def test_times_in_another_unit_are_named_against_the_poses(tmp_path):
 
 
 def test_a_text_file_span_is_read_once_and_again_when_the_file_changes(tmp_path):
-    from sim.eventio import _text_time_span, event_time_span
+    from sim.eventio import event_time_span
+    from sim.eventio._read import _text_time_span
 
     path = tmp_path / "events.txt"
     path.write_text("0.001 3 4 1\n0.002 5 6 0\n")

@@ -116,7 +116,8 @@ def test_every_built_in_scene_survives_being_written_back_as_toml():
     """The frozen scene is rebuilt from TOML text written from the scene's own: for a static
     scene that text must give the same scene."""
     from scenes import resolve_scene
-    from sim.scene import _toml_text, load_scene, parse_scene
+    from sim.scene import load_scene, parse_scene
+    from sim.scene._freeze import _toml_text
 
     for name in ("dynamic_6dof", "boxes_6dof", "slider_far", "rig_boxes", "complex_staircase"):
         scene = load_scene(resolve_scene(name))

@@ -235,7 +235,7 @@ def _raise_interrupt(*args, **kwargs):
 
 def test_resume_refuses_what_it_cannot_continue(full, tmp_path, monkeypatch):
     reference, _ = full
-    with pytest.raises(ValueError, match=r"no interrupted run .* run with resume=False"):
+    with pytest.raises(ValueError, match=r"no interrupted run .* run without resume=True"):
         _simulate(tmp_path / "none", resume=True)
     with pytest.raises(ValueError, match="is already complete; there is nothing to resume"):
         _simulate(reference.out, resume=True)

@@ -11,6 +11,7 @@ from sim.render import Renderer
 from sim.sampling import (
     AT_MAX_RATE_WARN_SHARE,
     SPLIT,
+    Sample,
     SamplingParams,
     SamplingStats,
     adaptive_samples,
@@ -251,3 +252,18 @@ def test_the_frame_sampler_holds_a_low_threshold_pixel_to_its_own_bound(edge_ren
     assert any(s.bound_met for s in samples[1:])
     nominal = list(adaptive_samples(edge_renderer, 0.0, 0.02, C, 1e-3, SamplingParams(lam=0.5)))
     assert len(samples) > len(nominal)
+
+
+def test_a_checkpointed_sample_keeps_the_key_refined_for_its_subdivided_flag():
+    """The per-sample flag is ``subdivided`` in Python (``SamplingStats.refined`` is the count of
+    midpoint renders); a checkpoint still stores the flag under ``refined``, so that checkpoint
+    files are unchanged, and reads it back from there."""
+    luminance, log = np.ones((2, 3), np.float32), np.zeros((2, 3))
+    sample = Sample(0.25, luminance, log, 0.125, False, subdivided=True)
+    assert sample.state() == {"t": 0.25, "max_change": 0.125, "bound_met": False,
+                              "refined": True}
+    again = Sample.from_state({"t": 0.5, "max_change": 0.0, "bound_met": True, "refined": False},
+                              luminance, log)
+    assert (again.t, again.max_change, again.bound_met, again.subdivided) == (0.5, 0.0, True,
+                                                                              False)
+    assert again.luminance is luminance and again.log is log and not again.tail_pending

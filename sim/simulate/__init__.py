@@ -600,8 +600,8 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
     after: Sample | None = None
     if saved is not None:
         arrays, state = saved
-        after = Sample(luminance=arrays["sample_luminance"], log=arrays["sample_log"],
-                       **state["sample"])
+        after = Sample.from_state(state["sample"], arrays["sample_luminance"],
+                                  arrays["sample_log"])
     contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
     event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
     with _event_stage(scene, folder, formats, positions, end - start, progress,
@@ -1016,8 +1016,7 @@ class _Checkpoint:
         (the per-pixel sampler's ``observed_rates``) are saved beside the others."""
         emulator_state = emulator.get_state()
         arrays = {f"emulator_{key}": emulator_state.pop(key) for key in _EMULATOR_ARRAYS}
-        state = {"sample": {"t": sample.t, "max_change": sample.max_change,
-                            "bound_met": sample.bound_met, "refined": sample.refined},
+        state = {"sample": sample.state(),
                  "emulator": emulator_state, "stats": asdict(stats), "count": count, "on": on,
                  "writers": {fmt: writer.checkpoint() for fmt, writer in writers.items()}}
         buffer = io.BytesIO()

@@ -1,0 +1,203 @@
+"""Reading event files of either format: :func:`iter_event_chunks` (streamed, optionally a time
+window; dispatched on the suffix), :func:`read_events`, :func:`read_window` and
+:func:`event_time_span`."""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from sim.eventio._events import EVENT_DTYPE, _check_size, _first_error
+from sim.eventio._formats import _kind
+from sim.eventio._hdf5 import _H5Source
+from sim.eventio._text import _iter_text_blocks
+
+__all__ = ["event_time_span", "iter_event_chunks", "read_events", "read_window"]
+
+
+def event_time_span(path: str | Path, width: int | None = None,
+                    height: int | None = None) -> tuple[float, float]:
+    """First and last event time of a file, seconds (an HDF5 file: read at its two ends).
+
+    Raises
+    ------
+    ValueError
+        The file holds no events, or as :func:`iter_event_chunks`.
+    """
+    path = Path(path)
+    if _kind(path) == "h5" and path.is_file():
+        source = _H5Source(path)
+        try:
+            if source.size:
+                return (int(source.read(0, 1)["t"][0]) * 1e-9,
+                        int(source.read(source.size - 1, source.size)["t"][0]) * 1e-9)
+        finally:
+            source.close()
+        raise ValueError(f"{path}: the file holds no events")
+    stat = path.stat()
+    return _text_time_span(str(path.resolve()), stat.st_size, stat.st_mtime_ns, width, height)
+
+
+@functools.lru_cache(maxsize=16)
+def _text_time_span(path: str, size: int, mtime_ns: int, width: int | None,
+                    height: int | None) -> tuple[float, float]:
+    """:func:`event_time_span` of a text file: one streaming pass, remembered per file version
+    (size and modification time), so that the window checks of map and run read it once."""
+    first = last = None
+    for chunk in iter_event_chunks(path, 10**6, width=width, height=height):
+        if len(chunk):
+            first = chunk["t"][0] if first is None else first
+            last = chunk["t"][-1]
+    if first is None:
+        raise ValueError(f"{path}: the file holds no events")
+    return int(first) * 1e-9, int(last) * 1e-9
+
+def _check_window(t0_ns: int | None, t1_ns: int | None) -> None:
+    for name, value in (("t0_ns", t0_ns), ("t1_ns", t1_ns)):
+        if value is not None and (isinstance(value, bool)
+                                  or not isinstance(value, int | np.integer)):
+            raise ValueError(f"{name} must be an integer number of nanoseconds or None, got "
+                             f"{value!r}")
+    if t0_ns is not None and t1_ns is not None and t1_ns < t0_ns:
+        raise ValueError(f"time window [{t0_ns}, {t1_ns}) ns ends before it starts; expected "
+                         "t0_ns <= t1_ns")
+
+
+def _iter_h5(path: Path, chunk_events: int, t0_ns: int | None, t1_ns: int | None,
+             width: int | None, height: int | None) -> Iterator[np.ndarray]:
+    source = _H5Source(path)
+    try:
+        start = 0 if t0_ns is None else source.index_at(t0_ns)
+        stop = source.size if t1_ns is None else source.index_before(t1_ns)
+        t_prev = None
+        for begin in range(start, stop, chunk_events):
+            events = source.read(begin, min(begin + chunk_events, stop))
+            error = _first_error(events, width, height, t_prev)
+            if error is not None:
+                raise ValueError(f"{path}: event {begin + error[0]}: {error[1]}")
+            t_prev = int(events["t"][-1])
+            lo = 0 if t0_ns is None else int(np.searchsorted(events["t"], t0_ns, side="left"))
+            hi = (events.size if t1_ns is None
+                  else int(np.searchsorted(events["t"], t1_ns, side="left")))
+            if hi > lo:
+                yield events[lo:hi]
+            if hi < events.size:
+                return
+    finally:
+        source.close()
+
+
+def _iter_txt(path: Path, chunk_events: int, t0_ns: int | None, t1_ns: int | None,
+              width: int | None, height: int | None) -> Iterator[np.ndarray]:
+    block_bytes = int(np.clip(chunk_events * 24, 1 << 20, 64 << 20))
+    for block in _iter_text_blocks(path, block_bytes, width, height):
+        lo = 0 if t0_ns is None else int(np.searchsorted(block["t"], t0_ns, side="left"))
+        hi = (block.size if t1_ns is None
+              else int(np.searchsorted(block["t"], t1_ns, side="left")))
+        for begin in range(lo, hi, chunk_events):
+            yield block[begin:min(begin + chunk_events, hi)]
+        if hi < block.size:
+            return
+
+
+def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | None = None,
+                      t1_ns: int | None = None, *, width: int | None = None,
+                      height: int | None = None) -> Iterator[np.ndarray]:
+    """Stream the events of a file in chunks, never holding the whole file.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.txt`` (ECD text) or ``.h5``/``.hdf5`` (DSEC layout).
+    chunk_events : int
+        Most events per chunk.
+    t0_ns, t1_ns : int, optional
+        Only events with ``t0_ns <= t < t1_ns`` (nanoseconds). HDF5 files seek to ``t0_ns`` with
+        ``ms_to_idx`` and stop at ``t1_ns``; text files are parsed from the start and stop at
+        ``t1_ns``.
+    width, height : int, optional
+        Sensor size; events outside it are an error.
+
+    Yields
+    ------
+    (M,) EVENT_DTYPE ndarray
+        Consecutive, time-ordered chunks of 1 to ``chunk_events`` events.
+
+    Raises
+    ------
+    ValueError
+        Unknown suffix; a malformed line (``"{path}:{line}: ..."``: not 4 fields ``t x y p``,
+        a time that is not seconds with up to 9 decimals, x or y not a non-negative integer,
+        p not 0/1), a time before the previous line's, a pixel outside the sensor; for HDF5,
+        missing datasets or bad values (``"{path}: event {i}: ..."``).
+    """
+    path = Path(path)
+    kind = _kind(path)
+    if isinstance(chunk_events, bool) or not isinstance(chunk_events, int) or chunk_events < 1:
+        raise ValueError(f"chunk_events must be a positive integer, got {chunk_events!r}")
+    _check_window(t0_ns, t1_ns)
+    _check_size(width, height, str(path))
+    if not path.is_file():
+        raise ValueError(f"event file {path} does not exist")
+    iterate = _iter_h5 if kind == "h5" else _iter_txt
+    yield from iterate(path, chunk_events, t0_ns, t1_ns, width, height)
+
+
+def _concatenate(chunks: Iterator[np.ndarray]) -> np.ndarray:
+    parts = list(chunks)
+    if not parts:
+        return np.empty(0, EVENT_DTYPE)
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def read_events(path: str | Path, width: int | None = None,
+                height: int | None = None) -> np.ndarray:
+    """Read a whole event file.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.txt`` (ECD text) or ``.h5``/``.hdf5`` (DSEC layout).
+    width, height : int, optional
+        Sensor size; events outside it are an error (naming the line or event).
+
+    Returns
+    -------
+    (N,) EVENT_DTYPE ndarray
+        t in int64 nanoseconds (exact: text times are parsed as integers, HDF5 times restored
+        from microseconds + ``t_ns_rem``), p +-1.
+
+    Raises
+    ------
+    ValueError
+        As :func:`iter_event_chunks`.
+    """
+    return _concatenate(iter_event_chunks(path, 1 << 26, width=width, height=height))
+
+
+def read_window(path: str | Path, t0_ns: int, t1_ns: int) -> np.ndarray:
+    """Read the events with ``t0_ns <= t < t1_ns``.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.txt`` or ``.h5``. For HDF5 only the milliseconds around the window are read (found
+        with ``ms_to_idx``, then trimmed exactly with a binary search on the nanosecond times).
+    t0_ns, t1_ns : int
+        Window in nanoseconds, ``t0_ns <= t1_ns``.
+
+    Returns
+    -------
+    (M,) EVENT_DTYPE ndarray
+
+    Raises
+    ------
+    ValueError
+        A bad window, or as :func:`iter_event_chunks`.
+    """
+    if t0_ns is None or t1_ns is None:
+        raise ValueError(f"read_window needs both t0_ns and t1_ns, got {t0_ns!r} and {t1_ns!r}")
+    return _concatenate(iter_event_chunks(path, 1 << 26, t0_ns, t1_ns))
