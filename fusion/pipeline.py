@@ -56,17 +56,15 @@ from sim.eventio import read_window
 from sim.exr import read_depth
 from sim.progress import progress as progress_stage
 from sim.sequence import (
-    MARKER,
     PARTIAL_SUFFIX,
     atomic_output_dir,
     check_output_dir,
     load_sequence,
-    partial_dir,
     resumable_partial,
     resume_differences,
 )
 from sim.statistics import event_frame
-from sim.validation import finite
+from sim.validation import ParameterError, finite
 
 __all__ = ["RunParams", "draw_overview", "fill_sources", "fill_window", "is_sequence_folder",
            "map_window", "run_pipeline", "run_sources"]
@@ -329,6 +327,9 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
         # message must not send the user to the folder deleted here: it names the run folder.
         partial = out.with_name(out.name + PARTIAL_SUFFIX)
         shutil.rmtree(partial, ignore_errors=True)
+        if isinstance(exc, ParameterError):      # the sentence the command line words
+            exc.template = exc.template.replace(ParameterError.literal(partial),
+                                                ParameterError.literal(out))
         if len(exc.args) == 1 and isinstance(exc.args[0], str):
             exc.args = (exc.args[0].replace(str(partial), str(out)),)
         raise
@@ -457,9 +458,11 @@ def _errors_summary(map_errors: dict | None, fill_errors: dict | None) -> dict |
 
 def _simulate_window(scene, folder: Path, params: RunParams, progress: bool, timings: dict,
                      resume: bool = False):
-    """Simulate the window into ``folder``; with ``resume``, re-use a complete ``folder`` or
-    continue the checkpoint an interruption left in its ``.partial``."""
-    from sim.simulate import CHECKPOINT_FOLDER, simulate
+    """Simulate the run's window into ``folder`` (:func:`sim.simulate.window.simulate_window`:
+    with ``resume``, a complete ``folder`` is re-used and the checkpoint an interruption left in
+    its ``.partial`` continued); return the folder and the window ``(t0, t1)`` the map is asked
+    (with ``clip_window``, ``t1`` may lie past the simulated end, the scene's)."""
+    from sim.simulate.window import is_simulated, simulate_window
 
     t0 = 0.0 if params.t0 is None else float(params.t0)
     t1 = min(t0 + DEFAULT_WINDOW, scene.duration) if params.t1 is None else float(params.t1)
@@ -469,21 +472,22 @@ def _simulate_window(scene, folder: Path, params: RunParams, progress: bool, tim
         # refused (or, with clip_window, mapped to the scene's end and recorded as clipped).
         if not params.clip_window:
             latest = max(scene.duration - DEFAULT_WINDOW, 0.0)
-            clip = (f", or --clip-window to map [{t0:g}, {scene.duration:g}] s"
+            clip = (f", or {{clip_window}} to map [{t0:g}, {scene.duration:g}] s"
                     if t0 < scene.duration else "")
-            raise ValueError(f"--t0 {t0:g}: the default {DEFAULT_WINDOW:g} s window, "
-                             f"[{t0:g}, {t0 + DEFAULT_WINDOW:g}] s, reaches past the end of "
-                             f"scene {scene.name} ([0, {scene.duration:g}] s); give --t0 at "
-                             f"most {latest:g} or --t1 at most {scene.duration:g}{clip}")
+            raise ParameterError(
+                f"{{t0}} {t0:g}: the default {DEFAULT_WINDOW:g} s window, "
+                f"[{t0:g}, {t0 + DEFAULT_WINDOW:g}] s, reaches past the end of scene "
+                f"{ParameterError.literal(scene.name)} ([0, {scene.duration:g}] s); give {{t0}} "
+                f"at most {latest:g} or {{t1}} at most {scene.duration:g}{clip}",
+                t0="t0", t1="t1", clip_window="clip_window=True")
         t1 = t0 + DEFAULT_WINDOW
     if not end > t0:
         raise ValueError(f"empty time window [{t0}, {end}] s")
-    tick = time.perf_counter()
-    if resume and (folder / MARKER).is_file():
+    if resume and is_simulated(folder):
         return folder, t0, t1                 # simulated before the interruption
-    simulate(scene, folder, start=t0, duration=end - t0, spp=params.spp, progress=progress,
-             resume=resume and (partial_dir(folder) / CHECKPOINT_FOLDER
-                                / "checkpoint.json").is_file())
+    tick = time.perf_counter()
+    simulate_window(scene, folder, t0, end - t0, resume=resume, progress=progress,
+                    spp=params.spp)
     timings["simulate_s"] = time.perf_counter() - tick
     return folder, t0, t1
 

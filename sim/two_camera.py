@@ -6,7 +6,7 @@ sequence folder as an ECD folder of the EVENT camera, with the frame camera besi
 
 - ``frame_camera/images.txt`` + ``images/``: the frame camera's frames, rendered from
   ``T_world_frame(t) = T_world_event(t) @ T_event_frame`` with the same frame model as a single
-  sensor's (:func:`sim.simulate._simulate_frames`: exposure samples, sensor, noise);
+  sensor's (:func:`sim.simulate._frames._simulate_frames`: exposure samples, sensor, noise);
 - ``frame_camera/depthmaps.txt`` + ``depth/``: its exact z-depth at the same times;
 - ``frame_camera/calib.txt`` and ``frame_camera/T_event_frame.txt`` (exact: the rig's
   imperfections, :mod:`sim.capture_errors`, apply to the event camera's files only);
@@ -138,8 +138,8 @@ def simulate_frame_camera(scene: Scene, event_renderer: Renderer, folder: Path,
     frames_offset : float, seconds
         The frames' clock offset (``[rig] frames_offset``): written times are ``times + it``.
     simulate_frames : callable
-        :func:`sim.simulate._simulate_frames` (the frame model of a single sensor), called as
-        ``simulate_frames(scene, renderer, folder, times, **stage)``.
+        :func:`sim.simulate._frames._simulate_frames` (the frame model of a single sensor),
+        called as ``simulate_frames(scene, renderer, folder, times, **stage)``.
     spp, variant :
         Samples per pixel and Mitsuba variant of the frame camera's renders.
     **stage

@@ -30,7 +30,7 @@ from scenes import builtin_scenes
 from sim.frame_sensor import AE_TARGET, sensor_frame
 from sim.render import Renderer
 from sim.scene import load_scene
-from sim.simulate import _exposure, _fixed_pattern, _frame_exposure
+from sim.simulate._frames import _exposure, _fixed_pattern, _frame_exposure
 from sim.two_camera import frame_camera_scene
 
 MEAN_GREY = (255 * AE_TARGET / 2, 255 * min(2 * AE_TARGET, 1.0))

@@ -161,16 +161,25 @@ def test_simulate_flags_are_named_as_typed(flags, message, tmp_path, capsys):
 
 
 def test_the_per_pixel_sampler_is_refused_where_its_premise_fails(tmp_path, capsys):
-    from sim.simulate import _choose_sampler
+    from sim.simulate._events import _choose_sampler
+    from sim.validation import ParameterError
 
     code = run_cli(["simulate", "dynamic_6dof", "--out", str(tmp_path / "o"), "--sampler", "pixel",
                  "--duration", "0.05"])
     line = _one_line(capsys, code, "simulate")
-    assert "dynamic_6dof has moving objects" in line and "--sampler frame" in line
+    assert line == ("evfuse simulate: error: --sampler pixel: scene dynamic_6dof has moving "
+                    "objects, and the per-pixel sampler needs a static scene; use --sampler frame")
     assert not (tmp_path / "o").exists() and not (tmp_path / "o.partial").exists()
     scene = type("Scene", (), {"is_dynamic": False, "name": "s"})()
-    with pytest.raises(ValueError, match=r"^--sampler pixel: .* needs a JIT variant"):
+    with pytest.raises(ParameterError) as refused:
         _choose_sampler(scene, "scalar_rgb", "pixel")
+    # the library names its parameter; the command line's flag replaces it
+    assert str(refused.value).startswith("sampler pixel: the per-pixel sampler ")
+    assert "--" not in str(refused.value)
+    assert refused.value.rephrase({"sampler": "--sampler"}).startswith(
+        "--sampler pixel: the per-pixel sampler traces batches of rays and needs a JIT variant")
+    assert refused.value.rephrase({"sampler": "--sampler"}).endswith(
+        "renders whole frames only (--sampler frame)")
     assert _choose_sampler(scene, "scalar_rgb", None) == ("frame", "scalar_rgb cannot trace "
                                                           "per-pixel batches")
     assert _choose_sampler(scene, "llvm_ad_rgb", None) == ("pixel", "static scene")

@@ -346,7 +346,7 @@ def test_a_twin_of_the_whole_recording_is_accepted_by_simulate(ecd_slider, tmp_p
     class Validated(Exception):
         pass
 
-    module = importlib.import_module("sim.simulate")
+    module = importlib.import_module("sim.simulate._run")          # simulate() and its steps
 
     def renderer(*args, **kwargs):                   # simulate's checks are done: stop here
         raise Validated

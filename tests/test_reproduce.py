@@ -109,7 +109,19 @@ def test_reproduce_with_the_realistic_event_camera_records_it_and_caches_apart(t
     assert report["settings"]["event_noise"] == "realistic"
     assert "event noise: realistic" in (out / "report.md").read_text()
     folders = [p.name for p in cache.iterdir()]
-    assert len(folders) == 1 and "_ev-realistic_" in folders[0]
+    assert len(folders) == 1
+    # cached apart: the folder's key is the realistic event camera's, not the ideal one's
+    from fusion.experiments.reproduce import ReproduceParams, _jobs, _window_options
+    from sim.simulate.window import window_key
+
+    keys = {}
+    for noise in ("realistic", "ideal"):
+        params = ReproduceParams(tables=("1",), scenes=("shapes_6dof",), long_window=0.1,
+                                 event_noise=noise)
+        job = _jobs(params)[0]
+        scene, options = _window_options(job, params)
+        keys[noise] = window_key(scene, job["t0"], job["length"], **options)[:10]
+    assert folders[0].endswith("_" + keys["realistic"]) and keys["ideal"] != keys["realistic"]
     sequence = json.loads((cache / folders[0] / "sequence.json").read_text())
     realistic = noise_preset("realistic")
     assert sequence["events"]["noise"]["refractory_period"] == realistic.refractory_period > 0
@@ -122,13 +134,14 @@ def test_reproduce_with_the_realistic_event_camera_records_it_and_caches_apart(t
 def test_a_cached_window_is_not_taken_for_a_changed_scene(tmp_path):
     """The cache's folder names held the scene's name, window and cameras but not what the scene
     is: after a scene file changed (issue 21 changed lights and exposure limits), reproduce
-    re-used windows simulated from the old one. The name now carries a hash of the scene's
-    files (:func:`sim.simulate.scene_files`: the scene file and every file it names)."""
+    re-used windows simulated from the old one. The name now carries the window's key
+    (:func:`sim.simulate.window.window_key`), which hashes the scene's files
+    (:func:`sim.simulate.scene_files`: the scene file and every file it names)."""
     from types import SimpleNamespace
 
-    from fusion.experiments.reproduce import _content_tag
     from scenes import resolve_scene
     from sim.scene import load_scene
+    from sim.simulate.window import scene_digest, window_key
 
     texture = tmp_path / "t.png"
     path = tmp_path / "s.toml"
@@ -139,11 +152,15 @@ def test_a_cached_window_is_not_taken_for_a_changed_scene(tmp_path):
                 'material = { texture = { type = "image", path = "t.png" } }\n'
                 f'[[lights]]\ntype = "directional"\nilluminance_lux = {light_lux}\n')
         path.write_text(text)
-        return _content_tag(SimpleNamespace(source=path, text=text, base_dir=tmp_path))
+        return scene_digest(SimpleNamespace(source=path, text=text, base_dir=tmp_path))
 
     first = tag(b"one", 400)
     assert tag(b"one", 400) == first                        # the same files: the same folder
     assert tag(b"two", 400) != first                        # a texture changed
     assert tag(b"one", 4000) != first                       # the scene file changed
-    builtin = resolve_scene("slider_far")
-    assert _content_tag(load_scene(builtin)) == _content_tag(load_scene(builtin))
+    builtin = load_scene(resolve_scene("slider_far"))
+    assert scene_digest(builtin) == scene_digest(load_scene(resolve_scene("slider_far")))
+    key = window_key(builtin, 1.0, 0.5)
+    assert window_key(load_scene(resolve_scene("slider_far")), 1.0, 0.5) == key
+    assert window_key(builtin, 1.0, 0.25) != key            # another window
+    assert window_key(builtin, 1.0, 0.5, spp=4) != key      # another parameter

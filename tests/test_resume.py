@@ -24,7 +24,9 @@ from sim.shader import EventShader
 from sim.simulate import SimulationResult, simulate
 from tests.conftest import FAST, scene_text
 
-simulation = importlib.import_module("sim.simulate")   # the module (sim.simulate is the function)
+simulation = importlib.import_module("sim.simulate._run")        # simulate() and its steps
+checkpoints = importlib.import_module("sim.simulate._checkpoint")  # when and what it saves
+event_driver = importlib.import_module("sim.simulate._events")   # the samplers it drives
 
 # Sharp-edged squares passing at 1 m/s: many events, and many intervals split at sub-pixel
 # steps (samples with a pending tail, where no checkpoint may be taken).
@@ -73,7 +75,7 @@ class _Renders:
 
 _REAL_LUMINANCE = Renderer.luminance
 _REAL_EVENT_FRAME = EventShader.frame
-_REAL_SAMPLES = simulation.adaptive_samples
+_REAL_SAMPLES = event_driver.adaptive_samples
 
 
 def _simulate(out: Path, resume: bool = False, scene_seed: int | None = None
@@ -115,7 +117,7 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_files(full, tmp_path, m
     assert full_event_renders == reference.event_renders
     out = tmp_path / "seq"
     partial, state = tmp_path / "seq.partial", tmp_path / "seq.partial" / ".checkpoint"
-    monkeypatch.setattr(simulation, "CHECKPOINT_SAMPLES", 1)   # at every boundary allowed
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_SAMPLES", 1)   # at every boundary allowed
 
     # 1. Interrupted in the frames, at frame 1's first exposure render (the 4th render: frame
     # 0's auto-exposure metering render and its two exposure renders come first).
@@ -138,7 +140,7 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_files(full, tmp_path, m
             seen.append(sample)
             yield sample
 
-    monkeypatch.setattr(simulation, "adaptive_samples", interrupting)
+    monkeypatch.setattr(event_driver, "adaptive_samples", interrupting)
     renders = _Renders(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         _simulate(out, resume=True)
@@ -150,13 +152,13 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_files(full, tmp_path, m
 
     # 3. Resumed to the end of the events, interrupted before the checkpoint says they are
     # done (the writers have already renamed their files into place).
-    monkeypatch.setattr(simulation, "adaptive_samples", _REAL_SAMPLES)
-    done = simulation._Checkpoint.set_events_done
+    monkeypatch.setattr(event_driver, "adaptive_samples", _REAL_SAMPLES)
+    done = checkpoints._Checkpoint.set_events_done
 
     def interrupted_done(self, info):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(simulation._Checkpoint, "set_events_done", interrupted_done)
+    monkeypatch.setattr(checkpoints._Checkpoint, "set_events_done", interrupted_done)
     renders = _Renders(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         _simulate(out, resume=True)
@@ -166,7 +168,7 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_files(full, tmp_path, m
     assert (partial / "events.h5").is_file() and not (partial / "events.h5.partial").exists()
 
     # 4. Resumed from the last checkpoint, at the end: nothing left to render.
-    monkeypatch.setattr(simulation._Checkpoint, "set_events_done", done)
+    monkeypatch.setattr(checkpoints._Checkpoint, "set_events_done", done)
     renders = _Renders(monkeypatch)
     result = _simulate(out, resume=True)
     assert renders.frames == renders.events == 0
@@ -190,7 +192,7 @@ def test_an_interrupted_per_pixel_run_resumes_to_the_uninterrupted_files(tmp_pat
     run(tmp_path / "again")
     assert whole.sampler == "pixel" and whole.n_events > 5000
     _assert_same_sequence(tmp_path / "whole", tmp_path / "again")          # deterministic
-    real = simulation.pixel_blocks
+    real = event_driver.pixel_blocks
     seen = []
 
     def interrupting(*args, **kwargs):
@@ -200,9 +202,9 @@ def test_an_interrupted_per_pixel_run_resumes_to_the_uninterrupted_files(tmp_pat
             seen.append(block.t)
             yield block
 
-    monkeypatch.setattr(simulation, "CHECKPOINT_SAMPLES", 3)              # every 3 blocks
-    monkeypatch.setattr(simulation, "CHECKPOINT_SECONDS", 1e9)
-    monkeypatch.setattr(simulation, "pixel_blocks", interrupting)
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_SAMPLES", 3)              # every 3 blocks
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_SECONDS", 1e9)
+    monkeypatch.setattr(event_driver, "pixel_blocks", interrupting)
     out = tmp_path / "cut"
     with pytest.raises(KeyboardInterrupt):
         run(out)
@@ -210,7 +212,7 @@ def test_an_interrupted_per_pixel_run_resumes_to_the_uninterrupted_files(tmp_pat
         state = json.loads(str(saved["state"]))
         assert saved["observed_rates"].shape == (48 * 64,)
     assert state["sample"]["t"] == pytest.approx(seen[5])                 # blocks 3 and 6
-    monkeypatch.setattr(simulation, "pixel_blocks", real)
+    monkeypatch.setattr(event_driver, "pixel_blocks", real)
     result = run(out, resume=True)
     assert result.n_events == whole.n_events
     _assert_same_sequence(tmp_path / "whole", out)
@@ -235,7 +237,8 @@ def _raise_interrupt(*args, **kwargs):
 
 def test_resume_refuses_what_it_cannot_continue(full, tmp_path, monkeypatch):
     reference, _ = full
-    with pytest.raises(ValueError, match=r"no interrupted run .* run without resume=True"):
+    with pytest.raises(ValueError,
+                       match=r"no interrupted run .* run without resume=True to start one$"):
         _simulate(tmp_path / "none", resume=True)
     with pytest.raises(ValueError, match="is already complete; there is nothing to resume"):
         _simulate(reference.out, resume=True)
@@ -244,10 +247,12 @@ def test_resume_refuses_what_it_cannot_continue(full, tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         _simulate(out)
     monkeypatch.undo()
-    with pytest.raises(ValueError, match=r"other inputs: .*seed \(3 in the checkpoint, 9 now\)"):
+    with pytest.raises(ValueError, match=r"other inputs: .*seed \(3 in the checkpoint, 9 now\)"
+                                         r".*\(or run without resume=True to start again\)$"):
         _simulate(out, resume=True, scene_seed=9)
     (tmp_path / "seq.partial" / ".checkpoint" / "checkpoint.json").unlink()
-    with pytest.raises(ValueError, match="holds no checkpoint"):
+    with pytest.raises(ValueError,
+                       match="holds no checkpoint .* run without resume=True to start again$"):
         _simulate(out, resume=True)
     assert (tmp_path / "seq.partial").is_dir()        # refused: left as it was
 
@@ -268,6 +273,7 @@ def test_cli_resume(tmp_path, capsys, monkeypatch):
     assert main([*args, "--seed", "9", "--resume"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "seed (3 in the checkpoint, 9 now)" in err
+    assert err.endswith("(or run without --resume to start again)\n")
     assert main([*args, "--resume"]) == 0
     assert f"to {out}" in capsys.readouterr().out
     assert json.loads((out / "sequence.json").read_text())["frames"]["count"] == 2

@@ -313,8 +313,9 @@ def test_cli_rig_flag_and_a_negative_time_refused(tmp_path, capsys):
     assert main(["simulate", str(scene), "--out", str(tmp_path / "bad"), "--quiet",
                  "--no-events"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "rig events_offset -0.01 s would write events times before 0 s" in (
-        err[0])
+    assert err == ["evfuse simulate: error: rig events_offset -0.01 s would write events times "
+                   "before 0 s from --start 0 s; expected start + offset >= 0 (simulate from a "
+                   "later --start or use a positive offset)"]
     assert main(["simulate", str(scene), "--out", str(tmp_path / "ok"), "--quiet", "--no-events",
                  "--rig", "mocap"]) == 0                   # the flag replaces the file's [rig]
     meta = json.loads((tmp_path / "ok" / "sequence.json").read_text())

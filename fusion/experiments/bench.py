@@ -35,7 +35,6 @@ per scene, ``figures/<scene>_<input>.png``: every method's dense depth and error
 from __future__ import annotations
 
 import csv
-import hashlib
 import io
 import json
 import shlex
@@ -162,28 +161,24 @@ def _mapped(name: str, cache: Path, progress: bool, keep_boundary_planes: bool =
     from fusion.pipeline import map_window
     from scenes import resolve_scene
     from sim.scene import load_scene
-    from sim.simulate import simulate
+    from sim.simulate.window import cached_window
 
     if (Path(name) / "map.json").is_file():
         return Path(name)
     t0, t1 = _window(name)
-    scene_file = Path(name if name.endswith(".toml") else resolve_scene(name))
-    # The scene file's own bytes name the cache entry: an edited scene (a new frame sensor, a
-    # moved object) is simulated again instead of read stale.
-    digest = hashlib.sha256(scene_file.read_bytes()).hexdigest()[:10]
-    folder = cache / f"{_label(name)}_{t0:.3f}_{t1:.3f}_{digest}"
-    if (folder / "map" / "map.json").is_file():
-        made = json.loads((folder / "map" / "map.json").read_text(encoding="utf-8"))
+    scene = load_scene(Path(name if name.endswith(".toml") else resolve_scene(name)))
+    # The window's folder is named by its key (the scene's files and every simulation
+    # parameter): an edited scene (a new frame sensor, a moved object) is simulated again
+    # instead of read stale. Its map is kept beside the sequence.
+    sequence = cached_window(scene, cache, _label(name), t0, t1 - t0, progress=progress)
+    folder = sequence.parent / f"{sequence.name}_map"
+    if (folder / "map.json").is_file():
+        made = json.loads((folder / "map.json").read_text(encoding="utf-8"))
         if made["params"]["depth"].get("keep_boundary_planes", True) == keep_boundary_planes:
-            return folder / "map"
-    sequence = folder / "sequence"
-    if not (sequence / "sequence.json").is_file():
-        scene = load_scene(scene_file)
-        simulate(scene, sequence, start=t0, duration=t1 - t0, progress=progress,
-                 overwrite=True)
-    map_window(sequence, folder / "map", t0, t1, overwrite=True, progress=progress,
+            return folder
+    map_window(sequence, folder, t0, t1, overwrite=True, progress=progress,
                depth=DepthMapParams(keep_boundary_planes=keep_boundary_planes))
-    return folder / "map"
+    return folder
 
 
 def _inputs(map_folder: Path, params: BenchParams) -> tuple[object, dict[str, np.ndarray]]:

@@ -27,7 +27,6 @@ report says what was used.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import shutil
 import time
@@ -211,16 +210,6 @@ def _event_quality(scene, params: ReproduceParams) -> tuple[int, float]:
     return params.event_spp, params.lam
 
 
-def _sensor_tag(frames) -> str:
-    """The frame sensor in a cache folder's name: its preset, or a hash of its settings."""
-    if frames.ideal or frames.sensor.name in FRAME_SENSORS:
-        tag = frames.sensor_name
-        if frames.ideal or frames.sensor == FRAME_SENSORS[tag]:
-            return tag
-    text = json.dumps(dataclasses.asdict(frames.sensor), sort_keys=True)
-    return f"{frames.sensor.name}-{hashlib.sha256(text.encode()).hexdigest()[:10]}"
-
-
 def _frame_sensor_of(folder: Path) -> str:
     """The standard camera's sensor a simulated window was made with (its sequence.json)."""
     frames = json.loads((folder / "sequence.json").read_text(encoding="utf-8"))["frames"]
@@ -228,52 +217,42 @@ def _frame_sensor_of(folder: Path) -> str:
     return sensor if isinstance(sensor, str) else sensor["name"]
 
 
-def _content_tag(scene) -> str:
-    """A hash of the files a scene is made of (its scene file and every file it names), for a
-    cache folder's name: a window simulated from an earlier version of the scene (other lights,
-    exposure limits, objects) is never taken for one of this scene."""
-    from sim.simulate import scene_files
-
-    digest = hashlib.sha256()
-    for path in scene_files(scene):
-        digest.update(str(path.name).encode() + b"\0")
-        digest.update(path.read_bytes() if path.is_file() else b"(missing)")
-    return digest.hexdigest()[:10]
-
-
-def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
-    """The cached simulation of a job's window (simulated when missing)."""
+def _window_options(job: dict, params: ReproduceParams) -> tuple[object, dict]:
+    """The scene of a job's window (its frame sensor, event camera's samples per pixel and,
+    for a frozen control, its objects as the table asks) and the options
+    :func:`sim.simulate.window.cached_window` simulates it with."""
     from scenes import resolve_scene
     from sim.events import EventParams
     from sim.noise import noise_preset
     from sim.sampling import SamplingParams
     from sim.scene import load_scene
-    from sim.simulate import simulate
 
     scene = load_scene(resolve_scene(job.get("frozen_of", job["scene"])))
     if params.frame_sensor is not None:
         scene = dataclasses.replace(scene, frames=scene.frames.with_sensor(params.frame_sensor))
     spp, lam = _event_quality(scene, params)
     sampler = None
-    frozen = ""
     if "frozen_of" in job:                        # the control: as the moving scene's row
         from sim.scene import freeze_scene
 
         scene = dataclasses.replace(freeze_scene(scene, job["frozen_at"]), frames=scene.frames)
-        sampler, frozen = "frame", f"_at{job['frozen_at']:.6f}"
-    folder = cache / (f"{job['scene']}{frozen}_{job['t0']:.3f}_{job['length']:.3f}_spp{spp}"
-                      f"_lam{lam}_{_sensor_tag(scene.frames)}"
-                      + ("" if params.event_noise == "ideal" else f"_ev-{params.event_noise}")
-                      + f"_{_content_tag(scene)}")
-    if (folder / "sequence.json").is_file():
-        return folder
+        sampler = "frame"
     scene = dataclasses.replace(scene, render=dataclasses.replace(scene.render, event_spp=spp))
+    return scene, {"sampling": SamplingParams(lam=lam), "sampler": sampler,
+                   "events": EventParams(noise=noise_preset(params.event_noise))}
+
+
+def _simulated(job: dict, params: ReproduceParams, cache: Path) -> Path:
+    """The cached simulation of a job's window (simulated when missing), in a folder of
+    ``cache`` named by the job and :func:`sim.simulate.window.window_key`."""
+    from sim.simulate.window import cached_window
+
+    scene, options = _window_options(job, params)
     if job["t0"] + job["length"] > scene.duration:
         raise ValueError(f"{job['scene']} lasts {scene.duration} s: no window at {job['t0']} s")
-    simulate(scene, folder, start=job["t0"], duration=job["length"], progress=False,
-             sampling=SamplingParams(lam=lam), overwrite=True,
-             events=EventParams(noise=noise_preset(params.event_noise)), sampler=sampler)
-    return folder
+    frozen = f"_at{job['frozen_at']:.6f}" if "frozen_of" in job else ""
+    return cached_window(scene, cache, f"{job['scene']}{frozen}", job["t0"], job["length"],
+                         **options)
 
 
 def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams) -> dict:

@@ -1,0 +1,441 @@
+"""The event camera: one driver (:func:`_simulate_events`) that runs either sampler of the event
+camera's renders, emulates the events, streams them to the event files and checkpoints its state.
+
+The two samplers differ only in how they give the next luminance samples (and what they record):
+
+- :class:`_FrameSampler`: whole frames at one adaptive rate (:func:`sim.sampling.adaptive_samples`),
+  each handed to :class:`sim.events.EventEmulator`;
+- :class:`_PixelSampler`: each pixel at its own adaptive times
+  (:func:`sim.pixel_sampling.pixel_blocks`, which emulates each pixel's events as it samples it,
+  block by block), static scenes on a JIT variant only.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from sim.event_depth import (
+    DEPTH_TXT,
+    EventDepth,
+    EventOutputs,
+    H5EventDepthWriter,
+    RecentDepth,
+    TextEventDepthWriter,
+    event_depth_record,
+    event_file_name,
+)
+from sim.eventio import H5EventWriter, TextEventWriter
+from sim.events import EventEmulator, EventParams
+from sim.pixel_sampling import PixelEventEmulator, PixelSamplingStats, pixel_blocks
+from sim.progress import progress as progress_stage
+from sim.render import Renderer
+from sim.sampling import (
+    AT_MAX_RATE_NOTE,
+    Sample,
+    SamplingParams,
+    SamplingStats,
+    adaptive_samples,
+    max_rate_warning,
+)
+from sim.scene import Scene
+from sim.simulate._checkpoint import _Checkpoint, _restore_events
+from sim.validation import ParameterError
+
+_SHADING = ("evfuse.shader: direct light from every light in turn, a fixed stratified sub-pixel "
+            "pattern")
+PIXEL_AT_MAX_RATE_NOTE = (
+    "intervals_at_max_rate: per-pixel intervals (of intervals) that still changed the pixel's "
+    "log intensity by more than lam * C when 2 / max_rate short (sampling.max_rate); the "
+    "emulator interpolates across them. Many of them mean a point light or specular highlight, "
+    "or a texture finer than the pixels; above 1 % simulate says so on stderr.")
+"""The sentence ``sequence.json`` writes beside ``intervals_at_max_rate`` (per-pixel sampler)."""
+
+
+class _OnEventClock:
+    """An event writer that shifts every event by the event stream's clock offset (ns)."""
+
+    def __init__(self, writer: H5EventWriter | TextEventWriter, offset_ns: int) -> None:
+        self._writer, self._offset_ns = writer, offset_ns
+
+    def write(self, events: np.ndarray, **columns: np.ndarray) -> None:
+        shifted = events.copy()
+        shifted["t"] += self._offset_ns
+        self._writer.write(shifted, **columns)
+
+    def checkpoint(self) -> dict:
+        return self._writer.checkpoint()
+
+
+class _EventCamera:
+    """The event camera's renders: luminance at its own samples per pixel, exact depth.
+
+    On a JIT variant the event camera is shaded by :class:`sim.shader.EventShader` (every light
+    in turn, a fixed sub-pixel pattern), whichever sampler drives it, so that the two samplers
+    see the same luminance; on ``scalar_rgb`` by Mitsuba's ``direct`` integrator.
+    """
+
+    def __init__(self, renderer: Renderer, spp: int, start: float, end: float):
+        self._renderer, self._spp = renderer, spp
+        self.scene, self.camera = renderer.scene, renderer.camera
+        self.depth = RecentDepth(renderer.depth)     # shared by the sampler and per-event depth
+        self.shader = None
+        if renderer.variant != "scalar_rgb":
+            from sim.shader import EventShader
+
+            self.shader = EventShader(renderer, spp, t0=start, t1=end)
+
+    def luminance(self, t: float) -> np.ndarray:
+        if self.shader is not None:
+            return self.shader.frame(t)
+        return self._renderer.luminance(t, spp=self._spp)
+
+
+class _ShaderSource:
+    """:class:`sim.pixel_sampling.PixelSource` of a renderer's scene, timing its renders."""
+
+    def __init__(self, camera: _EventCamera) -> None:
+        self._camera = camera
+        self.camera = camera.camera
+        self.seconds = 0.0
+
+    def _timed(self, function, *args):
+        tick = time.perf_counter()
+        try:
+            return function(*args)
+        finally:
+            self.seconds += time.perf_counter() - tick
+
+    def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
+        return self._timed(self._camera.shader.luminance, pixels, times)
+
+    def subsamples(self, t: float) -> np.ndarray:
+        return self._timed(self._camera.shader.subsamples, t)
+
+    def depth(self, t: float) -> np.ndarray:
+        return self._timed(self._camera.depth, t)
+
+    def camera_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self._camera.scene.trajectory.camera_velocity(t)
+
+
+def _choose_sampler(scene: Scene, variant: str, requested: str | None) -> tuple[str, str]:
+    """The event camera's sampler (see :func:`sim.simulate.simulate`) and why it was chosen."""
+    if requested == "pixel" and variant == "scalar_rgb":
+        raise ParameterError("{sampler} pixel: the per-pixel sampler traces batches of rays "
+                             "and needs a JIT variant (llvm_ad_rgb or cuda_ad_rgb); scalar_rgb "
+                             "renders whole frames only ({sampler} frame)", sampler="sampler")
+    if requested is not None:
+        chosen, why = requested, "as asked (--sampler)"
+    elif scene.is_dynamic:
+        chosen, why = "frame", "the scene has moving objects"
+    elif variant == "scalar_rgb":
+        chosen, why = "frame", "scalar_rgb cannot trace per-pixel batches"
+    else:
+        chosen, why = "pixel", "static scene"
+    return chosen, why
+
+
+@contextmanager
+def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions: dict,
+                 seconds: float, progress: bool, depth: EventDepth | None, timings: dict):
+    """The event stage's progress bar and event writers (resumed at ``positions``, behind
+    :class:`sim.event_depth.EventOutputs`, which adds ``depth`` where a file holds it), with
+    the emulator on one thread; all undone on exit."""
+    camera = scene.camera
+    bar = progress_stage(total=round(seconds, 6), desc=f"events {scene.name}", unit="s",
+                         noun="s simulated", enabled=progress,
+                         bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s "
+                                    "[{elapsed}<{remaining}{postfix}]")
+    with ExitStack() as stack:
+        stack.callback(bar.close)
+        # Dr.Jit's worker threads stay busy between renders, and numba's parallel regions then
+        # fight them for the two cores (14 ms instead of 0.6 ms a step at 240x180): interleaved
+        # with rendering, the emulator runs on one thread.
+        threads = numba.get_num_threads()
+        numba.set_num_threads(1)
+        stack.callback(numba.set_num_threads, threads)
+        writers: dict[str, H5EventWriter | TextEventWriter] = {}
+        if "h5" in formats:
+            writers["h5"] = stack.enter_context((H5EventWriter if depth is None else
+                                                 H5EventDepthWriter)(
+                folder / "events.h5", camera.width, camera.height, resume=positions.get("h5")))
+        if "txt" in formats:
+            writers["txt"] = stack.enter_context(TextEventWriter(
+                folder / "events.txt", resume=positions.get("txt")))
+        if DEPTH_TXT in formats:
+            writers[DEPTH_TXT] = stack.enter_context(TextEventDepthWriter(
+                folder / event_file_name(DEPTH_TXT), resume=positions.get(DEPTH_TXT)))
+        offset_ns = round(scene.rig.events_offset * 1e9)
+        if offset_ns:
+            writers = {fmt: _OnEventClock(writer, offset_ns) for fmt, writer in writers.items()}
+        with_depth = depth is not None and ("h5" in formats or DEPTH_TXT in formats)
+        yield bar, EventOutputs(writers, depth if with_depth else None, timings)
+
+
+def _event_info(params: EventParams, formats: tuple[str, ...], sampling: SamplingParams,
+                scene: Scene, count: int, on: int) -> dict:
+    """The part of ``sequence.json``'s ``events`` both samplers write alike."""
+    return {
+        "count": count,
+        "on": on,
+        "off": count - on,
+        "files": [event_file_name(fmt) for fmt in formats],
+        "depth": event_depth_record(formats),
+        "contrast_on": params.contrast_on,
+        "contrast_off": params.contrast_off,
+        "log_eps": params.log_eps,
+        "luminance_unit": "cd/m^2",
+        "responsivity_a_per_cd_m2": params.responsivity,
+        "dark_current_a": params.dark_current,
+        "seed": params.seed,
+        "noise": asdict(params.noise),
+        "sampling": asdict(sampling),
+        "event_spp": scene.render.event_spp,
+    }
+
+
+# --- the two samplers --------------------------------------------------------------------------
+
+@dataclass
+class _Step:
+    """What a sampler gives the driver at each step: the events up to ``t`` (None or empty: none)
+    and the state a checkpoint saves after them.
+
+    Attributes
+    ----------
+    t : float, seconds
+        The time the step ends at.
+    events : structured ndarray or None
+        The step's events (:data:`sim.events.EVENT_DTYPE`).
+    sample : Sample
+        The sample at ``t`` (its luminance and log intensity, (H, W) float32) a resumed run
+        continues from.
+    pending : bool
+        More of the same sampling interval follows at once (a frame sample with
+        ``tail_pending``): no checkpoint may be taken here.
+    extra : dict of str to ndarray
+        Arrays a checkpoint saves beside the sample (the per-pixel sampler's
+        ``observed_rates``).
+    """
+
+    t: float
+    events: np.ndarray | None
+    sample: Sample
+    pending: bool = False
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+class _FrameSampler:
+    """Whole frames at one adaptive rate (:func:`sim.sampling.adaptive_samples`), each frame
+    handed to :class:`sim.events.EventEmulator`.
+
+    Parameters
+    ----------
+    camera : _EventCamera
+        The event camera whose frames are rendered.
+    """
+
+    name = "frame"
+    emulator_type = EventEmulator
+    stats_type = SamplingStats
+
+    def __init__(self, camera: _EventCamera) -> None:
+        self._camera = camera
+        self._after: Sample | None = None
+        self.render_seconds = 0.0                # spent rendering, so far
+
+    def resume(self, saved: tuple[dict, dict] | None) -> float | None:
+        """Continue after the checkpoint's sample (None: a fresh start); return its time."""
+        if saved is None:
+            return None
+        arrays, state = saved
+        self._after = Sample.from_state(state["sample"], arrays["sample_luminance"],
+                                        arrays["sample_log"])
+        return self._after.t
+
+    def steps(self, emulator: EventEmulator, start: float, end: float, contrast: np.ndarray,
+              params: EventParams, sampling: SamplingParams, stats: SamplingStats
+              ) -> Iterator[_Step]:
+        """Render frames over ``[start, end]`` and emulate their events, one step a frame."""
+        tick = time.perf_counter()
+        for sample in adaptive_samples(self._camera, start, end, contrast, params.log_eps,
+                                       sampling, stats, after=self._after):
+            self.render_seconds += time.perf_counter() - tick
+            if emulator.time_ns is None:
+                emulator.start(sample.log, sample.t, sample.luminance)
+                chunk = None
+            else:
+                chunk = emulator.advance(sample.log, sample.t, sample.luminance)
+            yield _Step(sample.t, chunk, sample, pending=sample.tail_pending)
+            tick = time.perf_counter()
+
+    @staticmethod
+    def progress(stats: SamplingStats, why: str) -> str:
+        return f"frame sampler ({why}): {stats.renders:,} renders"
+
+    def record(self, stats: SamplingStats, sampling: SamplingParams, contrast: np.ndarray,
+               why: str) -> dict:
+        """``sequence.json``'s ``events`` entries of this sampler."""
+        return {
+            "sampler": "frame",
+            "sampler_reason": why,
+            "renders": stats.renders,
+            "full_renders": stats.renders,
+            "pixel_samples": 0,
+            "samples": stats.accepted,
+            "midpoint_renders": stats.refined,
+            "step_intervals": stats.steps,
+            "intervals_at_max_rate": stats.at_max_rate,
+            "intervals_at_max_rate_note": AT_MAX_RATE_NOTE,
+            "sampling_warning": max_rate_warning(stats.at_max_rate, max(stats.accepted - 1, 0),
+                                                 sampling.max_rate,
+                                                 sampling.lam * float(contrast.min())),
+            "shading": (_SHADING if self._camera.shader is not None
+                        else "mitsuba direct integrator"),
+        }
+
+
+class _PixelSampler:
+    """Each pixel at its own adaptive times (:func:`sim.pixel_sampling.pixel_blocks`, which
+    emulates a pixel's events as it samples it), one step a block; checkpoints at block ends.
+
+    Parameters
+    ----------
+    camera : _EventCamera
+        The event camera (on a JIT variant: its shader traces the pixels' rays).
+    """
+
+    name = "pixel"
+    emulator_type = PixelEventEmulator
+    stats_type = PixelSamplingStats
+
+    def __init__(self, camera: _EventCamera) -> None:
+        self._source = _ShaderSource(camera)
+        self._after: tuple[float, np.ndarray] | None = None
+
+    @property
+    def render_seconds(self) -> float:
+        """Seconds spent rendering, so far."""
+        return self._source.seconds
+
+    def resume(self, saved: tuple[dict, dict] | None) -> float | None:
+        """Continue after the checkpoint's block (None: a fresh start); return its end time."""
+        if saved is None:
+            return None
+        arrays, state = saved
+        self._after = (state["sample"]["t"], arrays["observed_rates"])
+        return self._after[0]
+
+    def steps(self, emulator: PixelEventEmulator, start: float, end: float,
+              contrast: np.ndarray, params: EventParams, sampling: SamplingParams,
+              stats: PixelSamplingStats) -> Iterator[_Step]:
+        """Sample every pixel over ``[start, end]`` with its events, one step a block."""
+        for block in pixel_blocks(self._source, emulator, start, end, contrast, params.log_eps,
+                                  sampling, stats, after=self._after):
+            yield _Step(block.t, block.events, Sample(block.t, block.luminance, block.log, 0.0,
+                                                      True),
+                        extra={"observed_rates": block.observed})
+
+    @staticmethod
+    def progress(stats: PixelSamplingStats, why: str) -> str:
+        return (f"per-pixel sampler ({why}): {stats.full_renders:,} frames, "
+                f"{stats.pixel_samples:,} pixel samples")
+
+    @staticmethod
+    def record(stats: PixelSamplingStats, sampling: SamplingParams, contrast: np.ndarray,
+               why: str) -> dict:
+        """``sequence.json``'s ``events`` entries of this sampler."""
+        return {
+            "sampler": "pixel",
+            "sampler_reason": why,
+            "renders": stats.full_renders,
+            "full_renders": stats.full_renders,
+            "pixel_samples": stats.pixel_samples,
+            "midpoint_samples": stats.midpoint_samples,
+            "depth_renders": stats.depth_renders,
+            "blocks": stats.blocks,
+            "intervals": stats.intervals,
+            "step_intervals": stats.steps,
+            "intervals_at_max_rate": stats.at_max_rate,
+            "intervals_at_max_rate_note": PIXEL_AT_MAX_RATE_NOTE,
+            "sampling_warning": max_rate_warning(stats.at_max_rate, stats.intervals,
+                                                 sampling.max_rate,
+                                                 sampling.lam * float(contrast.min())),
+            "shading": _SHADING,
+        }
+
+
+_SAMPLERS = {sampler.name: sampler for sampler in (_FrameSampler, _PixelSampler)}
+
+
+# --- the driver --------------------------------------------------------------------------------
+
+def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: float, end: float,
+                     params: EventParams, sampling: SamplingParams, formats: tuple[str, ...],
+                     checkpoint: _Checkpoint, progress: bool, timings: dict,
+                     sampler: str = "frame", why: str = "as asked",
+                     event_depth: bool = True) -> dict:
+    """Drive the emulator with ``sampler``'s samples over [start, end]; stream the events out.
+
+    Continues from the checkpoint's event state when there is one, and saves that state at
+    step boundaries the sampler allows (see :meth:`_Checkpoint.due`).
+
+    Parameters
+    ----------
+    sampler : {"frame", "pixel"}
+        :class:`_FrameSampler` or :class:`_PixelSampler`.
+    why : str
+        Why that sampler was chosen (shown and recorded).
+
+    Returns
+    -------
+    dict
+        ``sequence.json``'s ``events`` (less its ``span_s``).
+    """
+    cam = scene.camera
+    kind = _SAMPLERS[sampler]
+    emulator = kind.emulator_type((cam.height, cam.width), params)
+    stats, count, on, positions, saved = _restore_events(checkpoint, emulator, kind.stats_type)
+    contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
+    event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
+    source = kind(event_camera)
+    resumed_at = source.resume(saved)
+    with _event_stage(scene, folder, formats, positions, end - start, progress,
+                      EventDepth(event_camera.depth, start if resumed_at is None else resumed_at)
+                      if event_depth else None,
+                      timings) as (bar, writers):
+        since, saved_at = 0, time.perf_counter()
+        tick = time.perf_counter()
+        rendered = source.render_seconds
+        for step in source.steps(emulator, start, end, contrast, params, sampling, stats):
+            tock = time.perf_counter()
+            timings["event_render"] += source.render_seconds - rendered
+            timings["emulate"] += (tock - tick) - (source.render_seconds - rendered)
+            writers.write(step.events, step.t, pending=step.pending)
+            if step.events is not None and len(step.events):
+                count += len(step.events)
+                on += int(np.count_nonzero(step.events["p"] > 0))
+            tick = time.perf_counter()
+            timings["event_write"] += tick - tock
+            since += 1
+            # Only where the sampler can be restarted from this step (no tail pending).
+            if not step.pending and checkpoint.due(since, tick - saved_at):
+                checkpoint.save_events(step.sample, emulator, stats, count, on, writers.writers,
+                                       **step.extra)
+                since, saved_at = 0, time.perf_counter()
+                timings["checkpoint"] += saved_at - tick
+                tick = saved_at
+            rendered = source.render_seconds
+            bar.n = round(step.t - start, 6)
+            bar.set_postfix_str(f"{count:,} events, {source.progress(stats, why)}",
+                                refresh=False)
+            bar.update(0)
+    return {**_event_info(params, formats, sampling, scene, count, on),
+            **source.record(stats, sampling, contrast, why)}
