@@ -31,8 +31,8 @@ import numpy as np
 from sim.frame_sensor import FRAME_SENSORS, FrameSensor
 from sim.validation import ParameterError, positive
 
-__all__ = ["FRAME_SENSOR_NAMES", "FrameParams", "auto_gain", "exposure_sample_times", "frame_times",
-           "luminance_to_frame", "with_frame_sensor"]
+__all__ = ["FRAME_SENSOR_NAMES", "FrameParams", "auto_gain", "check_frame_sensor",
+           "exposure_sample_times", "frame_times", "luminance_to_frame", "with_frame_sensor"]
 
 AUTO_GAIN_PERCENTILE = 99.0
 """Percentile of the luminance that :func:`auto_gain` maps to ``AUTO_GAIN_LEVEL``."""
@@ -296,15 +296,39 @@ def luminance_to_frame(luminance: np.ndarray, gain: float, params: FrameParams) 
     return np.clip(np.floor(value + 0.5), 0, 255).astype(np.uint8)
 
 
-def with_frame_sensor(scene, sensor: str):
-    """A scene with its standard camera's sensor replaced by a preset.
+def check_frame_sensor(sensor: str | FrameSensor) -> str | FrameSensor:
+    """A frame sensor as a caller names it: a :class:`FrameSensor`, or a preset's name.
+
+    Parameters
+    ----------
+    sensor : str or FrameSensor
+
+    Returns
+    -------
+    str or FrameSensor
+        ``sensor``.
+
+    Raises
+    ------
+    ParameterError
+        A name not among :data:`FRAME_SENSOR_NAMES`; the parameter is ``frame_sensor``.
+    """
+    if isinstance(sensor, FrameSensor) or (isinstance(sensor, str)
+                                           and sensor in FRAME_SENSOR_NAMES):
+        return sensor
+    raise ParameterError(f"{{frame_sensor}} {ParameterError.literal(repr(sensor))}: expected "
+                         f"one of {', '.join(FRAME_SENSOR_NAMES)}", frame_sensor="frame_sensor")
+
+
+def with_frame_sensor(scene, sensor: str | FrameSensor):
+    """A scene with its standard camera's sensor replaced.
 
     Parameters
     ----------
     scene : sim.scene.Scene
         Any object with a ``frames`` (:class:`FrameParams`) field, a frozen dataclass.
-    sensor : str
-        One of :data:`FRAME_SENSOR_NAMES`.
+    sensor : str or FrameSensor
+        One of :data:`FRAME_SENSOR_NAMES`, or a sensor.
 
     Returns
     -------
@@ -314,15 +338,14 @@ def with_frame_sensor(scene, sensor: str):
     Raises
     ------
     ParameterError
-        An unknown preset, or one the scene's frames refuse (a realistic sensor while their
-        ``gain`` is set); the parameter is ``frame_sensor``.
+        An unknown preset (:func:`check_frame_sensor`), or a sensor the scene's frames refuse (a
+        realistic one while their ``gain`` is set); the parameter is ``frame_sensor``.
     """
-    if sensor not in FRAME_SENSOR_NAMES:
-        raise ParameterError(f"{{frame_sensor}} {ParameterError.literal(repr(sensor))}: expected "
-                             f"one of {', '.join(FRAME_SENSOR_NAMES)}", frame_sensor="frame_sensor")
+    check_frame_sensor(sensor)
     try:
         return dataclasses.replace(scene, frames=scene.frames.with_sensor(sensor))
     except ValueError as exc:
-        raise ParameterError(f"{{frame_sensor}} {ParameterError.literal(sensor)}: "
+        name = sensor if isinstance(sensor, str) else sensor.name
+        raise ParameterError(f"{{frame_sensor}} {ParameterError.literal(name)}: "
                              f"{ParameterError.literal(exc)}",
                              frame_sensor="frame_sensor") from None

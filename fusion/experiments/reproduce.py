@@ -40,7 +40,8 @@ from fusion.fill.filling import FillParams
 from fusion.io import to_json
 from fusion.map.emvs import DepthMapParams
 from fusion.pipeline import fill_window, map_window
-from sim.frame_sensor import FRAME_SENSORS, FrameSensor
+from sim.frame_sensor import FrameSensor
+from sim.frames import check_frame_sensor, with_frame_sensor
 from sim.progress import progress as progress_stage
 from sim.sequence import atomic_output_dir, check_output_dir
 from sim.validation import ParameterError, finite, positive
@@ -165,11 +166,8 @@ class ReproduceParams:
                     f"{{scenes}} {ParameterError.literal(','.join(missing))}: not among the "
                     f"scenes of {{tables}} {ParameterError.literal(','.join(self.tables))} "
                     f"({', '.join(dict.fromkeys(offered))})", scenes="scenes", tables="tables")
-        if (isinstance(self.frame_sensor, str) and self.frame_sensor != "ideal"
-                and self.frame_sensor not in FRAME_SENSORS):
-            sensor = ParameterError.literal(repr(self.frame_sensor))
-            raise ParameterError(f"{{frame_sensor}} {sensor}: expected one of ideal, "
-                                 f"{', '.join(FRAME_SENSORS)}", frame_sensor="frame_sensor")
+        if self.frame_sensor is not None:
+            check_frame_sensor(self.frame_sensor)
         from fusion.methods import MethodVariant
 
         # An unknown method or a bad setting is refused up front; kept checked and coerced.
@@ -229,7 +227,7 @@ def _window_options(job: dict, params: ReproduceParams) -> tuple[object, dict]:
 
     scene = load_scene(resolve_scene(job.get("frozen_of", job["scene"])))
     if params.frame_sensor is not None:
-        scene = dataclasses.replace(scene, frames=scene.frames.with_sensor(params.frame_sensor))
+        scene = with_frame_sensor(scene, params.frame_sensor)
     spp, lam = _event_quality(scene, params)
     sampler = None
     if "frozen_of" in job:                        # the control: as the moving scene's row
