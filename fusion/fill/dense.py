@@ -32,7 +32,7 @@ import json
 import os
 import time
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -68,7 +68,7 @@ from fusion.fill.projection import (
 from fusion.fill.segmentation import SegmentationParams, segment_regions
 from fusion.io import to_json, write_ply
 from fusion.map.dsi_range import oracle_header
-from fusion.methods._registry import FillMethod, check_params, get_method, run_method
+from fusion.methods._registry import ResolvedMethod, check_params, get_method
 from fusion.scoring import (
     depth_errors,
     discontinuity_band,
@@ -83,15 +83,9 @@ from sim.sequence import FrameCameraFiles, atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
 from sim.validation import integer
 
-__all__ = ["PAPER_METHODS", "DenseParams", "DenseResult", "dense_errors", "densify", "fill_frame",
-           "fill_map", "frame_motion_regions", "paper_weighting", "project_map",
+__all__ = ["DenseParams", "DenseResult", "dense_errors", "densify",
+           "fill_frame", "fill_map", "frame_motion_regions", "project_map",
            "project_map_rolling", "resolve_method", "write_fill"]
-
-PAPER_METHODS = {"paper-idw": "idw", "paper-gaussian": "gaussian",
-                 "paper-exponential": "exponential"}
-"""The built-in methods that are the paper's (segmentation, selection, weighted filling), with
-the weighting each uses."""
-
 
 @dataclass(frozen=True)
 class DenseParams:
@@ -233,53 +227,46 @@ def project_map_rolling(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: 
             float(last_step[landed].max()) if landed.any() else 0.0)
 
 
-def paper_weighting(method: FillMethod) -> str | None:
-    """The weighting of ``method`` if it is one of the paper's (:data:`PAPER_METHODS`), else
-    None."""
-    return PAPER_METHODS.get(method.name) if method.origin == "built-in" else None
-
-
-def resolve_method(method: str | None, params: DenseParams | None = None,
-                   method_params: dict | None = None) -> tuple[FillMethod, DenseParams]:
-    """The filling method to run and the parameters of the paper's stages that go with it.
+def resolve_method(method: str | ResolvedMethod | None, params: DenseParams | None = None,
+                   method_params: dict | None = None) -> ResolvedMethod:
+    """The filling method to run, its settings and the fill stage's parameters that go with it.
 
     Parameters
     ----------
-    method : str or None
+    method : str, ResolvedMethod or None
         A method's name or ``module:function`` (:func:`fusion.methods.get_method`); None: the
-        paper's method with ``params.fill.weighting`` (``paper-idw`` by default).
+        paper's method with ``params.fill.weighting`` (``paper-idw`` by default); a
+        ResolvedMethod is returned as it is (then ``params`` and ``method_params`` must be
+        None).
     params : DenseParams, optional
-        For one of the paper's methods, its ``fill.weighting`` must be the method's (default:
-        the method's); any other method uses only ``band``.
+        The fill stage's parameters (:meth:`fusion.methods.FillMethod.stage_params`: the
+        paper's methods set their weighting and its length; any other method uses only
+        ``band``).
     method_params : dict, optional
-        The method's own settings, checked (:func:`fusion.methods.check_params`); for one of
-        the paper's methods they replace those of ``params.fill`` (``sigma``, ``scale``).
+        The method's own settings, checked (:func:`fusion.methods.check_params`).
 
     Returns
     -------
-    FillMethod, DenseParams
+    ResolvedMethod
 
     Raises
     ------
     fusion.methods.MethodError
         An unknown method, or a setting it refuses (a ValueError, one line).
     ValueError
-        A paper's method whose weighting contradicts ``params.fill.weighting``.
+        Parameters that contradict the method (e.g. a paper's method whose weighting is not
+        ``params.fill.weighting``), or a ResolvedMethod given with parameters.
     """
+    if isinstance(method, ResolvedMethod):
+        if params is not None or method_params is not None:
+            raise ValueError("a resolved method carries its parameters: expected params and "
+                             "method_params None with it")
+        return method
     if method is None:
         method = f"paper-{(params or DenseParams()).fill.weighting}"
     found = get_method(method)
     settings = check_params(found, method_params)
-    weighting = paper_weighting(found)
-    if weighting is None:
-        return found, params or DenseParams()
-    if params is None:
-        params = DenseParams(fill=FillParams(weighting))
-    elif params.fill.weighting != weighting:
-        raise ValueError(f"filling method {found.name} uses {weighting} weights but "
-                         f"params.fill.weighting is {params.fill.weighting!r}: expected the "
-                         "same weighting, or method None")
-    return found, replace(params, fill=replace(params.fill, **settings))
+    return ResolvedMethod(found, settings, found.stage_params(params, settings) or DenseParams())
 
 
 def densify(frame: np.ndarray, sparse: np.ndarray, params: DenseParams | None = None
@@ -347,7 +334,7 @@ def dense_errors(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray, band:
 def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                params: DenseParams | None = None, truth: np.ndarray | None = None,
                T_world_frame: np.ndarray | None = None, info: dict | None = None,
-               n1: int | None = None, method: str | None = None,
+               n1: int | None = None, method: str | ResolvedMethod | None = None,
                method_params: dict | None = None,
                motion: np.ndarray | None = None) -> DenseResult:
     """Fill any frame from its event image (the ``--frame --sparse-depth`` form of the command).
@@ -364,10 +351,11 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     n1 : int, optional
         ``N1``, the map's points before projection (``map.json``'s); default the non-zero pixels
         of ``sparse``.
-    method : str, optional
+    method : str or ResolvedMethod, optional
         The filling method (:func:`resolve_method`; default the paper's with
-        ``params.fill.weighting``, ``paper-idw``). Any but the paper's is run by
-        :func:`fusion.methods.run_method`.
+        ``params.fill.weighting``, ``paper-idw``), run by its
+        :meth:`fusion.methods.FillMethod.fill`; resolved already, it carries ``params`` and
+        ``method_params`` (then None here).
     method_params : dict, optional
         The method's own settings (:func:`fusion.methods.check_params`; default none, its
         defaults); for the paper's, they replace those of ``params.fill``.
@@ -394,21 +382,16 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
         Bad input, an unknown method, or a method that returns no depth at some map points
         (``N2`` and ``beta`` would then not count the pixels it filled).
     """
-    fill_method, params = resolve_method(method, params, method_params)
-    method_params = check_params(fill_method, method_params)
+    resolved = resolve_method(method, params, method_params)
+    fill_method, method_params, params = resolved.method, resolved.settings, resolved.params
     start = time.perf_counter()
     if (camera.height, camera.width) != np.shape(frame)[:2]:
         raise ValueError(f"the calibration is for {camera.width}x{camera.height} but the frame "
                          f"is {np.shape(frame)[1]}x{np.shape(frame)[0]}")
     sparse = np.asarray(sparse, np.float32)
-    if paper_weighting(fill_method) is not None:
-        labels, regions, dense, timings = densify(frame, sparse, params)
-        confidence = None
-    else:
-        _check_event_image(frame, sparse)
-        dense, confidence, seconds = run_method(fill_method, frame, sparse, camera,
-                                                method_params)
-        labels, regions, timings = np.zeros(sparse.shape, np.int32), None, {"method_s": seconds}
+    filled = fill_method.fill(frame, sparse, camera, method_params, params)
+    labels, regions, dense, confidence, timings = (filled.labels, filled.regions, filled.dense,
+                                                   filled.confidence, filled.timings)
     in_frame, n2 = int(np.count_nonzero(sparse)), int(np.count_nonzero(dense))
     dropped = int(np.count_nonzero((sparse > 0) & (dense == 0)))
     if dropped:
@@ -449,24 +432,6 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                        T_world_frame, truth, document, fill_method.name, confidence)
 
 
-def _check_event_image(frame: np.ndarray, sparse: np.ndarray) -> None:
-    """Refuse, in one line, an event image that is not finite metres >= 0 with a map point in
-    the frame's size (what :func:`densify` refuses for the paper's method)."""
-    if np.shape(frame) != sparse.shape:
-        raise ValueError(f"the frame is {np.shape(frame)[1]}x{np.shape(frame)[0]} but the sparse "
-                         f"depth is {sparse.shape[1]}x{sparse.shape[0]}: they must be the same "
-                         "size")
-    bad = int(np.count_nonzero(~np.isfinite(sparse)))
-    if bad:
-        raise ValueError(f"the sparse depth must be finite metres (0 = no map point), found {bad} "
-                         "NaN or infinite pixels")
-    if np.any(sparse < 0):
-        raise ValueError(f"the sparse depth must be >= 0 metres (0 = no map point), found "
-                         f"{int(np.count_nonzero(sparse < 0))} negative pixels")
-    if not np.any(sparse > 0):
-        raise ValueError("no map points: the sparse depth has no pixel > 0, nothing to fill from")
-
-
 @dataclass(frozen=True)
 class FillInputs:
     """What filling a map needs: the standard frame nearest the map's reference view, the map
@@ -494,7 +459,8 @@ class FillInputs:
 
 
 def fill_map(map_folder: str | Path, params: DenseParams | None = None,
-             method: str | None = None, method_params: dict | None = None) -> DenseResult:
+             method: str | ResolvedMethod | None = None, method_params: dict | None = None
+             ) -> DenseResult:
     """Fill the map written by ``evfuse map`` with the standard frame nearest its reference view.
 
     Parameters
@@ -502,7 +468,7 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None,
     map_folder : str or Path
         Holds ``map.json`` and ``semidense_depth.exr``; ``map.json`` names the sequence.
     params : DenseParams, optional
-    method : str, optional
+    method : str or ResolvedMethod, optional
         The filling method (default the paper's, :func:`fill_frame`).
     method_params : dict, optional
         Its own settings (:func:`fill_frame`).
