@@ -429,7 +429,7 @@ def _errors_summary(map_errors: dict | None, fill_errors: dict | None) -> dict |
     map_errors : dict or None
         ``map.json``'s ``errors``: the N1 map points in the reference view's own grid.
     fill_errors : dict or None
-        ``fill.json``'s ``errors`` (:func:`fusion.fill.dense.dense_errors`), in the frame's pixels.
+        ``fill.json``'s ``errors`` (:func:`fusion.scoring.dense_errors`), in the frame's pixels.
 
     Returns
     -------

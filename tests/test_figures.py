@@ -19,7 +19,8 @@ from fusion.figures import (
     panel_grid,
     point_cloud_view,
 )
-from fusion.fill.dense import DenseParams, _figure_panels, fill_frame, write_fill
+from fusion.figures import fill_figure_panels as _figure_panels
+from fusion.fill.dense import DenseParams, fill_frame, write_fill
 from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
 from sim.camera import Camera
 

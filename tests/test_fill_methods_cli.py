@@ -204,7 +204,8 @@ def test_a_module_function_fills_and_its_confidence_is_written(tmp_path, user_mo
 
 
 def test_the_figure_of_another_method_says_what_it_did_not_use(tmp_path, user_module):
-    from fusion.fill.dense import _figure_panels, fill_frame
+    from fusion.figures import fill_figure_panels as _figure_panels
+    from fusion.fill.dense import fill_frame
     from sim.camera import Camera
 
     frame, sparse = _ramp_scene()

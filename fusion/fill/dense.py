@@ -38,18 +38,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fusion.figures import (
-    add_header,
-    depth_colours,
-    depth_scale,
-    error_panel,
-    grid_scale,
-    highlight_pixels,
-    label_colours,
-    panel_grid,
-    point_cloud_view,
-    point_radius,
-)
+from fusion.figures import fill_error_figure, fill_figure
 from fusion.fill.filling import (
     FillParams,
     RegionStats,
@@ -61,31 +50,24 @@ from fusion.fill.filling import (
 from fusion.fill.projection import (
     ROLLING_ITERATIONS,
     frame_record,
-    map_points_world,
-    nearest_per_pixel,
-    rolling_shutter_project,
+    project_map,
+    project_map_rolling,
 )
 from fusion.fill.segmentation import SegmentationParams, segment_regions
-from fusion.io import to_json, write_ply
-from fusion.map.dsi_range import oracle_header
+from fusion.io import dense_cloud, to_json, write_ply
 from fusion.methods._registry import ResolvedMethod, check_params, get_method
-from fusion.scoring import (
-    depth_errors,
-    discontinuity_band,
-    errors_by_motion,
-    motion_regions,
-    recorded_scene,
-)
+from fusion.scoring import dense_errors, errors_by_motion, frame_motion_regions
 from sim.camera import Camera
 from sim.exr import read_depth, write_depth, write_exr_channels
-from sim.se3 import invert_pose
-from sim.sequence import FrameCameraFiles, atomic_output_dir, load_sequence
+from sim.sequence import atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
 from sim.validation import integer
 
-__all__ = ["DenseParams", "DenseResult", "dense_errors", "densify",
-           "fill_frame", "fill_map", "frame_motion_regions", "project_map",
-           "project_map_rolling", "resolve_method", "write_fill"]
+# project_map, project_map_rolling (fusion.fill.projection), dense_errors and
+# frame_motion_regions (fusion.scoring) are also importable from here, where they were.
+__all__ = ["DenseParams", "DenseResult", "FillInputs", "densify", "fill_frame", "fill_inputs",
+           "fill_map", "resolve_method", "write_fill"]
+
 
 @dataclass(frozen=True)
 class DenseParams:
@@ -165,68 +147,6 @@ class DenseResult:
         return int(np.count_nonzero(self.dense))
 
 
-def project_map(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: np.ndarray,
-                camera: Camera, T_world_frame: np.ndarray) -> np.ndarray:
-    """The event image: map points projected into a frame, the nearest one per pixel.
-
-    Parameters
-    ----------
-    depth_ref : (h, w) float ndarray, metres, 0 = no map point
-        The semi-dense map at the reference view.
-    camera_ref : Camera
-        The reference view's (undistorted) camera.
-    T_world_ref, T_world_frame : (4, 4) ndarray
-        Poses of the reference view and of the frame.
-    camera : Camera
-        The frame's camera (distortion included).
-
-    Returns
-    -------
-    (H, W) float32 ndarray, metres
-        z-depth in the frame of each projected point, rounded to the nearest pixel; 0 elsewhere.
-    """
-    points = map_points_world(depth_ref, camera_ref, T_world_ref)
-    T = invert_pose(np.asarray(T_world_frame, np.float64))
-    local = points @ T[:3, :3].T + T[:3, 3]
-    return nearest_per_pixel(camera.project(local), local[:, 2], camera)
-
-
-def project_map_rolling(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: np.ndarray,
-                        frames: FrameCameraFiles, trajectory, t_frame: float
-                        ) -> tuple[np.ndarray, float]:
-    """The event image of a rolling-shutter frame: each map point projected with the pose of
-    the row it lands on (:func:`fusion.fill.projection.rolling_shutter_project`).
-
-    Parameters
-    ----------
-    depth_ref, camera_ref, T_world_ref : as :func:`project_map`
-    frames : FrameCameraFiles
-        The frame camera (its ``camera``, ``T_event_frame`` and :meth:`row_times`).
-    trajectory : sim.trajectory.Trajectory
-        ``T_world_event(t)``; the frame camera's pose is ``T_world_event(t) @ T_event_frame``.
-    t_frame : float, seconds, the frame's (middle row's) time
-
-    Returns
-    -------
-    sparse : (H, W) float32 ndarray, metres, 0 elsewhere
-    last_step : float, pixels
-        The largest last fixed-point step of the points that land in the frame (0 without any):
-        it bounds each point's row error by ``|q| / (1 - |q|)`` times itself.
-    """
-    camera = frames.camera
-    row_times = frames.row_times(t_frame)
-    per_row = (row_times[-1] - row_times[0]) / max(camera.height - 1, 1)   # linear in the row
-
-    def pose_at_row(v: np.ndarray) -> np.ndarray:
-        return trajectory.pose(row_times[0] + per_row * v) @ frames.T_event_frame
-
-    points = map_points_world(depth_ref, camera_ref, T_world_ref)
-    uv, z, last_step = rolling_shutter_project(points, camera, pose_at_row)
-    landed = camera.in_image(uv) & (z > 0)
-    return (nearest_per_pixel(uv, z, camera),
-            float(last_step[landed].max()) if landed.any() else 0.0)
-
-
 def resolve_method(method: str | ResolvedMethod | None, params: DenseParams | None = None,
                    method_params: dict | None = None) -> ResolvedMethod:
     """The filling method to run, its settings and the fill stage's parameters that go with it.
@@ -303,32 +223,6 @@ def densify(frame: np.ndarray, sparse: np.ndarray, params: DenseParams | None = 
     end = time.perf_counter()
     return labels, regions, dense, {"segment_s": tock - tick, "select_s": tack - tock,
                                     "fill_s": end - tack}
-
-
-def dense_errors(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray, band: int = 3
-                 ) -> dict:
-    """Errors against the exact depth, for the map points, the filled pixels and all, overall,
-    in the ``band``-pixel band around true discontinuities and in the region interiors.
-
-    Returns
-    -------
-    dict
-        ``{"map" | "filled" | "all": {"overall" | "band" | "interior": depth_errors(...)}}``
-        (:func:`fusion.scoring.depth_errors`, the same definitions as ``map.json``'s):
-        completeness is the share of the pixels with a true depth that have a depth of that
-        kind; ``points`` and the precisions count every point of that kind, those where the
-        exact depth is 0 (no surface) included.
-    """
-    sparse = np.asarray(sparse, np.float32)
-    dense = np.asarray(dense, np.float32)
-    filled = np.where(sparse > 0, 0.0, dense).astype(np.float32)
-    near = discontinuity_band(truth, width=band)
-    out = {}
-    for name, depth in (("map", sparse), ("filled", filled), ("all", dense)):
-        out[name] = {"overall": depth_errors(depth, truth),
-                     "band": depth_errors(depth, truth, near),
-                     "interior": depth_errors(depth, truth, ~near)}
-    return out
 
 
 def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
@@ -484,27 +378,6 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None,
                       method_params=method_params, motion=frame_motion_regions(inputs))
 
 
-def frame_motion_regions(inputs: FillInputs) -> np.ndarray | None:
-    """:func:`fusion.scoring.motion_regions` of the frame to fill (the scene's own camera at its
-    true pose and time, the view its exact depth was rendered in; the event window is the
-    map's), or None: no exact depth, a scene whose objects do not move, or a two-camera rig
-    (not split). Scoring only."""
-    if inputs.truth is None or inputs.info.get("rig") is not None:
-        return None
-    sequence = load_sequence(inputs.info["sequence"])
-    meta = sequence.metadata or {}
-    scene = recorded_scene(meta)
-    if scene is None or not scene.is_dynamic:
-        return None
-    from sim.capture_errors import true_time
-
-    window = json.loads((Path(inputs.info["map"]) / "map.json").read_text())["window_s"]
-    t_true = true_time(meta, inputs.info["t_frame"], "frames")
-    camera = scene.camera.with_resolution(inputs.frame.shape[1], inputs.frame.shape[0])
-    return motion_regions(scene, camera, scene.trajectory.pose(t_true), t_true,
-                          tuple(true_time(meta, t, "events") for t in window))
-
-
 def fill_inputs(map_folder: str | Path) -> FillInputs:
     """Read a map folder's fill inputs (:class:`FillInputs`) without filling.
 
@@ -592,81 +465,6 @@ def fill_inputs(map_folder: str | Path) -> FillInputs:
                       int(np.count_nonzero(depth_ref)))
 
 
-def _figure(result: DenseResult, params: DenseParams) -> np.ndarray:
-    """The paper's Figure 2 for one frame, as one image of six panels."""
-    panels, titles, legends, header = _figure_panels(result, params)
-    return add_header(panel_grid(panels, titles, columns=3, legends=legends), header)
-
-
-def _figure_panels(result: DenseResult, params: DenseParams
-                   ) -> tuple[list[np.ndarray], list[str], list, list[str]]:
-    """The panels of Figure 2, their titles, their legends (the depth scale spans the exact
-    depth where there is one, and both maps) and the header lines (the oracle warning).
-
-    Panels (b)-(d) show the paper's segmentation; for a method that does not segment the frame
-    they say so, and show the pixels it filled and its confidence where it gave one."""
-    points, colours, _ = _cloud(result)
-    size = (result.frame.shape[1], result.frame.shape[0])
-    scale = depth_scale(result.sparse, result.dense, truth=result.truth)
-    lo_hi = (scale.lo, scale.hi) if scale else (None, None)
-    legend = scale.legend() if scale else None
-    # a large frame is reduced in the grid: the map's points are drawn that much larger
-    radius = point_radius(size[0], size[0] * grid_scale(size[0], 3))
-    view, caption = point_cloud_view(points, colours, size, splat=max(2, 2 * radius + 1))
-    middle, middle_titles = _segmentation_panels(result, params)
-    panels = [depth_colours(result.sparse, *lo_hi, base=result.frame, radius=radius), *middle,
-              depth_colours(result.dense, *lo_hi, radius=radius), view]
-    titles = [f"(a) frame + {result.n1_in_frame} projected map points", *middle_titles,
-              f"(e) range image (N2 = {result.n2})",
-              "(f) point cloud: map points red, filled green"]
-    header = oracle_header(bool(result.info.get("oracle")))
-    return panels, titles, [legend, None, None, None, legend, caption], header
-
-
-def _segmentation_panels(result: DenseResult, params: DenseParams
-                         ) -> tuple[list[np.ndarray], list[str]]:
-    """Panels (b)-(d) of Figure 2 and their titles: the raw segmentation, the valid regions and
-    the regions to fill; for a method without a segmentation, the frame saying so, the filled
-    pixels in green, and the method's confidence (black 0, white 1) or the frame again."""
-    if result.regions is not None:
-        raw = segment_regions(result.frame, SegmentationParams(params.segmentation.threshold, 1))
-        return ([label_colours(raw), label_colours(result.labels),
-                 label_colours(result.labels, highlight=result.regions.selected)],
-                [f"(b) raw segmentation ({int(raw.max())})",
-                 f"(c) valid regions ({result.regions.n_regions})",
-                 f"(d) regions to fill ({int(result.regions.selected.sum())})"])
-    method = result.method
-    filled = (result.dense > 0) & (result.sparse == 0)
-    gray = cv2.cvtColor(result.frame, cv2.COLOR_GRAY2BGR)
-    if result.confidence is None:
-        last, last_title = gray, f"(d) regions to fill: not used by {method}"
-    else:
-        level = np.round(255 * result.confidence).astype(np.uint8)
-        last = cv2.cvtColor(level, cv2.COLOR_GRAY2BGR)
-        last_title = f"(d) confidence of {method} (black 0, white 1)"
-    return ([gray, highlight_pixels(result.frame, filled), last],
-            [f"(b) segmentation: not used by {method}",
-             f"(c) pixels filled by {method} ({int(filled.sum())}, green)", last_title])
-
-
-def _error_figure(result: DenseResult) -> np.ndarray:
-    """``error.png``: |error| of the dense map with its legend (scale in cm, no value, no
-    surface); needs ``result.truth``."""
-    image, legend = error_panel(result.dense, result.truth)
-    return panel_grid([image], ["|error| of the dense map (map points and filled)"], columns=1,
-                      legends=[legend])
-
-
-def _cloud(result: DenseResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points of the dense map in the frame's camera, red for map points, green for filled."""
-    v, u = np.nonzero(result.dense > 0)
-    points = result.camera.backproject(np.stack([u, v], 1).astype(np.float64),
-                                       result.dense[v, u].astype(np.float64))
-    source = (result.sparse[v, u] == 0).astype(np.uint8)          # 0 event map, 1 filled
-    colours = np.where(source[:, None] == 0, [[0, 0, 255]], [[0, 200, 0]]).astype(np.uint8)
-    return points, colours, source
-
-
 def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
                overwrite: bool = False, inputs: Iterable[str | Path] = ()) -> Path:
     """Write ``dense_depth.exr``, ``segments.png``, ``filled_mask.png``, ``figure.png``,
@@ -698,12 +496,12 @@ def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
             raise OSError(f"cannot write {tmp / 'segments.png'}")
         filled = (result.dense > 0) & (result.sparse == 0)
         cv2.imwrite(str(tmp / "filled_mask.png"), filled.astype(np.uint8) * 255)
-        cv2.imwrite(str(tmp / "figure.png"), _figure(result, params))
-        points, colours, source = _cloud(result)
+        cv2.imwrite(str(tmp / "figure.png"), fill_figure(result, params))
+        points, colours, source = dense_cloud(result)
         pose = result.T_world_frame if result.T_world_frame is not None else np.eye(4)
         write_ply(tmp / "dense.ply", points, pose, colours, source, frame_name="T_world_frame")
         if result.truth is not None:
-            cv2.imwrite(str(tmp / "error.png"), _error_figure(result))
+            cv2.imwrite(str(tmp / "error.png"), fill_error_figure(result))
         if result.confidence is not None:
             write_exr_channels(tmp / "confidence.exr",
                                {"Y": result.confidence.astype(np.float32)})
