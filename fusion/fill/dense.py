@@ -15,15 +15,24 @@ camera (pose ``T_world_event(t) @ T_event_frame``, its own lens and size; a roll
 row, :mod:`fusion.fill.projection`) still gets its map points where they belong. The dense depth
 lives in the frame's pixels and is scored against that camera's exact depth.
 
-The filling method is selectable (``--method``, :mod:`fusion.methods`): the paper's
-(``paper-idw``, the default, ``paper-gaussian``, ``paper-exponential``) runs the three stages
-above and keeps its segmentation for the figures and ``segments.png``; any other method is run
-through :func:`fusion.methods.run_method`, and its result has no segmentation (all-zero labels,
+The filling method is selectable (``--method``, :mod:`fusion.methods`) and resolved once, where
+it is asked for (:func:`resolve_method`, :func:`fusion.methods.fill_request`), into a
+:class:`fusion.methods.ResolvedMethod` that the fill stage calls
+(:meth:`fusion.methods.FillMethod.fill`) without asking which method it is. The paper's
+(``paper-idw``, the default, ``paper-gaussian``, ``paper-exponential``;
+:mod:`fusion.methods.paper`) runs the three stages (:func:`densify`) and keeps its segmentation
+for the figures and ``segments.png``; any other method is run through
+:func:`fusion.methods.run_method`, and its result has no segmentation (all-zero labels,
 ``regions`` None). Either way ``N2`` counts the non-zero pixels of the dense map and ``beta``
 uses the paper's formula, so that for another method it measures that method's fill. A
 method's own settings (``method_params``, ``--param``) are checked before any work and
 recorded in ``fill.json`` (``method_params``); the paper's methods take their weighting's
 length (``sigma``, ``scale``) that way too.
+
+Here: the fill stage (:func:`fill_map`, :func:`fill_inputs`, :func:`fill_frame`,
+:func:`densify`, :func:`write_fill`). The projection is :mod:`fusion.fill.projection`, the
+scores :mod:`fusion.scoring` (:func:`fusion.scoring.dense_errors`), Figure 2
+:mod:`fusion.figures` (:func:`fusion.figures.fill_figure`) and the point cloud :mod:`fusion.io`.
 """
 
 from __future__ import annotations
