@@ -2,7 +2,8 @@
 
 Everything returns 8-bit BGR images (``cv2.imwrite`` writes them as they are), with the legend or
 caption that reads them; nothing here computes a result, so every figure can be re-drawn from
-the files a run saved.
+the files a run saved (Figure 2 of a fill, :func:`fill_figure`, re-runs only the region growing
+of its raw-segmentation panel).
 """
 
 from __future__ import annotations
@@ -760,13 +761,14 @@ def write_image(path: str | Path, image: np.ndarray) -> Path:
 
 
 def fill_figure(result: DenseResult, params: DenseParams) -> np.ndarray:
-    """The paper's Figure 2 for one frame, as one image of six panels."""
+    """The paper's Figure 2 for one frame, as one image of six panels (``figure.png`` of
+    ``evfuse fill``, :func:`fusion.fill.dense.write_fill`)."""
     panels, titles, legends, header = fill_figure_panels(result, params)
     return add_header(panel_grid(panels, titles, columns=3, legends=legends), header)
 
 
 def fill_figure_panels(result: DenseResult, params: DenseParams
-                   ) -> tuple[list[np.ndarray], list[str], list, list[str]]:
+                       ) -> tuple[list[np.ndarray], list[str], list, list[str]]:
     """The panels of Figure 2, their titles, their legends (the depth scale spans the exact
     depth where there is one, and both maps) and the header lines (the oracle warning).
 
