@@ -42,7 +42,6 @@ from fusion.figures import (
 from fusion.fill.dense import (
     DenseParams,
     DenseResult,
-    ResolvedMethod,
     fill_map,
     resolve_method,
     write_fill,
@@ -51,6 +50,7 @@ from fusion.io import read_ply, to_json
 from fusion.map.dsi_range import oracle_header, resolve_dsi_range
 from fusion.map.emvs import DepthMapParams, DSIParams
 from fusion.map.mapping import MapParams, MapResult, map_sequence, time_window, write_map
+from fusion.methods import ResolvedMethod
 from sim.eventio import read_window
 from sim.exr import read_depth
 from sim.progress import progress as progress_stage
