@@ -19,6 +19,7 @@ from fusion.fill import dense as fill_stage
 from fusion.methods._errors import MethodError
 from fusion.methods._labels import method_label, parse_value
 from fusion.methods._registry import (
+    FillMethod,
     MethodVariant,
     ResolvedMethod,
     check_params,
@@ -91,6 +92,13 @@ def method_variants(methods: Sequence[str], params: Sequence[str] = (), single: 
         Naming the parameter (``method`` or ``param``) and the entry, the method and what was
         expected.
     """
+    return [MethodVariant(method.name, settings)
+            for method, settings in _checked_methods(methods, params, single)]
+
+
+def _checked_methods(methods: Sequence[str], params: Sequence[str], single: bool
+                     ) -> list[tuple[FillMethod, dict]]:
+    """:func:`method_variants`' work: each method found once, with its settings checked."""
     literal = ParameterError.literal
     entries = []                          # (method, settings, the entry that set each key)
     for text in methods:
@@ -131,14 +139,12 @@ def method_variants(methods: Sequence[str], params: Sequence[str] = (), single: 
             except MethodError as exc:
                 raise _refusal(f"{flag}: {literal(exc)}") from None
             flags[key] = flag
-    variants = []
     for method, settings, flags in entries:
         try:
             check_params(method, settings)
         except MethodError as exc:
             raise _refusal(f"{' '.join(dict.fromkeys(flags.values()))}: {literal(exc)}") from None
-        variants.append(MethodVariant(method.name, settings))
-    return variants
+    return [(method, settings) for method, settings, _ in entries]
 
 
 def fill_request(method: str | None, params: Sequence[str] = (), *,
@@ -171,8 +177,7 @@ def fill_request(method: str | None, params: Sequence[str] = (), *,
         A bad setting (:func:`method_variants`) or two parameters that contradict each other.
     """
     spec = method or f"paper-{weighting or 'idw'}"
-    variant = method_variants([spec], params, single=True)[0]
-    found = get_method(variant.spec)
-    stages = found.requested_stages(stages or fill_stage.DenseParams(), weighting,
-                                    variant.params, spec)
-    return ResolvedMethod(found, variant.params, stages)
+    [(found, settings)] = _checked_methods([spec], params, single=True)
+    stages = found.requested_stages(stages or fill_stage.DenseParams(), weighting, settings,
+                                    spec)
+    return ResolvedMethod(found, settings, stages)
