@@ -21,12 +21,10 @@ from fusion.fill.dense import (
     DenseParams,
     DenseResult,
     FillInputs,
-    dense_errors,
     densify,
     fill_frame,
     fill_inputs,
     fill_map,
-    project_map,
     write_fill,
 )
 from fusion.fill.filling import (
@@ -40,6 +38,7 @@ from fusion.fill.filling import (
     inverse_distance_weights,
     select_regions,
 )
+from fusion.fill.projection import project_map
 from fusion.fill.segmentation import SegmentationParams, segment_regions
 from fusion.io import read_ply, write_ply
 from fusion.map.dsi_range import DSIRange, resolve_dsi_range
@@ -68,7 +67,7 @@ from fusion.methods import (
     run_method,
 )
 from fusion.pipeline import RunParams, draw_overview, fill_window, map_window, run_pipeline
-from fusion.scoring import depth_errors, discontinuity_band, error_image
+from fusion.scoring import dense_errors, depth_errors, discontinuity_band, error_image
 from sim._moved import alias_modules as _alias_modules
 
 __all__ = [

@@ -60,89 +60,6 @@ def _cmd_methods(args: argparse.Namespace) -> int:
     return 0
 
 
-def _param_flag(text: str) -> tuple[str | None, str, object]:
-    """``--param [METHOD.]KEY=VALUE`` apart: METHOD (None without), KEY and VALUE
-    (:func:`fusion.methods.parse_value`)."""
-    from fusion.methods import parse_value
-
-    left, equals, value = text.partition("=")
-    scope, dot, key = left.strip().rpartition(".")
-    if not equals or not key.isidentifier() or (dot and not scope):
-        raise ValueError(f"--param {text}: expected KEY=VALUE, or METHOD.KEY=VALUE for one "
-                         "method's (e.g. --param plane.residual_rel=0.03)")
-    try:
-        return scope or None, key, parse_value(value)
-    except ValueError:
-        raise ValueError(f"--param {text}: expected a finite number") from None
-
-
-def _method_variants(methods: list[str], params: list[str], single: bool = False) -> list:
-    """The ``--method`` entries (``NAME`` or ``NAME{KEY=VALUE,...}``) with the ``--param``
-    settings applied, checked and coerced (:class:`fusion.methods.MethodVariant`), or a
-    ValueError naming the flag, the method and what was expected.
-
-    ``--param METHOD.KEY=VALUE`` sets KEY for every entry of METHOD; a bare ``KEY=VALUE`` for
-    the one entry (refused with several: whose would it be?). A key set twice for one entry is
-    refused. ``single``: the one method of ``evfuse fill`` / ``run`` (given or the default).
-    """
-    from fusion.methods import (
-        MethodError,
-        MethodVariant,
-        check_params,
-        coerce_params,
-        get_method,
-        method_label,
-        parse_label,
-    )
-
-    entries = []                          # (method, settings, the flag that set each key)
-    for text in methods:
-        try:
-            variant = parse_label(text)
-        except MethodError as exc:
-            raise ValueError(f"--method {exc}") from None
-        try:
-            method = get_method(variant.spec)
-            settings = coerce_params(method, variant.params)
-        except MethodError as exc:
-            raise ValueError(f"--method {text}: {exc}") from None
-        entries.append((method, settings, dict.fromkeys(settings, f"--method {text}")))
-    given = ", ".join(method_label(method.name, settings) for method, settings, _ in entries)
-    for text in params:
-        flag = f"--param {text}"
-        scope, key, value = _param_flag(text)
-        if scope is None and len(entries) != 1:
-            if not entries:
-                raise ValueError(f"{flag}: no --method given; --param sets the settings of the "
-                                 "--method ones")
-            raise ValueError(f"{flag}: {len(entries)} methods given ({given}), whose is it? "
-                             f"Write --param METHOD.{key}=... (every entry of METHOD) or "
-                             f"--method 'METHOD{{{key}=...}}' (that entry)")
-        targets = [entry for entry in entries if scope in (None, entry[0].name)]
-        if not targets:
-            if single:
-                raise ValueError(f"{flag}: the filling method is {given}, not {scope}")
-            raise ValueError(f"{flag}: {scope} is not among the --method ones ({given or 'none'})"
-                             "; --param sets their settings only")
-        for method, settings, flags in targets:
-            if key in settings:
-                raise ValueError(f"{flag}: {key} of {method.name} is already set by "
-                                 f"{flags[key]}; set it once")
-            try:
-                settings.update(coerce_params(method, {key: value}))
-            except MethodError as exc:
-                raise ValueError(f"{flag}: {exc}") from None
-            flags[key] = flag
-    variants = []
-    for method, settings, flags in entries:
-        try:
-            check_params(method, settings)
-        except MethodError as exc:
-            raise ValueError(f"{' '.join(dict.fromkeys(flags.values()))}: {exc}") from None
-        variants.append(MethodVariant(method.name, settings))
-    return variants
-
-
 def _cmd_bench(args: argparse.Namespace) -> int:
     from fusion.experiments.bench import (
         INPUTS,
@@ -153,11 +70,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         run_bench,
     )
     from fusion.experiments.families import KNOBS, write_family
-    from fusion.methods import MethodVariant, available_methods, split_labels
+    from fusion.methods import MethodVariant, available_methods, method_variants, split_labels
     from sim.sequence import check_output_dir
 
     given = split_labels(",".join(args.method or []))
-    variants = _method_variants(given, args.param or [])
+    variants = method_variants(given, args.param or [])
     defaults = [] if args.only else [MethodVariant(name) for name in available_methods()]
     methods = list({v.label: v for v in [*defaults, *variants]}.values())    # one row a label
     if not methods:
@@ -238,55 +155,18 @@ def _cmd_map(args: argparse.Namespace) -> int:
 
 
 def _fill_method(args: argparse.Namespace):
-    """The filling method the flags name, its own settings (``--param``) and the parameters of
-    the paper's stages that go with it (:class:`fusion.fill.dense.DenseParams`), or a ValueError
-    naming the flags: a bad setting (:func:`_method_variants`), or two that contradict each
-    other: ``--weighting`` against a paper's method of another weighting, any flag of the
-    paper's stages set off its default with a method that has no such stage, or ``--sigma`` /
-    ``--scale`` and the same setting of a paper's method."""
-    from dataclasses import replace
-
-    from fusion.fill.dense import PAPER_METHODS, DenseParams, paper_weighting
+    """The filling method the flags name, resolved with its settings and the fill stage's
+    parameters (:func:`fusion.methods.fill_request`)."""
+    from fusion.fill.dense import DenseParams
     from fusion.fill.filling import FillParams, SelectionParams
     from fusion.fill.segmentation import SegmentationParams
-    from fusion.methods import get_method, method_label
+    from fusion.methods import fill_request
 
-    spec = args.method or f"paper-{args.weighting or 'idw'}"
-    variant = _method_variants([spec], args.param or [], single=True)[0]
-    method = get_method(variant.spec)
-    weighting = paper_weighting(method)
-    if weighting is not None and args.weighting not in (None, weighting):
-        raise ValueError(f"--method {spec} and --weighting {args.weighting} contradict each other: "
-                         f"{spec} uses {weighting} weights (give --method "
-                         f"paper-{args.weighting}, or drop --weighting)")
-    if weighting is None:
-        segmentation, selection, fill = SegmentationParams(), SelectionParams(), FillParams()
-        for flag, value, default in (
-                ("--weighting", args.weighting, None),
-                ("--threshold", args.threshold, segmentation.threshold),
-                ("--min-region", args.min_region, segmentation.min_region),
-                ("--ring", args.ring, selection.ring),
-                ("--min-ring-ratio", args.min_ring_ratio, selection.min_ring_ratio),
-                ("--max-inside-ratio", args.max_inside_ratio, selection.max_inside_ratio),
-                ("--sigma", args.sigma, fill.sigma), ("--scale", args.scale, fill.scale)):
-            if value != default:
-                value = f"{value:g}" if isinstance(value, float) else value      # as typed
-                raise ValueError(f"--method {spec} and {flag} {value} contradict each other: "
-                                 f"only the paper's methods ({', '.join(PAPER_METHODS)}) "
-                                 f"use {flag} (drop it, or give one of them)")
-    fill = FillParams(weighting or "idw", sigma=args.sigma, scale=args.scale)
-    if weighting is not None:                     # a paper's method: its sigma or scale
-        for key in variant.params:
-            if getattr(args, key) != getattr(FillParams, key):
-                raise ValueError(f"--{key} {getattr(args, key):g} contradicts "
-                                 f"{method_label(method.name, variant.params)}: set {key} once "
-                                 f"(--{key} or --param {key}=...)")
-        fill = replace(fill, **variant.params)
-    params = DenseParams(
+    stages = DenseParams(
         segmentation=SegmentationParams(args.threshold, args.min_region),
         selection=SelectionParams(args.ring, args.min_ring_ratio, args.max_inside_ratio),
-        fill=fill)
-    return method.name, variant.params, params
+        fill=FillParams(args.weighting or "idw", sigma=args.sigma, scale=args.scale))
+    return fill_request(args.method, args.param or [], weighting=args.weighting, stages=stages)
 
 
 def _cmd_fill(args: argparse.Namespace) -> int:
@@ -298,7 +178,7 @@ def _cmd_fill(args: argparse.Namespace) -> int:
     from sim.sequence import check_output_dir
     from sim.statistics import read_gray
 
-    method, method_params, params = _fill_method(args)
+    method = _fill_method(args)
     single = (args.frame, args.sparse_depth, args.calib)
     if args.map is not None and any(single):
         raise ValueError("give either a map folder or --frame, --sparse-depth and --calib")
@@ -306,16 +186,15 @@ def _cmd_fill(args: argparse.Namespace) -> int:
               else [p for p in (*single, args.truth) if p is not None])
     check_output_dir(args.out, args.overwrite, inputs)
     if args.map is not None:
-        result = fill_window(args.map, args.out, params, overwrite=args.overwrite,
-                             method=method, method_params=method_params)
+        result = fill_window(args.map, args.out, overwrite=args.overwrite, method=method)
     elif all(single):
         frame = read_gray(args.frame)
         camera = read_calib(args.calib, frame.shape[1], frame.shape[0])
         truth = read_depth(args.truth) if args.truth else None
-        result = fill_frame(frame, read_depth(args.sparse_depth), camera, params, truth,
+        result = fill_frame(frame, read_depth(args.sparse_depth), camera, truth=truth,
                             info={"frame": str(args.frame), "sparse_depth": str(args.sparse_depth)},
-                            method=method, method_params=method_params)
-        write_fill(result, args.out, params, overwrite=args.overwrite, inputs=inputs)
+                            method=method)
+        write_fill(result, args.out, method.params, overwrite=args.overwrite, inputs=inputs)
     else:
         raise ValueError("give a map folder, or all of --frame, --sparse-depth and --calib")
     out = Path(args.out)
@@ -341,13 +220,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.pipeline import RunParams, is_sequence_folder, run_pipeline
 
     _check_depth_flags(args)
-    method, method_params, dense = _fill_method(args)
+    method = _fill_method(args)
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
                        max_depth=args.max_depth,
                        oracle_depth_range=args.depth_range == "oracle", planes=args.planes,
                        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median,
                                             keep_boundary_planes=args.keep_boundary_planes),
-                       dense=dense, method=method, method_params=method_params,
+                       dense=method.params, method=method.method.name,
+                       method_params=method.settings,
                        spp=args.spp, seed=args.seed,
                        clip_window=args.clip_window)
     if is_sequence_folder(args.source):       # nothing to resume: map and fill start over
@@ -436,12 +316,12 @@ def _cmd_show(args: argparse.Namespace) -> int:
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from fusion.experiments.reproduce import ReproduceParams, reproduce
-    from fusion.methods import split_labels
+    from fusion.methods import method_variants, split_labels
 
     tables = tuple(t.strip() for t in args.tables.split(",") if t.strip())
     scenes = tuple(s.strip() for s in args.scenes.split(",")) if args.scenes else None
-    methods = tuple(_method_variants(split_labels(",".join(args.method or [])),
-                                     args.param or []))
+    methods = tuple(method_variants(split_labels(",".join(args.method or [])),
+                                    args.param or []))
     params = ReproduceParams(window=args.window, long_window=args.long_window, tables=tables,
                              scenes=scenes, methods=methods, frame_sensor=args.frame_sensor,
                              event_noise=args.event_noise,

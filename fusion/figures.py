@@ -2,25 +2,33 @@
 
 Everything returns 8-bit BGR images (``cv2.imwrite`` writes them as they are), with the legend or
 caption that reads them; nothing here computes a result, so every figure can be re-drawn from
-the files a run saved.
+the files a run saved (Figure 2 of a fill, :func:`fill_figure`, re-runs only the region growing
+of its raw-segmentation panel).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+from fusion.fill.segmentation import SegmentationParams, segment_regions
+from fusion.io import dense_cloud
+from fusion.map.dsi_range import oracle_header
 from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
 from sim._atomic import write_bytes_atomically
 
+if TYPE_CHECKING:
+    from fusion.fill.dense import DenseParams, DenseResult
+
 __all__ = ["FARTHER_COLOUR", "NEARER_COLOUR", "Caption", "DepthScale", "Legend", "Swatches",
            "add_header", "depth_colours", "depth_legend", "depth_scale", "error_legend",
-           "error_panel", "error_panels", "event_legend", "grid_scale", "highlight_pixels",
-           "label_colours", "panel_grid", "point_cloud_view", "point_radius", "spread_pixels",
-           "write_image"]
+           "error_panel", "error_panels", "event_legend", "fill_error_figure", "fill_figure",
+           "fill_figure_panels", "grid_scale", "highlight_pixels", "label_colours", "panel_grid",
+           "point_cloud_view", "point_radius", "spread_pixels", "write_image"]
 
 _NO_VALUE = (40, 40, 40)
 """Colour of pixels without a depth (dark grey, so that black texture stays readable)."""
@@ -750,3 +758,69 @@ def write_image(path: str | Path, image: np.ndarray) -> Path:
         raise OSError(f"cannot write {path}")
     write_bytes_atomically(path, encoded.tobytes())
     return path
+
+
+def fill_figure(result: DenseResult, params: DenseParams) -> np.ndarray:
+    """The paper's Figure 2 for one frame, as one image of six panels (``figure.png`` of
+    ``evfuse fill``, :func:`fusion.fill.dense.write_fill`)."""
+    panels, titles, legends, header = fill_figure_panels(result, params)
+    return add_header(panel_grid(panels, titles, columns=3, legends=legends), header)
+
+
+def fill_figure_panels(result: DenseResult, params: DenseParams
+                       ) -> tuple[list[np.ndarray], list[str], list, list[str]]:
+    """The panels of Figure 2, their titles, their legends (the depth scale spans the exact
+    depth where there is one, and both maps) and the header lines (the oracle warning).
+
+    Panels (b)-(d) show the paper's segmentation; for a method that does not segment the frame
+    they say so, and show the pixels it filled and its confidence where it gave one."""
+    points, colours, _ = dense_cloud(result)
+    size = (result.frame.shape[1], result.frame.shape[0])
+    scale = depth_scale(result.sparse, result.dense, truth=result.truth)
+    lo_hi = (scale.lo, scale.hi) if scale else (None, None)
+    legend = scale.legend() if scale else None
+    # a large frame is reduced in the grid: the map's points are drawn that much larger
+    radius = point_radius(size[0], size[0] * grid_scale(size[0], 3))
+    view, caption = point_cloud_view(points, colours, size, splat=max(2, 2 * radius + 1))
+    middle, middle_titles = _segmentation_panels(result, params)
+    panels = [depth_colours(result.sparse, *lo_hi, base=result.frame, radius=radius), *middle,
+              depth_colours(result.dense, *lo_hi, radius=radius), view]
+    titles = [f"(a) frame + {result.n1_in_frame} projected map points", *middle_titles,
+              f"(e) range image (N2 = {result.n2})",
+              "(f) point cloud: map points red, filled green"]
+    header = oracle_header(bool(result.info.get("oracle")))
+    return panels, titles, [legend, None, None, None, legend, caption], header
+
+
+def _segmentation_panels(result: DenseResult, params: DenseParams
+                         ) -> tuple[list[np.ndarray], list[str]]:
+    """Panels (b)-(d) of Figure 2 and their titles: the raw segmentation, the valid regions and
+    the regions to fill; for a method without a segmentation, the frame saying so, the filled
+    pixels in green, and the method's confidence (black 0, white 1) or the frame again."""
+    if result.regions is not None:
+        raw = segment_regions(result.frame, SegmentationParams(params.segmentation.threshold, 1))
+        return ([label_colours(raw), label_colours(result.labels),
+                 label_colours(result.labels, highlight=result.regions.selected)],
+                [f"(b) raw segmentation ({int(raw.max())})",
+                 f"(c) valid regions ({result.regions.n_regions})",
+                 f"(d) regions to fill ({int(result.regions.selected.sum())})"])
+    method = result.method
+    filled = (result.dense > 0) & (result.sparse == 0)
+    gray = cv2.cvtColor(result.frame, cv2.COLOR_GRAY2BGR)
+    if result.confidence is None:
+        last, last_title = gray, f"(d) regions to fill: not used by {method}"
+    else:
+        level = np.round(255 * result.confidence).astype(np.uint8)
+        last = cv2.cvtColor(level, cv2.COLOR_GRAY2BGR)
+        last_title = f"(d) confidence of {method} (black 0, white 1)"
+    return ([gray, highlight_pixels(result.frame, filled), last],
+            [f"(b) segmentation: not used by {method}",
+             f"(c) pixels filled by {method} ({int(filled.sum())}, green)", last_title])
+
+
+def fill_error_figure(result: DenseResult) -> np.ndarray:
+    """``error.png``: |error| of the dense map with its legend (scale in cm, no value, no
+    surface); needs ``result.truth``."""
+    image, legend = error_panel(result.dense, result.truth)
+    return panel_grid([image], ["|error| of the dense map (map points and filled)"], columns=1,
+                      legends=[legend])

@@ -4,18 +4,23 @@
   (:func:`sim.sequence.json_text`): a metric with nothing to evaluate is NaN in memory and ``null``
   on disk; NumPy scalars and arrays are written as numbers and lists.
 * Point clouds as binary PLY: float32 x, y, z in a camera frame, that frame's world pose in a
-  header comment, optional per-point colours and a per-point source flag.
+  header comment, optional per-point colours and a per-point source flag; a filled frame's
+  cloud (:func:`dense_cloud`, ``dense.ply`` and Figure 2's panel).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from sim.sequence import json_text
 
-__all__ = ["read_ply", "to_json", "write_ply"]
+if TYPE_CHECKING:
+    from fusion.fill.dense import DenseResult
+
+__all__ = ["dense_cloud", "read_ply", "to_json", "write_ply"]
 
 
 def to_json(document: dict) -> str:
@@ -108,3 +113,13 @@ def read_ply(path: str | Path) -> tuple[np.ndarray, dict]:
         raise ValueError(f"{path}: no 'element vertex' line")
     record = np.frombuffer(data, dtype=fields, count=count, offset=end + len(b"end_header\n"))
     return record, {"pose": pose, "comment": name}
+
+
+def dense_cloud(result: DenseResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points of the dense map in the frame's camera, red for map points, green for filled."""
+    v, u = np.nonzero(result.dense > 0)
+    points = result.camera.backproject(np.stack([u, v], 1).astype(np.float64),
+                                       result.dense[v, u].astype(np.float64))
+    source = (result.sparse[v, u] == 0).astype(np.uint8)          # 0 event map, 1 filled
+    colours = np.where(source[:, None] == 0, [[0, 0, 255]], [[0, 200, 0]]).astype(np.uint8)
+    return points, colours, source

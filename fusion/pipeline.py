@@ -43,7 +43,6 @@ from fusion.fill.dense import (
     DenseParams,
     DenseResult,
     fill_map,
-    paper_weighting,
     resolve_method,
     write_fill,
 )
@@ -51,7 +50,7 @@ from fusion.io import read_ply, to_json
 from fusion.map.dsi_range import oracle_header, resolve_dsi_range
 from fusion.map.emvs import DepthMapParams, DSIParams
 from fusion.map.mapping import MapParams, MapResult, map_sequence, time_window, write_map
-from fusion.methods import FillMethod
+from fusion.methods import ResolvedMethod
 from sim.eventio import read_window
 from sim.exr import read_depth
 from sim.progress import progress as progress_stage
@@ -98,8 +97,8 @@ class RunParams:
         Segmentation, selection and filling (the paper's defaults).
     method : str or None
         The filling method, a name or ``module:function`` (:mod:`fusion.methods`); None (the
-        default): the paper's with ``dense.fill.weighting``, ``paper-idw``
-        (:func:`fusion.fill.dense.resolve_method`).
+        default): the paper's with ``dense.fill.weighting``, ``paper-idw``; resolved once,
+        before any work (:func:`fusion.fill.dense.resolve_method`).
     method_params : dict
         The method's own settings (:func:`fusion.methods.check_params`; default none: its
         defaults), recorded in ``report.json``.
@@ -197,17 +196,19 @@ def map_window(sequence_folder: str | Path, out: str | Path, t0: float | None = 
 
 
 def fill_window(map_folder: str | Path, out: str | Path, params: DenseParams | None = None,
-                overwrite: bool = False, method: str | None = None,
+                overwrite: bool = False, method: str | ResolvedMethod | None = None,
                 method_params: dict | None = None) -> DenseResult:
     """The fill stage as ``evfuse fill`` and ``evfuse run`` both run it: fill, score, files.
 
-    ``method`` is the filling method (default: the paper's with ``params.fill.weighting``,
-    :func:`fusion.fill.dense.resolve_method`), ``method_params`` its own settings. ``out`` must
-    not be, hold or lie in the map folder or its sequence folder (refused before any work)."""
-    _, params = resolve_method(method, params, method_params)
+    ``method`` is the filling method (default: the paper's with ``params.fill.weighting``),
+    ``method_params`` its own settings, resolved here once
+    (:func:`fusion.fill.dense.resolve_method`; a ResolvedMethod carries both and ``params``).
+    ``out`` must not be, hold or lie in the map folder or its sequence folder (refused before
+    any work)."""
+    resolved = resolve_method(method, params, method_params)
     check_output_dir(out, overwrite, inputs=fill_sources(map_folder))
-    filled = fill_map(map_folder, params, method, method_params)
-    write_fill(filled, out, params, overwrite=overwrite)
+    filled = fill_map(map_folder, method=resolved)
+    write_fill(filled, out, resolved.params, overwrite=overwrite)
     return filled
 
 
@@ -309,7 +310,7 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
     from sim.simulate import scene_files
 
     params = params or RunParams()
-    method, _ = resolve_method(params.method, params.dense, params.method_params)  # up front
+    method = resolve_method(params.method, params.dense, params.method_params)  # up front
     out = Path(out)
     scene = (None if is_sequence_folder(source)
              else load_scene(resolve_scene(source), seed=params.seed))
@@ -335,7 +336,7 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
         raise
 
 
-def _run(source, scene, out: Path, params: RunParams, method: FillMethod, overwrite: bool,
+def _run(source, scene, out: Path, params: RunParams, method: ResolvedMethod, overwrite: bool,
          progress: bool, resume: bool, inputs: list, identity: dict) -> dict:
     clock = time.perf_counter()
     timings: dict[str, float] = {}
@@ -363,14 +364,9 @@ def _run(source, scene, out: Path, params: RunParams, method: FillMethod, overwr
             progress=progress)
         timings["map_s"] = time.perf_counter() - tick
         tick = time.perf_counter()
-        if paper_weighting(method) is not None:
-            stage = progress_stage(desc="fill", unit="region", noun="regions filled",
-                                   enabled=progress)
-        else:
-            stage = progress_stage(desc="fill", unit="px", noun=f"pixels filled by "
-                                   f"{method.name}", enabled=progress)
-        filled = fill_window(tmp / "map", tmp / "fill", params.dense, method=method.name,
-                             method_params=params.method_params, overwrite=resume)
+        unit, noun = method.method.progress_units()
+        stage = progress_stage(desc="fill", unit=unit, noun=noun, enabled=progress)
+        filled = fill_window(tmp / "map", tmp / "fill", method=method, overwrite=resume)
         stage.update(filled.info["regions_filled"] if filled.regions is not None
                      else filled.n2 - filled.n1_in_frame)
         stage.close()
@@ -434,7 +430,7 @@ def _errors_summary(map_errors: dict | None, fill_errors: dict | None) -> dict |
     map_errors : dict or None
         ``map.json``'s ``errors``: the N1 map points in the reference view's own grid.
     fill_errors : dict or None
-        ``fill.json``'s ``errors`` (:func:`fusion.fill.dense.dense_errors`), in the frame's pixels.
+        ``fill.json``'s ``errors`` (:func:`fusion.scoring.dense_errors`), in the frame's pixels.
 
     Returns
     -------

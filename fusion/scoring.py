@@ -17,15 +17,23 @@ and the first two sets say how much of the error that explains.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+from sim.sequence import load_sequence
+
+if TYPE_CHECKING:
+    from fusion.fill.dense import FillInputs
+
 __all__ = ["DELTAS", "ERROR_NO_SURFACE", "ERROR_NO_VALUE", "MOTION_REGIONS", "MOTION_STEP_S",
-           "PRECISIONS", "depth_errors", "discontinuity_band", "error_image",
-           "errors_by_motion", "motion_regions", "recorded_scene"]
+           "PRECISIONS", "dense_errors", "depth_errors", "discontinuity_band", "error_image",
+           "errors_by_motion", "frame_motion_regions", "motion_regions", "recorded_scene"]
 
 DELTAS = (1.25, 1.05, 1.01)
 """Ratio thresholds of the delta accuracies, ``max(d / gt, gt / d) < delta``."""
@@ -330,3 +338,50 @@ def errors_by_motion(depth: np.ndarray, gt: np.ndarray, regions: np.ndarray) -> 
         share = float(err[inside].sum()) / total if total > 0 else float("nan")
         out[name] = {**depth_errors(depth, gt, inside), "error_share": share}
     return out
+
+
+def dense_errors(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray, band: int = 3
+                 ) -> dict:
+    """Errors against the exact depth, for the map points, the filled pixels and all, overall,
+    in the ``band``-pixel band around true discontinuities and in the region interiors.
+
+    Returns
+    -------
+    dict
+        ``{"map" | "filled" | "all": {"overall" | "band" | "interior": depth_errors(...)}}``
+        (:func:`depth_errors`, the same definitions as ``map.json``'s):
+        completeness is the share of the pixels with a true depth that have a depth of that
+        kind; ``points`` and the precisions count every point of that kind, those where the
+        exact depth is 0 (no surface) included.
+    """
+    sparse = np.asarray(sparse, np.float32)
+    dense = np.asarray(dense, np.float32)
+    filled = np.where(sparse > 0, 0.0, dense).astype(np.float32)
+    near = discontinuity_band(truth, width=band)
+    out = {}
+    for name, depth in (("map", sparse), ("filled", filled), ("all", dense)):
+        out[name] = {"overall": depth_errors(depth, truth),
+                     "band": depth_errors(depth, truth, near),
+                     "interior": depth_errors(depth, truth, ~near)}
+    return out
+
+
+def frame_motion_regions(inputs: FillInputs) -> np.ndarray | None:
+    """:func:`motion_regions` of the frame to fill (the scene's own camera at its
+    true pose and time, the view its exact depth was rendered in; the event window is the
+    map's), or None: no exact depth, a scene whose objects do not move, or a two-camera rig
+    (not split). Scoring only."""
+    if inputs.truth is None or inputs.info.get("rig") is not None:
+        return None
+    sequence = load_sequence(inputs.info["sequence"])
+    meta = sequence.metadata or {}
+    scene = recorded_scene(meta)
+    if scene is None or not scene.is_dynamic:
+        return None
+    from sim.capture_errors import true_time
+
+    window = json.loads((Path(inputs.info["map"]) / "map.json").read_text())["window_s"]
+    t_true = true_time(meta, inputs.info["t_frame"], "frames")
+    camera = scene.camera.with_resolution(inputs.frame.shape[1], inputs.frame.shape[0])
+    return motion_regions(scene, camera, scene.trajectory.pose(t_true), t_true,
+                          tuple(true_time(meta, t, "events") for t in window))

@@ -619,12 +619,12 @@ PARAM_CASES = _param_case()
 
 def check_params(case: tuple[str, list[str]]) -> None:
     """``--method NAME --param KEY=VALUE``: the command line's parsing and checking of the
-    settings (fusion.cli._method_variants over fusion.methods), without running anything."""
-    from fusion.cli import _method_variants
+    settings (fusion.methods.method_variants), without running anything."""
+    from fusion.methods import method_variants
 
     method, params = case
-    variants = refused_or_result(lambda: _method_variants([method], params, single=True), (),
-                                 ("--param", "--method"))
+    variants = refused_or_result(lambda: method_variants([method], params, single=True), (),
+                                 ("param", "method"))
     if variants is not None:
         for variant in variants:
             assert_finite(variant.params)

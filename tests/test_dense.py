@@ -9,8 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from fusion.fill.dense import DenseParams, densify, fill_frame, project_map
+from fusion.fill.dense import DenseParams, densify, fill_frame
 from fusion.fill.filling import filling_score
+from fusion.fill.projection import project_map
 from fusion.io import read_ply
 from sim.camera import Camera, write_calib
 from sim.exr import read_depth, write_depth, write_exr_channels

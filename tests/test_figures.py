@@ -16,10 +16,11 @@ from fusion.figures import (
     depth_scale,
     error_legend,
     error_panel,
+    fill_figure_panels,
     panel_grid,
     point_cloud_view,
 )
-from fusion.fill.dense import DenseParams, _figure_panels, fill_frame, write_fill
+from fusion.fill.dense import DenseParams, fill_frame, write_fill
 from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
 from sim.camera import Camera
 
@@ -86,7 +87,7 @@ def _plane_frame(truth_far: float):
 def test_figure_2_depth_scale_covers_the_exact_depth_beyond_the_maps():
     result = _plane_frame(truth_far=3.5)
     assert result.dense.max() == 2.0                      # the maps hold 2 m only
-    panels, titles, legends, header = _figure_panels(result, DenseParams())
+    panels, titles, legends, header = fill_figure_panels(result, DenseParams())
     assert (legends[0].low, legends[0].high) == ("2 m", "3.5 m")
     assert legends[4] is legends[0]                        # (a) and (e) share it
     assert titles[0] == f"(a) frame + {np.count_nonzero(result.sparse)} projected map points"
@@ -94,7 +95,7 @@ def test_figure_2_depth_scale_covers_the_exact_depth_beyond_the_maps():
     assert header == []
     oracle = fill_frame(result.frame, result.sparse, result.camera, DenseParams(),
                         truth=result.truth, info={"oracle": True})
-    assert "oracle" in _figure_panels(oracle, DenseParams())[3][0]
+    assert "oracle" in fill_figure_panels(oracle, DenseParams())[3][0]
 
 
 def test_no_error_colour_is_taken_by_no_value_or_no_surface():

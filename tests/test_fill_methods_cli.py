@@ -204,7 +204,8 @@ def test_a_module_function_fills_and_its_confidence_is_written(tmp_path, user_mo
 
 
 def test_the_figure_of_another_method_says_what_it_did_not_use(tmp_path, user_module):
-    from fusion.fill.dense import _figure_panels, fill_frame
+    from fusion.figures import fill_figure_panels
+    from fusion.fill.dense import fill_frame
     from sim.camera import Camera
 
     frame, sparse = _ramp_scene()
@@ -212,7 +213,7 @@ def test_the_figure_of_another_method_says_what_it_did_not_use(tmp_path, user_mo
     result = fill_frame(frame, sparse, camera, method="nearest")
     assert result.regions is None and result.labels.dtype == np.int32
     assert not result.labels.any() and result.method == "nearest"
-    panels, titles, _, _ = _figure_panels(result, DenseParams())
+    panels, titles, _, _ = fill_figure_panels(result, DenseParams())
     assert titles[1] == "(b) segmentation: not used by nearest"
     assert titles[2] == f"(c) pixels filled by nearest ({H * W - 108}, green)"
     assert titles[3] == "(d) regions to fill: not used by nearest"
@@ -220,7 +221,7 @@ def test_the_figure_of_another_method_says_what_it_did_not_use(tmp_path, user_mo
     assert tuple(panels[2][15, 20]) == (80, 180, 80)       # (160 + (0, 200, 0)) // 2
     assert tuple(panels[2][9, 13]) == (100, 100, 100)
     flat = fill_frame(frame, sparse, camera, method=f"{user_module}:flat")
-    panels, titles, _, _ = _figure_panels(flat, DenseParams())
+    panels, titles, _, _ = fill_figure_panels(flat, DenseParams())
     assert titles[3] == f"(d) confidence of {user_module}:flat (black 0, white 1)"
     assert tuple(panels[3][15, 20]) == (64, 64, 64) and tuple(panels[3][9, 13]) == (255,) * 3
 

@@ -188,7 +188,7 @@ def test_graph_sees_the_project():
     assert "sim.camera" in graph["fusion.fill.dense"]            # a top-level import
     assert "fusion.fill.filling" in graph["fusion.methods.surface_fit"]
     # a function-level import
-    assert "sim.capture_errors" in graph["fusion.fill.dense"]
+    assert "sim.capture_errors" in graph["fusion.scoring"]
 
 
 def test_cycle_finder_on_a_known_graph():

@@ -286,3 +286,104 @@ def test_settings_reach_the_method_and_a_user_s_undeclared_ones_pass_unchecked(t
         run_method("paper-idw", _frame(), sparse, CAMERA, {"sigma": 2.0})
     with pytest.raises(MethodError, match="filling method telea raised TypeError"):
         run_method("telea", _frame(), sparse, CAMERA, {"radius": 3, "speed": 1})
+
+
+# --- a method resolved once, and methods asked for as text (issue 22) ---------------------------
+
+
+def test_the_paper_s_methods_are_registered_methods_that_run_the_paper_s_stages():
+    """paper-* are PaperMethod objects: the fill stage calls their fill(), which keeps the
+    segmentation; any other method's fill() gives none (no caller asks which it is)."""
+    from fusion.fill.dense import DenseParams, densify
+    from fusion.methods import PaperMethod
+
+    sparse = _grid_points((1.0 + 0.02 * np.arange(W, dtype=np.float32))[None, :].repeat(H, 0))
+    sparse[:, W // 2 - 1] = 1.5
+    for name, weighting in (("paper-idw", "idw"), ("paper-gaussian", "gaussian"),
+                            ("paper-exponential", "exponential")):
+        method = get_method(name)
+        assert isinstance(method, PaperMethod) and method.weighting == weighting
+        params = method.stage_params(None, {})
+        assert params.fill.weighting == weighting
+        filled = method.fill(_frame(), sparse, CAMERA, {}, params)
+        labels, regions, dense, _ = densify(_frame(), sparse, params)
+        np.testing.assert_array_equal(filled.dense, dense)
+        np.testing.assert_array_equal(filled.labels, labels)
+        assert filled.regions.n_regions == regions.n_regions > 0 and filled.confidence is None
+    assert get_method("paper-gaussian").stage_params(None, {"sigma": 2.0}).fill.sigma == 2.0
+    with pytest.raises(ValueError, match="paper-gaussian uses gaussian weights"):
+        get_method("paper-gaussian").stage_params(DenseParams(), {})
+    nearest = get_method("nearest").fill(_frame(), sparse, CAMERA, {}, DenseParams())
+    assert nearest.regions is None and not nearest.labels.any() and "method_s" in nearest.timings
+    assert get_method("nearest").progress_units() == ("px", "pixels filled by nearest")
+    assert get_method("paper-idw").progress_units() == ("region", "regions filled")
+
+
+def test_a_resolved_method_is_not_resolved_again(monkeypatch):
+    """fill_frame handed a ResolvedMethod runs it as it is: get_method is not called again."""
+    import fusion.fill.dense as dense_module
+    from fusion.fill.dense import fill_frame, resolve_method
+    from fusion.methods import ResolvedMethod
+
+    resolved = resolve_method("paper-gaussian", method_params={"sigma": 3})
+    assert isinstance(resolved, ResolvedMethod)
+    assert resolved.settings == {"sigma": 3.0} and resolved.params.fill.sigma == 3.0
+    assert resolve_method(resolved) is resolved
+    with pytest.raises(ValueError, match="a resolved method carries its parameters"):
+        resolve_method(resolved, method_params={"sigma": 4})
+
+    def refuse(spec):
+        raise AssertionError(f"{spec} resolved twice")
+
+    monkeypatch.setattr(dense_module, "get_method", refuse)
+    sparse = _grid_points(np.full((H, W), 1.0, np.float32))
+    result = fill_frame(_frame(), sparse, CAMERA, method=resolved)
+    assert result.info["method"] == "paper-gaussian"
+    assert result.info["method_params"] == {"sigma": 3.0}
+
+
+def test_methods_asked_for_as_text_are_refused_in_the_library_s_terms():
+    """method_variants / fill_request speak of the parameters 'method' and 'param'; the command
+    line names them by its flags (ParameterError.rephrase), giving the lines it printed."""
+    from fusion.fill.dense import DenseParams
+    from fusion.fill.segmentation import SegmentationParams
+    from fusion.methods import fill_request, method_variants, parse_param
+    from sim.validation import ParameterError
+
+    flags = {"method": "--method", "param": "--param", "threshold": "--threshold",
+             "weighting": "--weighting", "sigma": "--sigma"}
+    assert parse_param("plane.residual_rel=0.03") == ("plane", "residual_rel", 0.03)
+    assert method_variants(["telea{radius=2}"]) == [methods_module.MethodVariant(
+        "telea", {"radius": 2.0})]
+    cases = [
+        (lambda: method_variants(["telea{radius=2}"], ["radius=3"]),
+         "param radius=3: radius of telea is already set by method telea{radius=2}; set it once",
+         "--param radius=3: radius of telea is already set by --method telea{radius=2}; set it "
+         "once"),
+        (lambda: method_variants(["plane", "telea"], ["radius=3"]),
+         "param radius=3: 2 methods given (plane, telea), whose is it? Write param "
+         "METHOD.radius=... (every entry of METHOD) or method 'METHOD{radius=...}' (that entry)",
+         None),
+        (lambda: parse_param("x"), "param x: expected KEY=VALUE, or METHOD.KEY=VALUE for one "
+         "method's (e.g. param plane.residual_rel=0.03)", None),
+        (lambda: fill_request("nearest", stages=DenseParams(
+            segmentation=SegmentationParams(5.0))),
+         "method nearest and threshold 5 contradict each other: only the paper's methods "
+         "(paper-idw, paper-gaussian, paper-exponential) use threshold (drop it, or give one of "
+         "them)",
+         "--method nearest and --threshold 5 contradict each other: only the paper's methods "
+         "(paper-idw, paper-gaussian, paper-exponential) use --threshold (drop it, or give one "
+         "of them)"),
+        (lambda: fill_request("paper-gaussian", weighting="idw"),
+         "method paper-gaussian and weighting idw contradict each other: paper-gaussian uses "
+         "gaussian weights (give method paper-idw, or drop weighting)", None),
+    ]
+    for call, library, command_line in cases:
+        with pytest.raises(ParameterError) as error:
+            call()
+        assert str(error.value) == library
+        if command_line is not None:
+            assert error.value.rephrase(flags) == command_line
+    resolved = fill_request(None, ["sigma=3"], weighting="gaussian")
+    assert resolved.method.name == "paper-gaussian" and resolved.params.fill.sigma == 3.0
+    assert fill_request("nearest").params == DenseParams()

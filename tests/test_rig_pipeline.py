@@ -222,7 +222,7 @@ def test_fill_inputs_projects_into_the_frame_camera(rig):
     relative = np.abs(inputs.sparse[at] / inputs.truth[at] - 1)
     assert relative.max() < 3e-3 and np.median(relative) < 1e-3
     # the frame camera's own pose matters: the event camera's would put the points elsewhere
-    from fusion.fill.dense import project_map
+    from fusion.fill.projection import project_map
 
     depth_ref = read_depth(rig / "semidense_depth.exr")
     wrong = project_map(depth_ref, EVENT, pose(T_REF)[0], FRAME, pose(0.09)[0])

@@ -18,7 +18,7 @@ negative depth gets a row saying why, the others go on. Methods run in two worke
 A method may run under settings of its own (a :class:`fusion.methods.MethodVariant`, given as
 ``plane{residual_rel=0.03}``), the same method under several: each is a row, labelled so.
 
-Scores (:func:`fusion.fill.dense.dense_errors`, the definitions of ``evfuse fill``): MAE, RMSE,
+Scores (:func:`fusion.scoring.dense_errors`, the definitions of ``evfuse fill``): MAE, RMSE,
 AbsRel, delta < 1.05, completeness and precision within 5 % of the dense map (``all``), its
 filled pixels (``filled``: pixels that were not input points) and the band within 3 px of a true
 depth discontinuity apart. Methods fill different shares of the image, so each table shows the
@@ -248,7 +248,7 @@ def _value(errors: dict | None, key: str):
 
 def _scores(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray,
             confidence: np.ndarray | None) -> dict:
-    from fusion.fill.dense import dense_errors
+    from fusion.scoring import dense_errors
 
     errors = dense_errors(dense, sparse, truth)
     whole, filled, band = errors["all"]["overall"], errors["filled"]["overall"], \

@@ -15,15 +15,24 @@ camera (pose ``T_world_event(t) @ T_event_frame``, its own lens and size; a roll
 row, :mod:`fusion.fill.projection`) still gets its map points where they belong. The dense depth
 lives in the frame's pixels and is scored against that camera's exact depth.
 
-The filling method is selectable (``--method``, :mod:`fusion.methods`): the paper's
-(``paper-idw``, the default, ``paper-gaussian``, ``paper-exponential``) runs the three stages
-above and keeps its segmentation for the figures and ``segments.png``; any other method is run
-through :func:`fusion.methods.run_method`, and its result has no segmentation (all-zero labels,
+The filling method is selectable (``--method``, :mod:`fusion.methods`) and resolved once, where
+it is asked for (:func:`resolve_method`, :func:`fusion.methods.fill_request`), into a
+:class:`fusion.methods.ResolvedMethod` that the fill stage calls
+(:meth:`fusion.methods.FillMethod.fill`) without asking which method it is. The paper's
+(``paper-idw``, the default, ``paper-gaussian``, ``paper-exponential``;
+:mod:`fusion.methods.paper`) runs the three stages (:func:`densify`) and keeps its segmentation
+for the figures and ``segments.png``; any other method is run through
+:func:`fusion.methods.run_method`, and its result has no segmentation (all-zero labels,
 ``regions`` None). Either way ``N2`` counts the non-zero pixels of the dense map and ``beta``
 uses the paper's formula, so that for another method it measures that method's fill. A
 method's own settings (``method_params``, ``--param``) are checked before any work and
 recorded in ``fill.json`` (``method_params``); the paper's methods take their weighting's
 length (``sigma``, ``scale``) that way too.
+
+Here: the fill stage (:func:`fill_map`, :func:`fill_inputs`, :func:`fill_frame`,
+:func:`densify`, :func:`write_fill`). The projection is :mod:`fusion.fill.projection`, the
+scores :mod:`fusion.scoring` (:func:`fusion.scoring.dense_errors`), Figure 2
+:mod:`fusion.figures` (:func:`fusion.figures.fill_figure`) and the point cloud :mod:`fusion.io`.
 """
 
 from __future__ import annotations
@@ -32,24 +41,13 @@ import json
 import os
 import time
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from fusion.figures import (
-    add_header,
-    depth_colours,
-    depth_scale,
-    error_panel,
-    grid_scale,
-    highlight_pixels,
-    label_colours,
-    panel_grid,
-    point_cloud_view,
-    point_radius,
-)
+from fusion.figures import fill_error_figure, fill_figure
 from fusion.fill.filling import (
     FillParams,
     RegionStats,
@@ -61,36 +59,23 @@ from fusion.fill.filling import (
 from fusion.fill.projection import (
     ROLLING_ITERATIONS,
     frame_record,
-    map_points_world,
-    nearest_per_pixel,
-    rolling_shutter_project,
+    project_map,
+    project_map_rolling,
 )
 from fusion.fill.segmentation import SegmentationParams, segment_regions
-from fusion.io import to_json, write_ply
-from fusion.map.dsi_range import oracle_header
-from fusion.methods._registry import FillMethod, check_params, get_method, run_method
-from fusion.scoring import (
-    depth_errors,
-    discontinuity_band,
-    errors_by_motion,
-    motion_regions,
-    recorded_scene,
-)
+from fusion.io import dense_cloud, to_json, write_ply
+from fusion.methods._registry import ResolvedMethod, check_params, get_method
+from fusion.scoring import dense_errors, errors_by_motion, frame_motion_regions
 from sim.camera import Camera
 from sim.exr import read_depth, write_depth, write_exr_channels
-from sim.se3 import invert_pose
-from sim.sequence import FrameCameraFiles, atomic_output_dir, load_sequence
+from sim.sequence import atomic_output_dir, load_sequence
 from sim.trajectory import read_trajectory
 from sim.validation import integer
 
-__all__ = ["PAPER_METHODS", "DenseParams", "DenseResult", "dense_errors", "densify", "fill_frame",
-           "fill_map", "frame_motion_regions", "paper_weighting", "project_map",
-           "project_map_rolling", "resolve_method", "write_fill"]
-
-PAPER_METHODS = {"paper-idw": "idw", "paper-gaussian": "gaussian",
-                 "paper-exponential": "exponential"}
-"""The built-in methods that are the paper's (segmentation, selection, weighted filling), with
-the weighting each uses."""
+# project_map, project_map_rolling (fusion.fill.projection), dense_errors and
+# frame_motion_regions (fusion.scoring) are also importable from here, where they were.
+__all__ = ["DenseParams", "DenseResult", "FillInputs", "densify", "fill_frame", "fill_inputs",
+           "fill_map", "resolve_method", "write_fill"]
 
 
 @dataclass(frozen=True)
@@ -171,115 +156,46 @@ class DenseResult:
         return int(np.count_nonzero(self.dense))
 
 
-def project_map(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: np.ndarray,
-                camera: Camera, T_world_frame: np.ndarray) -> np.ndarray:
-    """The event image: map points projected into a frame, the nearest one per pixel.
+def resolve_method(method: str | ResolvedMethod | None, params: DenseParams | None = None,
+                   method_params: dict | None = None) -> ResolvedMethod:
+    """The filling method to run, its settings and the fill stage's parameters that go with it.
 
     Parameters
     ----------
-    depth_ref : (h, w) float ndarray, metres, 0 = no map point
-        The semi-dense map at the reference view.
-    camera_ref : Camera
-        The reference view's (undistorted) camera.
-    T_world_ref, T_world_frame : (4, 4) ndarray
-        Poses of the reference view and of the frame.
-    camera : Camera
-        The frame's camera (distortion included).
-
-    Returns
-    -------
-    (H, W) float32 ndarray, metres
-        z-depth in the frame of each projected point, rounded to the nearest pixel; 0 elsewhere.
-    """
-    points = map_points_world(depth_ref, camera_ref, T_world_ref)
-    T = invert_pose(np.asarray(T_world_frame, np.float64))
-    local = points @ T[:3, :3].T + T[:3, 3]
-    return nearest_per_pixel(camera.project(local), local[:, 2], camera)
-
-
-def project_map_rolling(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: np.ndarray,
-                        frames: FrameCameraFiles, trajectory, t_frame: float
-                        ) -> tuple[np.ndarray, float]:
-    """The event image of a rolling-shutter frame: each map point projected with the pose of
-    the row it lands on (:func:`fusion.fill.projection.rolling_shutter_project`).
-
-    Parameters
-    ----------
-    depth_ref, camera_ref, T_world_ref : as :func:`project_map`
-    frames : FrameCameraFiles
-        The frame camera (its ``camera``, ``T_event_frame`` and :meth:`row_times`).
-    trajectory : sim.trajectory.Trajectory
-        ``T_world_event(t)``; the frame camera's pose is ``T_world_event(t) @ T_event_frame``.
-    t_frame : float, seconds, the frame's (middle row's) time
-
-    Returns
-    -------
-    sparse : (H, W) float32 ndarray, metres, 0 elsewhere
-    last_step : float, pixels
-        The largest last fixed-point step of the points that land in the frame (0 without any):
-        it bounds each point's row error by ``|q| / (1 - |q|)`` times itself.
-    """
-    camera = frames.camera
-    row_times = frames.row_times(t_frame)
-    per_row = (row_times[-1] - row_times[0]) / max(camera.height - 1, 1)   # linear in the row
-
-    def pose_at_row(v: np.ndarray) -> np.ndarray:
-        return trajectory.pose(row_times[0] + per_row * v) @ frames.T_event_frame
-
-    points = map_points_world(depth_ref, camera_ref, T_world_ref)
-    uv, z, last_step = rolling_shutter_project(points, camera, pose_at_row)
-    landed = camera.in_image(uv) & (z > 0)
-    return (nearest_per_pixel(uv, z, camera),
-            float(last_step[landed].max()) if landed.any() else 0.0)
-
-
-def paper_weighting(method: FillMethod) -> str | None:
-    """The weighting of ``method`` if it is one of the paper's (:data:`PAPER_METHODS`), else
-    None."""
-    return PAPER_METHODS.get(method.name) if method.origin == "built-in" else None
-
-
-def resolve_method(method: str | None, params: DenseParams | None = None,
-                   method_params: dict | None = None) -> tuple[FillMethod, DenseParams]:
-    """The filling method to run and the parameters of the paper's stages that go with it.
-
-    Parameters
-    ----------
-    method : str or None
+    method : str, ResolvedMethod or None
         A method's name or ``module:function`` (:func:`fusion.methods.get_method`); None: the
-        paper's method with ``params.fill.weighting`` (``paper-idw`` by default).
+        paper's method with ``params.fill.weighting`` (``paper-idw`` by default); a
+        ResolvedMethod is returned as it is (then ``params`` and ``method_params`` must be
+        None).
     params : DenseParams, optional
-        For one of the paper's methods, its ``fill.weighting`` must be the method's (default:
-        the method's); any other method uses only ``band``.
+        The fill stage's parameters (:meth:`fusion.methods.FillMethod.stage_params`: the
+        paper's methods set their weighting and its length; any other method uses only
+        ``band``).
     method_params : dict, optional
-        The method's own settings, checked (:func:`fusion.methods.check_params`); for one of
-        the paper's methods they replace those of ``params.fill`` (``sigma``, ``scale``).
+        The method's own settings, checked (:func:`fusion.methods.check_params`).
 
     Returns
     -------
-    FillMethod, DenseParams
+    ResolvedMethod
 
     Raises
     ------
     fusion.methods.MethodError
         An unknown method, or a setting it refuses (a ValueError, one line).
     ValueError
-        A paper's method whose weighting contradicts ``params.fill.weighting``.
+        Parameters that contradict the method (e.g. a paper's method whose weighting is not
+        ``params.fill.weighting``), or a ResolvedMethod given with parameters.
     """
+    if isinstance(method, ResolvedMethod):
+        if params is not None or method_params is not None:
+            raise ValueError("a resolved method carries its parameters: expected params and "
+                             "method_params None with it")
+        return method
     if method is None:
         method = f"paper-{(params or DenseParams()).fill.weighting}"
     found = get_method(method)
     settings = check_params(found, method_params)
-    weighting = paper_weighting(found)
-    if weighting is None:
-        return found, params or DenseParams()
-    if params is None:
-        params = DenseParams(fill=FillParams(weighting))
-    elif params.fill.weighting != weighting:
-        raise ValueError(f"filling method {found.name} uses {weighting} weights but "
-                         f"params.fill.weighting is {params.fill.weighting!r}: expected the "
-                         "same weighting, or method None")
-    return found, replace(params, fill=replace(params.fill, **settings))
+    return ResolvedMethod(found, settings, found.stage_params(params, settings) or DenseParams())
 
 
 def densify(frame: np.ndarray, sparse: np.ndarray, params: DenseParams | None = None
@@ -318,36 +234,10 @@ def densify(frame: np.ndarray, sparse: np.ndarray, params: DenseParams | None = 
                                     "fill_s": end - tack}
 
 
-def dense_errors(dense: np.ndarray, sparse: np.ndarray, truth: np.ndarray, band: int = 3
-                 ) -> dict:
-    """Errors against the exact depth, for the map points, the filled pixels and all, overall,
-    in the ``band``-pixel band around true discontinuities and in the region interiors.
-
-    Returns
-    -------
-    dict
-        ``{"map" | "filled" | "all": {"overall" | "band" | "interior": depth_errors(...)}}``
-        (:func:`fusion.scoring.depth_errors`, the same definitions as ``map.json``'s):
-        completeness is the share of the pixels with a true depth that have a depth of that
-        kind; ``points`` and the precisions count every point of that kind, those where the
-        exact depth is 0 (no surface) included.
-    """
-    sparse = np.asarray(sparse, np.float32)
-    dense = np.asarray(dense, np.float32)
-    filled = np.where(sparse > 0, 0.0, dense).astype(np.float32)
-    near = discontinuity_band(truth, width=band)
-    out = {}
-    for name, depth in (("map", sparse), ("filled", filled), ("all", dense)):
-        out[name] = {"overall": depth_errors(depth, truth),
-                     "band": depth_errors(depth, truth, near),
-                     "interior": depth_errors(depth, truth, ~near)}
-    return out
-
-
 def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                params: DenseParams | None = None, truth: np.ndarray | None = None,
                T_world_frame: np.ndarray | None = None, info: dict | None = None,
-               n1: int | None = None, method: str | None = None,
+               n1: int | None = None, method: str | ResolvedMethod | None = None,
                method_params: dict | None = None,
                motion: np.ndarray | None = None) -> DenseResult:
     """Fill any frame from its event image (the ``--frame --sparse-depth`` form of the command).
@@ -364,10 +254,11 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     n1 : int, optional
         ``N1``, the map's points before projection (``map.json``'s); default the non-zero pixels
         of ``sparse``.
-    method : str, optional
+    method : str or ResolvedMethod, optional
         The filling method (:func:`resolve_method`; default the paper's with
-        ``params.fill.weighting``, ``paper-idw``). Any but the paper's is run by
-        :func:`fusion.methods.run_method`.
+        ``params.fill.weighting``, ``paper-idw``), run by its
+        :meth:`fusion.methods.FillMethod.fill`; resolved already, it carries ``params`` and
+        ``method_params`` (then None here).
     method_params : dict, optional
         The method's own settings (:func:`fusion.methods.check_params`; default none, its
         defaults); for the paper's, they replace those of ``params.fill``.
@@ -394,21 +285,16 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
         Bad input, an unknown method, or a method that returns no depth at some map points
         (``N2`` and ``beta`` would then not count the pixels it filled).
     """
-    fill_method, params = resolve_method(method, params, method_params)
-    method_params = check_params(fill_method, method_params)
+    resolved = resolve_method(method, params, method_params)
+    fill_method, method_params, params = resolved.method, resolved.settings, resolved.params
     start = time.perf_counter()
     if (camera.height, camera.width) != np.shape(frame)[:2]:
         raise ValueError(f"the calibration is for {camera.width}x{camera.height} but the frame "
                          f"is {np.shape(frame)[1]}x{np.shape(frame)[0]}")
     sparse = np.asarray(sparse, np.float32)
-    if paper_weighting(fill_method) is not None:
-        labels, regions, dense, timings = densify(frame, sparse, params)
-        confidence = None
-    else:
-        _check_event_image(frame, sparse)
-        dense, confidence, seconds = run_method(fill_method, frame, sparse, camera,
-                                                method_params)
-        labels, regions, timings = np.zeros(sparse.shape, np.int32), None, {"method_s": seconds}
+    filled = fill_method.fill(frame, sparse, camera, method_params, params)
+    labels, regions, dense, confidence, timings = (filled.labels, filled.regions, filled.dense,
+                                                   filled.confidence, filled.timings)
     in_frame, n2 = int(np.count_nonzero(sparse)), int(np.count_nonzero(dense))
     dropped = int(np.count_nonzero((sparse > 0) & (dense == 0)))
     if dropped:
@@ -449,24 +335,6 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                        T_world_frame, truth, document, fill_method.name, confidence)
 
 
-def _check_event_image(frame: np.ndarray, sparse: np.ndarray) -> None:
-    """Refuse, in one line, an event image that is not finite metres >= 0 with a map point in
-    the frame's size (what :func:`densify` refuses for the paper's method)."""
-    if np.shape(frame) != sparse.shape:
-        raise ValueError(f"the frame is {np.shape(frame)[1]}x{np.shape(frame)[0]} but the sparse "
-                         f"depth is {sparse.shape[1]}x{sparse.shape[0]}: they must be the same "
-                         "size")
-    bad = int(np.count_nonzero(~np.isfinite(sparse)))
-    if bad:
-        raise ValueError(f"the sparse depth must be finite metres (0 = no map point), found {bad} "
-                         "NaN or infinite pixels")
-    if np.any(sparse < 0):
-        raise ValueError(f"the sparse depth must be >= 0 metres (0 = no map point), found "
-                         f"{int(np.count_nonzero(sparse < 0))} negative pixels")
-    if not np.any(sparse > 0):
-        raise ValueError("no map points: the sparse depth has no pixel > 0, nothing to fill from")
-
-
 @dataclass(frozen=True)
 class FillInputs:
     """What filling a map needs: the standard frame nearest the map's reference view, the map
@@ -494,7 +362,8 @@ class FillInputs:
 
 
 def fill_map(map_folder: str | Path, params: DenseParams | None = None,
-             method: str | None = None, method_params: dict | None = None) -> DenseResult:
+             method: str | ResolvedMethod | None = None, method_params: dict | None = None
+             ) -> DenseResult:
     """Fill the map written by ``evfuse map`` with the standard frame nearest its reference view.
 
     Parameters
@@ -502,7 +371,7 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None,
     map_folder : str or Path
         Holds ``map.json`` and ``semidense_depth.exr``; ``map.json`` names the sequence.
     params : DenseParams, optional
-    method : str, optional
+    method : str or ResolvedMethod, optional
         The filling method (default the paper's, :func:`fill_frame`).
     method_params : dict, optional
         Its own settings (:func:`fill_frame`).
@@ -516,27 +385,6 @@ def fill_map(map_folder: str | Path, params: DenseParams | None = None,
     return fill_frame(inputs.frame, inputs.sparse, inputs.camera, params, inputs.truth,
                       inputs.T_world_frame, inputs.info, n1=inputs.n1, method=method,
                       method_params=method_params, motion=frame_motion_regions(inputs))
-
-
-def frame_motion_regions(inputs: FillInputs) -> np.ndarray | None:
-    """:func:`fusion.scoring.motion_regions` of the frame to fill (the scene's own camera at its
-    true pose and time, the view its exact depth was rendered in; the event window is the
-    map's), or None: no exact depth, a scene whose objects do not move, or a two-camera rig
-    (not split). Scoring only."""
-    if inputs.truth is None or inputs.info.get("rig") is not None:
-        return None
-    sequence = load_sequence(inputs.info["sequence"])
-    meta = sequence.metadata or {}
-    scene = recorded_scene(meta)
-    if scene is None or not scene.is_dynamic:
-        return None
-    from sim.capture_errors import true_time
-
-    window = json.loads((Path(inputs.info["map"]) / "map.json").read_text())["window_s"]
-    t_true = true_time(meta, inputs.info["t_frame"], "frames")
-    camera = scene.camera.with_resolution(inputs.frame.shape[1], inputs.frame.shape[0])
-    return motion_regions(scene, camera, scene.trajectory.pose(t_true), t_true,
-                          tuple(true_time(meta, t, "events") for t in window))
 
 
 def fill_inputs(map_folder: str | Path) -> FillInputs:
@@ -626,81 +474,6 @@ def fill_inputs(map_folder: str | Path) -> FillInputs:
                       int(np.count_nonzero(depth_ref)))
 
 
-def _figure(result: DenseResult, params: DenseParams) -> np.ndarray:
-    """The paper's Figure 2 for one frame, as one image of six panels."""
-    panels, titles, legends, header = _figure_panels(result, params)
-    return add_header(panel_grid(panels, titles, columns=3, legends=legends), header)
-
-
-def _figure_panels(result: DenseResult, params: DenseParams
-                   ) -> tuple[list[np.ndarray], list[str], list, list[str]]:
-    """The panels of Figure 2, their titles, their legends (the depth scale spans the exact
-    depth where there is one, and both maps) and the header lines (the oracle warning).
-
-    Panels (b)-(d) show the paper's segmentation; for a method that does not segment the frame
-    they say so, and show the pixels it filled and its confidence where it gave one."""
-    points, colours, _ = _cloud(result)
-    size = (result.frame.shape[1], result.frame.shape[0])
-    scale = depth_scale(result.sparse, result.dense, truth=result.truth)
-    lo_hi = (scale.lo, scale.hi) if scale else (None, None)
-    legend = scale.legend() if scale else None
-    # a large frame is reduced in the grid: the map's points are drawn that much larger
-    radius = point_radius(size[0], size[0] * grid_scale(size[0], 3))
-    view, caption = point_cloud_view(points, colours, size, splat=max(2, 2 * radius + 1))
-    middle, middle_titles = _segmentation_panels(result, params)
-    panels = [depth_colours(result.sparse, *lo_hi, base=result.frame, radius=radius), *middle,
-              depth_colours(result.dense, *lo_hi, radius=radius), view]
-    titles = [f"(a) frame + {result.n1_in_frame} projected map points", *middle_titles,
-              f"(e) range image (N2 = {result.n2})",
-              "(f) point cloud: map points red, filled green"]
-    header = oracle_header(bool(result.info.get("oracle")))
-    return panels, titles, [legend, None, None, None, legend, caption], header
-
-
-def _segmentation_panels(result: DenseResult, params: DenseParams
-                         ) -> tuple[list[np.ndarray], list[str]]:
-    """Panels (b)-(d) of Figure 2 and their titles: the raw segmentation, the valid regions and
-    the regions to fill; for a method without a segmentation, the frame saying so, the filled
-    pixels in green, and the method's confidence (black 0, white 1) or the frame again."""
-    if result.regions is not None:
-        raw = segment_regions(result.frame, SegmentationParams(params.segmentation.threshold, 1))
-        return ([label_colours(raw), label_colours(result.labels),
-                 label_colours(result.labels, highlight=result.regions.selected)],
-                [f"(b) raw segmentation ({int(raw.max())})",
-                 f"(c) valid regions ({result.regions.n_regions})",
-                 f"(d) regions to fill ({int(result.regions.selected.sum())})"])
-    method = result.method
-    filled = (result.dense > 0) & (result.sparse == 0)
-    gray = cv2.cvtColor(result.frame, cv2.COLOR_GRAY2BGR)
-    if result.confidence is None:
-        last, last_title = gray, f"(d) regions to fill: not used by {method}"
-    else:
-        level = np.round(255 * result.confidence).astype(np.uint8)
-        last = cv2.cvtColor(level, cv2.COLOR_GRAY2BGR)
-        last_title = f"(d) confidence of {method} (black 0, white 1)"
-    return ([gray, highlight_pixels(result.frame, filled), last],
-            [f"(b) segmentation: not used by {method}",
-             f"(c) pixels filled by {method} ({int(filled.sum())}, green)", last_title])
-
-
-def _error_figure(result: DenseResult) -> np.ndarray:
-    """``error.png``: |error| of the dense map with its legend (scale in cm, no value, no
-    surface); needs ``result.truth``."""
-    image, legend = error_panel(result.dense, result.truth)
-    return panel_grid([image], ["|error| of the dense map (map points and filled)"], columns=1,
-                      legends=[legend])
-
-
-def _cloud(result: DenseResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points of the dense map in the frame's camera, red for map points, green for filled."""
-    v, u = np.nonzero(result.dense > 0)
-    points = result.camera.backproject(np.stack([u, v], 1).astype(np.float64),
-                                       result.dense[v, u].astype(np.float64))
-    source = (result.sparse[v, u] == 0).astype(np.uint8)          # 0 event map, 1 filled
-    colours = np.where(source[:, None] == 0, [[0, 0, 255]], [[0, 200, 0]]).astype(np.uint8)
-    return points, colours, source
-
-
 def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
                overwrite: bool = False, inputs: Iterable[str | Path] = ()) -> Path:
     """Write ``dense_depth.exr``, ``segments.png``, ``filled_mask.png``, ``figure.png``,
@@ -732,12 +505,12 @@ def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
             raise OSError(f"cannot write {tmp / 'segments.png'}")
         filled = (result.dense > 0) & (result.sparse == 0)
         cv2.imwrite(str(tmp / "filled_mask.png"), filled.astype(np.uint8) * 255)
-        cv2.imwrite(str(tmp / "figure.png"), _figure(result, params))
-        points, colours, source = _cloud(result)
+        cv2.imwrite(str(tmp / "figure.png"), fill_figure(result, params))
+        points, colours, source = dense_cloud(result)
         pose = result.T_world_frame if result.T_world_frame is not None else np.eye(4)
         write_ply(tmp / "dense.ply", points, pose, colours, source, frame_name="T_world_frame")
         if result.truth is not None:
-            cv2.imwrite(str(tmp / "error.png"), _error_figure(result))
+            cv2.imwrite(str(tmp / "error.png"), fill_error_figure(result))
         if result.confidence is not None:
             write_exr_channels(tmp / "confidence.exr",
                                {"Y": result.confidence.astype(np.float32)})

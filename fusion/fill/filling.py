@@ -59,7 +59,7 @@ from sim.validation import integer
 __all__ = ["WEIGHTINGS", "FillParams", "RegionStats", "SelectionParams", "Weighting",
            "exponential_weights",
            "fill_regions", "filling_score", "gaussian_weights", "inverse_distance_weights",
-           "select_regions"]
+           "region_events", "select_regions"]
 
 _UNDERFLOW = 1e-280
 """Sum of weights below which a pixel is recomputed in the log domain."""
@@ -401,7 +401,7 @@ def select_regions(labels: np.ndarray, sparse_depth: np.ndarray,
 # --------------------------------------------------------------------------- filling
 
 @numba.njit(cache=True)
-def _region_events(labels, ev_y, ev_x, selected, ring):  # pragma: no cover - compiled
+def region_events(labels, ev_y, ev_x, selected, ring):  # pragma: no cover - compiled
     """Events of each selected region (in its band or inside it), as CSR: start, index.
 
     The band and the region together are the region's dilation by a ``(2 ring + 1)`` square (see
@@ -602,7 +602,7 @@ def fill_regions(labels: np.ndarray, sparse_depth: np.ndarray, regions: RegionSt
         return out
     ev_y, ev_x = np.nonzero(sparse > 0)
     ev_d = sparse[ev_y, ev_x]
-    start, index = _region_events(labels, ev_y, ev_x, selected, int(regions.ring))
+    start, index = region_events(labels, ev_y, ev_x, selected, int(regions.ring))
     reg_y, reg_x, reg_d = ev_y[index], ev_x[index], ev_d[index]   # points region by region
     runs = _runs(labels, selected)
     # numba's prange gives each thread a contiguous block of runs: shuffle them (golden-ratio

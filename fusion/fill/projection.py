@@ -4,7 +4,7 @@ A map lives in the event camera's reference view; it is filled in a standard fra
 sensor's (a DAVIS-like camera) or, on a two-camera rig, the frame camera's, whose pose is
 ``T_world_frame(t) = T_world_event(t) @ T_event_frame`` with its own lens and size
 (:meth:`sim.sequence.Sequence.standard_frames`). A global shutter sees the whole frame at one
-pose (:func:`fusion.fill.dense.project_map`); a rolling shutter exposes row ``r`` at its own time
+pose (:func:`project_map`); a rolling shutter exposes row ``r`` at its own time
 (:meth:`sim.sequence.FrameCameraFiles.row_times`), so a point must be projected with the pose of
 the row it lands on (:func:`rolling_shutter_project`).
 """
@@ -20,7 +20,7 @@ from sim.se3 import invert_pose
 from sim.sequence import FrameCameraFiles
 
 __all__ = ["ROLLING_ITERATIONS", "frame_record", "map_points_world", "nearest_per_pixel",
-           "rolling_shutter_project"]
+           "project_map", "project_map_rolling", "rolling_shutter_project"]
 
 ROLLING_ITERATIONS = 3
 """Fixed-point iterations of :func:`rolling_shutter_project` (the middle row's pose, then 3
@@ -130,3 +130,65 @@ def frame_record(frames: FrameCameraFiles) -> dict:
             "cx": camera.cx, "cy": camera.cy, "distortion": list(camera.distortion),
             "T_event_frame": np.asarray(frames.T_event_frame).tolist(),
             "shutter": frames.shutter, "readout_s": frames.readout_s}
+
+
+def project_map(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: np.ndarray,
+                camera: Camera, T_world_frame: np.ndarray) -> np.ndarray:
+    """The event image: map points projected into a frame, the nearest one per pixel.
+
+    Parameters
+    ----------
+    depth_ref : (h, w) float ndarray, metres, 0 = no map point
+        The semi-dense map at the reference view.
+    camera_ref : Camera
+        The reference view's (undistorted) camera.
+    T_world_ref, T_world_frame : (4, 4) ndarray
+        Poses of the reference view and of the frame.
+    camera : Camera
+        The frame's camera (distortion included).
+
+    Returns
+    -------
+    (H, W) float32 ndarray, metres
+        z-depth in the frame of each projected point, rounded to the nearest pixel; 0 elsewhere.
+    """
+    points = map_points_world(depth_ref, camera_ref, T_world_ref)
+    T = invert_pose(np.asarray(T_world_frame, np.float64))
+    local = points @ T[:3, :3].T + T[:3, 3]
+    return nearest_per_pixel(camera.project(local), local[:, 2], camera)
+
+
+def project_map_rolling(depth_ref: np.ndarray, camera_ref: Camera, T_world_ref: np.ndarray,
+                        frames: FrameCameraFiles, trajectory, t_frame: float
+                        ) -> tuple[np.ndarray, float]:
+    """The event image of a rolling-shutter frame: each map point projected with the pose of
+    the row it lands on (:func:`rolling_shutter_project`).
+
+    Parameters
+    ----------
+    depth_ref, camera_ref, T_world_ref : as :func:`project_map`
+    frames : FrameCameraFiles
+        The frame camera (its ``camera``, ``T_event_frame`` and :meth:`row_times`).
+    trajectory : sim.trajectory.Trajectory
+        ``T_world_event(t)``; the frame camera's pose is ``T_world_event(t) @ T_event_frame``.
+    t_frame : float, seconds, the frame's (middle row's) time
+
+    Returns
+    -------
+    sparse : (H, W) float32 ndarray, metres, 0 elsewhere
+    last_step : float, pixels
+        The largest last fixed-point step of the points that land in the frame (0 without any):
+        it bounds each point's row error by ``|q| / (1 - |q|)`` times itself.
+    """
+    camera = frames.camera
+    row_times = frames.row_times(t_frame)
+    per_row = (row_times[-1] - row_times[0]) / max(camera.height - 1, 1)   # linear in the row
+
+    def pose_at_row(v: np.ndarray) -> np.ndarray:
+        return trajectory.pose(row_times[0] + per_row * v) @ frames.T_event_frame
+
+    points = map_points_world(depth_ref, camera_ref, T_world_ref)
+    uv, z, last_step = rolling_shutter_project(points, camera, pose_at_row)
+    landed = camera.in_image(uv) & (z > 0)
+    return (nearest_per_pixel(uv, z, camera),
+            float(last_step[landed].max()) if landed.any() else 0.0)

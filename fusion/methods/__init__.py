@@ -22,13 +22,29 @@ exception. A :class:`MethodVariant` is a method with settings of its own, labell
 ``NAME{KEY=VALUE,...}`` (:func:`method_label`): what ``evfuse bench`` and ``evfuse reproduce``
 run, the same method possibly under several settings.
 
+Methods asked for as text (``evfuse ... --method LABEL --param [METHOD.]KEY=VALUE``) become
+checked variants through :func:`method_variants`, and the one method of a fill, with the fill
+stage's parameters, a :class:`fusion.methods.ResolvedMethod` through :func:`fill_request`:
+a method is resolved once, where it is asked for, and the fill stage calls the object it is
+handed (:meth:`FillMethod.fill`).
+
+The package's modules:
+
+- ``_errors``: :class:`MethodError`;
+- ``_labels``: the label grammar (``NAME{KEY=VALUE,...}``, a setting's value as text);
+- ``_registry``: :func:`register`, :class:`FillMethod`, the settings checks,
+  :class:`MethodVariant`, method lookup and :func:`run_method`;
+- ``_variants``: labels and ``--param`` settings into variants, the fill's method resolved;
+- ``paper``, ``classic``, ``baselines``, ``surface_fit``, ``mesh``: the built-in methods, each
+  module registering its own on import.
+
 Built-ins, each with its own analytic test (``tests/test_methods.py``):
 
-- ``paper-idw``, ``paper-gaussian``, ``paper-exponential``: the paper's method (region growing,
-  region selection, weighted mean of the region's map depths), one per weighting; IDW is the
-  default of ``evfuse fill``.
-- ``nearest``: every pixel takes the depth of its nearest map point (Euclidean), as MC-EMVS's
-  densification does; fills the whole frame.
+- ``paper-idw``, ``paper-gaussian``, ``paper-exponential`` (:mod:`fusion.methods.paper`): the
+  paper's method (region growing, region selection, weighted mean of the region's map depths),
+  one per weighting; IDW is the default of ``evfuse fill``.
+- ``nearest`` (:mod:`fusion.methods.classic`, as the next two): every pixel takes the depth
+  of its nearest map point (Euclidean), as MC-EMVS's densification does; fills the whole frame.
 - ``telea``: OpenCV's fast-marching inpainting (Telea 2004) of the depth image, radius 5 px,
   on 16-bit depth (:data:`TELEA_LEVELS`).
 - ``morphological``: an unguided morphological fill in the manner of IP-Basic (Ku et al. 2018):
@@ -48,194 +64,42 @@ Built-ins, each with its own analytic test (``tests/test_methods.py``):
 
 from __future__ import annotations
 
-import numbers
-from collections.abc import Callable
-from dataclasses import asdict, dataclass
 from importlib import metadata  # noqa: F401  (kept on this path: tests patch its entry_points)
 
-import cv2
-import numpy as np
-
-from fusion.fill.filling import FillParams
-from fusion.methods._registry import (  # noqa: F401  (re-exported; _BUILT_IN for tests)
+# The built-ins register on import, in the order available_methods() lists them: the paper's,
+# the classic ones, then the other modules' (surface_fit's plane and hybrid before mesh).
+# isort: off
+import fusion.methods.paper  # noqa: F401  (registers paper-idw, paper-gaussian, paper-exponential)
+import fusion.methods.classic  # noqa: F401  (registers nearest, telea, morphological)
+import fusion.methods.baselines  # noqa: F401  (registers guided, bilateral, colorization, fbs)
+import fusion.methods.surface_fit  # noqa: F401  (registers plane and hybrid)
+import fusion.methods.mesh  # noqa: F401  (registers mesh)
+# isort: on
+from fusion.methods._errors import MethodError
+from fusion.methods._labels import format_value, method_label, parse_value, split_labels
+from fusion.methods._registry import (  # noqa: F401  (_BUILT_IN re-exported for tests)
     _BUILT_IN,
     ENTRY_POINT_GROUP,
+    Filled,
     FillMethod,
-    MethodError,
     MethodVariant,
+    ResolvedMethod,
     available_methods,
     check_params,
     coerce_params,
-    format_value,
     get_method,
-    method_label,
     param_defaults,
     parse_label,
-    parse_value,
     register,
     run_method,
-    split_labels,
 )
-from sim.camera import Camera
+from fusion.methods._variants import fill_request, method_variants, parse_param
+from fusion.methods.classic import TELEA_LEVELS, TeleaParams
+from fusion.methods.paper import PaperExponentialParams, PaperGaussianParams, PaperMethod
 
-__all__ = ["ENTRY_POINT_GROUP", "FillMethod", "MethodError", "MethodVariant",
-           "PaperExponentialParams", "PaperGaussianParams", "TeleaParams", "available_methods",
-           "check_params", "coerce_params", "format_value", "get_method", "method_label",
-           "param_defaults", "parse_label", "parse_value", "register", "run_method",
-           "split_labels"]
-
-
-# ------------------------------------------------------------------------------------------------
-# Built-in methods
-# ------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _NoParams:
-    """The settings of a method that takes none."""
-
-
-@dataclass(frozen=True)
-class PaperGaussianParams:
-    """Settings of ``paper-gaussian``: the length of :class:`fusion.fill.filling.FillParams`.
-
-    Attributes
-    ----------
-    sigma : float, pixels
-        Standard deviation of the Gaussian weights (default 5, the paper's).
-    """
-
-    sigma: float = FillParams.sigma
-
-    def __post_init__(self) -> None:
-        FillParams("gaussian", sigma=self.sigma)
-
-
-@dataclass(frozen=True)
-class PaperExponentialParams:
-    """Settings of ``paper-exponential``: the length of :class:`fusion.fill.filling.FillParams`.
-
-    Attributes
-    ----------
-    scale : float, pixels
-        Decay length, ``exp(-d / scale)`` (default 1, the paper's ``exp(-d)``).
-    """
-
-    scale: float = FillParams.scale
-
-    def __post_init__(self) -> None:
-        FillParams("exponential", scale=self.scale)
-
-
-def _paper(weighting: str, params_class: type) -> Callable:
-    def method(frame, sparse, camera, params):
-        from fusion.fill.dense import DenseParams, densify
-
-        fill = FillParams(weighting, **asdict(params_class(**params)))
-        return densify(frame, sparse, DenseParams(fill=fill))[2]
-
-    method.__doc__ = f"The paper's method with {weighting} weights."
-    return method
-
-
-for _weighting, _summary, _params in (
-        ("idw", "the paper's method: region growing, region selection, inverse distance weights",
-         _NoParams),
-        ("gaussian", "the paper's method with Gaussian weights (sigma 5 px)", PaperGaussianParams),
-        ("exponential", "the paper's method with exp(-d) weights", PaperExponentialParams)):
-    register(f"paper-{_weighting}", _summary, params=_params)(_paper(_weighting, _params))
-
-
-@register("nearest", "every pixel takes the depth of its nearest map point (MC-EMVS's "
-                     "densification); fills the whole frame", params=_NoParams)
-def nearest(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dict) -> np.ndarray:
-    """The depth of the nearest map point (exact Euclidean distance in pixels) at every pixel."""
-    from scipy.ndimage import distance_transform_edt
-
-    points = sparse > 0
-    if not points.any():
-        return np.zeros_like(sparse)
-    rows, cols = distance_transform_edt(~points, return_distances=False, return_indices=True)
-    return sparse[rows, cols]
-
-
-TELEA_LEVELS = 65535
-"""Telea inpaints 16-bit depth: OpenCV's 32-bit float path overshoots (a constant 1.7 m came
-back as -1.5 to 4.7 m), the 16-bit one does not. Depth is scaled so that the largest map depth
-is 65535 levels; with Telea's own integer rounding a constant depth comes back within a few
-levels, 5e-5 of it (tested)."""
-
-
-@dataclass(frozen=True)
-class TeleaParams:
-    """Settings of ``telea``.
-
-    Attributes
-    ----------
-    radius : float, pixels
-        Radius of the neighbourhood each pixel is inpainted from (default 5).
-    """
-
-    radius: float = 5.0
-
-    def __post_init__(self) -> None:
-        if not (isinstance(self.radius, numbers.Real) and np.isfinite(self.radius)
-                and self.radius > 0):
-            raise ValueError(f"radius must be a finite number > 0 pixels, got {self.radius!r}")
-
-
-@register("telea", "OpenCV's fast-marching inpainting (Telea 2004) of the depth image, "
-                   "radius 5 px", params=TeleaParams)
-def telea(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dict) -> np.ndarray:
-    """Inpaint every pixel without a map point from the map points around it (16-bit depth,
-    see :data:`TELEA_LEVELS`); ``params`` are :class:`TeleaParams`' fields."""
-    radius = float(TeleaParams(**params).radius)
-    points = sparse > 0
-    if not points.any():
-        return np.zeros_like(sparse)
-    top = float(sparse.max())
-    levels = np.round(sparse / top * TELEA_LEVELS).astype(np.uint16)
-    filled = cv2.inpaint(levels, (~points).astype(np.uint8), radius, cv2.INPAINT_TELEA)
-    return (filled.astype(np.float32) * np.float32(top / TELEA_LEVELS)).astype(np.float32)
-
-
-_DIAMOND_5 = np.array([[0, 0, 1, 0, 0], [0, 1, 1, 1, 0], [1, 1, 1, 1, 1], [0, 1, 1, 1, 0],
-                       [0, 0, 1, 0, 0]], np.uint8)
-
-
-@register("morphological", "unguided morphological fill in the manner of IP-Basic: inverted "
-                           "depth dilated, closed, holes filled, smoothed", params=_NoParams)
-def morphological(frame: np.ndarray, sparse: np.ndarray, camera: Camera, params: dict
-                  ) -> np.ndarray:
-    """IP-Basic's fast fill (Ku et al. 2018) on our depths.
-
-    Depth is inverted as ``top - d`` with ``top`` 1.2 times the largest map depth (IP-Basic
-    uses a fixed 100 m for KITTI), so that dilation, which keeps the largest value, keeps the
-    *nearest* surface where two meet. Then: dilation with a 5x5 diamond, closing with a full
-    5x5 kernel, empty pixels filled from a 7x7 dilation, then from a 31x31 one, a 5x5 median
-    and a 5x5 Gaussian blur over the filled pixels, and the inversion undone.
-    """
-    points = sparse > 0
-    if not points.any():
-        return np.zeros_like(sparse)
-    top = np.float32(1.2 * float(sparse.max()))
-    depth = np.where(points, top - sparse, 0).astype(np.float32)
-    depth = cv2.dilate(depth, _DIAMOND_5)
-    depth = cv2.morphologyEx(depth, cv2.MORPH_CLOSE, np.ones((5, 5), np.uint8))
-    for size in (7, 31):
-        grown = cv2.dilate(depth, np.ones((size, size), np.uint8))
-        depth = np.where(depth > 0.1 * top, depth, grown)
-    valid = depth > 0.1 * top
-    blurred = cv2.medianBlur(depth, 5)
-    depth = np.where(valid, blurred, depth)
-    blurred = cv2.GaussianBlur(depth, (5, 5), 0)
-    depth = np.where(valid, blurred, depth)
-    return np.where(depth > 0.1 * top, top - depth, 0).astype(np.float32)
-
-
-
-# Methods defined in their own modules register on import (fusion.methods._registry.register);
-# imported at the end so that the built-ins above come first in available_methods().
-import fusion.methods.baselines  # noqa: E402,F401  (registers guided, bilateral, colorization, fbs)
-import fusion.methods.mesh  # noqa: E402,F401  (registers mesh)
-import fusion.methods.surface_fit  # noqa: E402,F401  (registers plane and hybrid)
+__all__ = ["ENTRY_POINT_GROUP", "TELEA_LEVELS", "FillMethod", "Filled", "MethodError",
+           "MethodVariant", "PaperExponentialParams", "PaperGaussianParams", "PaperMethod",
+           "ResolvedMethod", "TeleaParams", "available_methods", "check_params", "coerce_params",
+           "fill_request", "format_value", "get_method", "method_label", "method_variants",
+           "param_defaults", "parse_label", "parse_param", "parse_value", "register",
+           "run_method", "split_labels"]

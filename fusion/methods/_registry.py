@@ -1,20 +1,21 @@
 """The registry of filling methods and its machinery (see :mod:`fusion.methods`).
 
-:func:`register`, :class:`FillMethod`, the settings checks, the ``NAME{KEY=VALUE}`` label
-grammar, method lookup (built-in, ``module:function``, entry point) and :func:`run_method`.
-Everything here is re-exported by :mod:`fusion.methods`, which is the public path.
+:func:`register`, :class:`FillMethod` (what the fill stage calls: :meth:`FillMethod.fill`,
+:meth:`FillMethod.stage_params`), the settings checks, :class:`MethodVariant`, method lookup
+(built-in, ``module:function``, entry point) and :func:`run_method`. The label grammar is
+:mod:`fusion.methods._labels`. Everything here is re-exported by :mod:`fusion.methods`, which is
+the public path.
 
-It imports no method module, so the modules that define methods (:mod:`fusion.methods.baselines`,
-:mod:`fusion.methods.surface_fit`, :mod:`fusion.methods.mesh`, and :mod:`fusion.methods` itself)
-and the
-code that runs them (:mod:`fusion.fill.dense`) import it without an import loop; a method module
-registers on import, and :mod:`fusion.methods` imports them all, so that the built-ins are
-registered once ``fusion.methods`` (or ``fusion``) is imported.
+It imports no method module, so the modules that define methods (:mod:`fusion.methods.classic`,
+:mod:`fusion.methods.paper`, :mod:`fusion.methods.baselines`, :mod:`fusion.methods.surface_fit`,
+:mod:`fusion.methods.mesh`) and the code that runs them (:mod:`fusion.fill.dense`) import it
+without an import loop; a method module registers on import, and :mod:`fusion.methods` imports
+them all, so that the built-ins are registered once ``fusion.methods`` (or ``fusion``) is
+imported.
 """
 
 from __future__ import annotations
 
-import ast
 import importlib
 import math
 import numbers
@@ -27,23 +28,28 @@ from collections.abc import Callable, Mapping
 from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from importlib import metadata
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fusion.methods._errors import MethodError
+from fusion.methods._labels import format_value, label_parts, method_label
 from sim.camera import Camera
+from sim.validation import ParameterError
 
-__all__ = ["ENTRY_POINT_GROUP", "FillMethod", "MethodError", "MethodVariant", "available_methods",
-           "check_params", "coerce_params", "format_value", "get_method", "method_label",
-           "param_defaults", "parse_label", "parse_value", "register", "run_method",
-           "split_labels"]
+if TYPE_CHECKING:                     # types only: fusion.fill.dense imports this module
+    from fusion.fill.dense import DenseParams
+    from fusion.fill.filling import RegionStats
+
+__all__ = ["ENTRY_POINT_GROUP", "FillMethod", "Filled", "MethodError", "MethodVariant", "NoParams",
+           "ResolvedMethod",
+           "available_methods", "check_event_image", "check_params", "coerce_params",
+           "add_built_in", "get_method", "param_defaults", "parse_label", "register",
+           "run_method"]
 
 
 ENTRY_POINT_GROUP = "evfuse.fill_methods"
 """The entry-point group under which installed packages offer filling methods."""
-
-
-class MethodError(ValueError):
-    """A filling method failed or returned something that is not a dense depth map."""
 
 
 @dataclass(frozen=True)
@@ -73,8 +79,151 @@ class FillMethod:
     origin: str = "built-in"
     params: type | None = None
 
+    def fill(self, frame: np.ndarray, sparse: np.ndarray, camera: Camera, settings: dict,
+             params: DenseParams) -> Filled:
+        """Fill one frame, as the fill stage (:func:`fusion.fill.dense.fill_frame`) calls it.
+
+        This one checks the event image (:func:`check_event_image`) and runs :attr:`function`
+        through :func:`run_method`: no segmentation (all-zero labels, ``regions`` None), its
+        run time as ``timings["method_s"]``. A method that runs stages of its own (the
+        paper's, :mod:`fusion.methods.paper`) overrides it.
+
+        Parameters
+        ----------
+        frame : (H, W) uint8 ndarray
+        sparse : (H, W) float32 ndarray, metres, 0 = no map point
+        camera : Camera, the frame's
+        settings : dict, the method's own settings, checked (:func:`check_params`)
+        params : DenseParams, the fill stage's parameters (:meth:`stage_params`)
+
+        Returns
+        -------
+        Filled
+        """
+        check_event_image(frame, sparse)
+        dense, confidence, seconds = run_method(self, frame, sparse, camera, settings)
+        return Filled(dense, confidence, np.zeros(sparse.shape, np.int32), None,
+                      {"method_s": seconds})
+
+    def stage_params(self, params: DenseParams | None, settings: dict) -> DenseParams | None:
+        """The fill stage's parameters that go with this method under ``settings``: here
+        ``params`` as given (a method that runs no stage of the paper's uses only its
+        ``band``; None: the defaults)."""
+        return params
+
+    def requested_stages(self, stages: DenseParams, weighting: str | None, settings: dict,
+                         spec: str) -> DenseParams:
+        """The fill stage's parameters of a request that sets them one by one (``evfuse fill``
+        and ``run``, :func:`fusion.methods.fill_request`), refused where they contradict this
+        method: here any stage parameter off its default, and any ``weighting`` (this method
+        runs none of the paper's stages).
+
+        Parameters
+        ----------
+        stages : DenseParams
+            The stage parameters as requested (``fill.weighting``: ``weighting`` or ``idw``).
+        weighting : str or None
+            The weighting requested, None where none was.
+        settings : dict
+            The method's own settings, checked.
+        spec : str
+            The method as it was asked for (a label), for the messages.
+
+        Raises
+        ------
+        sim.validation.ParameterError
+            The first parameter set, named as ``{name}`` with its value, and the methods that
+            use it.
+        """
+        defaults = type(stages)()
+        given = [("weighting", weighting, None)]
+        for group in ("segmentation", "selection", "fill"):
+            given += [(f.name, getattr(getattr(stages, group), f.name),
+                       getattr(getattr(defaults, group), f.name))
+                      for f in fields(getattr(stages, group)) if f.name != "weighting"]
+        for name, value, default in given:
+            if value != default:
+                value = f"{value:g}" if isinstance(value, float) else value      # as typed
+                users = ", ".join(m.name for m in _BUILT_IN.values()
+                                  if type(m).requested_stages is not FillMethod.requested_stages)
+                raise ParameterError(
+                    f"{{method}} {ParameterError.literal(spec)} and {{{name}}} "
+                    f"{ParameterError.literal(value)} contradict each other: only the paper's "
+                    f"methods ({users}) use {{{name}}} (drop it, or give one of them)",
+                    method="method", **{name: name})
+        return stages
+
+    def progress_units(self) -> tuple[str, str]:
+        """What the fill stage's progress counts: its unit and the noun of its total."""
+        return "px", f"pixels filled by {self.name}"
+
+
+@dataclass(frozen=True)
+class Filled:
+    """What a method gave for one frame (:meth:`FillMethod.fill`).
+
+    Attributes
+    ----------
+    dense : (H, W) float32 ndarray, metres, 0 = none
+    confidence : (H, W) float32 ndarray in [0, 1], or None
+    labels : (H, W) int32 ndarray, regions 1..K, 0 = too small; all 0 for a method that does not
+        segment the frame
+    regions : RegionStats or None, None for a method that does not segment the frame
+    timings : dict, seconds per step
+    """
+
+    dense: np.ndarray
+    confidence: np.ndarray | None
+    labels: np.ndarray
+    regions: RegionStats | None
+    timings: dict
+
+
+@dataclass(frozen=True)
+class ResolvedMethod:
+    """A filling method resolved once, with what it runs under: what the fill stage is handed
+    (:func:`resolve_method`, :func:`fusion.methods.fill_request`).
+
+    Attributes
+    ----------
+    method : FillMethod
+        The method (:func:`fusion.methods.get_method`).
+    settings : dict
+        Its own settings, checked and coerced (:func:`fusion.methods.check_params`).
+    params : DenseParams
+        The fill stage's parameters that go with it
+        (:meth:`fusion.methods.FillMethod.stage_params`).
+    """
+
+    method: FillMethod
+    settings: dict
+    params: DenseParams
+
+
+def check_event_image(frame: np.ndarray, sparse: np.ndarray) -> None:
+    """Refuse, in one line, an event image that is not finite metres >= 0 with a map point in
+    the frame's size (what :func:`fusion.fill.dense.densify` refuses for the paper's method)."""
+    if np.shape(frame) != sparse.shape:
+        raise ValueError(f"the frame is {np.shape(frame)[1]}x{np.shape(frame)[0]} but the sparse "
+                         f"depth is {sparse.shape[1]}x{sparse.shape[0]}: they must be the same "
+                         "size")
+    bad = int(np.count_nonzero(~np.isfinite(sparse)))
+    if bad:
+        raise ValueError(f"the sparse depth must be finite metres (0 = no map point), found {bad} "
+                         "NaN or infinite pixels")
+    if np.any(sparse < 0):
+        raise ValueError(f"the sparse depth must be >= 0 metres (0 = no map point), found "
+                         f"{int(np.count_nonzero(sparse < 0))} negative pixels")
+    if not np.any(sparse > 0):
+        raise ValueError("no map points: the sparse depth has no pixel > 0, nothing to fill from")
+
 
 _BUILT_IN: dict[str, FillMethod] = {}
+
+
+@dataclass(frozen=True)
+class NoParams:
+    """The settings of a method that takes none (its :attr:`FillMethod.params`)."""
 
 
 def register(name: str, summary: str, params: type | None = None
@@ -85,12 +234,19 @@ def register(name: str, summary: str, params: type | None = None
         raise ValueError(f"filling method {name}: params must be a dataclass, got {params!r}")
 
     def decorate(function: Callable) -> Callable:
-        if name in _BUILT_IN:
-            raise ValueError(f"a filling method named {name!r} is already registered")
-        _BUILT_IN[name] = FillMethod(name, summary, function, params=params)
+        add_built_in(FillMethod(name, summary, function, params=params))
         return function
 
     return decorate
+
+
+def add_built_in(method: FillMethod) -> FillMethod:
+    """Register ``method`` as it is (a :class:`FillMethod` of a subclass of its own, e.g. the
+    paper's, :mod:`fusion.methods.paper`); :func:`register` for a plain function."""
+    if method.name in _BUILT_IN:
+        raise ValueError(f"a filling method named {method.name!r} is already registered")
+    _BUILT_IN[method.name] = method
+    return method
 
 
 # ------------------------------------------------------------------------------------------------
@@ -206,103 +362,6 @@ def _coerced(method: str, key: str, value, kind):
                       f"{format_value(value)}")
 
 
-def parse_value(text: str):
-    """A setting's value from text: ``true`` / ``false``, ``none``, an int or float literal, a
-    quoted string; any other text is itself (a string).
-
-    Raises
-    ------
-    MethodError
-        A literal that overflows to infinity (``1e999``): no setting takes one. (``nan`` and
-        ``inf`` are not literals: they are text, which a number setting refuses.)
-    """
-    stripped = text.strip()
-    lowered = stripped.lower()
-    if lowered in ("true", "false"):
-        return lowered == "true"
-    if lowered == "none":
-        return None
-    try:
-        value = ast.literal_eval(stripped)
-    except (ValueError, TypeError, SyntaxError, MemoryError, RecursionError):
-        return stripped
-    if isinstance(value, float) and not math.isfinite(value):
-        raise MethodError(f"{stripped}: expected a finite number")
-    return value if isinstance(value, bool | int | float | str) else stripped
-
-
-def format_value(value) -> str:
-    """A setting's value as :func:`parse_value` reads it back: true, false, none, numbers, bare
-    words, other strings quoted."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if value is None:
-        return "none"
-    if isinstance(value, str):
-        bare = value and all(c.isalnum() or c in "_-.+/:" for c in value)
-        return value if bare and parse_value(value) == value else repr(value)
-    return repr(value) if isinstance(value, float) else str(value)
-
-
-def split_labels(text: str) -> list[str]:
-    """Comma-separated method labels (``plane,plane{residual_rel=0.03,min_points=4}``) apart:
-    commas inside braces or quotes do not separate; blanks dropped."""
-    parts, depth, quote, start = [], 0, "", 0
-    for i, char in enumerate(text):
-        if quote:
-            quote = "" if char == quote else quote
-        elif char in "'\"":
-            quote = char
-        elif char in "{}":
-            depth += 1 if char == "{" else -1
-        elif char == "," and depth == 0:
-            parts.append(text[start:i])
-            start = i + 1
-    parts.append(text[start:])
-    return [part.strip() for part in parts if part.strip()]
-
-
-def parse_label(text: str) -> MethodVariant:
-    """A variant from its label, ``NAME`` or ``NAME{KEY=VALUE,...}`` (:func:`method_label`),
-    values read by :func:`parse_value`; the settings are not checked (:func:`check_params`).
-
-    Raises
-    ------
-    MethodError
-        Braces that do not close the text, an item without ``=`` or a key that is not a name,
-        a key given twice; one line naming the label and what was expected.
-    """
-    text = text.strip()
-    if "{" not in text and "}" not in text:
-        return MethodVariant(text)
-    name, _, body = text.partition("{")
-    expected = f"{text}: expected NAME or NAME{{KEY=VALUE,...}}"
-    if not name.strip() or "}" in name or not body.endswith("}"):
-        raise MethodError(expected)
-    params = {}
-    for item in split_labels(body[:-1]):
-        key, equals, value = item.partition("=")
-        key = key.strip()
-        if not equals or not key.isidentifier():
-            raise MethodError(f"{expected}; got {item!r}")
-        if key in params:
-            raise MethodError(f"{text}: {key} given twice")
-        try:
-            params[key] = parse_value(value)
-        except MethodError as exc:
-            raise MethodError(f"{text}: {key}={exc}") from None
-    return MethodVariant(name.strip(), params)
-
-
-def method_label(name: str, params: Mapping | None = None) -> str:
-    """``name``, or ``name{key=value,...}`` with the settings in key order: how a method's
-    variant is shown in tables, and what ``--method`` takes back."""
-    if not params:
-        return name
-    items = (f"{key}={format_value(params[key])}" for key in sorted(params))
-    return name + "{" + ",".join(items) + "}"
-
-
 @dataclass(frozen=True)
 class MethodVariant:
     """A filling method with settings of its own: what a label ``NAME{KEY=VALUE,...}`` names,
@@ -334,6 +393,20 @@ class MethodVariant:
         """The same variant with its settings checked and coerced (:func:`check_params`); a
         MethodError for an unknown method or a bad setting."""
         return MethodVariant(self.spec, check_params(get_method(self.spec), self.params))
+
+
+def parse_label(text: str) -> MethodVariant:
+    """A variant from its label, ``NAME`` or ``NAME{KEY=VALUE,...}`` (:func:`method_label`),
+    read by :func:`fusion.methods._labels.label_parts`; the settings are not checked
+    (:func:`check_params`).
+
+    Raises
+    ------
+    MethodError
+        Braces that do not close the text, an item without ``=`` or a key that is not a name,
+        a key given twice; one line naming the label and what was expected.
+    """
+    return MethodVariant(*label_parts(text))
 
 
 def _entry_points() -> dict[str, FillMethod]:

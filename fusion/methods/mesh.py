@@ -80,9 +80,9 @@ from scipy import ndimage
 
 from fusion.methods.surface_fit import (
     SurfaceFitParams,
-    _check_frame,
     _method,
-    _solve_small,
+    check_frame,
+    solve_small,
     surface_fill,
 )
 from sim.camera import Camera
@@ -345,7 +345,7 @@ def _fit_local_planes(xy: np.ndarray, w: np.ndarray, near: np.ndarray, similar_r
                     normal[a, b] += weight * row[a] * row[b]
         normal[1, 1] += 1e-12
         normal[2, 2] += 1e-12
-        _solve_small(normal, rhs, planes[i])
+        solve_small(normal, rhs, planes[i])
     return planes
 
 
@@ -670,7 +670,7 @@ def mesh_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     Returns a :class:`MeshFill`.
     """
     params = params or MeshParams()
-    frame, sparse = _check_frame(frame, sparse, camera)
+    frame, sparse = check_frame(frame, sparse, camera)
     kept = clean_map(sparse, camera, params.neighbours, params.agree_rel, params.similar_rel,
                      params.min_support)
     clean = np.where(kept, sparse, 0).astype(np.float32)

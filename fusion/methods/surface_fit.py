@@ -21,7 +21,7 @@ one for any smooth surface).
    their
    default parameters: threshold 3, band 3 px, ring ratio 30 %, inside ratio 5 %).
 2. A region's points are its map points *and* those of its band (both sides of its contour),
-   exactly those the paper interpolates from (``fusion.fill.filling._region_events``, the helper
+   exactly those the paper interpolates from (``fusion.fill.filling.region_events``, the helper
    that defines them).
 3. Fit ``1 / z`` by RANSAC (MSAC score) and least-squares refinement, the residual being the
    relative depth error ``z_fit / z - 1``, inliers within ``residual_rel`` (2 %). Random samples
@@ -67,13 +67,13 @@ import numba
 import numpy as np
 from scipy import ndimage
 
-from fusion.fill.filling import RegionStats, _region_events, select_regions
+from fusion.fill.filling import RegionStats, region_events, select_regions
 from fusion.fill.segmentation import default_min_region, segment_regions
 from fusion.methods._registry import register
 from sim.camera import Camera
 
-__all__ = ["HybridParams", "SurfaceFill", "SurfaceFit", "SurfaceFitParams", "fit_surface",
-           "hybrid_fill", "surface_fill"]
+__all__ = ["HybridParams", "SurfaceFill", "SurfaceFit", "SurfaceFitParams", "check_frame",
+           "fit_surface", "hybrid_fill", "solve_small", "surface_fill"]
 
 _MAX_CONDITION = 1e8
 """RANSAC samples whose basis matrix is worse conditioned than this are skipped (collinear
@@ -312,7 +312,7 @@ def _model(coefficients: np.ndarray, phi: np.ndarray, w: np.ndarray, tolerance: 
 
 
 @numba.njit(cache=True)
-def _solve_small(a: np.ndarray, b: np.ndarray, x: np.ndarray) -> bool:
+def solve_small(a: np.ndarray, b: np.ndarray, x: np.ndarray) -> bool:
     """Solve ``a x = b`` in place (Gaussian elimination, partial pivoting; ``a`` and ``b`` are
     overwritten); False when a pivot is exactly 0."""
     size = b.shape[0]
@@ -382,7 +382,7 @@ def _best_sample(phi: np.ndarray, w: np.ndarray, samples: np.ndarray, tolerance:
                 a[i, j] = phi[samples[k, i], j]
                 work[i, j] = a[i, j]
             b[i] = w[samples[k, i]]
-        if not _solve_small(work, b, c):
+        if not solve_small(work, b, c):
             continue
         total = 0.0
         for p in range(n):
@@ -650,8 +650,11 @@ class SurfaceFill:
     piece_parent: dict[int, int] = field(default_factory=dict)
 
 
-def _check_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def check_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The frame and the sparse depth (float32) of a surface-fitting method (``plane``,
+    ``hybrid``, ``mesh``), or a ValueError: not the camera's size, or a depth that is not
+    finite metres >= 0."""
     frame = np.asarray(frame)
     sparse = np.asarray(sparse, np.float32)
     shape = (camera.height, camera.width)
@@ -671,7 +674,7 @@ def _fill_pieces(labels: np.ndarray, wanted: list[int], sparse: np.ndarray, xy: 
     selected = np.zeros(int(labels.max()) + 1, bool)
     selected[wanted] = True
     ev_y, ev_x = np.nonzero(sparse > 0)
-    start, index = _region_events(labels, ev_y, ev_x, selected, ring)
+    start, index = region_events(labels, ev_y, ev_x, selected, ring)
     boxes = ndimage.find_objects(labels)
     fits = {}
     for label in wanted:
@@ -725,7 +728,7 @@ def surface_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
         metres >= 0.
     """
     params = params or SurfaceFitParams()
-    frame, sparse = _check_frame(frame, sparse, camera)
+    frame, sparse = check_frame(frame, sparse, camera)
     labels = segment_regions(frame)
     dense = sparse.copy()
     confidence = np.zeros(sparse.shape, np.float32)
@@ -759,7 +762,7 @@ def hybrid_fill(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
     """
     params = params or HybridParams()
     first = surface_fill(frame, sparse, camera, params)
-    frame, sparse = _check_frame(frame, sparse, camera)
+    frame, sparse = check_frame(frame, sparse, camera)
     rejected = [label for label, fit in first.fits.items() if not fit.accepted]
     if not rejected:
         return first
