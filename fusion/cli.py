@@ -71,7 +71,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     )
     from fusion.experiments.families import KNOBS, write_family
     from fusion.methods import MethodVariant, available_methods, method_variants, split_labels
-    from sim.sequence import check_output_dir
+    from sim.output import check_output_dir
 
     given = split_labels(",".join(args.method or []))
     variants = method_variants(given, args.param or [])
@@ -119,7 +119,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_map(args: argparse.Namespace) -> int:
     from fusion.map.emvs import DepthMapParams
     from fusion.pipeline import map_window
-    from sim.sequence import check_output_dir
+    from sim.output import check_output_dir
 
     _check_depth_flags(args)
     check_output_dir(args.out, args.overwrite, [args.sequence])   # fail before the long work
@@ -175,7 +175,7 @@ def _cmd_fill(args: argparse.Namespace) -> int:
     from fusion.pipeline import fill_sources, fill_window
     from sim.camera import read_calib
     from sim.exr import read_depth
-    from sim.sequence import check_output_dir
+    from sim.output import check_output_dir
     from sim.statistics import read_gray
 
     method = _fill_method(args)
@@ -304,7 +304,7 @@ def _print_report(report: dict, out: Path) -> None:
 def _cmd_show(args: argparse.Namespace) -> int:
     from fusion.figures import write_image
     from fusion.pipeline import draw_overview, run_sources
-    from sim.sequence import check_output_file
+    from sim.output import check_output_file
 
     out = Path(args.out)
     check_output_file(out, run_sources(args.run_folder))   # the run folder is only read
@@ -438,7 +438,7 @@ def _write_event_figure(path: Path, frame: np.ndarray, title: str) -> None:
 
 
 def _parser() -> argparse.ArgumentParser:
-    from sim.sequence import evfuse_version
+    from sim.output import evfuse_version
 
     parser = OneLineParser(
         prog="evfuse",

@@ -53,15 +53,15 @@ from fusion.map.mapping import MapParams, MapResult, map_sequence, time_window, 
 from fusion.methods import ResolvedMethod
 from sim.eventio import read_window
 from sim.exr import read_depth
-from sim.progress import progress as progress_stage
-from sim.sequence import (
+from sim.output import (
     PARTIAL_SUFFIX,
     atomic_output_dir,
     check_output_dir,
-    load_sequence,
     resumable_partial,
     resume_differences,
 )
+from sim.progress import progress as progress_stage
+from sim.sequence import load_sequence
 from sim.statistics import event_frame
 from sim.validation import ParameterError, finite
 
@@ -244,7 +244,7 @@ SHA-256, every parameter, evfuse's version), compared by a resumed run."""
 
 def _run_identity(source: str | Path, scene, params: RunParams) -> dict:
     """What a resumed run must share with the interrupted one."""
-    from sim.sequence import evfuse_version
+    from sim.output import evfuse_version
 
     return json.loads(to_json({
         "source": str(source),
@@ -298,7 +298,7 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
     ValueError
         Bad input; an ``out`` that is, holds or lies in the source (a sequence folder, the scene
         file or a file it names), an existing ``out`` without ``overwrite`` or not written by
-        evfuse (:func:`sim.sequence.check_output_dir`), all before any work.
+        evfuse (:func:`sim.output.check_output_dir`), all before any work.
 
     Notes
     -----

@@ -154,7 +154,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_events(args: argparse.Namespace) -> int:
-    from sim.sequence import check_output_file
+    from sim.output import check_output_file
     from sim.statistics import (
         compare_stats,
         event_frame,
@@ -221,7 +221,8 @@ def _cmd_twin(args: argparse.Namespace) -> int:
 
 def _cmd_convert(args: argparse.Namespace) -> int:
     from sim.eventio import convert_events
-    from sim.sequence import check_output_file, load_sequence
+    from sim.output import check_output_file
+    from sim.sequence import load_sequence
 
     width = height = None
     if args.sensor:

@@ -37,7 +37,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sim.sequence import atomic_output_dir, check_output_dir, load_sequence
+from sim.output import atomic_output_dir, check_output_dir
+from sim.sequence import load_sequence
 from sim.statistics import frame_noise
 from sim.textures import linear_to_srgb
 from sim.validation import ParameterError, check_parameter, depth_metres, positive
@@ -77,7 +78,7 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
         The recording's frames are ``255 * light ** (1 / frame_gamma)`` (default 1: linear, as
         a DAVIS APS; 2.2 for a gamma-encoded camera).
     overwrite : bool
-        Replace an existing ``out`` that evfuse wrote (:func:`sim.sequence.atomic_output_dir`;
+        Replace an existing ``out`` that evfuse wrote (:func:`sim.output.atomic_output_dir`;
         ``out`` is written atomically and must not be, hold or lie in ``recording``).
 
     Returns

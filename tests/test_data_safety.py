@@ -9,7 +9,7 @@ import shutil
 
 import pytest
 
-from sim.sequence import MARKER
+from sim.output import MARKER
 from tests.conftest import FAST, WALL, run_cli, scene_text, tree_hashes
 
 MAP = ["--min-depth", "0.5", "--max-depth", "3", "--planes", "30", "--quiet"]
@@ -282,7 +282,7 @@ def test_a_nested_output_s_marker_names_its_sibling_input_as_it_will_be(tmp_path
     path."""
     import json
 
-    from sim.sequence import MARKER, write_marker
+    from sim.output import MARKER, write_marker
 
     outer = tmp_path / "run.partial"
     (outer / "sequence").mkdir(parents=True)

@@ -11,9 +11,8 @@ import numpy as np
 import pytest
 
 from sim.exr import write_depth
+from sim.output import MARKER, atomic_output_dir
 from sim.sequence import (
-    MARKER,
-    atomic_output_dir,
     frame_name,
     load_sequence,
     read_index,
@@ -360,6 +359,7 @@ def test_partial_suffix_is_defined_once():
     import ast
 
     import sim.eventio
+    import sim.output
 
     root = Path(__file__).resolve().parent.parent
     definitions = []
@@ -371,7 +371,7 @@ def test_partial_suffix_is_defined_once():
                 if any(isinstance(t, ast.Name) and t.id == "PARTIAL_SUFFIX" for t in targets):
                     definitions.append(f"{path.relative_to(root)}:{node.lineno}")
     assert len(definitions) == 1, definitions
-    assert sim.eventio.PARTIAL_SUFFIX is sim.sequence.PARTIAL_SUFFIX
+    assert sim.eventio.PARTIAL_SUFFIX is sim.output.PARTIAL_SUFFIX
 
 
 def test_both_json_writers_write_an_undefined_figure_as_null(tmp_path):

@@ -7,9 +7,9 @@ import importlib
 
 import pytest
 
+from sim.output import partial_dir
 from sim.sampling import SamplingParams
 from sim.scene import parse_scene
-from sim.sequence import partial_dir
 from sim.simulate.window import cached_window, is_simulated, simulate_window, window_key
 from tests.conftest import scene_text
 

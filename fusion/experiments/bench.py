@@ -47,7 +47,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sim.sequence import atomic_output_dir, check_output_dir
+from sim.output import atomic_output_dir, check_output_dir
 from sim.validation import ParameterError, integer
 
 __all__ = ["CSV_COLUMNS", "CURVE_SHARES", "INPUTS", "SCENE_GROUPS", "BenchParams", "bench",

@@ -42,8 +42,8 @@ from fusion.map.emvs import DepthMapParams
 from fusion.pipeline import fill_window, map_window
 from sim.frame_sensor import FrameSensor
 from sim.frames import check_frame_sensor, with_frame_sensor
+from sim.output import atomic_output_dir, check_output_dir
 from sim.progress import progress as progress_stage
-from sim.sequence import atomic_output_dir, check_output_dir
 from sim.validation import ParameterError, finite, positive
 
 __all__ = ["PAPER", "ReproduceParams", "reproduce"]

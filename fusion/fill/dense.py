@@ -68,7 +68,8 @@ from fusion.methods._registry import ResolvedMethod, check_params, get_method
 from fusion.scoring import dense_errors, errors_by_motion, frame_motion_regions
 from sim.camera import Camera
 from sim.exr import read_depth, write_depth, write_exr_channels
-from sim.sequence import atomic_output_dir, load_sequence
+from sim.output import atomic_output_dir
+from sim.sequence import load_sequence
 from sim.trajectory import read_trajectory
 from sim.validation import integer
 
@@ -486,7 +487,7 @@ def write_fill(result: DenseResult, out: str | Path, params: DenseParams,
 
     ``inputs``: the files and folders the fill read besides ``result.info``'s ``map`` and
     ``sequence`` (e.g. the frame and sparse depth of a single frame); ``out`` must not be, hold or
-    lie in any of them (:func:`sim.sequence.atomic_output_dir`).
+    lie in any of them (:func:`sim.output.atomic_output_dir`).
     """
     segmented = result.regions is not None
     files = {"segments.png": ("region labels, 16-bit (0 = region too small)" if segmented else

@@ -39,8 +39,9 @@ from fusion.scoring import depth_errors, errors_by_motion, motion_regions, recor
 from sim.camera import Camera
 from sim.eventio import check_time_units, event_time_span, iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
+from sim.output import atomic_output_dir
 from sim.progress import progress as progress_stage
-from sim.sequence import EXACT_TIME_S, Sequence, atomic_output_dir, load_sequence
+from sim.sequence import EXACT_TIME_S, Sequence, load_sequence
 from sim.trajectory import read_trajectory
 from sim.validation import ParameterError
 
@@ -590,7 +591,7 @@ def _overlay(result: MapResult) -> np.ndarray:
 def write_map(result: MapResult, out: str | Path, params: MapParams,
               overwrite: bool = False) -> Path:
     """Write ``semidense_depth.exr``, ``confidence.exr``, ``mask.png``, ``overlay.png``,
-    ``map.ply`` and ``map.json`` into ``out`` (atomically; :func:`sim.sequence.atomic_output_dir`
+    ``map.ply`` and ``map.json`` into ``out`` (atomically; :func:`sim.output.atomic_output_dir`
     refuses an ``out`` that is, holds or lies in the sequence folder)."""
     sequence = result.sequence
     with atomic_output_dir(out, overwrite=overwrite, inputs=[sequence.folder],

@@ -15,9 +15,9 @@ import numpy as np
 
 from sim._atomic import write_bytes_atomically
 from sim.events import EventEmulator, EventParams
+from sim.output import evfuse_version, resumable_partial, resume_differences
 from sim.sampling import Sample, SamplingParams
 from sim.scene import Scene
-from sim.sequence import evfuse_version, resumable_partial, resume_differences
 from sim.validation import ParameterError
 
 CHECKPOINT_SECONDS = 1.0

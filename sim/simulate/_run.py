@@ -26,15 +26,11 @@ from sim.events import EventParams
 from sim.flow import write_motion_ground_truth
 from sim.frames import frame_times
 from sim.imu import write_motion_truth
+from sim.output import atomic_output_dir, check_output_dir
 from sim.render import Renderer
 from sim.sampling import SamplingParams
 from sim.scene import Scene
-from sim.sequence import (
-    atomic_output_dir,
-    check_output_dir,
-    write_index,
-    write_sequence_json,
-)
+from sim.sequence import write_index, write_sequence_json
 from sim.simulate._checkpoint import (
     CHECKPOINT_FOLDER,
     _check_resumable,

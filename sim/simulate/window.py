@@ -22,9 +22,9 @@ import json
 from pathlib import Path
 
 from sim.events import EventParams
+from sim.output import partial_dir
 from sim.sampling import SamplingParams
 from sim.scene import Scene
-from sim.sequence import partial_dir
 from sim.simulate._checkpoint import CHECKPOINT_FOLDER, _identity
 from sim.simulate._run import scene_files
 
