@@ -16,15 +16,8 @@ from sim.scene import parse_scene
 from sim.simulate import simulate
 from sim.simulate._events import _EventCamera, _ShaderSource
 from tests.conftest import scene_text
+from tests.test_simulate import OBJECTS  # the textured poster
 
-OBJECTS = """
-[[objects]]
-name = "poster"
-type = "rectangle"
-center = [0.0, 1.0, 0.0]
-size = [4.0, 4.0]
-material = { texture = { type = "noise", resolution = 128 } }
-"""
 MOVING = ('[trajectory]\ntype = "linear"\nposition = [0.0, 0.0, 0.0]\n'
           "velocity = [1.0, 0.0, 0.0]\nlook_at = [0.0, 1.0, 0.0]\n")
 CAMERA = "[camera]\nwidth = 48\nheight = 36\nfx = 40.0\nfy = 40.0\ncx = 24.0\ncy = 18.0\n"
