@@ -76,8 +76,7 @@ def register_sensor() -> None:
                 x, y = (xd - dx) * inv, (yd - dy) * inv
             return x, y
 
-        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample,
-                       active=True):
+        def _pinhole(self, position_sample):
             # Film position in [0, 1]^2 -> continuous pixel coordinate; pixel i spans
             # [i, i + 1) on the film, its centre is at i + 0.5, i.e. at u = i in our convention.
             u = position_sample.x * self.width - 0.5
@@ -90,8 +89,12 @@ def register_sensor() -> None:
                 R, t = self._row_pose(position_sample.y)
             else:
                 R, t = self.R, self.t
-            direction = dr.normalize(R @ mi.Vector3f(x, y, 1.0))
-            ray = mi.Ray3f(t, direction)
+            return x, y, R, t
+
+        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample,
+                       active=True):
+            x, y, R, t = self._pinhole(position_sample)
+            ray = mi.Ray3f(t, dr.normalize(R @ mi.Vector3f(x, y, 1.0)))
             ray.time = time
             return ray, mi.Spectrum(1.0)
 
@@ -103,9 +106,16 @@ def register_sensor() -> None:
 
         def sample_ray_differential(self, time, wavelength_sample, position_sample,
                                     aperture_sample, active=True):
-            ray, weight = self.sample_ray(time, wavelength_sample, position_sample,
-                                          aperture_sample, active)
-            return mi.RayDifferential3f(ray), weight
+            x, y, R, t = self._pinhole(position_sample)
+            ray = mi.RayDifferential3f(mi.Ray3f(t, dr.normalize(R @ mi.Vector3f(x, y, 1.0))))
+            ray.time = time
+            # The pinhole rays one pixel right and down: the footprint of filtered textures
+            # (sim.textures; distortion's change of the pixel's size left out).
+            ray.o_x = ray.o_y = t
+            ray.d_x = dr.normalize(R @ mi.Vector3f(x + 1.0 / self.fx, y, 1.0))
+            ray.d_y = dr.normalize(R @ mi.Vector3f(x, y + 1.0 / self.fy, 1.0))
+            ray.has_differentials = True
+            return ray, mi.Spectrum(1.0)
 
         def to_string(self):
             return (f"PinholeSensor[fx={self.fx}, fy={self.fy}, cx={self.cx}, cy={self.cy}, "

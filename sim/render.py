@@ -142,7 +142,75 @@ def _bsdf_dict(index: int, obj: SceneObject, scene: Scene) -> dict:
                                       max_texels=_max_texels(obj, scene))
     else:
         reflectance = {"type": "rgb", "value": list(material.color)}
-    return {"type": "twosided", "material": {"type": "diffuse", "reflectance": reflectance}}
+    # The id lets sim.textures.TextureFilter find the material of a hit (its BSDF).
+    return {"type": "twosided", "id": f"o{index}_bsdf",
+            "material": {"type": "diffuse", "reflectance": reflectance}}
+
+
+def _texture_materials(scene: Scene) -> list[tuple | None]:
+    """Per object, the arguments of its texture as :class:`sim.textures.TextureFilter` takes
+    them (the same as :func:`_bsdf_dict` gives :func:`sim.textures.mitsuba_texture`)."""
+    return [None if obj.material.texture is None else
+            (obj.material.texture, obj.material.texture_scale, scene.seed + index,
+             obj.shape in ("rectangle", "cylinder"), _max_texels(obj, scene))
+            for index, obj in enumerate(scene.objects)]
+
+
+INTEGRATOR_PLUGIN = "evfuse_direct"
+_integrator_registered: str | None = None
+
+
+def register_integrator() -> None:
+    """Register the ``evfuse_direct`` integrator with the active (JIT) variant (idempotent).
+
+    Mitsuba's ``direct`` integrator as :class:`Renderer` configures it (one emitter sample, no
+    BSDF sample; evfuse's lights are all delta lights, whose MIS weight is 1), the same random
+    draws in the same order, with one change: each hit's texture is read filtered over the
+    sample's footprint (:func:`sim.textures.filtered_scale`, the event camera's lookup), from
+    the sensor's ray differentials (the pinhole rays one pixel right and down), which Mitsuba's
+    render loop scales by ``1 / sqrt(spp)``: each sample's footprint is its stratum of the pixel.
+    Its ``filtering`` attribute holds :attr:`sim.textures.TextureFilter.arrays` (set by the
+    :class:`Renderer`; None reads the textures as points, bit for bit ``direct``'s values up to
+    float rounding).
+    """
+    global _integrator_registered
+    import drjit as dr
+    import mitsuba as mi
+
+    from sim.textures import filtered_scale
+
+    if _integrator_registered == mi.variant():
+        return
+
+    class FilteredDirect(mi.SamplingIntegrator):
+        """``direct`` with footprint-filtered textures (see :func:`register_integrator`)."""
+
+        def __init__(self, props):
+            super().__init__(props)
+            self.filtering = None
+
+        def sample(self, scene, sampler, ray, medium=None, active=True):
+            si = scene.ray_intersect(mi.Ray3f(ray), ray_flags=mi.RayFlags.All, coherent=True,
+                                     active=active)
+            valid = mi.Bool(active) & si.is_valid()
+            bsdf = si.bsdf()
+            ds, emitter_value = scene.sample_emitter_direction(si, sampler.next_2d(valid), True,
+                                                               valid)
+            lit = valid & (ds.pdf != 0.0)
+            value = bsdf.eval(mi.BSDFContext(), si, si.to_local(ds.d), lit) * emitter_value
+            if self.filtering is not None:
+                si.compute_uv_partials(ray)
+                value *= filtered_scale(self.filtering, si, bsdf, lit)
+            return dr.select(lit, value, 0.0), valid, []
+
+        def aov_names(self):
+            return []
+
+        def to_string(self):
+            return "FilteredDirect[]"
+
+    mi.register_integrator(INTEGRATOR_PLUGIN, lambda props: FilteredDirect(props))
+    _integrator_registered = mi.variant()
 
 
 def _object_index(shape_id: str) -> int:
@@ -238,6 +306,12 @@ class Renderer:
     rows : bool
         Give every image row its own pose (a rolling shutter: :meth:`luminance_rows`,
         :meth:`depth_rows`); JIT variants only.
+    texture_filter : bool
+        Read textures filtered over each sample's footprint (default; JIT variants only: with
+        ``scalar_rgb`` textures are read as points). The frames (:meth:`luminance`, through the
+        ``evfuse_direct`` integrator, see :func:`register_integrator`) and the event camera
+        (:class:`sim.shader.EventShader`) use the same lookup, :attr:`texture_filter`. False
+        reads them as points, as Mitsuba does (a reference at many samples per pixel).
 
     Examples
     --------
@@ -248,7 +322,7 @@ class Renderer:
     """
 
     def __init__(self, scene: Scene, *, spp: int | None = None, seed: int | None = None,
-                 variant: str | None = None, rows: bool = False):
+                 variant: str | None = None, rows: bool = False, texture_filter: bool = True):
         self.variant = use_variant(variant)
         if rows and self.variant == "scalar_rgb":
             raise ValueError("a renderer with a pose per row (a rolling shutter) needs a JIT "
@@ -268,9 +342,13 @@ class Renderer:
         self.seed = int(seed if seed is not None else scene.seed)
         cam = self.camera
         k1, k2, p1, p2, k3 = cam.distortion
+        filtering = texture_filter and self.variant != "scalar_rgb"
+        if filtering:
+            register_integrator()
         description: dict = {
             "type": "scene",
-            "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
+            "integrator": ({"type": INTEGRATOR_PLUGIN} if filtering else
+                           {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0}),
             "sensor": {
                 "type": SENSOR_PLUGIN,
                 "fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy,
@@ -295,6 +373,14 @@ class Renderer:
         # keep their own parameters, so dynamic scenes are loaded without that optimisation.
         self._scene = mi.load_dict(description, optimize=not scene.is_dynamic)
         self._params = mi.traverse(self._scene)
+        self.texture_filter = None
+        """:class:`sim.textures.TextureFilter` or None: the footprint-filtered textures that
+        the frames and the event camera read (None: point lookups, or no texture)."""
+        if filtering:
+            from sim.textures import TextureFilter
+
+            self.texture_filter = TextureFilter(self._scene, _texture_materials(scene))
+            self._scene.integrator().filtering = self.texture_filter.arrays
         for obj, key in shape_keys:
             if obj.motion is None:
                 continue

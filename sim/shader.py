@@ -42,6 +42,7 @@ import numpy as np
 
 from sim.camera import Camera
 from sim.render import Renderer
+from sim.textures import filtered_scale, set_footprint
 from sim.trajectory import Trajectory
 
 __all__ = ["EventShader", "subsample_directions"]
@@ -294,11 +295,18 @@ class EventShader:
         self._directions = mi.Vector3f(*(rays[:, i] for i in range(3)))
         self._samples_per_launch = max(1, MAX_RAYS_PER_LAUNCH // spp)
 
-        def trace(scene, directions, pixels, nodes, fractions, table, zeros):
-            return _trace(scene, directions, pixels, nodes, fractions, table, zeros, spp=spp)
+        textures = renderer.texture_filter
+        lens = (float(camera.fx), float(camera.fy))
 
-        def trace_one(scene, directions, pixels, nodes, fractions, table, zeros):
-            return _trace(scene, directions, pixels, nodes, fractions, table, zeros, spp=1)
+        def trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering):
+            return _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
+                          spp=spp, lens=lens)
+
+        def trace_one(scene, directions, pixels, nodes, fractions, table, zeros, filtering):
+            return _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
+                          spp=1, lens=lens, footprint=1.0 / math.isqrt(spp))
+
+        self._filtering = None if textures is None else textures.arrays
 
         # A scene whose objects move is re-traced at every call: replaying a frozen kernel
         # after objects moved (their shapes' buffers and the BVH rebuilt) gave NaN luminance
@@ -521,7 +529,7 @@ class EventShader:
         gc.disable()
         try:
             total = trace(self.renderer.mitsuba_scene, self._directions, index, nodes,
-                          fractions, table, zeros)
+                          fractions, table, zeros, self._filtering)
             return np.asarray(total, dtype=np.float32)
         finally:
             if collecting:
@@ -555,13 +563,16 @@ def _pose_groups(node: np.ndarray):
         yield sel, int(node[sel].min()), int(node[sel].max()) + 1
 
 
-def _trace(scene, directions, pixels, nodes, fractions, table, zeros, *, spp: int):
+def _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering, *, spp: int,
+           lens: tuple[float, float], footprint: float | None = None):
     """Mean luminance over the ``spp`` sub-samples of each (pixel, pose) sample.
 
     The pose of each sample is interpolated entry by entry between two nodes of the pose table,
     in float32: ``a + fraction (b - a)``. One thread per sample loops over its sub-samples:
     primary ray, then for every emitter its (delta) direction, a shadow ray and the BSDF times
-    the emitter's weight; luminance summed in sub-sample order.
+    the emitter's weight; luminance summed in sub-sample order. With ``filtering``, the BSDF's
+    texture is read filtered over the sub-sample's footprint, its stratum (``1 / sqrt(spp)``
+    of the pixel on a side): :func:`sim.textures.filtered_scale`.
 
     Parameters
     ----------
@@ -580,6 +591,14 @@ def _trace(scene, directions, pixels, nodes, fractions, table, zeros, *, spp: in
         (``T_world_camera``, t in metres).
     zeros : mi.Float, (N,)
         The initial sums.
+    filtering : dict or None
+        :attr:`sim.textures.TextureFilter.arrays`, or None for point lookups.
+    spp : int
+        Sub-samples per sample.
+    lens : (float, float)
+        The camera's ``fx, fy`` in pixels (the footprint's differential rays).
+    footprint : float, optional
+        The footprint's side in pixels, default ``1 / sqrt(spp)``.
 
     Returns
     -------
@@ -600,6 +619,11 @@ def _trace(scene, directions, pixels, nodes, fractions, table, zeros, *, spp: in
     emitters = scene.emitters()
     context = mi.BSDFContext()
     centre = mi.Point2f(0.5, 0.5)                # delta lights ignore their sample
+    if filtering is not None:
+        scale = 1.0 / math.isqrt(spp) if footprint is None else footprint
+        axes = tuple(mi.Vector3f(rotation[0][c], rotation[1][c], rotation[2][c])
+                     for c in range(3))
+        axes = (axes[0] * (1.0 / lens[0]), axes[1] * (1.0 / lens[1]), axes[2])
 
     def body(k, total):
         local = dr.gather(mi.Vector3f, directions, first + k)
@@ -608,12 +632,16 @@ def _trace(scene, directions, pixels, nodes, fractions, table, zeros, *, spp: in
         si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True, active=valid)
         hit = valid & si.is_valid()
         bsdf = si.bsdf()
+        texture = mi.Color3f(1.0)
+        if filtering is not None:
+            set_footprint(si, ray, axes, scale)
+            texture = filtered_scale(filtering, si, bsdf, hit)
         rgb = mi.Color3f(0.0)
         for emitter in emitters:
             ds, weight = emitter.sample_direction(si, centre, hit)
             lit = hit & (ds.pdf != 0.0)
             lit &= ~scene.ray_test(si.spawn_ray_to(ds.p), lit)
-            value = bsdf.eval(context, si, si.to_local(ds.d), lit) * weight
+            value = bsdf.eval(context, si, si.to_local(ds.d), lit) * weight * texture
             rgb += dr.select(lit, value, 0.0)
         return k + 1, total + mi.luminance(rgb)
 

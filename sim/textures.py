@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 __all__ = ["SKIMAGE_IMAGES", "PAPER_RANGE", "srgb_to_linear", "texture_image", "mitsuba_texture",
-           "prefilter"]
+           "prefilter", "mip_pyramid", "TextureFilter", "filtered_reflectance",
+           "filtered_scale", "set_footprint"]
 
 SKIMAGE_IMAGES = (
     "astronaut", "brick", "camera", "coffee", "chelsea", "coins", "grass", "gravel", "moon",
@@ -206,3 +207,321 @@ def mitsuba_texture(spec: Mapping[str, Any], scale: tuple[float, float], seed: i
         "wrap_mode": "repeat",
         "to_uv": to_uv,
     }
+
+
+# ------------------------------------------------------------------------------------------------
+# Footprint-filtered lookups (the event camera's kernel and the frames' integrator alike)
+
+MAX_MIP_LEVELS = 24
+"""Most levels of a texture's pyramid (a 2^23-texel side; every real texture has fewer)."""
+NO_TEXTURE, BITMAP, CHECKERBOARD = 0, 1, 2
+"""Kinds of a material in a :class:`TextureFilter` table."""
+
+
+def mip_pyramid(image: np.ndarray) -> list[np.ndarray]:
+    """Area-averaged levels of a texture, from the image itself down to one texel.
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) float32 ndarray
+        Linear reflectance.
+
+    Returns
+    -------
+    list of (H_l, W_l, 3) float32 ndarrays
+        Level 0 is the image (grey repeated to RGB); level ``l + 1`` is level ``l`` area-averaged
+        to ``max(1, W_l // 2) x max(1, H_l // 2)`` texels (``cv2.INTER_AREA``).
+    """
+    import cv2
+
+    level = np.asarray(image, dtype=np.float32)
+    if level.ndim == 2:
+        level = np.repeat(level[..., None], 3, axis=2)
+    levels = [np.ascontiguousarray(level)]
+    while level.shape[0] > 1 or level.shape[1] > 1:
+        size = (max(1, level.shape[1] // 2), max(1, level.shape[0] // 2))
+        level = cv2.resize(level, size, interpolation=cv2.INTER_AREA).astype(np.float32)
+        level = level.reshape(size[1], size[0], 3)
+        levels.append(np.ascontiguousarray(level))
+    return levels[:MAX_MIP_LEVELS]
+
+
+def to_uv_affine(spec: Mapping[str, Any], scale: tuple[float, float], *,
+                 flip_v: bool = False) -> tuple[float, float, float, float]:
+    """The texture-space coordinates of :func:`mitsuba_texture`'s ``to_uv``, as ``u' = a_u u +
+    b_u``, ``v' = a_v v + b_v``.
+
+    Returns
+    -------
+    (a_u, b_u, a_v, b_v) : tuple of float
+        For a bitmap, texture coordinates in repeats (1 = the whole image); for the
+        checkerboard, in periods of two squares (Mitsuba's checkerboard has one period on [0, 1)).
+    """
+    a_u, a_v = float(scale[0]), float(scale[1])
+    b_v = 0.0
+    if flip_v:
+        a_v, b_v = -a_v, a_v
+    if spec["type"] == "checkerboard":
+        squares = spec.get("squares", [8, 8])
+        a_u *= squares[0] / 2
+        a_v, b_v = a_v * squares[1] / 2, b_v * squares[1] / 2
+    return a_u, 0.0, a_v, b_v
+
+
+class TextureFilter:
+    """Every textured material of a loaded Mitsuba scene, for lookups filtered over a footprint.
+
+    A bitmap texture's lookup is trilinear in an area-averaged mip pyramid (:func:`mip_pyramid`,
+    built once from the image that Mitsuba's own bitmap holds, :func:`prefilter`'s reduction to
+    about a texel per pixel at the closest approach): the level of detail is ``log2`` of
+    the longer side, in texels, of the footprint's parallelogram (``duv_dx``, ``duv_dy``),
+    clamped to the pyramid. The analytic checkerboard's lookup is exact for a box: Mitsuba's
+    square wave (``frac(u) > 1/2``) integrated over the axis-aligned bounding box of the
+    footprint, along u and v separately, and the two masks combined as independent (exact for a
+    box: the box is a product of its u and v extents).
+
+    Bounds (what a filtered sample approximates). The checkerboard's value is the exact mean over
+    the footprint's bounding box: exact where the footprint is axis-aligned in (u, v) (a surface
+    seen square on, its texture axes along the image axes), otherwise a box up to
+    ``|du_dx| + |du_dy|`` wide where the parallelogram is narrower. A bitmap's value is the
+    trilinear filter of the pyramid: a tent of one to two footprint sides (the longer side: an
+    anisotropic footprint is blurred along its shorter side too), never finer than the footprint
+    (so no aliasing), and exact for a texture that is constant, or linear, over the filter's
+    support. The footprint is the linearisation of the camera's ray differentials at the hit
+    point (a plane's footprint exactly; a curved surface's to first order in the footprint's size
+    over the curvature radius); lens distortion's change of the pixel's size is left out (a few
+    percent at the image corners of a typical lens).
+
+    Parameters
+    ----------
+    mitsuba_scene : mi.Scene
+        The loaded scene; a material is found by its BSDF's id ``o{index}_bsdf`` (see
+        :func:`sim.render` 's ``_bsdf_dict``).
+    materials : list of (spec, scale, seed, flip_v, max_texels) or None
+        Per scene object (index ``i``), its texture spec, texture scale, seed, ``flip_v`` and
+        ``max_texels`` as :func:`mitsuba_texture` takes them, or None for an untextured
+        material.
+    """
+
+    def __init__(self, mitsuba_scene, materials: list[tuple | None]):
+        import drjit as dr
+        import mitsuba as mi
+
+        kinds, affine, colors = [NO_TEXTURE], [1.0, 0.0, 1.0, 0.0], [0.0] * 6
+        levels = [0] * (3 * MAX_MIP_LEVELS)
+        counts = [1]
+        texels: list[np.ndarray] = []
+        used = 0
+        record_of_object: dict[int, int] = {}
+        for index, material in enumerate(materials):
+            if material is None:
+                continue
+            spec, scale, seed, flip_v, max_texels = material
+            record_of_object[index] = len(kinds)
+            affine += to_uv_affine(spec, scale, flip_v=flip_v)
+            pyramid: list[np.ndarray] = []
+            if spec["type"] == "checkerboard":
+                kinds.append(CHECKERBOARD)
+                colors += [float(spec.get("color0", 0.05))] * 3
+                colors += [float(spec.get("color1", 0.85))] * 3
+            else:
+                kinds.append(BITMAP)
+                colors += [0.0] * 6
+                pyramid = mip_pyramid(prefilter(texture_image(spec, seed), max_texels))
+            row = [0] * (3 * MAX_MIP_LEVELS)
+            for level, image in enumerate(pyramid):
+                row[3 * level:3 * level + 3] = [used, image.shape[1], image.shape[0]]
+                texels.append(image.ravel())
+                used += image.shape[0] * image.shape[1]
+            levels += row
+            counts.append(max(1, len(pyramid)))
+        ids = {}
+        for shape in mitsuba_scene.shapes():
+            bsdf = shape.bsdf()
+            found = bsdf is not None and bsdf.id().startswith("o") and bsdf.id().endswith("_bsdf")
+            if found and int(bsdf.id()[1:-5]) in record_of_object:
+                key = int(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf))[0])
+                ids[key] = record_of_object[int(bsdf.id()[1:-5])]
+        record = np.zeros(max(ids, default=0) + 1, dtype=np.uint32)
+        for key, value in ids.items():
+            record[key] = value
+        data = np.concatenate(texels) if texels else np.zeros(3, dtype=np.float32)
+        self.textured = bool(ids)
+        """bool: whether any shape of the scene has a texture that the filter reads."""
+        self.arrays = {
+            "record": mi.UInt32(record), "kind": mi.UInt32(np.array(kinds, dtype=np.uint32)),
+            "affine": mi.Float(np.array(affine, dtype=np.float32)),
+            "colors": mi.Float(np.array(colors, dtype=np.float32)),
+            "levels": mi.UInt32(np.array(levels, dtype=np.uint32)),
+            "counts": mi.UInt32(np.array(counts, dtype=np.uint32)),
+            "texels": mi.Float(np.ascontiguousarray(data, dtype=np.float32)),
+        }
+        """dict of Dr.Jit arrays: the tables that :func:`filtered_reflectance` reads (pass them
+        into frozen functions as an argument)."""
+        for value in self.arrays.values():
+            dr.make_opaque(value)
+
+
+def _square_wave_mean(x, half):
+    """Mean of Mitsuba's checkerboard mask ``frac(s) > 1/2`` over ``[x - half, x + half]``."""
+    import drjit as dr
+
+    x = x - dr.floor(x)                          # the mean is periodic; keeps float32 exact
+
+    def integral(s):                             # of the mask from 0 to s
+        whole = dr.floor(s)
+        return 0.5 * whole + dr.maximum(s - whole - 0.5, 0.0)
+
+    width = dr.maximum(2.0 * half, 1e-6)
+    mean = (integral(x + half) - integral(x - half)) / width
+    return dr.select(half > 1e-6, dr.clip(mean, 0.0, 1.0), dr.select(x > 0.5, 1.0, 0.0))
+
+
+def _bilinear(arrays, level_row, level, u, v, active):
+    """Bilinear lookup (wrap: repeat) of one pyramid level, Mitsuba's bitmap convention (texel
+    ``i`` centred at ``(i + 1/2) / W``, row 0 at v = 0)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    base = level_row + 3 * level
+    offset = dr.gather(mi.UInt32, arrays["levels"], base, active)
+    width = dr.gather(mi.UInt32, arrays["levels"], base + 1, active)
+    height = dr.gather(mi.UInt32, arrays["levels"], base + 2, active)
+    w, h = mi.Float(width), mi.Float(height)
+    x = (u - dr.floor(u)) * w - 0.5
+    y = (v - dr.floor(v)) * h - 0.5
+    x0, y0 = dr.floor(x), dr.floor(y)
+    fx, fy = x - x0, y - y0
+    ix0 = mi.Int32(x0)
+    iy0 = mi.Int32(y0)
+    ix1, iy1 = ix0 + 1, iy0 + 1
+    wi, hi = mi.Int32(width), mi.Int32(height)
+    ix0 = dr.select(ix0 < 0, wi - 1, ix0)
+    iy0 = dr.select(iy0 < 0, hi - 1, iy0)
+    ix1 = dr.select(ix1 >= wi, 0, ix1)
+    iy1 = dr.select(iy1 >= hi, 0, iy1)
+
+    def texel(ix, iy):
+        index = offset + mi.UInt32(iy) * width + mi.UInt32(ix)
+        return dr.gather(mi.Color3f, arrays["texels"], index, active)
+
+    top = texel(ix0, iy0) * (1.0 - fx) + texel(ix1, iy0) * fx
+    bottom = texel(ix0, iy1) * (1.0 - fx) + texel(ix1, iy1) * fx
+    return top * (1.0 - fy) + bottom * fy
+
+
+def filtered_reflectance(arrays, si, active):
+    """Reflectance of each hit's texture filtered over its footprint, and whether it has one.
+
+    Parameters
+    ----------
+    arrays : dict
+        :attr:`TextureFilter.arrays`.
+    si : mi.SurfaceInteraction3f
+        Hits with ``uv`` and ``duv_dx``, ``duv_dy`` (``compute_uv_partials``): the footprint
+        of one sample, in the shape's (u, v).
+    active : mi.Bool
+
+    Returns
+    -------
+    reflectance : mi.Color3f
+        The filtered reflectance (see :class:`TextureFilter` for the filters and their bounds).
+    textured : mi.Bool
+        True where the hit's material has a texture that the table holds.
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    key = dr.reinterpret_array(mi.UInt32, si.bsdf())
+    known = active & (key < dr.width(arrays["record"]))
+    record = dr.gather(mi.UInt32, arrays["record"], key, known)
+    kind = dr.gather(mi.UInt32, arrays["kind"], record, known)
+    textured = known & (kind != NO_TEXTURE)
+    a_u, b_u, a_v, b_v = dr.gather(mi.Vector4f, arrays["affine"], record, textured)
+    u, v = a_u * si.uv.x + b_u, a_v * si.uv.y + b_v
+    dudx, dudy = a_u * si.duv_dx.x, a_u * si.duv_dy.x
+    dvdx, dvdy = a_v * si.duv_dx.y, a_v * si.duv_dy.y
+    dudx, dudy, dvdx, dvdy = (dr.select(dr.isfinite(d), d, 0.0) for d in (dudx, dudy, dvdx, dvdy))
+
+    checker = textured & (kind == CHECKERBOARD)
+    pu = _square_wave_mean(u, 0.5 * (dr.abs(dudx) + dr.abs(dudy)))
+    pv = _square_wave_mean(v, 0.5 * (dr.abs(dvdx) + dr.abs(dvdy)))
+    same = pu * pv + (1.0 - pu) * (1.0 - pv)
+    color0 = dr.gather(mi.Color3f, arrays["colors"], record * 2, checker)
+    color1 = dr.gather(mi.Color3f, arrays["colors"], record * 2 + 1, checker)
+    checker_value = color0 * same + color1 * (1.0 - same)
+
+    bitmap = textured & (kind == BITMAP)
+    level_row = record * (3 * MAX_MIP_LEVELS)
+    width = mi.Float(dr.gather(mi.UInt32, arrays["levels"], level_row + 1, bitmap))
+    height = mi.Float(dr.gather(mi.UInt32, arrays["levels"], level_row + 2, bitmap))
+    side = dr.maximum(dr.sqrt(dr.square(dudx * width) + dr.square(dvdx * height)),
+                      dr.sqrt(dr.square(dudy * width) + dr.square(dvdy * height)))
+    count = dr.gather(mi.UInt32, arrays["counts"], record, bitmap)
+    lod = dr.clip(dr.log2(dr.maximum(side, 1e-12)), 0.0, mi.Float(count - 1))
+    fine = dr.minimum(mi.UInt32(dr.floor(lod)), count - 1)
+    coarse = dr.minimum(fine + 1, count - 1)
+    weight = lod - mi.Float(fine)
+    bitmap_value = (_bilinear(arrays, level_row, fine, u, v, bitmap) * (1.0 - weight)
+                    + _bilinear(arrays, level_row, coarse, u, v, bitmap) * weight)
+    return dr.select(checker, checker_value, bitmap_value), textured
+
+
+def filtered_scale(arrays, si, bsdf, active):
+    """Factor that turns a BSDF value with the point lookup of its texture into one with the
+    footprint-filtered lookup: ``filtered / point`` reflectance (1 where there is no texture).
+
+    The materials of evfuse scenes are diffuse (``twosided``), whose value is linear in the
+    reflectance, so ``bsdf.eval(...) * filtered_scale(...)`` is the BSDF of the filtered texture.
+
+    Parameters
+    ----------
+    arrays : dict
+        :attr:`TextureFilter.arrays`.
+    si : mi.SurfaceInteraction3f
+        With uv partials (see :func:`filtered_reflectance`).
+    bsdf : mi.BSDFPtr
+        ``si.bsdf()``.
+    active : mi.Bool
+
+    Returns
+    -------
+    mi.Color3f
+    """
+    import drjit as dr
+
+    filtered, textured = filtered_reflectance(arrays, si, active)
+    point = bsdf.eval_diffuse_reflectance(si, textured)
+    return dr.select(textured & (point > 0.0), filtered / dr.maximum(point, 1e-12), 1.0)
+
+
+def set_footprint(si, ray, axes, scale: float) -> None:
+    """Give hits the uv partials of a footprint of ``scale`` pixels, from the camera's axes.
+
+    The differential rays are the pinhole rays one pixel (times ``scale``) to the right and down
+    of each ray, ``d / (d . forward) + scale * right / fx`` and ``... + scale * down / fy``:
+    lens distortion's change of the pixel's size is left out.
+
+    Parameters
+    ----------
+    si : mi.SurfaceInteraction3f
+        Hits of ``ray`` (``RayFlags.All``); its ``duv_dx``, ``duv_dy`` are set.
+    ray : mi.Ray3f
+        The primary rays (unit directions).
+    axes : tuple of three mi.Vector3f
+        The camera's right / fx, down / fy and forward axes in world coordinates.
+    scale : float
+        Footprint side in pixels (``1 / sqrt(spp)``: each sample's stratum).
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    right, down, forward = axes
+    along = ray.d / dr.maximum(dr.dot(ray.d, forward), 1e-6)
+    differential = mi.RayDifferential3f(ray)
+    differential.o_x = ray.o
+    differential.o_y = ray.o
+    differential.d_x = dr.normalize(along + right * scale)
+    differential.d_y = dr.normalize(along + down * scale)
+    differential.has_differentials = True
+    si.compute_uv_partials(differential)
