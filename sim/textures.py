@@ -214,6 +214,9 @@ def mitsuba_texture(spec: Mapping[str, Any], scale: tuple[float, float], seed: i
 
 MAX_MIP_LEVELS = 24
 """Most levels of a texture's pyramid (a 2^23-texel side; every real texture has fewer)."""
+ANISOTROPY_TAPS = 4
+"""Trilinear taps of an anisotropic bitmap lookup, spread along the footprint's longer side:
+footprints up to 4 times longer than wide are filtered at their width's level of detail."""
 NO_TEXTURE, BITMAP, CHECKERBOARD = 0, 1, 2
 """Kinds of a material in a :class:`TextureFilter` table."""
 
@@ -455,15 +458,30 @@ def filtered_reflectance(arrays, si, active):
     level_row = record * (3 * MAX_MIP_LEVELS)
     width = mi.Float(dr.gather(mi.UInt32, arrays["levels"], level_row + 1, bitmap))
     height = mi.Float(dr.gather(mi.UInt32, arrays["levels"], level_row + 2, bitmap))
-    side = dr.maximum(dr.sqrt(dr.square(dudx * width) + dr.square(dvdx * height)),
-                      dr.sqrt(dr.square(dudy * width) + dr.square(dvdy * height)))
+    side_x = dr.sqrt(dr.square(dudx * width) + dr.square(dvdx * height))   # texels
+    side_y = dr.sqrt(dr.square(dudy * width) + dr.square(dvdy * height))
+    along_x = side_x >= side_y
+    major = dr.maximum(side_x, side_y)
+    minor = dr.maximum(dr.minimum(side_x, side_y), 1e-12)
+    # Anisotropic: ANISOTROPY_TAPS trilinear taps spread along the footprint's longer side,
+    # each of the footprint's side over the ratio of its sides (at most ANISOTROPY_TAPS).
+    ratio = dr.clip(major / minor, 1.0, float(ANISOTROPY_TAPS))
     count = dr.gather(mi.UInt32, arrays["counts"], record, bitmap)
-    lod = dr.clip(dr.log2(dr.maximum(side, 1e-12)), 0.0, mi.Float(count - 1))
+    lod = dr.log2(dr.maximum(major / ratio, 1e-12))
+    lod = dr.clip(lod, 0.0, mi.Float(count - 1))
     fine = dr.minimum(mi.UInt32(dr.floor(lod)), count - 1)
     coarse = dr.minimum(fine + 1, count - 1)
     weight = lod - mi.Float(fine)
-    bitmap_value = (_bilinear(arrays, level_row, fine, u, v, bitmap) * (1.0 - weight)
-                    + _bilinear(arrays, level_row, coarse, u, v, bitmap) * weight)
+    spread = 1.0 - 1.0 / ratio
+    step_u = dr.select(along_x, dudx, dudy) * spread
+    step_v = dr.select(along_x, dvdx, dvdy) * spread
+    bitmap_value = mi.Color3f(0.0)
+    for tap in range(ANISOTROPY_TAPS):
+        offset = (tap + 0.5) / ANISOTROPY_TAPS - 0.5
+        tu, tv = u + offset * step_u, v + offset * step_v
+        bitmap_value += (_bilinear(arrays, level_row, fine, tu, tv, bitmap) * (1.0 - weight)
+                         + _bilinear(arrays, level_row, coarse, tu, tv, bitmap) * weight)
+    bitmap_value *= 1.0 / ANISOTROPY_TAPS
     return dr.select(checker, checker_value, bitmap_value), textured
 
 
