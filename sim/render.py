@@ -142,7 +142,8 @@ def _bsdf_dict(index: int, obj: SceneObject, scene: Scene) -> dict:
                                       max_texels=_max_texels(obj, scene))
     else:
         reflectance = {"type": "rgb", "value": list(material.color)}
-    # The id lets sim.textures.TextureFilter find the material of a hit (its BSDF).
+    # The id lets sim.textures.TextureFilter find the material of a hit (its BSDF; a capped
+    # cylinder's caps get ids o{index}_bsdf_top and _bottom, see _shape_dicts).
     return {"type": "twosided", "id": f"o{index}_bsdf",
             "material": {"type": "diffuse", "reflectance": reflectance}}
 
@@ -249,7 +250,8 @@ def _shape_dicts(index: int, obj: SceneObject, scene: Scene,
                 cap = np.eye(4)
                 cap[2, 3] = sign * h / 2
                 flip = np.diag([1.0, sign, sign, 1.0])
-                shapes[key + suffix] = {"type": "disk", "bsdf": bsdf,
+                cap_bsdf = {**bsdf, "id": bsdf["id"] + suffix} if "id" in bsdf else bsdf
+                shapes[key + suffix] = {"type": "disk", "bsdf": cap_bsdf,
                                         "to_world": _transform(pose @ cap @ flip @ _diag(r, r, 1))}
         return shapes
     if obj.shape == "heightfield":

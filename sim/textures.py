@@ -12,6 +12,7 @@ same texture.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -298,8 +299,8 @@ class TextureFilter:
     Parameters
     ----------
     mitsuba_scene : mi.Scene
-        The loaded scene; a material is found by its BSDF's id ``o{index}_bsdf`` (see
-        :func:`sim.render` 's ``_bsdf_dict``).
+        The loaded scene; a material is found by its BSDF's id, ``o{index}_bsdf`` followed by
+        anything (see ``sim.render._bsdf_dict``).
     materials : list of (spec, scale, seed, flip_v, max_texels) or None
         Per scene object (index ``i``), its texture spec, texture scale, seed, ``flip_v`` and
         ``max_texels`` as :func:`mitsuba_texture` takes them, or None for an untextured
@@ -341,10 +342,10 @@ class TextureFilter:
         ids = {}
         for shape in mitsuba_scene.shapes():
             bsdf = shape.bsdf()
-            found = bsdf is not None and bsdf.id().startswith("o") and bsdf.id().endswith("_bsdf")
-            if found and int(bsdf.id()[1:-5]) in record_of_object:
+            found = None if bsdf is None else re.match(r"o(\d+)_bsdf", bsdf.id())
+            if found and int(found.group(1)) in record_of_object:
                 key = int(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(bsdf))[0])
-                ids[key] = record_of_object[int(bsdf.id()[1:-5])]
+                ids[key] = record_of_object[int(found.group(1))]
         record = np.zeros(max(ids, default=0) + 1, dtype=np.uint32)
         for key, value in ids.items():
             record[key] = value
