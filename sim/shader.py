@@ -632,7 +632,7 @@ def _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
         si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True, active=valid)
         hit = valid & si.is_valid()
         bsdf = si.bsdf()
-        texture = mi.Color3f(1.0)
+        texture = mi.Float(1.0)
         if filtering is not None:
             set_footprint(si, ray, axes, scale)
             texture = filtered_scale(filtering, si, bsdf, hit)

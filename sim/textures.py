@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["SKIMAGE_IMAGES", "PAPER_RANGE", "srgb_to_linear", "texture_image", "mitsuba_texture",
-           "prefilter", "mip_pyramid", "TextureFilter", "filtered_reflectance",
+           "prefilter", "LUMINANCE_WEIGHTS", "mip_pyramid", "TextureFilter", "filtered_reflectance",
            "filtered_scale", "set_footprint"]
 
 SKIMAGE_IMAGES = (
@@ -222,8 +222,12 @@ NO_TEXTURE, BITMAP, CHECKERBOARD = 0, 1, 2
 """Kinds of a material in a :class:`TextureFilter` table."""
 
 
+LUMINANCE_WEIGHTS = (0.212671, 0.715160, 0.072169)
+"""Weights of linear R, G, B in luminance, as ``mitsuba.luminance`` takes them."""
+
+
 def mip_pyramid(image: np.ndarray) -> list[np.ndarray]:
-    """Area-averaged levels of a texture, from the image itself down to one texel.
+    """Area-averaged levels of a texture's luminance, from the image itself down to one texel.
 
     Parameters
     ----------
@@ -232,21 +236,21 @@ def mip_pyramid(image: np.ndarray) -> list[np.ndarray]:
 
     Returns
     -------
-    list of (H_l, W_l, 3) float32 ndarrays
-        Level 0 is the image (grey repeated to RGB); level ``l + 1`` is level ``l`` area-averaged
-        to ``max(1, W_l // 2) x max(1, H_l // 2)`` texels (``cv2.INTER_AREA``).
+    list of (H_l, W_l) float32 ndarrays
+        Level 0 is the image's luminance (:data:`LUMINANCE_WEIGHTS`; a grey image as it is);
+        level ``l + 1`` is level ``l`` area-averaged to ``max(1, W_l // 2) x max(1, H_l // 2)``
+        texels (``cv2.INTER_AREA``).
     """
     import cv2
 
     level = np.asarray(image, dtype=np.float32)
-    if level.ndim == 2:
-        level = np.repeat(level[..., None], 3, axis=2)
+    if level.ndim == 3:
+        level = (level[..., :3] @ np.array(LUMINANCE_WEIGHTS)).astype(np.float32)
     levels = [np.ascontiguousarray(level)]
     while level.shape[0] > 1 or level.shape[1] > 1:
         size = (max(1, level.shape[1] // 2), max(1, level.shape[0] // 2))
         level = cv2.resize(level, size, interpolation=cv2.INTER_AREA).astype(np.float32)
-        level = level.reshape(size[1], size[0], 3)
-        levels.append(np.ascontiguousarray(level))
+        levels.append(np.ascontiguousarray(level.reshape(size[1], size[0])))
     return levels[:MAX_MIP_LEVELS]
 
 
@@ -311,7 +315,7 @@ class TextureFilter:
         import drjit as dr
         import mitsuba as mi
 
-        kinds, affine, colors = [NO_TEXTURE], [1.0, 0.0, 1.0, 0.0], [0.0] * 6
+        kinds, affine, colors = [NO_TEXTURE], [1.0, 0.0, 1.0, 0.0], [0.0] * 2
         levels = [0] * (3 * MAX_MIP_LEVELS)
         counts = [1]
         texels: list[np.ndarray] = []
@@ -326,11 +330,10 @@ class TextureFilter:
             pyramid: list[np.ndarray] = []
             if spec["type"] == "checkerboard":
                 kinds.append(CHECKERBOARD)
-                colors += [float(spec.get("color0", 0.05))] * 3
-                colors += [float(spec.get("color1", 0.85))] * 3
+                colors += [float(spec.get("color0", 0.05)), float(spec.get("color1", 0.85))]
             else:
                 kinds.append(BITMAP)
-                colors += [0.0] * 6
+                colors += [0.0] * 2
                 pyramid = mip_pyramid(prefilter(texture_image(spec, seed), max_texels))
             row = [0] * (3 * MAX_MIP_LEVELS)
             for level, image in enumerate(pyramid):
@@ -349,7 +352,7 @@ class TextureFilter:
         record = np.zeros(max(ids, default=0) + 1, dtype=np.uint32)
         for key, value in ids.items():
             record[key] = value
-        data = np.concatenate(texels) if texels else np.zeros(3, dtype=np.float32)
+        data = np.concatenate(texels) if texels else np.zeros(1, dtype=np.float32)
         self.textured = bool(ids)
         """bool: whether any shape of the scene has a texture that the filter reads."""
         self.arrays = {
@@ -407,7 +410,7 @@ def _bilinear(arrays, level_row, level, u, v, active):
 
     def texel(ix, iy):
         index = offset + mi.UInt32(iy) * width + mi.UInt32(ix)
-        return dr.gather(mi.Color3f, arrays["texels"], index, active)
+        return dr.gather(mi.Float, arrays["texels"], index, active)
 
     top = texel(ix0, iy0) * (1.0 - fx) + texel(ix1, iy0) * fx
     bottom = texel(ix0, iy1) * (1.0 - fx) + texel(ix1, iy1) * fx
@@ -428,8 +431,9 @@ def filtered_reflectance(arrays, si, active):
 
     Returns
     -------
-    reflectance : mi.Color3f
-        The filtered reflectance (see :class:`TextureFilter` for the filters and their bounds).
+    reflectance : mi.Float
+        The luminance of the filtered reflectance (see :class:`TextureFilter` for the filters
+        and their bounds).
     textured : mi.Bool
         True where the hit's material has a texture that the table holds.
     """
@@ -451,8 +455,8 @@ def filtered_reflectance(arrays, si, active):
     pu = _square_wave_mean(u, 0.5 * (dr.abs(dudx) + dr.abs(dudy)))
     pv = _square_wave_mean(v, 0.5 * (dr.abs(dvdx) + dr.abs(dvdy)))
     same = pu * pv + (1.0 - pu) * (1.0 - pv)
-    color0 = dr.gather(mi.Color3f, arrays["colors"], record * 2, checker)
-    color1 = dr.gather(mi.Color3f, arrays["colors"], record * 2 + 1, checker)
+    color0 = dr.gather(mi.Float, arrays["colors"], record * 2, checker)
+    color1 = dr.gather(mi.Float, arrays["colors"], record * 2 + 1, checker)
     checker_value = color0 * same + color1 * (1.0 - same)
 
     bitmap = textured & (kind == BITMAP)
@@ -476,7 +480,7 @@ def filtered_reflectance(arrays, si, active):
     spread = 1.0 - 1.0 / ratio
     step_u = dr.select(along_x, dudx, dudy) * spread
     step_v = dr.select(along_x, dvdx, dvdy) * spread
-    bitmap_value = mi.Color3f(0.0)
+    bitmap_value = mi.Float(0.0)
     for tap in range(ANISOTROPY_TAPS):
         offset = (tap + 0.5) / ANISOTROPY_TAPS - 0.5
         tu, tv = u + offset * step_u, v + offset * step_v
@@ -488,10 +492,15 @@ def filtered_reflectance(arrays, si, active):
 
 def filtered_scale(arrays, si, bsdf, active):
     """Factor that turns a BSDF value with the point lookup of its texture into one with the
-    footprint-filtered lookup: ``filtered / point`` reflectance (1 where there is no texture).
+    footprint-filtered lookup: ``filtered / point`` luminance of the reflectance (1 where there
+    is no texture).
 
     The materials of evfuse scenes are diffuse (``twosided``), whose value is linear in the
-    reflectance, so ``bsdf.eval(...) * filtered_scale(...)`` is the BSDF of the filtered texture.
+    reflectance, so ``bsdf.eval(...) * filtered_scale(...)`` is the BSDF of the filtered texture
+    in luminance, exactly where the texture or the lights are grey (every built-in scene's
+    lights are): one factor for R, G and B keeps the point sample's chromaticity, so a coloured
+    light on a coloured texture is off by the texture's change of chromaticity within the
+    footprint, weighted by the light's colour.
 
     Parameters
     ----------
@@ -505,12 +514,13 @@ def filtered_scale(arrays, si, bsdf, active):
 
     Returns
     -------
-    mi.Color3f
+    mi.Float
     """
     import drjit as dr
+    import mitsuba as mi
 
     filtered, textured = filtered_reflectance(arrays, si, active)
-    point = bsdf.eval_diffuse_reflectance(si, textured)
+    point = mi.luminance(bsdf.eval_diffuse_reflectance(si, textured))
     return dr.select(textured & (point > 0.0), filtered / dr.maximum(point, 1e-12), 1.0)
 
 
