@@ -10,8 +10,12 @@ reused (no reload, no recompilation).
   point, spot and directional lights only, a
   stratified sampler and a fixed seed, a box pixel filter (each pixel integrates its own square).
   Bitmap textures are area-averaged to about one texel per pixel footprint at the object's
-  closest approach (Mitsuba's bitmap has no mipmaps; finer texels alias under point sampling and
-  make renders flicker under sub-pixel motion).
+  closest approach (Mitsuba's bitmap has no mipmaps), and on JIT variants every sample reads its
+  texture filtered over its own footprint on the surface (:class:`sim.textures.TextureFilter`:
+  mip pyramids and an analytic box-filtered checkerboard, through the ``evfuse_direct``
+  integrator, :func:`register_integrator`), the same lookup as the event camera's
+  (:mod:`sim.shader`): texels finer than a pixel would alias under point sampling and make
+  renders flicker under sub-pixel motion.
   With lights that need no sampling, the only random draws are the sub-pixel positions, which
   the fixed seed freezes: the same pose gives bit-identical images and there is no frame-to-frame
   flicker for the event emulator to see. Interreflections are not simulated.

@@ -11,6 +11,15 @@ lights), which leaves a fixed pattern of light-selection noise; here every sub-s
 contribution of EVERY light, each with its own shadow ray. Missed rays give 0 (evfuse scenes have
 no environment light).
 
+Textures are read filtered over each sub-sample's footprint on the surface, its stratum of the
+pixel (``1 / sqrt(spp)`` pixel on a side, projected through the pinhole at the hit, at that
+sample's pose and distance): :func:`sim.textures.filtered_scale`, the lookup that the frames'
+``evfuse_direct`` integrator makes too (:func:`sim.render.register_integrator`). The
+sub-samples then approximate the pixel's box integral of the filtered texture: a texture's
+detail finer than a stratum is averaged, not aliased; what point sub-samples still sample is
+geometry (an object's edge, a shadow's edge) and detail at the stratum's scale (see
+:class:`sim.textures.TextureFilter` for the filters' bounds).
+
 Sub-pixel positions are a fixed stratified jittered pattern per pixel (``sqrt(spp) x sqrt(spp)``
 strata, jitter from ``numpy.random.default_rng(renderer.seed)``), the same at every time: the
 same pose gives bit-identical values, and a pixel's value is a continuous function of the pose.

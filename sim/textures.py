@@ -384,16 +384,22 @@ def _square_wave_mean(x, half):
     return dr.select(half > 1e-6, dr.clip(mean, 0.0, 1.0), dr.select(x > 0.5, 1.0, 0.0))
 
 
-def _bilinear(arrays, level_row, level, u, v, active):
-    """Bilinear lookup (wrap: repeat) of one pyramid level, Mitsuba's bitmap convention (texel
-    ``i`` centred at ``(i + 1/2) / W``, row 0 at v = 0)."""
+def _level(arrays, level_row, level, active):
+    """Offset (texels), width and height of one pyramid level."""
     import drjit as dr
     import mitsuba as mi
 
     base = level_row + 3 * level
-    offset = dr.gather(mi.UInt32, arrays["levels"], base, active)
-    width = dr.gather(mi.UInt32, arrays["levels"], base + 1, active)
-    height = dr.gather(mi.UInt32, arrays["levels"], base + 2, active)
+    return tuple(dr.gather(mi.UInt32, arrays["levels"], base + k, active) for k in range(3))
+
+
+def _bilinear(arrays, level, u, v, active):
+    """Bilinear lookup (wrap: repeat) of one pyramid level (:func:`_level`), Mitsuba's bitmap
+    convention (texel ``i`` centred at ``(i + 1/2) / W``, row 0 at v = 0)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    offset, width, height = level
     w, h = mi.Float(width), mi.Float(height)
     x = (u - dr.floor(u)) * w - 0.5
     y = (v - dr.floor(v)) * h - 0.5
@@ -407,14 +413,15 @@ def _bilinear(arrays, level_row, level, u, v, active):
     iy0 = dr.select(iy0 < 0, hi - 1, iy0)
     ix1 = dr.select(ix1 >= wi, 0, ix1)
     iy1 = dr.select(iy1 >= hi, 0, iy1)
+    row0 = offset + mi.UInt32(iy0) * width
+    row1 = offset + mi.UInt32(iy1) * width
 
-    def texel(ix, iy):
-        index = offset + mi.UInt32(iy) * width + mi.UInt32(ix)
-        return dr.gather(mi.Float, arrays["texels"], index, active)
+    def texel(row, ix):
+        return dr.gather(mi.Float, arrays["texels"], row + mi.UInt32(ix), active)
 
-    top = texel(ix0, iy0) * (1.0 - fx) + texel(ix1, iy0) * fx
-    bottom = texel(ix0, iy1) * (1.0 - fx) + texel(ix1, iy1) * fx
-    return top * (1.0 - fy) + bottom * fy
+    top = dr.lerp(texel(row0, ix0), texel(row0, ix1), fx)
+    bottom = dr.lerp(texel(row1, ix0), texel(row1, ix1), fx)
+    return dr.lerp(top, bottom, fy)
 
 
 def filtered_reflectance(arrays, si, active):
@@ -480,12 +487,13 @@ def filtered_reflectance(arrays, si, active):
     spread = 1.0 - 1.0 / ratio
     step_u = dr.select(along_x, dudx, dudy) * spread
     step_v = dr.select(along_x, dvdx, dvdy) * spread
+    fine, coarse = (_level(arrays, level_row, level, bitmap) for level in (fine, coarse))
     bitmap_value = mi.Float(0.0)
     for tap in range(ANISOTROPY_TAPS):
         offset = (tap + 0.5) / ANISOTROPY_TAPS - 0.5
         tu, tv = u + offset * step_u, v + offset * step_v
-        bitmap_value += (_bilinear(arrays, level_row, fine, tu, tv, bitmap) * (1.0 - weight)
-                         + _bilinear(arrays, level_row, coarse, tu, tv, bitmap) * weight)
+        bitmap_value += dr.lerp(_bilinear(arrays, fine, tu, tv, bitmap),
+                                _bilinear(arrays, coarse, tu, tv, bitmap), weight)
     bitmap_value *= 1.0 / ANISOTROPY_TAPS
     return dr.select(checker, checker_value, bitmap_value), textured
 
