@@ -425,7 +425,8 @@ def _bilinear(arrays, level, u, v, active):
 
 
 def filtered_reflectance(arrays, si, active):
-    """Reflectance of each hit's texture filtered over its footprint, and whether it has one.
+    """Reflectance of each hit's texture filtered over its footprint, its point value, and
+    whether it has one.
 
     Parameters
     ----------
@@ -441,6 +442,10 @@ def filtered_reflectance(arrays, si, active):
     reflectance : mi.Float
         The luminance of the filtered reflectance (see :class:`TextureFilter` for the filters
         and their bounds).
+    point : mi.Float
+        The luminance of the point lookup that Mitsuba's texture makes at ``uv`` (the
+        checkerboard's mask; level 0 of the pyramid, bilinear: Mitsuba's bitmap's lookup of
+        the same image, up to float rounding).
     textured : mi.Bool
         True where the hit's material has a texture that the table holds.
     """
@@ -465,6 +470,8 @@ def filtered_reflectance(arrays, si, active):
     color0 = dr.gather(mi.Float, arrays["colors"], record * 2, checker)
     color1 = dr.gather(mi.Float, arrays["colors"], record * 2 + 1, checker)
     checker_value = color0 * same + color1 * (1.0 - same)
+    point_same = (u - dr.floor(u) > 0.5) == (v - dr.floor(v) > 0.5)
+    checker_point = dr.select(point_same, color0, color1)
 
     bitmap = textured & (kind == BITMAP)
     level_row = record * (3 * MAX_MIP_LEVELS)
@@ -488,6 +495,7 @@ def filtered_reflectance(arrays, si, active):
     step_u = dr.select(along_x, dudx, dudy) * spread
     step_v = dr.select(along_x, dvdx, dvdy) * spread
     fine, coarse = (_level(arrays, level_row, level, bitmap) for level in (fine, coarse))
+    bitmap_point = _bilinear(arrays, _level(arrays, level_row, 0, bitmap), u, v, bitmap)
     bitmap_value = mi.Float(0.0)
     for tap in range(ANISOTROPY_TAPS):
         offset = (tap + 0.5) / ANISOTROPY_TAPS - 0.5
@@ -495,7 +503,8 @@ def filtered_reflectance(arrays, si, active):
         bitmap_value += dr.lerp(_bilinear(arrays, fine, tu, tv, bitmap),
                                 _bilinear(arrays, coarse, tu, tv, bitmap), weight)
     bitmap_value *= 1.0 / ANISOTROPY_TAPS
-    return dr.select(checker, checker_value, bitmap_value), textured
+    return (dr.select(checker, checker_value, bitmap_value),
+            dr.select(checker, checker_point, bitmap_point), textured)
 
 
 def filtered_scale(arrays, si, bsdf, active):
@@ -517,7 +526,7 @@ def filtered_scale(arrays, si, bsdf, active):
     si : mi.SurfaceInteraction3f
         With uv partials (see :func:`filtered_reflectance`).
     bsdf : mi.BSDFPtr
-        ``si.bsdf()``.
+        ``si.bsdf()`` (unused: the point value comes from the same table, no BSDF call).
     active : mi.Bool
 
     Returns
@@ -525,10 +534,8 @@ def filtered_scale(arrays, si, bsdf, active):
     mi.Float
     """
     import drjit as dr
-    import mitsuba as mi
 
-    filtered, textured = filtered_reflectance(arrays, si, active)
-    point = mi.luminance(bsdf.eval_diffuse_reflectance(si, textured))
+    filtered, point, textured = filtered_reflectance(arrays, si, active)
     return dr.select(textured & (point > 0.0), filtered / dr.maximum(point, 1e-12), 1.0)
 
 
