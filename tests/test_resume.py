@@ -28,16 +28,25 @@ simulation = importlib.import_module("sim.simulate._run")        # simulate() an
 checkpoints = importlib.import_module("sim.simulate._checkpoint")  # when and what it saves
 event_driver = importlib.import_module("sim.simulate._events")   # the samplers it drives
 
-# Sharp-edged squares passing at 1 m/s: many events, and many intervals split at sub-pixel
-# steps (samples with a pending tail, where no checkpoint may be taken).
+# Sharp-edged strips passing at 1 m/s: many events, and many intervals split at sub-pixel
+# steps (samples with a pending tail, where no checkpoint may be taken). The edges are
+# geometry (dark strips before a bright wall): a texture's edges are filtered over each
+# sub-sample's footprint (sim.textures) and give ramps, not steps.
 CHECKER = """
 [[objects]]
-name = "checker"
+name = "wall"
 type = "rectangle"
-center = [0.0, 1.0, 0.0]
-size = [6.0, 6.0]
-material = { texture = { type = "checkerboard", squares = [24, 24], color0 = 0.05, color1 = 0.85 } }
-"""
+center = [0.0, 1.5, 0.0]
+size = [8.0, 8.0]
+material = { color = [0.85, 0.85, 0.85] }
+""" + "".join(f"""
+[[objects]]
+name = "strip{i}"
+type = "rectangle"
+center = [{-1.25 + 0.25 * i:.2f}, 1.0, 0.0]
+size = [0.125, 6.0]
+material = {{ color = [0.05, 0.05, 0.05] }}
+""" for i in range(11))
 # Noisy frames under auto-exposure (a responsivity that keeps it inside its range): every
 # frame's exposure and noise must survive a resume.
 EXTRA = ("[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 2\n"
