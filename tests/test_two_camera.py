@@ -424,9 +424,13 @@ def test_the_pipeline_maps_in_the_event_camera_and_fills_in_the_frame_camera(rig
     dense = read_depth(tmp_path / "fill" / "dense_depth.exr")
     inside = dense > 0
     # Map points land on the nearest pixel (half a pixel of the plane's slope); between them
-    # the mesh is exact for a plane through the lens: within 1 % wherever it fills.
+    # the mesh is exact for a plane through the lens: within 1 % almost wherever it fills. The
+    # triangles along the map's outline depend on which points the events gave: with the
+    # footprint-filtered texture (195 points) one triangle at the frame's left border, 19 of
+    # 3,265 filled pixels, is up to 2.7 % off, as the 137-point set's border was above.
     assert inside.mean() > 0.3
-    assert np.abs(dense[inside] / truth[inside] - 1).max() < 0.01
+    error = np.abs(dense[inside] / truth[inside] - 1)
+    assert error.max() < 0.03 and np.mean(error > 0.01) < 0.01
     fill = json.loads((tmp_path / "fill" / "fill.json").read_text())
     assert fill["truth"].startswith("frame_camera/")
     own = 100 * np.mean(np.abs(dense - truth)[inside])
