@@ -254,22 +254,28 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 
 
-@numba.njit(cache=True)
-def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
-                  refractory, write, out_t, out_pix, out_p):  # pragma: no cover
+@numba.njit(cache=True, parallel=True)
+def _pixel_events(pix, starts, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak,
+                  normals, refractory, write, offsets, out_t, out_pix, out_p):  # pragma: no cover
     """Events of per-pixel samples sorted by (pixel, time); the first sample of each pixel is
-    its state at the block start. Counts only (and leaves the state alone) unless ``write``.
+    its state at the block start. Pixels run in parallel (each pixel's samples are one run,
+    ``starts[g]:starts[g + 1]``), so the events come out in the order a serial pass over the
+    samples gives. Returns each run's event count; counts only (and leaves the state alone)
+    unless ``write``, which writes run ``g``'s events from ``offsets[g]`` on.
 
     ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
     the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
-    per pixel (P,), jitter).
+    per pixel (P,), jitter), with one normal draw per interval in sample order.
     """
     leak_rates, leak_jitter = leak
-    n = 0
-    S = len(pix)
-    j = 0
-    k = 0                                   # interval index (the leak's normal draws)
-    while j < S:
+    runs = len(starts) - 1
+    counts = np.zeros(runs, dtype=np.int64)
+    for g in numba.prange(runs):
+        j = starts[g]
+        end = starts[g + 1]
+        k = j - g                           # interval index (the leak's normal draws)
+        n = offsets[g] if write else 0
+        n0 = n
         p = pix[j]
         r = ref[p]
         lf = level[p]
@@ -277,7 +283,7 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
         ta = t[j]
         last = last_t[p]
         j += 1
-        while j < S and pix[j] == p:
+        while j < end:
             tb = t[j]
             lb = L[j]
             dt = tb - ta
@@ -310,12 +316,13 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
             lf, la, ta = lf_new, lb, tb
             j += 1
             k += 1
+        counts[g] = n - n0
         if write:
             ref[p] = r
             level[p] = lf
             raw[p] = la
             last_t[p] = last
-    return n
+    return counts
 
 
 def _outputs(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -383,11 +390,15 @@ class PixelEventEmulator(EventEmulator):
                                               cutoff[1:][same])
         refractory = int(round(noise.refractory_period * 1e9))
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
-        args = (pixels, times_ns, levels, exponent, ref, level, raw, last_t, c_on, c_off, leak,
-                normals, refractory)
-        total = _pixel_events(*args, False, *_outputs(0))
+        starts = np.flatnonzero(np.r_[True, pixels[1:] != pixels[:-1], True])
+        args = (pixels, starts, times_ns, levels, exponent, ref, level, raw, last_t, c_on, c_off,
+                leak, normals, refractory)
+        counts = _pixel_events(*args, False, starts, *_outputs(0))
+        offsets = np.zeros(len(counts), np.int64)
+        np.cumsum(counts[:-1], out=offsets[1:])
+        total = int(counts.sum())
         out_t, out_pix, out_p = _outputs(total)
-        _pixel_events(*args, True, out_t, out_pix, out_p)
+        _pixel_events(*args, True, offsets, out_t, out_pix, out_p)
         order = np.argsort((out_t - t0_ns) * n_pixels + out_pix)
         events = np.empty(total, EVENT_DTYPE)
         events["t"] = out_t[order]
