@@ -261,80 +261,123 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 
 
-@numba.njit(cache=True, parallel=True)
-def _pixel_events(pix, starts, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak,
-                  normals, refractory, write, offsets, out_t, out_pix, out_p):  # pragma: no cover
-    """Events of per-pixel samples sorted by (pixel, time); the first sample of each pixel is
-    its state at the block start. Pixels run in parallel (each pixel's samples are one run,
-    ``starts[g]:starts[g + 1]``), so the events come out in the order a serial pass over the
-    samples gives. Returns each run's event count; counts only (and leaves the state alone)
-    unless ``write``, which writes run ``g``'s events from ``offsets[g]`` on.
+@numba.njit(cache=True, inline="always")
+def _pixel_run(g, pix, starts, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak,
+               normals, refractory, write, offsets, out_t, out_pix, out_p,
+               keep):  # pragma: no cover - compiled
+    """Events of pixel run ``g`` of per-pixel samples sorted by (pixel, time): the samples
+    ``starts[g]:starts[g + 1]`` of one pixel, the first its state at the block start. Returns
+    the run's number of threshold crossings; counts only (no crossing time is solved, the state
+    is left alone) unless ``write``, which writes the crossings from ``offsets[g]`` on, with
+    ``keep`` False for those the refractory period drops.
 
     ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
     the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
     per pixel (P,), jitter), with one normal draw per interval in sample order.
     """
     leak_rates, leak_jitter = leak
-    runs = len(starts) - 1
-    counts = np.zeros(runs, dtype=np.int64)
-    for g in numba.prange(runs):
-        j = starts[g]
-        end = starts[g + 1]
-        k = j - g                           # interval index (the leak's normal draws)
-        n = offsets[g] if write else 0
-        n0 = n
-        p = pix[j]
-        r = ref[p]
-        lf = level[p]
-        la = raw[p]
-        ta = t[j]
-        last = last_t[p]
-        j += 1
-        while j < end:
-            tb = t[j]
-            lb = L[j]
-            dt = tb - ta
-            x = exponent[j - 1]
-            if leak_rates.size:
-                jitter = 1.0 - leak_jitter * normals[k]
-                if jitter < 0.0:
-                    jitter = 0.0
-                r += -((dt * 1e-9) * leak_rates[p] * jitter * c_on[p])
-            f_turn, y_turn, lf_new = interval_levels(lf, la, lb, x)
-            # The level's monotonic pieces: up to the turn, then (if it turns) to the end.
-            f_lo, y_lo, f_hi, y_hi = 0.0, lf, f_turn, y_turn
-            while True:
-                count, c, sign = threshold_crossings(y_hi, r, c_on[p], c_off[p])
-                for i in range(1, count + 1):
-                    te = filtered_crossing_time(r + i * c, lf, la, lb, x, f_lo, y_lo, f_hi, y_hi,
-                                                ta, float(dt))
-                    if refractory > 0 and te - last < refractory:
-                        continue
+    j = starts[g]
+    end = starts[g + 1]
+    k = j - g                           # interval index (the leak's normal draws)
+    n = offsets[g] if write else 0
+    n0 = n
+    p = pix[j]
+    r = ref[p]
+    lf = level[p]
+    la = raw[p]
+    ta = t[j]
+    last = last_t[p]
+    j += 1
+    while j < end:
+        tb = t[j]
+        lb = L[j]
+        dt = tb - ta
+        x = exponent[j - 1]
+        if leak_rates.size:
+            jitter = 1.0 - leak_jitter * normals[k]
+            if jitter < 0.0:
+                jitter = 0.0
+            r += -((dt * 1e-9) * leak_rates[p] * jitter * c_on[p])
+        f_turn, y_turn, lf_new = interval_levels(lf, la, lb, x)
+        # The level's monotonic pieces: up to the turn, then (if it turns) to the end.
+        f_lo, y_lo, f_hi, y_hi = 0.0, lf, f_turn, y_turn
+        while True:
+            count, c, sign = threshold_crossings(y_hi, r, c_on[p], c_off[p])
+            if not write:
+                n += count
+            for i in range(1, count + 1 if write else 1):
+                te = filtered_crossing_time(r + i * c, lf, la, lb, x, f_lo, y_lo, f_hi, y_hi,
+                                            ta, float(dt))
+                out_t[n] = te
+                out_pix[n] = p
+                out_p[n] = sign
+                if refractory > 0 and te - last < refractory:
+                    keep[n] = False
+                else:
+                    keep[n] = True
                     last = te
-                    if write:
-                        out_t[n] = te
-                        out_pix[n] = p
-                        out_p[n] = sign
-                    n += 1
-                r += count * c
-                if f_hi >= 1.0:
-                    break
-                f_lo, y_lo, f_hi, y_hi = f_hi, y_hi, 1.0, lf_new
-            lf, la, ta = lf_new, lb, tb
-            j += 1
-            k += 1
-        counts[g] = n - n0
-        if write:
-            ref[p] = r
-            level[p] = lf
-            raw[p] = la
-            last_t[p] = last
+                n += 1
+            r += count * c
+            if f_hi >= 1.0:
+                break
+            f_lo, y_lo, f_hi, y_hi = f_hi, y_hi, 1.0, lf_new
+        lf, la, ta = lf_new, lb, tb
+        j += 1
+        k += 1
+    if write:
+        ref[p] = r
+        level[p] = lf
+        raw[p] = la
+        last_t[p] = last
+    return n - n0
+
+@numba.njit(cache=True)
+def _pixel_events_serial(pix, starts, t, L, exponent, ref, level, raw, last_t, c_on, c_off,
+                         leak, normals, refractory, write, offsets, out_t, out_pix, out_p,
+                         keep):  # pragma: no cover - compiled
+    """:func:`_pixel_run` over every run (pixel) in turn: the runs' counts (R,)."""
+    counts = np.zeros(len(starts) - 1, dtype=np.int64)
+    for g in range(len(counts)):
+        counts[g] = _pixel_run(g, pix, starts, t, L, exponent, ref, level, raw, last_t, c_on,
+                               c_off, leak, normals, refractory, write, offsets, out_t, out_pix,
+                               out_p, keep)
     return counts
 
 
-def _outputs(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Times (int64 ns), flat pixels (int64) and polarities (int8) of ``n`` events."""
-    return np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int8)
+@numba.njit(cache=True, parallel=True)
+def _pixel_events_parallel(pix, starts, t, L, exponent, ref, level, raw, last_t, c_on, c_off,
+                           leak, normals, refractory, write, offsets, out_t, out_pix, out_p,
+                           keep):  # pragma: no cover - compiled
+    """:func:`_pixel_events_serial` with the runs spread over numba's threads; each run
+    writes only its own slots and its own pixel's state, so the result is the same."""
+    counts = np.zeros(len(starts) - 1, dtype=np.int64)
+    for g in numba.prange(len(counts)):
+        counts[g] = _pixel_run(g, pix, starts, t, L, exponent, ref, level, raw, last_t, c_on,
+                               c_off, leak, normals, refractory, write, offsets, out_t, out_pix,
+                               out_p, keep)
+    return counts
+
+
+PARALLEL_MIN_SAMPLES = 1 << 21
+"""Blocks with at least this many samples run the emulator's kernel on every numba thread
+(:func:`_pixel_events_parallel`), smaller ones on one (:func:`_pixel_events_serial`); the
+events are the same either way (``tests/test_emulator_reference.py``). At 240x180 a block holds
+0.1-0.7 M samples and the serial kernel takes about 10 ms: two parallel launches a block cost
+more than they save on a busy 2-core machine (``benchmarks/bench_emulator.py``)."""
+
+
+def _pixel_kernel(samples: int):
+    """The kernel for a block of ``samples`` samples (see :data:`PARALLEL_MIN_SAMPLES`)."""
+    if samples >= PARALLEL_MIN_SAMPLES and numba.get_num_threads() > 1:
+        return _pixel_events_parallel
+    return _pixel_events_serial
+
+
+def _outputs(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Times (int64 ns), flat pixels (int64), polarities (int8) and keep flags of ``n``
+    crossings."""
+    return np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int8), \
+        np.empty(n, np.bool_)
 
 
 class PixelEventEmulator(EventEmulator):
@@ -354,8 +397,11 @@ class PixelEventEmulator(EventEmulator):
         pixels = np.array([0, 0, 0, 1, 1], np.int64)
         times = np.array([0, 500_000, 1_000_000, 0, 1_000_000], np.int64)
         levels = np.array([0.0, 0.5, 1.0, 0.0, -1.0])
-        spare.advance_samples(pixels, times, levels, np.exp(levels), 1_000_000,
-                              np.array([[np.e, np.exp(-1.0)]]))
+        kernels = [_pixel_events_serial] + ([_pixel_events_parallel]
+                                            if numba.get_num_threads() > 1 else [])
+        for kernel in kernels:
+            spare._advance(pixels, times + spare._t, levels, np.exp(levels),
+                           spare._t + 1_000_000, np.array([[np.e, np.exp(-1.0)]]), kernel)
         return time.perf_counter() - tick
 
     @clocked
@@ -386,6 +432,12 @@ class PixelEventEmulator(EventEmulator):
             Events with block start < t <= block end (threshold crossings) and noise events in
             [block start, block end), sorted by time, ties in pixel order.
         """
+        return self._advance(pixels, times_ns, levels, luminance, t_end_ns, end_luminance,
+                             _pixel_kernel(len(pixels)))
+
+    def _advance(self, pixels, times_ns, levels, luminance, t_end_ns, end_luminance, kernel
+                 ) -> np.ndarray:
+        """:meth:`advance_samples` with the given kernel (serial or parallel)."""
         if self.ref is None:
             raise ValueError("call start() before advance_samples()")
         noise = self.params.noise
@@ -414,13 +466,15 @@ class PixelEventEmulator(EventEmulator):
         starts = np.flatnonzero(np.r_[True, pixels[1:] != pixels[:-1], True])
         args = (pixels, starts, times_ns, levels, exponent, ref, level, raw, last_t, c_on, c_off,
                 leak, normals, refractory)
-        counts = _pixel_events(*args, False, starts, *_outputs(0))
+        counts = kernel(*args, False, starts, *_outputs(0))
         offsets = np.zeros(len(counts), np.int64)
         np.cumsum(counts[:-1], out=offsets[1:])
-        total = int(counts.sum())
-        out_t, out_pix, out_p = _outputs(total)
-        _pixel_events(*args, True, offsets, out_t, out_pix, out_p)
+        out_t, out_pix, out_p, keep = _outputs(int(counts.sum()))
+        kernel(*args, True, offsets, out_t, out_pix, out_p, keep)
+        if refractory > 0 and not keep.all():
+            out_t, out_pix, out_p = out_t[keep], out_pix[keep], out_p[keep]
         order = np.argsort((out_t - t0_ns) * n_pixels + out_pix)
+        total = len(order)
         events = np.empty(total, EVENT_DTYPE)
         events["t"] = out_t[order]
         events["y"], events["x"] = np.divmod(out_pix[order], shape[1])
