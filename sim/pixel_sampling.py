@@ -261,101 +261,116 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 
 
-@numba.njit(cache=True, inline="always")
-def _pixel_run(g, pix, starts, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak,
-               normals, refractory, write, offsets, out_t, out_pix, out_p,
-               keep):  # pragma: no cover - compiled
-    """Events of pixel run ``g`` of per-pixel samples sorted by (pixel, time): the samples
-    ``starts[g]:starts[g + 1]`` of one pixel, the first its state at the block start. Returns
-    the run's number of threshold crossings; counts only (no crossing time is solved, the state
-    is left alone) unless ``write``, which writes the crossings from ``offsets[g]`` on, with
-    ``keep`` False for those the refractory period drops.
+@numba.njit(cache=True)
+def _pixel_span(j, end, k, n, pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak,
+                normals, refractory, write, out_t, out_pix, out_p, keep):  # pragma: no cover
+    """Events of the per-pixel samples ``j:end`` (whole pixels), sorted by (pixel, time); the
+    first sample of each pixel is its state at the block start, ``k`` the index of the span's
+    first interval (the leak's normal draws) and ``n`` the slot of its first crossing. Returns
+    the slot after its last crossing; counts only (no crossing time is solved, the state is
+    left alone) unless ``write``, which writes the crossings, with ``keep`` False for those
+    the refractory period drops.
 
     ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
     the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
     per pixel (P,), jitter), with one normal draw per interval in sample order.
     """
     leak_rates, leak_jitter = leak
-    j = starts[g]
-    end = starts[g + 1]
-    k = j - g                           # interval index (the leak's normal draws)
-    n = offsets[g] if write else 0
-    n0 = n
-    p = pix[j]
-    r = ref[p]
-    lf = level[p]
-    la = raw[p]
-    ta = t[j]
-    last = last_t[p]
-    j += 1
     while j < end:
-        tb = t[j]
-        lb = L[j]
-        dt = tb - ta
-        x = exponent[j - 1]
-        if leak_rates.size:
-            jitter = 1.0 - leak_jitter * normals[k]
-            if jitter < 0.0:
-                jitter = 0.0
-            r += -((dt * 1e-9) * leak_rates[p] * jitter * c_on[p])
-        f_turn, y_turn, lf_new = interval_levels(lf, la, lb, x)
-        # The level's monotonic pieces: up to the turn, then (if it turns) to the end.
-        f_lo, y_lo, f_hi, y_hi = 0.0, lf, f_turn, y_turn
-        while True:
-            count, c, sign = threshold_crossings(y_hi, r, c_on[p], c_off[p])
-            if not write:
-                n += count
-            for i in range(1, count + 1 if write else 1):
-                te = filtered_crossing_time(r + i * c, lf, la, lb, x, f_lo, y_lo, f_hi, y_hi,
-                                            ta, float(dt))
-                out_t[n] = te
-                out_pix[n] = p
-                out_p[n] = sign
-                if refractory > 0 and te - last < refractory:
-                    keep[n] = False
-                else:
-                    keep[n] = True
-                    last = te
-                n += 1
-            r += count * c
-            if f_hi >= 1.0:
-                break
-            f_lo, y_lo, f_hi, y_hi = f_hi, y_hi, 1.0, lf_new
-        lf, la, ta = lf_new, lb, tb
+        p = pix[j]
+        r = ref[p]
+        lf = level[p]
+        la = raw[p]
+        ta = t[j]
+        last = last_t[p]
         j += 1
-        k += 1
-    if write:
-        ref[p] = r
-        level[p] = lf
-        raw[p] = la
-        last_t[p] = last
-    return n - n0
+        while j < end and pix[j] == p:
+            tb = t[j]
+            lb = L[j]
+            dt = tb - ta
+            x = exponent[j - 1]
+            if leak_rates.size:
+                jitter = 1.0 - leak_jitter * normals[k]
+                if jitter < 0.0:
+                    jitter = 0.0
+                r += -((dt * 1e-9) * leak_rates[p] * jitter * c_on[p])
+            f_turn, y_turn, lf_new = interval_levels(lf, la, lb, x)
+            # The level's monotonic pieces: up to the turn, then (if it turns) to the end.
+            f_lo, y_lo, f_hi, y_hi = 0.0, lf, f_turn, y_turn
+            while True:
+                count, c, sign = threshold_crossings(y_hi, r, c_on[p], c_off[p])
+                if write:
+                    for i in range(1, count + 1):
+                        te = filtered_crossing_time(r + i * c, lf, la, lb, x, f_lo, y_lo, f_hi,
+                                                    y_hi, ta, float(dt))
+                        out_t[n] = te
+                        out_pix[n] = p
+                        out_p[n] = sign
+                        if refractory > 0 and te - last < refractory:
+                            keep[n] = False
+                        else:
+                            keep[n] = True
+                            last = te
+                        n += 1
+                else:
+                    n += count
+                r += count * c
+                if f_hi >= 1.0:
+                    break
+                f_lo, y_lo, f_hi, y_hi = f_hi, y_hi, 1.0, lf_new
+            lf, la, ta = lf_new, lb, tb
+            j += 1
+            k += 1
+        if write:
+            ref[p] = r
+            level[p] = lf
+            raw[p] = la
+            last_t[p] = last
+    return n
+
 
 @numba.njit(cache=True)
-def _pixel_events_serial(pix, starts, t, L, exponent, ref, level, raw, last_t, c_on, c_off,
-                         leak, normals, refractory, write, offsets, out_t, out_pix, out_p,
-                         keep):  # pragma: no cover - compiled
-    """:func:`_pixel_run` over every run (pixel) in turn: the runs' counts (R,)."""
-    counts = np.zeros(len(starts) - 1, dtype=np.int64)
-    for g in range(len(counts)):
-        counts[g] = _pixel_run(g, pix, starts, t, L, exponent, ref, level, raw, last_t, c_on,
-                               c_off, leak, normals, refractory, write, offsets, out_t, out_pix,
-                               out_p, keep)
+def _pixel_events_serial(pix, spans, first_interval, t, L, exponent, ref, level, raw, last_t,
+                         c_on, c_off, leak, normals, refractory, write, offsets, out_t, out_pix,
+                         out_p, keep):  # pragma: no cover - compiled
+    """:func:`_pixel_span` over each span of samples ``spans[s]:spans[s + 1]`` (whole pixels;
+    its first interval is ``first_interval[s]``) in turn: each span's number of crossings;
+    ``write`` writes span ``s``'s from ``offsets[s]`` on."""
+    counts = np.zeros(len(spans) - 1, dtype=np.int64)
+    for s in range(len(counts)):
+        n = offsets[s] if write else 0
+        counts[s] = _pixel_span(spans[s], spans[s + 1], first_interval[s], n, pix, t, L,
+                                exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
+                                refractory, write, out_t, out_pix, out_p, keep) - n
     return counts
 
 
 @numba.njit(cache=True, parallel=True)
-def _pixel_events_parallel(pix, starts, t, L, exponent, ref, level, raw, last_t, c_on, c_off,
-                           leak, normals, refractory, write, offsets, out_t, out_pix, out_p,
-                           keep):  # pragma: no cover - compiled
-    """:func:`_pixel_events_serial` with the runs spread over numba's threads; each run
-    writes only its own slots and its own pixel's state, so the result is the same."""
-    counts = np.zeros(len(starts) - 1, dtype=np.int64)
-    for g in numba.prange(len(counts)):
-        counts[g] = _pixel_run(g, pix, starts, t, L, exponent, ref, level, raw, last_t, c_on,
-                               c_off, leak, normals, refractory, write, offsets, out_t, out_pix,
-                               out_p, keep)
+def _pixel_events_parallel(pix, spans, first_interval, t, L, exponent, ref, level, raw, last_t,
+                           c_on, c_off, leak, normals, refractory, write, offsets, out_t,
+                           out_pix, out_p, keep):  # pragma: no cover - compiled
+    """:func:`_pixel_events_serial` with the spans spread over numba's threads. Each span
+    writes only its own slots and its own pixels' state, so the result is the same."""
+    counts = np.zeros(len(spans) - 1, dtype=np.int64)
+    for s in numba.prange(len(counts)):
+        n = offsets[s] if write else 0
+        counts[s] = _pixel_span(spans[s], spans[s + 1], first_interval[s], n, pix, t, L,
+                                exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
+                                refractory, write, out_t, out_pix, out_p, keep) - n
     return counts
+
+
+def _spans(pixels: np.ndarray, parallel: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Boundaries of the spans of whole pixels the kernel runs (one span, or ``4 x`` numba's
+    threads of them), and the index of each span's first interval (samples before it less
+    pixels before it)."""
+    if not parallel:
+        return np.array([0, len(pixels)], np.int64), np.zeros(1, np.int64)
+    starts = np.flatnonzero(np.r_[True, pixels[1:] != pixels[:-1], True])
+    runs = len(starts) - 1
+    count = max(min(runs, 4 * numba.get_num_threads()), 1)
+    first = (np.arange(count + 1, dtype=np.int64) * runs) // count
+    return starts[first], starts[first[:-1]] - first[:-1]
 
 
 PARALLEL_MIN_SAMPLES = 1 << 21
@@ -463,10 +478,10 @@ class PixelEventEmulator(EventEmulator):
                                               cutoff[1:][same])
         refractory = int(round(noise.refractory_period * 1e9))
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
-        starts = np.flatnonzero(np.r_[True, pixels[1:] != pixels[:-1], True])
-        args = (pixels, starts, times_ns, levels, exponent, ref, level, raw, last_t, c_on, c_off,
-                leak, normals, refractory)
-        counts = kernel(*args, False, starts, *_outputs(0))
+        spans, first_interval = _spans(pixels, kernel is _pixel_events_parallel)
+        args = (pixels, spans, first_interval, times_ns, levels, exponent, ref, level, raw,
+                last_t, c_on, c_off, leak, normals, refractory)
+        counts = kernel(*args, False, spans, *_outputs(0))
         offsets = np.zeros(len(counts), np.int64)
         np.cumsum(counts[:-1], out=offsets[1:])
         out_t, out_pix, out_p, keep = _outputs(int(counts.sum()))
