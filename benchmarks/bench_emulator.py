@@ -249,20 +249,20 @@ def main(argv=None) -> dict:
           "simulate --no-motion-truth, seconds")
     print(f"{'scene':>13} {'sampler':>7} {'noise':>9} {'events':>8} {'render':>7} "
           f"{'emulate':>8} {'sample':>7} {'compile':>8} {'emu/render':>10} | replay: "
-          f"{'serial':>7} {'parallel':>8} {'speed-up':>8} identical")
+          f"{'before':>7} {'serial':>7} {'parallel':>8} identical")
     for r in rows:
         line = (f"{r['scene']:>13} {r['sampler']:>7} {r['noise']:>9} {r['events']:>8} "
                 f"{r['event_render_s']:>7.3f} {r['emulate_s']:>8.3f} {r['event_sample_s']:>7.3f} "
                 f"{r['emulate_compile_s']:>8.3f} {r['emulate_over_render']:>10.2f} |")
         if "replay" in r:
             p = r["replay"]
-            line += (f"         {p['before_s']:>7.3f} {p['serial_s']:>7.3f} "
+            line += (f" {p['before_s']:>7.3f} {p['serial_s']:>7.3f} "
                      f"{p['parallel_s']:>8.3f} {p['identical']}")
         print(line)
     result = {"cores": os.cpu_count(), "rows": rows,
               "note": "emulate_over_render goal: < 1/3; replay: the same blocks through the "
-                      "serial kernel of c7d2105 and today's parallel one, best of "
-                      f"{args.repeats}"}
+                      "serial emulator of c7d2105 (before) and today's serial and parallel "
+                      f"kernels, best of {args.repeats}"}
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "emulator.json").write_text(json.dumps(result, indent=2))
     print(f"\nwritten to {RESULTS / 'emulator.json'}")

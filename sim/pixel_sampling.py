@@ -60,7 +60,13 @@ from sim.events import (
     interval_levels,
     threshold_crossings,
 )
-from sim.noise import _cutoff, background_events, hot_pixel_events, lowpass_exponent, merge_events
+from sim.noise import (
+    _cutoff,
+    _lowpass_exponent,
+    background_events,
+    hot_pixel_events,
+    merge_events,
+)
 from sim.sampling import SPLIT, SamplingParams, contrast_scale, motion_field
 
 __all__ = ["MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
@@ -470,12 +476,20 @@ class PixelEventEmulator(EventEmulator):
         else:
             normals = np.zeros(0)
             leak = (np.zeros(0), 0.0)
-        exponent = np.full(max(len(pixels) - 1, 0), np.inf)
         if noise.cutoff_hz > 0:
+            # Every pair of consecutive samples at once, then inf between two pixels: the
+            # same values as lowpass_exponent on the pixels' own intervals, checked once here.
             same = pixels[1:] == pixels[:-1]
             cutoff = _cutoff(np.asarray(luminance, np.float64), noise)
-            exponent[same] = lowpass_exponent(np.diff(times_ns)[same] * 1e-9, cutoff[:-1][same],
-                                              cutoff[1:][same])
+            dt = np.diff(times_ns)
+            if not (np.all(np.isfinite(cutoff)) and np.all(cutoff >= 0)
+                    and np.all((dt > 0) | ~same)):
+                raise ValueError("luminance must be finite and >= 0 and each pixel's times "
+                                 "must increase")
+            exponent = _lowpass_exponent(dt * 1e-9, cutoff[:-1], cutoff[1:])
+            exponent[~same] = np.inf
+        else:
+            exponent = np.full(max(len(pixels) - 1, 0), np.inf)
         refractory = int(round(noise.refractory_period * 1e9))
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
         spans, first_interval = _spans(pixels, kernel is _pixel_events_parallel)
