@@ -268,19 +268,24 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _pixel_span(j, end, k, n, pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak,
-                normals, refractory, write, out_t, out_pix, out_p, keep):  # pragma: no cover
-    """Events of the per-pixel samples ``j:end`` (whole pixels), sorted by (pixel, time); the
-    first sample of each pixel is its state at the block start, ``k`` the index of the span's
-    first interval (the leak's normal draws) and ``n`` the slot of its first crossing. Returns
-    the slot after its last crossing; counts only (no crossing time is solved, the state is
-    left alone) unless ``write``, which writes the crossings, with ``keep`` False for those
-    the refractory period drops.
+def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
+                  refractory, write, out_t, out_pix, out_p, keep):  # pragma: no cover - compiled
+    """Threshold crossings of per-pixel samples sorted by (pixel, time); the first sample of
+    each pixel is its state at the block start. Returns their number; counts only (no
+    crossing time is solved, the state is left alone) unless ``write``, which writes them,
+    with ``keep`` False for those the refractory period drops (each time is solved once).
 
     ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
     the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
     per pixel (P,), jitter), with one normal draw per interval in sample order.
+
+    One thread: in ``simulate`` the event stage runs numba on one thread beside Dr.Jit's
+    workers (:func:`sim.simulate._events._event_stage`), and a parallel version (spans of whole
+    pixels over numba's threads, the same events) was slower than this one on the 2-core
+    development machine even in a process without Dr.Jit (boxes_6dof's realistic blocks, 0.8 M
+    samples each: 0.40 s against 0.24 s for five).
     """
+    j, end, k, n = 0, len(pix), 0, 0
     leak_rates, leak_jitter = leak
     while j < end:
         p = pix[j]
@@ -335,65 +340,6 @@ def _pixel_span(j, end, k, n, pix, t, L, exponent, ref, level, raw, last_t, c_on
     return n
 
 
-@numba.njit(cache=True)
-def _pixel_events_serial(pix, spans, first_interval, t, L, exponent, ref, level, raw, last_t,
-                         c_on, c_off, leak, normals, refractory, write, offsets, out_t, out_pix,
-                         out_p, keep):  # pragma: no cover - compiled
-    """:func:`_pixel_span` over each span of samples ``spans[s]:spans[s + 1]`` (whole pixels;
-    its first interval is ``first_interval[s]``) in turn: each span's number of crossings;
-    ``write`` writes span ``s``'s from ``offsets[s]`` on."""
-    counts = np.zeros(len(spans) - 1, dtype=np.int64)
-    for s in range(len(counts)):
-        n = offsets[s] if write else 0
-        counts[s] = _pixel_span(spans[s], spans[s + 1], first_interval[s], n, pix, t, L,
-                                exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
-                                refractory, write, out_t, out_pix, out_p, keep) - n
-    return counts
-
-
-@numba.njit(cache=True, parallel=True)
-def _pixel_events_parallel(pix, spans, first_interval, t, L, exponent, ref, level, raw, last_t,
-                           c_on, c_off, leak, normals, refractory, write, offsets, out_t,
-                           out_pix, out_p, keep):  # pragma: no cover - compiled
-    """:func:`_pixel_events_serial` with the spans spread over numba's threads. Each span
-    writes only its own slots and its own pixels' state, so the result is the same."""
-    counts = np.zeros(len(spans) - 1, dtype=np.int64)
-    for s in numba.prange(len(counts)):
-        n = offsets[s] if write else 0
-        counts[s] = _pixel_span(spans[s], spans[s + 1], first_interval[s], n, pix, t, L,
-                                exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
-                                refractory, write, out_t, out_pix, out_p, keep) - n
-    return counts
-
-
-def _spans(pixels: np.ndarray, parallel: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Boundaries of the spans of whole pixels the kernel runs (one span, or ``4 x`` numba's
-    threads of them), and the index of each span's first interval (samples before it less
-    pixels before it)."""
-    if not parallel:
-        return np.array([0, len(pixels)], np.int64), np.zeros(1, np.int64)
-    starts = np.flatnonzero(np.r_[True, pixels[1:] != pixels[:-1], True])
-    runs = len(starts) - 1
-    count = max(min(runs, 4 * numba.get_num_threads()), 1)
-    first = (np.arange(count + 1, dtype=np.int64) * runs) // count
-    return starts[first], starts[first[:-1]] - first[:-1]
-
-
-PARALLEL_MIN_SAMPLES = 1 << 21
-"""Blocks with at least this many samples run the emulator's kernel on every numba thread
-(:func:`_pixel_events_parallel`), smaller ones on one (:func:`_pixel_events_serial`); the
-events are the same either way (``tests/test_emulator_reference.py``). At 240x180 a block holds
-0.1-0.7 M samples and the serial kernel takes about 10 ms: two parallel launches a block cost
-more than they save on a busy 2-core machine (``benchmarks/bench_emulator.py``)."""
-
-
-def _pixel_kernel(samples: int):
-    """The kernel for a block of ``samples`` samples (see :data:`PARALLEL_MIN_SAMPLES`)."""
-    if samples >= PARALLEL_MIN_SAMPLES and numba.get_num_threads() > 1:
-        return _pixel_events_parallel
-    return _pixel_events_serial
-
-
 def _outputs(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Times (int64 ns), flat pixels (int64), polarities (int8) and keep flags of ``n``
     crossings."""
@@ -418,11 +364,8 @@ class PixelEventEmulator(EventEmulator):
         pixels = np.array([0, 0, 0, 1, 1], np.int64)
         times = np.array([0, 500_000, 1_000_000, 0, 1_000_000], np.int64)
         levels = np.array([0.0, 0.5, 1.0, 0.0, -1.0])
-        kernels = [_pixel_events_serial] + ([_pixel_events_parallel]
-                                            if numba.get_num_threads() > 1 else [])
-        for kernel in kernels:
-            spare._advance(pixels, times + spare._t, levels, np.exp(levels),
-                           spare._t + 1_000_000, np.array([[np.e, np.exp(-1.0)]]), kernel)
+        spare.advance_samples(pixels, times, levels, np.exp(levels), 1_000_000,
+                              np.array([[np.e, np.exp(-1.0)]]))
         return time.perf_counter() - tick
 
     @clocked
@@ -453,12 +396,6 @@ class PixelEventEmulator(EventEmulator):
             Events with block start < t <= block end (threshold crossings) and noise events in
             [block start, block end), sorted by time, ties in pixel order.
         """
-        return self._advance(pixels, times_ns, levels, luminance, t_end_ns, end_luminance,
-                             _pixel_kernel(len(pixels)))
-
-    def _advance(self, pixels, times_ns, levels, luminance, t_end_ns, end_luminance, kernel
-                 ) -> np.ndarray:
-        """:meth:`advance_samples` with the given kernel (serial or parallel)."""
         if self.ref is None:
             raise ValueError("call start() before advance_samples()")
         noise = self.params.noise
@@ -492,14 +429,10 @@ class PixelEventEmulator(EventEmulator):
             exponent = np.full(max(len(pixels) - 1, 0), np.inf)
         refractory = int(round(noise.refractory_period * 1e9))
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
-        spans, first_interval = _spans(pixels, kernel is _pixel_events_parallel)
-        args = (pixels, spans, first_interval, times_ns, levels, exponent, ref, level, raw,
-                last_t, c_on, c_off, leak, normals, refractory)
-        counts = kernel(*args, False, spans, *_outputs(0))
-        offsets = np.zeros(len(counts), np.int64)
-        np.cumsum(counts[:-1], out=offsets[1:])
-        out_t, out_pix, out_p, keep = _outputs(int(counts.sum()))
-        kernel(*args, True, offsets, out_t, out_pix, out_p, keep)
+        args = (pixels, times_ns, levels, exponent, ref, level, raw, last_t, c_on, c_off, leak,
+                normals, refractory)
+        out_t, out_pix, out_p, keep = _outputs(_pixel_events(*args, False, *_outputs(0)))
+        _pixel_events(*args, True, out_t, out_pix, out_p, keep)
         if refractory > 0 and not keep.all():
             out_t, out_pix, out_p = out_t[keep], out_pix[keep], out_p[keep]
         order = np.argsort((out_t - t0_ns) * n_pixels + out_pix)

@@ -1,8 +1,9 @@
-"""The per-pixel emulator's kernels against a plain serial reference, noise included.
+"""The per-pixel emulator's kernel against a plain reference, noise included.
 
-:class:`sim.pixel_sampling.PixelEventEmulator` runs its pixels one after another or in parallel
-(count, prefix sum, write; crossings the refractory period drops are flagged, then left out)
-and sorts the block's events by one integer key. The reference below is the model
+:class:`sim.pixel_sampling.PixelEventEmulator` counts the threshold crossings without solving
+their times, then solves each once and writes it, flagging those the refractory period drops
+(left out afterwards), takes every low-pass exponent of the block at once, and sorts the
+block's events by one integer key. The reference below is the model
 written as directly as possible: one Python loop over the samples in order, the model's scalar
 steps (:func:`sim.events.interval_levels`, :func:`~sim.events.threshold_crossings`,
 :func:`~sim.events.filtered_crossing_time`), a list of events sorted by (time, pixel) and the
@@ -18,11 +19,9 @@ from __future__ import annotations
 
 import dataclasses
 
-import numba
 import numpy as np
 import pytest
 
-from sim import pixel_sampling
 from sim.eventio import EVENT_DTYPE
 from sim.events import (
     EventParams,
@@ -138,18 +137,9 @@ NOISY = dataclasses.replace(noise_preset("realistic"), shot_noise_rate=300.0, le
 12 ms."""
 
 
-@pytest.mark.parametrize("kernel", ["serial", "parallel"])
 @pytest.mark.parametrize("noise", [noise_preset("ideal"), noise_preset("realistic"), NOISY],
                          ids=["ideal", "realistic", "noisy"])
-def test_the_kernels_give_the_plain_references_events_bit_for_bit(noise, kernel, monkeypatch):
-    """Both kernels (one thread; pixels spread over numba's threads) against the reference."""
-    monkeypatch.setattr(pixel_sampling, "PARALLEL_MIN_SAMPLES", 0 if kernel == "parallel"
-                        else 1 << 62)
-    chosen = pixel_sampling._pixel_kernel(10)
-    if kernel == "parallel" and numba.get_num_threads() > 1:
-        assert chosen is pixel_sampling._pixel_events_parallel
-    elif kernel == "serial":
-        assert chosen is pixel_sampling._pixel_events_serial
+def test_the_kernel_gives_the_plain_references_events_bit_for_bit(noise):
     params = EventParams(contrast_on=0.2, contrast_off=0.25, log_eps=EPS, noise=noise, seed=3)
     start, blocks = _blocks(seed=1)
     fast, slow = PixelEventEmulator(SHAPE, params), PixelEventEmulator(SHAPE, params)
