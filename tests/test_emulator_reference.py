@@ -24,6 +24,7 @@ import pytest
 
 from sim.eventio import EVENT_DTYPE
 from sim.events import (
+    EventEmulator,
     EventParams,
     filtered_crossing_time,
     interval_levels,
@@ -173,3 +174,22 @@ def test_each_noise_of_the_noisy_case_changes_the_events():
                        ("hot_pixel_rate", 0.0), ("cutoff_hz", 0.0)):
         other = events(dataclasses.replace(NOISY, **{field: off}))
         assert len(other) != len(full) or not np.array_equal(other, full), field
+
+
+@pytest.mark.parametrize("kind", [EventEmulator, PixelEventEmulator])
+def test_warm_up_leaves_the_emulator_alone_and_seconds_counts_only_its_own_calls(kind):
+    """``simulate`` warms the kernels before its clock (timings_s.emulate_compile) and times
+    the emulator by ``seconds`` (timings_s.emulate): the warm-up must not draw from the
+    sensor's generator, move its state or count as emulation."""
+    params = EventParams(log_eps=EPS, noise=NOISY, seed=3)
+    emulator, twin = kind(SHAPE, params), kind(SHAPE, params)
+    assert emulator.warm_up() > 0
+    assert emulator.seconds == 0.0
+    assert emulator.get_state()["rng"] == twin.get_state()["rng"]
+    start, blocks = _blocks(seed=2, n_blocks=1)
+    emulator.start(np.log(start + EPS), 0.0, start)
+    if kind is PixelEventEmulator:
+        emulator.advance_samples(*blocks[0])
+    else:
+        emulator.advance(np.log(blocks[0][5] + EPS), 2e-3, blocks[0][5])
+    assert emulator.seconds > 0
