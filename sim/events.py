@@ -37,7 +37,9 @@ order (row-major), so results are deterministic with any number of threads.
 
 from __future__ import annotations
 
+import functools
 import math
+import time
 from dataclasses import dataclass, field
 
 import numba
@@ -277,6 +279,20 @@ def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, re
             ref[y, i] = r
 
 
+def clocked(method):
+    """Add the wall time of each call of an emulator's ``method`` to its ``seconds``."""
+
+    @functools.wraps(method)
+    def timed(self, *args, **kwargs):
+        tick = time.perf_counter()
+        try:
+            return method(self, *args, **kwargs)
+        finally:
+            self.seconds += time.perf_counter() - tick
+
+    return timed
+
+
 class EventEmulator:
     """Streaming event emulator: feed log-intensity samples in time order, get events.
 
@@ -292,6 +308,13 @@ class EventEmulator:
     >>> emulator = EventEmulator((180, 240))                          # doctest: +SKIP
     >>> emulator.start(L0, 0.0)                                       # doctest: +SKIP
     >>> events = emulator.advance(L1, 0.001)                          # doctest: +SKIP
+
+    Attributes
+    ----------
+    seconds : float
+        Wall time spent in :meth:`start` and :meth:`advance` (and
+        :meth:`~sim.pixel_sampling.PixelEventEmulator.advance_samples`) so far; not
+        :meth:`warm_up`'s.
     """
 
     def __init__(self, shape: tuple[int, int], params: EventParams | None = None):
@@ -310,6 +333,17 @@ class EventEmulator:
         self._cutoff: np.ndarray | None = None
         self._t: int | None = None
         self._last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, dtype=np.int64)
+        self.seconds = 0.0
+
+    def warm_up(self) -> float:
+        """Compile the emulator's kernels (or load them from numba's cache) and start their
+        threads, on a throwaway 1x2 sensor with these parameters, so that the first interval
+        does not pay for it; this emulator's state is untouched. Returns the seconds it took."""
+        tick = time.perf_counter()
+        spare = type(self)((1, 2), self.params)
+        spare.start(np.zeros((1, 2)), 0.0)
+        spare.advance(np.array([[0.0, 1.0]]), 1e-3)
+        return time.perf_counter() - tick
 
     @property
     def time_ns(self) -> int | None:
@@ -382,6 +416,7 @@ class EventEmulator:
             raise ValueError(f"{name} has non-finite values; expected log intensities")
         return L
 
+    @clocked
     def start(self, L0: np.ndarray, t0: float, luminance: np.ndarray | None = None) -> None:
         """Set the first sample (t0 in seconds) and the references; emits nothing.
 
@@ -402,6 +437,7 @@ class EventEmulator:
             return np.zeros(self.shape)
         return cutoff_frequency(np.exp(L) if luminance is None else luminance, self.params.noise)
 
+    @clocked
     def advance(self, L1: np.ndarray, t1: float, luminance: np.ndarray | None = None
                 ) -> np.ndarray:
         """Process the interval from the previous sample to (t1, L1).

@@ -401,6 +401,13 @@ def lowpass_exponent(dt: float | np.ndarray, cutoff_start: np.ndarray, cutoff_en
             or np.any(f0 < 0) or np.any(f1 < 0):
         raise ValueError(f"cutoff_start and cutoff_end must be finite cutoffs >= 0 Hz of the "
                          f"same shape, got shapes {f0.shape} and {f1.shape}")
+    return _lowpass_exponent(dt, f0, f1)
+
+
+def _lowpass_exponent(dt, f0: np.ndarray, f1: np.ndarray) -> np.ndarray:
+    """The law of :func:`lowpass_exponent` on already-checked values (float64 arrays of one
+    shape; ``dt`` a number or such an array), element by element: the per-pixel emulator
+    applies it to all its sample pairs at once."""
     off = (f0 == 0) | (f1 == 0)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = f1 / f0
@@ -408,7 +415,7 @@ def lowpass_exponent(dt: float | np.ndarray, cutoff_start: np.ndarray, cutoff_en
         # 1e-13 (their difference is (r - 1)**2 / 12 of it).
         mean = np.where(np.abs(ratio - 1.0) < 1e-6, 0.5 * (f0 + f1),
                         (f1 - f0) / np.log(ratio))
-    return np.where(off, np.inf, 2.0 * np.pi * dt * mean)
+        return np.where(off, np.inf, 2.0 * np.pi * dt * mean)
 
 
 @numba.njit(cache=True, inline="always")

@@ -97,6 +97,30 @@ class _EventCamera:
         return self._renderer.luminance(t, spp=self._spp)
 
 
+class _TimedCamera:
+    """The event camera as :func:`sim.sampling.adaptive_samples` sees it (scene, camera,
+    frames, depth), timing its renders."""
+
+    def __init__(self, camera: _EventCamera) -> None:
+        self._camera = camera
+        self.scene, self.camera, self.shader = camera.scene, camera.camera, camera.shader
+        self.seconds = 0.0
+
+    def luminance(self, t: float) -> np.ndarray:
+        tick = time.perf_counter()
+        try:
+            return self._camera.luminance(t)
+        finally:
+            self.seconds += time.perf_counter() - tick
+
+    def depth(self, t: float) -> np.ndarray:
+        tick = time.perf_counter()
+        try:
+            return self._camera.depth(t)
+        finally:
+            self.seconds += time.perf_counter() - tick
+
+
 class _ShaderSource:
     """:class:`sim.pixel_sampling.PixelSource` of a renderer's scene, timing its renders."""
 
@@ -247,9 +271,13 @@ class _FrameSampler:
     stats_type = SamplingStats
 
     def __init__(self, camera: _EventCamera) -> None:
-        self._camera = camera
+        self._camera = _TimedCamera(camera)
         self._after: Sample | None = None
-        self.render_seconds = 0.0                # spent rendering, so far
+
+    @property
+    def render_seconds(self) -> float:
+        """Seconds spent rendering (frames and the sampler's depth maps), so far."""
+        return self._camera.seconds
 
     def resume(self, saved: tuple[dict, dict] | None) -> float | None:
         """Continue after the checkpoint's sample (None: a fresh start); return its time."""
@@ -264,17 +292,14 @@ class _FrameSampler:
               params: EventParams, sampling: SamplingParams, stats: SamplingStats
               ) -> Iterator[_Step]:
         """Render frames over ``[start, end]`` and emulate their events, one step a frame."""
-        tick = time.perf_counter()
         for sample in adaptive_samples(self._camera, start, end, contrast, params.log_eps,
                                        sampling, stats, after=self._after):
-            self.render_seconds += time.perf_counter() - tick
             if emulator.time_ns is None:
                 emulator.start(sample.log, sample.t, sample.luminance)
                 chunk = None
             else:
                 chunk = emulator.advance(sample.log, sample.t, sample.luminance)
             yield _Step(sample.t, chunk, sample, pending=sample.tail_pending)
-            tick = time.perf_counter()
 
     @staticmethod
     def progress(stats: SamplingStats, why: str) -> str:
@@ -411,13 +436,19 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                       EventDepth(event_camera.depth, start if resumed_at is None else resumed_at)
                       if event_depth else None,
                       timings) as (bar, writers):
+        # The sampler's step splits into its renders (event_render), the emulator's own time
+        # (emulate) and the rest: choosing the samples (event_sample).
+        timings["emulate_compile"] += emulator.warm_up()
         since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()
-        rendered = source.render_seconds
+        rendered, emulated = source.render_seconds, emulator.seconds
         for step in source.steps(emulator, start, end, contrast, params, sampling, stats):
             tock = time.perf_counter()
-            timings["event_render"] += source.render_seconds - rendered
-            timings["emulate"] += (tock - tick) - (source.render_seconds - rendered)
+            render = source.render_seconds - rendered
+            emulate = emulator.seconds - emulated
+            timings["event_render"] += render
+            timings["emulate"] += emulate
+            timings["event_sample"] += (tock - tick) - render - emulate
             writers.write(step.events, step.t, pending=step.pending)
             if step.events is not None and len(step.events):
                 count += len(step.events)
@@ -432,7 +463,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                 since, saved_at = 0, time.perf_counter()
                 timings["checkpoint"] += saved_at - tick
                 tick = saved_at
-            rendered = source.render_seconds
+            rendered, emulated = source.render_seconds, emulator.seconds
             bar.n = round(step.t - start, 6)
             bar.set_postfix_str(f"{count:,} events, {source.progress(stats, why)}",
                                 refresh=False)

@@ -218,7 +218,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     else:
         check_output_dir(out, overwrite, inputs)
     timings = {"setup": 0.0, "render": 0.0, "depth": 0.0, "write": 0.0, "event_render": 0.0,
-               "emulate": 0.0, "event_write": 0.0, "event_depth": 0.0, "checkpoint": 0.0}
+               "emulate": 0.0, "emulate_compile": 0.0, "event_sample": 0.0, "event_write": 0.0,
+               "event_depth": 0.0, "checkpoint": 0.0}
     clock = time.perf_counter()
     renderer = Renderer(scene, spp=spp, variant=variant)
     identity["variant"] = renderer.variant
