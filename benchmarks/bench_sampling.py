@@ -55,13 +55,19 @@ def _scene(name: str, resolution: str):
     return scene
 
 
+def event_pixel_samples(scene, events: dict) -> int:
+    """Pixels the event camera rendered: a whole-frame render counts H W, plus the per-pixel
+    sampler's own (``events``: ``sequence.json``'s ``events``)."""
+    pixels = scene.camera.width * scene.camera.height
+    return events["full_renders"] * pixels + events["pixel_samples"]
+
+
 def _run(scene, folder: Path, start: float, seconds: float, sampler: str, lam: float) -> dict:
     result = simulate(scene, folder, start=start, duration=seconds, progress=False,
                       event_formats=("h5",), sampler=sampler, sampling=SamplingParams(lam=lam),
                       overwrite=True)
     info = json.loads((folder / "sequence.json").read_text())["events"]
-    pixels = scene.camera.width * scene.camera.height
-    samples = info["full_renders"] * pixels + info["pixel_samples"]
+    samples = event_pixel_samples(scene, info)
     return {"sampler": sampler, "lam": lam, "events": result.n_events,
             "full_renders": info["full_renders"], "pixel_samples": info["pixel_samples"],
             "samples_per_s": samples / seconds,
