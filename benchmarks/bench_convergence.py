@@ -27,8 +27,10 @@ their first time over 0.02 s.
 
 Run: ``PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_convergence.py [--quick]`` (on 2
 shared CPU cores, ``llvm_ad_rgb``: ``--quick`` about 4 minutes, the full run about 35).
-``--scenes`` picks scenes, ``--window`` sets the seconds. Results are printed and written to
-``benchmarks/results/convergence.json`` (``convergence_quick.json`` for ``--quick``).
+``--scenes`` picks scenes, ``--first`` only their first time, ``--window`` sets the seconds.
+Results are printed and written to ``benchmarks/results/convergence.json``
+(``convergence_quick.json`` for ``--quick``), row by row (a row replaces an earlier run's of
+the same scene and window).
 """
 
 from __future__ import annotations
@@ -156,21 +158,29 @@ def main() -> None:
     parser.add_argument("--scenes", default=None, help="comma-separated scene names")
     parser.add_argument("--window", type=float, default=None,
                         help="seconds per window (default 0.05, --quick 0.02)")
+    parser.add_argument("--first", action="store_true", help="only each scene's first time")
     args = parser.parse_args()
     cases = QUICK if args.quick else CASES
     if args.scenes is not None:
         cases = [c for c in CASES if c[0] in args.scenes.split(",")]
     seconds = args.window or (0.02 if args.quick else 0.05)
+    path = RESULTS / ("convergence_quick.json" if args.quick else "convergence.json")
     rows, tick = [], time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         for name, starts in cases:
-            for k, start in enumerate(starts):
+            for k, start in enumerate(starts[:1] if args.first else starts):
                 rows.append(bench_case(name, start, seconds, Path(tmp), warm=k == 0))
-    print(f"\n{table(rows)}\n\nwall time {time.perf_counter() - tick:.0f} s")
+                _write_rows(path, rows[-1:])
+    print(f"\n{table(rows)}\n\nwall time {time.perf_counter() - tick:.0f} s\nwritten to {path}")
+
+
+def _write_rows(path: Path, rows: list[dict]) -> None:
+    """Add ``rows`` to ``path``, replacing an earlier run's rows of the same scene and window."""
     RESULTS.mkdir(exist_ok=True)
-    path = RESULTS / ("convergence_quick.json" if args.quick else "convergence.json")
-    path.write_text(json.dumps(rows, indent=2))
-    print(f"written to {path}")
+    kept = json.loads(path.read_text()) if path.is_file() else []
+    mine = {(r["scene"], *r["window_s"]) for r in rows}
+    kept = [r for r in kept if (r["scene"], *r["window_s"]) not in mine]
+    path.write_text(json.dumps(kept + rows, indent=2))
 
 
 if __name__ == "__main__":
