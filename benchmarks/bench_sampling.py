@@ -29,8 +29,8 @@ events, median and 95th percentile of the matched events' time differences). Eac
 simulates a 0.01 s window once (kernel tracing and compilation are not counted).
 
 Run: ``PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_sampling.py [--quick]`` (on 2 shared
-cores, ``llvm_ad_rgb``: ``--quick`` about 5 minutes; the full cost table well over an hour,
-the rig scenes' 1280x720 frames most of it). ``--agreement`` (about 12 minutes;
+cores, ``llvm_ad_rgb``: ``--quick`` about 6 minutes; the full cost table about two hours, an
+estimate from the quick rows). ``--agreement`` (about 12 minutes;
 ``--no-reference`` skips the lam / 4 runs). ``--scenes`` picks scenes, ``--start`` rows of the
 agreement. Results are printed and written to ``benchmarks/results/simulate_cost.json`` and
 ``benchmarks/results/sampling.json`` (a subset replaces its own rows there).
