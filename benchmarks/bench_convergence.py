@@ -28,7 +28,8 @@ their first time over 0.02 s.
 Run: ``PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_convergence.py [--quick]`` (on 2
 shared CPU cores, ``llvm_ad_rgb``: ``--quick`` about a minute; the four static scenes 5.5
 minutes; dynamic_6dof's frame sampler renders whole frames at up to 20 kHz, and its reference
-takes about 20 minutes per 0.05-s window, so the full run takes about an hour).
+about 20 minutes per 0.05-s window, 9.4 minutes for 0.02 s, so the full run would take about
+an hour).
 ``--scenes`` picks scenes, ``--first`` only their first time, ``--window`` sets the seconds.
 Results are printed and written to ``benchmarks/results/convergence.json``
 (``convergence_quick.json`` for ``--quick``), row by row (a row replaces an earlier run's of
