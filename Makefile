@@ -49,7 +49,8 @@ test: setup
 bench: setup
 	$(BIN)/python benchmarks/bench_render.py
 	$(BIN)/python benchmarks/bench_shader.py
-	$(BIN)/python benchmarks/bench_sampling.py
+	$(BIN)/python benchmarks/bench_sampling.py --quick
+	$(BIN)/python benchmarks/bench_sampling.py --agreement
 	$(BIN)/python benchmarks/bench_events.py
 	$(BIN)/python benchmarks/bench_emvs.py
 	$(BIN)/python benchmarks/bench_fill.py

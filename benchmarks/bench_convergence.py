@@ -1,0 +1,190 @@
+"""Convergence of the defaults: events and frames against a 256-samples-per-pixel reference.
+
+A pixel integrates the light over its area; the event camera takes ``[render] event_spp`` point
+samples per pixel (4 by default) and the frames ``[render] spp`` (16). Per scene and window this
+simulates, in one process, the scene as it is (the defaults) and its reference, the same scene
+with ``event_spp`` = ``spp`` = 256 (:data:`REFERENCE_SPP`) and nothing else changed, and
+reports:
+
+- events: the default's count error and worst 16x16 block (blocks with >= 100 reference
+  events) against the reference (:func:`benchmarks.agreement.event_agreement`);
+- frames: the PSNR of the default's 8-bit frames against the reference's (the worst frame of
+  the window). The frames come from the ``ideal`` sensor (no noise, which would dominate) at
+  one gain, the reference's automatic gain, so they differ by their renders alone;
+- cost: the default's pixel samples (a whole-frame render counts H W) and event-render seconds
+  (``sequence.json``'s ``timings_s``), after a 0.01-s run that traces and compiles the kernels.
+
+Goals (issue 23), printed PASS/FAIL beside each row: event count within 3 %
+(:data:`COUNT_GOAL`), every block with >= 100 events within 5 % (:data:`BLOCK_GOAL`), frames at
+least 40 dB (:data:`PSNR_GOAL`). The event camera is the ``ideal`` preset (no noise), the
+sampler the automatic one (per-pixel for a static scene, frame for dynamic_6dof), no motion
+ground truth.
+
+Scenes (:data:`CASES`): boxes_6dof, poster_6dof, dynamic_6dof, complex_heightfield and the
+held-out ``garden_wall`` (``scenes/garden_wall.toml``, made for this benchmark and tuned to
+nothing), at 240x180, each at two times over 0.05 s. ``--quick``: boxes_6dof and garden_wall at
+their first time over 0.02 s.
+
+Run: ``PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_convergence.py [--quick]`` (on 2
+shared CPU cores, ``llvm_ad_rgb``: ``--quick`` about a minute; the four static scenes 5.5
+minutes; dynamic_6dof's frame sampler renders whole frames at up to 20 kHz, and its reference
+about 20 minutes per 0.05-s window, 9.4 minutes for 0.02 s, so the full run would take about
+an hour).
+``--scenes`` picks scenes, ``--first`` only their first time, ``--window`` sets the seconds.
+Results are printed and written to ``benchmarks/results/convergence.json``
+(``convergence_quick.json`` for ``--quick``), row by row (a row replaces an earlier run's of
+the same scene and window).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from benchmarks.agreement import event_agreement
+from benchmarks.bench_sampling import event_pixel_samples
+from scenes import resolve_scene
+from sim.eventio import read_events
+from sim.scene import load_scene
+from sim.sequence import read_index
+from sim.simulate import simulate
+
+RESULTS = Path(__file__).resolve().parent / "results"
+REFERENCE_SPP = 256
+"""Samples per pixel of the reference's event camera and frames."""
+COUNT_GOAL, BLOCK_GOAL, PSNR_GOAL = 0.03, 0.05, 40.0
+"""Goals at the defaults: |count error|, worst block error (fractions), frame PSNR (dB)."""
+CASES = [("boxes_6dof", (3.5, 30.0)), ("poster_6dof", (2.0, 40.0)),
+         ("dynamic_6dof", (6.2, 30.0)), ("complex_heightfield", (1.0, 2.5)),
+         ("garden_wall", (1.0, 5.0))]
+"""(scene, start times in s) of the full run: the paper's window start, and a later time."""
+QUICK = [("boxes_6dof", (3.5,)), ("garden_wall", (1.0,))]
+"""The ``--quick`` subset."""
+
+
+def _run(scene, folder: Path, start: float, seconds: float) -> dict:
+    result = simulate(scene, folder, start=start, duration=seconds, progress=False,
+                      event_formats=("h5",), motion_truth=False, overwrite=True)
+    record = json.loads((folder / "sequence.json").read_text())
+    return {"events": result.n_events, "sampler": record["events"]["sampler"],
+            "pixel_samples": event_pixel_samples(scene, record["events"]),
+            "event_render_s": result.timings["event_render"],
+            "gain": record["frames"]["gain_used"]}
+
+
+def _frames(folder: Path) -> list[np.ndarray]:
+    _, names = read_index(folder / "images.txt")
+    return [np.asarray(Image.open(folder / name), dtype=np.float64) for name in names]
+
+
+def psnr(reference: np.ndarray, image: np.ndarray, peak: float = 255.0) -> float:
+    """Peak signal-to-noise ratio of ``image`` against ``reference``, dB (inf when equal).
+
+    Parameters
+    ----------
+    reference, image : ndarray
+        Same shape, 8-bit values (0-``peak``).
+    """
+    mse = float(np.mean((np.asarray(image, np.float64) - reference) ** 2))
+    return float("inf") if mse == 0 else float(10.0 * np.log10(peak ** 2 / mse))
+
+
+def _with_spp(scene, spp: int | None, gain: float | None):
+    """The scene with the ideal frame sensor at ``gain``, and ``spp`` for events and frames."""
+    frames = replace(scene.frames.with_sensor("ideal"), gain=gain)
+    render = scene.render if spp is None else replace(scene.render, spp=spp, event_spp=spp)
+    return replace(scene, frames=frames, render=render)
+
+
+def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool) -> dict:
+    """One scene and window: the default against the reference (see the module docstring)."""
+    scene = load_scene(resolve_scene(name))
+    shape = (scene.camera.height, scene.camera.width)
+    tick = time.perf_counter()
+    reference = _run(_with_spp(scene, REFERENCE_SPP, None), folder / "reference", start, seconds)
+    default_scene = _with_spp(scene, None, reference["gain"])
+    if warm:                                                  # trace and compile once
+        _run(default_scene, folder / "warm", start, 0.01)
+    default = _run(default_scene, folder / "default", start, seconds)
+    agreement = event_agreement(read_events(folder / "reference" / "events.h5"),
+                                read_events(folder / "default" / "events.h5"), shape)
+    psnrs = [psnr(r, d) for r, d in zip(_frames(folder / "reference"),
+                                        _frames(folder / "default"), strict=True)]
+    row = {"scene": name, "window_s": [start, start + seconds],
+           "event_spp": scene.render.event_spp, "spp": scene.render.spp,
+           "reference_spp": REFERENCE_SPP, "default": default, "reference": reference,
+           "agreement": agreement.as_dict(), "frames": len(psnrs),
+           "frame_psnr_db": min(psnrs) if psnrs else None,
+           "wall_s": time.perf_counter() - tick}
+    row["pass"] = {"count": bool(abs(agreement.count_error) <= COUNT_GOAL),
+                   "blocks": bool(agreement.worst_block_error <= BLOCK_GOAL),
+                   "frames": bool(psnrs) and bool(min(psnrs) >= PSNR_GOAL)}
+    print(f"{name} {start:g} s: {row['wall_s']:.0f} s", flush=True)
+    return row
+
+
+def _verdict(ok: bool) -> str:
+    return "PASS" if ok else "FAIL"
+
+
+def table(rows: list[dict]) -> str:
+    """The printed table (one line a row; the goals in the header)."""
+    lines = [f"goals: events within {100 * COUNT_GOAL:.0f} %, every block with >= 100 events "
+             f"within {100 * BLOCK_GOAL:.0f} %, frames >= {PSNR_GOAL:.0f} dB "
+             f"(reference: {REFERENCE_SPP} samples per pixel)",
+             "scene                t (s)  sampler  events  reference  count        "
+             "worst block (n)      frames PSNR     pixel samples  event render s"]
+    for row in rows:
+        a, d, ok = row["agreement"], row["default"], row["pass"]
+        frames = (f"{row['frame_psnr_db']:5.1f} dB {_verdict(ok['frames'])}"
+                  if row["frame_psnr_db"] is not None else "   -         ")
+        lines.append(
+            f"{row['scene']:<20} {row['window_s'][0]:5.1f}  {d['sampler']:<7} "
+            f"{a['count']:7,} {a['reference_count']:10,}  {100 * a['count_error']:+6.1f} % "
+            f"{_verdict(ok['count'])}  {100 * a['worst_block_error']:5.1f} % ({a['blocks']:3}) "
+            f"{_verdict(ok['blocks'])}  {frames}  {d['pixel_samples']:13,}  "
+            f"{d['event_render_s']:14.2f}")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true",
+                        help="boxes_6dof and garden_wall at one time over 0.02 s")
+    parser.add_argument("--scenes", default=None, help="comma-separated scene names")
+    parser.add_argument("--window", type=float, default=None,
+                        help="seconds per window (default 0.05, --quick 0.02)")
+    parser.add_argument("--first", action="store_true", help="only each scene's first time")
+    args = parser.parse_args()
+    cases = QUICK if args.quick else CASES
+    if args.scenes is not None:
+        cases = [c for c in CASES if c[0] in args.scenes.split(",")]
+    seconds = args.window or (0.02 if args.quick else 0.05)
+    path = RESULTS / ("convergence_quick.json" if args.quick else "convergence.json")
+    rows, tick = [], time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, starts in cases:
+            for k, start in enumerate(starts[:1] if args.first else starts):
+                rows.append(bench_case(name, start, seconds, Path(tmp), warm=k == 0))
+                _write_rows(path, rows[-1:])
+    print(f"\n{table(rows)}\n\nwall time {time.perf_counter() - tick:.0f} s\nwritten to {path}")
+
+
+def _write_rows(path: Path, rows: list[dict]) -> None:
+    """Add ``rows`` to ``path``, replacing an earlier run's rows of the same scene and window."""
+    RESULTS.mkdir(exist_ok=True)
+    kept = json.loads(path.read_text()) if path.is_file() else []
+    mine = {(r["scene"], *r["window_s"]) for r in rows}
+    kept = [r for r in kept if (r["scene"], *r["window_s"]) not in mine]
+    path.write_text(json.dumps(kept + rows, indent=2))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,39 @@
+"""The helpers of the cost and convergence benchmarks (``benchmarks/bench_sampling.py``,
+``benchmarks/bench_convergence.py``), on no renders: what they measure is only as right as
+the scene they run and the figure they compute."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmarks.bench_convergence import psnr
+from benchmarks.bench_sampling import cost_cases, scene_file_at
+from scenes import builtin_scenes, resolve_scene
+from sim.scene import load_scene
+
+
+@pytest.mark.parametrize("name", ["slider_close", "rig_boxes"])
+def test_the_cost_table_s_scene_copy_has_the_size_asked_and_the_field_of_view_kept(name, tmp_path):
+    own = load_scene(resolve_scene(name))
+    for size, (width, height) in (("240x180", (240, 180)), ("640x480", (640, 480))):
+        scene = load_scene(scene_file_at(name, size, tmp_path))
+        assert scene.camera == own.camera.with_resolution(width, height)
+        assert [o.name for o in scene.objects] == [o.name for o in own.objects]
+        assert (scene.frame_camera is None) == (own.frame_camera is None)
+
+
+def test_the_cost_table_covers_every_built_in_scene_with_the_samplers_it_allows():
+    cases = cost_cases()
+    assert {c[0] for c in cases} == set(builtin_scenes())
+    for name, _size, start, seconds, sampler in cases:
+        scene = load_scene(resolve_scene(name))
+        assert sampler in (("frame",) if scene.is_dynamic else ("pixel", "frame"))
+        assert 0.0 <= start and start + seconds <= scene.duration
+    assert {c[1] for c in cases} == {"240x180", "640x480"}
+
+
+def test_psnr_of_a_uniform_one_level_error_is_48_db():
+    reference = np.full((4, 5), 100.0)
+    assert psnr(reference, reference + 1.0) == pytest.approx(20 * np.log10(255.0))
+    assert psnr(reference, reference) == float("inf")
