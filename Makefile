@@ -47,13 +47,13 @@ test: setup
 	$(BIN)/python -m pytest -q
 
 bench: setup
-	$(BIN)/python benchmarks/bench_render.py
-	$(BIN)/python benchmarks/bench_shader.py
-	$(BIN)/python benchmarks/bench_sampling.py --quick
-	$(BIN)/python benchmarks/bench_sampling.py --agreement
-	$(BIN)/python benchmarks/bench_events.py
-	$(BIN)/python benchmarks/bench_emvs.py
-	$(BIN)/python benchmarks/bench_fill.py
+	$(BIN)/python -m benchmarks.bench_render
+	$(BIN)/python -m benchmarks.bench_shader
+	$(BIN)/python -m benchmarks.bench_sampling --quick
+	$(BIN)/python -m benchmarks.bench_sampling --agreement
+	$(BIN)/python -m benchmarks.bench_events
+	$(BIN)/python -m benchmarks.bench_emvs
+	$(BIN)/python -m benchmarks.bench_fill
 
 lint: setup
 	$(BIN)/ruff check .
