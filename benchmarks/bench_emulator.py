@@ -33,7 +33,7 @@ import numpy as np
 
 from sim.eventio import EVENT_DTYPE
 from sim.events import EventParams, filtered_crossing_time, interval_levels, threshold_crossings
-from sim.noise import _cutoff, background_events, hot_pixel_events, lowpass_exponent, merge_events
+from sim.noise import _cutoff, lowpass_exponent
 from sim.pixel_sampling import PixelEventEmulator
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -110,13 +110,7 @@ def _serial_advance_samples(self: PixelEventEmulator, pixels, times_ns, levels, 
         self._L = self._L.copy()
     ref, level, raw = self.ref.reshape(-1), self._L.reshape(-1), self._raw.reshape(-1)
     last_t = self._last_t.reshape(-1)
-    if noise.leak_rate > 0:
-        intervals = len(pixels) - 1 - int(np.count_nonzero(pixels[1:] != pixels[:-1]))
-        normals = self._rng.standard_normal(intervals)
-        leak = (self.leak_rates.reshape(-1), float(noise.leak_jitter))
-    else:
-        normals = np.zeros(0)
-        leak = (np.zeros(0), 0.0)
+    normals, leak = self._leak_draws(pixels)
     exponent = np.full(max(len(pixels) - 1, 0), np.inf)
     if noise.cutoff_hz > 0:
         same = pixels[1:] == pixels[:-1]
@@ -137,15 +131,7 @@ def _serial_advance_samples(self: PixelEventEmulator, pixels, times_ns, levels, 
     events["t"] = out_t[order]
     events["y"], events["x"] = np.divmod(out_pix[order], shape[1])
     events["p"] = out_p[order]
-    if noise.shot_noise_rate > 0:
-        events = merge_events(events, background_events(
-            t0_ns, t_end_ns, np.asarray(end_luminance, np.float64), noise, self._rng))
-    if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
-        events = merge_events(events, hot_pixel_events(t0_ns, t_end_ns, self.hot_mask,
-                                                       noise.hot_pixel_rate, self._rng))
-    self._cutoff = self._cutoff_at(self._raw, end_luminance)
-    self._t = int(t_end_ns)
-    return events
+    return self._close_block(events, t0_ns, t_end_ns, end_luminance)
 
 
 def run_case(scene_name: str, start: float, duration: float, sampler: str, noise: str,

@@ -406,13 +406,7 @@ class PixelEventEmulator(EventEmulator):
             self._L = self._L.copy()
         ref, level, raw = self.ref.reshape(-1), self._L.reshape(-1), self._raw.reshape(-1)
         last_t = self._last_t.reshape(-1)
-        if noise.leak_rate > 0:
-            intervals = len(pixels) - 1 - int(np.count_nonzero(pixels[1:] != pixels[:-1]))
-            normals = self._rng.standard_normal(intervals)
-            leak = (self.leak_rates.reshape(-1), float(noise.leak_jitter))
-        else:
-            normals = np.zeros(0)
-            leak = (np.zeros(0), 0.0)
+        normals, leak = self._leak_draws(pixels)
         if noise.cutoff_hz > 0:
             # Every pair of consecutive samples at once, then inf between two pixels: the
             # same values as lowpass_exponent on the pixels' own intervals, checked once here.
@@ -441,6 +435,48 @@ class PixelEventEmulator(EventEmulator):
         events["t"] = out_t[order]
         events["y"], events["x"] = np.divmod(out_pix[order], shape[1])
         events["p"] = out_p[order]
+        return self._close_block(events, t0_ns, t_end_ns, end_luminance)
+
+    def _leak_draws(self, pixels: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, float]]:
+        """The leak's normal draws of a block (one per interval within a pixel's run, drawn
+        from the emulator's generator in order) and ``(rates, jitter)``; empty without leak.
+
+        Parameters
+        ----------
+        pixels : (N,) int64 ndarray
+            Flat pixel index of each sample, each pixel's samples consecutive.
+
+        Returns
+        -------
+        normals : float64 ndarray
+        leak : (float64 ndarray of the pixels' rates, float jitter)
+        """
+        noise = self.params.noise
+        if noise.leak_rate <= 0:
+            return np.zeros(0), (np.zeros(0), 0.0)
+        intervals = len(pixels) - 1 - int(np.count_nonzero(pixels[1:] != pixels[:-1]))
+        return (self._rng.standard_normal(intervals),
+                (self.leak_rates.reshape(-1), float(noise.leak_jitter)))
+
+    def _close_block(self, events: np.ndarray, t0_ns: int, t_end_ns: int,
+                     end_luminance: np.ndarray) -> np.ndarray:
+        """A block's crossing events with its shot-noise and hot-pixel events merged in (drawn
+        in that order from the emulator's generator), and the emulator moved to ``t_end_ns``.
+
+        Parameters
+        ----------
+        events : EVENT_DTYPE ndarray
+            The block's threshold-crossing events, in time order.
+        t0_ns, t_end_ns : int
+            The block's start and end, ns.
+        end_luminance : (H, W) ndarray
+            Each pixel's luminance at ``t_end_ns``, cd/m^2.
+
+        Returns
+        -------
+        EVENT_DTYPE ndarray
+        """
+        noise = self.params.noise
         if noise.shot_noise_rate > 0:
             events = merge_events(events, background_events(
                 t0_ns, t_end_ns, np.asarray(end_luminance, np.float64), noise, self._rng))

@@ -32,10 +32,7 @@ from sim.events import (
 )
 from sim.noise import (
     _cutoff,
-    background_events,
-    hot_pixel_events,
     lowpass_exponent,
-    merge_events,
     noise_preset,
 )
 from sim.pixel_sampling import PixelEventEmulator
@@ -95,15 +92,9 @@ def reference_block(emulator: PixelEventEmulator, pixels, times_ns, levels, lumi
     events = np.empty(len(found), EVENT_DTYPE)
     for e, (t, p, sign) in zip(events, found, strict=True):
         e["t"], e["y"], e["x"], e["p"] = t, p // width, p % width, sign
-    if noise.shot_noise_rate > 0:
-        events = merge_events(events, background_events(
-            t0, t_end_ns, np.asarray(end_luminance, np.float64), noise, emulator._rng))
-    if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
-        events = merge_events(events, hot_pixel_events(t0, t_end_ns, emulator.hot_mask,
-                                                       noise.hot_pixel_rate, emulator._rng))
-    emulator._cutoff = emulator._cutoff_at(emulator._raw, end_luminance)
-    emulator._t = int(t_end_ns)
-    return events
+    # the block's noise events and the emulator's move to t_end: the emulator's own step (what
+    # this reference checks is the crossings above)
+    return emulator._close_block(events, t0, t_end_ns, end_luminance)
 
 
 def _blocks(seed: int, n_blocks: int = 6):
