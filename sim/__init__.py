@@ -25,7 +25,15 @@ from sim.imu import ImuParams, read_imu, read_velocity
 from sim.noise import NoiseParams, noise_preset
 from sim.render import Renderer, RenderResult
 from sim.sampling import SamplingParams
-from sim.scene import Scene, SceneError, load_scene, parse_scene
+from sim.scene import (
+    PROCEDURAL_FAMILIES,
+    Scene,
+    SceneError,
+    load_scene,
+    parse_scene,
+    room_scene,
+    tabletop_scene,
+)
 from sim.sequence import FileIndex, FrameCameraFiles, Sequence, load_sequence
 from sim.shader import EventShader
 from sim.simulate import SimulationResult, simulate
@@ -76,6 +84,7 @@ __all__ = [
     "RenderResult",
     "Renderer",
     "SampledTrajectory",
+    "PROCEDURAL_FAMILIES",
     "Scene",
     "SceneError",
     "Sequence",
@@ -91,7 +100,9 @@ __all__ = [
     "read_calib",
     "read_depth",
     "read_trajectory",
+    "room_scene",
     "simulate",
+    "tabletop_scene",
     "use_variant",
     "write_calib",
     "write_depth",

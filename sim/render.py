@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sim.scene import Light, Scene, SceneObject
+from sim.scene._model import Light, Scene, SceneObject
 from sim.variant import use_variant
 
 __all__ = ["RenderResult", "Renderer"]

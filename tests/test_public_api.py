@@ -33,6 +33,7 @@ BEFORE = {
                        "SplineTrajectory", "Trajectory", "read_trajectory", "write_trajectory"],
     "sim.render": ["RenderResult", "Renderer"],
     "sim.scene": ["Scene", "SceneError", "load_scene", "parse_scene"],
+    "sim.scene.procedural": ["PROCEDURAL_FAMILIES", "room_scene", "tabletop_scene"],  # new: 24
     "sim.simulate": ["SimulationResult", "simulate"],
     "sim.variant": ["active_variant", "use_variant"],
     "sim.exr": ["read_depth", "write_depth"],

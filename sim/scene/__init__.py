@@ -14,11 +14,15 @@ Modules (private; everything public is re-exported here):
 - ``_toml``: the scene file parser (:func:`load_scene`, :func:`parse_scene`,
   :func:`declared_depth_range`) and its limits (``MAX_*``).
 - ``_freeze``: :func:`freeze_scene`, a dynamic scene with its objects frozen at one time.
+- ``_meshes``: the built-in meshes (``path = "builtin:NAME"`` in a scene file).
+- ``procedural``: random scene files per seed, the ``tabletop`` and ``room`` families
+  (:func:`tabletop_scene`, :func:`room_scene`, :data:`PROCEDURAL_FAMILIES`).
 """
 
 from __future__ import annotations
 
 from sim.scene._freeze import euler_from_rotation, freeze_scene
+from sim.scene._meshes import BUILTIN_MESHES
 from sim.scene._model import (
     Light,
     Material,
@@ -37,8 +41,18 @@ from sim.scene._toml import (
     load_scene,
     parse_scene,
 )
+from sim.scene.procedural import (
+    PROCEDURAL_FAMILIES,
+    RoomRanges,
+    SceneRanges,
+    TabletopRanges,
+    procedural_scene,
+    room_scene,
+    tabletop_scene,
+)
 
 __all__ = [
+    "BUILTIN_MESHES",
     "Light",
     "MAX_ILLUMINANCE_LUX",
     "MAX_INTENSITY_CD",
@@ -46,13 +60,20 @@ __all__ = [
     "MAX_OBJECT_SIZE_M",
     "Material",
     "ObjectMotion",
+    "PROCEDURAL_FAMILIES",
     "RenderParams",
+    "RoomRanges",
     "Scene",
     "SceneError",
     "SceneObject",
+    "SceneRanges",
+    "TabletopRanges",
     "declared_depth_range",
     "euler_from_rotation",
     "freeze_scene",
     "load_scene",
     "parse_scene",
+    "procedural_scene",
+    "room_scene",
+    "tabletop_scene",
 ]
