@@ -586,7 +586,7 @@ def _scene_text(family: str, seed: int, ranges: SceneRanges, variant: str | None
         parts = []
         if isinstance(ranges, TabletopRanges):
             tw, td = _r(_draw(rng, ranges.table_width)), _r(_draw(rng, ranges.table_depth))
-            th = _r(_draw(rng, ranges.table_height))
+            th = 2 * _r(_draw(rng, ranges.table_height) / 2)     # its centre written exactly
             top, region = th, (-tw / 2, tw / 2, -td / 2, td / 2)
             scale = (_r(_draw(rng, ranges.texture_scale)), _r(_draw(rng, ranges.texture_scale)))
             parts.append(f'[[objects]]\nname = "table"\ntype = "box"\n'
