@@ -661,24 +661,8 @@ def tabletop_scene(seed: int, *, variant: str | None = None, **ranges) -> str:
 def room_scene(seed: int, *, variant: str | None = None, **ranges) -> str:
     """A random room scene: objects on the floor of a closed room (see the module's text).
 
-    Parameters
-    ----------
-    seed : int
-        >= 0; the only source of randomness: the same seed and ranges give the same text.
-    variant : str, optional
-        Mitsuba variant of the exact-depth check (:func:`trajectory_check`).
-    **ranges
-        Fields of :class:`RoomRanges` to replace.
-
-    Returns
-    -------
-    str
-        A scene file (TOML), as :func:`tabletop_scene`'s.
-
-    Raises
-    ------
-    ParameterError
-        A bad seed or range (naming it), or no draw accepted in ``max_redraws``.
+    The parameters, result and errors are :func:`tabletop_scene`'s, the ranges
+    :class:`RoomRanges`' fields.
     """
     return _scene_text("room", seed, _ranges(RoomRanges, ranges), variant)
 
