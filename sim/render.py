@@ -32,6 +32,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from sim.scene._meshes import heightfield_mesh
 from sim.scene._model import Light, Scene, SceneObject
 from sim.variant import use_variant
 
@@ -73,17 +74,9 @@ def _heightfield_mesh(name: str, obj: SceneObject):
     """Triangle mesh of z = A sin(2 pi x / lx) cos(2 pi y / ly) over the size, local frame."""
     import mitsuba as mi
 
-    sx, sy = obj.params["size"]
-    nx, ny = obj.params["resolution"]
-    lx, ly = obj.params["wavelength"]
-    xs, ys = np.linspace(-sx / 2, sx / 2, nx), np.linspace(-sy / 2, sy / 2, ny)
-    gx, gy = np.meshgrid(xs, ys)
-    gz = obj.params["amplitude"] * np.sin(2 * np.pi * gx / lx) * np.cos(2 * np.pi * gy / ly)
-    vertices = np.stack([gx, gy, gz], axis=-1).reshape(-1, 3)
-    uv = np.stack(np.meshgrid(np.linspace(0, 1, nx), np.linspace(1, 0, ny)), -1).reshape(-1, 2)
-    idx = np.arange(nx * ny).reshape(ny, nx)
-    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    faces = np.concatenate([np.stack([a, b, d], -1), np.stack([a, d, c], -1)]).reshape(-1, 3)
+    p = obj.params
+    vertices, uv, faces = heightfield_mesh(p["size"], p["amplitude"], p["wavelength"],
+                                           p["resolution"])
     mesh = mi.Mesh(name, len(vertices), len(faces), has_vertex_normals=True,
                    has_vertex_texcoords=True)
     mesh.set_id(name)

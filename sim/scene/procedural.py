@@ -39,7 +39,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from sim.render import Renderer
-from sim.scene._meshes import BUILTIN_MESHES, builtin_mesh_path, obj_vertices
+from sim.scene._meshes import BUILTIN_MESHES, builtin_mesh_path, heightfield_mesh, obj_vertices
 from sim.scene._model import Material, Scene
 from sim.scene._toml import parse_scene
 from sim.textures import SKIMAGE_IMAGES
@@ -291,16 +291,6 @@ class _Placed:
     footprint: float            # radius of its footprint's bounding disc, metres
 
 
-def _heightfield_min(size, amplitude, wavelength, resolution) -> float:
-    """Lowest vertex of the height field's mesh (the grid that :mod:`sim.render` builds), in
-    its local z."""
-    xs = np.linspace(-size[0] / 2, size[0] / 2, resolution[0])
-    ys = np.linspace(-size[1] / 2, size[1] / 2, resolution[1])
-    gx, gy = np.meshgrid(xs, ys)
-    z = amplitude * np.sin(2 * np.pi * gx / wavelength[0]) * np.cos(2 * np.pi * gy / wavelength[1])
-    return float(z.min())
-
-
 def _shape(rng: np.random.Generator, kind: str, size: float) -> tuple[str, float, float]:
     """An object of ``kind`` at about ``size`` (m): its TOML body (shape keys and rotation),
     its footprint radius and the height of its centre above the support it rests on."""
@@ -323,7 +313,7 @@ def _shape(rng: np.random.Generator, kind: str, size: float) -> tuple[str, float
         amplitude = _r(size * _draw(rng, (0.05, 0.2)))
         wavelength = [_r(side * _draw(rng, (0.3, 0.8))) for side in sides]
         resolution = [48, 48]
-        lowest = _heightfield_min(sides, amplitude, wavelength, resolution)
+        lowest = float(heightfield_mesh(sides, amplitude, wavelength, resolution)[0][:, 2].min())
         return (f"size = {_vec(sides)}\namplitude = {_f(amplitude)}\n"
                 f"wavelength = {_vec(wavelength)}\nresolution = [48, 48]\n"
                 f"rotation = {_vec([0, 0, yaw])}", math.hypot(*sides) / 2, -lowest)
