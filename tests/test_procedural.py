@@ -154,6 +154,18 @@ def test_tabletop_fifty_seeds_parse_hold_every_kind_and_keep_depth_in_range(tabl
     assert kinds == {"HandheldTrajectory", "SplineTrajectory"}     # hand-held and orbit
 
 
+def test_depth_stays_in_range_between_the_checked_times(tabletops):
+    """The generator renders 12 views; its bounds must hold between them too: a hand-held and
+    an orbit scene rendered at 101 times (32x24)."""
+    first = {}
+    for text in tabletops.values():
+        scene = parse_scene(text)
+        first.setdefault(scene.trajectory.__class__.__name__, scene)
+    for scene in first.values():
+        times = np.linspace(0.0, scene.duration, 101)
+        assert _depth_faults(scene, times, size=(32, 24)) == [], scene.name
+
+
 def test_no_two_objects_interpenetrate_and_all_rest_on_the_support(tabletops, rooms):
     """On the parsed geometry (every corner, vertex or rim point in the world): the footprints'
     bounding discs of two upright objects that do not overlap leave them disjoint (an object

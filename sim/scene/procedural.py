@@ -289,6 +289,8 @@ class _Placed:
     body: str
     center: np.ndarray          # (3,), metres: the written centre
     footprint: float            # radius of its footprint's bounding disc, metres
+    top: float                  # height of its highest point, metres (every shape drawn here
+                                # is as high above its centre as its lowest point is below)
 
 
 def _shape(rng: np.random.Generator, kind: str, size: float) -> tuple[str, float, float]:
@@ -350,7 +352,8 @@ def _place(rng: np.random.Generator, ranges: SceneRanges, region: tuple[float, .
         if spot is None:
             return None
         center = np.array([spot[0], spot[1], _up(top + lift)])
-        placed.append(_Placed(kind, f"center = {_vec(center)}\n{body}", center, footprint))
+        placed.append(_Placed(kind, f"center = {_vec(center)}\n{body}", center, footprint,
+                              center[2] + lift))
     return placed
 
 
@@ -386,9 +389,13 @@ def _room(rng: np.random.Generator, width: float, depth: float, height: float) -
 
 
 def _lights(rng: np.random.Generator, ranges: SceneRanges, width: float, depth: float,
-            height: float, target: np.ndarray) -> str:
-    """Point lights under the ceiling: the first within 0.5 m (x, y) of ``target``, the others
-    anywhere in the room (0.3 m from the walls)."""
+            height: float, target: np.ndarray, highest: float) -> str | None:
+    """Point lights under the ceiling and at least 0.2 m above ``highest`` (the objects' top):
+    the first within 0.5 m (x, y) of ``target``, the others anywhere in the room (0.3 m from
+    the walls); None when the objects leave no room under the ceiling."""
+    low = max(0.6 * height, highest + 0.2)
+    if low > height - 0.1:
+        return None
     count = int(rng.integers(ranges.lights[0], ranges.lights[1] + 1))
     out = []
     for i in range(count):
@@ -398,7 +405,7 @@ def _lights(rng: np.random.Generator, ranges: SceneRanges, width: float, depth: 
         else:
             x = _draw(rng, (-width / 2 + 0.3, width / 2 - 0.3))
             y = _draw(rng, (-depth / 2 + 0.3, depth / 2 - 0.3))
-        position = [_r(x), _r(y), _r(_draw(rng, (0.6 * height, height - 0.1)))]
+        position = [_r(x), _r(y), _r(_draw(rng, (low, height - 0.1)))]
         out.append(f'[[lights]]\ntype = "point"\nposition = {_vec(position)}\n'
                    f"intensity_cd = {_f(_r(_draw(rng, ranges.intensity_cd)))}\n")
     return "\n".join(out)
@@ -602,7 +609,11 @@ def _scene_text(family: str, seed: int, ranges: SceneRanges, variant: str | None
                                            float(centres[:, 2].mean()))])
         spread = float(max(np.hypot(*(p.center[:2] - target[:2])) + p.footprint
                            for p in placed))
-        lights = _lights(rng, ranges, width, depth, height, target)
+        lights = _lights(rng, ranges, width, depth, height, target,
+                         max(p.top for p in placed))
+        if lights is None:
+            reasons.append("the objects reach the ceiling")
+            continue
         kind, trajectory = _trajectory(rng, ranges, target, spread)
         text = _text(family, seed, ranges, kind,
                      [trajectory, lights, _room(rng, width, depth, height), *parts])
