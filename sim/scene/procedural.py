@@ -43,7 +43,7 @@ from sim.scene._meshes import BUILTIN_MESHES, builtin_mesh_path, heightfield_mes
 from sim.scene._model import Material, Scene
 from sim.scene._toml import parse_scene
 from sim.textures import SKIMAGE_IMAGES
-from sim.validation import ParameterError
+from sim.validation import ParameterError, check_parameter, integer, non_negative, positive
 
 __all__ = ["GAP_M", "GENERATOR_VERSION", "OBJECT_KINDS", "PROCEDURAL_FAMILIES", "RoomRanges",
            "SceneRanges", "TabletopRanges", "procedural_scene", "room_scene", "tabletop_scene",
@@ -133,18 +133,16 @@ class SceneRanges:
         for item in fields(self):
             value = getattr(self, item.name)
             if item.name == "trajectories":
-                _check_kinds(value)
+                value = _kinds(value)
             elif item.name == "check_size":
-                if not isinstance(value, tuple | list) or len(value) != 2:
-                    _check_count(item.name, value)
-                for size in value:
-                    _check_count(item.name, size)
+                value = tuple(_count(item.name, size) for size in _two(item.name, value))
             elif isinstance(item.default, tuple):
-                _check_pair(item.name, value, integer=isinstance(item.default[0], int))
-            elif item.name in ("check_views", "max_redraws"):
-                _check_count(item.name, value)
+                value = _pair(item.name, value, integers=isinstance(item.default[0], int))
+            elif isinstance(item.default, int):
+                value = _count(item.name, value)
             else:
-                _check_pair(item.name, (value, value), integer=False)
+                value = check_parameter(positive, item.name, value)
+            object.__setattr__(self, item.name, value)
         if self.objects[0] < len(OBJECT_KINDS):
             raise ParameterError(f"{{objects}} {list(self.objects)}: expected at least "
                                  f"{len(OBJECT_KINDS)} objects (one of each kind: "
@@ -197,29 +195,34 @@ class RoomRanges(SceneRanges):
     depth_range: tuple[float, float] = (0.25, 10.0)
 
 
-def _check_pair(name: str, value, *, integer: bool) -> None:
-    kind = "integers" if integer else "numbers"
-    ok = (isinstance(value, tuple | list) and len(value) == 2
-          and all(isinstance(v, int if integer else int | float) and not isinstance(v, bool)
-                  for v in value)
-          and all(math.isfinite(v) and v >= 0 for v in value) and value[0] <= value[1])
-    if not ok:
+def _two(name: str, value) -> tuple:
+    if not isinstance(value, tuple | list) or len(value) != 2:
+        raise ParameterError(f"{{{name}}} {ParameterError.literal(repr(value))}: expected two "
+                             "values, (low, high)", **{name: name})
+    return tuple(value)
+
+
+def _pair(name: str, value, *, integers: bool) -> tuple:
+    """A range ``(low, high)`` of numbers >= 0 (integers where ``integers``), low <= high."""
+    check = (lambda key, v: integer(key, v, 0)) if integers else non_negative
+    low, high = (check_parameter(check, name, v) for v in _two(name, value))
+    if low > high:
         raise ParameterError(f"{{{name}}} {ParameterError.literal(repr(value))}: expected "
-                             f"(low, high), two {kind} with 0 <= low <= high", **{name: name})
+                             "(low, high) with low <= high", **{name: name})
+    return low, high
 
 
-def _check_count(name: str, value) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ParameterError(f"{{{name}}} {ParameterError.literal(repr(value))}: expected an "
-                             "integer >= 1", **{name: name})
+def _count(name: str, value) -> int:
+    return check_parameter(lambda key, v: integer(key, v, 1), name, value)
 
 
-def _check_kinds(value) -> None:
+def _kinds(value) -> tuple[str, ...]:
     if (not isinstance(value, tuple | list) or not value
             or any(v not in ("handheld", "orbit") for v in value)):
         raise ParameterError(f"{{trajectories}} {ParameterError.literal(repr(value))}: expected "
                              "a non-empty list of 'handheld' and/or 'orbit'",
                              trajectories="trajectories")
+    return tuple(value)
 
 
 def _ranges(cls: type[SceneRanges], given: dict) -> SceneRanges:
@@ -229,7 +232,7 @@ def _ranges(cls: type[SceneRanges], given: dict) -> SceneRanges:
         raise ParameterError(f"{{range}} {ParameterError.literal(repr(unknown[0]))} is not a "
                              f"range of {cls.__name__}; expected one of {', '.join(sorted(known))}",
                              range="range")
-    return cls(**{name: tuple(v) if isinstance(v, list) else v for name, v in given.items()})
+    return cls(**given)
 
 
 # --------------------------------------------------------------------------------------------
