@@ -258,8 +258,8 @@ def dataset_summary(folder: str | Path, dataset: Dataset | None = None) -> Datas
 # --- the contact sheet -------------------------------------------------------------------------
 
 def _depth_colours(depth: np.ndarray) -> np.ndarray:
-    """(H, W, 3) uint8 RGB: inverse depth, near bright (TURBO over the map's range); black where
-    no surface is seen."""
+    """(H, W, 3) uint8 RGB: inverse depth in TURBO over the map's range (near red, far blue);
+    black where no surface is seen."""
     seen = depth > 0
     image = np.zeros((*depth.shape, 3), np.uint8)
     if not seen.any():
@@ -315,8 +315,7 @@ def _contact_sheet(dataset: Dataset) -> np.ndarray:
     width = max(row.shape[1] for row in rows)
     padded = [np.pad(row, ((0, 6), (0, width - row.shape[1]), (0, 0)), constant_values=255)
               for row in rows]
-    header = _label(width, "frame | events since the previous frame (ON red, OFF blue) | "
-                           "exact depth (near bright)")
+    header = _label(width, "frame | events (ON red, OFF blue) | exact depth (near red)")
     return np.concatenate([header, *padded], axis=0)
 
 
