@@ -15,7 +15,7 @@ import numpy as np
 from sim.eventio._events import EVENT_DTYPE, _check_size, _first_error
 from sim.eventio._formats import _kind
 from sim.eventio._hdf5 import _H5Source
-from sim.eventio._text import _iter_text_blocks, _parse_block
+from sim.eventio._text import _iter_text_blocks, _line_blocks, _parse_block
 
 __all__ = ["event_time_span", "iter_event_chunks", "read_events", "read_text_span", "read_window",
            "text_offsets"]
@@ -267,38 +267,25 @@ def text_offsets(path: str | Path, times_ns: np.ndarray, *, width: int | None = 
     offsets = np.full(times.size, path.stat().st_size, np.int64)
     lines = np.zeros(times.size, np.int64)
     found = 0                                     # times placed so far
-    position, first_line, t_prev, carry, ended = 0, 1, -1, b"", True
-    with path.open("rb") as handle:
-        while found < times.size:
-            data = handle.read(_TEXT_BLOCK)
-            at_end = not data
-            data = carry + data
-            if at_end:
-                block, carry = data, b""
-            else:
-                cut = data.rfind(b"\n")
-                if cut < 0:                       # one very long line: read on
-                    carry = data
-                    continue
-                block, carry = data[:cut + 1], data[cut + 1:]
-            if block:
-                events, newlines = _parse_block(block, path, first_line, width, height, t_prev)
-                if events.size:
-                    starts, numbers = _event_line_starts(block)
-                    if starts.size != events.size:  # cannot happen for a file the parser took
-                        raise ValueError(f"{path}: {events.size} events but {starts.size} "
-                                         f"event lines from line {first_line}")
-                    t_prev = int(events["t"][-1])
-                    last = found + int(np.searchsorted(times[found:], t_prev, side="right"))
-                    at = np.searchsorted(events["t"], times[found:last], side="left")
-                    offsets[found:last] = position + starts[at]
-                    lines[found:last] = first_line + numbers[at]
-                    found = last
-                position += len(block)
-                first_line += newlines
-                ended = block.endswith(b"\n")
-            if at_end:
-                break
+    position, first_line, t_prev, ended = 0, 1, -1, True
+    for block in _line_blocks(path, _TEXT_BLOCK):
+        if found == times.size:
+            break
+        events, newlines = _parse_block(block, path, first_line, width, height, t_prev)
+        if events.size:
+            starts, numbers = _event_line_starts(block)
+            if starts.size != events.size:        # cannot happen for a file the parser took
+                raise ValueError(f"{path}: {events.size} events but {starts.size} event lines "
+                                 f"from line {first_line}")
+            t_prev = int(events["t"][-1])
+            last = found + int(np.searchsorted(times[found:], t_prev, side="right"))
+            at = np.searchsorted(events["t"], times[found:last], side="left")
+            offsets[found:last] = position + starts[at]
+            lines[found:last] = first_line + numbers[at]
+            found = last
+        position += len(block)
+        first_line += newlines
+        ended = block.endswith(b"\n")
     lines[found:] = first_line + (0 if ended else 1)
     return offsets, lines
 
