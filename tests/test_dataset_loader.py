@@ -272,3 +272,15 @@ def test_refusals(small_dataset, tmp_path):
     with pytest.raises(IndexError, match="sample 12 out of range: the dataset has 12"):
         ds[12]
     assert ds[-1].frame_index == 5 and ds[-1].sequence == 1
+
+
+def test_a_sequence_without_event_files_gives_frames_with_no_events(small_dataset, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(small_dataset, copy)
+    for path in (copy / "jobs" / "complex_sphere-0").glob("events.*"):
+        path.unlink()
+    ds = open_dataset(copy, report=False)
+    sample = ds[2]
+    assert sample.events.size == 0 and sample.events.dtype == DATASET_EVENT_DTYPE
+    assert sample.window.depth is None and sample.frame.shape == (36, 48)
+    assert ds[8].events.size > 0                             # the other sequence still has them

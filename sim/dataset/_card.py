@@ -38,8 +38,8 @@ CARD_FOLDER = "card"
 CONTACT_SHEET = "contact_sheet.png"
 """The contact sheet, in :data:`CARD_FOLDER`."""
 CONTACT_SHEET_ROWS = 48
-"""Most sequences drawn on the contact sheet (the first ones, in manifest order); the card says
-when there are more."""
+"""Most sequences drawn on the contact sheet (the first ones with a frame, in manifest order);
+the card says when there are more."""
 _TILE_HEIGHT = 108
 """Height of a contact-sheet tile, pixels (each image scaled to it, nearest neighbour)."""
 
@@ -310,8 +310,8 @@ def _sheet_row(dataset: Dataset, k: int) -> np.ndarray:
 
 
 def _contact_sheet(dataset: Dataset) -> np.ndarray:
-    rows = [_sheet_row(dataset, k) for k in range(min(len(dataset.sequences),
-                                                      CONTACT_SHEET_ROWS))]
+    drawn = [k for k in range(len(dataset.sequences)) if len(dataset.samples_of(k))]
+    rows = [_sheet_row(dataset, k) for k in drawn[:CONTACT_SHEET_ROWS]]
     width = max(row.shape[1] for row in rows)
     padded = [np.pad(row, ((0, 6), (0, width - row.shape[1]), (0, 0)), constant_values=255)
               for row in rows]
@@ -363,12 +363,13 @@ def _card_text(summary: DatasetSummary, shown: int) -> str:
     if summary.pending:
         lines += ["", f"Pending jobs: {', '.join(summary.pending)}."]
     lines += ["", "## Contact sheet", ""]
-    if seqs:
-        more = (f" (the first {shown} of {len(seqs)} sequences)" if shown < len(seqs) else "")
+    if shown:
+        more = (f" (the first {shown} of {len(seqs)} sequences with frames)"
+                if shown < len(seqs) else "")
         lines += [f"Per sequence{more}: its middle frame, the events since the frame before it "
                   "and its exact depth.", "", f"![contact sheet]({CARD_FOLDER}/{CONTACT_SHEET})"]
     else:
-        lines.append("No sequence is done.")
+        lines.append("No done sequence has a frame.")
     series = [("event rate (events/s)", [s.event_rate for s in seqs], ".4g"),
               ("nearest depth (m)", [s.depth_min for s in seqs], ".3g"),
               ("farthest depth (m)", [s.depth_max for s in seqs], ".3g"),
@@ -409,7 +410,8 @@ def write_card(folder: str | Path) -> DatasetSummary:
         raise OutputError(f"{OutputError.literal(folder)} has no {MARKER} marker: evfuse did not "
                           "write it, so the card is not written into it")
     summary = dataset_summary(folder, dataset)
-    shown = min(len(dataset.sequences), CONTACT_SHEET_ROWS)
+    shown = min(sum(1 for k in range(len(dataset.sequences)) if len(dataset.samples_of(k))),
+                CONTACT_SHEET_ROWS)
     if shown:
         (folder / CARD_FOLDER).mkdir(exist_ok=True)
         ok, png = cv2.imencode(".png", cv2.cvtColor(_contact_sheet(dataset), cv2.COLOR_RGB2BGR))

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.camera import Camera
-from sim.eventio import read_text_span, read_window, text_offsets
+from sim.eventio import EVENT_DTYPE, read_text_span, read_window, text_offsets
 from sim.sequence import Sequence, load_sequence
 from sim.validation import ParameterError
 
@@ -66,7 +66,7 @@ class EventWindow:
     t_end_ns : int or None
         End of the window (nanoseconds, exclusive); None to its last event.
     events : (N,) DATASET_EVENT_DTYPE ndarray
-        Sorted by ``t``, in ``time_unit``.
+        Sorted by ``t``, in ``time_unit``; empty for a sequence simulated without events.
     time_unit : {"us", "ns"}
     depth : (N,) float32 ndarray, metres, or None
         Each event's exact z-depth (0 = no surface; :mod:`sim.event_depth`); None when the
@@ -349,9 +349,8 @@ class Dataset:
         if seq.events_h5 is not None:
             return read_window(seq.events_h5, 0 if t0_ns is None else t0_ns,
                                np.iinfo(np.int64).max if t1_ns is None else t1_ns)
-        if seq.events_txt is None:
-            raise ValueError(f"{seq.folder} has no events.h5 or events.txt: a sequence without "
-                             "events has no samples' events")
+        if seq.events_txt is None:                # simulated without events: none to read
+            return np.empty(0, EVENT_DTYPE)
         if frame_index is not None:
             if k not in self._text_offsets:
                 self._text_offsets[k] = text_offsets(seq.events_txt, self._boundaries[k],
