@@ -169,9 +169,9 @@ else:
 
 
 DATASET_JOBS = (("complex_sphere-0", "complex_sphere", ("h5", "txt")),
-                ("boxes_6dof-0", "boxes_6dof", ("txt",)))
+                ("boxes_6dof-0", "boxes_6dof", ("txt", "depth-txt")))
 """The done jobs of :func:`small_dataset`: one sequence read from ``events.h5``, one from
-``events.txt`` alone (the loader's two paths)."""
+``events.txt`` alone, its per-event depth in ``events_depth.txt`` (the loader's two paths)."""
 
 
 def write_dataset_manifest(folder: Path, rows: list[dict]) -> None:

@@ -87,6 +87,13 @@ def test_a_sample_carries_its_frame_truth_and_the_events_depth(small_dataset):
     np.testing.assert_array_equal(sample.window.depth, truth["depth"][inside])
     np.testing.assert_array_equal(sample.window.depth_flag, truth["flag"][inside])
     assert sample.window.depth.size == sample.events.size > 0
+    # and from events_depth.txt, for a sequence without events.h5
+    text = ds[6 + 4]
+    truth = ds.sequences[1].event_depth()
+    bounds = np.round(ds.sequences[1].image_times[3:5] * 1e9)
+    inside = (truth["t"] >= bounds[0]) & (truth["t"] < bounds[1])
+    np.testing.assert_array_equal(text.window.depth, truth["depth"][inside])
+    assert text.window.depth.size == text.events.size > 0
     # no label file today: the labels are omitted
     assert sample.window.cause is None and sample.window.object_id is None
 
