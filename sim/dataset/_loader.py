@@ -18,6 +18,9 @@ boundaries are found once per sequence, in one streaming pass on its first sampl
 (:func:`sim.eventio.text_offsets`), and each sample then parses its own lines. The per-event
 depth comes from ``events.h5`` window by window; a sequence whose per-event depth is only in
 ``events_depth.txt`` has that file read whole for each sample (:meth:`sim.Sequence.event_depth`).
+The per-event labels (``cause``, ``object_id``) come from the sequence's accessor
+``Sequence.event_labels(t0_ns, t1_ns)`` (a structured array with those fields, one row per event
+of the window) where the sequence has one; otherwise they are omitted (None).
 """
 
 from __future__ import annotations
@@ -327,11 +330,10 @@ class Dataset:
         events["t"] = raw["t"] // TIME_UNITS[self.time_unit]
         events["p"] = raw["p"] > 0
         depth = flag = cause = object_id = None
-        if raw.size or seq.events_h5 is not None or seq.events_depth_txt is not None:
-            found = seq.event_depth(t0_ns, t1_ns)
-            if found is not None:
-                _check_aligned(seq, raw, found, "per-event depth")
-                depth, flag = found["depth"], found["flag"]
+        found = seq.event_depth(t0_ns, t1_ns)
+        if found is not None:
+            _check_aligned(seq, raw, found, "per-event depth")
+            depth, flag = found["depth"], found["flag"]
         labels = getattr(seq, "event_labels", None)   # the label file's accessor, where it is
         found = labels(t0_ns, t1_ns) if callable(labels) else None
         if found is not None:
