@@ -8,6 +8,7 @@ import sys
 
 from sim._moved import alias_modules as _alias_modules
 from sim.camera import CAMERA_PRESETS, Camera, camera_preset, read_calib, write_calib
+from sim.dataset import open_dataset
 from sim.event_depth import read_event_depth
 from sim.eventio import (
     EVENT_DTYPE,
@@ -67,6 +68,7 @@ __all__ = [
     "event_stats",
     "frame_noise",
     "noise_preset",
+    "open_dataset",
     "read_events",
     "read_event_depth",
     "read_flow",

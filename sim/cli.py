@@ -1,7 +1,7 @@
-"""The simulator's commands of ``evfuse``: ``simulate``, ``events``, ``twin``, ``convert`` and
-``scenes`` (each a parser builder and a handler that parses, calls :mod:`sim`'s public API and
-prints), and the parser pieces every evfuse command shares: the typed number flags, the
-one-line refusal parser and the help of ``--overwrite``.
+"""The simulator's commands of ``evfuse``: ``simulate``, ``events``, ``twin``, ``convert``,
+``scenes`` and ``dataset`` (each a parser builder and a handler that parses, calls :mod:`sim`'s
+public API and prints), and the parser pieces every evfuse command shares: the typed number
+flags, the one-line refusal parser and the help of ``--overwrite``.
 
 :func:`fusion.cli.main` is the ``evfuse`` entry point: it adds these commands to its parser with
 :func:`add_command` and runs them. This module never imports :mod:`fusion` (the simulator is the
@@ -23,7 +23,7 @@ from sim.validation import finite, non_negative, positive
 __all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "POSITIVE", "OneLineParser",
            "add_command", "count_type", "number_type"]
 
-COMMANDS = ("scenes", "simulate", "events", "twin", "convert")
+COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "dataset")
 """The subcommands this module builds (:func:`add_command`)."""
 
 OVERWRITE_HELP = ("replace OUT if it is a folder evfuse wrote (it holds evfuse's .evfuse marker), "
@@ -245,6 +245,30 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_dataset(args: argparse.Namespace) -> int:
+    from sim.dataset import CARD, dataset_summary, write_card
+
+    summary = dataset_summary(args.folder) if args.no_card else write_card(args.folder)
+    print(summary.text(), end="")
+    if not args.no_card:
+        print(f"wrote {Path(args.folder) / CARD}")
+    return 0
+
+
+def _add_dataset(sub) -> None:
+    dataset = sub.add_parser(
+        "dataset", help="summary and card of a dataset folder (evfuse generate's output)",
+        description="Prints the summary of a dataset folder (sequences done / failed, events, "
+                    "frames, simulated seconds, event rate, depth range, speeds) and writes "
+                    "DIR/card.md with DIR/card/contact_sheet.png (per sequence: a frame, its "
+                    "events, its exact depth) and the distributions over sequences. Nothing "
+                    "else in DIR is written.")
+    dataset.add_argument("folder", metavar="DIR", help="a dataset folder (with manifest.csv)")
+    dataset.add_argument("--no-card", action="store_true",
+                         help="print the summary only; write nothing")
+    dataset.set_defaults(run=_cmd_dataset)
+
+
 def _add_scenes(sub) -> None:
     scenes = sub.add_parser("scenes", help="list the built-in scenes")
     scenes.set_defaults(run=_cmd_scenes)
@@ -403,7 +427,7 @@ def add_command(subparsers, name: str, *,
         _add_events(subparsers, event_figure)
         return
     builders = {"scenes": _add_scenes, "simulate": _add_simulate, "twin": _add_twin,
-                "convert": _add_convert}
+                "convert": _add_convert, "dataset": _add_dataset}
     if name not in builders:
         raise ValueError(f"add_command: {name!r} is not one of {', '.join(COMMANDS)}")
     builders[name](subparsers)

@@ -392,6 +392,12 @@ class FileIndex:
     times: np.ndarray
     paths: tuple[Path, ...]
 
+    def at(self, t: float, tolerance: float = EXACT_TIME_S) -> Path | None:
+        """The file at time ``t`` (the nearest within ``tolerance``, the earlier on a tie), or
+        None when there is none that close (e.g. no forward flow at the last frame)."""
+        k = _nearest(self.times, t, tolerance)
+        return None if k is None else self.paths[k]
+
 
 @dataclass(frozen=True, eq=False)
 class FrameCameraFiles:

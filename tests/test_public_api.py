@@ -37,6 +37,7 @@ BEFORE = {
     "sim.simulate": ["SimulationResult", "simulate"],
     "sim.variant": ["active_variant", "use_variant"],
     "sim.exr": ["read_depth", "write_depth"],
+    "sim.dataset": ["open_dataset"],
     "fusion.benchmark": ["BenchParams", "bench", "run_bench"],
     "fusion.emvs": ["DSIParams", "DepthMapParams", "depth_planes", "disparity_space_image",
                     "semidense_depth"],
