@@ -464,24 +464,52 @@ class EventOutputs:
 
 # --- reading -----------------------------------------------------------------------------------
 
-def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | None:
+def _h5_columns(path: Path, t0_ns: int | None, t1_ns: int | None, columns: dict[str, str],
+                dtype: np.dtype) -> tuple[np.ndarray, int] | None:
+    """Events of ``[t0_ns, t1_ns)`` of an ``events.h5`` with per-event datasets beside them
+    (field -> dataset under ``events/``), as ``dtype`` (EVENT_DTYPE's fields, then those), and
+    the index of the first; None when a dataset is missing. Shared by the per-event depth and
+    labels (:mod:`sim.event_labels`)."""
     from sim.eventio._hdf5 import _H5Source, _reading
 
     source = _H5Source(path)
     try:
-        if "events/depth" not in source.file or "events/depth_flag" not in source.file:
+        if any(f"events/{name}" not in source.file for name in columns.values()):
             return None
         start = 0 if t0_ns is None else source.index_at(t0_ns)
         stop = source.size if t1_ns is None else source.index_before(t1_ns)
         events = source.read(start, max(start, stop))
-        out = np.empty(len(events), EVENT_DEPTH_DTYPE)
+        out = np.empty(len(events), dtype)
         for name in EVENT_DTYPE.names:
             out[name] = events[name]
         with _reading(path):
-            out["depth"] = source.file["events/depth"][start:start + len(events)]
-            out["flag"] = source.file["events/depth_flag"][start:start + len(events)]
+            for field, name in columns.items():
+                values = source.file[f"events/{name}"][start:start + len(events)]
+                if len(values) != len(events):
+                    raise ValueError(f"{path}: events/{name} holds {len(values)} values from "
+                                     f"event {start}; expected one per event ({len(events)})")
+                out[field] = values
     finally:
         source.close()
+    return out, start
+
+
+def _in_window(out: np.ndarray, t0_ns: int | None, t1_ns: int | None) -> np.ndarray:
+    """The events of ``out`` with ``t0_ns <= t < t1_ns`` (either bound None: open)."""
+    keep = np.ones(len(out), bool)
+    if t0_ns is not None:
+        keep &= out["t"] >= t0_ns
+    if t1_ns is not None:
+        keep &= out["t"] < t1_ns
+    return out[keep]
+
+
+def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | None:
+    found = _h5_columns(path, t0_ns, t1_ns, {"depth": "depth", "flag": "depth_flag"},
+                        EVENT_DEPTH_DTYPE)
+    if found is None:
+        return None
+    out, start = found
     bad = np.flatnonzero(~np.isfinite(out["depth"]) | (out["depth"] < 0))
     if bad.size:
         i = int(bad[0])
@@ -541,9 +569,4 @@ def read_event_depth(path: str | Path, t0_ns: int | None = None,
             return None
     else:
         out = _read_txt(path)
-    keep = np.ones(len(out), bool)
-    if t0_ns is not None:
-        keep &= out["t"] >= t0_ns
-    if t1_ns is not None:
-        keep &= out["t"] < t1_ns
-    return out[keep]
+    return _in_window(out, t0_ns, t1_ns)

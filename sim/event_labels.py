@@ -36,7 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.event_depth import DEPTH_TXT_NAME, NO_OBJECT, read_event_depth
+from sim.event_depth import (
+    DEPTH_TXT_NAME,
+    NO_OBJECT,
+    _h5_columns,
+    _in_window,
+    read_event_depth,
+)
 from sim.eventio import EVENT_DTYPE, TextEventWriter, read_events
 from sim.noise import CAUSE_HOT_PIXEL, CAUSE_LEAK, CAUSE_SHOT, CAUSE_SIGNAL, CAUSES
 
@@ -108,28 +114,9 @@ class TextEventLabelWriter(TextEventWriter):
 
 
 def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | None:
-    from sim.eventio._hdf5 import _H5Source, _reading
-
-    source = _H5Source(path)
-    try:
-        if "events/cause" not in source.file or "events/object_id" not in source.file:
-            return None
-        start = 0 if t0_ns is None else source.index_at(t0_ns)
-        stop = source.size if t1_ns is None else source.index_before(t1_ns)
-        events = source.read(start, max(start, stop))
-        out = np.empty(len(events), EVENT_LABEL_DTYPE)
-        for name in EVENT_DTYPE.names:
-            out[name] = events[name]
-        with _reading(path):
-            for name in ("cause", "object_id"):
-                column = source.file[f"events/{name}"][start:start + len(events)]
-                if len(column) != len(events):
-                    raise ValueError(f"{path}: events/{name} holds {len(column)} values from "
-                                     f"event {start}; expected one per event ({len(events)})")
-                out[name] = column
-    finally:
-        source.close()
-    return _checked(out, path, start)
+    found = _h5_columns(path, t0_ns, t1_ns, {"cause": "cause", "object_id": "object_id"},
+                        EVENT_LABEL_DTYPE)
+    return None if found is None else _checked(*found, path)
 
 
 def _read_txt(path: Path, labels: Path) -> np.ndarray:
@@ -150,10 +137,10 @@ def _read_txt(path: Path, labels: Path) -> np.ndarray:
     for name in EVENT_DTYPE.names:
         out[name] = events[name]
     out["cause"], out["object_id"] = values[:, 0], values[:, 1]
-    return _checked(out, labels, 0)
+    return _checked(out, 0, labels)
 
 
-def _checked(out: np.ndarray, path: Path, start: int) -> np.ndarray:
+def _checked(out: np.ndarray, start: int, path: Path) -> np.ndarray:
     bad = np.flatnonzero((out["cause"] > max(CAUSES)) | (out["object_id"] < NO_OBJECT))
     if bad.size:
         i = int(bad[0])
@@ -195,11 +182,4 @@ def read_event_labels(path: str | Path, t0_ns: int | None = None, t1_ns: int | N
         out = _read_txt(path, path.parent / LABELS_TXT_NAME)
     else:
         return None
-    if out is None:
-        return None
-    keep = np.ones(len(out), bool)
-    if t0_ns is not None:
-        keep &= out["t"] >= t0_ns
-    if t1_ns is not None:
-        keep &= out["t"] < t1_ns
-    return out[keep]
+    return None if out is None else _in_window(out, t0_ns, t1_ns)

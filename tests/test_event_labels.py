@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-import importlib
 import json
 import math
 from dataclasses import replace
@@ -39,10 +38,7 @@ from sim.sampling import SamplingParams
 from sim.scene import parse_scene
 from sim.sequence import load_sequence
 from sim.simulate import simulate
-from tests.conftest import scene_text
-
-checkpoints = importlib.import_module("sim.simulate._checkpoint")
-event_driver = importlib.import_module("sim.simulate._events")
+from tests.conftest import interrupted_pixel_blocks, scene_text
 
 # A wall 1.5 m away, 1.6 m wide (its left and right edges in view: pixels beyond them see
 # nothing), and a box 0.2 m wide 0.8 m away in front of it.
@@ -306,24 +302,11 @@ def test_labels_do_not_change_the_events(sampler, pixel_run, frame_run, tmp_path
 
 def test_an_interrupted_run_resumes_to_the_same_labels(pixel_run, tmp_path, monkeypatch):
     scene, params, result = pixel_run
-    real, seen = event_driver.pixel_blocks, []
-
-    def interrupting(*args, **kwargs):
-        for block in real(*args, **kwargs):
-            if len(seen) == 4:
-                raise KeyboardInterrupt
-            seen.append(block.t)
-            yield block
-
-    monkeypatch.setattr(checkpoints, "CHECKPOINT_SAMPLES", 3)
-    monkeypatch.setattr(checkpoints, "CHECKPOINT_SECONDS", 1e9)
-    monkeypatch.setattr(event_driver, "pixel_blocks", interrupting)
     out = tmp_path / "cut"
-    with pytest.raises(KeyboardInterrupt):
+    with interrupted_pixel_blocks(monkeypatch, 4), pytest.raises(KeyboardInterrupt):
         simulate(scene, out, progress=False, event_formats=FORMATS, sampler="pixel",
                  sampling=SAMPLING, events=params)
     assert (out.parent / "cut.partial" / f"{LABELS_TXT_NAME}.partial").exists()
-    monkeypatch.setattr(event_driver, "pixel_blocks", real)
     simulate(scene, out, progress=False, event_formats=FORMATS, sampler="pixel", resume=True,
              sampling=SAMPLING, events=params)
     for name in ("events.h5", LABELS_TXT_NAME, "events.txt"):
