@@ -199,7 +199,11 @@ class EventDepth:
         ``objects(t) -> (H, W)`` ids of the objects the pixel-centre rays hit (the rays of
         ``depth``; :meth:`sim.render.Renderer.object_ids`, 0 = none, ``i`` =
         ``scene.objects[i - 1]``): :meth:`annotate` then labels each event with its object
-        (:func:`sim.event_labels.nearer_object`) in :attr:`object_id`.
+        (:func:`nearer_object`) in :attr:`object_id`.
+    objects_at : callable, optional
+        ``objects_at(pixels, times) -> (N,)`` the same ids of flat pixels each at its own time
+        in seconds (:meth:`sim.render.Renderer.object_ids_at`, static scenes): each event's
+        id is then its own pixel-centre ray's at its own time, exactly (``objects`` unused).
 
     Attributes
     ----------
@@ -210,8 +214,11 @@ class EventDepth:
 
     def __init__(self, depth: Callable[[float], np.ndarray], t: float,
                  jump: float = EDGE_JUMP,
-                 objects: Callable[[float], np.ndarray] | None = None) -> None:
+                 objects: Callable[[float], np.ndarray] | None = None,
+                 objects_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+                 ) -> None:
         self._depth, self._jump, self._objects = depth, jump, objects
+        self._objects_at = objects_at
         self._t = float(t)
         self._at_t: np.ndarray | None = None        # rendered lazily (the sampler may first)
         self._ids_at_t: np.ndarray | None = None
@@ -249,14 +256,18 @@ class EventDepth:
             if len(events) and self._ids_at_t is None:
                 self._ids_at_t = self._objects(self._t)
             ids_end = self._objects(t)
-        self.object_id = None if ids_end is None else np.zeros(0, np.int32)
+        labelled = self._objects is not None or self._objects_at is not None
+        self.object_id = np.zeros(0, np.int32) if labelled else None
         if len(events):
             t_a_ns, t_b_ns = round(self._t * 1e9), round(t * 1e9)
             span = max(t_b_ns - t_a_ns, 1)
             weight = np.clip((events["t"] - t_a_ns) / span, 0.0, 1.0)
             y, x = events["y"].astype(np.intp), events["x"].astype(np.intp)
             result = interpolate_depth(self._at_t[y, x], at_end[y, x], weight, self._jump)
-            if ids_end is not None:
+            if self._objects_at is not None:          # each event's own ray, at its time
+                cast = self._objects_at(y * at_end.shape[1] + x, events["t"] * 1e-9)
+                self.object_id = np.asarray(cast, np.int32) - 1
+            elif ids_end is not None:
                 self.object_id = nearer_object(self._ids_at_t[y, x], ids_end[y, x], weight)
         else:
             result = np.zeros(0, np.float32), np.zeros(0, np.uint8)

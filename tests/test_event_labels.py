@@ -1,7 +1,8 @@
 """Per-event labels (sim/event_labels.py): each event's cause and the object its pixel sees.
 
 - object ids: a scene of known geometry (a wall and a box in front of it) seen by a rotating
-  camera; every event's id against the analytic ray cast of its pixel at its own time;
+  camera; every event's id against the analytic ray cast of its pixel at its own time (exact
+  for a static scene; within the bracket bound with the box moving);
 - causes: noise presets with shot noise, hot pixels and leak, each label checked against its
   generator (hot pixels only at the emulator's hot pixels, shot counts against the Poisson
   rate, leak only with leak on and following the leak-free rule, recomputed here by hand);
@@ -65,6 +66,9 @@ ROTATING = ('[trajectory]\ntype = "handheld"\nposition = [0.0, 0.0, 0.0]\n'
             'look_at = [0.0, 1.0, 0.0]\ntranslation_amplitude = [0.0, 0.0, 0.0]\n'
             'rotation_amplitude = [8.0, 8.0, 8.0]\nfrequencies = [2.0, 2.5, 1.5, 2.2, 1.8, 2.4]\n')
 EXTRA = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 4\n"
+BOX_VELOCITY = np.array([0.5, 0.0, 0.3])            # m/s, for the moving box
+MOVING = OBJECTS.replace('name = "box"', 'name = "box"\nmotion = { type = "linear", velocity = '
+                         f'[{BOX_VELOCITY[0]}, {BOX_VELOCITY[1]}, {BOX_VELOCITY[2]}] }}')
 FORMATS = ("h5", "txt", "depth-txt")
 SAMPLING = SamplingParams(max_rate=2000.0)
 DURATION = 0.06
@@ -73,13 +77,13 @@ NOISE = NoiseParams(shot_noise_rate=20.0, shot_noise_bright_factor=1.0, leak_rat
                     hot_pixel_fraction=0.01, hot_pixel_rate=200.0)
 
 
-def _scene(duration: float = DURATION):
-    return parse_scene(scene_text(OBJECTS, camera=CAMERA, trajectory=ROTATING,
-                                  duration=duration, extra=EXTRA))
+def _scene(objects: str = OBJECTS):
+    return parse_scene(scene_text(objects, camera=CAMERA, trajectory=ROTATING,
+                                  duration=DURATION, extra=EXTRA))
 
 
-def _run(sampler, tmp_path_factory, name, noise=NOISE):
-    scene = _scene()
+def _run(sampler, tmp_path_factory, name, noise=NOISE, objects=OBJECTS):
+    scene = _scene(objects)
     params = EventParams(seed=scene.seed, noise=noise)
     out = tmp_path_factory.mktemp(name) / "seq"
     result = simulate(scene, out, progress=False, event_formats=FORMATS, sampler=sampler,
@@ -98,11 +102,17 @@ def frame_run(tmp_path_factory):
     return _run("frame", tmp_path_factory, "frame")
 
 
+@pytest.fixture(scope="module")
+def moving_run(tmp_path_factory):
+    return _run("frame", tmp_path_factory, "moving", objects=MOVING)
+
+
 # --- object ids against the analytic ray cast -------------------------------------------------
 
 def _analytic_ids(scene, x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
     """The object (0 wall, 1 box, -1 none) hit by the centre ray of pixels (x, y) at times t
-    (seconds), from the trajectory's pose and the known geometry."""
+    (seconds), from the trajectory's pose and the known geometry (the box where its motion,
+    if any, has taken it)."""
     centres = scene.camera.normalized_pixel_centres()[y, x]          # (N, 2)
     rays = np.column_stack([centres, np.ones(len(x))])
     poses = scene.trajectory.pose(t)                                 # (N, 4, 4)
@@ -113,24 +123,39 @@ def _analytic_ids(scene, x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndar
         hit = o + s_wall[:, None] * d
         wall = (s_wall > 0) & (np.abs(hit[:, 0]) <= WALL_HALF[0]) \
             & (np.abs(hit[:, 2]) <= WALL_HALF[1])
-        lo = (BOX_CENTRE - BOX_HALF - o) / d
-        hi = (BOX_CENTRE + BOX_HALF - o) / d
+        centre = BOX_CENTRE + (t[:, None] * BOX_VELOCITY if scene.is_dynamic else 0.0)
+        lo = (centre - BOX_HALF - o) / d
+        hi = (centre + BOX_HALF - o) / d
     near = np.minimum(lo, hi).max(axis=1)
     far = np.maximum(lo, hi).min(axis=1)
     box = (near <= far) & (far > 0) & (~wall | (near < s_wall))
     return np.where(box, 1, np.where(wall, 0, NO_OBJECT))
 
 
-@pytest.mark.parametrize("run", ["pixel_run", "frame_run"])
-def test_object_ids_match_the_analytic_ray_cast(run, request):
-    """Where the analytic id is the same over the event's time +- one bracket (1 / min_rate),
-    the label is exactly it; elsewhere (an object boundary crossed the pixel), it is one of
-    the ids seen within that window (the bound of sim/event_labels.py)."""
-    scene, _, result = request.getfixturevalue(run)
+def _labelled_events(result):
     events = read_event_labels(result.out / "events.h5")
     assert events is not None and len(events) == result.n_events > 1000
-    x, y = events["x"].astype(np.intp), events["y"].astype(np.intp)
-    t = events["t"] * 1e-9
+    return events, events["x"].astype(np.intp), events["y"].astype(np.intp), events["t"] * 1e-9
+
+
+@pytest.mark.parametrize("run", ["pixel_run", "frame_run"])
+def test_object_ids_of_a_static_scene_are_exact(run, request):
+    """A static scene: each event's id is its own pixel-centre ray's at its own time."""
+    scene, _, result = request.getfixturevalue(run)
+    events, x, y, t = _labelled_events(result)
+    assert np.array_equal(events["object_id"], _analytic_ids(scene, x, y, t))
+    # Every kind of id occurs: the wall, the box and nothing.
+    assert {0, 1, NO_OBJECT} <= set(events["object_id"].tolist())
+    meta = json.loads((result.out / "sequence.json").read_text())
+    assert meta["events"]["labels"]["objects"] == {"-1": None, "0": "wall", "1": "box"}
+
+
+def test_object_ids_of_a_moving_object_within_the_bound(moving_run):
+    """A moving box: where the analytic id is the same over the event's time +- one bracket
+    (1 / min_rate), the label is exactly it; elsewhere (a boundary crossed the pixel), one of
+    the ids seen within that window (the bound of sim/event_labels.py)."""
+    scene, _, result = moving_run
+    events, x, y, t = _labelled_events(result)
     bracket = 1.0 / SAMPLING.min_rate
     window = np.stack([_analytic_ids(scene, x, y, np.clip(t + f * bracket, 0, DURATION))
                        for f in np.linspace(-1.0, 1.0, 17)])
@@ -140,10 +165,7 @@ def test_object_ids_match_the_analytic_ray_cast(run, request):
     assert np.array_equal(label[steady], at_t[steady])
     assert np.all(np.any(window == label, axis=0))
     assert steady.mean() > 0.5             # events gather at edges, where ids change
-    # Every kind of id occurs: the wall, the box and nothing.
     assert {0, 1, NO_OBJECT} <= set(label.tolist())
-    meta = json.loads((result.out / "sequence.json").read_text())
-    assert meta["events"]["labels"]["objects"] == {"-1": None, "0": "wall", "1": "box"}
 
 
 def test_nearer_object_by_hand():

@@ -457,10 +457,15 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
     event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
     source = kind(event_camera)
     resumed_at = source.resume(saved)
-    objects = RecentDepth(renderer.object_ids, np.uint16)       # per-event labels' ids
+    # Per-event labels' object ids: each event's own ray (a static scene, a JIT variant), else
+    # the bracketing renders' (sim.event_labels).
+    labelled = _labelled(formats, event_depth)
+    own_rays = labelled and not scene.is_dynamic and renderer.variant != "scalar_rgb"
+    objects_at = renderer.object_ids_at if own_rays else None
+    objects = RecentDepth(renderer.object_ids, np.uint16) if labelled and not own_rays else None
     with _event_stage(scene, folder, formats, positions, end - start, progress,
                       EventDepth(event_camera.depth, start if resumed_at is None else resumed_at,
-                                 objects=objects if _labelled(formats, event_depth) else None)
+                                 objects=objects, objects_at=objects_at)
                       if event_depth else None,
                       timings) as (bar, writers):
         # The sampler's step splits into its renders (event_render), the emulator's own time
