@@ -8,20 +8,24 @@ Two labels per event, aligned one-to-one with the event files' order (``events.h
   event (:attr:`sim.events.EventEmulator.last_causes`; the leak rule is in :mod:`sim.noise`'s
   docstring). Exact: it records which generator or which count made the event.
 - ``object_id`` (int32): the index in the scene file's order (``scene.objects``) of the object
-  that the event pixel's centre ray hits, :data:`NO_OBJECT` (-1) where it hits nothing. From
-  the same rays and the same bracketing renders as the per-event depth
-  (:mod:`sim.event_depth`): the ids of the pixel at the bracket's two ends ``t_a`` and
-  ``t_b`` (:meth:`sim.render.Renderer.object_ids`), and the one of the render nearer in
-  time to the event (``t_a`` on a tie), as the depth of a flagged event
-  (:func:`sim.event_depth.nearer_object`).
+  that the event pixel's centre ray hits at the event's time (the ray whose depth the
+  per-event depth gives, :mod:`sim.event_depth`), :data:`NO_OBJECT` (-1) where it hits
+  nothing.
 
-The bound on ``object_id``. Where the two renders agree, the label is the object the pixel
-sees at the event's time unless another object passed wholly through the pixel's centre ray
-inside the bracket (at most ``1 / sampling.min_rate``, 10 ms by default). Where they differ,
-an object boundary crossed the ray inside the bracket, and the label is wrong only for events
-between that crossing and the bracket's midpoint: its time error is at most half the bracket.
-``tests/test_event_labels.py`` checks both against the analytic ids of a scene of known
-geometry.
+  - A static scene on a JIT variant (either sampler): each event's own ray, cast from the
+    trajectory's pose at its own time (:meth:`sim.render.Renderer.object_ids_at`, one launch
+    per chunk of events). Exact.
+  - A dynamic scene, or ``scalar_rgb``: the ids of the pixel in the per-event depth's
+    bracketing renders at ``t_a`` and ``t_b`` (:meth:`sim.render.Renderer.object_ids`), and
+    the one of the render nearer in time (``t_a`` on a tie; :func:`sim.event_depth.nearer_object`).
+    The bound: where the two renders agree, the label is the object the pixel sees at the
+    event's time unless another object passed wholly through the ray inside the bracket (at
+    most ``1 / sampling.min_rate``, 10 ms by default); where they differ, a boundary crossed
+    the ray inside the bracket, and the label is wrong only for the events between that
+    crossing and the bracket's midpoint (a time error at most half the bracket).
+
+  ``tests/test_event_labels.py`` checks both against the analytic ids of a scene of known
+  geometry.
 
 Files: ``events.h5`` holds them as ``events/cause`` and ``events/object_id`` (beside
 ``events/depth``); a sequence written with a text event format holds them in
@@ -58,9 +62,12 @@ EVENT_LABEL_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i
 then ``cause`` (uint8, :data:`CAUSES`) and ``object_id`` (int32, :data:`NO_OBJECT` = none)."""
 
 
-def event_labels_record(formats: tuple[str, ...], object_names: list[str]) -> dict | None:
-    """``sequence.json``'s ``events.labels``: where the labels are, the causes and the objects
-    (None when no event format holds them: none of ``h5``, ``txt``, ``depth-txt``)."""
+def event_labels_record(formats: tuple[str, ...], object_names: list[str],
+                        own_rays: bool = True) -> dict | None:
+    """``sequence.json``'s ``events.labels``: where the labels are, the causes, the objects
+    and how their ids were found (``own_rays``: each event's own ray, else the bracketing
+    renders'); None when no event format holds them (none of ``h5``, ``txt``,
+    ``depth-txt``)."""
     files = []
     if "h5" in formats:
         files.append("events.h5 events/cause, events/object_id")
@@ -75,8 +82,10 @@ def event_labels_record(formats: tuple[str, ...], object_names: list[str]) -> di
                          "interval between two samples",
             "objects": {str(NO_OBJECT): None,
                         **{str(i): name for i, name in enumerate(object_names)}},
-            "object_rule": "the object hit by the pixel-centre ray in the depth render nearer "
-                           "in time of the two that bracket the event (the per-event depth's)"}
+            "object_rule": ("the object hit by the event pixel's centre ray at the event's "
+                            "own time (exact)" if own_rays else
+                            "the object hit by the pixel-centre ray in the depth render nearer "
+                            "in time of the two that bracket the event (the per-event depth's)")}
 
 
 class TextEventLabelWriter(TextEventWriter):

@@ -148,6 +148,7 @@ def test_object_ids_of_a_static_scene_are_exact(run, request):
     assert {0, 1, NO_OBJECT} <= set(events["object_id"].tolist())
     meta = json.loads((result.out / "sequence.json").read_text())
     assert meta["events"]["labels"]["objects"] == {"-1": None, "0": "wall", "1": "box"}
+    assert "own time" in meta["events"]["labels"]["object_rule"]
 
 
 def test_object_ids_of_a_moving_object_within_the_bound(moving_run):
@@ -166,6 +167,8 @@ def test_object_ids_of_a_moving_object_within_the_bound(moving_run):
     assert np.all(np.any(window == label, axis=0))
     assert steady.mean() > 0.5             # events gather at edges, where ids change
     assert {0, 1, NO_OBJECT} <= set(label.tolist())
+    meta = json.loads((result.out / "sequence.json").read_text())
+    assert "nearer in time" in meta["events"]["labels"]["object_rule"]
 
 
 def test_nearer_object_by_hand():

@@ -222,15 +222,17 @@ def _labelled(formats: tuple[str, ...], motion_truth: bool) -> bool:
 
 
 def _event_info(params: EventParams, formats: tuple[str, ...], sampling: SamplingParams,
-                scene: Scene, count: int, on: int, motion_truth: bool = True) -> dict:
-    """The part of ``sequence.json``'s ``events`` both samplers write alike."""
+                scene: Scene, count: int, on: int, motion_truth: bool = True,
+                own_rays: bool = True) -> dict:
+    """The part of ``sequence.json``'s ``events`` both samplers write alike (``own_rays``:
+    the labels' object ids from each event's own ray, :mod:`sim.event_labels`)."""
     return {
         "count": count,
         "on": on,
         "off": count - on,
         "files": [event_file_name(fmt) for fmt in formats],
         "depth": event_depth_record(formats),
-        "labels": (event_labels_record(formats, [obj.name for obj in scene.objects])
+        "labels": (event_labels_record(formats, [obj.name for obj in scene.objects], own_rays)
                    if _labelled(formats, motion_truth) else None),
         "contrast_on": params.contrast_on,
         "contrast_off": params.contrast_off,
@@ -500,5 +502,5 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
             bar.set_postfix_str(f"{count:,} events, {source.progress(stats, why)}",
                                 refresh=False)
             bar.update(0)
-    return {**_event_info(params, formats, sampling, scene, count, on, event_depth),
+    return {**_event_info(params, formats, sampling, scene, count, on, event_depth, own_rays),
             **source.record(stats, sampling, contrast, why)}
