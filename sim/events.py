@@ -249,18 +249,19 @@ def _count_rows(L0, raw0, raw1, x, ref, c_on, c_off, L1):  # pragma: no cover - 
 
 @numba.njit(cache=True, parallel=True)
 def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, refractory,
-                drift, out_t, out_x, out_y, out_p, out_cause, keep):  # pragma: no cover
-    """Write the crossings :func:`_count_rows` counted, each with its cause: ``drift`` is the
-    interval's leak drift already in ``ref`` ((H, W), or empty without leak); a crossing
-    beyond the count against the leak-free reference ``ref - drift`` on its piece is
-    :data:`~sim.noise.CAUSE_LEAK`, the others :data:`~sim.noise.CAUSE_SIGNAL`."""
+                leak_free, out_t, out_x, out_y, out_p, out_cause,
+                keep):  # pragma: no cover - compiled
+    """Write the crossings :func:`_count_rows` counted, each with its cause: ``leak_free`` is
+    the references before the interval's leak drift ((H, W), or empty without leak); a
+    crossing beyond the count against it on its piece is :data:`~sim.noise.CAUSE_LEAK`, the
+    others :data:`~sim.noise.CAUSE_SIGNAL`."""
     height, width = raw1.shape
-    leaky = drift.size > 0
+    leaky = leak_free.size > 0
     for y in numba.prange(height):
         k = offsets[y]
         for i in range(width):
             r = ref[y, i]
-            rf = r - drift[y, i] if leaky else r
+            rf = leak_free[y, i] if leaky else r
             y0, a, b, xi = L0[y, i], raw0[y, i], raw1[y, i], x[y, i]
             f_turn, y_turn, y1 = interval_levels(y0, a, b, xi)
             last = last_t[y, i]
@@ -499,12 +500,13 @@ class EventEmulator:
             x = lowpass_exponent(dt_ns * 1e-9, self._cutoff, cutoff)
         else:
             x = np.full(self.shape, np.inf)
-        drift = np.zeros((0, 0))
+        leak_free = np.zeros((0, 0))
         if noise.leak_rate > 0:
-            drift = leak_drift(dt_ns * 1e-9, self.c_on, self.leak_rates, noise, self._rng)
-            self.ref += drift
+            leak_free = self.ref.copy()
+            self.ref += leak_drift(dt_ns * 1e-9, self.c_on, self.leak_rates, noise, self._rng)
         raw = L1
-        events, causes, L1 = self._crossings(self._L, self._raw, raw, x, self._t, dt_ns, drift)
+        events, causes, L1 = self._crossings(self._L, self._raw, raw, x, self._t, dt_ns,
+                                             leak_free)
         events = self._with_noise(events, causes, self._t, t1_ns, Y)
         self._L, self._raw, self._cutoff, self._t = L1, raw, cutoff, t1_ns
         return events
@@ -536,12 +538,12 @@ class EventEmulator:
         self.last_causes = self.last_causes.astype(np.uint8, copy=False)
         return events
 
-    def _crossings(self, L0, raw0, raw1, x, t0_ns: int, dt_ns: int, drift: np.ndarray
+    def _crossings(self, L0, raw0, raw1, x, t0_ns: int, dt_ns: int, leak_free: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The interval's threshold crossings (sorted events), their causes (uint8, signal or
-        leak: ``drift`` is the interval's leak drift (H, W) already added to the references,
-        or empty) and each pixel's level at its end (H, W): ``raw1`` itself without the filter
-        (``x`` all inf)."""
+        leak: ``leak_free`` is the references (H, W) before the interval's leak drift, or
+        empty without leak) and each pixel's level at its end (H, W): ``raw1`` itself without
+        the filter (``x`` all inf)."""
         L1 = np.empty(self.shape)
         counts = _count_rows(L0, raw0, raw1, x, self.ref, self.c_on, self.c_off, L1)
         if np.any(counts < 0):
@@ -557,7 +559,7 @@ class EventEmulator:
         cause = np.empty(total, np.uint8)
         refractory = int(round(self.params.noise.refractory_period * 1e9))
         _write_rows(L0, raw0, raw1, x, self.ref, self.c_on, self.c_off, self._last_t, offsets,
-                    t0_ns, float(dt_ns), refractory, drift, t, xs, y, p, cause, keep)
+                    t0_ns, float(dt_ns), refractory, leak_free, t, xs, y, p, cause, keep)
         # Time order, ties in pixel order: sort on (t - t0) * pixels + pixel index. The key is
         # unique unless one pixel fires twice in the same nanosecond, so the fast (unstable)
         # sort gives the stable order; it fits int64 for intervals up to ~9e18 / (H W) ns.

@@ -216,8 +216,8 @@ def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions
 
 def _labelled(formats: tuple[str, ...], motion_truth: bool) -> bool:
     """Whether the event files get per-event labels (:mod:`sim.event_labels`): with the
-    motion truth (the object ids come from the per-event depth's renders), in ``events.h5``
-    and beside a text format."""
+    motion truth (the object ids are found beside the per-event depth, by its
+    :class:`sim.event_depth.EventDepth`), in ``events.h5`` and beside a text format."""
     return motion_truth and any(fmt in formats for fmt in ("h5", "txt", DEPTH_TXT))
 
 
