@@ -265,7 +265,9 @@ class EventDepth:
             y, x = events["y"].astype(np.intp), events["x"].astype(np.intp)
             result = interpolate_depth(self._at_t[y, x], at_end[y, x], weight, self._jump)
             if self._objects_at is not None:          # each event's own ray, at its time
-                cast = self._objects_at(y * at_end.shape[1] + x, events["t"] * 1e-9)
+                # (seconds within the bracket: a time rounded to the ns may lie past its end)
+                seconds = np.clip(events["t"] / 1e9, self._t, t)
+                cast = self._objects_at(y * at_end.shape[1] + x, seconds)
                 self.object_id = np.asarray(cast, np.int32) - 1
             elif ids_end is not None:
                 self.object_id = nearer_object(self._ids_at_t[y, x], ids_end[y, x], weight)
