@@ -147,6 +147,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         parts = ["velocity", "IMU", "flow", "motion field", "object masks"]
         if result.n_events is not None and "h5" in formats:
             parts.append("per-event depth")
+        if result.n_events is not None:
+            parts.append("per-event labels")
         what += f", the motion ground truth ({', '.join(parts)})"
     print(f"wrote {what} with {result.variant} in {result.timings['total']:.1f} s to "
           f"{result.out}")
@@ -322,8 +324,8 @@ def _add_simulate(sub) -> None:
                           help="render frames and depth only")
     simulate.add_argument("--no-motion-truth", action="store_true",
                           help="skip the motion ground truth (velocity.txt, imu.txt, optical "
-                               "flow, motion fields, object masks, per-event depth): frames, "
-                               "depth maps, poses and events only")
+                               "flow, motion fields, object masks, per-event depth and labels): "
+                               "frames, depth maps, poses and events only")
     simulate.add_argument("--rig", choices=("perfect", "mocap", "lab"), default=None,
                           help="pose noise, clock offsets and calibration error of the written "
                                "groundtruth.txt, time stamps and calib.txt: perfect, mocap "

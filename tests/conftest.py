@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import hashlib
+import importlib
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -234,3 +236,29 @@ def small_dataset(tmp_path_factory) -> Path:
                  "scene": "boxes_6dof", "seed": 1, "attempts": 0, **versions})
     write_dataset_manifest(folder, rows)
     return folder
+
+
+@contextmanager
+def interrupted_pixel_blocks(monkeypatch: pytest.MonkeyPatch, blocks: int,
+                             every: int = 3) -> Iterator[list[float]]:
+    """Inside the block, ``simulate``'s per-pixel sampler raises KeyboardInterrupt after
+    ``blocks`` blocks (their end times, s, go into the list yielded), with a checkpoint every
+    ``every`` blocks (that stays set after the block, for the resumed run)."""
+    driver = importlib.import_module("sim.simulate._events")
+    checkpoints = importlib.import_module("sim.simulate._checkpoint")
+    real, seen = driver.pixel_blocks, []
+
+    def interrupting(*args, **kwargs):
+        for block in real(*args, **kwargs):
+            if len(seen) == blocks:
+                raise KeyboardInterrupt
+            seen.append(block.t)
+            yield block
+
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_SAMPLES", every)
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_SECONDS", 1e9)
+    monkeypatch.setattr(driver, "pixel_blocks", interrupting)
+    try:
+        yield seen
+    finally:
+        monkeypatch.setattr(driver, "pixel_blocks", real)
