@@ -84,6 +84,7 @@ def test_a_sample_carries_its_frame_truth_and_the_events_depth(small_dataset):
     # the per-event depth, aligned one to one with the sample's events
     truth = seq.event_depth()
     inside = (truth["t"] >= round(seq.image_times[1] * 1e9)) & (truth["t"] < round(t * 1e9))
+    inside_h5 = inside
     np.testing.assert_array_equal(sample.window.depth, truth["depth"][inside])
     np.testing.assert_array_equal(sample.window.depth_flag, truth["flag"][inside])
     assert sample.window.depth.size == sample.events.size > 0
@@ -94,27 +95,28 @@ def test_a_sample_carries_its_frame_truth_and_the_events_depth(small_dataset):
     inside = (truth["t"] >= bounds[0]) & (truth["t"] < bounds[1])
     np.testing.assert_array_equal(text.window.depth, truth["depth"][inside])
     assert text.window.depth.size == text.events.size > 0
-    # no label file today: the labels are omitted
-    assert sample.window.cause is None and sample.window.object_id is None
+    # the labels, aligned one to one with the events (the sequence's own accessor)
+    labels = seq.event_labels()
+    np.testing.assert_array_equal(sample.window.cause, labels["cause"][inside_h5])
+    np.testing.assert_array_equal(sample.window.object_id, labels["object_id"][inside_h5])
+    np.testing.assert_array_equal(labels["t"][inside_h5], sample.window.events["t"])
 
 
-def test_labels_come_from_the_sequences_accessor_where_it_is(small_dataset, monkeypatch):
-    """Where ``sim.Sequence`` has the label accessor (``event_labels(t0_ns, t1_ns)``, the
-    labels part of issue 24), each sample carries its events' ``cause`` and ``object_id``."""
-    def event_labels(self, t0_ns=None, t1_ns=None):
-        events = read_events(_event_file(self))
-        events = events[(events["t"] >= (t0_ns or 0)) & (events["t"] < t1_ns)]
-        labels = np.zeros(events.size, [("cause", "u1"), ("object_id", "<i4")])
-        labels["object_id"] = events["x"]            # something per event to check alignment
-        return labels
-
-    monkeypatch.setattr(sim.Sequence, "event_labels", event_labels, raising=False)
-    ds = open_dataset(small_dataset, report=False)
+def test_labels_come_from_the_sequences_accessor(small_dataset):
+    """Each sample carries its events' ``cause`` and ``object_id`` from the sequence's label
+    accessor (``events.h5`` for the first job, ``events_labels.txt`` for the text-only one),
+    one row per event; the simulated scenes are noise-free, so every cause is signal."""
+    ds = open_dataset(small_dataset, time_unit="ns", report=False)
     for index in (1, 8):
         sample = ds[index]
-        np.testing.assert_array_equal(sample.window.object_id, sample.events["x"])
+        seq = ds.sequences[0 if index < 6 else 1]
+        labels = seq.event_labels(sample.window.t_start_ns, sample.window.t_end_ns)
+        np.testing.assert_array_equal(labels["t"], sample.events["t"])
+        np.testing.assert_array_equal(labels["x"], sample.events["x"])
+        np.testing.assert_array_equal(sample.window.object_id, labels["object_id"])
         cause = sample.window.cause
-        assert cause.dtype == np.uint8 and cause.size == sample.events.size
+        assert cause.dtype == np.uint8 and cause.size == sample.events.size > 0
+        assert (cause == 0).all() and (sample.window.object_id >= 0).any()
 
 
 def test_windows_by_time(small_dataset):
