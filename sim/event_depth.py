@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +49,8 @@ from sim.eventio import EVENT_DTYPE, H5EventWriter, TextEventWriter
 __all__ = ["DEPTH_TXT", "DEPTH_TXT_NAME", "EDGE_JUMP", "EVENT_DEPTH_DTYPE", "FLAG_EDGE",
            "FLAG_NO_SURFACE", "LABELS_TXT", "NO_OBJECT", "EventDepth", "EventOutputs",
            "H5EventDepthWriter", "RecentDepth", "TextEventDepthWriter", "event_depth_record",
-           "event_file_name", "interpolate_depth", "nearer_object", "read_event_depth"]
+           "event_file_name", "interpolate_depth", "nearer_object", "read_event_depth",
+           "read_event_depth_span"]
 
 EDGE_JUMP = 0.05
 """Relative change between the two bracketing depth renders of a pixel above which a depth edge
@@ -531,27 +532,79 @@ def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | N
     return out
 
 
-def _read_txt(path: Path) -> np.ndarray:
+def _parse_txt(path: Path, lines: Iterable[tuple[int, bytes]], t0_ns: int | None = None,
+               t1_ns: int | None = None) -> tuple[np.ndarray, int, int]:
+    """Parse numbered lines of an ``events_depth.txt`` (blank and ``#`` lines skipped), keeping
+    the rows with ``t0_ns <= t < t1_ns`` (None: open): ``(rows, number of rows with
+    t < t0_ns (the index of the first kept row, the rows being sorted by t), number of rows
+    parsed)``. Memory: the kept rows only."""
     rows = []
-    with path.open(encoding="ascii") as handle:
-        for number, line in enumerate(handle, 1):
-            fields = line.split()
-            if not fields or fields[0].startswith("#"):
-                continue
-            try:
-                if len(fields) != 6:
-                    raise ValueError
-                whole, _, frac = fields[0].partition(".")
-                t = int(whole) * 10**9 + int((frac + "000000000")[:9])
-                row = (t, int(fields[1]), int(fields[2]), 1 if fields[3] == "1" else -1,
-                       float(fields[4]), int(fields[5]))
-                if fields[3] not in ("0", "1") or not math.isfinite(row[4]):
-                    raise ValueError
-            except ValueError:
-                raise ValueError(f"{path}:{number}: expected 't[s] x y p depth flag' (p 0 or 1, "
-                                 f"depth in metres), got {line.strip()[:60]!r}") from None
+    first, count = 0, 0
+    for number, line in lines:
+        fields = line.split()
+        if not fields or fields[0].startswith(b"#"):
+            continue
+        try:
+            if len(fields) != 6:
+                raise ValueError
+            whole, _, frac = fields[0].partition(b".")
+            t = int(whole) * 10**9 + int((frac + b"000000000")[:9])
+            row = (t, int(fields[1]), int(fields[2]), 1 if fields[3] == b"1" else -1,
+                   float(fields[4]), int(fields[5]))
+            if fields[3] not in (b"0", b"1") or not math.isfinite(row[4]):
+                raise ValueError
+        except ValueError:
+            text = line.strip()[:60].decode("ascii", "replace")
+            raise ValueError(f"{path}:{number}: expected 't[s] x y p depth flag' (p 0 or 1, "
+                             f"depth in metres), got {text!r}") from None
+        if t0_ns is not None and t < t0_ns:
+            first += 1
+        elif t1_ns is None or t < t1_ns:
             rows.append(row)
-    return np.array(rows, dtype=EVENT_DEPTH_DTYPE)
+        count += 1
+    out = np.array(rows, dtype=EVENT_DEPTH_DTYPE) if rows else np.empty(0, EVENT_DEPTH_DTYPE)
+    return out, first, count
+
+
+def _read_txt(path: Path, t0_ns: int | None = None, t1_ns: int | None = None
+              ) -> tuple[np.ndarray, int, int]:
+    """The rows of a whole ``events_depth.txt`` in ``[t0_ns, t1_ns)``, streamed
+    (:func:`_parse_txt`)."""
+    with path.open("rb") as handle:
+        return _parse_txt(path, enumerate(handle, 1), t0_ns, t1_ns)
+
+
+def read_event_depth_span(path: str | Path, start: int, stop: int,
+                          first_line: int = 1) -> np.ndarray:
+    """The events with their depth of bytes ``[start, stop)`` of an ``events_depth.txt``
+    (whole lines: offsets from :func:`sim.eventio.line_offsets`), without the rest of the file.
+
+    Parameters
+    ----------
+    path : str or Path
+        An ``events_depth.txt``.
+    start, stop : int, bytes
+        ``0 <= start <= stop``, each at the start of a line or the file's end.
+    first_line : int
+        The 1-based line number at ``start``, for messages.
+
+    Returns
+    -------
+    (M,) EVENT_DEPTH_DTYPE ndarray
+
+    Raises
+    ------
+    ValueError
+        A bad range, or a malformed line (``"{path}:{line}: ..."``).
+    """
+    path = Path(path)
+    if not 0 <= start <= stop:
+        raise ValueError(f"read_event_depth_span: byte range [{start}, {stop}) of {path} is not "
+                         "0 <= start <= stop")
+    with path.open("rb") as handle:
+        handle.seek(int(start))
+        block = handle.read(int(stop) - int(start))
+    return _parse_txt(path, enumerate(block.split(b"\n"), int(first_line)))[0]
 
 
 def read_event_depth(path: str | Path, t0_ns: int | None = None,
@@ -581,5 +634,5 @@ def read_event_depth(path: str | Path, t0_ns: int | None = None,
         if out is None:
             return None
     else:
-        out = _read_txt(path)
+        out = _read_txt(path, t0_ns, t1_ns)[0]   # streamed: the window's rows only
     return _in_window(out, t0_ns, t1_ns)
