@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.eventio import EVENT_DTYPE, H5EventWriter, TextEventWriter
+from sim.eventio import EVENT_DTYPE, H5EventWriter, TextEventWriter, read_byte_span
 
 __all__ = ["DEPTH_TXT", "DEPTH_TXT_NAME", "EDGE_JUMP", "EVENT_DEPTH_DTYPE", "FLAG_EDGE",
            "FLAG_NO_SURFACE", "LABELS_TXT", "NO_OBJECT", "EventDepth", "EventOutputs",
@@ -675,12 +675,7 @@ def read_event_depth_span(path: str | Path, start: int, stop: int,
         A bad range, or a malformed line (``"{path}:{line}: ..."``).
     """
     path = Path(path)
-    if not 0 <= start <= stop:
-        raise ValueError(f"read_event_depth_span: byte range [{start}, {stop}) of {path} is not "
-                         "0 <= start <= stop")
-    with path.open("rb") as handle:
-        handle.seek(int(start))
-        block = handle.read(int(stop) - int(start))
+    block = read_byte_span(path, start, stop)
     return _parse_block(path, block, int(first_line))
 
 

@@ -49,7 +49,14 @@ from sim.event_depth import (
     _in_window,
 )
 from sim.event_depth import _read_txt as _depth_rows
-from sim.eventio import EVENT_DTYPE, TextEventWriter, line_offsets, read_text_span, text_offsets
+from sim.eventio import (
+    EVENT_DTYPE,
+    TextEventWriter,
+    line_offsets,
+    read_byte_span,
+    read_text_span,
+    text_offsets,
+)
 from sim.noise import CAUSE_HOT_PIXEL, CAUSE_LEAK, CAUSE_SHOT, CAUSE_SIGNAL, CAUSES
 
 __all__ = ["CAUSES", "CAUSE_HOT_PIXEL", "CAUSE_LEAK", "CAUSE_SHOT", "CAUSE_SIGNAL",
@@ -192,12 +199,7 @@ def read_event_label_span(path: str | Path, start: int, stop: int, first_line: i
         message names the file, and the line or event).
     """
     path = Path(path)
-    if not 0 <= start <= stop:
-        raise ValueError(f"read_event_label_span: byte range [{start}, {stop}) of {path} is not "
-                         "0 <= start <= stop")
-    with path.open("rb") as handle:
-        handle.seek(int(start))
-        block = handle.read(int(stop) - int(start))
+    block = read_byte_span(path, start, stop)
     out = np.empty(0, _LABEL_COLUMNS)
     if block.strip():
         try:

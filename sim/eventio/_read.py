@@ -18,8 +18,8 @@ from sim.eventio._formats import _kind
 from sim.eventio._hdf5 import _H5Source
 from sim.eventio._text import _iter_text_blocks, _line_blocks, _parse_block
 
-__all__ = ["event_time_span", "iter_event_chunks", "line_offsets", "read_events", "read_text_span",
-           "read_window", "text_offsets"]
+__all__ = ["event_time_span", "iter_event_chunks", "line_offsets", "read_byte_span", "read_events",
+           "read_text_span", "read_window", "text_offsets"]
 
 
 def event_time_span(path: str | Path, width: int | None = None,
@@ -386,15 +386,28 @@ def read_text_span(path: str | Path, start: int, stop: int, first_line: int = 1,
         :func:`iter_event_chunks`).
     """
     path = Path(path)
+    _check_size(width, height, str(path))
+    block = read_byte_span(path, start, stop)
+    return _parse_block(block, path, int(first_line), width, height, -1)[0]
+
+
+def read_byte_span(path: str | Path, start: int, stop: int) -> bytes:
+    """Bytes ``[start, stop)`` of a file: a span of a text file found by :func:`text_offsets`
+    or :func:`line_offsets` (the per-event files' span readers parse it).
+
+    Raises
+    ------
+    ValueError
+        ``start`` or ``stop`` not a byte offset >= 0, ``stop < start``, or no such file.
+    """
+    path = Path(path)
     for name, value in (("start", start), ("stop", stop)):
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
-            raise ValueError(f"read_text_span: {name} must be a byte offset >= 0, got {value!r}")
+            raise ValueError(f"{path}: {name} must be a byte offset >= 0, got {value!r}")
     if stop < start:
-        raise ValueError(f"read_text_span: byte range [{start}, {stop}) ends before it starts")
-    _check_size(width, height, str(path))
+        raise ValueError(f"{path}: byte range [{start}, {stop}) ends before it starts")
     if not path.is_file():
-        raise ValueError(f"event file {path} does not exist")
+        raise ValueError(f"{path} does not exist")
     with path.open("rb") as handle:
         handle.seek(int(start))
-        block = handle.read(int(stop) - int(start))
-    return _parse_block(block, path, int(first_line), width, height, -1)[0]
+        return handle.read(int(stop) - int(start))
