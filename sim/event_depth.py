@@ -647,8 +647,9 @@ def _read_txt(path: Path, t0_ns: int | None = None, t1_ns: int | None = None
     return out, first, count
 
 
-_TXT_BLOCK = 1 << 22
-"""Bytes of an ``events_depth.txt`` parsed at a time by a whole-file reading (4 MiB)."""
+_TXT_BLOCK = 1 << 20
+"""Bytes of an ``events_depth.txt`` parsed at a time by a whole-file reading (1 MiB: its
+memory is a few times that)."""
 
 
 def read_event_depth_span(path: str | Path, start: int, stop: int,

@@ -193,7 +193,8 @@ def test_a_sample_reads_only_its_own_events(small_dataset, tmp_path):
     its ``events_depth.txt`` and ``events_labels.txt``, one line per event), then in its
     ``events.h5`` (with depth and labels), reading one of its samples allocates a small part of
     what reading the whole files does (traced by tracemalloc), and its depth and labels are
-    its events' rows."""
+    its events' rows. The sequence's own accessors, given the window, stream the text files
+    (memory: a block of lines and the window's rows)."""
     import tracemalloc
 
     from sim.event_depth import H5EventDepthWriter, TextEventDepthWriter
@@ -249,6 +250,14 @@ def test_a_sample_reads_only_its_own_events(small_dataset, tmp_path):
         np.testing.assert_array_equal(window.cause, cause[inside])
         np.testing.assert_array_equal(window.object_id, object_id[inside])
         assert one < everything / 3, (name, one, everything)
+        if name == "events.txt":          # the sequence's accessors stream the text files too
+            for accessor in (fresh.event_labels, fresh.event_depth):
+                tracemalloc.start()
+                part = accessor(int(bounds[0]), int(bounds[1]))
+                peak = tracemalloc.get_traced_memory()[1]
+                tracemalloc.stop()
+                np.testing.assert_array_equal(part["t"], t[inside])
+                assert peak < everything / 3, (accessor.__name__, peak, everything)
 
 
 def test_each_text_samples_depth_and_labels_are_its_events_rows(small_dataset):
