@@ -378,8 +378,9 @@ class Dataset:
         """
         if k not in self._text_index:
             seq = self.sequences[k]
-            bounds = self._boundaries[k]            # event times are >= 0
-            times = np.concatenate(([min(0, *bounds[:1])], bounds, [np.iinfo(np.int64).max]))
+            bounds = self._boundaries[k]            # event times are >= 0: 0 is before all
+            first = min(0, int(bounds[0])) if bounds.size else 0
+            times = np.concatenate(([first], bounds, [np.iinfo(np.int64).max]))
             offsets, lines, counts = text_offsets(seq.events_txt, times, width=seq.camera.width,
                                                   height=seq.camera.height)
             index = {"events": (offsets, lines, counts)}
