@@ -55,6 +55,7 @@ from sim.camera import Camera
 from sim.eventio import EVENT_DTYPE
 from sim.events import (
     EventEmulator,
+    EventParams,
     clocked,
     filtered_crossing_time,
     interval_levels,
@@ -269,11 +270,15 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 @numba.njit(cache=True)
 def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
-                  refractory, write, out_t, out_pix, out_p, keep):  # pragma: no cover - compiled
+                  refractory, out_t, out_pix, out_p, keep):  # pragma: no cover - compiled
     """Threshold crossings of per-pixel samples sorted by (pixel, time); the first sample of
-    each pixel is its state at the block start. Returns their number; counts only (no
-    crossing time is solved, the state is left alone) unless ``write``, which writes them,
-    with ``keep`` False for those the refractory period drops (each time is solved once).
+    each pixel is its state at the block start. Returns their number and leaves each pixel's
+    state (``ref``, ``level``, ``raw``, ``last_t``) at its last sample.
+
+    One pass: the first ``len(out_t)`` crossings are written (time solved once, ``keep``
+    False for those the refractory period drops), the rest only counted (no time solved). A
+    return above ``len(out_t)`` means the outputs were too short: restore the state and call
+    again with outputs that long (:meth:`PixelEventEmulator._crossings`).
 
     ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
     the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
@@ -283,8 +288,10 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
     workers (:func:`sim.simulate._events._event_stage`), and a parallel version (spans of whole
     pixels over numba's threads, the same events) was slower than this one on the 2-core
     development machine even in a process without Dr.Jit (boxes_6dof's realistic blocks, 0.8 M
-    samples each: 0.40 s against 0.24 s for five).
+    samples each: 0.40 s against 0.24 s for five). The same kernel on Dr.Jit's device (every
+    core or the GPU) is :func:`sim._drjit_events.pixel_events`.
     """
+    capacity = len(out_t)
     j, end, k, n = 0, len(pix), 0, 0
     leak_rates, leak_jitter = leak
     while j < end:
@@ -310,7 +317,7 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
             f_lo, y_lo, f_hi, y_hi = 0.0, lf, f_turn, y_turn
             while True:
                 count, c, sign = threshold_crossings(y_hi, r, c_on[p], c_off[p])
-                if write:
+                if n + count <= capacity:
                     for i in range(1, count + 1):
                         te = filtered_crossing_time(r + i * c, lf, la, lb, x, f_lo, y_lo, f_hi,
                                                     y_hi, ta, float(dt))
@@ -332,11 +339,10 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
             lf, la, ta = lf_new, lb, tb
             j += 1
             k += 1
-        if write:
-            ref[p] = r
-            level[p] = lf
-            raw[p] = la
-            last_t[p] = last
+        ref[p] = r
+        level[p] = lf
+        raw[p] = la
+        last_t[p] = last
     return n
 
 
@@ -354,6 +360,10 @@ class PixelEventEmulator(EventEmulator):
     the same state (:meth:`get_state` / :meth:`set_state`) and the same models; only the
     samples differ: each pixel has its own times. :meth:`start` sets the first frame.
     """
+
+    def __init__(self, shape: tuple[int, int], params: EventParams | None = None) -> None:
+        super().__init__(shape, params)
+        self._last_count = 0                 # the last block's crossings (sizes the outputs)
 
     def warm_up(self) -> float:
         """:meth:`EventEmulator.warm_up` for this emulator's kernel (a throwaway 1x2 sensor fed
@@ -425,8 +435,7 @@ class PixelEventEmulator(EventEmulator):
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
         args = (pixels, times_ns, levels, exponent, ref, level, raw, last_t, c_on, c_off, leak,
                 normals, refractory)
-        out_t, out_pix, out_p, keep = _outputs(_pixel_events(*args, False, *_outputs(0)))
-        _pixel_events(*args, True, out_t, out_pix, out_p, keep)
+        out_t, out_pix, out_p, keep = self._crossings(args)
         if refractory > 0 and not keep.all():
             out_t, out_pix, out_p = out_t[keep], out_pix[keep], out_p[keep]
         order = np.argsort((out_t - t0_ns) * n_pixels + out_pix)
@@ -436,6 +445,23 @@ class PixelEventEmulator(EventEmulator):
         events["y"], events["x"] = np.divmod(out_pix[order], shape[1])
         events["p"] = out_p[order]
         return self._close_block(events, t0_ns, t_end_ns, end_luminance)
+
+    def _crossings(self, args: tuple) -> tuple[np.ndarray, ...]:
+        """:func:`_pixel_events` in one pass, with outputs sized from the last block's count
+        (twice it, at least 4,096); when they are too short, the pixels' state is restored
+        and the kernel runs again with outputs of the exact size. Returns the crossings'
+        times, pixels, polarities and keep flags, in (pixel, time) order."""
+        state = args[4:8]                                   # ref, level, raw, last_t
+        saved = [a.copy() for a in state]
+        outputs = _outputs(max(2 * self._last_count, 4096))
+        n = _pixel_events(*args, *outputs)
+        if n > len(outputs[0]):
+            for a, b in zip(state, saved, strict=True):
+                a[...] = b
+            outputs = _outputs(n)
+            _pixel_events(*args, *outputs)
+        self._last_count = n
+        return tuple(a[:n] for a in outputs)
 
     def _leak_draws(self, pixels: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, float]]:
         """The leak's normal draws of a block (one per interval within a pixel's run, drawn
