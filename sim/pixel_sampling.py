@@ -51,6 +51,8 @@ import cv2
 import numba
 import numpy as np
 
+from sim._drjit_events import active_device
+from sim._drjit_events import pixel_events as drjit_pixel_events
 from sim.camera import Camera
 from sim.eventio import EVENT_DTYPE
 from sim.events import (
@@ -73,6 +75,8 @@ from sim.sampling import SPLIT, SamplingParams, contrast_scale, motion_field
 __all__ = ["MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
            "PixelSource", "pixel_blocks", "rate_map"]
 
+KERNELS = ("auto", "numba", "drjit")
+"""The values of :class:`PixelEventEmulator`'s ``kernel``."""
 MARGIN = 0.5
 """The prediction aims at MARGIN * lam * C (frame sampling: 0.75)."""
 MAX_DILATION = 64
@@ -359,17 +363,44 @@ class PixelEventEmulator(EventEmulator):
     The same sensor (thresholds, hot pixels, leak rates drawn from the seed in the same order),
     the same state (:meth:`get_state` / :meth:`set_state`) and the same models; only the
     samples differ: each pixel has its own times. :meth:`start` sets the first frame.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Sensor height and width.
+    params : EventParams, optional
+    kernel : {"auto", "numba", "drjit"}
+        Where a block's threshold crossings are solved: ``numba``, :func:`_pixel_events` on
+        one CPU thread; ``drjit``, :func:`sim._drjit_events.pixel_events` on the device of
+        the active Mitsuba variant (every core with ``llvm_*``, the GPU with ``cuda_*``);
+        ``auto`` (default), ``drjit`` under a ``cuda_*`` variant (the samples' device) and
+        ``numba`` otherwise, the faster of the two on the 2-core development machine
+        (``benchmarks/bench_emulator.py``). Both give identical events without the
+        photoreceptor low-pass; with it, within the bound :mod:`sim._drjit_events` states.
+
+    Attributes
+    ----------
+    kernel : str
+        ``numba`` or ``drjit``, as resolved.
     """
 
-    def __init__(self, shape: tuple[int, int], params: EventParams | None = None) -> None:
+    def __init__(self, shape: tuple[int, int], params: EventParams | None = None,
+                 kernel: str = "auto") -> None:
         super().__init__(shape, params)
+        if kernel not in KERNELS:
+            raise ValueError(f"PixelEventEmulator.kernel must be one of {KERNELS}, got "
+                             f"{kernel!r}")
+        self._device = active_device()
+        if kernel == "auto":
+            kernel = "drjit" if self._device == "cuda" else "numba"
+        self.kernel = kernel
         self._last_count = 0                 # the last block's crossings (sizes the outputs)
 
     def warm_up(self) -> float:
         """:meth:`EventEmulator.warm_up` for this emulator's kernel (a throwaway 1x2 sensor fed
         one block of per-pixel samples); this emulator's state is untouched."""
         tick = time.perf_counter()
-        spare = type(self)((1, 2), self.params)
+        spare = type(self)((1, 2), self.params, self.kernel)
         spare.start(np.zeros((1, 2)), 0.0)
         pixels = np.array([0, 0, 0, 1, 1], np.int64)
         times = np.array([0, 500_000, 1_000_000, 0, 1_000_000], np.int64)
@@ -449,8 +480,11 @@ class PixelEventEmulator(EventEmulator):
     def _crossings(self, args: tuple) -> tuple[np.ndarray, ...]:
         """:func:`_pixel_events` in one pass, with outputs sized from the last block's count
         (twice it, at least 4,096); when they are too short, the pixels' state is restored
-        and the kernel runs again with outputs of the exact size. Returns the crossings'
-        times, pixels, polarities and keep flags, in (pixel, time) order."""
+        and the kernel runs again with outputs of the exact size (or the Dr.Jit kernel, by
+        ``kernel``). Returns the crossings' times, pixels, polarities and keep flags, in
+        (pixel, time) order."""
+        if self.kernel == "drjit":
+            return drjit_pixel_events(*args, device=self._device)
         state = args[4:8]                                   # ref, level, raw, last_t
         saved = [a.copy() for a in state]
         outputs = _outputs(max(2 * self._last_count, 4096))

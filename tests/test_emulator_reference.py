@@ -3,11 +3,12 @@
 :class:`sim.pixel_sampling.PixelEventEmulator` solves and writes the threshold crossings in
 one pass into outputs sized from the last block's count (run again from the block's state when
 they are too short), flagging those the refractory period drops (left out afterwards), takes
-every low-pass exponent of the block at once, and sorts the block's events by one integer key. The reference below is the model
-written as directly as possible: one Python loop over the samples in order, the model's scalar
-steps (:func:`sim.events.interval_levels`, :func:`~sim.events.threshold_crossings`,
-:func:`~sim.events.filtered_crossing_time`), a list of events sorted by (time, pixel) and the
-noise functions of :mod:`sim.noise` drawn in the same order. Every noise of the ``realistic``
+every low-pass exponent of the block at once, and sorts the block's events by one integer key.
+The reference below is the model written as directly as possible: one Python loop over the
+samples in order, the model's scalar steps (:func:`sim.events.interval_levels`,
+:func:`~sim.events.threshold_crossings`, :func:`~sim.events.filtered_crossing_time`), a list of
+events sorted by (time, pixel) and the noise functions of :mod:`sim.noise` drawn in the same
+order. Every noise of the ``realistic``
 preset is on (refractory period, leak, shot noise, hot pixels, photoreceptor low-pass,
 threshold mismatch, initial phase), turned up so that each one changes the events of a small
 random input; the events must be identical, bit for bit, and so must the state carried on.
