@@ -8,10 +8,15 @@
    third of ``event_render``.
 2. Before / after in the same run: every block the per-pixel emulator was fed in (1) is
    recorded with the emulator's state, then replayed through the emulator evfuse had before
-   (``_serial_advance_samples``, the code of commit c7d2105: every crossing time solved twice,
-   the low-pass exponents gathered and checked pixel pair by pixel pair) and through today's
-   :meth:`PixelEventEmulator.advance_samples`. Both must give identical events; the ratio of
-   their seconds is the speed-up.
+   (``_serial_advance_samples``, the code of commit c7d2105: a count pass then a write pass,
+   every crossing time solved twice, the low-pass exponents gathered and checked pixel pair
+   by pixel pair), through today's :meth:`PixelEventEmulator.advance_samples` with its numba
+   kernel (``after``: one pass) and with its Dr.Jit kernel (``drjit``,
+   :mod:`sim._drjit_events`, on the device of the variant that rendered: every core on
+   ``llvm_ad_rgb``). ``before`` and ``after`` must give identical events; the Dr.Jit kernel's
+   are compared with them (identical, or the largest time difference). The ratios of their
+   seconds are the speed-ups; where ``after``'s seconds go is printed too (leak draws, the
+   kernel, noise events, and the rest: exponents, sort by time, packing).
 
 Run: ``.venv/bin/python benchmarks/bench_emulator.py`` (about 1-2 minutes on 2 cores;
 ``--skip-frame`` leaves out the frame sampler's slow runs). Results are printed and written to
@@ -171,29 +176,72 @@ def run_case(scene_name: str, start: float, duration: float, sampler: str, noise
 
 def replay(row: dict, record: list, repeats: int) -> dict:
     """Seconds of the emulator over the recorded blocks (best of ``repeats``) through the
-    code of c7d2105 (``before``) and today's (``after``), and whether their events are
-    identical."""
-    paths = {"before": _serial_advance_samples, "after": PixelEventEmulator.advance_samples}
-    seconds, events = {}, {}
-    for name, method in paths.items():
-        emulator = PixelEventEmulator(row["shape"], row["params"])
+    code of c7d2105 (``before``), today's numba kernel (``after``) and today's Dr.Jit kernel on
+    the active variant's device (``drjit``); whether their events are identical (else the
+    largest time difference, ns); and where ``after``'s seconds go (:func:`_stages`)."""
+    paths = {"before": ("numba", _serial_advance_samples),
+             "after": ("numba", PixelEventEmulator.advance_samples),
+             "drjit": ("drjit", PixelEventEmulator.advance_samples)}
+    seconds, events, stages = {}, {}, {}
+    for name, (kernel, method) in paths.items():
+        emulator = PixelEventEmulator(row["shape"], row["params"], kernel=kernel)
         emulator.warm_up()
         _serial_advance_samples(*_warm_serial(row))
         best = np.inf
         for _ in range(repeats):
             total, chunks = 0.0, []
+            timers = _stages(emulator) if name == "after" else None
             for state, args in record:
                 emulator.set_state(copy.deepcopy(state))
                 tick = time.perf_counter()
                 chunks.append(method(emulator, *args))
                 total += time.perf_counter() - tick
+            if total < best and timers is not None:
+                stages = {**timers, "exponents, sort, pack": total - sum(timers.values())}
             best = min(best, total)
+            _unwrap(emulator)
         seconds[name] = best
         events[name] = np.concatenate(chunks)
+    before, drjit = events["before"], events["drjit"]
+    same_count = len(drjit) == len(before)
     return {"blocks": len(record), "samples": int(sum(len(args[0]) for _, args in record)),
+            "crossings": len(before),
             **{f"{name}_s": value for name, value in seconds.items()},
             "speedup": seconds["before"] / seconds["after"],
-            "identical": all(np.array_equal(events["before"], e) for e in events.values())}
+            "identical": np.array_equal(before, events["after"]),
+            "drjit_over_numba": seconds["drjit"] / seconds["after"],
+            "drjit_identical": np.array_equal(before, drjit),
+            "drjit_same_count": same_count,
+            "drjit_max_dt_ns": int(np.abs(drjit["t"] - before["t"]).max(initial=0))
+            if same_count else None,
+            "after_stages_s": stages}
+
+
+def _stages(emulator: PixelEventEmulator) -> dict:
+    """Time the emulator's steps of a block on this instance (its leak draws, the kernel's
+    crossings, the block's noise events and close); returns the dict their seconds add up in
+    (the rest of :meth:`~PixelEventEmulator.advance_samples` is the low-pass exponents, the
+    sort by time and the packing into events)."""
+    timers = {"leak draws": 0.0, "kernel": 0.0, "noise events, close": 0.0}
+    for key, name in (("leak draws", "_leak_draws"), ("kernel", "_crossings"),
+                      ("noise events, close", "_close_block")):
+        method = getattr(emulator, name)
+
+        def timed(*args, _method=method, _key=key):
+            tick = time.perf_counter()
+            try:
+                return _method(*args)
+            finally:
+                timers[_key] += time.perf_counter() - tick
+
+        setattr(emulator, name, timed)
+    return timers
+
+
+def _unwrap(emulator: PixelEventEmulator) -> None:
+    """Undo :func:`_stages` on ``emulator``."""
+    for name in ("_leak_draws", "_crossings", "_close_block"):
+        emulator.__dict__.pop(name, None)
 
 
 def _warm_serial(row: dict) -> tuple:
@@ -227,19 +275,30 @@ def main(argv=None) -> dict:
           "simulate --no-motion-truth, seconds")
     print(f"{'scene':>13} {'sampler':>7} {'noise':>9} {'events':>8} {'render':>7} "
           f"{'emulate':>8} {'sample':>7} {'compile':>8} {'emu/render':>10} | replay: "
-          f"{'before':>7} {'after':>7} {'speed-up':>8} identical")
+          f"{'before':>7} {'after':>7} {'speed-up':>8} identical | {'drjit':>7} "
+          f"{'/after':>6} drjit events")
     for r in rows:
         line = (f"{r['scene']:>13} {r['sampler']:>7} {r['noise']:>9} {r['events']:>8} "
                 f"{r['event_render_s']:>7.3f} {r['emulate_s']:>8.3f} {r['event_sample_s']:>7.3f} "
                 f"{r['emulate_compile_s']:>8.3f} {r['emulate_over_render']:>10.2f} |")
         if "replay" in r:
             p = r["replay"]
+            agree = ("identical" if p["drjit_identical"] else
+                     f"within {p['drjit_max_dt_ns']} ns" if p["drjit_same_count"] else
+                     "counts differ")
             line += (f" {p['before_s']:>7.3f} {p['after_s']:>7.3f} "
-                     f"{p['speedup']:>7.2f}x {p['identical']}")
+                     f"{p['speedup']:>7.2f}x {p['identical']!s:>9} | {p['drjit_s']:>7.3f} "
+                     f"{p['drjit_over_numba']:>5.2f}x {agree}")
         print(line)
+    print("\nWhere the replay's 'after' seconds go (today's numba emulator), seconds")
+    for r in rows:
+        if "replay" in r:
+            stages = ", ".join(f"{k} {v:.3f}" for k, v in r["replay"]["after_stages_s"].items())
+            print(f"{r['scene']:>13} {r['noise']:>9}: {stages}")
     result = {"cores": os.cpu_count(), "rows": rows,
               "note": "emulate_over_render goal: < 1/3; replay: the same blocks through the "
-                      "emulator of c7d2105 (before) and today's (after), best of "
+                      "emulator of c7d2105 (before), today's numba kernel (after) and today's "
+                      "Dr.Jit kernel on the variant's device (drjit), best of "
                       f"{args.repeats}, in the process that rendered them"}
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "emulator.json").write_text(json.dumps(result, indent=2))

@@ -120,9 +120,9 @@ def _threshold_crossings(level, ref, c_on, c_off):
     float64 holding a whole number."""
     up = level >= ref + c_on
     down = ~up & (level <= ref - c_off)
-    count = dr.select(up, dr.floor((level - ref) / c_on),
-                      dr.select(down, dr.floor((ref - level) / c_off), 0.0))
-    return count, dr.select(up, c_on, dr.select(down, -c_off, 0.0)), \
+    # One division for both: the same operands as the numba kernel's taken branch.
+    count = dr.floor(dr.select(up, level - ref, ref - level) / dr.select(up, c_on, c_off))
+    return dr.select(up | down, count, 0.0), dr.select(up, c_on, dr.select(down, -c_off, 0.0)), \
         dr.select(up, 1, dr.select(down, -1, 0))
 
 
@@ -179,6 +179,18 @@ def _filtered_crossing_time(m, level, y0, a, b, x, f_lo, y_lo, f_hi, y_hi, t0, d
     return dr.select(off, linear, t0 + m.Int64(dr.round(f * dt)))
 
 
+def _lowpass_exponent(m, cutoff, j, dt):
+    """:func:`sim.noise._lowpass_exponent` of the interval from sample ``j - 1`` to ``j``
+    (``dt`` ns): ``2 pi dt`` times the logarithmic mean of the two cutoffs; ``inf`` where one
+    is 0."""
+    f0 = dr.gather(m.Float64, cutoff, j - 1)
+    f1 = dr.gather(m.Float64, cutoff, j)
+    ratio = f1 / f0
+    mean = dr.select(dr.abs(ratio - 1.0) < 1e-6, 0.5 * (f0 + f1), (f1 - f0) / dr.log(ratio))
+    return dr.select((f0 == 0.0) | (f1 == 0.0), math.inf,
+                     2.0 * math.pi * (m.Float64(dt) * 1e-9) * mean)
+
+
 # --- the kernel --------------------------------------------------------------------------------
 
 @dr.syntax
@@ -225,7 +237,7 @@ def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered
             leaky: bool):
     """One lane per run of a pixel's samples: its crossings counted (``out`` None; returns
     the counts) or written from the run's slot on (returns the run's state at its end)."""
-    t, L, exponent, normals = samples
+    t, L, cutoff, normals = samples
     p, first, end, k, r, lf, la, last, c_on, c_off, rate, n = runs
     # Copies: the loop updates its state in place, and ``runs`` serves both launches.
     k, r, lf, la, last, n = (type(v)(v) for v in (k, r, lf, la, last, n))
@@ -235,7 +247,7 @@ def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered
         tb = dr.gather(m.Int64, t, j)
         lb = dr.gather(m.Float64, L, j)
         dt = tb - ta
-        x = dr.gather(m.Float64, exponent, j - 1) if filtered else m.Float64(math.inf)
+        x = _lowpass_exponent(m, cutoff, j, dt) if filtered else m.Float64(math.inf)
         if leaky:
             jitter = 1.0 - leak_jitter * dr.gather(m.Float64, normals, k)
             jitter = dr.select(jitter < 0.0, 0.0, jitter)
@@ -259,6 +271,23 @@ def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered
     return n, r, lf, la, last
 
 
+_DTYPES = {dr.VarType.Int64: np.int64, dr.VarType.UInt32: np.uint32,
+           dr.VarType.Float64: np.float64}
+
+
+def _device_array(kind, values: np.ndarray):
+    """``values`` as a Dr.Jit array of type ``kind``, from a 128-byte aligned copy: Dr.Jit
+    maps a host array without copying it, and the alignment it sees enters the compiled
+    kernel, so that arrays at other alignments would compile the kernel again (a cache miss,
+    20-35 ms, on most blocks)."""
+    values = np.ascontiguousarray(values, dtype=_DTYPES[dr.type_v(kind)])
+    buffer = np.empty(values.nbytes + 128, np.uint8)
+    start = -buffer.ctypes.data % 128
+    aligned = buffer[start:start + values.nbytes].view(values.dtype)
+    aligned[...] = values
+    return kind(aligned)
+
+
 def _outputs(m, n: int) -> tuple:
     """Times (int64 ns), flat pixels (int64), polarities (int32) and keep flags of ``n``
     crossings, on the device."""
@@ -268,7 +297,7 @@ def _outputs(m, n: int) -> tuple:
     return out
 
 
-def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, exponent: np.ndarray,
+def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarray | None,
                  ref: np.ndarray, level: np.ndarray, raw: np.ndarray, last_t: np.ndarray,
                  c_on: np.ndarray, c_off: np.ndarray, leak: tuple[np.ndarray, float],
                  normals: np.ndarray, refractory: int, device: str = "llvm"
@@ -276,8 +305,9 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, exponent: np.nda
     """The threshold crossings of a block of per-pixel samples, on Dr.Jit's ``device``.
 
     The arguments are :func:`sim.pixel_sampling._pixel_events`'s (less its outputs), with the
-    same meaning; ``ref``, ``level``, ``raw`` and ``last_t`` (flat, (P,)) are left at each
-    pixel's last sample, in place.
+    same meaning, but for the samples' cutoffs in place of the intervals' exponents;
+    ``ref``, ``level``, ``raw`` and ``last_t`` (flat, (P,)) are left at each pixel's last
+    sample, in place.
 
     Parameters
     ----------
@@ -287,8 +317,10 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, exponent: np.nda
     t : (S,) int64 ndarray, ns
     L : (S,) float64 ndarray
         Unfiltered log intensity of each sample.
-    exponent : (S - 1,) float64 ndarray
-        Each interval in time constants of the low-pass (``inf``: no filter).
+    cutoff : (S,) float64 ndarray or None
+        Each sample's low-pass cutoff, Hz (:func:`sim.noise.cutoff_frequency`); None: no
+        filter. The numba kernel takes the intervals' exponents instead; here they are taken
+        on the device (:func:`_lowpass_exponent`).
     ref, level, raw : (P,) float64 ndarray
     last_t : (P,) int64 ndarray, ns
     c_on, c_off : (P,) float64 ndarray
@@ -322,26 +354,37 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, exponent: np.nda
     p = pix[starts]
     leak_rates, leak_jitter = leak
     leaky = leak_rates.size > 0
-    filtered = bool(np.any(exponent != np.inf))
-    samples = (m.Int64(t), m.Float64(L), m.Float64(exponent if filtered else np.zeros(1)),
-               m.Float64(normals if leaky else np.zeros(1)))
-    runs = [m.Int64(p), m.UInt32(starts), m.UInt32(ends), m.UInt32(first_normal),
-            m.Float64(ref[p]), m.Float64(level[p]), m.Float64(raw[p]), m.Int64(last_t[p]),
-            m.Float64(c_on[p]), m.Float64(c_off[p]),
-            m.Float64(leak_rates[p] if leaky else np.zeros(len(p))),
+    filtered = cutoff is not None
+    on = _device_array
+    samples = (on(m.Int64, t), on(m.Float64, L),
+               on(m.Float64, cutoff if filtered else np.zeros(1)),
+               on(m.Float64, normals if leaky else np.zeros(1)))
+    runs = [on(m.Int64, p), on(m.UInt32, starts), on(m.UInt32, ends),
+            on(m.UInt32, first_normal), on(m.Float64, ref[p]), on(m.Float64, level[p]),
+            on(m.Float64, raw[p]), on(m.Int64, last_t[p]), on(m.Float64, c_on[p]),
+            on(m.Float64, c_off[p]), on(m.Float64, leak_rates[p] if leaky else np.zeros(len(p))),
             dr.zeros(m.UInt32, len(p))]
     flags = (float(leak_jitter), int(refractory), filtered, leaky)
-    counts = _kernel(m, samples, runs, None, *flags)[0].numpy().astype(np.int64)
+    # The counting launch leaves every run at its end (only ``last_t`` waits for the writing).
+    counts, r, lf, la, _ = _kernel(m, samples, runs, None, *flags)
+    dr.eval(counts, r, lf, la)
+    ref[p], level[p], raw[p] = r.numpy(), lf.numpy(), la.numpy()
+    counts = counts.numpy().astype(np.int64)
     # Each run's first slot: the runs' counts summed in pixel order (the numba kernel's).
     in_order = np.empty_like(counts)
     in_order[lane] = counts
     offsets = np.cumsum(in_order) - in_order
     total = int(in_order.sum())
     out = _outputs(m, max(total, 1))                  # (an empty array cannot be scattered to)
-    runs[-1] = m.UInt32(offsets[lane])
-    _, r, lf, la, last = _kernel(m, samples, runs, out, *flags)
-    dr.eval(out, r, lf, la, last)
-    ref[p], level[p], raw[p], last_t[p] = r.numpy(), lf.numpy(), la.numpy(), last.numpy()
+    # The writing launch: only the runs that cross (still in order of length).
+    firing = np.flatnonzero(counts)
+    if len(firing):
+        index = on(m.UInt32, firing)
+        runs = [dr.gather(type(v), v, index) for v in runs[:-1]] + [
+            on(m.UInt32, offsets[lane][firing])]
+        last = _kernel(m, samples, runs, out, *flags)[4]
+        dr.eval(out, last)
+        last_t[p[firing]] = last.numpy()
     out_t, out_pix, out_p, keep = out
     return (out_t.numpy()[:total], out_pix.numpy()[:total],
             out_p.numpy()[:total].astype(np.int8), keep.numpy()[:total])

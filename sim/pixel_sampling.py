@@ -448,9 +448,8 @@ class PixelEventEmulator(EventEmulator):
         ref, level, raw = self.ref.reshape(-1), self._L.reshape(-1), self._raw.reshape(-1)
         last_t = self._last_t.reshape(-1)
         normals, leak = self._leak_draws(pixels)
+        cutoff = None
         if noise.cutoff_hz > 0:
-            # Every pair of consecutive samples at once, then inf between two pixels: the
-            # same values as lowpass_exponent on the pixels' own intervals, checked once here.
             same = pixels[1:] == pixels[:-1]
             cutoff = _cutoff(np.asarray(luminance, np.float64), noise)
             dt = np.diff(times_ns)
@@ -458,15 +457,22 @@ class PixelEventEmulator(EventEmulator):
                     and np.all((dt > 0) | ~same)):
                 raise ValueError("luminance must be finite and >= 0 and each pixel's times "
                                  "must increase")
-            exponent = _lowpass_exponent(dt * 1e-9, cutoff[:-1], cutoff[1:])
-            exponent[~same] = np.inf
-        else:
-            exponent = np.full(max(len(pixels) - 1, 0), np.inf)
         refractory = int(round(noise.refractory_period * 1e9))
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
-        args = (pixels, times_ns, levels, exponent, ref, level, raw, last_t, c_on, c_off, leak,
-                normals, refractory)
-        out_t, out_pix, out_p, keep = self._crossings(args)
+        state = (ref, level, raw, last_t, c_on, c_off, leak, normals, refractory)
+        if self.kernel == "drjit":        # the low-pass exponents too are taken on the device
+            crossings = drjit_pixel_events(pixels, times_ns, levels, cutoff, *state,
+                                           device=self._device)
+        else:
+            if cutoff is None:
+                exponent = np.full(max(len(pixels) - 1, 0), np.inf)
+            else:
+                # Every pair of consecutive samples at once, then inf between two pixels: the
+                # same values as lowpass_exponent on the pixels' own intervals.
+                exponent = _lowpass_exponent(dt * 1e-9, cutoff[:-1], cutoff[1:])
+                exponent[~same] = np.inf
+            crossings = self._crossings((pixels, times_ns, levels, exponent, *state))
+        out_t, out_pix, out_p, keep = crossings
         if refractory > 0 and not keep.all():
             out_t, out_pix, out_p = out_t[keep], out_pix[keep], out_p[keep]
         order = np.argsort((out_t - t0_ns) * n_pixels + out_pix)
@@ -480,11 +486,8 @@ class PixelEventEmulator(EventEmulator):
     def _crossings(self, args: tuple) -> tuple[np.ndarray, ...]:
         """:func:`_pixel_events` in one pass, with outputs sized from the last block's count
         (twice it, at least 4,096); when they are too short, the pixels' state is restored
-        and the kernel runs again with outputs of the exact size (or the Dr.Jit kernel, by
-        ``kernel``). Returns the crossings' times, pixels, polarities and keep flags, in
-        (pixel, time) order."""
-        if self.kernel == "drjit":
-            return drjit_pixel_events(*args, device=self._device)
+        and the kernel runs again with outputs of the exact size. Returns the crossings'
+        times, pixels, polarities and keep flags, in (pixel, time) order."""
         state = args[4:8]                                   # ref, level, raw, last_t
         saved = [a.copy() for a in state]
         outputs = _outputs(max(2 * self._last_count, 4096))
