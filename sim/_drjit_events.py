@@ -3,10 +3,14 @@
 :func:`pixel_events` is :func:`sim.pixel_sampling._pixel_events` (the numba kernel, one CPU
 thread) written for Dr.Jit: one lane per pixel's run of samples, each lane walking its pixel's
 intervals in time order (the threshold, leak, refractory and photoreceptor low-pass models of
-:mod:`sim.events`, step for step). Two launches: the first counts each run's crossings, a
-prefix sum over the runs gives each its first output slot, the second solves and writes them.
-The outputs come back to the host in the numba kernel's order (pixel, then time), where
-:meth:`~sim.pixel_sampling.PixelEventEmulator.advance_samples` sorts and packs them alike.
+:mod:`sim.events`, step for step), the lanes in order of run length (a SIMD packet or a warp
+runs as long as its longest lane). Two launches: the first counts each run's crossings and
+leaves every pixel's state at its last sample; after a prefix sum of the counts in pixel order
+gives each run its first output slot, the second solves and writes the crossings of the runs
+that have any. The low-pass exponents of the intervals are taken in the kernel too, from the
+samples' cutoffs. The outputs come back to the host in the numba kernel's order (pixel, then
+time), where :meth:`~sim.pixel_sampling.PixelEventEmulator.advance_samples` sorts and packs them
+alike (the noise draws stay on the host, from the emulator's one generator).
 
 Exactness, against the numba kernel:
 
@@ -15,13 +19,13 @@ Exactness, against the numba kernel:
   round-half-to-even on float64 and int64, in the numba kernel's order: on ``llvm`` the events
   and the state carried on are identical, bit for bit (tested). Leak, refractory period and
   threshold mismatch use only such operations and keep this.
-- With the filter, the ramp response needs ``exp``, ``expm1`` and ``log1p``. Dr.Jit's ``exp``
-  and ``log`` are its own polynomial approximations (within about 2 ulp, not libm's values),
-  and ``expm1`` / ``log1p`` are formed from them by Kahan's identities (:func:`_expm1`,
-  :func:`_log1p`, a few ulp). The filter's level then differs from the numba kernel's by a few
-  ulp (about 1e-15 in log intensity), and a crossing time solved on it (to
-  :data:`sim.events.CROSSING_TOLERANCE_NS` either way) by at most 1 ns after the rounding to
-  whole nanoseconds; a level within a few ulp of a threshold may fire its event one interval
+- With the filter, the exponents need ``log`` and the ramp response ``exp``, ``expm1`` and
+  ``log1p``. Dr.Jit's ``exp`` and ``log`` are its own polynomial approximations (within about
+  2 ulp, not NumPy's or libm's values), and ``expm1`` / ``log1p`` are formed from them by
+  Kahan's identities (:func:`_expm1`, :func:`_log1p`, a few ulp). The filter's level then
+  differs from the numba kernel's by a few ulp (about 1e-15 in log intensity), and a crossing
+  time solved on it (to :data:`sim.events.CROSSING_TOLERANCE_NS` either way) by at most 1 ns
+  after the rounding to whole nanoseconds; a level within a few ulp of a threshold may fire its event one interval
   earlier or later (at the next sample), and a 1-ns shift may flip a refractory drop. Tested:
   the same number of events, each within 1 ns, on the reference test's noisy blocks
   (``tests/test_drjit_events.py``), and measured on recorded blocks of built-in scenes in
@@ -30,8 +34,9 @@ Exactness, against the numba kernel:
   measured: no GPU was lent to this work.
 
 To add a per-event output (a crossing's ``cause``, say): compute it where the crossing is
-written in :func:`_kernel` and add one ``dr.scatter`` beside the others, one array to
-:func:`_outputs` and one to the tuple :func:`pixel_events` returns.
+written (:func:`_write`, which has the lane's interval and piece) and add one ``dr.scatter``
+beside the others, one array to :func:`_outputs` and one to the tuple :func:`pixel_events`
+returns.
 """
 
 from __future__ import annotations
