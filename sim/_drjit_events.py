@@ -25,11 +25,11 @@ Exactness, against the numba kernel:
   Kahan's identities (:func:`_expm1`, :func:`_log1p`, a few ulp). The filter's level then
   differs from the numba kernel's by a few ulp (about 1e-15 in log intensity), and a crossing
   time solved on it (to :data:`sim.events.CROSSING_TOLERANCE_NS` either way) by at most 1 ns
-  after the rounding to whole nanoseconds; a level within a few ulp of a threshold may fire its event one interval
-  earlier or later (at the next sample), and a 1-ns shift may flip a refractory drop. Tested:
-  the same number of events, each within 1 ns, on the reference test's noisy blocks
-  (``tests/test_drjit_events.py``), and measured on recorded blocks of built-in scenes in
-  ``benchmarks/bench_emulator.py``.
+  after the rounding to whole nanoseconds; a level within a few ulp of a threshold may fire
+  its event one interval earlier or later (at the next sample), and a 1-ns shift may flip a
+  refractory drop. Tested: the same number of events, each within 1 ns, on the reference
+  test's noisy blocks (``tests/test_drjit_events.py``), and measured on recorded blocks of
+  built-in scenes in ``benchmarks/bench_emulator.py``.
 - ``cuda`` evaluates the same float64 operations (IEEE, round to nearest), but is not
   measured: no GPU was lent to this work.
 
