@@ -12,6 +12,7 @@ each within 1 ns, the filtered level within 1e-12.
 from __future__ import annotations
 
 import dataclasses
+import sys
 
 import numpy as np
 import pytest
@@ -107,3 +108,20 @@ def test_the_kernel_is_chosen_by_a_stated_rule():
     emulator = PixelEventEmulator((2, 2), params, kernel="drjit")
     assert emulator.warm_up() > 0
     assert emulator.seconds == 0.0
+
+
+def test_auto_is_the_drjit_kernel_on_the_gpu_under_a_cuda_variant(monkeypatch):
+    """The rule's other half, without a GPU: with a ``cuda_*`` Mitsuba variant active, ``auto``
+    is the Dr.Jit kernel on the ``cuda`` device (nothing runs here)."""
+    import types
+
+    from sim import _drjit_events
+
+    fake = types.SimpleNamespace(variant=lambda: "cuda_ad_rgb")
+    monkeypatch.setitem(sys.modules, "mitsuba", fake)
+    assert _drjit_events.active_device() == "cuda"
+    emulator = PixelEventEmulator((2, 2), EventParams())
+    assert emulator.kernel == "drjit" and emulator._device == "cuda"
+    monkeypatch.setitem(sys.modules, "mitsuba", types.SimpleNamespace(
+        variant=lambda: "llvm_ad_rgb"))
+    assert PixelEventEmulator((2, 2), EventParams()).kernel == "numba"
