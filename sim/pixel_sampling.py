@@ -51,8 +51,6 @@ import cv2
 import numba
 import numpy as np
 
-from sim._drjit_events import active_device
-from sim._drjit_events import pixel_events as drjit_pixel_events
 from sim.camera import Camera
 from sim.eventio import EVENT_DTYPE
 from sim.events import (
@@ -390,7 +388,11 @@ class PixelEventEmulator(EventEmulator):
         if kernel not in KERNELS:
             raise ValueError(f"PixelEventEmulator.kernel must be one of {KERNELS}, got "
                              f"{kernel!r}")
-        self._device = active_device()
+        self._device = "llvm"
+        if kernel != "numba":           # (Dr.Jit loads here, not with the package)
+            from sim._drjit_events import active_device
+
+            self._device = active_device()
         if kernel == "auto":
             kernel = "drjit" if self._device == "cuda" else "numba"
         self.kernel = kernel
@@ -461,8 +463,10 @@ class PixelEventEmulator(EventEmulator):
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
         state = (ref, level, raw, last_t, c_on, c_off, leak, normals, refractory)
         if self.kernel == "drjit":        # the low-pass exponents too are taken on the device
-            crossings = drjit_pixel_events(pixels, times_ns, levels, cutoff, *state,
-                                           device=self._device)
+            from sim._drjit_events import pixel_events
+
+            crossings = pixel_events(pixels, times_ns, levels, cutoff, *state,
+                                     device=self._device)
         else:
             if cutoff is None:
                 exponent = np.full(max(len(pixels) - 1, 0), np.inf)
