@@ -223,7 +223,7 @@ def _stages(emulator: PixelEventEmulator) -> dict:
     (the rest of :meth:`~PixelEventEmulator.advance_samples` is the low-pass exponents, the
     sort by time and the packing into events)."""
     timers = {"leak draws": 0.0, "kernel": 0.0, "noise events, close": 0.0}
-    for key, name in (("leak draws", "_leak_draws"), ("kernel", "_crossings"),
+    for key, name in (("leak draws", "_leak_draws"), ("kernel", "_numba_crossings"),
                       ("noise events, close", "_close_block")):
         method = getattr(emulator, name)
 
@@ -240,7 +240,7 @@ def _stages(emulator: PixelEventEmulator) -> dict:
 
 def _unwrap(emulator: PixelEventEmulator) -> None:
     """Undo :func:`_stages` on ``emulator``."""
-    for name in ("_leak_draws", "_crossings", "_close_block"):
+    for name in ("_leak_draws", "_numba_crossings", "_close_block"):
         emulator.__dict__.pop(name, None)
 
 

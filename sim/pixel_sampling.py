@@ -280,7 +280,7 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
     One pass: the first ``len(out_t)`` crossings are written (time solved once, ``keep``
     False for those the refractory period drops), the rest only counted (no time solved). A
     return above ``len(out_t)`` means the outputs were too short: restore the state and call
-    again with outputs that long (:meth:`PixelEventEmulator._crossings`).
+    again with outputs that long (:meth:`PixelEventEmulator._numba_crossings`).
 
     ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
     the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
@@ -475,7 +475,7 @@ class PixelEventEmulator(EventEmulator):
                 # same values as lowpass_exponent on the pixels' own intervals.
                 exponent = _lowpass_exponent(dt * 1e-9, cutoff[:-1], cutoff[1:])
                 exponent[~same] = np.inf
-            crossings = self._crossings((pixels, times_ns, levels, exponent, *state))
+            crossings = self._numba_crossings((pixels, times_ns, levels, exponent, *state))
         out_t, out_pix, out_p, keep = crossings
         if refractory > 0 and not keep.all():
             out_t, out_pix, out_p = out_t[keep], out_pix[keep], out_p[keep]
@@ -487,7 +487,7 @@ class PixelEventEmulator(EventEmulator):
         events["p"] = out_p[order]
         return self._close_block(events, t0_ns, t_end_ns, end_luminance)
 
-    def _crossings(self, args: tuple) -> tuple[np.ndarray, ...]:
+    def _numba_crossings(self, args: tuple) -> tuple[np.ndarray, ...]:
         """:func:`_pixel_events` in one pass, with outputs sized from the last block's count
         (twice it, at least 4,096); when they are too short, the pixels' state is restored
         and the kernel runs again with outputs of the exact size. Returns the crossings'
