@@ -10,7 +10,9 @@ gives each run its first output slot, the second solves and writes the crossings
 that have any. The low-pass exponents of the intervals are taken in the kernel too, from the
 samples' cutoffs. The outputs come back to the host in the numba kernel's order (pixel, then
 time), where :meth:`~sim.pixel_sampling.PixelEventEmulator.advance_samples` sorts and packs them
-alike (the noise draws stay on the host, from the emulator's one generator).
+alike (the noise draws stay on the host, from the emulator's one generator). The frame emulator
+(:class:`sim.events.EventEmulator`) runs an interval between two frames through it as a block
+of two samples a pixel.
 
 Exactness, against the numba kernel:
 
@@ -47,8 +49,6 @@ from types import ModuleType
 
 import drjit as dr
 import numpy as np
-
-from sim.events import CROSSING_TOLERANCE_NS
 
 __all__ = ["DEVICES", "active_device", "pixel_events"]
 
@@ -173,14 +173,14 @@ def _ramp_crossing(m, level, y0, a, b, x, f_lo, y_lo, f_hi, y_hi, tolerance, act
 
 
 def _filtered_crossing_time(m, level, y0, a, b, x, f_lo, y_lo, f_hi, y_hi, t0, dt,
-                            filtered: bool):
+                            filtered: bool, tolerance_ns: float):
     """:func:`sim.events.filtered_crossing_time`."""
     linear = _crossing_time(m, level, y0, y_hi - y0, t0, dt)
     if not filtered:
         return linear
     off = x == math.inf
     f = _ramp_crossing(m, level, y0, a, b, dr.select(off, 1.0, x), f_lo, y_lo, f_hi, y_hi,
-                       CROSSING_TOLERANCE_NS / dt, ~off)
+                       tolerance_ns / dt, ~off)
     return dr.select(off, linear, t0 + m.Int64(dr.round(f * dt)))
 
 
@@ -199,7 +199,8 @@ def _lowpass_exponent(m, cutoff, j, dt):
 # --- the kernel --------------------------------------------------------------------------------
 
 @dr.syntax
-def _write(m, out, n, last, p, level, lb, x, ta, dt, pieces, refractory: int, filtered: bool):
+def _write(m, out, n, last, p, level, lb, x, ta, dt, pieces, refractory: int, filtered: bool,
+           tolerance_ns: float):
     """Write a lane's crossings of one interval from slot ``n`` on (refractory drops flagged),
     those of the level's first monotonic piece, then those of its second; return the lane's
     next slot and last event. ``pieces`` holds, per piece, ``(count, step, polarity,
@@ -214,7 +215,7 @@ def _write(m, out, n, last, p, level, lb, x, ta, dt, pieces, refractory: int, fi
         piece = [dr.select(on_second, second[q], first[q]) for q in range(8)]
         _, c, sign, r, f_lo, y_lo, f_hi, y_hi = piece
         te = _filtered_crossing_time(m, r + dr.select(on_second, i - count, i) * c, lf, la, lb,
-                                     x, f_lo, y_lo, f_hi, y_hi, ta, dt, filtered)
+                                     x, f_lo, y_lo, f_hi, y_hi, ta, dt, filtered, tolerance_ns)
         kept = m.Bool(True)
         if refractory > 0:
             kept = ~(te - last < refractory)
@@ -239,7 +240,7 @@ def _second_piece(m, f_turn, y1, r, c_on, c_off, filtered: bool):
 
 @dr.syntax
 def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered: bool,
-            leaky: bool):
+            leaky: bool, tolerance_ns: float):
     """One lane per run of a pixel's samples: its crossings counted (``out`` None; returns
     the counts) or written from the run's slot on (returns the run's state at its end)."""
     t, L, cutoff, normals = samples
@@ -268,7 +269,7 @@ def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered
             n, last = _write(m, out, n, last, p, (lf, la), lb, x, ta, m.Float64(dt),
                              ((count, c, sign, r, 0.0, lf, f_turn, y_turn),
                               (count_2, c_2, sign_2, r_turn, f_turn, y_turn, 1.0, lf_new)),
-                             refractory, filtered)
+                             refractory, filtered, tolerance_ns)
         r = r_turn + count_2 * c_2
         lf, la, ta = lf_new, lb, tb
         j += 1
@@ -326,8 +327,8 @@ def _outputs(m, n: int) -> tuple:
 def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarray | None,
                  ref: np.ndarray, level: np.ndarray, raw: np.ndarray, last_t: np.ndarray,
                  c_on: np.ndarray, c_off: np.ndarray, leak: tuple[np.ndarray, float],
-                 normals: np.ndarray, refractory: int, device: str = "llvm"
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 normals: np.ndarray, refractory: int, tolerance_ns: float,
+                 device: str = "llvm") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The threshold crossings of a block of per-pixel samples, on Dr.Jit's ``device``.
 
     The arguments are :func:`sim.pixel_sampling._pixel_events`'s (less its outputs), with the
@@ -354,6 +355,10 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
     normals : float64 ndarray
         One normal draw per interval in sample order (empty without leak).
     refractory : int, ns
+    tolerance_ns : float, ns
+        Largest error of a crossing time solved on the filter's output
+        (:data:`sim.events.CROSSING_TOLERANCE_NS`, passed in: this module imports nothing of
+        :mod:`sim`, whose emulators import it).
     device : {"llvm", "cuda"}
 
     Returns
@@ -388,7 +393,7 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
             on(m.Float64, raw[p]), on(m.Int64, last_t[p]), on(m.Float64, c_on[p]),
             on(m.Float64, c_off[p]), on(m.Float64, leak_rates[p] if leaky else np.zeros(len(p))),
             dr.zeros(m.UInt32, len(p))]
-    flags = (float(leak_jitter), int(refractory), filtered, leaky)
+    flags = (float(leak_jitter), int(refractory), filtered, leaky, float(tolerance_ns))
     # The counting launch leaves every run at its end (only ``last_t`` waits for the writing).
     counts, r, lf, la, _ = _kernel(m, samples, runs, None, *flags)
     dr.eval(counts, r, lf, la)

@@ -54,6 +54,7 @@ import numpy as np
 from sim.camera import Camera
 from sim.eventio import EVENT_DTYPE
 from sim.events import (
+    CROSSING_TOLERANCE_NS,
     EventEmulator,
     EventParams,
     clocked,
@@ -73,8 +74,6 @@ from sim.sampling import SPLIT, SamplingParams, contrast_scale, motion_field
 __all__ = ["MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
            "PixelSource", "pixel_blocks", "rate_map"]
 
-KERNELS = ("auto", "numba", "drjit")
-"""The values of :class:`PixelEventEmulator`'s ``kernel``."""
 MARGIN = 0.5
 """The prediction aims at MARGIN * lam * C (frame sampling: 0.75)."""
 MAX_DILATION = 64
@@ -362,40 +361,14 @@ class PixelEventEmulator(EventEmulator):
     the same state (:meth:`get_state` / :meth:`set_state`) and the same models; only the
     samples differ: each pixel has its own times. :meth:`start` sets the first frame.
 
-    Parameters
-    ----------
-    shape : (int, int)
-        Sensor height and width.
-    params : EventParams, optional
-    kernel : {"auto", "numba", "drjit"}
-        Where a block's threshold crossings are solved: ``numba``, :func:`_pixel_events` on
-        one CPU thread; ``drjit``, :func:`sim._drjit_events.pixel_events` on the device of
-        the active Mitsuba variant (every core with ``llvm_*``, the GPU with ``cuda_*``);
-        ``auto`` (default), ``drjit`` under a ``cuda_*`` variant (the samples' device) and
-        ``numba`` otherwise, the faster of the two on the 2-core development machine
-        (``benchmarks/bench_emulator.py``). Both give identical events without the
-        photoreceptor low-pass; with it, within the bound :mod:`sim._drjit_events` states.
-
-    Attributes
-    ----------
-    kernel : str
-        ``numba`` or ``drjit``, as resolved.
+    ``kernel`` (:class:`~sim.events.EventEmulator`): ``numba`` solves a block's crossings with
+    :func:`_pixel_events` on one CPU thread, ``drjit`` with
+    :func:`sim._drjit_events.pixel_events` on the variant's device.
     """
 
     def __init__(self, shape: tuple[int, int], params: EventParams | None = None,
                  kernel: str = "auto") -> None:
-        super().__init__(shape, params)
-        if kernel not in KERNELS:
-            raise ValueError(f"PixelEventEmulator.kernel must be one of {KERNELS}, got "
-                             f"{kernel!r}")
-        self._device = "llvm"
-        if kernel != "numba":           # (Dr.Jit loads here, not with the package)
-            from sim._drjit_events import active_device
-
-            self._device = active_device()
-        if kernel == "auto":
-            kernel = "drjit" if self._device == "cuda" else "numba"
-        self.kernel = kernel
+        super().__init__(shape, params, kernel)
         self._last_count = 0                 # the last block's crossings (sizes the outputs)
 
     def warm_up(self) -> float:
@@ -466,7 +439,7 @@ class PixelEventEmulator(EventEmulator):
             from sim._drjit_events import pixel_events
 
             crossings = pixel_events(pixels, times_ns, levels, cutoff, *state,
-                                     device=self._device)
+                                     CROSSING_TOLERANCE_NS, device=self._device)
         else:
             if cutoff is None:
                 exponent = np.full(max(len(pixels) - 1, 0), np.inf)

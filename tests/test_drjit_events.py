@@ -17,7 +17,7 @@ import sys
 import numpy as np
 import pytest
 
-from sim.events import EventParams
+from sim.events import EventEmulator, EventParams
 from sim.noise import noise_preset
 from sim.pixel_sampling import PixelEventEmulator
 from tests.test_emulator_reference import EPS, NOISY, SHAPE, _blocks
@@ -125,3 +125,49 @@ def test_auto_is_the_drjit_kernel_on_the_gpu_under_a_cuda_variant(monkeypatch):
     monkeypatch.setitem(sys.modules, "mitsuba", types.SimpleNamespace(
         variant=lambda: "llvm_ad_rgb"))
     assert PixelEventEmulator((2, 2), EventParams()).kernel == "numba"
+
+
+def _frames(seed: int = 4, n: int = 10):
+    """Random log-intensity frames (6x8, a random walk with steps of 0.35, several crossings
+    per interval) at uneven times."""
+    rng = np.random.default_rng(seed)
+    logs = np.log(np.exp(rng.normal(3.0, 1.0, (6, 8))) + EPS) + np.cumsum(
+        rng.normal(0.0, 0.35, (n, 6, 8)), axis=0)
+    return logs, np.cumsum(rng.uniform(0.5e-3, 2e-3, n))
+
+
+def _frame_events(kernel: str, noise) -> tuple[list[np.ndarray], dict]:
+    logs, times = _frames()
+    emulator = EventEmulator(logs.shape[1:], EventParams(
+        contrast_on=0.2, contrast_off=0.25, log_eps=EPS, noise=noise, seed=3), kernel=kernel)
+    assert emulator.kernel == kernel
+    emulator.start(logs[0], times[0])
+    return [emulator.advance(frame, t) for frame, t in zip(logs[1:], times[1:], strict=True)], \
+        emulator.get_state()
+
+
+@pytest.mark.parametrize("noise", [noise_preset("ideal"), UNFILTERED, noise_preset("realistic"),
+                                   NOISY], ids=["ideal", "noisy-unfiltered", "realistic", "noisy"])
+def test_the_frame_emulator_on_drjit_gives_the_numba_kernels_events(noise):
+    """The frame emulator's interval as a block of two samples a pixel: without the low-pass
+    bit for bit, with it within the stated bound."""
+    numba_events, numba_state = _frame_events("numba", noise)
+    drjit_events, drjit_state = _frame_events("drjit", noise)
+    assert sum(len(e) for e in numba_events) > 100
+    for a, b in zip(numba_events, drjit_events, strict=True):
+        if noise.cutoff_hz == 0:
+            np.testing.assert_array_equal(a, b)
+        else:
+            assert len(a) == len(b) and np.abs(a["t"] - b["t"]).max(initial=0) <= 1
+    for key in ("ref", "level", "raw", "cutoff", "last_t"):
+        if noise.cutoff_hz == 0 or key != "level":
+            np.testing.assert_array_equal(numba_state[key], drjit_state[key])
+        else:
+            np.testing.assert_allclose(drjit_state[key], numba_state[key], rtol=0, atol=1e-12)
+
+
+def test_the_frame_emulator_on_drjit_refuses_a_non_finite_level():
+    emulator = EventEmulator((1, 2), EventParams(), kernel="drjit")
+    emulator.start(np.zeros((1, 2)), 0.0)
+    with pytest.raises(ValueError, match="non-finite"):
+        emulator.advance(np.array([[0.0, np.nan]]), 1e-3)

@@ -470,4 +470,4 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
             bar.update(0)
     return {**_event_info(params, formats, sampling, scene, count, on),
             **source.record(stats, sampling, contrast, why),
-            "emulator_kernel": getattr(emulator, "kernel", "numba")}
+            "emulator_kernel": emulator.kernel}
