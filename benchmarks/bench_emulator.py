@@ -17,6 +17,10 @@
    are compared with them (identical, or the largest time difference). The ratios of their
    seconds are the speed-ups; where ``after``'s seconds go is printed too (leak draws, the
    kernel, noise events, and the rest: exponents, sort by time, packing).
+3. The frame sampler's first :data:`FRAME_INTERVALS` frames of each run in (1), replayed
+   through the frame emulator with its numba kernel (one thread, as in ``simulate``) and with
+   its Dr.Jit kernel: their seconds, ratio and events (identical, or the largest time
+   difference).
 
 Run: ``.venv/bin/python benchmarks/bench_emulator.py`` (about 1-2 minutes on 2 cores;
 ``--skip-frame`` leaves out the frame sampler's slow runs). Results are printed and written to
@@ -37,13 +41,21 @@ import numba
 import numpy as np
 
 from sim.eventio import EVENT_DTYPE
-from sim.events import EventParams, filtered_crossing_time, interval_levels, threshold_crossings
+from sim.events import (
+    EventEmulator,
+    EventParams,
+    filtered_crossing_time,
+    interval_levels,
+    threshold_crossings,
+)
 from sim.noise import _cutoff, lowpass_exponent
 from sim.pixel_sampling import PixelEventEmulator
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CASES = [("slider_close", 0.0, 0.2), ("boxes_6dof", 3.5, 0.05)]
 """(scene, start s, duration s): the windows issue 23 measures."""
+FRAME_INTERVALS = 200
+"""Frames of each frame-sampler run replayed through both frame kernels (the first ones)."""
 
 
 @numba.njit(cache=True)
@@ -141,28 +153,32 @@ def _serial_advance_samples(self: PixelEventEmulator, pixels, times_ns, levels, 
 
 def run_case(scene_name: str, start: float, duration: float, sampler: str, noise: str,
              record: list | None) -> dict:
-    """One ``simulate`` run; its stage timings, and (per-pixel sampler, ``record`` a list) the
-    blocks the emulator was fed in, each with the emulator's state before it."""
+    """One ``simulate`` run; its stage timings, and (``record`` a list) what the emulator was
+    fed, each with the emulator's state before it: every block (per-pixel sampler), or the
+    first :data:`FRAME_INTERVALS` frames (frame sampler)."""
     from scenes import resolve_scene
     from sim.scene import load_scene
     from sim.simulate import simulate
 
     scene = load_scene(resolve_scene(scene_name))
-    advance = PixelEventEmulator.advance_samples
+    owner, name = ((PixelEventEmulator, "advance_samples") if sampler == "pixel" else
+                   (EventEmulator, "advance"))
+    advance = getattr(owner, name)
 
     def recording(self, *args):
-        if record is not None and self.shape != (1, 2):              # not warm_up's sensor
+        if (record is not None and self.shape != (1, 2)              # not warm_up's sensor
+                and (sampler == "pixel" or len(record) < FRAME_INTERVALS)):
             record.append((copy.deepcopy(self.get_state()), copy.deepcopy(args)))
         return advance(self, *args)
 
-    PixelEventEmulator.advance_samples = recording
+    setattr(owner, name, recording)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             result = simulate(scene, Path(tmp) / "seq", start=start, duration=duration,
                               progress=False, sampler=sampler, motion_truth=False,
                               events=EventParams.preset(noise, seed=scene.seed))
     finally:
-        PixelEventEmulator.advance_samples = advance
+        setattr(owner, name, advance)
     t = result.timings
     return {"scene": scene_name, "start_s": start, "duration_s": duration, "sampler": sampler,
             "noise": noise, "events": result.n_events, "event_render_s": t["event_render"],
@@ -217,6 +233,38 @@ def replay(row: dict, record: list, repeats: int) -> dict:
             "after_stages_s": stages}
 
 
+def replay_frames(row: dict, record: list, repeats: int) -> dict:
+    """Seconds of the frame emulator over the recorded frames (best of ``repeats``, numba on
+    one thread as in ``simulate``) with its numba kernel and with its Dr.Jit kernel, and
+    whether their events are identical (else the largest time difference, ns)."""
+    seconds, events = {}, {}
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        for kernel in ("numba", "drjit"):
+            emulator = EventEmulator(row["shape"], row["params"], kernel=kernel)
+            emulator.warm_up()
+            best = np.inf
+            for _ in range(repeats):
+                total, chunks = 0.0, []
+                for state, args in record:
+                    emulator.set_state(copy.deepcopy(state))
+                    tick = time.perf_counter()
+                    chunks.append(emulator.advance(*args))
+                    total += time.perf_counter() - tick
+                best = min(best, total)
+            seconds[kernel], events[kernel] = best, np.concatenate(chunks)
+    finally:
+        numba.set_num_threads(threads)
+    a, b = events["numba"], events["drjit"]
+    same_count = len(a) == len(b)
+    return {"frames": len(record), "numba_s": seconds["numba"], "drjit_s": seconds["drjit"],
+            "drjit_over_numba": seconds["drjit"] / seconds["numba"],
+            "drjit_identical": np.array_equal(a, b), "drjit_same_count": same_count,
+            "drjit_max_dt_ns": int(np.abs(a["t"] - b["t"]).max(initial=0))
+            if same_count else None}
+
+
 def _stages(emulator: PixelEventEmulator) -> dict:
     """Time the emulator's steps of a block on this instance (its leak draws, the kernel's
     crossings, the block's noise events and close); returns the dict their seconds add up in
@@ -265,10 +313,11 @@ def main(argv=None) -> dict:
         for sampler in ("pixel",) + (() if args.skip_frame else ("frame",)):
             for noise in ("ideal", "realistic"):
                 record: list = []
-                row = run_case(scene, start, duration, sampler, noise,
-                               record if sampler == "pixel" else None)
-                if record:
+                row = run_case(scene, start, duration, sampler, noise, record)
+                if sampler == "pixel":
                     row["replay"] = replay(row, record, args.repeats)
+                else:
+                    row["frame_replay"] = replay_frames(row, record, args.repeats)
                 del row["params"], row["shape"]
                 rows.append(row)
     print(f"\nThe event camera's stages on {rows[0]['variant']} ({os.cpu_count()} cores), "
@@ -288,6 +337,13 @@ def main(argv=None) -> dict:
                      "counts differ")
             line += (f" {p['before_s']:>7.3f} {p['after_s']:>7.3f} "
                      f"{p['speedup']:>7.2f}x {p['identical']!s:>9} | {p['drjit_s']:>7.3f} "
+                     f"{p['drjit_over_numba']:>5.2f}x {agree}")
+        if "frame_replay" in r:
+            p = r["frame_replay"]
+            agree = ("identical" if p["drjit_identical"] else
+                     f"within {p['drjit_max_dt_ns']} ns" if p["drjit_same_count"] else
+                     "counts differ")
+            line += (f" {p['frames']} frames: numba {p['numba_s']:.3f} | {p['drjit_s']:>7.3f} "
                      f"{p['drjit_over_numba']:>5.2f}x {agree}")
         print(line)
     print("\nWhere the replay's 'after' seconds go (today's numba emulator), seconds")
