@@ -35,10 +35,10 @@ Exactness, against the numba kernel:
 - ``cuda`` evaluates the same float64 operations (IEEE, round to nearest), but is not
   measured: no GPU was lent to this work.
 
-To add a per-event output (a crossing's ``cause``, say): compute it where the crossing is
-written (:func:`_write`, which has the lane's interval and piece) and add one ``dr.scatter``
-beside the others, one array to :func:`_outputs` and one to the tuple :func:`pixel_events`
-returns.
+Each crossing's cause (signal or leak, :mod:`sim.noise`'s rule) is written beside it, as the
+numba kernels do. To add another per-event output: compute it where the crossing is written
+(:func:`_write`, which has the lane's interval and piece), add one ``dr.scatter`` beside the
+others, one array to :func:`_outputs` and one to the tuple :func:`pixel_events` returns.
 """
 
 from __future__ import annotations
@@ -49,6 +49,8 @@ from types import ModuleType
 
 import drjit as dr
 import numpy as np
+
+from sim.noise import CAUSE_LEAK, CAUSE_SIGNAL
 
 __all__ = ["DEVICES", "active_device", "pixel_events"]
 
@@ -204,24 +206,28 @@ def _write(m, out, n, last, p, level, lb, x, ta, dt, pieces, refractory: int, fi
     """Write a lane's crossings of one interval from slot ``n`` on (refractory drops flagged),
     those of the level's first monotonic piece, then those of its second; return the lane's
     next slot and last event. ``pieces`` holds, per piece, ``(count, step, polarity,
-    reference before it, f_lo, y_lo, f_hi, y_hi)``."""
-    out_t, out_pix, out_p, keep = out
+    reference before it, f_lo, y_lo, f_hi, y_hi, count and polarity against the leak-free
+    reference)``: a crossing beyond that count, or of the other polarity, is the leak's."""
+    out_t, out_pix, out_p, out_cause, keep = out
     lf, la = level
     first, second = pieces
     count = first[0]
     i = dr.full(m.Float64, 1.0, dr.width(count))
     while i <= count + second[0]:
         on_second = i > count
-        piece = [dr.select(on_second, second[q], first[q]) for q in range(8)]
-        _, c, sign, r, f_lo, y_lo, f_hi, y_hi = piece
-        te = _filtered_crossing_time(m, r + dr.select(on_second, i - count, i) * c, lf, la, lb,
-                                     x, f_lo, y_lo, f_hi, y_hi, ta, dt, filtered, tolerance_ns)
+        piece = [dr.select(on_second, second[q], first[q]) for q in range(10)]
+        _, c, sign, r, f_lo, y_lo, f_hi, y_hi, n_free, sign_free = piece
+        index = dr.select(on_second, i - count, i)
+        te = _filtered_crossing_time(m, r + index * c, lf, la, lb, x, f_lo, y_lo, f_hi, y_hi,
+                                     ta, dt, filtered, tolerance_ns)
+        cause = dr.select((sign_free != sign) | (index > n_free), CAUSE_LEAK, CAUSE_SIGNAL)
         kept = m.Bool(True)
         if refractory > 0:
             kept = ~(te - last < refractory)
         dr.scatter(out_t, te, n)
         dr.scatter(out_pix, p, n)
         dr.scatter(out_p, sign, n)
+        dr.scatter(out_cause, m.UInt8(cause), n)
         dr.scatter(keep, kept, n)
         last = dr.select(kept, te, last)
         n += 1
@@ -244,7 +250,7 @@ def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered
     """One lane per run of a pixel's samples: its crossings counted (``out`` None; returns
     the counts) or written from the run's slot on (returns the run's state at its end)."""
     t, L, cutoff, normals = samples
-    p, first, end, k, r, lf, la, last, c_on, c_off, rate, n = runs
+    p, first, end, k, r, lf, la, last, c_on, c_off, rate, free, n = runs
     # Copies: the loop updates its state in place, and ``runs`` serves both launches.
     k, r, lf, la, last, n = (type(v)(v) for v in (k, r, lf, la, last, n))
     ta = dr.gather(m.Int64, t, first)
@@ -254,6 +260,9 @@ def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered
         lb = dr.gather(m.Float64, L, j)
         dt = tb - ta
         x = _lowpass_exponent(m, cutoff, j, dt) if filtered else m.Float64(math.inf)
+        # The interval's leak-free reference: the reference before its drift (before the
+        # kernel's for the first interval: ``free``).
+        rf = dr.select(j == first + 1, free, r)
         if leaky:
             jitter = 1.0 - leak_jitter * dr.gather(m.Float64, normals, k)
             jitter = dr.select(jitter < 0.0, 0.0, jitter)
@@ -263,12 +272,17 @@ def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered
         count, c, sign = _threshold_crossings(y_turn, r, c_on, c_off)
         r_turn = r + count * c
         count_2, c_2, sign_2 = _second_piece(m, f_turn, lf_new, r_turn, c_on, c_off, filtered)
+        free_count, free_c, free_sign = _threshold_crossings(y_turn, rf, c_on, c_off)
+        free_count_2, _, free_sign_2 = _second_piece(m, f_turn, lf_new, rf + free_count * free_c,
+                                                    c_on, c_off, filtered)
         if out is None:
             n += m.UInt32(count + count_2)
         else:
             n, last = _write(m, out, n, last, p, (lf, la), lb, x, ta, m.Float64(dt),
-                             ((count, c, sign, r, 0.0, lf, f_turn, y_turn),
-                              (count_2, c_2, sign_2, r_turn, f_turn, y_turn, 1.0, lf_new)),
+                             ((count, c, sign, r, 0.0, lf, f_turn, y_turn, free_count,
+                               free_sign),
+                              (count_2, c_2, sign_2, r_turn, f_turn, y_turn, 1.0, lf_new,
+                               free_count_2, free_sign_2)),
                              refractory, filtered, tolerance_ns)
         r = r_turn + count_2 * c_2
         lf, la, ta = lf_new, lb, tb
@@ -316,10 +330,10 @@ def _lanes(lengths: np.ndarray) -> np.ndarray:
 
 
 def _outputs(m, n: int) -> tuple:
-    """Times (int64 ns), flat pixels (int64), polarities (int32) and keep flags of ``n``
-    crossings, on the device."""
+    """Times (int64 ns), flat pixels (int64), polarities (int32), causes (uint8) and keep
+    flags of ``n`` crossings, on the device."""
     out = (dr.zeros(m.Int64, n), dr.zeros(m.Int64, n), dr.zeros(m.Int32, n),
-           dr.zeros(m.Bool, n))
+           dr.zeros(m.UInt8, n), dr.zeros(m.Bool, n))
     dr.eval(out)              # in memory before the kernel scatters into them
     return out
 
@@ -328,7 +342,8 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
                  ref: np.ndarray, level: np.ndarray, raw: np.ndarray, last_t: np.ndarray,
                  c_on: np.ndarray, c_off: np.ndarray, leak: tuple[np.ndarray, float],
                  normals: np.ndarray, refractory: int, tolerance_ns: float,
-                 device: str = "llvm") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                 device: str = "llvm", leak_free: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, ...]:
     """The threshold crossings of a block of per-pixel samples, on Dr.Jit's ``device``.
 
     The arguments are :func:`sim.pixel_sampling._pixel_events`'s (less its outputs), with the
@@ -357,15 +372,23 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
     refractory : int, ns
     tolerance_ns : float, ns
         Largest error of a crossing time solved on the filter's output
-        (:data:`sim.events.CROSSING_TOLERANCE_NS`, passed in: this module imports nothing of
-        :mod:`sim`, whose emulators import it).
+        (:data:`sim.events.CROSSING_TOLERANCE_NS`, passed in: :mod:`sim.events` imports this
+        module).
     device : {"llvm", "cuda"}
+    leak_free : (P,) float64 ndarray, optional
+        Each pixel's reference before the first interval's leak drift, where the caller
+        drifted ``ref`` before (the frame emulator); default ``ref`` (the drift, if any, is
+        the kernel's). A crossing beyond the count against the leak-free reference of its
+        interval, on its piece, is the leak's (:data:`sim.noise.CAUSE_LEAK`), the others the
+        signal's (:mod:`sim.noise`'s rule).
 
     Returns
     -------
     times : (N,) int64 ndarray, ns
     pixels : (N,) int64 ndarray
     polarities : (N,) int8 ndarray
+    causes : (N,) uint8 ndarray
+        :data:`~sim.noise.CAUSE_SIGNAL` or :data:`~sim.noise.CAUSE_LEAK`.
     keep : (N,) bool ndarray
         False for the crossings the refractory period drops.
         In (pixel, time) order, as the numba kernel gives them.
@@ -373,7 +396,7 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
     m = backend(device)
     if len(pix) == 0:
         return (np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.int8),
-                np.empty(0, np.bool_))
+                np.empty(0, np.uint8), np.empty(0, np.bool_))
     starts = np.flatnonzero(np.r_[True, pix[1:] != pix[:-1]])
     ends = np.r_[starts[1:], len(pix)]
     lane = _lanes(ends - starts)
@@ -392,6 +415,7 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
             on(m.UInt32, first_normal), on(m.Float64, ref[p]), on(m.Float64, level[p]),
             on(m.Float64, raw[p]), on(m.Int64, last_t[p]), on(m.Float64, c_on[p]),
             on(m.Float64, c_off[p]), on(m.Float64, leak_rates[p] if leaky else np.zeros(len(p))),
+            on(m.Float64, (ref if leak_free is None else leak_free)[p]),
             dr.zeros(m.UInt32, len(p))]
     flags = (float(leak_jitter), int(refractory), filtered, leaky, float(tolerance_ns))
     # The counting launch leaves every run at its end (only ``last_t`` waits for the writing).
@@ -414,6 +438,7 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
         last = _kernel(m, samples, runs, out, *flags)[4]
         dr.eval(out, last)
         last_t[p[firing]] = last.numpy()
-    out_t, out_pix, out_p, keep = out
+    out_t, out_pix, out_p, out_cause, keep = out
     return (out_t.numpy()[:total], out_pix.numpy()[:total],
-            out_p.numpy()[:total].astype(np.int8), keep.numpy()[:total])
+            out_p.numpy()[:total].astype(np.int8), out_cause.numpy()[:total],
+            keep.numpy()[:total])

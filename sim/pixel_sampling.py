@@ -63,11 +63,10 @@ from sim.events import (
     threshold_crossings,
 )
 from sim.noise import (
+    CAUSE_LEAK,
+    CAUSE_SIGNAL,
     _cutoff,
     _lowpass_exponent,
-    background_events,
-    hot_pixel_events,
-    merge_events,
 )
 from sim.sampling import SPLIT, SamplingParams, contrast_scale, motion_field
 
@@ -271,15 +270,19 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 @numba.njit(cache=True)
 def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
-                  refractory, out_t, out_pix, out_p, keep):  # pragma: no cover - compiled
+                  refractory, out_t, out_pix, out_p, out_cause,
+                  keep):  # pragma: no cover - compiled
     """Threshold crossings of per-pixel samples sorted by (pixel, time); the first sample of
     each pixel is its state at the block start. Returns their number and leaves each pixel's
     state (``ref``, ``level``, ``raw``, ``last_t``) at its last sample.
 
     One pass: the first ``len(out_t)`` crossings are written (time solved once, ``keep``
-    False for those the refractory period drops), the rest only counted (no time solved). A
-    return above ``len(out_t)`` means the outputs were too short: restore the state and call
-    again with outputs that long (:meth:`PixelEventEmulator._numba_crossings`).
+    False for those the refractory period drops, and each one's cause in ``out_cause``:
+    :data:`~sim.noise.CAUSE_LEAK` beyond the count against the leak-free reference of the
+    interval, the reference less its drift, on its piece; else
+    :data:`~sim.noise.CAUSE_SIGNAL`, the rule of :mod:`sim.noise`), the rest only counted (no
+    time solved). A return above ``len(out_t)`` means the outputs were too short: restore the
+    state and call again with outputs that long (:meth:`PixelEventEmulator._numba_crossings`).
 
     ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
     the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
@@ -308,6 +311,7 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
             lb = L[j]
             dt = tb - ta
             x = exponent[j - 1]
+            rf = r                                  # the interval's leak-free reference
             if leak_rates.size:
                 jitter = 1.0 - leak_jitter * normals[k]
                 if jitter < 0.0:
@@ -318,6 +322,8 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
             f_lo, y_lo, f_hi, y_hi = 0.0, lf, f_turn, y_turn
             while True:
                 count, c, sign = threshold_crossings(y_hi, r, c_on[p], c_off[p])
+                nf, cf, sf = threshold_crossings(y_hi, rf, c_on[p], c_off[p])
+                rf += nf * cf
                 if n + count <= capacity:
                     for i in range(1, count + 1):
                         te = filtered_crossing_time(r + i * c, lf, la, lb, x, f_lo, y_lo, f_hi,
@@ -325,6 +331,7 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
                         out_t[n] = te
                         out_pix[n] = p
                         out_p[n] = sign
+                        out_cause[n] = CAUSE_LEAK if sf != sign or i > nf else CAUSE_SIGNAL
                         if refractory > 0 and te - last < refractory:
                             keep[n] = False
                         else:
@@ -347,11 +354,11 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
     return n
 
 
-def _outputs(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Times (int64 ns), flat pixels (int64), polarities (int8) and keep flags of ``n``
-    crossings."""
+def _outputs(n: int) -> tuple[np.ndarray, ...]:
+    """Times (int64 ns), flat pixels (int64), polarities (int8), causes (uint8) and keep
+    flags of ``n`` crossings."""
     return np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int8), \
-        np.empty(n, np.bool_)
+        np.empty(n, np.uint8), np.empty(n, np.bool_)
 
 
 class PixelEventEmulator(EventEmulator):
@@ -449,22 +456,23 @@ class PixelEventEmulator(EventEmulator):
                 exponent = _lowpass_exponent(dt * 1e-9, cutoff[:-1], cutoff[1:])
                 exponent[~same] = np.inf
             crossings = self._numba_crossings((pixels, times_ns, levels, exponent, *state))
-        out_t, out_pix, out_p, keep = crossings
+        out_t, out_pix, out_p, out_cause, keep = crossings
         if refractory > 0 and not keep.all():
-            out_t, out_pix, out_p = out_t[keep], out_pix[keep], out_p[keep]
+            out_t, out_pix, out_p, out_cause = (out_t[keep], out_pix[keep], out_p[keep],
+                                                out_cause[keep])
         order = np.argsort((out_t - t0_ns) * n_pixels + out_pix)
         total = len(order)
         events = np.empty(total, EVENT_DTYPE)
         events["t"] = out_t[order]
         events["y"], events["x"] = np.divmod(out_pix[order], shape[1])
         events["p"] = out_p[order]
-        return self._close_block(events, t0_ns, t_end_ns, end_luminance)
+        return self._close_block(events, t0_ns, t_end_ns, end_luminance, out_cause[order])
 
     def _numba_crossings(self, args: tuple) -> tuple[np.ndarray, ...]:
         """:func:`_pixel_events` in one pass, with outputs sized from the last block's count
         (twice it, at least 4,096); when they are too short, the pixels' state is restored
         and the kernel runs again with outputs of the exact size. Returns the crossings'
-        times, pixels, polarities and keep flags, in (pixel, time) order."""
+        times, pixels, polarities, causes and keep flags, in (pixel, time) order."""
         state = args[4:8]                                   # ref, level, raw, last_t
         saved = [a.copy() for a in state]
         outputs = _outputs(max(2 * self._last_count, 4096))
@@ -499,9 +507,10 @@ class PixelEventEmulator(EventEmulator):
                 (self.leak_rates.reshape(-1), float(noise.leak_jitter)))
 
     def _close_block(self, events: np.ndarray, t0_ns: int, t_end_ns: int,
-                     end_luminance: np.ndarray) -> np.ndarray:
+                     end_luminance: np.ndarray, causes: np.ndarray | None = None) -> np.ndarray:
         """A block's crossing events with its shot-noise and hot-pixel events merged in (drawn
-        in that order from the emulator's generator), and the emulator moved to ``t_end_ns``.
+        in that order from the emulator's generator; :attr:`last_causes` set), and the
+        emulator moved to ``t_end_ns``.
 
         Parameters
         ----------
@@ -511,18 +520,17 @@ class PixelEventEmulator(EventEmulator):
             The block's start and end, ns.
         end_luminance : (H, W) ndarray
             Each pixel's luminance at ``t_end_ns``, cd/m^2.
+        causes : (N,) uint8 ndarray, optional
+            Each crossing's cause (default all :data:`~sim.noise.CAUSE_SIGNAL`).
 
         Returns
         -------
         EVENT_DTYPE ndarray
         """
-        noise = self.params.noise
-        if noise.shot_noise_rate > 0:
-            events = merge_events(events, background_events(
-                t0_ns, t_end_ns, np.asarray(end_luminance, np.float64), noise, self._rng))
-        if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
-            events = merge_events(events, hot_pixel_events(t0_ns, t_end_ns, self.hot_mask,
-                                                           noise.hot_pixel_rate, self._rng))
+        if causes is None:
+            causes = np.full(len(events), CAUSE_SIGNAL, np.uint8)
+        events = self._with_noise(events, causes, t0_ns, t_end_ns,
+                                  np.asarray(end_luminance, np.float64))
         self._cutoff = self._cutoff_at(self._raw, end_luminance)
         self._t = int(t_end_ns)
         return events

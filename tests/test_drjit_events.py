@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from sim.events import EventEmulator, EventParams
-from sim.noise import noise_preset
+from sim.noise import CAUSE_LEAK, noise_preset
 from sim.pixel_sampling import PixelEventEmulator
 from tests.test_emulator_reference import EPS, NOISY, SHAPE, _blocks
 
@@ -49,8 +49,11 @@ def _run(kernel: str, noise, seed: int = 1) -> tuple[list[np.ndarray], dict]:
     emulator = PixelEventEmulator(SHAPE, params, kernel=kernel)
     assert emulator.kernel == kernel
     emulator.start(np.log(start + EPS), 0.0, start)
-    return [emulator.advance_samples(*block) for block in _with_ramps(blocks)], \
-        emulator.get_state()
+    events = []
+    for block in _with_ramps(blocks):
+        events.append(emulator.advance_samples(*block))
+        events.append(emulator.last_causes)              # each event's cause, in order
+    return events, emulator.get_state()
 
 
 @pytest.mark.parametrize("noise", [noise_preset("ideal"), UNFILTERED],
@@ -59,13 +62,15 @@ def test_without_the_low_pass_the_drjit_kernel_gives_the_numba_kernels_events_bi
         noise):
     numba_events, numba_state = _run("numba", noise, seed=2)
     drjit_events, drjit_state = _run("drjit", noise, seed=2)
-    assert sum(len(e) for e in numba_events) > 100
+    assert sum(len(e) for e in numba_events[0::2]) > 100
     # the ramp's interval fires several events of one pixel
     first = numba_events[0]
     assert np.count_nonzero((first["x"] == 0) & (first["y"] == 0) & (first["p"] > 0)) >= 3
     assert np.count_nonzero((first["x"] == 0) & (first["y"] == 0) & (first["p"] < 0)) >= 3
-    for a, b in zip(numba_events, drjit_events, strict=True):
+    for a, b in zip(numba_events, drjit_events, strict=True):        # events, then causes
         np.testing.assert_array_equal(a, b)
+    if noise.leak_rate > 0:                                  # the leak's events are told apart
+        assert np.any(np.concatenate(numba_events[1::2]) == CAUSE_LEAK)
     for key in ("ref", "level", "raw", "cutoff", "last_t"):
         np.testing.assert_array_equal(numba_state[key], drjit_state[key])
     assert numba_state["rng"] == drjit_state["rng"]
@@ -75,14 +80,21 @@ def test_without_the_low_pass_the_drjit_kernel_gives_the_numba_kernels_events_bi
 def test_with_the_low_pass_the_drjit_kernel_is_within_its_stated_bound(noise):
     numba_events, numba_state = _run("numba", noise)
     drjit_events, drjit_state = _run("drjit", noise)
-    assert sum(len(e) for e in numba_events) > 100
-    for a, b in zip(numba_events, drjit_events, strict=True):
-        assert len(a) == len(b)
-        assert np.abs(a["t"] - b["t"]).max(initial=0) <= 1
-        # ties within 1 ns may swap places: compare as sets of (pixel, polarity)
-        np.testing.assert_array_equal(np.sort(a[["y", "x", "p"]]), np.sort(b[["y", "x", "p"]]))
+    assert sum(len(e) for e in numba_events[0::2]) > 100
+    _assert_within_bound(numba_events, drjit_events)
     np.testing.assert_allclose(drjit_state["level"], numba_state["level"], rtol=0, atol=1e-12)
     np.testing.assert_array_equal(drjit_state["ref"], numba_state["ref"])
+
+
+def _assert_within_bound(numba_events: list, drjit_events: list) -> None:
+    """The same events, each within 1 ns (ties within 1 ns may swap places: pixels and
+    polarities compared as sets, causes as counts)."""
+    for a, b in zip(numba_events[0::2], drjit_events[0::2], strict=True):
+        assert len(a) == len(b)
+        assert np.abs(a["t"] - b["t"]).max(initial=0) <= 1
+        np.testing.assert_array_equal(np.sort(a[["y", "x", "p"]]), np.sort(b[["y", "x", "p"]]))
+    for a, b in zip(numba_events[1::2], drjit_events[1::2], strict=True):
+        np.testing.assert_array_equal(np.bincount(a, minlength=4), np.bincount(b, minlength=4))
 
 
 def test_a_block_without_crossings_leaves_the_levels_and_fires_nothing():
@@ -142,8 +154,11 @@ def _frame_events(kernel: str, noise) -> tuple[list[np.ndarray], dict]:
         contrast_on=0.2, contrast_off=0.25, log_eps=EPS, noise=noise, seed=3), kernel=kernel)
     assert emulator.kernel == kernel
     emulator.start(logs[0], times[0])
-    return [emulator.advance(frame, t) for frame, t in zip(logs[1:], times[1:], strict=True)], \
-        emulator.get_state()
+    events = []
+    for frame, t in zip(logs[1:], times[1:], strict=True):
+        events.append(emulator.advance(frame, t))
+        events.append(emulator.last_causes)              # each event's cause, in order
+    return events, emulator.get_state()
 
 
 @pytest.mark.parametrize("noise", [noise_preset("ideal"), UNFILTERED, noise_preset("realistic"),
@@ -153,12 +168,14 @@ def test_the_frame_emulator_on_drjit_gives_the_numba_kernels_events(noise):
     bit for bit, with it within the stated bound."""
     numba_events, numba_state = _frame_events("numba", noise)
     drjit_events, drjit_state = _frame_events("drjit", noise)
-    assert sum(len(e) for e in numba_events) > 100
-    for a, b in zip(numba_events, drjit_events, strict=True):
-        if noise.cutoff_hz == 0:
+    assert sum(len(e) for e in numba_events[0::2]) > 100
+    if noise.cutoff_hz == 0:
+        for a, b in zip(numba_events, drjit_events, strict=True):     # events, then causes
             np.testing.assert_array_equal(a, b)
-        else:
-            assert len(a) == len(b) and np.abs(a["t"] - b["t"]).max(initial=0) <= 1
+        if noise.leak_rate > 0:                              # the leak's events told apart
+            assert np.any(np.concatenate(numba_events[1::2]) == CAUSE_LEAK)
+    else:
+        _assert_within_bound(numba_events, drjit_events)
     for key in ("ref", "level", "raw", "cutoff", "last_t"):
         if noise.cutoff_hz == 0 or key != "level":
             np.testing.assert_array_equal(numba_state[key], drjit_state[key])
