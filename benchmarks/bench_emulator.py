@@ -14,9 +14,10 @@
    kernel (``after``: one pass) and with its Dr.Jit kernel (``drjit``,
    :mod:`sim._drjit_events`, on the device of the variant that rendered: every core on
    ``llvm_ad_rgb``). ``before`` and ``after`` must give identical events; the Dr.Jit kernel's
-   are compared with them (identical, or the largest time difference). The ratios of their
-   seconds are the speed-ups; where ``after``'s seconds go is printed too (leak draws, the
-   kernel, noise events, and the rest: exponents, sort by time, packing).
+   are compared with them (identical, with ``after``'s causes too, or the largest time
+   difference). The ratios of their seconds are the speed-ups; where ``after``'s seconds go
+   is printed too (leak draws, the kernel, noise events, and the rest: exponents, sort by
+   time, packing).
 3. The frame sampler's first :data:`FRAME_INTERVALS` frames of each run in (1), replayed
    through the frame emulator with its numba kernel (one thread, as in ``simulate``) and with
    its Dr.Jit kernel: their seconds, ratio and events (identical, or the largest time
@@ -198,26 +199,28 @@ def replay(row: dict, record: list, repeats: int) -> dict:
     paths = {"before": ("numba", _serial_advance_samples),
              "after": ("numba", PixelEventEmulator.advance_samples),
              "drjit": ("drjit", PixelEventEmulator.advance_samples)}
-    seconds, events, stages = {}, {}, {}
+    seconds, events, causes, stages = {}, {}, {}, {}
     for name, (kernel, method) in paths.items():
         emulator = PixelEventEmulator(row["shape"], row["params"], kernel=kernel)
         emulator.warm_up()
         _serial_advance_samples(*_warm_serial(row))
         best = np.inf
         for _ in range(repeats):
-            total, chunks = 0.0, []
+            total, chunks, labels = 0.0, [], []
             timers = _stages(emulator) if name == "after" else None
             for state, args in record:
                 emulator.set_state(copy.deepcopy(state))
                 tick = time.perf_counter()
                 chunks.append(method(emulator, *args))
                 total += time.perf_counter() - tick
+                labels.append(emulator.last_causes)
             if total < best and timers is not None:
                 stages = {**timers, "exponents, sort, pack": total - sum(timers.values())}
             best = min(best, total)
             _unwrap(emulator)
         seconds[name] = best
         events[name] = np.concatenate(chunks)
+        causes[name] = np.concatenate(labels)
     before, drjit = events["before"], events["drjit"]
     same_count = len(drjit) == len(before)
     return {"blocks": len(record), "samples": int(sum(len(args[0]) for _, args in record)),
@@ -226,7 +229,8 @@ def replay(row: dict, record: list, repeats: int) -> dict:
             "speedup": seconds["before"] / seconds["after"],
             "identical": np.array_equal(before, events["after"]),
             "drjit_over_numba": seconds["drjit"] / seconds["after"],
-            "drjit_identical": np.array_equal(before, drjit),
+            "drjit_identical": np.array_equal(before, drjit)
+            and np.array_equal(causes["after"], causes["drjit"]),
             "drjit_same_count": same_count,
             "drjit_max_dt_ns": int(np.abs(drjit["t"] - before["t"]).max(initial=0))
             if same_count else None,
@@ -237,7 +241,7 @@ def replay_frames(row: dict, record: list, repeats: int) -> dict:
     """Seconds of the frame emulator over the recorded frames (best of ``repeats``, numba on
     one thread as in ``simulate``) with its numba kernel and with its Dr.Jit kernel, and
     whether their events are identical (else the largest time difference, ns)."""
-    seconds, events = {}, {}
+    seconds, events, causes = {}, {}, {}
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
     try:
@@ -246,21 +250,25 @@ def replay_frames(row: dict, record: list, repeats: int) -> dict:
             emulator.warm_up()
             best = np.inf
             for _ in range(repeats):
-                total, chunks = 0.0, []
+                total, chunks, labels = 0.0, [], []
                 for state, args in record:
                     emulator.set_state(copy.deepcopy(state))
                     tick = time.perf_counter()
                     chunks.append(emulator.advance(*args))
                     total += time.perf_counter() - tick
+                    labels.append(emulator.last_causes)
                 best = min(best, total)
             seconds[kernel], events[kernel] = best, np.concatenate(chunks)
+            causes[kernel] = np.concatenate(labels)
     finally:
         numba.set_num_threads(threads)
     a, b = events["numba"], events["drjit"]
     same_count = len(a) == len(b)
     return {"frames": len(record), "numba_s": seconds["numba"], "drjit_s": seconds["drjit"],
             "drjit_over_numba": seconds["drjit"] / seconds["numba"],
-            "drjit_identical": np.array_equal(a, b), "drjit_same_count": same_count,
+            "drjit_identical": np.array_equal(a, b)
+            and np.array_equal(causes["numba"], causes["drjit"]),
+            "drjit_same_count": same_count,
             "drjit_max_dt_ns": int(np.abs(a["t"] - b["t"]).max(initial=0))
             if same_count else None}
 
