@@ -61,7 +61,7 @@ _MAX_NEWTON_STEPS = 200
 """As :func:`sim.noise.ramp_crossing`."""
 
 
-def backend(device: str) -> ModuleType:
+def _backend(device: str) -> ModuleType:
     """Dr.Jit's array module of ``device`` (``drjit.llvm`` or ``drjit.cuda``)."""
     if device == "cuda":
         import drjit.cuda as module
@@ -393,7 +393,7 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
         False for the crossings the refractory period drops.
         In (pixel, time) order, as the numba kernel gives them.
     """
-    m = backend(device)
+    m = _backend(device)
     if len(pix) == 0:
         return (np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.int8),
                 np.empty(0, np.uint8), np.empty(0, np.bool_))
