@@ -221,19 +221,14 @@ def replay(row: dict, record: list, repeats: int) -> dict:
         seconds[name] = best
         events[name] = np.concatenate(chunks)
         causes[name] = np.concatenate(labels)
-    before, drjit = events["before"], events["drjit"]
-    same_count = len(drjit) == len(before)
+    before = events["before"]
     return {"blocks": len(record), "samples": int(sum(len(args[0]) for _, args in record)),
             "crossings": len(before),
             **{f"{name}_s": value for name, value in seconds.items()},
             "speedup": seconds["before"] / seconds["after"],
             "identical": np.array_equal(before, events["after"]),
             "drjit_over_numba": seconds["drjit"] / seconds["after"],
-            "drjit_identical": np.array_equal(before, drjit)
-            and np.array_equal(causes["after"], causes["drjit"]),
-            "drjit_same_count": same_count,
-            "drjit_max_dt_ns": int(np.abs(drjit["t"] - before["t"]).max(initial=0))
-            if same_count else None,
+            **_agreement(before, causes["after"], events["drjit"], causes["drjit"]),
             "after_stages_s": stages}
 
 
@@ -262,15 +257,30 @@ def replay_frames(row: dict, record: list, repeats: int) -> dict:
             causes[kernel] = np.concatenate(labels)
     finally:
         numba.set_num_threads(threads)
-    a, b = events["numba"], events["drjit"]
-    same_count = len(a) == len(b)
     return {"frames": len(record), "numba_s": seconds["numba"], "drjit_s": seconds["drjit"],
             "drjit_over_numba": seconds["drjit"] / seconds["numba"],
-            "drjit_identical": np.array_equal(a, b)
-            and np.array_equal(causes["numba"], causes["drjit"]),
+            **_agreement(events["numba"], causes["numba"], events["drjit"], causes["drjit"])}
+
+
+def _agreement(events: np.ndarray, causes: np.ndarray, drjit: np.ndarray,
+               drjit_causes: np.ndarray) -> dict:
+    """Whether the Dr.Jit kernel's events and causes are the numba kernel's, and (same
+    number) the largest difference of their times, ns."""
+    same_count = len(drjit) == len(events)
+    return {"drjit_identical": np.array_equal(events, drjit)
+            and np.array_equal(causes, drjit_causes),
             "drjit_same_count": same_count,
-            "drjit_max_dt_ns": int(np.abs(a["t"] - b["t"]).max(initial=0))
+            "drjit_max_dt_ns": int(np.abs(drjit["t"] - events["t"]).max(initial=0))
             if same_count else None}
+
+
+def _agreement_text(result: dict) -> str:
+    """``identical``, ``within N ns`` or ``counts differ`` (:func:`_agreement`)."""
+    if result["drjit_identical"]:
+        return "identical"
+    if result["drjit_same_count"]:
+        return f"within {result['drjit_max_dt_ns']} ns"
+    return "counts differ"
 
 
 def _stages(emulator: PixelEventEmulator) -> dict:
@@ -340,19 +350,13 @@ def main(argv=None) -> dict:
                 f"{r['emulate_compile_s']:>8.3f} {r['emulate_over_render']:>10.2f} |")
         if "replay" in r:
             p = r["replay"]
-            agree = ("identical" if p["drjit_identical"] else
-                     f"within {p['drjit_max_dt_ns']} ns" if p["drjit_same_count"] else
-                     "counts differ")
             line += (f" {p['before_s']:>7.3f} {p['after_s']:>7.3f} "
                      f"{p['speedup']:>7.2f}x {p['identical']!s:>9} | {p['drjit_s']:>7.3f} "
-                     f"{p['drjit_over_numba']:>5.2f}x {agree}")
+                     f"{p['drjit_over_numba']:>5.2f}x {_agreement_text(p)}")
         if "frame_replay" in r:
             p = r["frame_replay"]
-            agree = ("identical" if p["drjit_identical"] else
-                     f"within {p['drjit_max_dt_ns']} ns" if p["drjit_same_count"] else
-                     "counts differ")
             line += (f" {p['frames']} frames: numba {p['numba_s']:.3f} | {p['drjit_s']:>7.3f} "
-                     f"{p['drjit_over_numba']:>5.2f}x {agree}")
+                     f"{p['drjit_over_numba']:>5.2f}x {_agreement_text(p)}")
         print(line)
     print("\nWhere the replay's 'after' seconds go (today's numba emulator), seconds")
     for r in rows:
