@@ -8,10 +8,20 @@
    third of ``event_render``.
 2. Before / after in the same run: every block the per-pixel emulator was fed in (1) is
    recorded with the emulator's state, then replayed through the emulator evfuse had before
-   (``_serial_advance_samples``, the code of commit c7d2105: every crossing time solved twice,
-   the low-pass exponents gathered and checked pixel pair by pixel pair) and through today's
-   :meth:`PixelEventEmulator.advance_samples`. Both must give identical events; the ratio of
-   their seconds is the speed-up.
+   (``_serial_advance_samples``, the code of commit c7d2105: a count pass then a write pass,
+   every crossing time solved twice, the low-pass exponents gathered and checked pixel pair
+   by pixel pair), through today's :meth:`PixelEventEmulator.advance_samples` with its numba
+   kernel (``after``: one pass) and with its Dr.Jit kernel (``drjit``,
+   :mod:`sim._drjit_events`, on the device of the variant that rendered: every core on
+   ``llvm_ad_rgb``). ``before`` and ``after`` must give identical events; the Dr.Jit kernel's
+   are compared with them (identical, with ``after``'s causes too, or the largest time
+   difference). The ratios of their seconds are the speed-ups; where ``after``'s seconds go
+   is printed too (leak draws, the kernel, noise events, and the rest: exponents, sort by
+   time, packing).
+3. The frame sampler's first :data:`FRAME_INTERVALS` frames of each run in (1), replayed
+   through the frame emulator with its numba kernel (one thread, as in ``simulate``) and with
+   its Dr.Jit kernel: their seconds, ratio and events (identical, or the largest time
+   difference).
 
 Run: ``.venv/bin/python benchmarks/bench_emulator.py`` (about 1-2 minutes on 2 cores;
 ``--skip-frame`` leaves out the frame sampler's slow runs). Results are printed and written to
@@ -32,13 +42,21 @@ import numba
 import numpy as np
 
 from sim.eventio import EVENT_DTYPE
-from sim.events import EventParams, filtered_crossing_time, interval_levels, threshold_crossings
+from sim.events import (
+    EventEmulator,
+    EventParams,
+    filtered_crossing_time,
+    interval_levels,
+    threshold_crossings,
+)
 from sim.noise import _cutoff, lowpass_exponent
 from sim.pixel_sampling import PixelEventEmulator
 
 RESULTS = Path(__file__).resolve().parent / "results"
 CASES = [("slider_close", 0.0, 0.2), ("boxes_6dof", 3.5, 0.05)]
 """(scene, start s, duration s): the windows issue 23 measures."""
+FRAME_INTERVALS = 200
+"""Frames of each frame-sampler run replayed through both frame kernels (the first ones)."""
 
 
 @numba.njit(cache=True)
@@ -136,28 +154,32 @@ def _serial_advance_samples(self: PixelEventEmulator, pixels, times_ns, levels, 
 
 def run_case(scene_name: str, start: float, duration: float, sampler: str, noise: str,
              record: list | None) -> dict:
-    """One ``simulate`` run; its stage timings, and (per-pixel sampler, ``record`` a list) the
-    blocks the emulator was fed in, each with the emulator's state before it."""
+    """One ``simulate`` run; its stage timings, and (``record`` a list) what the emulator was
+    fed, each with the emulator's state before it: every block (per-pixel sampler), or the
+    first :data:`FRAME_INTERVALS` frames (frame sampler)."""
     from scenes import resolve_scene
     from sim.scene import load_scene
     from sim.simulate import simulate
 
     scene = load_scene(resolve_scene(scene_name))
-    advance = PixelEventEmulator.advance_samples
+    owner, name = ((PixelEventEmulator, "advance_samples") if sampler == "pixel" else
+                   (EventEmulator, "advance"))
+    advance = getattr(owner, name)
 
     def recording(self, *args):
-        if record is not None and self.shape != (1, 2):              # not warm_up's sensor
+        if (record is not None and self.shape != (1, 2)              # not warm_up's sensor
+                and (sampler == "pixel" or len(record) < FRAME_INTERVALS)):
             record.append((copy.deepcopy(self.get_state()), copy.deepcopy(args)))
         return advance(self, *args)
 
-    PixelEventEmulator.advance_samples = recording
+    setattr(owner, name, recording)
     try:
         with tempfile.TemporaryDirectory() as tmp:
             result = simulate(scene, Path(tmp) / "seq", start=start, duration=duration,
                               progress=False, sampler=sampler, motion_truth=False,
                               events=EventParams.preset(noise, seed=scene.seed))
     finally:
-        PixelEventEmulator.advance_samples = advance
+        setattr(owner, name, advance)
     t = result.timings
     return {"scene": scene_name, "start_s": start, "duration_s": duration, "sampler": sampler,
             "noise": noise, "events": result.n_events, "event_render_s": t["event_render"],
@@ -171,29 +193,121 @@ def run_case(scene_name: str, start: float, duration: float, sampler: str, noise
 
 def replay(row: dict, record: list, repeats: int) -> dict:
     """Seconds of the emulator over the recorded blocks (best of ``repeats``) through the
-    code of c7d2105 (``before``) and today's (``after``), and whether their events are
-    identical."""
-    paths = {"before": _serial_advance_samples, "after": PixelEventEmulator.advance_samples}
-    seconds, events = {}, {}
-    for name, method in paths.items():
-        emulator = PixelEventEmulator(row["shape"], row["params"])
+    code of c7d2105 (``before``), today's numba kernel (``after``) and today's Dr.Jit kernel on
+    the active variant's device (``drjit``); whether their events are identical (else the
+    largest time difference, ns); and where ``after``'s seconds go (:func:`_stages`)."""
+    paths = {"before": ("numba", _serial_advance_samples),
+             "after": ("numba", PixelEventEmulator.advance_samples),
+             "drjit": ("drjit", PixelEventEmulator.advance_samples)}
+    seconds, events, causes, stages = {}, {}, {}, {}
+    for name, (kernel, method) in paths.items():
+        emulator = PixelEventEmulator(row["shape"], row["params"], kernel=kernel)
         emulator.warm_up()
         _serial_advance_samples(*_warm_serial(row))
         best = np.inf
         for _ in range(repeats):
-            total, chunks = 0.0, []
+            total, chunks, labels = 0.0, [], []
+            timers = _stages(emulator) if name == "after" else None
             for state, args in record:
                 emulator.set_state(copy.deepcopy(state))
                 tick = time.perf_counter()
                 chunks.append(method(emulator, *args))
                 total += time.perf_counter() - tick
+                labels.append(emulator.last_causes)
+            if total < best and timers is not None:
+                stages = {**timers, "exponents, sort, pack": total - sum(timers.values())}
             best = min(best, total)
+            _unwrap(emulator)
         seconds[name] = best
         events[name] = np.concatenate(chunks)
+        causes[name] = np.concatenate(labels)
+    before = events["before"]
     return {"blocks": len(record), "samples": int(sum(len(args[0]) for _, args in record)),
+            "crossings": len(before),
             **{f"{name}_s": value for name, value in seconds.items()},
             "speedup": seconds["before"] / seconds["after"],
-            "identical": all(np.array_equal(events["before"], e) for e in events.values())}
+            "identical": np.array_equal(before, events["after"]),
+            "drjit_over_numba": seconds["drjit"] / seconds["after"],
+            **_agreement(before, causes["after"], events["drjit"], causes["drjit"]),
+            "after_stages_s": stages}
+
+
+def replay_frames(row: dict, record: list, repeats: int) -> dict:
+    """Seconds of the frame emulator over the recorded frames (best of ``repeats``, numba on
+    one thread as in ``simulate``) with its numba kernel and with its Dr.Jit kernel, and
+    whether their events are identical (else the largest time difference, ns)."""
+    seconds, events, causes = {}, {}, {}
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        for kernel in ("numba", "drjit"):
+            emulator = EventEmulator(row["shape"], row["params"], kernel=kernel)
+            emulator.warm_up()
+            best = np.inf
+            for _ in range(repeats):
+                total, chunks, labels = 0.0, [], []
+                for state, args in record:
+                    emulator.set_state(copy.deepcopy(state))
+                    tick = time.perf_counter()
+                    chunks.append(emulator.advance(*args))
+                    total += time.perf_counter() - tick
+                    labels.append(emulator.last_causes)
+                best = min(best, total)
+            seconds[kernel], events[kernel] = best, np.concatenate(chunks)
+            causes[kernel] = np.concatenate(labels)
+    finally:
+        numba.set_num_threads(threads)
+    return {"frames": len(record), "numba_s": seconds["numba"], "drjit_s": seconds["drjit"],
+            "drjit_over_numba": seconds["drjit"] / seconds["numba"],
+            **_agreement(events["numba"], causes["numba"], events["drjit"], causes["drjit"])}
+
+
+def _agreement(events: np.ndarray, causes: np.ndarray, drjit: np.ndarray,
+               drjit_causes: np.ndarray) -> dict:
+    """Whether the Dr.Jit kernel's events and causes are the numba kernel's, and (same
+    number) the largest difference of their times, ns."""
+    same_count = len(drjit) == len(events)
+    return {"drjit_identical": np.array_equal(events, drjit)
+            and np.array_equal(causes, drjit_causes),
+            "drjit_same_count": same_count,
+            "drjit_max_dt_ns": int(np.abs(drjit["t"] - events["t"]).max(initial=0))
+            if same_count else None}
+
+
+def _agreement_text(result: dict) -> str:
+    """``identical``, ``within N ns`` or ``counts differ`` (:func:`_agreement`)."""
+    if result["drjit_identical"]:
+        return "identical"
+    if result["drjit_same_count"]:
+        return f"within {result['drjit_max_dt_ns']} ns"
+    return "counts differ"
+
+
+def _stages(emulator: PixelEventEmulator) -> dict:
+    """Time the emulator's steps of a block on this instance (its leak draws, the kernel's
+    crossings, the block's noise events and close); returns the dict their seconds add up in
+    (the rest of :meth:`~PixelEventEmulator.advance_samples` is the low-pass exponents, the
+    sort by time and the packing into events)."""
+    timers = {"leak draws": 0.0, "kernel": 0.0, "noise events, close": 0.0}
+    for key, name in (("leak draws", "_leak_draws"), ("kernel", "_numba_crossings"),
+                      ("noise events, close", "_close_block")):
+        method = getattr(emulator, name)
+
+        def timed(*args, _method=method, _key=key):
+            tick = time.perf_counter()
+            try:
+                return _method(*args)
+            finally:
+                timers[_key] += time.perf_counter() - tick
+
+        setattr(emulator, name, timed)
+    return timers
+
+
+def _unwrap(emulator: PixelEventEmulator) -> None:
+    """Undo :func:`_stages` on ``emulator``."""
+    for name in ("_leak_draws", "_numba_crossings", "_close_block"):
+        emulator.__dict__.pop(name, None)
 
 
 def _warm_serial(row: dict) -> tuple:
@@ -217,17 +331,19 @@ def main(argv=None) -> dict:
         for sampler in ("pixel",) + (() if args.skip_frame else ("frame",)):
             for noise in ("ideal", "realistic"):
                 record: list = []
-                row = run_case(scene, start, duration, sampler, noise,
-                               record if sampler == "pixel" else None)
-                if record:
+                row = run_case(scene, start, duration, sampler, noise, record)
+                if sampler == "pixel":
                     row["replay"] = replay(row, record, args.repeats)
+                else:
+                    row["frame_replay"] = replay_frames(row, record, args.repeats)
                 del row["params"], row["shape"]
                 rows.append(row)
     print(f"\nThe event camera's stages on {rows[0]['variant']} ({os.cpu_count()} cores), "
           "simulate --no-motion-truth, seconds")
     print(f"{'scene':>13} {'sampler':>7} {'noise':>9} {'events':>8} {'render':>7} "
           f"{'emulate':>8} {'sample':>7} {'compile':>8} {'emu/render':>10} | replay: "
-          f"{'before':>7} {'after':>7} {'speed-up':>8} identical")
+          f"{'before':>7} {'after':>7} {'speed-up':>8} identical | {'drjit':>7} "
+          f"{'/after':>6} drjit events")
     for r in rows:
         line = (f"{r['scene']:>13} {r['sampler']:>7} {r['noise']:>9} {r['events']:>8} "
                 f"{r['event_render_s']:>7.3f} {r['emulate_s']:>8.3f} {r['event_sample_s']:>7.3f} "
@@ -235,11 +351,22 @@ def main(argv=None) -> dict:
         if "replay" in r:
             p = r["replay"]
             line += (f" {p['before_s']:>7.3f} {p['after_s']:>7.3f} "
-                     f"{p['speedup']:>7.2f}x {p['identical']}")
+                     f"{p['speedup']:>7.2f}x {p['identical']!s:>9} | {p['drjit_s']:>7.3f} "
+                     f"{p['drjit_over_numba']:>5.2f}x {_agreement_text(p)}")
+        if "frame_replay" in r:
+            p = r["frame_replay"]
+            line += (f" {p['frames']} frames: numba {p['numba_s']:.3f} | {p['drjit_s']:>7.3f} "
+                     f"{p['drjit_over_numba']:>5.2f}x {_agreement_text(p)}")
         print(line)
+    print("\nWhere the replay's 'after' seconds go (today's numba emulator), seconds")
+    for r in rows:
+        if "replay" in r:
+            stages = ", ".join(f"{k} {v:.3f}" for k, v in r["replay"]["after_stages_s"].items())
+            print(f"{r['scene']:>13} {r['noise']:>9}: {stages}")
     result = {"cores": os.cpu_count(), "rows": rows,
               "note": "emulate_over_render goal: < 1/3; replay: the same blocks through the "
-                      "emulator of c7d2105 (before) and today's (after), best of "
+                      "emulator of c7d2105 (before), today's numba kernel (after) and today's "
+                      "Dr.Jit kernel on the variant's device (drjit), best of "
                       f"{args.repeats}, in the process that rendered them"}
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "emulator.json").write_text(json.dumps(result, indent=2))

@@ -80,6 +80,9 @@ __all__ = [
 ]
 
 
+KERNELS = ("auto", "numba", "drjit")
+"""The values of an emulator's ``kernel`` (:class:`EventEmulator`)."""
+
 _STATE_ARRAYS = ("ref", "level", "raw", "cutoff", "last_t")
 """The arrays of :meth:`EventEmulator.get_state`."""
 
@@ -318,6 +321,15 @@ class EventEmulator:
         Sensor height and width.
     params : EventParams, optional
         Default: the ``ideal`` preset, C = 0.2.
+    kernel : {"auto", "numba", "drjit"}
+        Where the threshold crossings are solved: ``numba``, the compiled kernels here (this
+        class: threads over rows; :class:`~sim.pixel_sampling.PixelEventEmulator`: one
+        thread); ``drjit``, :func:`sim._drjit_events.pixel_events` on the device of the
+        active Mitsuba variant (every core with ``llvm_*``, the GPU with ``cuda_*``);
+        ``auto`` (default), ``drjit`` under a ``cuda_*`` variant (the renders' device) and
+        ``numba`` otherwise, the faster of the two on the 2-core development machine
+        (``benchmarks/bench_emulator.py``). Both give identical events without the
+        photoreceptor low-pass; with it, within the bound :mod:`sim._drjit_events` states.
 
     Examples
     --------
@@ -331,13 +343,27 @@ class EventEmulator:
         Wall time spent in :meth:`start` and :meth:`advance` (and
         :meth:`~sim.pixel_sampling.PixelEventEmulator.advance_samples`) so far; not
         :meth:`warm_up`'s.
+    kernel : str
+        ``numba`` or ``drjit``, as resolved.
     last_causes : (N,) uint8 ndarray
         The cause of each event the last :meth:`advance` (or ``advance_samples``) returned,
         in the same order: :data:`sim.noise.CAUSE_SIGNAL`, ``CAUSE_SHOT``, ``CAUSE_LEAK`` or
         ``CAUSE_HOT_PIXEL`` (the rule: :mod:`sim.noise`'s docstring). Empty before.
     """
 
-    def __init__(self, shape: tuple[int, int], params: EventParams | None = None):
+    def __init__(self, shape: tuple[int, int], params: EventParams | None = None,
+                 kernel: str = "auto"):
+        if kernel not in KERNELS:
+            raise ValueError(f"{type(self).__name__}.kernel must be one of {KERNELS}, got "
+                             f"{kernel!r}")
+        self._device = "llvm"
+        if kernel != "numba":           # (Dr.Jit loads here, not with the package)
+            from sim._drjit_events import active_device
+
+            self._device = active_device()
+        if kernel == "auto":
+            kernel = "drjit" if self._device == "cuda" else "numba"
+        self.kernel = kernel
         self.params = params or EventParams()
         self.shape = (int(shape[0]), int(shape[1]))
         noise = self.params.noise
@@ -361,7 +387,7 @@ class EventEmulator:
         threads, on a throwaway 1x2 sensor with these parameters, so that the first interval
         does not pay for it; this emulator's state is untouched. Returns the seconds it took."""
         tick = time.perf_counter()
-        spare = type(self)((1, 2), self.params)
+        spare = type(self)((1, 2), self.params, self.kernel)
         spare.start(np.zeros((1, 2)), 0.0)
         spare.advance(np.array([[0.0, 1.0]]), 1e-3)
         return time.perf_counter() - tick
@@ -505,8 +531,12 @@ class EventEmulator:
             leak_free = self.ref.copy()
             self.ref += leak_drift(dt_ns * 1e-9, self.c_on, self.leak_rates, noise, self._rng)
         raw = L1
-        events, causes, L1 = self._crossings(self._L, self._raw, raw, x, self._t, dt_ns,
-                                             leak_free)
+        if self.kernel == "drjit":
+            events, causes, L1 = self._drjit_crossings(
+                raw, cutoff if noise.cutoff_hz > 0 else None, self._t, dt_ns, leak_free)
+        else:
+            events, causes, L1 = self._crossings(self._L, self._raw, raw, x, self._t, dt_ns,
+                                                 leak_free)
         events = self._with_noise(events, causes, self._t, t1_ns, Y)
         self._L, self._raw, self._cutoff, self._t = L1, raw, cutoff, t1_ns
         return events
@@ -571,6 +601,41 @@ class EventEmulator:
         events = np.empty(len(order), EVENT_DTYPE)
         events["t"], events["x"], events["y"], events["p"] = t[order], xs[order], y[order], p[order]
         return events, cause[order], L1
+
+    def _drjit_crossings(self, raw1: np.ndarray, cutoff1: np.ndarray | None, t0_ns: int,
+                         dt_ns: int, leak_free: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_crossings` on Dr.Jit's device: the interval as a block of per-pixel samples,
+        two a pixel (:func:`sim._drjit_events.pixel_events`, the leak already moved into
+        ``ref``, ``leak_free`` the references before it or empty); ``cutoff1`` each pixel's
+        cutoff at the interval's end (None: no filter)."""
+        from sim._drjit_events import pixel_events
+
+        if not np.all(np.isfinite(raw1)):
+            raise ValueError("L1 has non-finite values; expected log intensities")
+        height, width = self.shape
+        n = height * width
+        ends = (self._raw.reshape(-1), raw1.reshape(-1))
+        cutoff = None if cutoff1 is None else np.stack(
+            (self._cutoff.reshape(-1), cutoff1.reshape(-1)), axis=1).reshape(-1)
+        level = np.array(self._L, dtype=np.float64).reshape(-1)       # becomes L1
+        raw = np.array(self._raw, dtype=np.float64).reshape(-1)
+        refractory = int(round(self.params.noise.refractory_period * 1e9))
+        t, pix, p, cause, keep = pixel_events(
+            np.repeat(np.arange(n, dtype=np.int64), 2),
+            np.tile(np.array([t0_ns, t0_ns + dt_ns], np.int64), n),
+            np.stack(ends, axis=1).reshape(-1), cutoff, self.ref.reshape(-1), level, raw,
+            self._last_t.reshape(-1), self.c_on.reshape(-1), self.c_off.reshape(-1),
+            (np.zeros(0), 0.0), np.zeros(0), refractory, CROSSING_TOLERANCE_NS,
+            device=self._device, leak_free=leak_free.reshape(-1) if leak_free.size else None)
+        # The order of _crossings: time, ties in pixel order.
+        order = np.argsort((t - t0_ns) * n + pix)
+        if refractory > 0:
+            order = order[keep[order]]
+        events = np.empty(len(order), EVENT_DTYPE)
+        events["t"], events["p"] = t[order], p[order]
+        events["y"], events["x"] = np.divmod(pix[order], width)
+        return events, cause[order], level.reshape(self.shape)
 
 
 def _check_stack(log_frames, times) -> tuple[np.ndarray, np.ndarray]:

@@ -54,7 +54,9 @@ import numpy as np
 from sim.camera import Camera
 from sim.eventio import EVENT_DTYPE
 from sim.events import (
+    CROSSING_TOLERANCE_NS,
     EventEmulator,
+    EventParams,
     clocked,
     filtered_crossing_time,
     interval_levels,
@@ -268,15 +270,19 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 @numba.njit(cache=True)
 def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
-                  refractory, write, out_t, out_pix, out_p, out_cause,
+                  refractory, out_t, out_pix, out_p, out_cause,
                   keep):  # pragma: no cover - compiled
     """Threshold crossings of per-pixel samples sorted by (pixel, time); the first sample of
-    each pixel is its state at the block start. Returns their number; counts only (no
-    crossing time is solved, the state is left alone) unless ``write``, which writes them,
-    with ``keep`` False for those the refractory period drops (each time is solved once),
-    and each one's cause in ``out_cause`` (:data:`~sim.noise.CAUSE_LEAK` beyond the count
-    against the leak-free reference of the interval, the reference less its drift, on its
-    piece; else :data:`~sim.noise.CAUSE_SIGNAL`: the rule of :mod:`sim.noise`).
+    each pixel is its state at the block start. Returns their number and leaves each pixel's
+    state (``ref``, ``level``, ``raw``, ``last_t``) at its last sample.
+
+    One pass: the first ``len(out_t)`` crossings are written (time solved once, ``keep``
+    False for those the refractory period drops, and each one's cause in ``out_cause``:
+    :data:`~sim.noise.CAUSE_LEAK` beyond the count against the leak-free reference of the
+    interval, the reference less its drift, on its piece; else
+    :data:`~sim.noise.CAUSE_SIGNAL`, the rule of :mod:`sim.noise`), the rest only counted (no
+    time solved). A return above ``len(out_t)`` means the outputs were too short: restore the
+    state and call again with outputs that long (:meth:`PixelEventEmulator._numba_crossings`).
 
     ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
     the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
@@ -286,8 +292,10 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
     workers (:func:`sim.simulate._events._event_stage`), and a parallel version (spans of whole
     pixels over numba's threads, the same events) was slower than this one on the 2-core
     development machine even in a process without Dr.Jit (boxes_6dof's realistic blocks, 0.8 M
-    samples each: 0.40 s against 0.24 s for five).
+    samples each: 0.40 s against 0.24 s for five). The same kernel on Dr.Jit's device (every
+    core or the GPU) is :func:`sim._drjit_events.pixel_events`.
     """
+    capacity = len(out_t)
     j, end, k, n = 0, len(pix), 0, 0
     leak_rates, leak_jitter = leak
     while j < end:
@@ -314,9 +322,9 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
             f_lo, y_lo, f_hi, y_hi = 0.0, lf, f_turn, y_turn
             while True:
                 count, c, sign = threshold_crossings(y_hi, r, c_on[p], c_off[p])
-                if write:
-                    nf, cf, sf = threshold_crossings(y_hi, rf, c_on[p], c_off[p])
-                    rf += nf * cf
+                nf, cf, sf = threshold_crossings(y_hi, rf, c_on[p], c_off[p])
+                rf += nf * cf
+                if n + count <= capacity:
                     for i in range(1, count + 1):
                         te = filtered_crossing_time(r + i * c, lf, la, lb, x, f_lo, y_lo, f_hi,
                                                     y_hi, ta, float(dt))
@@ -339,11 +347,10 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
             lf, la, ta = lf_new, lb, tb
             j += 1
             k += 1
-        if write:
-            ref[p] = r
-            level[p] = lf
-            raw[p] = la
-            last_t[p] = last
+        ref[p] = r
+        level[p] = lf
+        raw[p] = la
+        last_t[p] = last
     return n
 
 
@@ -360,13 +367,22 @@ class PixelEventEmulator(EventEmulator):
     The same sensor (thresholds, hot pixels, leak rates drawn from the seed in the same order),
     the same state (:meth:`get_state` / :meth:`set_state`) and the same models; only the
     samples differ: each pixel has its own times. :meth:`start` sets the first frame.
+
+    ``kernel`` (:class:`~sim.events.EventEmulator`): ``numba`` solves a block's crossings with
+    :func:`_pixel_events` on one CPU thread, ``drjit`` with
+    :func:`sim._drjit_events.pixel_events` on the variant's device.
     """
+
+    def __init__(self, shape: tuple[int, int], params: EventParams | None = None,
+                 kernel: str = "auto") -> None:
+        super().__init__(shape, params, kernel)
+        self._last_count = 0                 # the last block's crossings (sizes the outputs)
 
     def warm_up(self) -> float:
         """:meth:`EventEmulator.warm_up` for this emulator's kernel (a throwaway 1x2 sensor fed
         one block of per-pixel samples); this emulator's state is untouched."""
         tick = time.perf_counter()
-        spare = type(self)((1, 2), self.params)
+        spare = type(self)((1, 2), self.params, self.kernel)
         spare.start(np.zeros((1, 2)), 0.0)
         pixels = np.array([0, 0, 0, 1, 1], np.int64)
         times = np.array([0, 500_000, 1_000_000, 0, 1_000_000], np.int64)
@@ -414,9 +430,8 @@ class PixelEventEmulator(EventEmulator):
         ref, level, raw = self.ref.reshape(-1), self._L.reshape(-1), self._raw.reshape(-1)
         last_t = self._last_t.reshape(-1)
         normals, leak = self._leak_draws(pixels)
+        cutoff = None
         if noise.cutoff_hz > 0:
-            # Every pair of consecutive samples at once, then inf between two pixels: the
-            # same values as lowpass_exponent on the pixels' own intervals, checked once here.
             same = pixels[1:] == pixels[:-1]
             cutoff = _cutoff(np.asarray(luminance, np.float64), noise)
             dt = np.diff(times_ns)
@@ -424,17 +439,24 @@ class PixelEventEmulator(EventEmulator):
                     and np.all((dt > 0) | ~same)):
                 raise ValueError("luminance must be finite and >= 0 and each pixel's times "
                                  "must increase")
-            exponent = _lowpass_exponent(dt * 1e-9, cutoff[:-1], cutoff[1:])
-            exponent[~same] = np.inf
-        else:
-            exponent = np.full(max(len(pixels) - 1, 0), np.inf)
         refractory = int(round(noise.refractory_period * 1e9))
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
-        args = (pixels, times_ns, levels, exponent, ref, level, raw, last_t, c_on, c_off, leak,
-                normals, refractory)
-        out_t, out_pix, out_p, out_cause, keep = _outputs(_pixel_events(*args, False,
-                                                                         *_outputs(0)))
-        _pixel_events(*args, True, out_t, out_pix, out_p, out_cause, keep)
+        state = (ref, level, raw, last_t, c_on, c_off, leak, normals, refractory)
+        if self.kernel == "drjit":        # the low-pass exponents too are taken on the device
+            from sim._drjit_events import pixel_events
+
+            crossings = pixel_events(pixels, times_ns, levels, cutoff, *state,
+                                     CROSSING_TOLERANCE_NS, device=self._device)
+        else:
+            if cutoff is None:
+                exponent = np.full(max(len(pixels) - 1, 0), np.inf)
+            else:
+                # Every pair of consecutive samples at once, then inf between two pixels: the
+                # same values as lowpass_exponent on the pixels' own intervals.
+                exponent = _lowpass_exponent(dt * 1e-9, cutoff[:-1], cutoff[1:])
+                exponent[~same] = np.inf
+            crossings = self._numba_crossings((pixels, times_ns, levels, exponent, *state))
+        out_t, out_pix, out_p, out_cause, keep = crossings
         if refractory > 0 and not keep.all():
             out_t, out_pix, out_p, out_cause = (out_t[keep], out_pix[keep], out_p[keep],
                                                 out_cause[keep])
@@ -445,6 +467,23 @@ class PixelEventEmulator(EventEmulator):
         events["y"], events["x"] = np.divmod(out_pix[order], shape[1])
         events["p"] = out_p[order]
         return self._close_block(events, t0_ns, t_end_ns, end_luminance, out_cause[order])
+
+    def _numba_crossings(self, args: tuple) -> tuple[np.ndarray, ...]:
+        """:func:`_pixel_events` in one pass, with outputs sized from the last block's count
+        (twice it, at least 4,096); when they are too short, the pixels' state is restored
+        and the kernel runs again with outputs of the exact size. Returns the crossings'
+        times, pixels, polarities, causes and keep flags, in (pixel, time) order."""
+        state = args[4:8]                                   # ref, level, raw, last_t
+        saved = [a.copy() for a in state]
+        outputs = _outputs(max(2 * self._last_count, 4096))
+        n = _pixel_events(*args, *outputs)
+        if n > len(outputs[0]):
+            for a, b in zip(state, saved, strict=True):
+                a[...] = b
+            outputs = _outputs(n)
+            _pixel_events(*args, *outputs)
+        self._last_count = n
+        return tuple(a[:n] for a in outputs)
 
     def _leak_draws(self, pixels: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, float]]:
         """The leak's normal draws of a block (one per interval within a pixel's run, drawn

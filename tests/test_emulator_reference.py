@@ -1,13 +1,14 @@
 """The per-pixel emulator's kernel against a plain reference, noise included.
 
-:class:`sim.pixel_sampling.PixelEventEmulator` counts the threshold crossings without solving
-their times, then solves each once and writes it, flagging those the refractory period drops
-(left out afterwards), takes every low-pass exponent of the block at once, and sorts the
-block's events by one integer key. The reference below is the model
-written as directly as possible: one Python loop over the samples in order, the model's scalar
-steps (:func:`sim.events.interval_levels`, :func:`~sim.events.threshold_crossings`,
-:func:`~sim.events.filtered_crossing_time`), a list of events sorted by (time, pixel) and the
-noise functions of :mod:`sim.noise` drawn in the same order. Every noise of the ``realistic``
+:class:`sim.pixel_sampling.PixelEventEmulator` solves and writes the threshold crossings in
+one pass into outputs sized from the last block's count (run again from the block's state when
+they are too short), flagging those the refractory period drops (left out afterwards), takes
+every low-pass exponent of the block at once, and sorts the block's events by one integer key.
+The reference below is the model written as directly as possible: one Python loop over the
+samples in order, the model's scalar steps (:func:`sim.events.interval_levels`,
+:func:`~sim.events.threshold_crossings`, :func:`~sim.events.filtered_crossing_time`), a list of
+events sorted by (time, pixel) and the noise functions of :mod:`sim.noise` drawn in the same
+order. Every noise of the ``realistic``
 preset is on (refractory period, leak, shot noise, hot pixels, photoreceptor low-pass,
 threshold mismatch, initial phase), turned up so that each one changes the events of a small
 random input; the events must be identical, bit for bit, and so must the state carried on.
@@ -184,3 +185,33 @@ def test_warm_up_leaves_the_emulator_alone_and_seconds_counts_only_its_own_calls
     else:
         emulator.advance(np.log(blocks[0][5] + EPS), 2e-3, blocks[0][5])
     assert emulator.seconds > 0
+
+
+@pytest.mark.parametrize("noise", [noise_preset("ideal"), NOISY], ids=["ideal", "noisy"])
+def test_a_block_with_more_crossings_than_its_outputs_hold_is_run_again_from_its_state(noise):
+    """The kernel writes into outputs sized from the last block's count (at least 4,096) and
+    only counts past their end; a block that fires more (here 35 pixels ramping by 50, then
+    by 160 log units: about 8,000 and 27,000 crossings without the filter) must be run again
+    from the state it started with, and still give the plain reference's events and state."""
+    params = EventParams(contrast_on=0.2, contrast_off=0.25, log_eps=EPS, noise=noise, seed=3)
+    n = SHAPE[0] * SHAPE[1]
+    start = np.full(SHAPE, 1.0)
+    fast, slow = PixelEventEmulator(SHAPE, params), PixelEventEmulator(SHAPE, params)
+    for emulator in (fast, slow):
+        emulator.start(np.log(start + EPS), 0.0, start)
+    level, capacity = np.log(1.0 + EPS), 4096
+    for b, ramp in enumerate((50.0, 160.0)):
+        t_b, t_e = b * 2_000_000, (b + 1) * 2_000_000
+        pix = np.repeat(np.arange(n, dtype=np.int64), 3)
+        times = np.tile(np.array([t_b, (t_b + t_e) // 2, t_e], np.int64), n)
+        levels = np.tile([level, level + ramp / 2, level + ramp], n) + np.repeat(
+            np.linspace(0.0, 0.1, n), 3)
+        block = (pix, times, levels, np.exp(levels), t_e, np.exp(levels[2::3]).reshape(SHAPE))
+        got = fast.advance_samples(*block)
+        want = reference_block(slow, *block)
+        assert fast._last_count > capacity                 # the outputs were too short
+        capacity = 2 * fast._last_count
+        np.testing.assert_array_equal(got, want)
+        level += ramp
+    for key in ("ref", "level", "raw", "last_t"):
+        np.testing.assert_array_equal(fast.get_state()[key], slow.get_state()[key])

@@ -78,6 +78,7 @@ def test_events_are_written_in_both_formats_and_agree(tiny_run):
     # A static scene: sampled per pixel, in 10 ms blocks (min_rate 100 Hz) with a frame at each
     # end (every sub-sample, which also gives the prediction of the next block).
     assert meta["sampler"] == result.sampler == "pixel"
+    assert meta["emulator_kernel"] == "numba"           # auto on llvm_ad_rgb: the numba kernel
     assert meta["blocks"] == 30 and meta["full_renders"] == 1 + 30 == result.event_renders
     assert meta["pixel_samples"] == result.event_pixel_samples      # a slow scene: few or none
     assert from_h5["t"][0] > 0 and from_h5["t"][-1] <= 0.3e9

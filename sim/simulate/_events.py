@@ -503,4 +503,5 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                                 refresh=False)
             bar.update(0)
     return {**_event_info(params, formats, sampling, scene, count, on, event_depth, own_rays),
-            **source.record(stats, sampling, contrast, why)}
+            **source.record(stats, sampling, contrast, why),
+            "emulator_kernel": emulator.kernel}
