@@ -14,6 +14,8 @@ Modules (private; everything public is re-exported here):
 - ``_toml``: the scene file parser (:func:`load_scene`, :func:`parse_scene`,
   :func:`declared_depth_range`) and its limits (``MAX_*``).
 - ``_freeze``: :func:`freeze_scene`, a dynamic scene with its objects frozen at one time.
+- ``families`` (public, imported by name): scene families with a difficulty knob
+  (:func:`sim.scene.families.family_scene`), for ``evfuse bench --family`` and sweeps.
 """
 
 from __future__ import annotations
