@@ -621,6 +621,7 @@ def _parser() -> argparse.ArgumentParser:
     repro.set_defaults(run=_cmd_reproduce)
 
     add_command(sub, "convert")
+    add_command(sub, "generate")
     for command in sub.choices.values():         # --debug after the command works too
         command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                              help="show tracebacks on errors")

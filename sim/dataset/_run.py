@@ -229,7 +229,7 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
 
     clock = time.perf_counter()
     failed = 0
-    if workers == 0:
+    if workers == 0 or not todo:
         cluster_name = "in-process"
         for job in todo:
             progress.running(1)
