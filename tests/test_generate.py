@@ -178,3 +178,13 @@ def test_a_job_that_cannot_render_is_recorded_and_the_others_complete(reference,
     assert bad["status"] == "failed" and bad["attempts"] == "2"         # tried, retried once
     assert "lump.obj" in bad["error"] and "\n" not in bad["error"]
     assert bad["output_hash"] == "" and not (out / bad["path"]).exists()
+
+
+def test_a_worker_with_two_threads_runs_its_jobs_one_at_a_time(reference, tmp_path):
+    """Two simulations at once in one interpreter fail (Mitsuba's and Dr.Jit's state is
+    process-wide); a 2-thread worker must give the serial bytes, every job at its first try."""
+    out = tmp_path / "threads"
+    result = generate(TINY, out, workers=1, threads=2, retries=0, **QUIET)
+    assert result.failed == 0
+    assert _tree(out) == _tree(reference / "tiny")
+    assert {r["attempts"] for r in read_manifest(out)} == {"1"}

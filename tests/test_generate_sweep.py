@@ -144,3 +144,11 @@ def test_families_live_in_sim_and_keep_their_old_paths():
 
     assert old is new and older is new
     assert "fusion.experiments.families" in new.family_scene("sphere")   # texts unchanged
+
+
+@pytest.mark.parametrize("name, jobs", [("tiny", 4), ("tabletop", 400), ("families", 84)])
+def test_the_example_sweeps_are_valid(name, jobs):
+    from pathlib import Path
+
+    sweep = load_sweep(Path(__file__).resolve().parent.parent / "sweeps" / f"{name}.toml")
+    assert len(sweep.jobs) == jobs

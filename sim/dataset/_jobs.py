@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import re
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -32,6 +33,13 @@ RUNS_LOG = "runs.log"
 """``DIR/runs.log``: one line per job start, completion and failure inside a worker
 (``start|done|failed <job_id> pid=<pid> ...``), appended by the workers; a job's attempts are
 its ``start`` lines, and no job has two ``done`` lines."""
+
+
+_ONE_AT_A_TIME = threading.Lock()
+"""Held by :func:`run_job` around a simulation: one per process at a time. Mitsuba's variant and
+Dr.Jit's recorded kernels are process-wide: two simulations in two threads of one worker failed
+(``mitsuba has no attribute set_variant``, Dr.Jit's frozen-function registry mismatches; seen
+with a 1-worker x 2-thread LocalCluster), so a worker's extra threads wait instead."""
 
 
 def _choice(*names: str) -> Callable[[str, object], str]:
@@ -296,6 +304,9 @@ def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
     variant : str, optional
         Mitsuba variant (default: simulate's).
 
+    One simulation runs at a time in a process (the others wait): Mitsuba's and Dr.Jit's
+    state is process-wide, so parallel jobs need worker processes, not threads.
+
     Returns
     -------
     dict
@@ -324,8 +335,9 @@ def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
     try:
         checkpoint = partial_dir(folder) / CHECKPOINT_FOLDER
         resume = checkpoint.is_dir() and any(checkpoint.iterdir())
-        scene, kwargs = job_inputs(job)
-        simulate(scene, folder, variant=variant, progress=False, resume=resume, **kwargs)
+        with _ONE_AT_A_TIME:
+            scene, kwargs = job_inputs(job)
+            simulate(scene, folder, variant=variant, progress=False, resume=resume, **kwargs)
         if text is not None:
             write_bytes_atomically(folder / SCENE_FILE, text.encode())
     except BaseException as error:

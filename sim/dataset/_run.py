@@ -68,10 +68,11 @@ class GenerateResult:
 def default_cluster_size() -> tuple[int, int]:
     """The default local cluster: ``(workers, threads per worker)`` = (cores, 1).
 
-    One single-threaded process per core: a job's event stage runs its compiled emulator on
-    one thread beside Dr.Jit, and two simulations in one interpreter share its Mitsuba state;
-    separate processes were as fast or faster than threads on the machine this was measured
-    on (``benchmarks/bench_generate.py``, README "Datasets")."""
+    One single-threaded process per core: two simulations cannot share an interpreter
+    (Mitsuba's and Dr.Jit's state is process-wide; :func:`sim.dataset.run_job` runs one at a
+    time per process, so a worker's extra threads only wait), and each job's renders already
+    use Dr.Jit's thread pool while its emulator runs on one core. Measured against the other
+    splits by ``benchmarks/bench_generate.py`` (README, "Datasets")."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, cores or 1), 1
 
