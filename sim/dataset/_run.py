@@ -71,10 +71,11 @@ def default_cluster_size() -> tuple[int, int]:
     One single-threaded process per core: two simulations cannot share an interpreter
     (Mitsuba's and Dr.Jit's state is process-wide; :func:`sim.dataset.run_job` runs one at a
     time per process, so a worker's extra threads only wait), and each job's renders already
-    use Dr.Jit's thread pool while its emulator runs on one core. Measured against the other
-    splits by ``benchmarks/bench_generate.py`` (README, "Datasets")."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return max(1, cores or 1), 1
+    use Dr.Jit's thread pool while its emulator runs on one core. Each local worker's Dr.Jit
+    pool is its share of the cores (cores // workers), so that the workers' render threads do
+    not oversubscribe them. Measured against the other splits by
+    ``benchmarks/bench_generate.py`` (README, "Datasets")."""
+    return _cores(), 1
 
 
 def _one_line(error: BaseException) -> str:
@@ -137,7 +138,31 @@ def _client(scheduler: str | None, workers: int | None, threads: int | None):
     n, t = workers or n, threads or t
     cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True,
                            dashboard_address=":0" if _has_bokeh() else None, silence_logs=40)
-    return Client(cluster), cluster, f"LocalCluster {n} x {t} thread{'s' * (t > 1)}"
+    client = Client(cluster)
+    client.register_plugin(_drjit_threads(max(1, _cores() // n)))   # no oversubscription
+    return client, cluster, f"LocalCluster {n} x {t} thread{'s' * (t > 1)}"
+
+
+def _cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
+        (os.cpu_count() or 1)
+
+
+def _drjit_threads(threads: int):
+    """A Dask worker plugin that sets each worker's Dr.Jit thread pool to ``threads`` (also on
+    a worker restarted after a crash)."""
+    from distributed import WorkerPlugin
+
+    class DrJitThreads(WorkerPlugin):
+        name = "evfuse-drjit-threads"
+
+        def setup(self, worker) -> None:
+            import drjit
+
+            drjit.set_thread_count(threads)
+
+    return DrJitThreads()
 
 
 def _has_bokeh() -> bool:
