@@ -31,8 +31,8 @@ SCENE_FILE = "scene.toml"
 """The drawn scene of a family or procedural job, written into its sequence folder."""
 RUNS_LOG = "runs.log"
 """``DIR/runs.log``: one line per job start, completion and failure inside a worker
-(``start|done|failed <job_id> pid=<pid> ...``), appended by the workers; a job's attempts are
-its ``start`` lines, and no job has two ``done`` lines."""
+(``start|done|failed <job_id> pid=<pid> t=<unix time> ...``), appended by the workers; a job's
+attempts are its ``start`` lines, and no job has two ``done`` lines."""
 
 
 _ONE_AT_A_TIME = threading.Lock()
@@ -279,9 +279,10 @@ def job_inputs(job: Job, scene=None) -> tuple[object, dict]:
     return scene, kwargs
 
 
-def _log(dataset: Path, line: str) -> None:
-    """Append one line to ``DIR/runs.log`` (one ``write`` of an ``O_APPEND`` file: lines of
-    several workers never interleave)."""
+def _log(dataset: Path, event: str, job: Job, rest: str = "") -> None:
+    """Append one line to ``DIR/runs.log``: ``EVENT JOB_ID pid=PID t=UNIX_TIME [REST]`` (one
+    ``write`` of an ``O_APPEND`` file: lines of several workers never interleave)."""
+    line = f"{event} {job.job_id} pid={os.getpid()} t={time.time():.3f} {rest}".rstrip()
     fd = os.open(dataset / RUNS_LOG, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
         os.write(fd, (line.replace("\n", " ") + "\n").encode())
@@ -331,7 +332,7 @@ def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
             write_bytes_atomically(folder / SCENE_FILE, text.encode())
         return {**job_record(folder), "ran": False, "resumed": False}
     clock = time.perf_counter()
-    _log(dataset, f"start {job.job_id} pid={os.getpid()}")
+    _log(dataset, "start", job)
     try:
         checkpoint = partial_dir(folder) / CHECKPOINT_FOLDER
         resume = checkpoint.is_dir() and any(checkpoint.iterdir())
@@ -341,8 +342,8 @@ def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
         if text is not None:
             write_bytes_atomically(folder / SCENE_FILE, text.encode())
     except BaseException as error:
-        _log(dataset, f"failed {job.job_id} pid={os.getpid()} {type(error).__name__}: {error}")
+        _log(dataset, "failed", job, f"{type(error).__name__}: {error}")
         raise
     wall = time.perf_counter() - clock
-    _log(dataset, f"done {job.job_id} pid={os.getpid()} wall_s={wall:.3f} resumed={resume}")
+    _log(dataset, "done", job, f"wall_s={wall:.3f} resumed={resume}")
     return {**job_record(folder), "ran": True, "resumed": resume, "wall_s": wall}
