@@ -188,3 +188,17 @@ def test_a_worker_with_two_threads_runs_its_jobs_one_at_a_time(reference, tmp_pa
     assert result.failed == 0
     assert _tree(out) == _tree(reference / "tiny")
     assert {r["attempts"] for r in read_manifest(out)} == {"1"}
+
+
+def test_dry_run_lists_every_job_with_a_probed_cost_and_writes_nothing(tmp_path, capsys):
+    from fusion.cli import main
+
+    assert main(["generate", str(TINY), "--dry-run", "--out", str(tmp_path / "d")]) == 0
+    out = capsys.readouterr().out
+    for job in load_sweep(TINY).jobs:
+        line = next(line for line in out.splitlines() if job.job_id in line)
+        seconds = float(line.split("~")[1].split(" s")[0])
+        assert 0 < seconds < 120, line
+    assert "total: ~" in out and not (tmp_path / "d").exists()
+    assert main(["generate", str(TINY)]) == 2                     # no --out
+    assert "--out DIR" in capsys.readouterr().err
