@@ -454,6 +454,7 @@ def _add_generate(sub) -> None:
     generate.add_argument("--quiet", action="store_true",
                           help="one line per finished job on stdout, no progress bar")
     generate.set_defaults(run=_cmd_generate,
+                          flag_names={"gpu": "--gpu-per-job", "variant": "--variant"},
                           interrupted="finished jobs are kept; continue with the same command "
                                       "plus --resume")
 

@@ -4,6 +4,8 @@ reach the scene and simulate's objects. No simulation here (fast)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -152,3 +154,18 @@ def test_the_example_sweeps_are_valid(name, jobs):
 
     sweep = load_sweep(Path(__file__).resolve().parent.parent / "sweeps" / f"{name}.toml")
     assert len(sweep.jobs) == jobs
+
+
+def test_generate_refuses_local_sizes_with_a_scheduler_in_its_flags(tmp_path, capsys):
+    from fusion.cli import main
+
+    sweep = str(Path(__file__).resolve().parent.parent / "sweeps" / "tiny.toml")
+    out = tmp_path / "d"
+    assert main(["generate", sweep, "--out", str(out), "--scheduler", "tcp://127.0.0.1:1",
+                 "--workers", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "--workers and --threads size a local cluster; with --scheduler" in err
+    with pytest.raises(SystemExit) as stopped:                    # refused by its parser
+        main(["generate", sweep, "--out", str(out), "--gpu-per-job", "0"])
+    assert stopped.value.code == 2 and "--gpu-per-job" in capsys.readouterr().err
+    assert not out.exists()

@@ -226,6 +226,13 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
     if retries < 0:
         raise ParameterError(f"{{retries}} {retries}: expected an integer >= 0",
                              retries="retries")
+    if gpu is not None and not 0 < gpu:
+        raise ParameterError(f"{{gpu}} {gpu}: expected a share of a GPU > 0", gpu="gpu")
+    if scheduler is not None and (workers is not None or threads is not None):
+        raise ParameterError("{workers} and {threads} size a local cluster; with {scheduler} "
+                             "the cluster's workers are its own (start them with `dask worker "
+                             "ADDRESS --nworkers N --nthreads 1`)", workers="workers",
+                             threads="threads", scheduler="scheduler")
     _prepare(sweep, out, resume, overwrite)
     params = list(sweep.parameters)
     done = {row["job_id"]: row for row in (read_manifest(out) if resume and
@@ -238,15 +245,18 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
         if folder.is_dir() and old.get("status") == "done":
             rows[job.job_id] = {**old, **_row(job, "done")}
         elif folder.is_dir() and not job.generated:
-            rows[job.job_id] = _row(job, "done", job_record(folder))
+            rows[job.job_id] = {**_row(job, "done", job_record(folder)),
+                                "attempts": _attempts(out).get(job.job_id, 0)}
         else:
             rows[job.job_id] = _row(job, "pending")
             todo.append(job)
-    skipped = len(sweep.jobs) - len(todo)
     write_manifest(out, list(rows.values()), params)
-    progress = _Progress(len(sweep.jobs), skipped, report)
+    progress = _Progress(len(sweep.jobs), len(sweep.jobs) - len(todo), report)
+
+    counts = {"ran": 0, "skipped": len(sweep.jobs) - len(todo), "failed": 0}
 
     def finish(job: Job, record: dict | None, error: str = "") -> None:
+        counts["failed" if record is None else "ran" if record["ran"] else "skipped"] += 1
         attempts = _attempts(out).get(job.job_id, 0)
         status = "failed" if record is None else "done"
         rows[job.job_id] = {**_row(job, status, record, error), "attempts": attempts}
@@ -254,7 +264,6 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
         progress.finished(job, record, error)
 
     clock = time.perf_counter()
-    failed = 0
     if workers == 0 or not todo:
         cluster_name = "in-process"
         for job in todo:
@@ -262,7 +271,6 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
             try:
                 record = run_job(job, out, variant)
             except Exception as error:
-                failed += 1
                 finish(job, None, _one_line(error))
             else:
                 finish(job, record)
@@ -272,20 +280,20 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
         progress.say(f"generate: {len(todo)} jobs on {cluster_name}; dashboard: "
                      f"{link or 'none (install bokeh for it)'}")
         try:
-            failed = _run_on(client, todo, out, variant, retries, gpu, finish, progress)
+            _run_on(client, todo, out, variant, retries, gpu, finish, progress)
         finally:
             client.close()
             if cluster is not None:
                 cluster.close()
     wall = time.perf_counter() - clock
     progress.close()
-    return GenerateResult(out, list(rows.values()), len(todo) - failed, skipped, failed, wall,
-                          cluster_name)
+    return GenerateResult(out, list(rows.values()), counts["ran"], counts["skipped"],
+                          counts["failed"], wall, cluster_name)
 
 
 def _run_on(client, todo: list[Job], out: Path, variant: str | None, retries: int,
-            gpu: float | None, finish, progress: _Progress) -> int:
-    """Submit the jobs to a Dask client, record each as it finishes; return the failures."""
+            gpu: float | None, finish, progress: _Progress) -> None:
+    """Submit the jobs to a Dask client and record each as it finishes."""
     from distributed import as_completed
 
     resources = {"GPU": gpu} if gpu else None
@@ -294,7 +302,6 @@ def _run_on(client, todo: list[Job], out: Path, variant: str | None, retries: in
         future = client.submit(run_job, job, str(out), variant, key=f"evfuse-{job.job_id}",
                                retries=retries, pure=False, resources=resources)
         futures[future] = job
-    failed = 0
     for future in as_completed(futures):
         job = futures[future]
         threads = client.nthreads()
@@ -303,14 +310,12 @@ def _run_on(client, todo: list[Job], out: Path, variant: str | None, retries: in
         if future.status == "finished":
             finish(job, future.result())
         else:
-            failed += 1
             try:
                 error = future.exception()
             except Exception as cause:           # a cancelled future
                 error = cause
             finish(job, None, _one_line(error))
         future.release()
-    return failed
 
 
 class _Progress:
