@@ -202,3 +202,44 @@ def test_dry_run_lists_every_job_with_a_probed_cost_and_writes_nothing(tmp_path,
     assert "total: ~" in out and not (tmp_path / "d").exists()
     assert main(["generate", str(TINY)]) == 2                     # no --out
     assert "--out DIR" in capsys.readouterr().err
+
+
+def test_a_procedural_scene_is_drawn_by_name_and_its_scene_file_resimulates_it(tmp_path,
+                                                                                 monkeypatch):
+    """``procedural = NAME`` calls ``sim.scene.procedural.NAME_scene(seed, **ranges)`` (here a
+    stand-in drawing a sphere family member from the seed); the job folder's ``scene.toml``,
+    simulated again alone with the job's parameters, gives the same events and frames."""
+    import types
+
+    import sim.scene
+    from sim.scene.families import family_scene
+
+    calls = []
+
+    def tabletop_scene(seed, **ranges):
+        calls.append((seed, ranges))
+        return family_scene("sphere", radius=ranges["radius"][seed % 2])
+
+    fake = types.ModuleType("sim.scene.procedural")
+    fake.tabletop_scene = tabletop_scene
+    monkeypatch.setitem(sys.modules, "sim.scene.procedural", fake)
+    monkeypatch.setattr(sim.scene, "procedural", fake, raising=False)
+    grid = '[grid]\nsensor = "48x36"\nt1 = 0.05\ncontrast = 0.25\n'
+    sweep = tmp_path / "procedural.toml"
+    sweep.write_text(f'seeds = [3]\n[[scenes]]\nprocedural = "tabletop"\nradius = [0.2, 0.3]\n'
+                     f'{grid}')
+    result = generate(sweep, tmp_path / "drawn", workers=0, **QUIET)
+    assert result.failed == 0 and (3, {"radius": [0.2, 0.3]}) in calls
+    folder = tmp_path / "drawn" / result.rows[0]["path"]
+    text = (folder / "scene.toml").read_text()
+    assert text.startswith("seed = 3\n") and "sphere_radius0.3_" in text
+    again = tmp_path / "again.toml"
+    again.write_text(f'seeds = [3]\n[[scenes]]\nfile = "{folder / "scene.toml"}"\n{grid}')
+    redo = generate(again, tmp_path / "again", workers=0, **QUIET)
+    other = tmp_path / "again" / redo.rows[0]["path"]
+    for name in ("events.txt", "images.txt", "depthmaps.txt", "groundtruth.txt", "calib.txt"):
+        assert (other / name).read_bytes() == (folder / name).read_bytes(), name
+    assert sorted(p.name for p in (other / "images").iterdir()) == \
+        sorted(p.name for p in (folder / "images").iterdir())
+    for image in (folder / "images").iterdir():
+        assert (other / "images" / image.name).read_bytes() == image.read_bytes()

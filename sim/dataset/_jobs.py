@@ -173,13 +173,28 @@ class Job:
 
 
 def scene_text(job: Job) -> str | None:
-    """The TOML text of a family or procedural job's scene (None for a built-in or file).
+    """The TOML text of a family or procedural job's scene (None for a built-in or file), its
+    top-level ``seed`` the job's, so that the text alone is the job's scene.
 
     Raises
     ------
     ValueError
         A knob or range the family refuses; a procedural family this build lacks.
     """
+    text = _generated_text(job)
+    return None if text is None else _with_seed(text, job.seed)
+
+
+def _with_seed(text: str, seed: int) -> str:
+    """A scene text with its top-level ``seed`` set (the lines before its first table)."""
+    lines = text.splitlines(keepends=True)
+    first_table = next((i for i, line in enumerate(lines)
+                        if line.lstrip().startswith("[")), len(lines))
+    head = [line for line in lines[:first_table] if not re.match(r"\s*seed\s*=", line)]
+    return f"seed = {seed}\n" + "".join(head + lines[first_table:])
+
+
+def _generated_text(job: Job) -> str | None:
     spec = dict(job.scene)
     if "family" in spec:
         from sim.scene.families import family_scene
