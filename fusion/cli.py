@@ -622,6 +622,7 @@ def _parser() -> argparse.ArgumentParser:
 
     add_command(sub, "convert")
     add_command(sub, "generate")
+    add_command(sub, "dataset")
     for command in sub.choices.values():         # --debug after the command works too
         command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                              help="show tracebacks on errors")

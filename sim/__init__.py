@@ -8,6 +8,7 @@ import sys
 
 from sim._moved import alias_modules as _alias_modules
 from sim.camera import CAMERA_PRESETS, Camera, camera_preset, read_calib, write_calib
+from sim.dataset import open_dataset
 from sim.event_depth import read_event_depth
 from sim.eventio import (
     EVENT_DTYPE,
@@ -25,7 +26,15 @@ from sim.imu import ImuParams, read_imu, read_velocity
 from sim.noise import NoiseParams, noise_preset
 from sim.render import Renderer, RenderResult
 from sim.sampling import SamplingParams
-from sim.scene import Scene, SceneError, load_scene, parse_scene
+from sim.scene import (
+    PROCEDURAL_FAMILIES,
+    Scene,
+    SceneError,
+    load_scene,
+    parse_scene,
+    room_scene,
+    tabletop_scene,
+)
 from sim.sequence import FileIndex, FrameCameraFiles, Sequence, load_sequence
 from sim.shader import EventShader
 from sim.simulate import SimulationResult, simulate
@@ -59,6 +68,7 @@ __all__ = [
     "event_stats",
     "frame_noise",
     "noise_preset",
+    "open_dataset",
     "read_events",
     "read_event_depth",
     "read_flow",
@@ -76,6 +86,7 @@ __all__ = [
     "RenderResult",
     "Renderer",
     "SampledTrajectory",
+    "PROCEDURAL_FAMILIES",
     "Scene",
     "SceneError",
     "Sequence",
@@ -91,7 +102,9 @@ __all__ = [
     "read_calib",
     "read_depth",
     "read_trajectory",
+    "room_scene",
     "simulate",
+    "tabletop_scene",
     "use_variant",
     "write_calib",
     "write_depth",

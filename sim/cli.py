@@ -1,7 +1,7 @@
 """The simulator's commands of ``evfuse``: ``simulate``, ``events``, ``twin``, ``convert``,
-``scenes`` and ``generate`` (each a parser builder and a handler that parses, calls :mod:`sim`'s
-public API and prints), and the parser pieces every evfuse command shares: the typed number
-flags, the one-line refusal parser and the help of ``--overwrite``.
+``scenes``, ``generate`` and ``dataset`` (each a parser builder and a handler that parses, calls
+:mod:`sim`'s public API and prints), and the parser pieces every evfuse command shares: the typed
+number flags, the one-line refusal parser and the help of ``--overwrite``.
 
 :func:`fusion.cli.main` is the ``evfuse`` entry point: it adds these commands to its parser with
 :func:`add_command` and runs them. This module never imports :mod:`fusion` (the simulator is the
@@ -24,7 +24,7 @@ from sim.validation import finite, non_negative, positive
 __all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "POSITIVE", "OneLineParser",
            "add_command", "count_type", "number_type"]
 
-COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "generate")
+COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "generate", "dataset")
 """The subcommands this module builds (:func:`add_command`)."""
 
 OVERWRITE_HELP = ("replace OUT if it is a folder evfuse wrote (it holds evfuse's .evfuse marker), "
@@ -148,6 +148,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         parts = ["velocity", "IMU", "flow", "motion field", "object masks"]
         if result.n_events is not None and "h5" in formats:
             parts.append("per-event depth")
+        if result.n_events is not None:
+            parts.append("per-event labels")
         what += f", the motion ground truth ({', '.join(parts)})"
     print(f"wrote {what} with {result.variant} in {result.timings['total']:.1f} s to "
           f"{result.out}")
@@ -283,6 +285,30 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_dataset(args: argparse.Namespace) -> int:
+    from sim.dataset import CARD, dataset_summary, write_card
+
+    summary = dataset_summary(args.folder) if args.no_card else write_card(args.folder)
+    print(summary.text(), end="")
+    if not args.no_card:
+        print(f"wrote {Path(args.folder) / CARD}")
+    return 0
+
+
+def _add_dataset(sub) -> None:
+    dataset = sub.add_parser(
+        "dataset", help="summary and card of a dataset folder (evfuse generate's output)",
+        description="Prints the summary of a dataset folder (sequences done / failed, events, "
+                    "frames, simulated seconds, event rate, depth range, speeds) and writes "
+                    "DIR/card.md with DIR/card/contact_sheet.png (per sequence: a frame, its "
+                    "events, its exact depth) and the distributions over sequences. Nothing "
+                    "else in DIR is written.")
+    dataset.add_argument("folder", metavar="DIR", help="a dataset folder (with manifest.csv)")
+    dataset.add_argument("--no-card", action="store_true",
+                         help="print the summary only; write nothing")
+    dataset.set_defaults(run=_cmd_dataset)
+
+
 def _add_scenes(sub) -> None:
     scenes = sub.add_parser("scenes", help="list the built-in scenes")
     scenes.set_defaults(run=_cmd_scenes)
@@ -336,8 +362,8 @@ def _add_simulate(sub) -> None:
                           help="render frames and depth only")
     simulate.add_argument("--no-motion-truth", action="store_true",
                           help="skip the motion ground truth (velocity.txt, imu.txt, optical "
-                               "flow, motion fields, object masks, per-event depth): frames, "
-                               "depth maps, poses and events only")
+                               "flow, motion fields, object masks, per-event depth and labels): "
+                               "frames, depth maps, poses and events only")
     simulate.add_argument("--rig", choices=("perfect", "mocap", "lab"), default=None,
                           help="pose noise, clock offsets and calibration error of the written "
                                "groundtruth.txt, time stamps and calib.txt: perfect, mocap "
@@ -485,7 +511,7 @@ def add_command(subparsers, name: str, *,
         _add_events(subparsers, event_figure)
         return
     builders = {"scenes": _add_scenes, "simulate": _add_simulate, "twin": _add_twin,
-                "convert": _add_convert, "generate": _add_generate}
+                "convert": _add_convert, "generate": _add_generate, "dataset": _add_dataset}
     if name not in builders:
         raise ValueError(f"add_command: {name!r} is not one of {', '.join(COMMANDS)}")
     builders[name](subparsers)

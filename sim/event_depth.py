@@ -47,9 +47,9 @@ import numpy as np
 from sim.eventio import EVENT_DTYPE, H5EventWriter, TextEventWriter
 
 __all__ = ["DEPTH_TXT", "DEPTH_TXT_NAME", "EDGE_JUMP", "EVENT_DEPTH_DTYPE", "FLAG_EDGE",
-           "FLAG_NO_SURFACE", "EventDepth", "EventOutputs", "H5EventDepthWriter", "RecentDepth",
-           "TextEventDepthWriter", "event_depth_record", "event_file_name", "interpolate_depth",
-           "read_event_depth"]
+           "FLAG_NO_SURFACE", "LABELS_TXT", "NO_OBJECT", "EventDepth", "EventOutputs",
+           "H5EventDepthWriter", "RecentDepth", "TextEventDepthWriter", "event_depth_record",
+           "event_file_name", "interpolate_depth", "nearer_object", "read_event_depth"]
 
 EDGE_JUMP = 0.05
 """Relative change between the two bracketing depth renders of a pixel above which a depth edge
@@ -59,8 +59,13 @@ FLAG_EDGE = 1
 """``events/depth_flag``: the two renders differ by more than :data:`EDGE_JUMP` (a depth edge)."""
 FLAG_NO_SURFACE = 2
 """``events/depth_flag``: one of the two renders sees no surface at the pixel (depth 0)."""
+NO_OBJECT = -1
+"""``object_id`` of an event whose pixel sees no object (:mod:`sim.event_labels`)."""
 DEPTH_TXT = "depth-txt"
 """The event format (``simulate(event_formats=...)``, ``--event-format``) of events_depth.txt."""
+LABELS_TXT = "labels-txt"
+"""The event stage's writer key (and checkpoint entry) of
+:data:`sim.event_labels.LABELS_TXT_NAME`; not an event format of its own."""
 DEPTH_TXT_NAME = "events_depth.txt"
 """The text file of per-event depth: ``t[s] x y p depth[m] flag`` per line."""
 
@@ -126,6 +131,27 @@ def interpolate_depth(depth_a: np.ndarray, depth_b: np.ndarray, weight: np.ndarr
     return depth.astype(np.float32), flag
 
 
+def nearer_object(ids_a: np.ndarray, ids_b: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """Object id of events from the renders that bracket them: the nearer one's.
+
+    Parameters
+    ----------
+    ids_a, ids_b : (N,) integer ndarray
+        Each event pixel's :meth:`sim.render.Renderer.object_ids` (0 = nothing, ``i`` =
+        ``scene.objects[i - 1]``) at the bracket's start ``t_a`` and end ``t_b``.
+    weight : (N,) float64 ndarray
+        ``(t - t_a) / (t_b - t_a)`` of each event, in [0, 1].
+
+    Returns
+    -------
+    (N,) int32 ndarray
+        The index into ``scene.objects`` seen at ``t_a`` where ``weight <= 0.5``, else at
+        ``t_b``; :data:`NO_OBJECT` where nothing is seen.
+    """
+    ids = np.where(np.asarray(weight) <= 0.5, ids_a, ids_b)
+    return ids.astype(np.int32) - 1
+
+
 class RecentDepth:
     """A depth render function that keeps its last render (renders are deterministic in time).
 
@@ -135,11 +161,14 @@ class RecentDepth:
     Parameters
     ----------
     render : callable
-        ``render(t) -> (H, W) float32 ndarray``, z-depth in metres (``Renderer.depth``).
+        ``render(t) -> (H, W) float32 ndarray``, z-depth in metres (``Renderer.depth``), or
+        another per-pixel render of time (``Renderer.object_ids``, with its ``dtype``).
+    dtype : numpy dtype
+        Of the kept render (default float32).
     """
 
-    def __init__(self, render: Callable[[float], np.ndarray]) -> None:
-        self._render = render
+    def __init__(self, render: Callable[[float], np.ndarray], dtype=np.float32) -> None:
+        self._render, self._dtype = render, np.dtype(dtype)
         self._t: float | None = None
         self._depth: np.ndarray | None = None
         self.renders = 0
@@ -147,7 +176,7 @@ class RecentDepth:
 
     def __call__(self, t: float) -> np.ndarray:
         if self._depth is None or t != self._t:
-            depth = np.array(self._render(t), dtype=np.float32)
+            depth = np.array(self._render(t), dtype=self._dtype)
             depth.flags.writeable = False
             self._t, self._depth = t, depth
             self.renders += 1
@@ -166,16 +195,38 @@ class EventDepth:
         Where the events start: the start of the run, or the sample a resumed run goes on from.
     jump : float
         See :func:`interpolate_depth`.
+    objects : callable, optional
+        ``objects(t) -> (H, W)`` ids of the objects the pixel-centre rays hit (the rays of
+        ``depth``; :meth:`sim.render.Renderer.object_ids`, 0 = none, ``i`` =
+        ``scene.objects[i - 1]``): :meth:`annotate` then labels each event with its object
+        (:func:`nearer_object`) in :attr:`object_id`.
+    objects_at : callable, optional
+        ``objects_at(pixels, times) -> (N,)`` the same ids of flat pixels each at its own time
+        in seconds (:meth:`sim.render.Renderer.object_ids_at`, static scenes): each event's
+        id is then its own pixel-centre ray's at its own time, exactly (``objects`` unused).
+
+    Attributes
+    ----------
+    object_id : (N,) int32 ndarray or None
+        With ``objects``: the object id of each event of the last :meth:`annotate` call (-1:
+        none); else None.
     """
 
     def __init__(self, depth: Callable[[float], np.ndarray], t: float,
-                 jump: float = EDGE_JUMP) -> None:
-        self._depth, self._jump = depth, jump
+                 jump: float = EDGE_JUMP,
+                 objects: Callable[[float], np.ndarray] | None = None,
+                 objects_at: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+                 ) -> None:
+        self._depth, self._jump, self._objects = depth, jump, objects
+        self._objects_at = objects_at
         self._t = float(t)
         self._at_t: np.ndarray | None = None        # rendered lazily (the sampler may first)
+        self._ids_at_t: np.ndarray | None = None
+        self.object_id: np.ndarray | None = None
 
     def annotate(self, events: np.ndarray | None, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Depth and flag of the events between the previous call's time and ``t``.
+        """Depth and flag (and, with ``objects``, :attr:`object_id`) of the events between
+        the previous call's time and ``t``.
 
         Call it at every bracketing time (every block end or accepted sample), with or without
         events: ``t`` becomes the start of the next bracket.
@@ -200,44 +251,63 @@ class EventDepth:
         if len(events) and self._at_t is None:
             self._at_t = self._depth(self._t)
         at_end = self._depth(t)
+        ids_end = None
+        if self._objects is not None:
+            if len(events) and self._ids_at_t is None:
+                self._ids_at_t = self._objects(self._t)
+            ids_end = self._objects(t)
+        labelled = self._objects is not None or self._objects_at is not None
+        self.object_id = np.zeros(0, np.int32) if labelled else None
         if len(events):
             t_a_ns, t_b_ns = round(self._t * 1e9), round(t * 1e9)
             span = max(t_b_ns - t_a_ns, 1)
             weight = np.clip((events["t"] - t_a_ns) / span, 0.0, 1.0)
             y, x = events["y"].astype(np.intp), events["x"].astype(np.intp)
             result = interpolate_depth(self._at_t[y, x], at_end[y, x], weight, self._jump)
+            if self._objects_at is not None:          # each event's own ray, at its time
+                # (seconds within the bracket: a time rounded to the ns may lie past its end)
+                seconds = np.clip(events["t"] / 1e9, self._t, t)
+                cast = self._objects_at(y * at_end.shape[1] + x, seconds)
+                self.object_id = np.asarray(cast, np.int32) - 1
+            elif ids_end is not None:
+                self.object_id = nearer_object(self._ids_at_t[y, x], ids_end[y, x], weight)
         else:
             result = np.zeros(0, np.float32), np.zeros(0, np.uint8)
-        self._t, self._at_t = t, at_end
+        self._t, self._at_t, self._ids_at_t = t, at_end, ids_end
         return result
 
 
 class H5EventDepthWriter(H5EventWriter):
-    """:class:`~sim.eventio.H5EventWriter` with two more per-event datasets.
+    """:class:`~sim.eventio.H5EventWriter` with two (four, with ``labels``) more per-event
+    datasets.
 
     - ``events/depth``: float32 z-depth in metres at the event's pixel and time, 0 = none;
-    - ``events/depth_flag``: uint8, 0, :data:`FLAG_EDGE` or :data:`FLAG_NO_SURFACE`.
+    - ``events/depth_flag``: uint8, 0, :data:`FLAG_EDGE` or :data:`FLAG_NO_SURFACE`;
+    - with ``labels``: ``events/cause`` (uint8) and ``events/object_id`` (int32), the
+      per-event labels of :mod:`sim.event_labels`.
 
     Chunked, compressed, checkpointed, resumed and packed as the other ``events/`` datasets (the
     DSEC readers ignore them). :meth:`write` takes each chunk's columns beside it.
     """
 
-    _EVENT_FIELDS = (*H5EventWriter._EVENT_FIELDS, ("depth", np.float32),
-                     ("depth_flag", np.uint8))
-    _COLUMNS = ("depth", "depth_flag")
+    _DEPTH_COLUMNS = (("depth", np.float32), ("depth_flag", np.uint8))
+    _LABEL_COLUMNS = (("cause", np.uint8), ("object_id", np.int32))
 
     def __init__(self, path: str | Path, width: int, height: int, chunk_size: int = 2**16,
-                 t_offset_us: int | None = None, *, resume: dict | None = None) -> None:
-        self._pending_columns: list[tuple[np.ndarray, np.ndarray]] = []
+                 t_offset_us: int | None = None, *, resume: dict | None = None,
+                 labels: bool = False) -> None:
+        self._columns = self._DEPTH_COLUMNS + (self._LABEL_COLUMNS if labels else ())
+        self._EVENT_FIELDS = (*H5EventWriter._EVENT_FIELDS, *self._columns)
+        self._pending_columns: list[tuple[np.ndarray, ...]] = []
         super().__init__(path, width, height, chunk_size, t_offset_us, resume=resume)
         if resume is None:
             return
         try:
-            missing = [name for name in self._COLUMNS if f"events/{name}" not in self._file]
+            missing = [name for name, _ in self._columns if f"events/{name}" not in self._file]
             if missing:
                 raise ValueError(f"{self.partial}: no dataset events/{', events/'.join(missing)}; "
                                  "expected the file a per-event depth writer left")
-            for name in self._COLUMNS:
+            for name, _ in self._columns:
                 dataset = self._file[f"events/{name}"]
                 if dataset.shape[0] < self._stored:
                     raise self._too_short(f"events in {dataset.name}", dataset.shape[0],
@@ -249,24 +319,32 @@ class H5EventDepthWriter(H5EventWriter):
             raise
 
     def write(self, events: np.ndarray, depth: np.ndarray | None = None,
-              depth_flag: np.ndarray | None = None) -> None:
-        """Append a chunk of events with their depth and flag (arrays as long as ``events``).
+              depth_flag: np.ndarray | None = None, **labels: np.ndarray) -> None:
+        """Append a chunk of events with their depth and flag (and, for a writer with
+        ``labels``, ``cause`` and ``object_id``), arrays as long as ``events``.
 
         Raises
         ------
         ValueError
-            As :meth:`H5EventWriter.write`, or a column is missing or of another length.
+            As :meth:`H5EventWriter.write`, or a column is missing, unknown or of another
+            length.
         """
         n = len(events)
-        for name, column in (("depth", depth), ("depth_flag", depth_flag)):
+        given = {"depth": depth, "depth_flag": depth_flag, **labels}
+        unknown = set(given) - {name for name, _ in self._columns}
+        if unknown:
+            raise ValueError(f"{self.path}: no per-event column {', '.join(sorted(unknown))}; "
+                             f"this writer holds {', '.join(n for n, _ in self._columns)}")
+        for name, _ in self._columns:
+            column = given.get(name)
             if column is None or np.shape(column) != (n,):
                 got = None if column is None else np.shape(column)
                 raise ValueError(f"{self.path}: {name} must be an array of one value per event "
                                  f"({n}), got {got}")
         if not n:
             return super().write(events)
-        self._pending_columns.append((np.asarray(depth, np.float32),
-                                      np.asarray(depth_flag, np.uint8)))
+        self._pending_columns.append(tuple(np.asarray(given[name], dtype)
+                                           for name, dtype in self._columns))
         try:
             super().write(events)
         except BaseException:
@@ -276,12 +354,11 @@ class H5EventDepthWriter(H5EventWriter):
     def _flush(self) -> None:
         if not self._pending:
             return
-        depth, flag = (np.concatenate(parts) for parts in zip(*self._pending_columns,
-                                                              strict=True))
+        columns = [np.concatenate(parts) for parts in zip(*self._pending_columns, strict=True)]
         self._pending_columns = []
         super()._flush()
-        self._append(self._datasets["depth"], depth)
-        self._append(self._datasets["depth_flag"], flag)
+        for (name, _), values in zip(self._columns, columns, strict=True):
+            self._append(self._datasets[name], values)
 
 
 class TextEventDepthWriter(TextEventWriter):
@@ -315,83 +392,137 @@ class TextEventDepthWriter(TextEventWriter):
 
 
 class EventOutputs:
-    """The event stage's writers, with per-event depth for those that hold it.
+    """The event stage's writers, with per-event depth (and labels) for those that hold them.
 
     Parameters
     ----------
     writers : dict
-        Format (``h5``, ``txt``, :data:`DEPTH_TXT`) -> writer; the ``h5`` and :data:`DEPTH_TXT`
-        ones take the columns (:class:`H5EventDepthWriter`, :class:`TextEventDepthWriter`, maybe
-        behind a clock offset that passes them on).
+        Format (``h5``, ``txt``, :data:`DEPTH_TXT`, :data:`LABELS_TXT`) -> writer; the ``h5``
+        and :data:`DEPTH_TXT` ones take the depth columns (:class:`H5EventDepthWriter`,
+        :class:`TextEventDepthWriter`), the ``h5`` one (made with ``labels``) and the
+        :data:`LABELS_TXT` one (:class:`sim.event_labels.TextEventLabelWriter`) the labels,
+        maybe behind a clock offset that passes them on.
     depth : EventDepth or None
         Annotates the chunks (None when no writer holds depth).
     timings : dict, optional
-        ``timings["event_depth"]`` accumulates the seconds spent on depth (the depth renders
-        included, those the sampler then reuses too), taken out of ``timings["event_write"]``
-        (the caller times the whole :meth:`write` as writing).
+        ``timings["event_depth"]`` accumulates the seconds spent on depth and object ids (the
+        renders included, those the sampler then reuses too), taken out of
+        ``timings["event_write"]`` (the caller times the whole :meth:`write` as writing).
+    labels : bool
+        Write each event's ``cause`` (given to :meth:`write`) and ``object_id`` (from
+        ``depth``, made with ``objects``).
     """
 
     def __init__(self, writers: Mapping, depth: EventDepth | None,
-                 timings: dict | None = None) -> None:
+                 timings: dict | None = None, labels: bool = False) -> None:
+        if labels and depth is None:
+            raise ValueError("per-event labels need the per-event depth's renders (an "
+                             "EventDepth with objects)")
         self.writers = dict(writers)
         self._depth = depth
         self._timings = timings
-        self._held: np.ndarray | None = None
+        self._labels = labels
+        self._held: tuple[np.ndarray | None, np.ndarray | None] | None = None
 
-    def write(self, events: np.ndarray | None, t: float, pending: bool = False) -> None:
+    def write(self, events: np.ndarray | None, t: float, pending: bool = False,
+              causes: np.ndarray | None = None) -> None:
         """Write a chunk (None or empty: nothing) whose events end the bracket at ``t`` s.
 
         ``pending``: more of the same sampling interval follows at once (a frame sample with
         ``tail_pending``, after which no checkpoint is taken): the chunk is held and written
         with the next one, bracketed by the depth at the interval's ends, so that the
-        interval's midpoint costs no depth render.
+        interval's midpoint costs no depth render. ``causes``: each event's cause (uint8,
+        :data:`sim.noise.CAUSES`; needed with ``labels``).
         """
-        if self._held is not None and events is not None:
-            events = np.concatenate([self._held, events])
-        elif self._held is not None:
-            events = self._held
+        if self._labels and events is not None and np.shape(causes) != (len(events),):
+            raise ValueError(f"per-event labels: {np.shape(causes)} causes for {len(events)} "
+                             "events; expected one cause per event")
+        if self._held is not None:
+            held, held_causes = self._held
+            if events is None:
+                events, causes = held, held_causes
+            elif held is not None:
+                events = np.concatenate([held, events])
+                if self._labels:
+                    causes = np.concatenate([held_causes, causes])
         self._held = None
         if pending:
-            self._held = events
+            self._held = (events, causes)
             return
         columns = {}
         if self._depth is not None:
             tick = time.perf_counter()
             depth, flag = self._depth.annotate(events, t)
-            columns = {"depth": depth, "depth_flag": flag}
+            columns = {"depth": depth, "depth_flag": flag, "object_id": self._depth.object_id}
             if self._timings is not None:           # counted here, not in event_write
                 seconds = time.perf_counter() - tick
                 self._timings["event_depth"] = self._timings.get("event_depth", 0.0) + seconds
                 self._timings["event_write"] = self._timings.get("event_write", 0.0) - seconds
         if events is None or not len(events):
             return
+        labels = {}
+        if self._labels:
+            labels = {"cause": np.asarray(causes, np.uint8), "object_id": columns["object_id"]}
+        depth = {name: columns[name] for name in ("depth", "depth_flag") if name in columns}
         for fmt, writer in self.writers.items():
-            if fmt in ("h5", DEPTH_TXT):
-                writer.write(events, **columns)
+            if fmt == "h5":
+                writer.write(events, **depth, **labels)
+            elif fmt == DEPTH_TXT:
+                writer.write(events, **depth)
+            elif fmt == LABELS_TXT:
+                writer.write(events, **labels)
             else:
                 writer.write(events)
 
 
 # --- reading -----------------------------------------------------------------------------------
 
-def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | None:
+def _h5_columns(path: Path, t0_ns: int | None, t1_ns: int | None, columns: dict[str, str],
+                dtype: np.dtype) -> tuple[np.ndarray, int] | None:
+    """Events of ``[t0_ns, t1_ns)`` of an ``events.h5`` with per-event datasets beside them
+    (field -> dataset under ``events/``), as ``dtype`` (EVENT_DTYPE's fields, then those), and
+    the index of the first; None when a dataset is missing. Shared by the per-event depth and
+    labels (:mod:`sim.event_labels`)."""
     from sim.eventio._hdf5 import _H5Source, _reading
 
     source = _H5Source(path)
     try:
-        if "events/depth" not in source.file or "events/depth_flag" not in source.file:
+        if any(f"events/{name}" not in source.file for name in columns.values()):
             return None
         start = 0 if t0_ns is None else source.index_at(t0_ns)
         stop = source.size if t1_ns is None else source.index_before(t1_ns)
         events = source.read(start, max(start, stop))
-        out = np.empty(len(events), EVENT_DEPTH_DTYPE)
+        out = np.empty(len(events), dtype)
         for name in EVENT_DTYPE.names:
             out[name] = events[name]
         with _reading(path):
-            out["depth"] = source.file["events/depth"][start:start + len(events)]
-            out["flag"] = source.file["events/depth_flag"][start:start + len(events)]
+            for field, name in columns.items():
+                values = source.file[f"events/{name}"][start:start + len(events)]
+                if len(values) != len(events):
+                    raise ValueError(f"{path}: events/{name} holds {len(values)} values from "
+                                     f"event {start}; expected one per event ({len(events)})")
+                out[field] = values
     finally:
         source.close()
+    return out, start
+
+
+def _in_window(out: np.ndarray, t0_ns: int | None, t1_ns: int | None) -> np.ndarray:
+    """The events of ``out`` with ``t0_ns <= t < t1_ns`` (either bound None: open)."""
+    keep = np.ones(len(out), bool)
+    if t0_ns is not None:
+        keep &= out["t"] >= t0_ns
+    if t1_ns is not None:
+        keep &= out["t"] < t1_ns
+    return out[keep]
+
+
+def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | None:
+    found = _h5_columns(path, t0_ns, t1_ns, {"depth": "depth", "flag": "depth_flag"},
+                        EVENT_DEPTH_DTYPE)
+    if found is None:
+        return None
+    out, start = found
     bad = np.flatnonzero(~np.isfinite(out["depth"]) | (out["depth"] < 0))
     if bad.size:
         i = int(bad[0])
@@ -451,9 +582,4 @@ def read_event_depth(path: str | Path, t0_ns: int | None = None,
             return None
     else:
         out = _read_txt(path)
-    keep = np.ones(len(out), bool)
-    if t0_ns is not None:
-        keep &= out["t"] >= t0_ns
-    if t1_ns is not None:
-        keep &= out["t"] < t1_ns
-    return out[keep]
+    return _in_window(out, t0_ns, t1_ns)

@@ -47,6 +47,10 @@ import numpy as np
 
 from sim.eventio import EVENT_DTYPE
 from sim.noise import (
+    CAUSE_HOT_PIXEL,
+    CAUSE_LEAK,
+    CAUSE_SHOT,
+    CAUSE_SIGNAL,
     NoiseParams,
     background_events,
     cutoff_frequency,
@@ -55,7 +59,7 @@ from sim.noise import (
     leak_drift,
     leak_rate_map,
     lowpass_exponent,
-    merge_events,
+    merge_labelled_events,
     noise_preset,
     ramp_crossing,
     ramp_response,
@@ -245,12 +249,19 @@ def _count_rows(L0, raw0, raw1, x, ref, c_on, c_off, L1):  # pragma: no cover - 
 
 @numba.njit(cache=True, parallel=True)
 def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, refractory,
-                out_t, out_x, out_y, out_p, keep):  # pragma: no cover - compiled
+                leak_free, out_t, out_x, out_y, out_p, out_cause,
+                keep):  # pragma: no cover - compiled
+    """Write the crossings :func:`_count_rows` counted, each with its cause: ``leak_free`` is
+    the references before the interval's leak drift ((H, W), or empty without leak); a
+    crossing beyond the count against it on its piece is :data:`~sim.noise.CAUSE_LEAK`, the
+    others :data:`~sim.noise.CAUSE_SIGNAL`."""
     height, width = raw1.shape
+    leaky = leak_free.size > 0
     for y in numba.prange(height):
         k = offsets[y]
         for i in range(width):
             r = ref[y, i]
+            rf = leak_free[y, i] if leaky else r
             y0, a, b, xi = L0[y, i], raw0[y, i], raw1[y, i], x[y, i]
             f_turn, y_turn, y1 = interval_levels(y0, a, b, xi)
             last = last_t[y, i]
@@ -258,6 +269,9 @@ def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, re
             f_lo, y_lo, f_hi, y_hi = 0.0, y0, f_turn, y_turn
             while True:
                 n, c, sign = threshold_crossings(y_hi, r, c_on[y, i], c_off[y, i])
+                nf, cf, sf = n, c, sign
+                if leaky:
+                    nf, cf, sf = threshold_crossings(y_hi, rf, c_on[y, i], c_off[y, i])
                 for j in range(1, n + 1):
                     t = filtered_crossing_time(r + j * c, y0, a, b, xi, f_lo, y_lo, f_hi, y_hi,
                                                t0, dt)
@@ -265,6 +279,7 @@ def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, re
                     out_x[k] = i
                     out_y[k] = y
                     out_p[k] = sign
+                    out_cause[k] = CAUSE_LEAK if sf != sign or j > nf else CAUSE_SIGNAL
                     if refractory > 0 and t - last < refractory:
                         keep[k] = False
                     else:
@@ -272,6 +287,7 @@ def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, re
                         last = t
                     k += 1
                 r += n * c
+                rf += nf * cf
                 if f_hi >= 1.0:
                     break
                 f_lo, y_lo, f_hi, y_hi = f_hi, y_hi, 1.0, y1
@@ -315,6 +331,10 @@ class EventEmulator:
         Wall time spent in :meth:`start` and :meth:`advance` (and
         :meth:`~sim.pixel_sampling.PixelEventEmulator.advance_samples`) so far; not
         :meth:`warm_up`'s.
+    last_causes : (N,) uint8 ndarray
+        The cause of each event the last :meth:`advance` (or ``advance_samples``) returned,
+        in the same order: :data:`sim.noise.CAUSE_SIGNAL`, ``CAUSE_SHOT``, ``CAUSE_LEAK`` or
+        ``CAUSE_HOT_PIXEL`` (the rule: :mod:`sim.noise`'s docstring). Empty before.
     """
 
     def __init__(self, shape: tuple[int, int], params: EventParams | None = None):
@@ -334,6 +354,7 @@ class EventEmulator:
         self._t: int | None = None
         self._last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, dtype=np.int64)
         self.seconds = 0.0
+        self.last_causes = np.zeros(0, np.uint8)
 
     def warm_up(self) -> float:
         """Compile the emulator's kernels (or load them from numba's cache) and start their
@@ -479,22 +500,50 @@ class EventEmulator:
             x = lowpass_exponent(dt_ns * 1e-9, self._cutoff, cutoff)
         else:
             x = np.full(self.shape, np.inf)
+        leak_free = np.zeros((0, 0))
         if noise.leak_rate > 0:
+            leak_free = self.ref.copy()
             self.ref += leak_drift(dt_ns * 1e-9, self.c_on, self.leak_rates, noise, self._rng)
         raw = L1
-        events, L1 = self._crossings(self._L, self._raw, raw, x, self._t, dt_ns)
-        if noise.shot_noise_rate > 0:
-            events = merge_events(events, background_events(self._t, t1_ns, Y, noise, self._rng))
-        if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
-            events = merge_events(events, hot_pixel_events(self._t, t1_ns, self.hot_mask,
-                                                           noise.hot_pixel_rate, self._rng))
+        events, causes, L1 = self._crossings(self._L, self._raw, raw, x, self._t, dt_ns,
+                                             leak_free)
+        events = self._with_noise(events, causes, self._t, t1_ns, Y)
         self._L, self._raw, self._cutoff, self._t = L1, raw, cutoff, t1_ns
         return events
 
-    def _crossings(self, L0, raw0, raw1, x, t0_ns: int, dt_ns: int
-                   ) -> tuple[np.ndarray, np.ndarray]:
-        """The interval's threshold crossings (sorted events) and each pixel's level at its end
-        (H, W): ``raw1`` itself without the filter (``x`` all inf)."""
+    def _with_noise(self, events: np.ndarray, causes: np.ndarray, t0_ns: int, t1_ns: int,
+                    luminance: np.ndarray | None) -> np.ndarray:
+        """The interval's crossing events (``causes``: each one's) with its shot-noise and
+        hot-pixel events of ``[t0_ns, t1_ns)`` merged in, drawn in that order from the
+        emulator's generator; sets :attr:`last_causes`.
+
+        Parameters
+        ----------
+        events : EVENT_DTYPE ndarray
+            Threshold crossings, sorted by time.
+        causes : (N,) uint8 ndarray
+        t0_ns, t1_ns : int
+        luminance : (H, W) float64 ndarray or None
+            Luminance for the background-activity rate (None only without shot noise).
+        """
+        noise = self.params.noise
+        parts = [(events, causes)]
+        if noise.shot_noise_rate > 0:
+            shot = background_events(t0_ns, t1_ns, luminance, noise, self._rng)
+            parts.append((shot, np.full(len(shot), CAUSE_SHOT, np.uint8)))
+        if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
+            hot = hot_pixel_events(t0_ns, t1_ns, self.hot_mask, noise.hot_pixel_rate, self._rng)
+            parts.append((hot, np.full(len(hot), CAUSE_HOT_PIXEL, np.uint8)))
+        events, self.last_causes = merge_labelled_events(*parts)
+        self.last_causes = self.last_causes.astype(np.uint8, copy=False)
+        return events
+
+    def _crossings(self, L0, raw0, raw1, x, t0_ns: int, dt_ns: int, leak_free: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The interval's threshold crossings (sorted events), their causes (uint8, signal or
+        leak: ``leak_free`` is the references (H, W) before the interval's leak drift, or
+        empty without leak) and each pixel's level at its end (H, W): ``raw1`` itself without
+        the filter (``x`` all inf)."""
         L1 = np.empty(self.shape)
         counts = _count_rows(L0, raw0, raw1, x, self.ref, self.c_on, self.c_off, L1)
         if np.any(counts < 0):
@@ -507,9 +556,10 @@ class EventEmulator:
         y = np.empty(total, np.uint16)
         p = np.empty(total, np.int8)
         keep = np.empty(total, np.bool_)
+        cause = np.empty(total, np.uint8)
         refractory = int(round(self.params.noise.refractory_period * 1e9))
         _write_rows(L0, raw0, raw1, x, self.ref, self.c_on, self.c_off, self._last_t, offsets,
-                    t0_ns, float(dt_ns), refractory, t, xs, y, p, keep)
+                    t0_ns, float(dt_ns), refractory, leak_free, t, xs, y, p, cause, keep)
         # Time order, ties in pixel order: sort on (t - t0) * pixels + pixel index. The key is
         # unique unless one pixel fires twice in the same nanosecond, so the fast (unstable)
         # sort gives the stable order; it fits int64 for intervals up to ~9e18 / (H W) ns.
@@ -520,7 +570,7 @@ class EventEmulator:
             order = order[keep[order]]
         events = np.empty(len(order), EVENT_DTYPE)
         events["t"], events["x"], events["y"], events["p"] = t[order], xs[order], y[order], p[order]
-        return events, L1
+        return events, cause[order], L1
 
 
 def _check_stack(log_frames, times) -> tuple[np.ndarray, np.ndarray]:

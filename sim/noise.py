@@ -67,7 +67,19 @@ Hot pixels (:func:`hot_pixel_mask`, :func:`hot_pixel_events`)
     events as a Poisson process at ``hot_pixel_rate``.
 
 Events are the project's structured array (``t`` int64 ns, ``x``/``y`` uint16, ``p`` int8
-+1/-1), sorted by ``t``; :func:`merge_events` merges streams stably.
++1/-1), sorted by ``t``; :func:`merge_events` merges streams stably, and
+:func:`merge_labelled_events` merges them with each event's cause (:data:`CAUSES`).
+
+Causes (each event's label, :mod:`sim.event_labels`)
+    :data:`CAUSE_SIGNAL` a threshold crossing of the signal; :data:`CAUSE_SHOT` a
+    background-activity event (:func:`background_events`); :data:`CAUSE_LEAK` a crossing that
+    the interval's leak drift added (the emulators' rule: between two samples of a pixel, its
+    crossings are counted twice on each monotonic piece of its level, against its reference
+    as it is (leak drift of the interval included) and against the *leak-free* reference
+    (the same without this interval's drift); the crossings beyond the leak-free count, the
+    last ones of the piece, are leak, the others signal); :data:`CAUSE_HOT_PIXEL` an event of
+    a hot pixel (:func:`hot_pixel_events`). A leak event is always ON (the drift lowers the
+    reference); without leak (``leak_rate`` 0) no event is one.
 """
 
 from __future__ import annotations
@@ -82,6 +94,11 @@ from sim.radiometry import OFFICE_WHITE_LUMINANCE
 from sim.validation import bounded
 
 __all__ = [
+    "CAUSES",
+    "CAUSE_HOT_PIXEL",
+    "CAUSE_LEAK",
+    "CAUSE_SHOT",
+    "CAUSE_SIGNAL",
     "NOISE_PRESETS",
     "THRESHOLD_FLOOR",
     "NoiseParams",
@@ -93,6 +110,7 @@ __all__ = [
     "leak_rate_map",
     "lowpass_exponent",
     "merge_events",
+    "merge_labelled_events",
     "noise_preset",
     "ramp_crossing",
     "ramp_response",
@@ -104,6 +122,18 @@ __all__ = [
 # The project's event layout. Identical to sim.events.EVENT_DTYPE, which cannot be imported
 # here because sim.events imports this module.
 _EVENT_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")])
+
+CAUSE_SIGNAL = 0
+"""An event's cause: a threshold crossing of the signal (leak-free reference)."""
+CAUSE_SHOT = 1
+"""An event's cause: background activity (shot noise, :func:`background_events`)."""
+CAUSE_LEAK = 2
+"""An event's cause: a crossing the interval's leak drift added (see the module docstring)."""
+CAUSE_HOT_PIXEL = 3
+"""An event's cause: a hot pixel (:func:`hot_pixel_events`)."""
+CAUSES = {CAUSE_SIGNAL: "signal", CAUSE_SHOT: "shot", CAUSE_LEAK: "leak",
+          CAUSE_HOT_PIXEL: "hot_pixel"}
+"""Cause code (uint8) -> name."""
 
 THRESHOLD_FLOOR = 0.01
 """Smallest contrast threshold (log units) that :func:`threshold_map` returns (v2e's clamp)."""
@@ -725,6 +755,23 @@ def hot_pixel_events(t0_ns: int, t1_ns: int, hot_mask: np.ndarray, rate: float,
     return _poisson_events(t0_ns, t1_ns, flat_index, counts, hot_mask.shape, False, rng)
 
 
+def _check_event_arrays(where: str, arrays) -> None:
+    for i, array in enumerate(arrays):
+        if not isinstance(array, np.ndarray) or array.dtype != _EVENT_DTYPE or array.ndim != 1:
+            got = array.dtype if isinstance(array, np.ndarray) else type(array).__name__
+            raise ValueError(f"argument {i} of {where} must be a 1-D event array with "
+                             f"dtype {_EVENT_DTYPE}, got {got}")
+
+
+def _merge_order(arrays: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray | None]:
+    """The concatenation of the time-sorted ``arrays`` and the stable order that sorts it by
+    ``t`` (None when at most one array is non-empty: already sorted)."""
+    merged = np.concatenate(arrays) if arrays else np.empty(0, _EVENT_DTYPE)
+    if sum(1 for a in arrays if len(a)) <= 1:
+        return merged, None
+    return merged, np.argsort(merged["t"], kind="stable")
+
+
 def merge_events(*arrays: np.ndarray) -> np.ndarray:
     """Merge time-sorted event arrays into one, stably.
 
@@ -739,15 +786,32 @@ def merge_events(*arrays: np.ndarray) -> np.ndarray:
         Every input event, sorted by ``t``; events with equal times keep the order of the
         arguments (and their order within an argument).
     """
-    for i, array in enumerate(arrays):
-        if not isinstance(array, np.ndarray) or array.dtype != _EVENT_DTYPE or array.ndim != 1:
-            got = array.dtype if isinstance(array, np.ndarray) else type(array).__name__
-            raise ValueError(f"argument {i} of merge_events must be a 1-D event array with "
-                             f"dtype {_EVENT_DTYPE}, got {got}")
-    non_empty = [a for a in arrays if len(a)]
-    if not non_empty:
-        return np.empty(0, _EVENT_DTYPE)
-    if len(non_empty) == 1:
-        return non_empty[0].copy()
-    merged = np.concatenate(non_empty)
-    return merged[np.argsort(merged["t"], kind="stable")]
+    _check_event_arrays("merge_events", arrays)
+    merged, order = _merge_order(list(arrays))
+    return merged if order is None else merged[order]
+
+
+def merge_labelled_events(*parts: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`merge_events` of event arrays that carry one label each (their causes).
+
+    Parameters
+    ----------
+    *parts : ((N_i,) structured ndarray, (N_i,) ndarray)
+        Events sorted by ``t`` and their labels.
+
+    Returns
+    -------
+    events : (sum N_i,) structured ndarray
+        As :func:`merge_events` of the events.
+    labels : (sum N_i,) ndarray
+        Each merged event's label.
+    """
+    _check_event_arrays("merge_labelled_events", [events for events, _ in parts])
+    for i, (events, labels) in enumerate(parts):
+        if np.shape(labels) != (len(events),):
+            raise ValueError(f"argument {i} of merge_labelled_events: {np.shape(labels)} labels "
+                             f"for {len(events)} events; expected one label per event")
+    merged, order = _merge_order([events for events, _ in parts])
+    labels = (np.concatenate([np.asarray(labels) for _, labels in parts]) if parts
+              else np.empty(0, np.uint8))
+    return (merged, labels) if order is None else (merged[order], labels[order])

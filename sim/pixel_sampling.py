@@ -61,11 +61,10 @@ from sim.events import (
     threshold_crossings,
 )
 from sim.noise import (
+    CAUSE_LEAK,
+    CAUSE_SIGNAL,
     _cutoff,
     _lowpass_exponent,
-    background_events,
-    hot_pixel_events,
-    merge_events,
 )
 from sim.sampling import SPLIT, SamplingParams, contrast_scale, motion_field
 
@@ -269,11 +268,15 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 
 @numba.njit(cache=True)
 def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
-                  refractory, write, out_t, out_pix, out_p, keep):  # pragma: no cover - compiled
+                  refractory, write, out_t, out_pix, out_p, out_cause,
+                  keep):  # pragma: no cover - compiled
     """Threshold crossings of per-pixel samples sorted by (pixel, time); the first sample of
     each pixel is its state at the block start. Returns their number; counts only (no
     crossing time is solved, the state is left alone) unless ``write``, which writes them,
-    with ``keep`` False for those the refractory period drops (each time is solved once).
+    with ``keep`` False for those the refractory period drops (each time is solved once),
+    and each one's cause in ``out_cause`` (:data:`~sim.noise.CAUSE_LEAK` beyond the count
+    against the leak-free reference of the interval, the reference less its drift, on its
+    piece; else :data:`~sim.noise.CAUSE_SIGNAL`: the rule of :mod:`sim.noise`).
 
     ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
     the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
@@ -300,6 +303,7 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
             lb = L[j]
             dt = tb - ta
             x = exponent[j - 1]
+            rf = r                                  # the interval's leak-free reference
             if leak_rates.size:
                 jitter = 1.0 - leak_jitter * normals[k]
                 if jitter < 0.0:
@@ -311,12 +315,15 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
             while True:
                 count, c, sign = threshold_crossings(y_hi, r, c_on[p], c_off[p])
                 if write:
+                    nf, cf, sf = threshold_crossings(y_hi, rf, c_on[p], c_off[p])
+                    rf += nf * cf
                     for i in range(1, count + 1):
                         te = filtered_crossing_time(r + i * c, lf, la, lb, x, f_lo, y_lo, f_hi,
                                                     y_hi, ta, float(dt))
                         out_t[n] = te
                         out_pix[n] = p
                         out_p[n] = sign
+                        out_cause[n] = CAUSE_LEAK if sf != sign or i > nf else CAUSE_SIGNAL
                         if refractory > 0 and te - last < refractory:
                             keep[n] = False
                         else:
@@ -340,11 +347,11 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
     return n
 
 
-def _outputs(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Times (int64 ns), flat pixels (int64), polarities (int8) and keep flags of ``n``
-    crossings."""
+def _outputs(n: int) -> tuple[np.ndarray, ...]:
+    """Times (int64 ns), flat pixels (int64), polarities (int8), causes (uint8) and keep
+    flags of ``n`` crossings."""
     return np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int8), \
-        np.empty(n, np.bool_)
+        np.empty(n, np.uint8), np.empty(n, np.bool_)
 
 
 class PixelEventEmulator(EventEmulator):
@@ -425,17 +432,19 @@ class PixelEventEmulator(EventEmulator):
         c_on, c_off = self.c_on.reshape(-1), self.c_off.reshape(-1)
         args = (pixels, times_ns, levels, exponent, ref, level, raw, last_t, c_on, c_off, leak,
                 normals, refractory)
-        out_t, out_pix, out_p, keep = _outputs(_pixel_events(*args, False, *_outputs(0)))
-        _pixel_events(*args, True, out_t, out_pix, out_p, keep)
+        out_t, out_pix, out_p, out_cause, keep = _outputs(_pixel_events(*args, False,
+                                                                         *_outputs(0)))
+        _pixel_events(*args, True, out_t, out_pix, out_p, out_cause, keep)
         if refractory > 0 and not keep.all():
-            out_t, out_pix, out_p = out_t[keep], out_pix[keep], out_p[keep]
+            out_t, out_pix, out_p, out_cause = (out_t[keep], out_pix[keep], out_p[keep],
+                                                out_cause[keep])
         order = np.argsort((out_t - t0_ns) * n_pixels + out_pix)
         total = len(order)
         events = np.empty(total, EVENT_DTYPE)
         events["t"] = out_t[order]
         events["y"], events["x"] = np.divmod(out_pix[order], shape[1])
         events["p"] = out_p[order]
-        return self._close_block(events, t0_ns, t_end_ns, end_luminance)
+        return self._close_block(events, t0_ns, t_end_ns, end_luminance, out_cause[order])
 
     def _leak_draws(self, pixels: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, float]]:
         """The leak's normal draws of a block (one per interval within a pixel's run, drawn
@@ -459,9 +468,10 @@ class PixelEventEmulator(EventEmulator):
                 (self.leak_rates.reshape(-1), float(noise.leak_jitter)))
 
     def _close_block(self, events: np.ndarray, t0_ns: int, t_end_ns: int,
-                     end_luminance: np.ndarray) -> np.ndarray:
+                     end_luminance: np.ndarray, causes: np.ndarray | None = None) -> np.ndarray:
         """A block's crossing events with its shot-noise and hot-pixel events merged in (drawn
-        in that order from the emulator's generator), and the emulator moved to ``t_end_ns``.
+        in that order from the emulator's generator; :attr:`last_causes` set), and the
+        emulator moved to ``t_end_ns``.
 
         Parameters
         ----------
@@ -471,18 +481,17 @@ class PixelEventEmulator(EventEmulator):
             The block's start and end, ns.
         end_luminance : (H, W) ndarray
             Each pixel's luminance at ``t_end_ns``, cd/m^2.
+        causes : (N,) uint8 ndarray, optional
+            Each crossing's cause (default all :data:`~sim.noise.CAUSE_SIGNAL`).
 
         Returns
         -------
         EVENT_DTYPE ndarray
         """
-        noise = self.params.noise
-        if noise.shot_noise_rate > 0:
-            events = merge_events(events, background_events(
-                t0_ns, t_end_ns, np.asarray(end_luminance, np.float64), noise, self._rng))
-        if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
-            events = merge_events(events, hot_pixel_events(t0_ns, t_end_ns, self.hot_mask,
-                                                           noise.hot_pixel_rate, self._rng))
+        if causes is None:
+            causes = np.full(len(events), CAUSE_SIGNAL, np.uint8)
+        events = self._with_noise(events, causes, t0_ns, t_end_ns,
+                                  np.asarray(end_luminance, np.float64))
         self._cutoff = self._cutoff_at(self._raw, end_luminance)
         self._t = int(t_end_ns)
         return events

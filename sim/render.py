@@ -32,7 +32,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sim.scene import Light, Scene, SceneObject
+from sim.scene._meshes import heightfield_mesh
+from sim.scene._model import Light, Scene, SceneObject
 from sim.variant import use_variant
 
 __all__ = ["RenderResult", "Renderer"]
@@ -73,17 +74,9 @@ def _heightfield_mesh(name: str, obj: SceneObject):
     """Triangle mesh of z = A sin(2 pi x / lx) cos(2 pi y / ly) over the size, local frame."""
     import mitsuba as mi
 
-    sx, sy = obj.params["size"]
-    nx, ny = obj.params["resolution"]
-    lx, ly = obj.params["wavelength"]
-    xs, ys = np.linspace(-sx / 2, sx / 2, nx), np.linspace(-sy / 2, sy / 2, ny)
-    gx, gy = np.meshgrid(xs, ys)
-    gz = obj.params["amplitude"] * np.sin(2 * np.pi * gx / lx) * np.cos(2 * np.pi * gy / ly)
-    vertices = np.stack([gx, gy, gz], axis=-1).reshape(-1, 3)
-    uv = np.stack(np.meshgrid(np.linspace(0, 1, nx), np.linspace(1, 0, ny)), -1).reshape(-1, 2)
-    idx = np.arange(nx * ny).reshape(ny, nx)
-    a, b, c, d = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    faces = np.concatenate([np.stack([a, b, d], -1), np.stack([a, d, c], -1)]).reshape(-1, 3)
+    p = obj.params
+    vertices, uv, faces = heightfield_mesh(p["size"], p["amplitude"], p["wavelength"],
+                                           p["resolution"])
     mesh = mi.Mesh(name, len(vertices), len(faces), has_vertex_normals=True,
                    has_vertex_texcoords=True)
     mesh.set_id(name)
@@ -552,13 +545,47 @@ class Renderer:
         return self._hit_objects(scene, self._row_rays(poses)).reshape(
             self.camera.height, self.camera.width)
 
+    def object_ids_at(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """:meth:`object_ids` of single pixels, each seen at its own time.
+
+        Each pixel-centre ray is cast from the trajectory's pose at its time, all in one
+        launch. A static scene only (its objects do not depend on time), on a JIT variant.
+
+        Parameters
+        ----------
+        pixels : (N,) int ndarray
+            Flat pixel indices (row-major).
+        times : (N,) float ndarray, seconds
+
+        Returns
+        -------
+        (N,) uint16 ndarray
+            0 where nothing is hit, ``i`` where the ray hits ``scene.objects[i - 1]``.
+        """
+        if self.variant == "scalar_rgb" or self.scene.is_dynamic:
+            raise ValueError("object_ids_at needs a static scene and a JIT variant (each ray "
+                             "at its own time)")
+        pixels = np.asarray(pixels, dtype=np.intp)
+        times = np.asarray(times, dtype=np.float64)
+        if pixels.shape != times.shape or pixels.ndim != 1:
+            raise ValueError(f"pixels and times must be (N,) arrays of one shape, got "
+                             f"{pixels.shape} and {times.shape}")
+        if not len(pixels):
+            return np.zeros(0, np.uint16)
+        poses = np.asarray(self.scene.trajectory.pose(times), dtype=np.float64).reshape(-1, 4, 4)
+        directions = np.einsum("nij,nj->ni", poses[:, :3, :3], self._rays_np[pixels])
+        return self._hit_objects(self._geometry_scene(), self._ray3f(poses[:, :3, 3], directions))
+
     def _row_rays(self, poses: np.ndarray):
         """The pixel-centre rays, row ``r`` from ``poses[r]`` (H, 4, 4)."""
-        mi = self._mi
         shape = (self.camera.height, self.camera.width)
         rays = self._rays_np.reshape(*shape, 3)
         directions = np.einsum("rij,rcj->rci", poses[:, :3, :3], rays).reshape(-1, 3)
-        origins = np.repeat(poses[:, :3, 3], shape[1], axis=0)
+        return self._ray3f(np.repeat(poses[:, :3, 3], shape[1], axis=0), directions)
+
+    def _ray3f(self, origins: np.ndarray, directions: np.ndarray):
+        """A Mitsuba ray batch from (N, 3) origins and directions (world frame)."""
+        mi = self._mi
         return mi.Ray3f(mi.Point3f(*(origins[:, i].astype(np.float32) for i in range(3))),
                         mi.Vector3f(*(directions[:, i].astype(np.float32) for i in range(3))))
 

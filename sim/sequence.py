@@ -392,6 +392,12 @@ class FileIndex:
     times: np.ndarray
     paths: tuple[Path, ...]
 
+    def at(self, t: float, tolerance: float = EXACT_TIME_S) -> Path | None:
+        """The file at time ``t`` (the nearest within ``tolerance``, the earlier on a tie), or
+        None when there is none that close (e.g. no forward flow at the last frame)."""
+        k = _nearest(self.times, t, tolerance)
+        return None if k is None else self.paths[k]
+
 
 @dataclass(frozen=True, eq=False)
 class FrameCameraFiles:
@@ -524,6 +530,8 @@ class Sequence:
         is then the event camera's, with no frames of its own.
     events_depth_txt : Path or None
         ``events_depth.txt`` (per-event depth as text), if present.
+    events_labels_txt : Path or None
+        ``events_labels.txt`` (per-event labels as text, :mod:`sim.event_labels`), if present.
     """
 
     folder: Path
@@ -545,6 +553,7 @@ class Sequence:
     imu_path: Path | None = None
     frame_camera: FrameCameraFiles | None = None
     events_depth_txt: Path | None = None
+    events_labels_txt: Path | None = None
 
     def read_velocity(self) -> np.ndarray | None:
         """``velocity.txt`` as (N, 7) float64 ``t vx vy vz wx wy wz`` (s, m/s, rad/s, camera
@@ -585,6 +594,27 @@ class Sequence:
 
         for path in (self.events_h5, self.events_depth_txt):
             found = None if path is None else read_event_depth(path, t0_ns, t1_ns)
+            if found is not None:
+                return found
+        return None
+
+    def event_labels(self, t0_ns: int | None = None, t1_ns: int | None = None
+                     ) -> np.ndarray | None:
+        """Events in ``[t0_ns, t1_ns)`` with their labels (simulated sequences): ``cause``
+        (uint8: 0 signal, 1 shot / background, 2 leak, 3 hot pixel) and ``object_id`` (int32:
+        the index of the object the pixel sees in the scene file's order, -1 none; its name is
+        ``metadata["events"]["labels"]["objects"][str(object_id)]``).
+
+        From ``events.h5`` (``events/cause``, ``events/object_id``) or else ``events.txt`` /
+        ``events_depth.txt`` with ``events_labels.txt``; None when the folder has no labels (a
+        real recording, or a run without motion truth). See
+        :func:`sim.event_labels.read_event_labels`.
+        """
+        from sim.event_labels import read_event_labels
+
+        texts = (self.events_txt, self.events_depth_txt) if self.events_labels_txt else ()
+        for path in (self.events_h5, *texts):
+            found = None if path is None else read_event_labels(path, t0_ns, t1_ns)
             if found is not None:
                 return found
         return None
@@ -785,7 +815,8 @@ def load_sequence(folder: str | Path) -> Sequence:
                     object_names=None if names is None else tuple(str(n) for n in names),
                     velocity_path=optional("velocity.txt"), imu_path=optional("imu.txt"),
                     frame_camera=frame_camera,
-                    events_depth_txt=optional("events_depth.txt"))
+                    events_depth_txt=optional("events_depth.txt"),
+                    events_labels_txt=optional("events_labels.txt"))
 
 
 def _flow_indexes(folder: Path) -> dict[str, FileIndex | None]:

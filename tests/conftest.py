@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import hashlib
+import importlib
 import os
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -166,3 +168,97 @@ else:
     import os as _os
 
     settings.load_profile(_os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+DATASET_JOBS = (("complex_sphere-0", "complex_sphere", ("h5", "txt")),
+                ("boxes_6dof-0", "boxes_6dof", ("txt", "depth-txt")))
+"""The done jobs of :func:`small_dataset`: one sequence read from ``events.h5``, one from
+``events.txt`` alone, its per-event depth in ``events_depth.txt`` (the loader's two paths)."""
+
+
+def write_dataset_manifest(folder: Path, rows: list[dict]) -> None:
+    """``folder/manifest.csv`` with the shared contract's columns (issue 24), one row a job."""
+    import csv
+
+    columns = ["job_id", "path", "status", "error", "scene", "seed", "attempts", "events",
+               "frames", "renders", "pixel_samples", "duration_s", "wall_s", "output_hash",
+               "evfuse_version", "mitsuba_version", "drjit_version", "numpy_version"]
+    with (folder / "manifest.csv").open("w", newline="", encoding="utf-8") as handle:
+        writer = csv.DictWriter(handle, columns, restval="")
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+@pytest.fixture(scope="session")
+def small_dataset(tmp_path_factory) -> Path:
+    """A dataset folder as ``evfuse generate`` writes it (the shared contract of issue 24): two
+    done jobs simulated by the library (48x36, 0.1 s, frames at 60 Hz: 6 frames each), a failed
+    one and a pending one, and ``manifest.csv``. Read-only for the tests (copy it to change it)."""
+    import dataclasses
+    import time
+
+    import drjit
+    import mitsuba
+    import numpy as np
+
+    from scenes import resolve_scene
+    from sim.output import evfuse_version, write_marker
+    from sim.scene import load_scene
+    from sim.simulate import simulate
+
+    folder = tmp_path_factory.mktemp("dataset") / "tiny"
+    (folder / "jobs").mkdir(parents=True)
+    write_marker(folder, "generate")
+    versions = {"evfuse_version": evfuse_version(), "mitsuba_version": mitsuba.__version__,
+                "drjit_version": drjit.__version__, "numpy_version": np.__version__}
+    rows = []
+    for job_id, name, formats in DATASET_JOBS:
+        scene = load_scene(resolve_scene(name))
+        scene = dataclasses.replace(scene, camera=scene.camera.with_resolution(48, 36),
+                                    frames=dataclasses.replace(scene.frames, rate=60.0,
+                                                                max_exposure=0.01))
+        began = time.perf_counter()
+        result = simulate(scene, folder / "jobs" / job_id, duration=0.1, start=0.5, spp=1,
+                          progress=False, event_formats=formats)
+        digest = hashlib.sha256()
+        for path in sorted(p for p in result.out.rglob("*") if p.is_file()):
+            digest.update(str(path.relative_to(result.out)).encode() + path.read_bytes())
+        rows.append({"job_id": job_id, "path": f"jobs/{job_id}", "status": "done",
+                     "scene": name, "seed": scene.seed, "attempts": 1,
+                     "events": result.n_events, "frames": result.n_frames,
+                     "renders": result.n_renders, "pixel_samples": result.event_pixel_samples,
+                     "duration_s": 0.1, "wall_s": round(time.perf_counter() - began, 3),
+                     "output_hash": digest.hexdigest(), **versions})
+    rows.append({"job_id": "broken-0", "path": "jobs/broken-0", "status": "failed",
+                 "error": "ValueError: the scene cannot render", "scene": "broken", "seed": 0,
+                 "attempts": 3, **versions})
+    rows.append({"job_id": "later-0", "path": "jobs/later-0", "status": "pending",
+                 "scene": "boxes_6dof", "seed": 1, "attempts": 0, **versions})
+    write_dataset_manifest(folder, rows)
+    return folder
+
+
+@contextmanager
+def interrupted_pixel_blocks(monkeypatch: pytest.MonkeyPatch, blocks: int,
+                             every: int = 3) -> Iterator[list[float]]:
+    """Inside the block, ``simulate``'s per-pixel sampler raises KeyboardInterrupt after
+    ``blocks`` blocks (their end times, s, go into the list yielded), with a checkpoint every
+    ``every`` blocks (that stays set after the block, for the resumed run)."""
+    driver = importlib.import_module("sim.simulate._events")
+    checkpoints = importlib.import_module("sim.simulate._checkpoint")
+    real, seen = driver.pixel_blocks, []
+
+    def interrupting(*args, **kwargs):
+        for block in real(*args, **kwargs):
+            if len(seen) == blocks:
+                raise KeyboardInterrupt
+            seen.append(block.t)
+            yield block
+
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_SAMPLES", every)
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_SECONDS", 1e9)
+    monkeypatch.setattr(driver, "pixel_blocks", interrupting)
+    try:
+        yield seen
+    finally:
+        monkeypatch.setattr(driver, "pixel_blocks", real)

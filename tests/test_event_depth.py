@@ -23,11 +23,9 @@ from sim.sampling import SamplingParams
 from sim.scene import parse_scene
 from sim.sequence import load_sequence
 from sim.simulate import simulate
-from tests.conftest import scene_text
+from tests.conftest import interrupted_pixel_blocks, scene_text
 
 simulation = importlib.import_module("sim.simulate._run")        # simulate() and its steps
-checkpoints = importlib.import_module("sim.simulate._checkpoint")  # when and what it saves
-event_driver = importlib.import_module("sim.simulate._events")   # the samplers it drives
 
 # A wall 1.5 m away and a box 0.8 m away in front of it: depth edges on every side of the box.
 OBJECTS = """
@@ -210,23 +208,10 @@ def test_depth_does_not_change_the_events_and_real_folders_have_none(static_run,
 
 def test_an_interrupted_run_resumes_to_the_same_depth(static_run, tmp_path, monkeypatch):
     scene, result, _ = static_run
-    real, seen = event_driver.pixel_blocks, []
-
-    def interrupting(*args, **kwargs):
-        for block in real(*args, **kwargs):
-            if len(seen) == 8:
-                raise KeyboardInterrupt
-            seen.append(block.t)
-            yield block
-
-    monkeypatch.setattr(checkpoints, "CHECKPOINT_SAMPLES", 3)
-    monkeypatch.setattr(checkpoints, "CHECKPOINT_SECONDS", 1e9)
-    monkeypatch.setattr(event_driver, "pixel_blocks", interrupting)
     out = tmp_path / "cut"
-    with pytest.raises(KeyboardInterrupt):
+    with interrupted_pixel_blocks(monkeypatch, 8), pytest.raises(KeyboardInterrupt):
         simulate(scene, out, progress=False, event_formats=FORMATS, sampler="pixel",
                  sampling=SamplingParams(max_rate=2000.0))
-    monkeypatch.setattr(event_driver, "pixel_blocks", real)
     simulate(scene, out, progress=False, event_formats=FORMATS, sampler="pixel", resume=True,
              sampling=SamplingParams(max_rate=2000.0))
     for name in ("events.h5", "events_depth.txt", "events.txt"):

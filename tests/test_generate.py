@@ -204,35 +204,25 @@ def test_dry_run_lists_every_job_with_a_probed_cost_and_writes_nothing(tmp_path,
     assert "--out DIR" in capsys.readouterr().err
 
 
-def test_a_procedural_scene_is_drawn_by_name_and_its_scene_file_resimulates_it(tmp_path,
-                                                                                 monkeypatch):
-    """``procedural = NAME`` calls ``sim.scene.procedural.NAME_scene(seed, **ranges)`` (here a
-    stand-in drawing a sphere family member from the seed); the job folder's ``scene.toml``,
-    simulated again alone with the job's parameters, gives the same events and frames."""
-    import types
+def test_a_procedural_scene_is_drawn_from_the_seed_and_its_scene_file_resimulates_it(
+        tmp_path):
+    """``procedural = "tabletop"`` draws the job's scene from its seed
+    (:func:`sim.scene.procedural.tabletop_scene`); the job folder's ``scene.toml``, simulated
+    again alone with the job's parameters, gives the same events and frames."""
+    from sim.scene import parse_scene
+    from sim.scene.procedural import tabletop_scene
 
-    import sim.scene
-    from sim.scene.families import family_scene
-
-    calls = []
-
-    def tabletop_scene(seed, **ranges):
-        calls.append((seed, ranges))
-        return family_scene("sphere", radius=ranges["radius"][seed % 2])
-
-    fake = types.ModuleType("sim.scene.procedural")
-    fake.tabletop_scene = tabletop_scene
-    monkeypatch.setitem(sys.modules, "sim.scene.procedural", fake)
-    monkeypatch.setattr(sim.scene, "procedural", fake, raising=False)
     grid = '[grid]\nsensor = "48x36"\nt1 = 0.05\ncontrast = 0.25\n'
     sweep = tmp_path / "procedural.toml"
-    sweep.write_text(f'seeds = [3]\n[[scenes]]\nprocedural = "tabletop"\nradius = [0.2, 0.3]\n'
-                     f'{grid}')
+    sweep.write_text(f'seeds = [3]\n[[scenes]]\nprocedural = "tabletop"\n{grid}')
     result = generate(sweep, tmp_path / "drawn", workers=0, **QUIET)
-    assert result.failed == 0 and (3, {"radius": [0.2, 0.3]}) in calls
+    assert result.failed == 0
     folder = tmp_path / "drawn" / result.rows[0]["path"]
     text = (folder / "scene.toml").read_text()
-    assert text.startswith("seed = 3\n") and "sphere_radius0.3_" in text
+    drawn = tabletop_scene(3)                                  # the same seed, the same file
+    body = [line for line in drawn.splitlines() if not line.startswith("seed =")]
+    assert text.splitlines() == ["seed = 3", *body]
+    assert parse_scene(text).seed == 3
     again = tmp_path / "again.toml"
     again.write_text(f'seeds = [3]\n[[scenes]]\nfile = "{folder / "scene.toml"}"\n{grid}')
     redo = generate(again, tmp_path / "again", workers=0, **QUIET)

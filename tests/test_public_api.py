@@ -33,9 +33,11 @@ BEFORE = {
                        "SplineTrajectory", "Trajectory", "read_trajectory", "write_trajectory"],
     "sim.render": ["RenderResult", "Renderer"],
     "sim.scene": ["Scene", "SceneError", "load_scene", "parse_scene"],
+    "sim.scene.procedural": ["PROCEDURAL_FAMILIES", "room_scene", "tabletop_scene"],  # new: 24
     "sim.simulate": ["SimulationResult", "simulate"],
     "sim.variant": ["active_variant", "use_variant"],
     "sim.exr": ["read_depth", "write_depth"],
+    "sim.dataset": ["open_dataset"],
     "fusion.benchmark": ["BenchParams", "bench", "run_bench"],
     "fusion.emvs": ["DSIParams", "DepthMapParams", "depth_planes", "disparity_space_image",
                     "semidense_depth"],

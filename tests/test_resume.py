@@ -22,7 +22,7 @@ from sim.sampling import SamplingStats, adaptive_samples
 from sim.scene import parse_scene
 from sim.shader import EventShader
 from sim.simulate import SimulationResult, simulate
-from tests.conftest import FAST, scene_text
+from tests.conftest import FAST, interrupted_pixel_blocks, scene_text
 
 simulation = importlib.import_module("sim.simulate._run")        # simulate() and its steps
 checkpoints = importlib.import_module("sim.simulate._checkpoint")  # when and what it saves
@@ -201,27 +201,14 @@ def test_an_interrupted_per_pixel_run_resumes_to_the_uninterrupted_files(tmp_pat
     run(tmp_path / "again")
     assert whole.sampler == "pixel" and whole.n_events > 5000
     _assert_same_sequence(tmp_path / "whole", tmp_path / "again")          # deterministic
-    real = event_driver.pixel_blocks
-    seen = []
-
-    def interrupting(*args, **kwargs):
-        for block in real(*args, **kwargs):
-            if len(seen) == 7:
-                raise KeyboardInterrupt
-            seen.append(block.t)
-            yield block
-
-    monkeypatch.setattr(checkpoints, "CHECKPOINT_SAMPLES", 3)              # every 3 blocks
-    monkeypatch.setattr(checkpoints, "CHECKPOINT_SECONDS", 1e9)
-    monkeypatch.setattr(event_driver, "pixel_blocks", interrupting)
     out = tmp_path / "cut"
-    with pytest.raises(KeyboardInterrupt):
+    with interrupted_pixel_blocks(monkeypatch, 7, every=3) as seen, \
+            pytest.raises(KeyboardInterrupt):
         run(out)
     with np.load(tmp_path / "cut.partial" / ".checkpoint" / "events.npz") as saved:
         state = json.loads(str(saved["state"]))
         assert saved["observed_rates"].shape == (48 * 64,)
     assert state["sample"]["t"] == pytest.approx(seen[5])                 # blocks 3 and 6
-    monkeypatch.setattr(event_driver, "pixel_blocks", real)
     result = run(out, resume=True)
     assert result.n_events == whole.n_events
     _assert_same_sequence(tmp_path / "whole", out)

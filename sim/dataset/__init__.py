@@ -1,4 +1,8 @@
-"""Datasets: many sequences from one sweep file, generated on Dask (``evfuse generate``).
+"""Datasets, not sequences (issue 24): many simulated sequences in one folder, how they are
+generated from a sweep file on Dask (``evfuse generate``), and their loader.
+
+A dataset folder holds ``manifest.csv`` (one row per job) and one sequence folder per job
+(``jobs/<job_id>/``, as ``evfuse simulate --out`` writes it).
 
 Modules (private; everything public is re-exported here):
 
@@ -10,19 +14,43 @@ Modules (private; everything public is re-exported here):
   process; resumable) and :func:`estimate_jobs` (``--dry-run``'s cost from a probe).
 - ``_manifest``: ``manifest.csv`` / ``.parquet`` (:func:`write_manifest`,
   :func:`read_manifest`) and a job folder's :func:`output_hash`.
+- ``_loader``: :func:`open_dataset` (:class:`Dataset`: per standard frame a :class:`Sample`, the
+  events since the previous frame with tonic's fields :data:`DATASET_EVENT_DTYPE`, the frame,
+  its exact depth, flow, IMU, pose and calibration; :class:`EventWindow` for windows by time).
+- ``_card``: :func:`dataset_summary` and :func:`write_card` (``evfuse dataset DIR``: the summary
+  and ``DIR/card.md`` with its contact sheet).
 """
 
-from __future__ import annotations
-
-# --- generate (sweeps, jobs, Dask, manifest) ---
+from sim.dataset._card import CARD, DatasetSummary, dataset_summary, write_card
 from sim.dataset._jobs import PARAMETERS, Job, job_inputs, run_job
+from sim.dataset._loader import (
+    DATASET_EVENT_DTYPE,
+    MANIFEST,
+    TIME_UNITS,
+    Dataset,
+    EventWindow,
+    Sample,
+    open_dataset,
+)
 from sim.dataset._manifest import output_hash, read_manifest, write_manifest
 from sim.dataset._run import GenerateResult, default_cluster_size, estimate_jobs, generate
 from sim.dataset._sweep import Sweep, SweepError, load_sweep, parse_sweep
 
 __all__ = [
-    # generate
+    # generate (sweeps, jobs, Dask, manifest)
     "PARAMETERS", "GenerateResult", "Job", "Sweep", "SweepError", "default_cluster_size",
     "estimate_jobs", "generate", "job_inputs", "load_sweep", "output_hash", "parse_sweep",
     "read_manifest", "run_job", "write_manifest",
+    # loader and card (evfuse dataset)
+    "CARD",
+    "DATASET_EVENT_DTYPE",
+    "MANIFEST",
+    "TIME_UNITS",
+    "Dataset",
+    "DatasetSummary",
+    "EventWindow",
+    "Sample",
+    "dataset_summary",
+    "open_dataset",
+    "write_card",
 ]

@@ -172,17 +172,33 @@ class Job:
         return "family" in self.scene or "procedural" in self.scene
 
 
-def scene_text(job: Job) -> str | None:
+def scene_text(job: Job, variant: str | None = None) -> str | None:
     """The TOML text of a family or procedural job's scene (None for a built-in or file), its
     top-level ``seed`` the job's, so that the text alone is the job's scene.
+
+    Parameters
+    ----------
+    job : Job
+    variant : str, optional
+        The Mitsuba variant a procedural family checks its draws with.
 
     Raises
     ------
     ValueError
-        A knob or range the family refuses; a procedural family this build lacks.
+        A knob or range the family refuses.
     """
-    text = _generated_text(job)
-    return None if text is None else _with_seed(text, job.seed)
+    spec = dict(job.scene)
+    if "family" in spec:
+        from sim.scene.families import family_scene
+
+        text = family_scene(spec.pop("family"), **spec)
+    elif "procedural" in spec:
+        from sim.scene.procedural import procedural_scene
+
+        text = procedural_scene(spec.pop("procedural"), job.seed, variant=variant, **spec)
+    else:
+        return None
+    return _with_seed(text, job.seed)
 
 
 def _with_seed(text: str, seed: int) -> str:
@@ -194,29 +210,14 @@ def _with_seed(text: str, seed: int) -> str:
     return f"seed = {seed}\n" + "".join(head + lines[first_table:])
 
 
-def _generated_text(job: Job) -> str | None:
-    spec = dict(job.scene)
-    if "family" in spec:
-        from sim.scene.families import family_scene
-
-        return family_scene(spec.pop("family"), **spec)
-    if "procedural" in spec:
-        name = spec.pop("procedural")
-        try:
-            from sim.scene import procedural
-        except ImportError:
-            raise ValueError(f"procedural scene {name!r}: this build has no "
-                             "sim.scene.procedural") from None
-        generator = getattr(procedural, f"{name}_scene", None)
-        if generator is None:
-            raise ValueError(f"procedural scene {name!r}: sim.scene.procedural has no "
-                             f"{name}_scene")
-        return generator(job.seed, **spec)
-    return None
-
-
-def job_scene(job: Job):
+def job_scene(job: Job, text: str | None = None):
     """The job's scene (:class:`sim.scene.Scene`, its seed the job's), before its parameters.
+
+    Parameters
+    ----------
+    job : Job
+    text : str, optional
+        A family or procedural job's :func:`scene_text`, if already drawn.
 
     Raises
     ------
@@ -226,7 +227,7 @@ def job_scene(job: Job):
     from scenes import resolve_scene
     from sim.scene import load_scene, parse_scene
 
-    text = scene_text(job)
+    text = scene_text(job) if text is None else text
     if text is not None:
         return parse_scene(text, f"<{job.job_id}/{SCENE_FILE}>", seed=job.seed)
     if "name" in job.scene:
@@ -341,10 +342,9 @@ def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
 
     dataset = Path(dataset)
     folder = dataset / JOBS_FOLDER / job.job_id
-    text = scene_text(job) if job.generated else None
     if folder.is_dir():
-        if text is not None and not (folder / SCENE_FILE).is_file():
-            write_bytes_atomically(folder / SCENE_FILE, text.encode())
+        if job.generated and not (folder / SCENE_FILE).is_file():
+            write_bytes_atomically(folder / SCENE_FILE, scene_text(job, variant).encode())
         return {**job_record(folder), "ran": False, "resumed": False}
     clock = time.perf_counter()
     _log(dataset, "start", job)
@@ -352,7 +352,8 @@ def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
         checkpoint = partial_dir(folder) / CHECKPOINT_FOLDER
         resume = checkpoint.is_dir() and any(checkpoint.iterdir())
         with _ONE_AT_A_TIME:
-            scene, kwargs = job_inputs(job)
+            text = scene_text(job, variant) if job.generated else None
+            scene, kwargs = job_inputs(job, job_scene(job, text))
             simulate(scene, folder, variant=variant, progress=False, resume=resume, **kwargs)
         if text is not None:
             write_bytes_atomically(folder / SCENE_FILE, text.encode())

@@ -40,11 +40,9 @@ import numpy as np
 
 from sim.dataset._jobs import PARAMETERS, Job, check_parameter
 
-__all__ = ["DRAWS", "PROCEDURAL_FAMILIES", "Sweep", "SweepError", "draw_parameters",
+__all__ = ["DRAWS", "Sweep", "SweepError", "draw_parameters",
            "load_sweep", "parse_sweep"]
 
-PROCEDURAL_FAMILIES = ("tabletop", "room")
-"""The procedural scene families (``sim.scene.procedural.<name>_scene(seed, **ranges)``)."""
 DRAWS = ("uniform", "log_uniform", "integer", "choice")
 """How a ``[draw]`` parameter is drawn from the job's seed."""
 _TOP = ("name", "description", "seeds", "scenes", "grid", "draw")
@@ -228,11 +226,31 @@ def _scenes(value: object, base: Path, fail) -> list[dict]:
                     raise fail(key, str(error)) from None
                 out.append({"family": name, **knobs})
         else:
-            if name not in PROCEDURAL_FAMILIES:
-                raise fail(f"{key}.procedural", f"{name!r}: expected one of "
-                                                f"{', '.join(PROCEDURAL_FAMILIES)}")
-            out.append({"procedural": name, **rest})
+            out.append({"procedural": name, **_procedural_ranges(name, rest, key, fail)})
     return out
+
+
+def _procedural_ranges(name: str, ranges: dict, key: str, fail) -> dict:
+    """A procedural scene's ranges, checked by its family's ranges class
+    (:mod:`sim.scene.procedural`: ``TabletopRanges``, ``RoomRanges``)."""
+    from dataclasses import fields
+
+    from sim.scene.procedural import PROCEDURAL_FAMILIES, RoomRanges, TabletopRanges
+
+    classes = {"tabletop": TabletopRanges, "room": RoomRanges}
+    if name not in PROCEDURAL_FAMILIES or name not in classes:
+        raise fail(f"{key}.procedural", f"{name!r}: expected one of "
+                                        f"{', '.join(PROCEDURAL_FAMILIES)}")
+    known = {item.name for item in fields(classes[name])}
+    for range_name in ranges:
+        if range_name not in known:
+            raise fail(f"{key}.{range_name}", f"not a range of the {name} family; expected "
+                                              f"one of {', '.join(sorted(known))}")
+    try:
+        classes[name](**ranges)
+    except (ValueError, TypeError) as error:
+        raise fail(key, str(error)) from None
+    return ranges
 
 
 def _grid(value: object, fail) -> dict[str, list]:

@@ -39,7 +39,8 @@ Modules (private; everything public is re-exported here):
 - ``_hdf5``: :class:`H5EventWriter` and the checked reader of the DSEC layout.
 - ``_units``: :func:`check_time_units` (times in another unit than the format stores).
 - ``_read``: :func:`iter_event_chunks`, :func:`read_events`, :func:`read_window`,
-  :func:`event_time_span`.
+  :func:`event_time_span`; :func:`text_offsets` and :func:`read_text_span` (a text file read
+  window by window).
 - ``_convert``: :func:`convert_events`.
 """
 
@@ -49,7 +50,14 @@ from sim._atomic import PARTIAL_SUFFIX  # the one suffix of everything unfinishe
 from sim.eventio._convert import convert_events
 from sim.eventio._events import EVENT_DTYPE, check_events, make_events
 from sim.eventio._hdf5 import MAX_EMPTY_MS, H5EventWriter
-from sim.eventio._read import event_time_span, iter_event_chunks, read_events, read_window
+from sim.eventio._read import (
+    event_time_span,
+    iter_event_chunks,
+    read_events,
+    read_text_span,
+    read_window,
+    text_offsets,
+)
 from sim.eventio._text import TextEventWriter
 from sim.eventio._units import UNIT_OVERLAP, UNIT_SLACK, check_time_units
 
@@ -68,5 +76,7 @@ __all__ = [
     "iter_event_chunks",
     "make_events",
     "read_events",
+    "read_text_span",
     "read_window",
+    "text_offsets",
 ]

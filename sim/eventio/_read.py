@@ -1,6 +1,8 @@
 """Reading event files of either format: :func:`iter_event_chunks` (streamed, optionally a time
 window; dispatched on the suffix), :func:`read_events`, :func:`read_window` and
-:func:`event_time_span`."""
+:func:`event_time_span`; for text files, which have no index of their own, :func:`text_offsets`
+(where given times begin, found in one streaming pass) and :func:`read_text_span` (the events of
+a byte range)."""
 
 from __future__ import annotations
 
@@ -13,9 +15,10 @@ import numpy as np
 from sim.eventio._events import EVENT_DTYPE, _check_size, _first_error
 from sim.eventio._formats import _kind
 from sim.eventio._hdf5 import _H5Source
-from sim.eventio._text import _iter_text_blocks
+from sim.eventio._text import _iter_text_blocks, _line_blocks, _parse_block
 
-__all__ = ["event_time_span", "iter_event_chunks", "read_events", "read_window"]
+__all__ = ["event_time_span", "iter_event_chunks", "read_events", "read_text_span", "read_window",
+           "text_offsets"]
 
 
 def event_time_span(path: str | Path, width: int | None = None,
@@ -201,3 +204,129 @@ def read_window(path: str | Path, t0_ns: int, t1_ns: int) -> np.ndarray:
     if t0_ns is None or t1_ns is None:
         raise ValueError(f"read_window needs both t0_ns and t1_ns, got {t0_ns!r} and {t1_ns!r}")
     return _concatenate(iter_event_chunks(path, 1 << 26, t0_ns, t1_ns))
+
+
+_TEXT_BLOCK = 1 << 22
+"""Bytes of an ``events.txt`` parsed at a time by :func:`text_offsets` (4 MiB: its memory)."""
+
+
+def _event_line_starts(block: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """Byte offset and 0-based line number, within ``block`` (whole lines), of each line that
+    holds an event: its first byte after spaces and tabs is a digit (every other line the text
+    parser accepts is blank or a ``#`` comment)."""
+    buf = np.frombuffer(block, dtype=np.uint8)
+    starts = np.concatenate(([0], np.flatnonzero(buf == 10) + 1))
+    starts = starts[starts < buf.size]
+    first = buf[starts]
+    digit = (first >= 48) & (first <= 57)
+    for k in np.flatnonzero((first == 32) | (first == 9)):   # rare: indented lines
+        text = block[starts[k]:block.find(b"\n", starts[k]) % (len(block) + 1)].lstrip(b" \t")
+        digit[k] = text[:1].isdigit()
+    lines = np.flatnonzero(digit)
+    return starts[lines], lines
+
+
+def text_offsets(path: str | Path, times_ns: np.ndarray, *, width: int | None = None,
+                 height: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Where each of ``times_ns`` begins in an ``events.txt``: the byte offset and line number
+    of its first event at or after that time, found in one streaming pass.
+
+    With them, the events of ``[times_ns[k], times_ns[k + 1])`` are the bytes between two
+    offsets (:func:`read_text_span`): a text file read window by window without parsing it from
+    the start each time.
+
+    Parameters
+    ----------
+    path : str or Path
+        An ECD ``events.txt``.
+    times_ns : (K,) int64 ndarray, nanoseconds
+        Non-decreasing.
+    width, height : int, optional
+        Sensor size; events outside it are an error.
+
+    Returns
+    -------
+    offsets : (K,) int64 ndarray, bytes
+        Offset of the line of the first event with ``t >= times_ns[k]`` (the file's size when
+        there is none).
+    lines : (K,) int64 ndarray
+        Its 1-based line number (one past the last line when there is none), for messages.
+
+    Raises
+    ------
+    ValueError
+        ``times_ns`` not non-decreasing, or as :func:`iter_event_chunks`.
+    """
+    path = Path(path)
+    times = np.asarray(times_ns, dtype=np.int64).reshape(-1)
+    if np.any(np.diff(times) < 0):
+        raise ValueError(f"text_offsets: times_ns must be non-decreasing, got {times[:5]}...")
+    _check_size(width, height, str(path))
+    if not path.is_file():
+        raise ValueError(f"event file {path} does not exist")
+    offsets = np.full(times.size, path.stat().st_size, np.int64)
+    lines = np.zeros(times.size, np.int64)
+    found = 0                                     # times placed so far
+    position, first_line, t_prev, ended = 0, 1, -1, True
+    for block in _line_blocks(path, _TEXT_BLOCK):
+        if found == times.size:
+            break
+        events, newlines = _parse_block(block, path, first_line, width, height, t_prev)
+        if events.size:
+            starts, numbers = _event_line_starts(block)
+            if starts.size != events.size:        # cannot happen for a file the parser took
+                raise ValueError(f"{path}: {events.size} events but {starts.size} event lines "
+                                 f"from line {first_line}")
+            t_prev = int(events["t"][-1])
+            last = found + int(np.searchsorted(times[found:], t_prev, side="right"))
+            at = np.searchsorted(events["t"], times[found:last], side="left")
+            offsets[found:last] = position + starts[at]
+            lines[found:last] = first_line + numbers[at]
+            found = last
+        position += len(block)
+        first_line += newlines
+        ended = block.endswith(b"\n")
+    lines[found:] = first_line + (0 if ended else 1)
+    return offsets, lines
+
+
+def read_text_span(path: str | Path, start: int, stop: int, first_line: int = 1, *,
+                   width: int | None = None, height: int | None = None) -> np.ndarray:
+    """The events of bytes ``[start, stop)`` of an ``events.txt`` (offsets from
+    :func:`text_offsets`: whole lines).
+
+    Parameters
+    ----------
+    path : str or Path
+        An ECD ``events.txt``.
+    start, stop : int, bytes
+        ``0 <= start <= stop``; both at the start of a line (or the file's end).
+    first_line : int
+        The line number at ``start`` (1-based), for messages.
+    width, height : int, optional
+        Sensor size; events outside it are an error.
+
+    Returns
+    -------
+    (M,) EVENT_DTYPE ndarray
+        Time-ordered (the order is checked within the span).
+
+    Raises
+    ------
+    ValueError
+        A bad range, or a malformed line (``"{path}:{line}: ..."``, as
+        :func:`iter_event_chunks`).
+    """
+    path = Path(path)
+    for name, value in (("start", start), ("stop", stop)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
+            raise ValueError(f"read_text_span: {name} must be a byte offset >= 0, got {value!r}")
+    if stop < start:
+        raise ValueError(f"read_text_span: byte range [{start}, {stop}) ends before it starts")
+    _check_size(width, height, str(path))
+    if not path.is_file():
+        raise ValueError(f"event file {path} does not exist")
+    with path.open("rb") as handle:
+        handle.seek(int(start))
+        block = handle.read(int(stop) - int(start))
+    return _parse_block(block, path, int(first_line), width, height, -1)[0]

@@ -261,32 +261,36 @@ def _parse_block(block: bytes, path: Path, first_line: int, width: int | None,
     return _parse_lines(block, path, first_line, width, height, t_prev), newlines
 
 
-def _iter_text_blocks(path: Path, block_bytes: int, width: int | None,
-                      height: int | None) -> Iterator[np.ndarray]:
-    t_prev = -1
-    first_line = 1
+def _line_blocks(path: Path, block_bytes: int) -> Iterator[bytes]:
+    """The bytes of a text file in consecutive blocks of whole lines (about ``block_bytes``
+    each; a longer line makes its block longer; the last block may lack its final newline)."""
     carry = b""
     with path.open("rb") as handle:
         while True:
             data = handle.read(block_bytes)
-            at_end = not data
-            data = carry + data
-            if at_end:
-                block, carry = data, b""
-            else:
-                cut = data.rfind(b"\n")
-                if cut < 0:  # one very long line: read on
-                    carry = data
-                    continue
-                block, carry = data[:cut + 1], data[cut + 1:]
-            if block:
-                events, newlines = _parse_block(block, path, first_line, width, height, t_prev)
-                first_line += newlines
-                if events.size:
-                    t_prev = int(events["t"][-1])
-                    yield events
-            if at_end:
+            if not data:
+                if carry:
+                    yield carry
                 return
+            data = carry + data
+            cut = data.rfind(b"\n")
+            if cut < 0:  # one very long line: read on
+                carry = data
+                continue
+            carry = data[cut + 1:]
+            yield data[:cut + 1]
+
+
+def _iter_text_blocks(path: Path, block_bytes: int, width: int | None,
+                      height: int | None) -> Iterator[np.ndarray]:
+    t_prev = -1
+    first_line = 1
+    for block in _line_blocks(path, block_bytes):
+        events, newlines = _parse_block(block, path, first_line, width, height, t_prev)
+        first_line += newlines
+        if events.size:
+            t_prev = int(events["t"][-1])
+            yield events
 
 
 class TextEventWriter(_StreamingWriter):

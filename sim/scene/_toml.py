@@ -22,6 +22,7 @@ from sim.frame_camera import SHUTTERS, FrameCamera
 from sim.frame_sensor import FRAME_SENSORS, FrameSensor
 from sim.frames import FRAME_SENSOR_NAMES, FrameParams
 from sim.imu import IMU_PRESETS, ImuParams
+from sim.scene._meshes import BUILTIN_MESH_PREFIX, builtin_mesh_path
 from sim.scene._model import (
     Light,
     Material,
@@ -709,7 +710,14 @@ def _parse_object(ctx: _Ctx, raw: Any, key: str, base_dir: Path) -> SceneObject:
         if min(params["resolution"]) < 2 or any(v != int(v) for v in res):
             raise ctx.fail(f"{key}.resolution", f"expected 2 integers >= 2, got {res}")
     elif shape == "mesh":
-        path = base_dir / _string(ctx, table["path"], f"{key}.path")
+        given = _string(ctx, table["path"], f"{key}.path")
+        if given.startswith(BUILTIN_MESH_PREFIX):
+            try:
+                path = builtin_mesh_path(given[len(BUILTIN_MESH_PREFIX):])
+            except ValueError as exc:
+                raise ctx.fail(f"{key}.path", str(exc)) from None
+        else:
+            path = base_dir / given
         if path.suffix.lower() not in (".obj", ".ply"):
             raise ctx.fail(f"{key}.path", f"expected an .obj or .ply file, got {path.name}")
         if not path.is_file():

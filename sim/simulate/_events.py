@@ -23,6 +23,7 @@ import numpy as np
 
 from sim.event_depth import (
     DEPTH_TXT,
+    LABELS_TXT,
     EventDepth,
     EventOutputs,
     H5EventDepthWriter,
@@ -31,6 +32,7 @@ from sim.event_depth import (
     event_depth_record,
     event_file_name,
 )
+from sim.event_labels import LABELS_TXT_NAME, TextEventLabelWriter, event_labels_record
 from sim.eventio import H5EventWriter, TextEventWriter
 from sim.events import EventEmulator, EventParams
 from sim.pixel_sampling import PixelEventEmulator, PixelSamplingStats, pixel_blocks
@@ -170,8 +172,9 @@ def _choose_sampler(scene: Scene, variant: str, requested: str | None) -> tuple[
 def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions: dict,
                  seconds: float, progress: bool, depth: EventDepth | None, timings: dict):
     """The event stage's progress bar and event writers (resumed at ``positions``, behind
-    :class:`sim.event_depth.EventOutputs`, which adds ``depth`` where a file holds it), with
-    the emulator on one thread; all undone on exit."""
+    :class:`sim.event_depth.EventOutputs`, which adds ``depth`` where a file holds it, and the
+    per-event labels with it: :mod:`sim.event_labels`), with the emulator on one thread; all
+    undone on exit."""
     camera = scene.camera
     bar = progress_stage(total=round(seconds, 6), desc=f"events {scene.name}", unit="s",
                          noun="s simulated", enabled=progress,
@@ -186,32 +189,51 @@ def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions
         numba.set_num_threads(1)
         stack.callback(numba.set_num_threads, threads)
         writers: dict[str, H5EventWriter | TextEventWriter] = {}
-        if "h5" in formats:
-            writers["h5"] = stack.enter_context((H5EventWriter if depth is None else
-                                                 H5EventDepthWriter)(
+        labels = _labelled(formats, depth is not None)
+        if "h5" in formats and depth is None:
+            writers["h5"] = stack.enter_context(H5EventWriter(
                 folder / "events.h5", camera.width, camera.height, resume=positions.get("h5")))
+        elif "h5" in formats:
+            writers["h5"] = stack.enter_context(H5EventDepthWriter(
+                folder / "events.h5", camera.width, camera.height, resume=positions.get("h5"),
+                labels=labels))
         if "txt" in formats:
             writers["txt"] = stack.enter_context(TextEventWriter(
                 folder / "events.txt", resume=positions.get("txt")))
         if DEPTH_TXT in formats:
             writers[DEPTH_TXT] = stack.enter_context(TextEventDepthWriter(
                 folder / event_file_name(DEPTH_TXT), resume=positions.get(DEPTH_TXT)))
+        if labels and ("txt" in formats or DEPTH_TXT in formats):
+            writers[LABELS_TXT] = stack.enter_context(TextEventLabelWriter(
+                folder / LABELS_TXT_NAME, resume=positions.get(LABELS_TXT)))
         offset_ns = round(scene.rig.events_offset * 1e9)
         if offset_ns:
             writers = {fmt: _OnEventClock(writer, offset_ns) for fmt, writer in writers.items()}
         with_depth = depth is not None and ("h5" in formats or DEPTH_TXT in formats)
-        yield bar, EventOutputs(writers, depth if with_depth else None, timings)
+        yield bar, EventOutputs(writers, depth if with_depth or labels else None, timings,
+                                labels=labels)
+
+
+def _labelled(formats: tuple[str, ...], motion_truth: bool) -> bool:
+    """Whether the event files get per-event labels (:mod:`sim.event_labels`): with the
+    motion truth (the object ids are found beside the per-event depth, by its
+    :class:`sim.event_depth.EventDepth`), in ``events.h5`` and beside a text format."""
+    return motion_truth and any(fmt in formats for fmt in ("h5", "txt", DEPTH_TXT))
 
 
 def _event_info(params: EventParams, formats: tuple[str, ...], sampling: SamplingParams,
-                scene: Scene, count: int, on: int) -> dict:
-    """The part of ``sequence.json``'s ``events`` both samplers write alike."""
+                scene: Scene, count: int, on: int, motion_truth: bool = True,
+                own_rays: bool = True) -> dict:
+    """The part of ``sequence.json``'s ``events`` both samplers write alike (``own_rays``:
+    the labels' object ids from each event's own ray, :mod:`sim.event_labels`)."""
     return {
         "count": count,
         "on": on,
         "off": count - on,
         "files": [event_file_name(fmt) for fmt in formats],
         "depth": event_depth_record(formats),
+        "labels": (event_labels_record(formats, [obj.name for obj in scene.objects], own_rays)
+                   if _labelled(formats, motion_truth) else None),
         "contrast_on": params.contrast_on,
         "contrast_off": params.contrast_off,
         "log_eps": params.log_eps,
@@ -238,6 +260,8 @@ class _Step:
         The time the step ends at.
     events : structured ndarray or None
         The step's events (:data:`sim.events.EVENT_DTYPE`).
+    causes : (N,) uint8 ndarray or None
+        Each event's cause (:attr:`sim.events.EventEmulator.last_causes`).
     sample : Sample
         The sample at ``t`` (its luminance and log intensity, (H, W) float32) a resumed run
         continues from.
@@ -254,6 +278,7 @@ class _Step:
     sample: Sample
     pending: bool = False
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    causes: np.ndarray | None = None
 
 
 class _FrameSampler:
@@ -296,10 +321,11 @@ class _FrameSampler:
                                        sampling, stats, after=self._after):
             if emulator.time_ns is None:
                 emulator.start(sample.log, sample.t, sample.luminance)
-                chunk = None
+                chunk, causes = None, None
             else:
                 chunk = emulator.advance(sample.log, sample.t, sample.luminance)
-            yield _Step(sample.t, chunk, sample, pending=sample.tail_pending)
+                causes = emulator.last_causes
+            yield _Step(sample.t, chunk, sample, pending=sample.tail_pending, causes=causes)
 
     @staticmethod
     def progress(stats: SamplingStats, why: str) -> str:
@@ -366,7 +392,8 @@ class _PixelSampler:
                                   sampling, stats, after=self._after):
             yield _Step(block.t, block.events, Sample(block.t, block.luminance, block.log, 0.0,
                                                       True),
-                        extra={"observed_rates": block.observed})
+                        extra={"observed_rates": block.observed},
+                        causes=emulator.last_causes)     # of the block just emulated
 
     @staticmethod
     def progress(stats: PixelSamplingStats, why: str) -> str:
@@ -432,8 +459,15 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
     event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
     source = kind(event_camera)
     resumed_at = source.resume(saved)
+    # Per-event labels' object ids: each event's own ray (a static scene, a JIT variant), else
+    # the bracketing renders' (sim.event_labels).
+    labelled = _labelled(formats, event_depth)
+    own_rays = labelled and not scene.is_dynamic and renderer.variant != "scalar_rgb"
+    objects_at = renderer.object_ids_at if own_rays else None
+    objects = RecentDepth(renderer.object_ids, np.uint16) if labelled and not own_rays else None
     with _event_stage(scene, folder, formats, positions, end - start, progress,
-                      EventDepth(event_camera.depth, start if resumed_at is None else resumed_at)
+                      EventDepth(event_camera.depth, start if resumed_at is None else resumed_at,
+                                 objects=objects, objects_at=objects_at)
                       if event_depth else None,
                       timings) as (bar, writers):
         # The sampler's step splits into its renders (event_render), the emulator's own time
@@ -449,7 +483,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
             timings["event_render"] += render
             timings["emulate"] += emulate
             timings["event_sample"] += (tock - tick) - render - emulate
-            writers.write(step.events, step.t, pending=step.pending)
+            writers.write(step.events, step.t, pending=step.pending, causes=step.causes)
             if step.events is not None and len(step.events):
                 count += len(step.events)
                 on += int(np.count_nonzero(step.events["p"] > 0))
@@ -468,5 +502,5 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
             bar.set_postfix_str(f"{count:,} events, {source.progress(stats, why)}",
                                 refresh=False)
             bar.update(0)
-    return {**_event_info(params, formats, sampling, scene, count, on),
+    return {**_event_info(params, formats, sampling, scene, count, on, event_depth, own_rays),
             **source.record(stats, sampling, contrast, why)}

@@ -148,7 +148,9 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     event_formats : tuple of {"h5", "txt", "depth-txt"}
         Files to write the events to (``events.h5``, ``events.txt``, ``events_depth.txt``:
         the events with their depth, :mod:`sim.event_depth`); ``events.h5`` holds the
-        per-event depth too (``events/depth``, ``events/depth_flag``).
+        per-event depth too (``events/depth``, ``events/depth_flag``). With the motion truth,
+        each event's labels (cause, object id; :mod:`sim.event_labels`) are in ``events.h5``
+        (``events/cause``, ``events/object_id``) and, with a text format, ``events_labels.txt``.
     resume : bool
         Continue the interrupted run that left ``<out>.partial``, from its last checkpoint:
         frames already written are kept, the event stage goes on from its last saved sample.
@@ -170,7 +172,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
     motion_truth : bool
         Write the motion ground truth (default True): camera velocity and IMU
         (:mod:`sim.imu`), optical flow, motion fields and object masks (:mod:`sim.flow`) and
-        each event's depth (:mod:`sim.event_depth`). False keeps the frames, depth maps,
+        each event's depth and labels (:mod:`sim.event_depth`, :mod:`sim.event_labels`).
+        False keeps the frames, depth maps,
         poses and events only (smaller, and a little faster).
 
     Returns
