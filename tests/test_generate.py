@@ -233,3 +233,18 @@ def test_a_procedural_scene_is_drawn_from_the_seed_and_its_scene_file_resimulate
         sorted(p.name for p in (folder / "images").iterdir())
     for image in (folder / "images").iterdir():
         assert (other / "images" / image.name).read_bytes() == image.read_bytes()
+
+
+def test_the_dataset_card_reads_a_generated_dataset(reference, tmp_path):
+    """``evfuse dataset`` on what ``evfuse generate`` wrote (sweeps/tiny.toml): values equal to
+    an ulp (the jobs' durations) once broke its histograms."""
+    import shutil
+
+    from sim.dataset import open_dataset, write_card
+
+    folder = tmp_path / "tiny"
+    shutil.copytree(reference / "tiny", folder)
+    summary = write_card(folder)
+    assert (folder / "card.md").is_file() and summary.text()
+    dataset = open_dataset(folder)
+    assert len(dataset) >= 4 and len(dataset[0].events) > 0
