@@ -37,19 +37,22 @@ depth render at each event's own time.
 
 from __future__ import annotations
 
+import io
 import math
 import time
-from collections.abc import Callable, Mapping
+import warnings
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
 
-from sim.eventio import EVENT_DTYPE, H5EventWriter, TextEventWriter
+from sim.eventio import EVENT_DTYPE, H5EventWriter, TextEventWriter, read_byte_span
 
 __all__ = ["DEPTH_TXT", "DEPTH_TXT_NAME", "EDGE_JUMP", "EVENT_DEPTH_DTYPE", "FLAG_EDGE",
            "FLAG_NO_SURFACE", "LABELS_TXT", "NO_OBJECT", "EventDepth", "EventOutputs",
            "H5EventDepthWriter", "RecentDepth", "TextEventDepthWriter", "event_depth_record",
-           "event_file_name", "interpolate_depth", "nearer_object", "read_event_depth"]
+           "event_file_name", "interpolate_depth", "nearer_object", "read_event_depth",
+           "read_event_depth_span"]
 
 EDGE_JUMP = 0.05
 """Relative change between the two bracketing depth renders of a pixel above which a depth edge
@@ -531,27 +534,150 @@ def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | N
     return out
 
 
-def _read_txt(path: Path) -> np.ndarray:
+_TXT_FIELDS = np.dtype([("t", "S32"), ("x", "<u2"), ("y", "<u2"), ("p", "S2"), ("depth", "<f4"),
+                        ("flag", "u1")])
+"""An ``events_depth.txt`` line's fields as the fast parser reads them (t and p as text, checked
+and converted exactly by :func:`_exact_times`)."""
+_MAX_SECONDS = (np.iinfo(np.int64).max - (10**9 - 1)) // 10**9
+
+
+def _exact_times(text: np.ndarray) -> np.ndarray | None:
+    """Times ``S+[.D{0,9}]`` (seconds, up to 9 decimals, below 2**63 ns) of an S32 array to
+    int64 nanoseconds, exactly (integer arithmetic, a column of bytes at a time); None when
+    any is of another form (the line-by-line parser then decides)."""
+    raw = np.ascontiguousarray(text).view(np.uint8).reshape(len(text), text.dtype.itemsize)
+    length = np.count_nonzero(raw, axis=1)
+    is_dot = raw == 46
+    dots = np.count_nonzero(is_dot, axis=1)
+    point = np.where(dots == 1, np.argmax(is_dot, axis=1), length)
+    decimals = np.clip(length - point - 1, 0, None)
+    ok = (dots <= 1) & (point >= 1) & (point <= 10) & (decimals <= 9) \
+        & (length < raw.shape[1])
+    if not ok.all():
+        return None
+    whole = np.zeros(len(text), np.int64)
+    frac = np.zeros(len(text), np.int64)
+    for column in range(int(length.max(initial=0))):     # at most 21 (10 + '.' + 9)
+        byte = raw[:, column]
+        digit = (byte - 48).astype(np.int64)
+        in_whole, in_frac = column < point, (column > point) & (column < length)
+        if not ((digit <= 9) | ~(in_whole | in_frac)).all():   # byte - 48 wraps below '0'
+            return None
+        whole[in_whole] = whole[in_whole] * 10 + digit[in_whole]
+        frac[in_frac] = frac[in_frac] * 10 + digit[in_frac]
+    if (whole > _MAX_SECONDS).any():
+        return None
+    return whole * 10**9 + frac * 10 ** (9 - decimals)
+
+
+def _parse_block(path: Path, block: bytes, first_line: int) -> np.ndarray:
+    """The rows of whole lines of an ``events_depth.txt`` (blank and ``#`` lines skipped): a
+    compiled reading (:func:`numpy.loadtxt`, times converted exactly by :func:`_exact_times`)
+    where every line is ``t x y p depth flag`` as the writer writes it, else line by line in
+    Python (:func:`_parse_lines`), which accepts the same lines and names the first bad one."""
+    if not block.strip():
+        return np.empty(0, EVENT_DEPTH_DTYPE)
+    if b"#" not in block:                       # a comment only at a line's start: line by line
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error")  # a deprecated reading too: line by line
+                fields = np.loadtxt(io.BytesIO(block), dtype=_TXT_FIELDS, ndmin=1,
+                                    encoding="ascii")
+        except (ValueError, UnicodeDecodeError, OverflowError, Warning):
+            fields = None
+        if fields is not None:
+            times = _exact_times(fields["t"])
+            on, off = fields["p"] == b"1", fields["p"] == b"0"
+            if times is not None and (on | off).all() and np.isfinite(fields["depth"]).all():
+                out = np.empty(len(fields), EVENT_DEPTH_DTYPE)
+                out["t"], out["x"], out["y"] = times, fields["x"], fields["y"]
+                out["p"] = np.where(on, 1, -1)
+                out["depth"], out["flag"] = fields["depth"], fields["flag"]
+                return out
+    return _parse_lines(path, enumerate(block.split(b"\n"), first_line))
+
+
+def _parse_lines(path: Path, lines: Iterable[tuple[int, bytes]]) -> np.ndarray:
+    """Numbered lines of an ``events_depth.txt`` parsed one by one (blank and ``#`` lines
+    skipped); a bad line is named."""
     rows = []
-    with path.open(encoding="ascii") as handle:
-        for number, line in enumerate(handle, 1):
-            fields = line.split()
-            if not fields or fields[0].startswith("#"):
-                continue
-            try:
-                if len(fields) != 6:
-                    raise ValueError
-                whole, _, frac = fields[0].partition(".")
-                t = int(whole) * 10**9 + int((frac + "000000000")[:9])
-                row = (t, int(fields[1]), int(fields[2]), 1 if fields[3] == "1" else -1,
-                       float(fields[4]), int(fields[5]))
-                if fields[3] not in ("0", "1") or not math.isfinite(row[4]):
-                    raise ValueError
-            except ValueError:
-                raise ValueError(f"{path}:{number}: expected 't[s] x y p depth flag' (p 0 or 1, "
-                                 f"depth in metres), got {line.strip()[:60]!r}") from None
-            rows.append(row)
-    return np.array(rows, dtype=EVENT_DEPTH_DTYPE)
+    for number, line in lines:
+        fields = line.split()
+        if not fields or fields[0].startswith(b"#"):
+            continue
+        try:
+            if len(fields) != 6:
+                raise ValueError
+            whole, _, frac = fields[0].partition(b".")
+            t = int(whole) * 10**9 + int((frac + b"000000000")[:9])
+            row = (t, int(fields[1]), int(fields[2]), 1 if fields[3] == b"1" else -1,
+                   float(fields[4]), int(fields[5]))
+            if fields[3] not in (b"0", b"1") or not math.isfinite(row[4]):
+                raise ValueError
+        except ValueError:
+            text = line.strip()[:60].decode("ascii", "replace")
+            raise ValueError(f"{path}:{number}: expected 't[s] x y p depth flag' (p 0 or 1, "
+                             f"depth in metres), got {text!r}") from None
+        rows.append(row)
+    return np.array(rows, dtype=EVENT_DEPTH_DTYPE) if rows else np.empty(0, EVENT_DEPTH_DTYPE)
+
+
+def _read_txt(path: Path, t0_ns: int | None = None, t1_ns: int | None = None
+              ) -> tuple[np.ndarray, int, int]:
+    """The rows of a whole ``events_depth.txt`` with ``t0_ns <= t < t1_ns`` (None: open),
+    streamed in blocks of lines (memory: a block and the kept rows): ``(rows, number of rows
+    with t < t0_ns (the index of the first kept row, the rows being sorted by t), number of
+    rows)``."""
+    kept = []
+    first = count = 0
+    number = 1
+    with path.open("rb") as handle:
+        while lines := handle.readlines(_TXT_BLOCK):
+            rows = _parse_block(path, b"".join(lines), number)
+            number += len(lines)
+            count += len(rows)
+            keep = np.ones(len(rows), bool)
+            if t0_ns is not None:
+                keep &= rows["t"] >= t0_ns
+                first += int(np.count_nonzero(rows["t"] < t0_ns))
+            if t1_ns is not None:
+                keep &= rows["t"] < t1_ns
+            kept.append(rows[keep])
+    out = np.concatenate(kept) if kept else np.empty(0, EVENT_DEPTH_DTYPE)
+    return out, first, count
+
+
+_TXT_BLOCK = 1 << 20
+"""Bytes of an ``events_depth.txt`` parsed at a time by a whole-file reading (1 MiB: its
+memory is a few times that)."""
+
+
+def read_event_depth_span(path: str | Path, start: int, stop: int,
+                          first_line: int = 1) -> np.ndarray:
+    """The events with their depth of bytes ``[start, stop)`` of an ``events_depth.txt``
+    (whole lines: offsets from :func:`sim.eventio.line_offsets`), without the rest of the file.
+
+    Parameters
+    ----------
+    path : str or Path
+        An ``events_depth.txt``.
+    start, stop : int, bytes
+        ``0 <= start <= stop``, each at the start of a line or the file's end.
+    first_line : int
+        The 1-based line number at ``start``, for messages.
+
+    Returns
+    -------
+    (M,) EVENT_DEPTH_DTYPE ndarray
+
+    Raises
+    ------
+    ValueError
+        A bad range, or a malformed line (``"{path}:{line}: ..."``).
+    """
+    path = Path(path)
+    block = read_byte_span(path, start, stop)
+    return _parse_block(path, block, int(first_line))
 
 
 def read_event_depth(path: str | Path, t0_ns: int | None = None,
@@ -581,5 +707,5 @@ def read_event_depth(path: str | Path, t0_ns: int | None = None,
         if out is None:
             return None
     else:
-        out = _read_txt(path)
+        out = _read_txt(path, t0_ns, t1_ns)[0]   # streamed: the window's rows only
     return _in_window(out, t0_ns, t1_ns)

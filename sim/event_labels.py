@@ -36,6 +36,8 @@ Written with the per-event depth (``simulate(motion_truth=True)``, the default).
 
 from __future__ import annotations
 
+import io
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -45,14 +47,21 @@ from sim.event_depth import (
     NO_OBJECT,
     _h5_columns,
     _in_window,
-    read_event_depth,
 )
-from sim.eventio import EVENT_DTYPE, TextEventWriter, read_events
+from sim.event_depth import _read_txt as _depth_rows
+from sim.eventio import (
+    EVENT_DTYPE,
+    TextEventWriter,
+    line_offsets,
+    read_byte_span,
+    read_text_span,
+    text_offsets,
+)
 from sim.noise import CAUSE_HOT_PIXEL, CAUSE_LEAK, CAUSE_SHOT, CAUSE_SIGNAL, CAUSES
 
 __all__ = ["CAUSES", "CAUSE_HOT_PIXEL", "CAUSE_LEAK", "CAUSE_SHOT", "CAUSE_SIGNAL",
            "EVENT_LABEL_DTYPE", "LABELS_TXT_NAME", "NO_OBJECT", "TextEventLabelWriter",
-           "event_labels_record", "read_event_labels"]
+           "event_labels_record", "read_event_label_span", "read_event_labels"]
 
 LABELS_TXT_NAME = "events_labels.txt"
 """The text file of per-event labels: ``cause object_id`` per line, the events' order."""
@@ -60,6 +69,7 @@ EVENT_LABEL_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i
                               ("cause", "u1"), ("object_id", "<i4")])
 """Events with their labels, as :func:`read_event_labels` returns them: EVENT_DTYPE's fields,
 then ``cause`` (uint8, :data:`CAUSES`) and ``object_id`` (int32, :data:`NO_OBJECT` = none)."""
+_LABEL_COLUMNS = np.dtype([("cause", "u1"), ("object_id", "<i4")])
 
 
 def event_labels_record(formats: tuple[str, ...], object_names: list[str],
@@ -125,38 +135,101 @@ class TextEventLabelWriter(TextEventWriter):
 def _read_h5(path: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray | None:
     found = _h5_columns(path, t0_ns, t1_ns, {"cause": "cause", "object_id": "object_id"},
                         EVENT_LABEL_DTYPE)
-    return None if found is None else _checked(*found, path)
+    if found is None:
+        return None
+    out, start = found
+    _check_range(out["cause"], out["object_id"], start, path)
+    return out
 
 
-def _read_txt(path: Path, labels: Path) -> np.ndarray:
-    events = read_event_depth(path) if path.name == DEPTH_TXT_NAME else read_events(path)
-    try:
-        values = np.loadtxt(labels, dtype=np.int64, ndmin=2, comments="#")
-    except ValueError as error:
-        raise ValueError(f"{labels}: expected 'cause object_id' integer lines "
-                         f"({error})") from None
-    values = values.reshape(-1, 2) if values.size == 0 else values
-    if values.shape[1] != 2:
-        raise ValueError(f"{labels}: expected 2 integers a line ('cause object_id'), got "
-                         f"{values.shape[1]}")
-    if len(values) != len(events):
-        raise ValueError(f"{labels}: {len(values)} lines for the {len(events)} events of "
-                         f"{path}; expected one line per event")
+def _read_txt(path: Path, labels: Path, t0_ns: int | None, t1_ns: int | None) -> np.ndarray:
+    """The events of ``[t0_ns, t1_ns)`` of an event text file with their labels, streamed: the
+    window's events and label lines are read, the rest of both files only scanned (one pass
+    each, to find the window and to check that the label file has one line per event)."""
+    if path.name == DEPTH_TXT_NAME:
+        events, first, total = _depth_rows(path, t0_ns, t1_ns)
+    else:
+        end = np.iinfo(np.int64).max                  # after every event (t < 2**63 - 1)
+        low = 0 if t0_ns is None else max(int(t0_ns), 0)
+        high = end if t1_ns is None else max(int(t1_ns), low)
+        offsets, lines, counts = text_offsets(path, np.array([low, high, end], np.int64))
+        events = read_text_span(path, int(offsets[0]), int(offsets[1]), int(lines[0]))
+        first, total = int(counts[0]), int(counts[2])
+    at, numbers, found = line_offsets(labels, np.array([first, first + len(events)]))
+    if found != total:
+        raise ValueError(f"{labels}: {found} lines for the {total} events of {path}; expected "
+                         "one line per event")
+    values = read_event_label_span(labels, int(at[0]), int(at[1]), int(numbers[0]), first)
+    if len(values) != len(events):             # a line the parser took but not as data
+        raise ValueError(f"{labels}: {len(values)} label lines from line {int(numbers[0])} for "
+                         f"{len(events)} events; expected one line per event")
     out = np.empty(len(events), EVENT_LABEL_DTYPE)
     for name in EVENT_DTYPE.names:
         out[name] = events[name]
-    out["cause"], out["object_id"] = values[:, 0], values[:, 1]
-    return _checked(out, 0, labels)
+    out["cause"], out["object_id"] = values["cause"], values["object_id"]
+    return out
 
 
-def _checked(out: np.ndarray, start: int, path: Path) -> np.ndarray:
-    bad = np.flatnonzero((out["cause"] > max(CAUSES)) | (out["object_id"] < NO_OBJECT))
+def read_event_label_span(path: str | Path, start: int, stop: int, first_line: int = 1,
+                          first_event: int = 0) -> np.ndarray:
+    """The labels of bytes ``[start, stop)`` of a :data:`LABELS_TXT_NAME` (whole lines: offsets
+    from :func:`sim.eventio.line_offsets`), without the rest of the file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A :data:`LABELS_TXT_NAME`.
+    start, stop : int, bytes
+        ``0 <= start <= stop``, each at the start of a line or the file's end.
+    first_line : int
+        The 1-based line number at ``start``, for messages.
+    first_event : int
+        The index of the event of the span's first line, for messages.
+
+    Returns
+    -------
+    (M,) structured ndarray
+        Fields ``cause`` (uint8, :data:`CAUSES`) and ``object_id`` (int32, :data:`NO_OBJECT`
+        = none), one row per ``cause object_id`` line (blank and ``#`` lines skipped).
+
+    Raises
+    ------
+    ValueError
+        A bad range, a line that is not two integers, or a cause or id out of range (the
+        message names the file, and the line or event).
+    """
+    path = Path(path)
+    block = read_byte_span(path, start, stop)
+    out = np.empty(0, _LABEL_COLUMNS)
+    if block.strip():
+        try:
+            with warnings.catch_warnings():       # a span of comments only holds no data
+                warnings.filterwarnings("ignore", "loadtxt: input contained no data")
+                values = np.loadtxt(io.StringIO(block.decode("ascii")), dtype=np.int64,
+                                    ndmin=2, comments="#")
+        except (ValueError, UnicodeDecodeError) as error:
+            raise ValueError(f"{path}: expected 'cause object_id' integer lines, from line "
+                             f"{first_line} ({error})") from None
+        if values.size and values.shape[1] != 2:
+            raise ValueError(f"{path}: expected 2 integers a line ('cause object_id'), got "
+                             f"{values.shape[1]}, from line {first_line}")
+        values = values.reshape(-1, 2)
+        _check_range(values[:, 0], values[:, 1], first_event, path)
+        out = np.empty(len(values), _LABEL_COLUMNS)
+        out["cause"], out["object_id"] = values[:, 0], values[:, 1]
+    return out
+
+
+def _check_range(cause: np.ndarray, object_id: np.ndarray, start: int, path: Path) -> None:
+    """Refuse a cause outside :data:`CAUSES` or an object id below :data:`NO_OBJECT` (or past
+    int32), naming event ``start + i``."""
+    bad = np.flatnonzero((cause < 0) | (cause > max(CAUSES)) | (object_id < NO_OBJECT)
+                         | (object_id > np.iinfo(np.int32).max))
     if bad.size:
         i = int(bad[0])
-        raise ValueError(f"{path}: event {start + i}: cause {int(out['cause'][i])}, object_id "
-                         f"{int(out['object_id'][i])}; expected a cause in {sorted(CAUSES)} "
-                         f"and an object_id >= {NO_OBJECT}")
-    return out
+        raise ValueError(f"{path}: event {start + i}: cause {int(cause[i])}, object_id "
+                         f"{int(object_id[i])}; expected a cause in {sorted(CAUSES)} and an "
+                         f"object_id >= {NO_OBJECT}")
 
 
 def read_event_labels(path: str | Path, t0_ns: int | None = None, t1_ns: int | None = None
@@ -188,7 +261,7 @@ def read_event_labels(path: str | Path, t0_ns: int | None = None, t1_ns: int | N
     if path.suffix == ".h5":
         out = _read_h5(path, t0_ns, t1_ns)
     elif (path.parent / LABELS_TXT_NAME).is_file():
-        out = _read_txt(path, path.parent / LABELS_TXT_NAME)
+        return _read_txt(path, path.parent / LABELS_TXT_NAME, t0_ns, t1_ns)
     else:
         return None
     return None if out is None else _in_window(out, t0_ns, t1_ns)

@@ -11,7 +11,7 @@ import pytest
 
 import sim
 from sim.dataset import DATASET_EVENT_DTYPE, open_dataset
-from sim.eventio import read_events, read_text_span, text_offsets
+from sim.eventio import line_offsets, read_events, read_text_span, text_offsets
 from sim.validation import ParameterError
 
 
@@ -190,11 +190,16 @@ def test_opening_reads_no_event(small_dataset, tmp_path):
 
 def test_a_sample_reads_only_its_own_events(small_dataset, tmp_path):
     """Memory bounded by one sample: with 200,000 events in a sequence's ``events.txt`` (and
-    then its ``events.h5``), reading one of its samples allocates a small part of what reading
-    the whole file does (traced by tracemalloc)."""
+    its ``events_depth.txt`` and ``events_labels.txt``, one line per event), then in its
+    ``events.h5`` (with depth and labels), reading one of its samples allocates a small part of
+    what reading the whole files does (traced by tracemalloc), and its depth and labels are
+    its events' rows. The sequence's own accessors, given the window, stream the text files
+    (memory: a block of lines and the window's rows)."""
     import tracemalloc
 
-    from sim.eventio import H5EventWriter, TextEventWriter, make_events
+    from sim.event_depth import H5EventDepthWriter, TextEventDepthWriter
+    from sim.event_labels import LABELS_TXT_NAME, TextEventLabelWriter
+    from sim.eventio import TextEventWriter, make_events
 
     copy = tmp_path / "copy"
     shutil.copytree(small_dataset, copy)
@@ -206,13 +211,26 @@ def test_a_sample_reads_only_its_own_events(small_dataset, tmp_path):
     t = np.sort(rng.integers(t0_ns, round(seq.image_times[-1] * 1e9), count))
     events = make_events(t, rng.integers(0, 48, count), rng.integers(0, 36, count),
                          np.where(rng.random(count) < 0.5, 1, -1))
-    writers = {"events.txt": lambda path: TextEventWriter(path),
-               "events.h5": lambda path: H5EventWriter(path, 48, 36)}
-    for name, writer in writers.items():
-        for stale in ("events.txt", "events.h5", "events_depth.txt"):
+    depth = rng.uniform(0.5, 3.0, count).astype(np.float32)
+    flag = rng.integers(0, 3, count).astype(np.uint8)
+    cause = rng.integers(0, 4, count).astype(np.uint8)
+    object_id = rng.integers(-1, 5, count).astype(np.int32)
+    bounds = np.round(seq.image_times[2:4] * 1e9)
+    inside = (t >= bounds[0]) & (t < bounds[1])
+    for name in ("events.txt", "events.h5"):
+        # the fabricated sequence carries no stale per-event file of the simulated one
+        for stale in ("events.txt", "events.h5", "events_depth.txt", LABELS_TXT_NAME):
             (folder / stale).unlink(missing_ok=True)
-        with writer(folder / name) as out:
-            out.write(events)
+        if name == "events.txt":
+            with TextEventWriter(folder / name) as out:
+                out.write(events)
+            with TextEventDepthWriter(folder / "events_depth.txt") as out:
+                out.write(events, depth, flag)
+            with TextEventLabelWriter(folder / LABELS_TXT_NAME) as out:
+                out.write(events, cause, object_id)
+        else:
+            with H5EventDepthWriter(folder / name, 48, 36, labels=True) as out:
+                out.write(events, depth, flag, cause=cause, object_id=object_id)
         ds = open_dataset(copy, time_unit="ns", report=False)
         index = ds.samples_of("boxes_6dof-0")[3]
         ds[index]                                    # a text file's frame index, made once
@@ -220,12 +238,72 @@ def test_a_sample_reads_only_its_own_events(small_dataset, tmp_path):
         sample = ds[index]
         one = tracemalloc.get_traced_memory()[1]
         tracemalloc.reset_peak()
-        whole = read_events(folder / name)
+        fresh = ds.sequences[ds.job_ids.index("boxes_6dof-0")]
+        whole = read_events(folder / name), fresh.event_depth(), fresh.event_labels()
         everything = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
-        bounds = np.round(seq.image_times[2:4] * 1e9)
-        assert sample.events.size == np.count_nonzero((t >= bounds[0]) & (t < bounds[1]))
-        assert whole.size == count and one < everything / 3, (name, one, everything)
+        assert whole[0].size == whole[1].size == whole[2].size == count
+        window = sample.window
+        np.testing.assert_array_equal(window.events["t"], t[inside])
+        np.testing.assert_array_equal(window.depth, depth[inside])
+        np.testing.assert_array_equal(window.depth_flag, flag[inside])
+        np.testing.assert_array_equal(window.cause, cause[inside])
+        np.testing.assert_array_equal(window.object_id, object_id[inside])
+        assert one < everything / 3, (name, one, everything)
+        if name == "events.txt":          # the sequence's accessors stream the text files too
+            for accessor in (fresh.event_labels, fresh.event_depth):
+                tracemalloc.start()
+                part = accessor(int(bounds[0]), int(bounds[1]))
+                peak = tracemalloc.get_traced_memory()[1]
+                tracemalloc.stop()
+                np.testing.assert_array_equal(part["t"], t[inside])
+                assert peak < everything / 3, (accessor.__name__, peak, everything)
+
+
+def test_each_text_samples_depth_and_labels_are_its_events_rows(small_dataset):
+    """A text-only sequence (``events.txt``, ``events_depth.txt``, ``events_labels.txt``): each
+    sample's depth, flag, cause and object id equal the rows of its window in the whole files
+    (read by the sequence's accessors), and so does a window by time."""
+    ds = open_dataset(small_dataset, time_unit="ns", report=False)
+    seq = ds.sequences[1]
+    assert seq.events_h5 is None and seq.events_labels_txt is not None \
+        and seq.events_depth_txt is not None
+    depth, labels = seq.event_depth(), seq.event_labels()
+    np.testing.assert_array_equal(depth["t"], labels["t"])
+    seen = 0
+    for index in ds.samples_of(1):
+        window = ds[index].window
+        low = -1 if window.t_start_ns is None else window.t_start_ns
+        inside = (labels["t"] >= low) & (labels["t"] < window.t_end_ns)
+        np.testing.assert_array_equal(window.events["t"], labels["t"][inside])
+        np.testing.assert_array_equal(window.depth, depth["depth"][inside])
+        np.testing.assert_array_equal(window.depth_flag, depth["flag"][inside])
+        np.testing.assert_array_equal(window.cause, labels["cause"][inside])
+        np.testing.assert_array_equal(window.object_id, labels["object_id"][inside])
+        seen += int(inside.sum())
+    assert seen > 50 and (labels["object_id"] >= 0).any()
+    window = ds.window(1, 0.52, 0.575)
+    inside = (labels["t"] >= 520_000_000) & (labels["t"] < 575_000_000)
+    np.testing.assert_array_equal(window.object_id, labels["object_id"][inside])
+    np.testing.assert_array_equal(window.depth, depth["depth"][inside])
+
+
+def test_a_per_event_file_that_is_not_one_line_per_event_is_refused(small_dataset, tmp_path):
+    """A text-only sequence whose label (or depth) file lost a line: its first sample says
+    which file and how many lines for how many events."""
+    copy = tmp_path / "copy"
+    shutil.copytree(small_dataset, copy)
+    folder = copy / "jobs" / "boxes_6dof-0"
+    for name in ("events_labels.txt", "events_depth.txt"):
+        path = folder / name
+        kept = path.read_bytes()
+        lines = kept.splitlines(keepends=True)
+        path.write_bytes(b"".join(lines[:-1]))
+        ds = open_dataset(copy, report=False)
+        with pytest.raises(ValueError, match=rf"{name}: {len(lines) - 1} lines for the "
+                                             rf"{len(lines)} events of .*events.txt"):
+            ds[6]
+        path.write_bytes(kept)
 
 
 def test_text_offsets_find_where_each_time_begins(tmp_path):
@@ -237,15 +315,27 @@ def test_text_offsets_find_where_each_time_begins(tmp_path):
     path = tmp_path / "events.txt"
     path.write_text("\n".join(lines) + "\n")
     times = np.array([0, 100, 150, 200, 201, 1000, 2000, 2001], np.int64)
-    offsets, numbers = text_offsets(path, times, width=10, height=10)
+    offsets, numbers, counts = text_offsets(path, times, width=10, height=10)
     starts = np.cumsum([0] + [len(line) + 1 for line in lines])
     np.testing.assert_array_equal(offsets, starts[[1, 1, 3, 3, 5, 5, 7, 8]])
     np.testing.assert_array_equal(numbers, [2, 2, 4, 4, 6, 6, 8, 9])
+    np.testing.assert_array_equal(counts, [0, 0, 1, 1, 3, 3, 4, 5])
     everything = read_events(path)
     for k in range(len(times) - 1):
         span = read_text_span(path, int(offsets[k]), int(offsets[k + 1]), int(numbers[k]))
         inside = everything[(everything["t"] >= times[k]) & (everything["t"] < times[k + 1])]
         np.testing.assert_array_equal(span, inside)
+    # the same windows' lines in a per-event file aligned with the events (its own comments)
+    labels = tmp_path / "events_labels.txt"
+    rows = ["0 1", "# note", "0 2", "", "  3 -1", "1 4", "2 0"]
+    labels.write_text("\n".join(rows) + "\n")
+    at, label_numbers, total = line_offsets(labels, counts)
+    assert total == everything.size
+    line_starts = np.cumsum([0] + [len(row) + 1 for row in rows])
+    np.testing.assert_array_equal(at, line_starts[[0, 0, 2, 2, 5, 5, 6, 7]])
+    np.testing.assert_array_equal(label_numbers, [1, 1, 3, 3, 6, 6, 7, 8])
+    with pytest.raises(ValueError, match="non-decreasing"):
+        line_offsets(labels, [2, 1])
     path.write_text("0.1 1 1 1\n0.2 1 1 2\n")
     with pytest.raises(ValueError, match=r"events.txt:2: polarity"):
         read_text_span(path, 0, path.stat().st_size)

@@ -232,3 +232,40 @@ def test_brackets_must_go_forward():
     depth = EventDepth(lambda t: np.ones((2, 2), np.float32), 0.5)
     with pytest.raises(ValueError, match="before its start"):
         depth.annotate(None, 0.4)
+
+
+def test_depth_text_reads_exactly_as_the_line_parser(tmp_path, monkeypatch):
+    """``events_depth.txt`` is read by a compiled reading (times converted exactly by integer
+    arithmetic) with the line-by-line parser as fallback: both give the same rows for every
+    accepted form of a time (0 to 9 decimals, ``5.``, large seconds, tabs, CRLF, comments),
+    a window and a byte span read the same rows, and a bad line is named."""
+    from sim.event_depth import _parse_lines, read_event_depth_span
+
+    lines = [b"0 1 2 1 1.5 0", b"0.000000001\t5 6 1 2.25 1", b"0.5 3 4 0 0 2", b"1. 7 8 0 0.125 0",
+             b"12.34 9 9 1 3 0\r", b"9223372035.999999999 1 1 0 1e-3 1",
+             b"9223372035.999999999 2 2 1 7 0"]
+    path = tmp_path / "events_depth.txt"
+    path.write_bytes(b"\n".join(lines) + b"\n")
+    expected = _parse_lines(path, enumerate(lines, 1))        # the line parser, alone
+    assert expected["t"].tolist() == [0, 1, 500_000_000, 1_000_000_000, 12_340_000_000,
+                                      9_223_372_035_999_999_999, 9_223_372_035_999_999_999]
+    depth_module = importlib.import_module("sim.event_depth")
+    with monkeypatch.context() as patch:                      # the compiled reading, alone
+        patch.setattr(depth_module, "_parse_lines", lambda *a: pytest.fail("line by line"))
+        np.testing.assert_array_equal(read_event_depth(path), expected)
+    # a comment line sends the block line by line: the same rows
+    path.write_bytes(b"# t x y p depth flag\n" + b"\n".join(lines) + b"\n")
+    np.testing.assert_array_equal(read_event_depth(path), expected)
+    np.testing.assert_array_equal(read_event_depth(path, 1, 12_340_000_000), expected[1:4])
+    start = len(b"# t x y p depth flag\n") + len(lines[0]) + 1
+    stop = start + len(lines[1]) + len(lines[2]) + 2
+    np.testing.assert_array_equal(read_event_depth_span(path, start, stop, 3), expected[1:3])
+    for bad, message in ((b"0.1 1 2 2 1.0 0", r"events_depth.txt:2: expected 't\[s\] x y p"),
+                         (b"0.1 1 2 1 nan 0", "events_depth.txt:2: expected"),
+                         (b"0.1234567891 1 2 1 1.0", "events_depth.txt:2: expected"),
+                         (b".5 1 2 1 1.0 0", "events_depth.txt:2: expected")):
+        path.write_bytes(lines[0] + b"\n" + bad + b"\n")
+        with pytest.raises(ValueError, match=message):
+            read_event_depth(path)
+    path.write_bytes(lines[0] + b"\n" + b"0.1234567891 1 2 1 1.0 0\n")   # >9 decimals: cut
+    assert read_event_depth(path)["t"].tolist() == [0, 123_456_789]

@@ -14,13 +14,17 @@ integer nanoseconds (``round(t * 1e9)``; index files hold whole nanoseconds, so 
 Lazy: opening reads the manifest and each sequence's index files, never an event; a sample reads
 its own events only. From ``events.h5`` the window is found with ``ms_to_idx`` (only the
 milliseconds around it are read); from an ``events.txt`` alone, the byte offsets of the frame
-boundaries are found once per sequence, in one streaming pass on its first sample
-(:func:`sim.eventio.text_offsets`), and each sample then parses its own lines. The per-event
-depth comes from ``events.h5`` window by window; a sequence whose per-event depth is only in
-``events_depth.txt`` has that file read whole for each sample (:meth:`sim.Sequence.event_depth`).
-The per-event labels (``cause``, ``object_id``) come from the sequence's accessor
-``Sequence.event_labels(t0_ns, t1_ns)`` (a structured array with those fields, one row per event
-of the window) where the sequence has one; otherwise they are omitted (None).
+boundaries (and each boundary's event index) are found once per sequence, in one streaming pass
+on its first sample (:func:`sim.eventio.text_offsets`), and each sample then parses its own
+lines. The per-event depth and labels (``cause``, ``object_id``) come from ``events.h5`` window
+by window; beside an ``events.txt``, from ``events_depth.txt`` and ``events_labels.txt``, which
+hold one line per event in the events' order: the same first pass finds, in one streaming pass
+over each, the byte offsets of the lines of each boundary's event (:func:`sim.eventio.line_offsets`)
+and checks that it holds one line per event; each sample then parses its own lines of each
+(:func:`sim.event_depth.read_event_depth_span`, :func:`sim.event_labels.read_event_label_span`).
+A window by time (:meth:`Dataset.window`) reads them through the sequence's accessors
+(:meth:`sim.Sequence.event_depth`, :meth:`sim.Sequence.event_labels`), which stream the text
+files and keep the window's rows only. A sequence without them has None.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ import numpy as np
 
 from sim.camera import Camera
 from sim.dataset._manifest import MANIFEST_CSV
-from sim.eventio import EVENT_DTYPE, read_text_span, read_window, text_offsets
+from sim.eventio import EVENT_DTYPE, line_offsets, read_text_span, read_window, text_offsets
 from sim.sequence import Sequence, load_sequence
 from sim.validation import ParameterError
 
@@ -195,8 +199,9 @@ class Dataset:
 
     ``len(ds)`` samples, one per standard frame of every done sequence (in manifest order, then
     frame order); ``ds[i]`` is :class:`Sample` ``i`` (negative ``i`` from the end). Nothing is
-    cached but, per sequence, the byte offsets of a text-only event file's frame boundaries and
-    the last sequence's poses and IMU table.
+    cached but, per sequence, the byte offsets of a text-only event file's frame boundaries (and
+    of the same events' lines in its per-event depth and label files) and the last sequence's
+    poses and IMU table.
 
     Attributes
     ----------
@@ -236,7 +241,7 @@ class Dataset:
         self._boundaries = tuple(np.round(seq.standard_frames().image_times * 1e9)
                                  .astype(np.int64) for seq in self.sequences)
         self._starts = np.concatenate(([0], np.cumsum([b.size for b in self._boundaries])))
-        self._text_offsets: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._text_index: dict[int, dict[str, tuple[np.ndarray, ...]]] = {}
         self._tables: dict[tuple[int, str], object] = {}
 
     def __repr__(self) -> str:
@@ -325,27 +330,28 @@ class Dataset:
     def _window(self, k: int, t0_ns: int | None, t1_ns: int | None,
                 frame_index: int | None) -> EventWindow:
         seq = self.sequences[k]
-        raw = self._raw_events(k, t0_ns, t1_ns, frame_index)
+        if frame_index is not None and seq.events_h5 is None and seq.events_txt is not None:
+            raw, found_depth, found_labels = self._text_sample(k, frame_index)
+        else:
+            raw = self._raw_events(k, t0_ns, t1_ns)
+            found_depth = seq.event_depth(t0_ns, t1_ns)
+            found_labels = seq.event_labels(t0_ns, t1_ns)
         events = np.empty(raw.size, DATASET_EVENT_DTYPE)
         events["x"], events["y"] = raw["x"], raw["y"]
         events["t"] = raw["t"] // TIME_UNITS[self.time_unit]
         events["p"] = raw["p"] > 0
         depth = flag = cause = object_id = None
-        found = seq.event_depth(t0_ns, t1_ns)
-        if found is not None:
-            _check_aligned(seq, raw, found, "per-event depth")
-            depth, flag = found["depth"], found["flag"]
-        labels = getattr(seq, "event_labels", None)   # the label file's accessor, where it is
-        found = labels(t0_ns, t1_ns) if callable(labels) else None
-        if found is not None:
-            if len(found) != raw.size:
-                raise ValueError(f"{seq.folder}: {len(found)} event labels but {raw.size} events "
-                                 f"in [{t0_ns}, {t1_ns}) ns; expected one label per event")
-            cause, object_id = found["cause"], found["object_id"]
+        if found_depth is not None:
+            _check_aligned(seq, raw, found_depth, "per-event depth")
+            depth, flag = found_depth["depth"], found_depth["flag"]
+        if found_labels is not None:
+            if len(found_labels) != raw.size:
+                raise ValueError(f"{seq.folder}: {len(found_labels)} event labels but {raw.size} "
+                                 f"events in [{t0_ns}, {t1_ns}) ns; expected one label per event")
+            cause, object_id = found_labels["cause"], found_labels["object_id"]
         return EventWindow(t0_ns, t1_ns, events, self.time_unit, depth, flag, cause, object_id)
 
-    def _raw_events(self, k: int, t0_ns: int | None, t1_ns: int | None,
-                    frame_index: int | None) -> np.ndarray:
+    def _raw_events(self, k: int, t0_ns: int | None, t1_ns: int | None) -> np.ndarray:
         """Events of ``[t0_ns, t1_ns)`` of sequence ``k`` as EVENT_DTYPE (ns, p +-1)."""
         seq = self.sequences[k]
         width, height = seq.camera.width, seq.camera.height
@@ -354,20 +360,64 @@ class Dataset:
                                np.iinfo(np.int64).max if t1_ns is None else t1_ns)
         if seq.events_txt is None:                # simulated without events: none to read
             return np.empty(0, EVENT_DTYPE)
-        if frame_index is not None:
-            if k not in self._text_offsets:
-                self._text_offsets[k] = text_offsets(seq.events_txt, self._boundaries[k],
-                                                     width=width, height=height)
-            offsets, lines = self._text_offsets[k]
-            start, line = (0, 1) if frame_index == 0 else (int(offsets[frame_index - 1]),
-                                                           int(lines[frame_index - 1]))
-            stop = int(offsets[frame_index])
-        else:
-            bounds = np.array([0 if t0_ns is None else t0_ns,
-                               np.iinfo(np.int64).max if t1_ns is None else t1_ns], np.int64)
-            offsets, lines = text_offsets(seq.events_txt, bounds, width=width, height=height)
-            start, stop, line = int(offsets[0]), int(offsets[1]), int(lines[0])
-        return read_text_span(seq.events_txt, start, stop, line, width=width, height=height)
+        bounds = np.array([0 if t0_ns is None else t0_ns,
+                           np.iinfo(np.int64).max if t1_ns is None else t1_ns], np.int64)
+        offsets, lines, _ = text_offsets(seq.events_txt, bounds, width=width, height=height)
+        return read_text_span(seq.events_txt, int(offsets[0]), int(offsets[1]), int(lines[0]),
+                              width=width, height=height)
+
+    def _text_index_of(self, k: int) -> dict[str, tuple[np.ndarray, ...]]:
+        """Sequence ``k``'s text index, made on its first sample: for ``events.txt`` (key
+        ``"events"``) the byte offset, line number and event index at which each sample begins
+        (entry ``j``; entry ``j + 1`` ends it), and for each per-event text file beside it
+        (``"depth"``, ``"labels"``) the byte offset and line number of those events' lines.
+
+        Raises
+        ------
+        ValueError
+            A per-event file that does not hold one line per event.
+        """
+        if k not in self._text_index:
+            seq = self.sequences[k]
+            bounds = self._boundaries[k]            # event times are >= 0: 0 is before all
+            first = min(0, int(bounds[0])) if bounds.size else 0
+            times = np.concatenate(([first], bounds, [np.iinfo(np.int64).max]))
+            offsets, lines, counts = text_offsets(seq.events_txt, times, width=seq.camera.width,
+                                                  height=seq.camera.height)
+            index = {"events": (offsets, lines, counts)}
+            for name, path in (("depth", seq.events_depth_txt), ("labels", seq.events_labels_txt)):
+                if path is None:
+                    continue
+                at, numbers, found = line_offsets(path, counts)
+                if found != counts[-1]:
+                    raise ValueError(f"{path}: {found} lines for the {int(counts[-1])} events of "
+                                     f"{seq.events_txt}; expected one line per event")
+                index[name] = (at, numbers)
+            self._text_index[k] = index
+        return self._text_index[k]
+
+    def _text_sample(self, k: int, j: int
+                     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """The events of sample ``j`` of text-only sequence ``k`` (EVENT_DTYPE), their depth
+        rows and labels (None without the file): each read from its own lines only."""
+        from sim.event_depth import read_event_depth_span
+        from sim.event_labels import read_event_label_span
+
+        seq = self.sequences[k]
+        index = self._text_index_of(k)
+        offsets, lines, counts = index["events"]
+        raw = read_text_span(seq.events_txt, int(offsets[j]), int(offsets[j + 1]),
+                             int(lines[j]), width=seq.camera.width, height=seq.camera.height)
+        depth = labels = None
+        if "depth" in index:
+            at, numbers = index["depth"]
+            depth = read_event_depth_span(seq.events_depth_txt, int(at[j]), int(at[j + 1]),
+                                          int(numbers[j]))
+        if "labels" in index:
+            at, numbers = index["labels"]
+            labels = read_event_label_span(seq.events_labels_txt, int(at[j]), int(at[j + 1]),
+                                           int(numbers[j]), int(counts[j]))
+        return raw, depth, labels
 
     def _table(self, k: int, name: str):
         """The poses (``"poses"``) or IMU table (``"imu"``) of sequence ``k``: only the last

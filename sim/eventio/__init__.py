@@ -40,7 +40,8 @@ Modules (private; everything public is re-exported here):
 - ``_units``: :func:`check_time_units` (times in another unit than the format stores).
 - ``_read``: :func:`iter_event_chunks`, :func:`read_events`, :func:`read_window`,
   :func:`event_time_span`; :func:`text_offsets` and :func:`read_text_span` (a text file read
-  window by window).
+  window by window), :func:`line_offsets` (the same windows' lines in a per-event text file),
+  :func:`read_byte_span` (the bytes of such a span).
 - ``_convert``: :func:`convert_events`.
 """
 
@@ -53,6 +54,8 @@ from sim.eventio._hdf5 import MAX_EMPTY_MS, H5EventWriter
 from sim.eventio._read import (
     event_time_span,
     iter_event_chunks,
+    line_offsets,
+    read_byte_span,
     read_events,
     read_text_span,
     read_window,
@@ -74,6 +77,8 @@ __all__ = [
     "event_time_span",
     "convert_events",
     "iter_event_chunks",
+    "line_offsets",
+    "read_byte_span",
     "make_events",
     "read_events",
     "read_text_span",

@@ -1,8 +1,9 @@
 """Reading event files of either format: :func:`iter_event_chunks` (streamed, optionally a time
 window; dispatched on the suffix), :func:`read_events`, :func:`read_window` and
 :func:`event_time_span`; for text files, which have no index of their own, :func:`text_offsets`
-(where given times begin, found in one streaming pass) and :func:`read_text_span` (the events of
-a byte range)."""
+(where given times begin, found in one streaming pass), :func:`read_text_span` (the events of
+a byte range) and :func:`line_offsets` (where given lines begin in a per-event text file aligned
+line for line with the events: ``events_depth.txt``, ``events_labels.txt``)."""
 
 from __future__ import annotations
 
@@ -17,8 +18,8 @@ from sim.eventio._formats import _kind
 from sim.eventio._hdf5 import _H5Source
 from sim.eventio._text import _iter_text_blocks, _line_blocks, _parse_block
 
-__all__ = ["event_time_span", "iter_event_chunks", "read_events", "read_text_span", "read_window",
-           "text_offsets"]
+__all__ = ["event_time_span", "iter_event_chunks", "line_offsets", "read_byte_span", "read_events",
+           "read_text_span", "read_window", "text_offsets"]
 
 
 def event_time_span(path: str | Path, width: int | None = None,
@@ -227,13 +228,15 @@ def _event_line_starts(block: bytes) -> tuple[np.ndarray, np.ndarray]:
 
 
 def text_offsets(path: str | Path, times_ns: np.ndarray, *, width: int | None = None,
-                 height: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Where each of ``times_ns`` begins in an ``events.txt``: the byte offset and line number
-    of its first event at or after that time, found in one streaming pass.
+                 height: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each of ``times_ns`` begins in an ``events.txt``: the byte offset, line number and
+    index of its first event at or after that time, found in one streaming pass (which stops
+    after the last of ``times_ns``).
 
     With them, the events of ``[times_ns[k], times_ns[k + 1])`` are the bytes between two
     offsets (:func:`read_text_span`): a text file read window by window without parsing it from
-    the start each time.
+    the start each time; and, being events ``counts[k]`` to ``counts[k + 1]``, their lines in a
+    per-event file aligned with the events are found with :func:`line_offsets`.
 
     Parameters
     ----------
@@ -251,6 +254,9 @@ def text_offsets(path: str | Path, times_ns: np.ndarray, *, width: int | None = 
         there is none).
     lines : (K,) int64 ndarray
         Its 1-based line number (one past the last line when there is none), for messages.
+    counts : (K,) int64 ndarray
+        Its 0-based index among the file's events: the number of events before it (with
+        ``t < times_ns[k]``; the number of events in the file when there is none).
 
     Raises
     ------
@@ -266,8 +272,9 @@ def text_offsets(path: str | Path, times_ns: np.ndarray, *, width: int | None = 
         raise ValueError(f"event file {path} does not exist")
     offsets = np.full(times.size, path.stat().st_size, np.int64)
     lines = np.zeros(times.size, np.int64)
+    counts = np.zeros(times.size, np.int64)
     found = 0                                     # times placed so far
-    position, first_line, t_prev, ended = 0, 1, -1, True
+    position, first_line, t_prev, ended, seen = 0, 1, -1, True, 0
     for block in _line_blocks(path, _TEXT_BLOCK):
         if found == times.size:
             break
@@ -282,12 +289,73 @@ def text_offsets(path: str | Path, times_ns: np.ndarray, *, width: int | None = 
             at = np.searchsorted(events["t"], times[found:last], side="left")
             offsets[found:last] = position + starts[at]
             lines[found:last] = first_line + numbers[at]
+            counts[found:last] = seen + at
             found = last
+            seen += events.size
         position += len(block)
         first_line += newlines
         ended = block.endswith(b"\n")
     lines[found:] = first_line + (0 if ended else 1)
-    return offsets, lines
+    counts[found:] = seen
+    return offsets, lines, counts
+
+
+def line_offsets(path: str | Path, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Where given data lines begin in a text file: the byte offset and line number of its
+    ``indices[k]``-th line that holds data, in one streaming pass over the whole file.
+
+    A data line is one whose first byte after spaces and tabs is a digit (blank lines and
+    ``#`` comments are not): in a per-event text file aligned line for line with the events
+    (``events_depth.txt``, ``events_labels.txt``), data line ``i`` belongs to event ``i``, so
+    the lines of events ``[counts[k], counts[k + 1])`` (:func:`text_offsets`) are the bytes
+    between two of these offsets, read without the rest of the file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A text file.
+    indices : (K,) int64 ndarray
+        0-based data-line indexes, non-decreasing, >= 0.
+
+    Returns
+    -------
+    offsets : (K,) int64 ndarray, bytes
+        Offset of data line ``indices[k]`` (the file's size when the file has no such line).
+    lines : (K,) int64 ndarray
+        Its 1-based line number in the file (one past the last line when there is none), for
+        messages.
+    total : int
+        The number of data lines in the file (to check it against the number of events).
+
+    Raises
+    ------
+    ValueError
+        ``indices`` negative or not non-decreasing, or no such file.
+    """
+    path = Path(path)
+    wanted = np.asarray(indices, dtype=np.int64).reshape(-1)
+    if np.any(np.diff(wanted) < 0) or np.any(wanted < 0):
+        raise ValueError(f"line_offsets: indices must be non-decreasing and >= 0, got "
+                         f"{wanted[:5]}...")
+    if not path.is_file():
+        raise ValueError(f"{path} does not exist")
+    offsets = np.full(wanted.size, path.stat().st_size, np.int64)
+    lines = np.zeros(wanted.size, np.int64)
+    found = 0
+    position, first_line, total, ended = 0, 1, 0, True
+    for block in _line_blocks(path, _TEXT_BLOCK):
+        starts, numbers = _event_line_starts(block)
+        last = found + int(np.searchsorted(wanted[found:], total + starts.size, side="left"))
+        at = wanted[found:last] - total
+        offsets[found:last] = position + starts[at]
+        lines[found:last] = first_line + numbers[at]
+        found = last
+        total += starts.size
+        position += len(block)
+        first_line += block.count(b"\n")
+        ended = block.endswith(b"\n")
+    lines[found:] = first_line + (0 if ended else 1)
+    return offsets, lines, total
 
 
 def read_text_span(path: str | Path, start: int, stop: int, first_line: int = 1, *,
@@ -318,15 +386,28 @@ def read_text_span(path: str | Path, start: int, stop: int, first_line: int = 1,
         :func:`iter_event_chunks`).
     """
     path = Path(path)
+    _check_size(width, height, str(path))
+    block = read_byte_span(path, start, stop)
+    return _parse_block(block, path, int(first_line), width, height, -1)[0]
+
+
+def read_byte_span(path: str | Path, start: int, stop: int) -> bytes:
+    """Bytes ``[start, stop)`` of a file: a span of a text file found by :func:`text_offsets`
+    or :func:`line_offsets` (the per-event files' span readers parse it).
+
+    Raises
+    ------
+    ValueError
+        ``start`` or ``stop`` not a byte offset >= 0, ``stop < start``, or no such file.
+    """
+    path = Path(path)
     for name, value in (("start", start), ("stop", stop)):
         if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 0:
-            raise ValueError(f"read_text_span: {name} must be a byte offset >= 0, got {value!r}")
+            raise ValueError(f"{path}: {name} must be a byte offset >= 0, got {value!r}")
     if stop < start:
-        raise ValueError(f"read_text_span: byte range [{start}, {stop}) ends before it starts")
-    _check_size(width, height, str(path))
+        raise ValueError(f"{path}: byte range [{start}, {stop}) ends before it starts")
     if not path.is_file():
-        raise ValueError(f"event file {path} does not exist")
+        raise ValueError(f"{path} does not exist")
     with path.open("rb") as handle:
         handle.seek(int(start))
-        block = handle.read(int(stop) - int(start))
-    return _parse_block(block, path, int(first_line), width, height, -1)[0]
+        return handle.read(int(stop) - int(start))
