@@ -54,6 +54,7 @@ bench: setup
 	$(BIN)/python -m benchmarks.bench_events
 	$(BIN)/python -m benchmarks.bench_emvs
 	$(BIN)/python -m benchmarks.bench_fill
+	$(BIN)/python -m benchmarks.bench_generate --quick
 
 lint: setup
 	$(BIN)/ruff check .

@@ -99,7 +99,8 @@ _alias_modules(sys.modules[__name__], {
     "fusion.surface_fit": "fusion.methods.surface_fit",
     "fusion.benchmark": "fusion.experiments.bench",
     "fusion.reproduce": "fusion.experiments.reproduce",
-    "fusion.families": "fusion.experiments.families",
+    "fusion.families": "sim.scene.families",
+    "fusion.experiments.families": "sim.scene.families",   # issue 24: it writes scenes only
     "fusion.jsonio": "fusion.io",
     "fusion.pointcloud": "fusion.io",
 })

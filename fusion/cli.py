@@ -69,9 +69,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         bench_sources,
         run_bench,
     )
-    from fusion.experiments.families import KNOBS, write_family
     from fusion.methods import MethodVariant, available_methods, method_variants, split_labels
     from sim.output import check_output_dir
+    from sim.scene.families import KNOBS, write_family
 
     given = split_labels(",".join(args.method or []))
     variants = method_variants(given, args.param or [])
@@ -490,7 +490,7 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--family", default=None,
                        help="instead of --scenes, a scene family with a difficulty knob: "
                             "staircase, sphere, cylinder, slanted, heightfield (see "
-                            "fusion.experiments.families); vary its knobs with the flags below")
+                            "sim.scene.families); vary its knobs with the flags below")
     for knob, what in (("steps", "staircase: boxes (default 4)"),
                        ("step_depth", "staircase: m between steps (default 0.2)"),
                        ("radius", "sphere / cylinder: m (default 0.25 / 0.2)"),
@@ -621,6 +621,7 @@ def _parser() -> argparse.ArgumentParser:
     repro.set_defaults(run=_cmd_reproduce)
 
     add_command(sub, "convert")
+    add_command(sub, "generate")
     add_command(sub, "dataset")
     for command in sub.choices.values():         # --debug after the command works too
         command.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,

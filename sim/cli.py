@@ -1,7 +1,7 @@
 """The simulator's commands of ``evfuse``: ``simulate``, ``events``, ``twin``, ``convert``,
-``scenes`` and ``dataset`` (each a parser builder and a handler that parses, calls :mod:`sim`'s
-public API and prints), and the parser pieces every evfuse command shares: the typed number
-flags, the one-line refusal parser and the help of ``--overwrite``.
+``scenes``, ``generate`` and ``dataset`` (each a parser builder and a handler that parses, calls
+:mod:`sim`'s public API and prints), and the parser pieces every evfuse command shares: the typed
+number flags, the one-line refusal parser and the help of ``--overwrite``.
 
 :func:`fusion.cli.main` is the ``evfuse`` entry point: it adds these commands to its parser with
 :func:`add_command` and runs them. This module never imports :mod:`fusion` (the simulator is the
@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import NoReturn
@@ -23,7 +24,7 @@ from sim.validation import finite, non_negative, positive
 __all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "POSITIVE", "OneLineParser",
            "add_command", "count_type", "number_type"]
 
-COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "dataset")
+COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "generate", "dataset")
 """The subcommands this module builds (:func:`add_command`)."""
 
 OVERWRITE_HELP = ("replace OUT if it is a folder evfuse wrote (it holds evfuse's .evfuse marker), "
@@ -247,6 +248,43 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_generate(args: argparse.Namespace) -> int:
+    from sim.dataset import estimate_jobs, generate, load_sweep
+
+    sweep = load_sweep(args.sweep)
+    if args.out is None and not args.dry_run:
+        raise ValueError("--out DIR: the dataset folder to write is required (unless "
+                         "--dry-run)")
+    if args.dry_run:
+        rows = estimate_jobs(sweep, variant=args.variant)
+        width = max(len(row["job_id"]) for row in rows)
+        print(f"{len(rows)} jobs of sweep {sweep.name} ({sweep.source}); cost from a probe of "
+              "each distinct scene (its setup, compilation included, plus its seconds per "
+              "simulated second):")
+        for row in rows:
+            params = ", ".join(f"{k}={v}" for k, v in row["params"].items())
+            cost = (f"~{row['estimate_s']:.1f} s" if row["estimate_s"] is not None
+                    else f"probe failed: {row['probe_error']}")
+            print(f"  {row['job_id']:<{width}}  {cost:>10}  {params}")
+        known = [row["estimate_s"] for row in rows if row["estimate_s"] is not None]
+        simulated = sum(row["duration_s"] or 0 for row in rows)
+        print(f"total: ~{sum(known):.0f} s of one worker for {simulated:g} simulated s "
+              f"({len(rows) - len(known)} jobs not estimated); nothing written")
+        return 0
+    result = generate(sweep, args.out, scheduler=args.scheduler, workers=args.workers,
+                      threads=args.threads, resume=args.resume, overwrite=args.overwrite,
+                      retries=args.retries, variant=args.variant, gpu=args.gpu_per_job,
+                      report=(lambda line: print(line, flush=True)) if args.quiet else None)
+    print(f"generate: {result.ran} jobs simulated, {result.skipped} already complete, "
+          f"{result.failed} failed, in {result.wall_s:.1f} s on {result.cluster}; manifest "
+          f"{result.out / 'manifest.csv'}")
+    if result.failed:
+        print(f"generate: {result.failed} jobs failed (their errors are in the manifest); "
+              "retry them with the same command plus --resume", file=sys.stderr)
+        return 1
+    return 0
+
+
 def _cmd_dataset(args: argparse.Namespace) -> int:
     from sim.dataset import CARD, dataset_summary, write_card
 
@@ -403,6 +441,50 @@ def _add_convert(sub) -> None:
                                      "the sequence folder, or pass --sensor WxH"})
 
 
+def _add_generate(sub) -> None:
+    generate = sub.add_parser(
+        "generate", help="a dataset: a sweep file's jobs simulated on Dask",
+        description="Simulate every job of a sweep file (scenes x grid x seeds, see "
+                    "sweeps/README.md) into DIR/jobs/<job_id>/, each one `evfuse simulate`, on "
+                    "a Dask LocalCluster (one single-threaded worker per core) or an existing "
+                    "scheduler; DIR/manifest.csv lists every job with its status, counts and "
+                    "output hash.")
+    generate.add_argument("sweep", help="sweep file (.toml)")
+    generate.add_argument("--out", required=False, default=None, metavar="DIR",
+                          help="dataset folder to write (required unless --dry-run)")
+    generate.add_argument("--dry-run", action="store_true",
+                          help="list the jobs and their cost estimated from a short probe "
+                               "simulation of each distinct scene; write nothing")
+    generate.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                          help="address of a running Dask scheduler (tcp://head:8786; start "
+                               "one with `dask scheduler` and `dask worker ADDRESS`) instead of "
+                               "a local cluster")
+    generate.add_argument("--workers", type=count_type(0), default=None,
+                          help="local cluster: worker processes (default: one per core; 0 "
+                               "runs the jobs one by one in this process, without Dask)")
+    generate.add_argument("--threads", type=count_type(1), default=None,
+                          help="local cluster: threads per worker (default 1)")
+    generate.add_argument("--retries", type=count_type(0), default=1,
+                          help="times a failing job is tried again before it is recorded as "
+                               "failed (default 1)")
+    generate.add_argument("--gpu-per-job", type=POSITIVE, default=None, metavar="FRACTION",
+                          help="each job's share of a worker's GPU resource (e.g. 0.0625: 16 "
+                               "jobs per GPU; workers started with --resources GPU=1)")
+    generate.add_argument("--variant", default=None,
+                          help="Mitsuba variant of every job (default: each worker's fastest)")
+    generate.add_argument("--resume", action="store_true",
+                          help="continue DIR (same sweep file): complete jobs are kept, "
+                               "interrupted ones resume from their checkpoint, failed ones are "
+                               "tried again")
+    generate.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    generate.add_argument("--quiet", action="store_true",
+                          help="one line per finished job on stdout, no progress bar")
+    generate.set_defaults(run=_cmd_generate,
+                          flag_names={"gpu": "--gpu-per-job", "variant": "--variant"},
+                          interrupted="finished jobs are kept; continue with the same command "
+                                      "plus --resume")
+
+
 def add_command(subparsers, name: str, *,
                 event_figure: Callable[[Path, np.ndarray, str], object] | None = None) -> None:
     """Add one of the simulator's subcommands to a command line.
@@ -429,7 +511,7 @@ def add_command(subparsers, name: str, *,
         _add_events(subparsers, event_figure)
         return
     builders = {"scenes": _add_scenes, "simulate": _add_simulate, "twin": _add_twin,
-                "convert": _add_convert, "dataset": _add_dataset}
+                "convert": _add_convert, "generate": _add_generate, "dataset": _add_dataset}
     if name not in builders:
         raise ValueError(f"add_command: {name!r} is not one of {', '.join(COMMANDS)}")
     builders[name](subparsers)

@@ -13,6 +13,8 @@ Trajectories:
 - :class:`HandheldTrajectory`: smooth 6-DoF shake, sums of sines with an optional chirp.
 - :class:`SplineTrajectory`: C2 cubic B-spline through keyframe poses (cumulative on SO(3)).
 - :class:`SampledTrajectory`: geodesic interpolation between sampled poses (motion capture).
+- :class:`TimeScaledTrajectory`: another trajectory run ``scale`` times as fast (a sweep's
+  ``speed``).
 
 Files: ECD ``groundtruth.txt`` / TUM, ``t px py pz qx qy qz qw`` (quaternion scalar last).
 """
@@ -51,6 +53,7 @@ __all__ = [
     "LinearTrajectory",
     "SampledTrajectory",
     "SplineTrajectory",
+    "TimeScaledTrajectory",
     "Trajectory",
     "read_trajectory",
     "sample_times",
@@ -846,3 +849,51 @@ def sample_times(t0: float, t1: float, rate: float) -> np.ndarray:
     if steps <= 0:
         return np.array([float(t0)])
     return np.linspace(t0, t1, steps + 1)
+
+
+class TimeScaledTrajectory(Trajectory):
+    """Another trajectory played ``scale`` times as fast about ``t = 0``: the same path, each
+    pose reached at ``t / scale``; velocities scale by ``scale``, accelerations by ``scale**2``
+    (exact: the chain rule on ``pose(scale t)``).
+
+    Parameters
+    ----------
+    base : Trajectory
+        The trajectory to replay.
+    scale : float
+        Speed factor, > 0 (2: twice as fast, over half the time range).
+    """
+
+    def __init__(self, base: Trajectory, scale: float) -> None:
+        if not isinstance(base, Trajectory):
+            raise ValueError(f"TimeScaledTrajectory.base must be a Trajectory, got {base!r}")
+        self.base = base
+        self.scale = positive("TimeScaledTrajectory.scale", scale)
+
+    def __repr__(self) -> str:
+        return f"TimeScaledTrajectory({self.base!r}, scale={self.scale!r})"
+
+    @property
+    def t_start(self) -> float:
+        """float, seconds: the base's first valid time divided by ``scale``."""
+        return self.base.t_start / self.scale
+
+    @property
+    def t_end(self) -> float:
+        """float, seconds: the base's last valid time divided by ``scale``."""
+        return self.base.t_end / self.scale
+
+    def _base_times(self, t: np.ndarray) -> np.ndarray:
+        # Rounding may put scale * t a hair outside the base's range at its ends.
+        return np.clip(self.scale * t, self.base.t_start, self.base.t_end)
+
+    def _poses(self, t: np.ndarray) -> np.ndarray:
+        return self.base._poses(self._base_times(t))
+
+    def _velocities(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        v, w = self.base._velocities(self._base_times(t))
+        return self.scale * v, self.scale * w
+
+    def _accelerations(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a, alpha = self.base._accelerations(self._base_times(t))
+        return self.scale ** 2 * a, self.scale ** 2 * alpha

@@ -634,7 +634,7 @@ def check_params(case: tuple[str, list[str]]) -> None:
 
 @st.composite
 def _sweep_case(draw: Any) -> tuple[str, dict[str, list[float]]]:
-    from fusion.experiments.families import FAMILIES
+    from sim.scene.families import FAMILIES
 
     family = draw(st.sampled_from([*sorted(FAMILIES), "nosuch"]))
     names = sorted({*FAMILIES.get(family, {}), "texture", "steps", "radius"})
@@ -651,8 +651,8 @@ def check_sweep(case: tuple[str, dict[str, list[float]]]) -> None:
     """``evfuse bench --family F --KNOB V,...``: every member the knobs make is a scene that
     parses (with finite figures), or one line naming the family or the knob (as the library's
     parameters: the command line names them by its flags)."""
-    from fusion.experiments.families import family_variants
     from sim.scene import parse_scene
+    from sim.scene.families import family_variants
 
     family, knobs = case
     names = ("family", *knobs)

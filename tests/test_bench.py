@@ -179,8 +179,8 @@ def test_bad_bench_arguments_are_refused_in_one_line(argv, message, tmp_path, ca
 
 
 def test_a_family_expands_into_one_scene_per_knob_value(tmp_path):
-    from fusion.experiments.families import FAMILIES, family_scene, family_variants
     from sim.scene import parse_scene
+    from sim.scene.families import FAMILIES, family_scene, family_variants
 
     names = [parse_scene(text).name for text in family_variants("staircase",
                                                                 {"steps": [2, 4, 8]})]
@@ -193,7 +193,7 @@ def test_a_family_expands_into_one_scene_per_knob_value(tmp_path):
             parse_scene(family_scene(family, texture=texture))
     shadow = [len(parse_scene(family_scene("sphere", shadow=s)).lights) for s in (0, 1)]
     assert shadow == [1, 2]
-    from fusion.experiments.families import write_family
+    from sim.scene.families import write_family
 
     files = write_family("sphere", {"radius": [0.1, 0.3], "texture": [0, 1]}, tmp_path / "f")
     assert len(files) == 4 and all(path.suffix == ".toml" for path in files)
@@ -211,7 +211,7 @@ def test_a_family_expands_into_one_scene_per_knob_value(tmp_path):
 ])
 def test_a_bad_family_or_knob_is_named(family, knobs, message):
     """The library names its parameters, never a flag."""
-    from fusion.experiments.families import family_scene
+    from sim.scene.families import family_scene
 
     with pytest.raises(ValueError) as info:
         family_scene(family, **knobs)

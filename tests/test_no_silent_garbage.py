@@ -41,7 +41,7 @@ def _exact_depth_span(scene, times: int = 3, size: tuple[int, int] = (32, 24)):
 def _family_members():
     """Every family's knob-range corners and a few interior values (texture does not move
     geometry; shadow only adds a light)."""
-    from fusion.experiments.families import FAMILIES
+    from sim.scene.families import FAMILIES
 
     for family, knobs in FAMILIES.items():
         names = list(knobs)
@@ -52,8 +52,8 @@ def _family_members():
 
 
 def test_every_family_member_declares_a_range_that_contains_its_exact_depth():
-    from fusion.experiments.families import FAMILIES, family_scene
     from sim.scene import parse_scene
+    from sim.scene.families import FAMILIES, family_scene
     from sim.validation import ParameterError
 
     made = {family: 0 for family in FAMILIES}
@@ -79,7 +79,7 @@ def test_every_family_member_declares_a_range_that_contains_its_exact_depth():
 
 
 def test_a_sphere_or_cylinder_touching_the_camera_is_refused():
-    from fusion.experiments.families import family_scene
+    from sim.scene.families import family_scene
 
     for family in ("sphere", "cylinder"):
         with pytest.raises(ValueError, match="^radius 0.5 with distance 0.5: the"):

@@ -62,7 +62,8 @@ BEFORE = {
 """Old module path -> the public names it defined before the move."""
 
 OTHER_MODULES = ["fusion.baselines", "fusion.mesh_fill", "fusion.surface_fit",
-                 "fusion.families", "fusion.frame_projection", "fusion.jsonio", "sim.rig"]
+                 "fusion.families", "fusion.experiments.families", "fusion.frame_projection",
+                 "fusion.jsonio", "sim.rig"]
 """Modules without a name in ``__all__`` that a user may still have imported by their old path."""
 
 

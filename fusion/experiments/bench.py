@@ -310,7 +310,7 @@ def bench(methods: list, scenes: list[str], inputs: list[str] = INPUTS,
         :class:`fusion.methods.MethodVariant`; the settings are checked before any work.
     scenes : list of str
         Built-in scene names, groups (:data:`SCENE_GROUPS`), scene files (``.toml``, e.g. from
-        :mod:`fusion.experiments.families`) or map folders of simulated sequences (``evfuse map`` /
+        :mod:`sim.scene.families`) or map folders of simulated sequences (``evfuse map`` /
         ``evfuse run`` outputs).
     inputs : list of str
         Among :data:`INPUTS` (default all).
@@ -541,7 +541,7 @@ def bench_command(out: str | Path, *, scenes: str | None, inputs: str, methods: 
     cache : str or Path, optional
         The cache folder, where given.
     family : str, optional
-        A family's bench (:mod:`fusion.experiments.families`): its name instead of the scenes.
+        A family's bench (:mod:`sim.scene.families`): its name instead of the scenes.
     knobs : dict of str to str, optional
         Its knobs' values as given, by knob name.
 

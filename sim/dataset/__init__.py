@@ -1,10 +1,19 @@
-"""Datasets, not sequences (issue 24): many simulated sequences in one folder, and their loader.
+"""Datasets, not sequences (issue 24): many simulated sequences in one folder, how they are
+generated from a sweep file on Dask (``evfuse generate``), and their loader.
 
 A dataset folder holds ``manifest.csv`` (one row per job) and one sequence folder per job
 (``jobs/<job_id>/``, as ``evfuse simulate --out`` writes it).
 
 Modules (private; everything public is re-exported here):
 
+- ``_sweep``: sweep files (:func:`load_sweep`, :func:`parse_sweep` -> :class:`Sweep`,
+  :class:`SweepError`): scenes, seeds, a grid and drawn parameters, expanded into jobs.
+- ``_jobs``: one job (:class:`Job`, its stable ``job_id``), the parameters a sweep may set
+  (:data:`PARAMETERS`) and one job simulated in this process (:func:`run_job`).
+- ``_run``: :func:`generate` (the jobs on a Dask ``LocalCluster``, an existing scheduler or in
+  process; resumable) and :func:`estimate_jobs` (``--dry-run``'s cost from a probe).
+- ``_manifest``: ``manifest.csv`` / ``.parquet`` (:func:`write_manifest`,
+  :func:`read_manifest`) and a job folder's :func:`output_hash`.
 - ``_loader``: :func:`open_dataset` (:class:`Dataset`: per standard frame a :class:`Sample`, the
   events since the previous frame with tonic's fields :data:`DATASET_EVENT_DTYPE`, the frame,
   its exact depth, flow, IMU, pose and calibration; :class:`EventWindow` for windows by time).
@@ -13,6 +22,7 @@ Modules (private; everything public is re-exported here):
 """
 
 from sim.dataset._card import CARD, DatasetSummary, dataset_summary, write_card
+from sim.dataset._jobs import PARAMETERS, Job, job_inputs, run_job
 from sim.dataset._loader import (
     DATASET_EVENT_DTYPE,
     MANIFEST,
@@ -22,8 +32,15 @@ from sim.dataset._loader import (
     Sample,
     open_dataset,
 )
+from sim.dataset._manifest import output_hash, read_manifest, write_manifest
+from sim.dataset._run import GenerateResult, default_cluster_size, estimate_jobs, generate
+from sim.dataset._sweep import Sweep, SweepError, load_sweep, parse_sweep
 
 __all__ = [
+    # generate (sweeps, jobs, Dask, manifest)
+    "PARAMETERS", "GenerateResult", "Job", "Sweep", "SweepError", "default_cluster_size",
+    "estimate_jobs", "generate", "job_inputs", "load_sweep", "output_hash", "parse_sweep",
+    "read_manifest", "run_job", "write_manifest",
     # loader and card (evfuse dataset)
     "CARD",
     "DATASET_EVENT_DTYPE",

@@ -333,7 +333,8 @@ def _histogram(name: str, values: list[float], spec: str, bins: int = 8) -> list
     found = _finite(values)
     if not found:
         return [f"{name}: no values"]
-    counts, edges = np.histogram(found, bins=min(bins, max(1, len(set(found)))))
+    spread = max(found) - min(found) > 1e-9 * max(1.0, *map(abs, found))   # not one value
+    counts, edges = np.histogram(found, bins=min(bins, len(set(found))) if spread else 1)
     most = max(int(counts.max()), 1)
     lines = [f"{name}:"]
     for count, low, high in zip(counts, edges[:-1], edges[1:], strict=True):

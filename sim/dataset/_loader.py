@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.camera import Camera
+from sim.dataset._manifest import MANIFEST_CSV
 from sim.eventio import EVENT_DTYPE, line_offsets, read_text_span, read_window, text_offsets
 from sim.sequence import Sequence, load_sequence
 from sim.validation import ParameterError
@@ -45,7 +46,7 @@ from sim.validation import ParameterError
 __all__ = ["DATASET_EVENT_DTYPE", "MANIFEST", "TIME_UNITS", "Dataset", "EventWindow", "Sample",
            "open_dataset"]
 
-MANIFEST = "manifest.csv"
+MANIFEST = MANIFEST_CSV                   # one name, the writer's (sim.dataset._manifest)
 """The manifest of a dataset folder: one row per job (``job_id``, ``path``, ``status``, ...)."""
 
 DATASET_EVENT_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("t", "<i8"), ("p", "i1")])

@@ -20,6 +20,8 @@ Modules (private; everything public is re-exported here):
 - ``procedural``: random scene files per seed, the ``tabletop`` and ``room`` families
   (:func:`tabletop_scene`, :func:`room_scene`, :data:`PROCEDURAL_FAMILIES`, their ranges
   :class:`TabletopRanges` / :class:`RoomRanges`, and :func:`trajectory_check`).
+- ``families`` (public, imported by name): scene families with a difficulty knob
+  (:func:`sim.scene.families.family_scene`), for ``evfuse bench --family`` and sweeps.
 """
 
 from __future__ import annotations

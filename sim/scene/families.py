@@ -1,4 +1,5 @@
-"""Scene families with a difficulty knob, for ``evfuse bench --family``.
+"""Scene families with a difficulty knob, for ``evfuse bench --family`` and sweeps
+(``family = ...`` in a sweep file, :mod:`sim.dataset`).
 
 Each family writes a scene file (TOML text) from a few parameters that set how hard its surface
 is to fill; everything else (the DAVIS240C camera, a slider moving 10 cm/s, two lights, a
@@ -195,6 +196,8 @@ def family_scene(family: str, **knobs: float) -> str:
     body = "\n".join(text)
     near, far = geometry_depth_range(parse_scene(body, f"<{name}>"))
     # The declared range goes right after the duration (top-level keys precede the tables).
+    # The texts keep naming fusion.experiments.families (the module's old path, still
+    # importable): the scene files, and the simulations cached by their text, stay the same.
     return body.replace("duration = 3.0\n", f"duration = 3.0\ndepth_range = [{near:.2f}, "
                         f"{far:.2f}]   # from the geometry (fusion.experiments.families)\n", 1)
 

@@ -1,0 +1,214 @@
+"""What ``evfuse generate`` gets out of a machine: a 12-job sweep run serially in one process and
+on local Dask clusters of several worker/thread splits, in one run; the scheduler's overhead
+per job; and, from the measured per-job costs, what a 1,000-sequence dataset costs on 1, 8
+and 64 workers.
+
+**The sweep** (:func:`sweep_text`): slider_close, boxes_6dof and the ``sphere`` bench family x
+two contrasts x two seeds = 12 jobs, each 0.1 s of simulated time at 120x90 (``--quick``: 0.05 s
+at 64x48), every output of simulate (events h5 + txt, the motion ground truth).
+
+**Each configuration** is the whole ``evfuse generate SWEEP --out DIR`` command, run as a
+process as a user runs it (process start, imports, the cluster's start and every worker's
+first kernel compilation included, as they are in a real run), into a fresh folder:
+``--workers 0`` (serial, in the one process, no Dask), the default local cluster (one
+single-threaded worker per core), and the other splits of :func:`configurations`. Reported:
+wall seconds, jobs per hour, simulated seconds per wall hour; the start (process launch to
+the first job's start in ``runs.log``) and the jobs per hour from the first job's start to the
+last one's end (what a long dataset sees once the workers are up); and the mean of the jobs' own
+wall seconds (``manifest.csv``'s ``wall_s``: one job in a worker, set-up to last file).
+Every configuration's output hashes are compared with the serial run's (they must be equal).
+
+**Scheduler overhead**: 1,000 empty tasks through the default cluster (submit to result,
+wall seconds per task), and the rewrite of a 1,000-row manifest (``generate`` rewrites it
+after each job).
+
+**On paper**: a 1,000-job dataset of this sweep's jobs on W workers, from the default
+cluster's measured mean job seconds and overheads: ``1000 (job + overhead) / W + start``;
+and the same for 10-s sequences at 240x180 from the README's cost of ``evfuse simulate`` per
+simulated second (an input, said so), to show where the time goes at scale. These are
+arithmetic, not measurements: they assume W cores that each run one worker as fast as one
+core of this machine, and a file system that keeps up.
+
+Run: ``python -m benchmarks.bench_generate [--quick]`` (on the shared 2-core machine: about
+4 minutes, ``--quick`` about 2). Written to ``benchmarks/results/generate.json``. Timings only;
+nothing is asserted (the hashes are compared and reported).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "benchmarks" / "results"
+SIMULATE_S_PER_SIMULATED_S = 25.0
+"""The cost of one 240x180 6-DoF simulated second on one core of this machine, s (issue 24's
+figure, ``evfuse run boxes_6dof --t0 3.5 --t1 5.5``): the input of the 10-s projection."""
+
+
+def sweep_text(quick: bool) -> str:
+    """The benchmark's 12-job sweep."""
+    sensor, t1 = ("64x48", 0.05) if quick else ("120x90", 0.1)
+    return f"""name = "bench_generate"
+seeds = [1, 2]
+
+[[scenes]]
+name = "slider_close"
+
+[[scenes]]
+name = "boxes_6dof"
+
+[[scenes]]
+family = "sphere"
+radius = 0.3
+
+[grid]
+sensor = "{sensor}"
+t0 = 0.0
+t1 = {t1}
+contrast = [0.2, 0.3]
+"""
+
+
+def configurations(cores: int) -> list[tuple[str, list[str]]]:
+    """(label, flags) of each run: serial, the default cluster, other splits."""
+    runs = [("serial in-process", ["--workers", "0"]),
+            (f"default cluster ({cores} x 1)", []),
+            ("1 worker x 1 thread", ["--workers", "1", "--threads", "1"]),
+            (f"1 worker x {cores} threads", ["--workers", "1", "--threads", str(cores)])]
+    if cores > 1:
+        runs.append((f"{2 * cores} workers x 1 thread", ["--workers", str(2 * cores)]))
+    return runs
+
+
+def run_generate(sweep: Path, out: Path, flags: list[str]) -> dict:
+    """One ``evfuse generate`` process: its wall seconds and the manifest's rows."""
+    from sim.dataset import read_manifest
+
+    command = [sys.executable, "-m", "fusion.cli", "generate", str(sweep), "--out", str(out),
+               "--quiet", *flags]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    launch, clock = time.time(), time.perf_counter()
+    done = subprocess.run(command, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - clock
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed:\n{done.stderr[-2000:]}")
+    times = {}
+    for line in (out / "runs.log").read_text().splitlines():
+        event, _, _, stamp = line.split()[:4]
+        times.setdefault(event, []).append(float(stamp.removeprefix("t=")))
+    return {"wall_s": wall, "rows": read_manifest(out),
+            "start_s": min(times["start"]) - launch,
+            "span_s": max(times["done"]) - min(times["start"])}
+
+
+def scheduler_overhead(tasks: int = 1000) -> dict:
+    """Seconds per empty task through the default local cluster, and per manifest rewrite."""
+    from distributed import Client, LocalCluster
+
+    from sim.dataset import default_cluster_size, write_manifest
+
+    workers, threads = default_cluster_size()
+    with LocalCluster(n_workers=workers, threads_per_worker=threads, processes=True,
+                      dashboard_address=None, silence_logs=50) as cluster, \
+            Client(cluster) as client:
+        client.gather(client.map(abs, range(-20, 0), pure=False))              # warm
+        clock = time.perf_counter()
+        futures = client.map(abs, range(-tasks, 0), pure=False)
+        client.gather(futures)
+        per_task = (time.perf_counter() - clock) / tasks
+    rows = [{"job_id": f"job-{i}", "path": f"jobs/job-{i}", "status": "done", "seed": i,
+             "contrast": 0.2, "events": 123456, "output_hash": "0" * 64} for i in range(1000)]
+    with tempfile.TemporaryDirectory() as tmp:
+        clock = time.perf_counter()
+        for _ in range(5):
+            write_manifest(tmp, rows, ["contrast"])
+        manifest = (time.perf_counter() - clock) / 5
+    return {"task_s": per_task, "manifest_1000_rows_s": manifest}
+
+
+def projection(job_s: float, overhead_s: float, start_s: float,
+               workers=(1, 8, 64)) -> list[dict]:
+    """Hours for 1,000 jobs of ``job_s`` seconds each (plus ``overhead_s``) on W workers."""
+    return [{"workers": w, "hours": (1000 * (job_s + overhead_s) / w + start_s) / 3600}
+            for w in workers]
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="64x48, 0.05 s jobs")
+    args = parser.parse_args(argv)
+    from sim.dataset import default_cluster_size, parse_sweep
+
+    cores = default_cluster_size()[0]
+    text = sweep_text(args.quick)
+    jobs = parse_sweep(text).jobs
+    simulated = sum(float(j.params["t1"]) - float(j.params["t0"]) for j in jobs)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bench-generate-") as tmp:
+        sweep = Path(tmp) / "sweep.toml"
+        sweep.write_text(text)
+        hashes = None
+        for label, flags in configurations(cores):
+            out = Path(tmp) / f"out{len(rows)}"
+            run = run_generate(sweep, out, flags)
+            mine = [r["output_hash"] for r in run["rows"]]
+            hashes = hashes or mine
+            job_s = [float(r["wall_s"]) for r in run["rows"]]
+            rows.append({"config": label, "flags": " ".join(flags) or "(default)",
+                         "wall_s": run["wall_s"], "jobs_per_hour": 3600 * len(jobs) / run["wall_s"],
+                         "simulated_s_per_hour": 3600 * simulated / run["wall_s"],
+                         "start_s": run["start_s"], "span_s": run["span_s"],
+                         "steady_jobs_per_hour": 3600 * len(jobs) / run["span_s"],
+                         "mean_job_s": sum(job_s) / len(job_s),
+                         "same_hashes_as_serial": mine == hashes})
+            r = rows[-1]
+            print(f"{label:<26} {r['wall_s']:6.1f} s  {r['jobs_per_hour']:6.0f} jobs/h  "
+                  f"{r['simulated_s_per_hour']:6.1f} sim s/h | start {r['start_s']:5.1f} s, "
+                  f"first start to last done {r['span_s']:5.1f} s: "
+                  f"{r['steady_jobs_per_hour']:6.0f} jobs/h | mean job {r['mean_job_s']:.2f} s"
+                  f" | same bytes: {mine == hashes}", flush=True)
+            shutil.rmtree(out)
+    overhead = scheduler_overhead()
+    print(f"scheduler: {1e3 * overhead['task_s']:.2f} ms per empty task; manifest of 1,000 rows "
+          f"rewritten in {1e3 * overhead['manifest_1000_rows_s']:.1f} ms")
+    default = rows[1]
+    fastest = max(rows, key=lambda r: r["jobs_per_hour"])
+    per_job_overhead = overhead["task_s"] + overhead["manifest_1000_rows_s"]
+    start_s = default["start_s"]
+    paper = {
+        "this_sweep": projection(default["mean_job_s"], per_job_overhead, max(start_s, 0.0)),
+        "ten_s_240x180": projection(10 * SIMULATE_S_PER_SIMULATED_S, per_job_overhead,
+                                    max(start_s, 0.0)),
+    }
+    steadiest = max(rows, key=lambda r: r["steady_jobs_per_hour"])
+    print(f"default vs fastest ({fastest['config']}): "
+          f"{100 * (default['jobs_per_hour'] / fastest['jobs_per_hour'] - 1):+.1f} % end to end;"
+          f" first start to last done vs the fastest so ({steadiest['config']}): "
+          f"{100 * (default['steady_jobs_per_hour'] / steadiest['steady_jobs_per_hour'] - 1):+.1f}"
+          " %")
+    for name, table in paper.items():
+        print(f"1,000 jobs ({name}): " + ", ".join(f"{r['workers']} workers {r['hours']:.2f} h"
+                                                   for r in table))
+    result = {"quick": args.quick, "cores": cores, "jobs": len(jobs),
+              "simulated_s": simulated, "machine": "shared 2-core machine, loaded by other "
+              "sessions; llvm_ad_rgb", "rows": rows, "overhead": overhead,
+              "start_s": start_s, "paper": paper,
+              "default_vs_fastest": default["jobs_per_hour"] / fastest["jobs_per_hour"] - 1,
+              "default_vs_fastest_steady": default["steady_jobs_per_hour"]
+              / steadiest["steady_jobs_per_hour"] - 1}
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "generate.json").write_text(json.dumps(result, indent=2))
+    print(f"written to {RESULTS / 'generate.json'}")
+    return result
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,250 @@
+"""``evfuse generate`` on Dask (:mod:`sim.dataset`): a real LocalCluster gives the same bytes as
+the jobs run one by one in this process; a worker killed mid-job and a generate interrupted
+mid-job both end with the same dataset, no job run twice to completion; a job whose scene
+cannot render is recorded with its error while the others complete."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from sim.dataset import generate, load_sweep, output_hash, read_manifest
+from sim.output import OutputError
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = ROOT / "sweeps" / "tiny.toml"
+# Two jobs: a short one, then one long enough (~2.5 s here) to be stopped in the middle.
+LONG = """seeds = [5]
+
+[[scenes]]
+name = "slider_close"
+
+[grid]
+sensor = "128x96"
+t1 = [0.05, 0.5]
+"""
+CONTRACT = ("job_id", "path", "status", "error", "scene", "seed", "attempts", "events",
+            "frames", "renders", "pixel_samples", "duration_s", "wall_s", "output_hash",
+            "evfuse_version", "mitsuba_version", "drjit_version", "numpy_version")
+QUIET = {"report": lambda line: None}
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    """A dataset's job files (relative path -> bytes), ``sequence.json`` without timings."""
+    files = {}
+    for path in sorted((folder / "jobs").rglob("*")):
+        if path.is_file():
+            data = path.read_bytes()
+            if path.name == "sequence.json":
+                record = json.loads(data)
+                record.pop("timings_s")
+                data = json.dumps(record, sort_keys=True).encode()
+            files[path.relative_to(folder).as_posix()] = data
+    return files
+
+
+def _runs(folder: Path) -> list[list[str]]:
+    return [line.split() for line in (folder / "runs.log").read_text().splitlines()]
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """Both sweeps run one by one in this process (no Dask)."""
+    root = tmp_path_factory.mktemp("reference")
+    long_sweep = root / "long.toml"
+    long_sweep.write_text(LONG)
+    generate(TINY, root / "tiny", workers=0, **QUIET)
+    generate(long_sweep, root / "long", workers=0, **QUIET)
+    return root
+
+
+def test_a_local_cluster_writes_the_bytes_of_in_process_runs(reference, tmp_path):
+    out = tmp_path / "tiny"
+    result = generate(TINY, out, workers=2, threads=1, **QUIET)
+    assert result.cluster == "LocalCluster 2 x 1 thread"
+    assert (result.ran, result.failed, result.skipped) == (4, 0, 0)
+    mine, theirs = _tree(out), _tree(reference / "tiny")
+    assert sorted(mine) == sorted(theirs) and len(mine) > 40
+    different = [name for name in mine if mine[name] != theirs[name]]
+    assert not different
+    rows = read_manifest(out)
+    assert [r["job_id"] for r in rows] == [j.job_id for j in load_sweep(TINY).jobs]
+    assert all(set(CONTRACT) <= set(r) for r in rows)
+    assert {r["status"] for r in rows} == {"done"} and {r["attempts"] for r in rows} == {"1"}
+    assert [r["output_hash"] for r in rows] == [r["output_hash"] for r in
+                                                read_manifest(reference / "tiny")]
+    for row in rows:
+        assert row["output_hash"] == output_hash(out / row["path"])
+        assert int(row["events"]) > 0 and float(row["duration_s"]) == 0.05
+    pytest.importorskip("pyarrow")
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(out / "manifest.parquet").to_pylist()
+    assert [r["output_hash"] for r in table] == [r["output_hash"] for r in rows]
+    assert (out / "sweep.toml").read_bytes() == TINY.read_bytes()
+
+
+def _stop_when_checkpointed(out: Path, job_id: str, stop) -> threading.Thread:
+    """A thread that waits for the job's first checkpoint and then calls ``stop(pid)`` with the
+    process that runs it (read from runs.log)."""
+    def watch():
+        checkpoint = out / "jobs" / f"{job_id}.partial" / ".checkpoint" / "checkpoint.json"
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if checkpoint.is_file():
+                starts = [r for r in _runs(out) if r[:2] == ["start", job_id]]
+                stop(int(starts[-1][2].split("=")[1]))
+                return
+            time.sleep(0.01)
+    thread = threading.Thread(target=watch, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_a_killed_workers_job_runs_again_from_its_checkpoint(reference, tmp_path):
+    sweep = tmp_path / "long.toml"
+    sweep.write_text(LONG)
+    long_id = load_sweep(sweep).jobs[1].job_id
+    out = tmp_path / "killed"
+    killed = []
+    watcher = _stop_when_checkpointed(
+        out, long_id, lambda pid: (killed.append(pid), os.kill(pid, signal.SIGKILL)))
+    result = generate(sweep, out, workers=1, threads=1, **QUIET)
+    watcher.join(1)
+    assert killed, "the job finished before it could be killed"
+    assert killed[0] != os.getpid()                      # a worker, not this process
+    assert result.failed == 0 and _tree(out) == _tree(reference / "long")
+    runs = [r for r in _runs(out) if r[1] == long_id]
+    assert [r[0] for r in runs] == ["start", "start", "done"]
+    assert runs[-1][-1] == "resumed=True" and runs[-1][2] != f"pid={killed[0]}"
+    assert read_manifest(out)[1]["attempts"] == "2"
+
+
+def test_an_interrupted_generate_resumes_to_the_same_dataset(reference, tmp_path):
+    sweep = tmp_path / "long.toml"
+    sweep.write_text(LONG)
+    short_id, long_id = (job.job_id for job in load_sweep(sweep).jobs)
+    out = tmp_path / "interrupted"
+    command = [sys.executable, "-m", "fusion.cli", "generate", str(sweep), "--out", str(out),
+               "--workers", "0", "--quiet"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    process = subprocess.Popen(command, cwd=tmp_path, env=env, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    watcher = _stop_when_checkpointed(out, long_id,
+                                      lambda pid: os.kill(process.pid, signal.SIGINT))
+    _, err = process.communicate(timeout=300)
+    watcher.join(1)
+    assert process.returncode == 130, err
+    rows = {r["job_id"]: r for r in read_manifest(out)}     # a true manifest, mid-dataset
+    assert rows[short_id]["status"] == "done" and rows[long_id]["status"] == "pending"
+    assert not (out / "jobs" / long_id).exists()
+    with pytest.raises(OutputError, match="not empty"):
+        generate(sweep, out, workers=0, **QUIET)              # neither resume nor overwrite
+    other = tmp_path / "other.toml"
+    other.write_text(LONG.replace("[5]", "[6]"))
+    with pytest.raises(OutputError, match="another sweep"):
+        generate(other, out, workers=0, resume=True, **QUIET)
+    result = generate(sweep, out, workers=0, resume=True, **QUIET)
+    assert (result.ran, result.skipped, result.failed) == (1, 1, 0)
+    assert _tree(out) == _tree(reference / "long")
+    done = [r[1] for r in _runs(out) if r[0] == "done"]
+    assert sorted(done) == sorted([short_id, long_id])      # each job completed once
+    assert [r for r in _runs(out) if r[0] == "done" and r[1] == long_id][0][-1] == "resumed=True"
+
+
+def test_a_job_that_cannot_render_is_recorded_and_the_others_complete(reference, tmp_path):
+    scene = (ROOT / "scenes" / "slider_close.toml").read_text()
+    scene = scene.replace('name = "slider_close"', 'name = "broken"')
+    (tmp_path / "broken.toml").write_text(scene + '\n[[objects]]\nname = "lump"\ntype = "mesh"\n'
+                                          'path = "lump.obj"\ncenter = [0.0, 0.3, 0.0]\n')
+    (tmp_path / "lump.obj").write_text("v 1 2\nf 1 2 3 4\n")          # not a mesh
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(TINY.read_text().replace("seeds = [1, 2]", "seeds = [1]")
+                     .replace('family = "sphere"\nradius = 0.3', 'file = "broken.toml"'))
+    out = tmp_path / "failing"
+    result = generate(sweep, out, workers=1, retries=1, **QUIET)
+    assert (result.ran, result.failed) == (1, 1)
+    good, bad = read_manifest(out)
+    assert good["status"] == "done" and good["error"] == ""
+    assert good["output_hash"] == read_manifest(reference / "tiny")[0]["output_hash"]
+    assert bad["status"] == "failed" and bad["attempts"] == "2"         # tried, retried once
+    assert "lump.obj" in bad["error"] and "\n" not in bad["error"]
+    assert bad["output_hash"] == "" and not (out / bad["path"]).exists()
+
+
+def test_a_worker_with_two_threads_runs_its_jobs_one_at_a_time(reference, tmp_path):
+    """Two simulations at once in one interpreter fail (Mitsuba's and Dr.Jit's state is
+    process-wide); a 2-thread worker must give the serial bytes, every job at its first try."""
+    out = tmp_path / "threads"
+    result = generate(TINY, out, workers=1, threads=2, retries=0, **QUIET)
+    assert result.failed == 0
+    assert _tree(out) == _tree(reference / "tiny")
+    assert {r["attempts"] for r in read_manifest(out)} == {"1"}
+
+
+def test_dry_run_lists_every_job_with_a_probed_cost_and_writes_nothing(tmp_path, capsys):
+    from fusion.cli import main
+
+    assert main(["generate", str(TINY), "--dry-run", "--out", str(tmp_path / "d")]) == 0
+    out = capsys.readouterr().out
+    for job in load_sweep(TINY).jobs:
+        line = next(line for line in out.splitlines() if job.job_id in line)
+        seconds = float(line.split("~")[1].split(" s")[0])
+        assert 0 < seconds < 120, line
+    assert "total: ~" in out and not (tmp_path / "d").exists()
+    assert main(["generate", str(TINY)]) == 2                     # no --out
+    assert "--out DIR" in capsys.readouterr().err
+
+
+def test_a_procedural_scene_is_drawn_from_the_seed_and_its_scene_file_resimulates_it(
+        tmp_path):
+    """``procedural = "tabletop"`` draws the job's scene from its seed
+    (:func:`sim.scene.procedural.tabletop_scene`); the job folder's ``scene.toml``, simulated
+    again alone with the job's parameters, gives the same events and frames."""
+    from sim.scene import parse_scene
+    from sim.scene.procedural import tabletop_scene
+
+    grid = '[grid]\nsensor = "48x36"\nt1 = 0.05\ncontrast = 0.25\n'
+    sweep = tmp_path / "procedural.toml"
+    sweep.write_text(f'seeds = [3]\n[[scenes]]\nprocedural = "tabletop"\n{grid}')
+    result = generate(sweep, tmp_path / "drawn", workers=0, **QUIET)
+    assert result.failed == 0
+    folder = tmp_path / "drawn" / result.rows[0]["path"]
+    text = (folder / "scene.toml").read_text()
+    drawn = tabletop_scene(3)                                  # the same seed, the same file
+    body = [line for line in drawn.splitlines() if not line.startswith("seed =")]
+    assert text.splitlines() == ["seed = 3", *body]
+    assert parse_scene(text).seed == 3
+    again = tmp_path / "again.toml"
+    again.write_text(f'seeds = [3]\n[[scenes]]\nfile = "{folder / "scene.toml"}"\n{grid}')
+    redo = generate(again, tmp_path / "again", workers=0, **QUIET)
+    other = tmp_path / "again" / redo.rows[0]["path"]
+    for name in ("events.txt", "images.txt", "depthmaps.txt", "groundtruth.txt", "calib.txt"):
+        assert (other / name).read_bytes() == (folder / name).read_bytes(), name
+    assert sorted(p.name for p in (other / "images").iterdir()) == \
+        sorted(p.name for p in (folder / "images").iterdir())
+    for image in (folder / "images").iterdir():
+        assert (other / "images" / image.name).read_bytes() == image.read_bytes()
+
+
+def test_the_dataset_card_reads_a_generated_dataset(reference, tmp_path):
+    """``evfuse dataset`` on what ``evfuse generate`` wrote (sweeps/tiny.toml): values equal to
+    an ulp (the jobs' durations) once broke its histograms."""
+    import shutil
+
+    from sim.dataset import open_dataset, write_card
+
+    folder = tmp_path / "tiny"
+    shutil.copytree(reference / "tiny", folder)
+    summary = write_card(folder)
+    assert (folder / "card.md").is_file() and summary.text()
+    dataset = open_dataset(folder)
+    assert len(dataset) >= 4 and len(dataset[0].events) > 0
