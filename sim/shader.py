@@ -4,12 +4,12 @@
 one Dr.Jit launch, every sample seen from the camera pose at its own time: what a per-pixel event
 sampler needs, where :meth:`sim.render.Renderer.luminance` renders whole frames at one pose.
 
-Shading is the expected value of Mitsuba's ``direct`` integrator as :class:`~sim.render.Renderer`
-configures it (point, spot and directional lights, diffuse BSDFs, no interreflection), without its
-noise: ``mi.render`` picks ONE light at random per sub-sample (and weights it by the number of
-lights), which leaves a fixed pattern of light-selection noise; here every sub-sample adds the
-contribution of EVERY light, each with its own shadow ray. Missed rays give 0 (evfuse scenes have
-no environment light).
+Shading is the expected value of Mitsuba's ``direct`` integrator (point, spot and directional
+lights, diffuse BSDFs, no interreflection), without its noise: ``direct`` picks ONE light at
+random per sub-sample (and weights it by the number of lights), which leaves a fixed pattern of
+light-selection noise; here every sub-sample adds the contribution of EVERY light, each with its
+own shadow ray (:func:`sim.render.direct_light`, which the frames' ``evfuse_direct`` integrator
+calls too). Missed rays give 0 (evfuse scenes have no environment light).
 
 Textures are read filtered over each sub-sample's footprint on the surface, its stratum of the
 pixel (``1 / sqrt(spp)`` pixel on a side, projected through the pinhole at the hit, at that
@@ -50,7 +50,7 @@ from collections import OrderedDict
 import numpy as np
 
 from sim.camera import Camera
-from sim.render import Renderer
+from sim.render import Renderer, direct_light
 from sim.textures import filtered_scale, set_footprint
 from sim.trajectory import Trajectory
 
@@ -578,8 +578,9 @@ def _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
 
     The pose of each sample is interpolated entry by entry between two nodes of the pose table,
     in float32: ``a + fraction (b - a)``. One thread per sample loops over its sub-samples:
-    primary ray, then for every emitter its (delta) direction, a shadow ray and the BSDF times
-    the emitter's weight; luminance summed in sub-sample order. With ``filtering``, the BSDF's
+    primary ray, then every light's direct light (:func:`sim.render.direct_light`: per light
+    its (delta) direction, a shadow ray and the BSDF times its weight); luminance summed in
+    sub-sample order. With ``filtering``, the BSDF's
     texture is read filtered over the sub-sample's footprint, its stratum (``1 / sqrt(spp)``
     of the pixel on a side): :func:`sim.textures.filtered_scale`.
 
@@ -625,9 +626,6 @@ def _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
     rotation = mi.Matrix3f(*(rows[r][c] for r in range(3) for c in range(3)))
     origin = mi.Point3f(rows[0][3], rows[1][3], rows[2][3])
     first = pixels * spp
-    emitters = scene.emitters()
-    context = mi.BSDFContext()
-    centre = mi.Point2f(0.5, 0.5)                # delta lights ignore their sample
     if filtering is not None:
         scale = 1.0 / math.isqrt(spp) if footprint is None else footprint
         axes = tuple(mi.Vector3f(rotation[0][c], rotation[1][c], rotation[2][c])
@@ -645,14 +643,7 @@ def _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
         if filtering is not None:
             set_footprint(si, ray, axes, scale)
             texture = filtered_scale(filtering, si, bsdf, hit)
-        rgb = mi.Color3f(0.0)
-        for emitter in emitters:
-            ds, weight = emitter.sample_direction(si, centre, hit)
-            lit = hit & (ds.pdf != 0.0)
-            lit &= ~scene.ray_test(si.spawn_ray_to(ds.p), lit)
-            value = bsdf.eval(context, si, si.to_local(ds.d), lit) * weight * texture
-            rgb += dr.select(lit, value, 0.0)
-        return k + 1, total + mi.luminance(rgb)
+        return k + 1, total + mi.luminance(direct_light(scene, si, bsdf, hit, texture))
 
     _, total = dr.while_loop((mi.UInt32(0), zeros), lambda k, total: k < spp, body)
     return total * (1.0 / spp)
