@@ -152,12 +152,20 @@ def _bsdf_dict(index: int, obj: SceneObject, scene: Scene) -> dict:
             "material": {"type": "diffuse", "reflectance": reflectance}}
 
 
+BOUNDED_UV_SHAPES = ("rectangle", "box", "heightfield")
+"""Shapes whose every face spans (u, v) in [0, 1] x [0, 1], its edges at the bounds (a box's
+six faces each): a footprint filter stops there (:class:`sim.textures.TextureFilter`). A sphere's
+and a cylinder's u wraps round, a mesh file's (u, v) may be anything."""
+
+
 def _texture_materials(scene: Scene) -> list[tuple | None]:
     """Per object, the arguments of its texture as :class:`sim.textures.TextureFilter` takes
-    them (the same as :func:`_bsdf_dict` gives :func:`sim.textures.mitsuba_texture`)."""
+    them (the same as :func:`_bsdf_dict` gives :func:`sim.textures.mitsuba_texture`, and
+    whether its (u, v) are bounded: :data:`BOUNDED_UV_SHAPES`)."""
     return [None if obj.material.texture is None else
             (obj.material.texture, obj.material.texture_scale, scene.seed + index,
-             obj.shape in ("rectangle", "cylinder"), _max_texels(obj, scene))
+             obj.shape in ("rectangle", "cylinder"), _max_texels(obj, scene),
+             obj.shape in BOUNDED_UV_SHAPES)
             for index, obj in enumerate(scene.objects)]
 
 

@@ -313,17 +313,18 @@ class TextureFilter:
     mitsuba_scene : mi.Scene
         The loaded scene; a material is found by its BSDF's id, ``o{index}_bsdf`` followed by
         anything (see ``sim.render._bsdf_dict``).
-    materials : list of (spec, scale, seed, flip_v, max_texels) or None
+    materials : list of (spec, scale, seed, flip_v, max_texels, bounded) or None
         Per scene object (index ``i``), its texture spec, texture scale, seed, ``flip_v`` and
-        ``max_texels`` as :func:`mitsuba_texture` takes them, or None for an untextured
-        material.
+        ``max_texels`` as :func:`mitsuba_texture` takes them, and whether the shape's faces
+        end at (u, v) = 0 and 1 (a rectangle's, a box's: footprints are clipped there, see
+        :func:`filtered_reflectance`), or None for an untextured material.
     """
 
     def __init__(self, mitsuba_scene, materials: list[tuple | None]):
         import drjit as dr
         import mitsuba as mi
 
-        kinds, affine, colors = [NO_TEXTURE], [1.0, 0.0, 1.0, 0.0], [0.0] * 2
+        kinds, affine, colors, bounds = [NO_TEXTURE], [1.0, 0.0, 1.0, 0.0], [0.0] * 2, [0]
         levels = [0] * (3 * MAX_MIP_LEVELS)
         counts = [1]
         texels: list[np.ndarray] = []
@@ -332,8 +333,9 @@ class TextureFilter:
         for index, material in enumerate(materials):
             if material is None:
                 continue
-            spec, scale, seed, flip_v, max_texels = material
+            spec, scale, seed, flip_v, max_texels, bounded = material
             record_of_object[index] = len(kinds)
+            bounds.append(int(bool(bounded)))
             affine += to_uv_affine(spec, scale, flip_v=flip_v)
             pyramid: list[np.ndarray] = []
             if spec["type"] == "checkerboard":
@@ -369,6 +371,7 @@ class TextureFilter:
             "colors": mi.Float(np.array(colors, dtype=np.float32)),
             "levels": mi.UInt32(np.array(levels, dtype=np.uint32)),
             "counts": mi.UInt32(np.array(counts, dtype=np.uint32)),
+            "bounded": mi.UInt32(np.array(bounds, dtype=np.uint32)),
             "texels": mi.Float(np.ascontiguousarray(data, dtype=np.float32)),
         }
         """dict of Dr.Jit arrays: the tables that :func:`filtered_reflectance` reads (pass them
@@ -502,13 +505,24 @@ def filtered_reflectance(arrays, si, active, shift=None):
     textured = known & (kind != NO_TEXTURE)
     a_u, b_u, a_v, b_v = dr.gather(mi.Vector4f, arrays["affine"], record, textured)
     u, v = a_u * si.uv.x + b_u, a_v * si.uv.y + b_v              # the point lookup's
-    if shift is not None:                                         # the filter's centre
-        u_f, v_f = u + a_u * shift.x, v + a_v * shift.y
-    else:
-        u_f, v_f = u, v
-    dudx, dudy = a_u * si.duv_dx.x, a_u * si.duv_dy.x
-    dvdx, dvdy = a_v * si.duv_dx.y, a_v * si.duv_dy.y
-    dudx, dudy, dvdx, dvdy = (dr.select(dr.isfinite(d), d, 0.0) for d in (dudx, dudy, dvdx, dvdy))
+    centre = mi.Point2f(si.uv) if shift is None else si.uv + shift   # the filter's centre
+    partials = [dr.select(dr.isfinite(d), d, 0.0)
+                for d in (si.duv_dx.x, si.duv_dy.x, si.duv_dx.y, si.duv_dy.y)]
+    # On a bounded face the footprint's bounding box is clipped to it: what lies beyond the
+    # face's edge is another face or another object (a face seen edge-on has a footprint far
+    # larger than the face), not this texture repeated.
+    bounded = textured & (dr.gather(mi.UInt32, arrays["bounded"], record, textured) != 0)
+    scales = []
+    for axis in range(2):
+        half = 0.5 * (dr.abs(partials[2 * axis]) + dr.abs(partials[2 * axis + 1]))
+        low = dr.clip(centre[axis] - half, 0.0, 1.0)
+        high = dr.clip(centre[axis] + half, 0.0, 1.0)
+        centre[axis] = dr.select(bounded, 0.5 * (low + high), centre[axis])
+        scales.append(dr.select(bounded & (half > 0.0),
+                                (high - low) / dr.maximum(2.0 * half, 1e-30), 1.0))
+    u_f, v_f = a_u * centre.x + b_u, a_v * centre.y + b_v
+    dudx, dudy = a_u * scales[0] * partials[0], a_u * scales[0] * partials[1]
+    dvdx, dvdy = a_v * scales[1] * partials[2], a_v * scales[1] * partials[3]
 
     checker = textured & (kind == CHECKERBOARD)
     pu = _square_wave_mean(u_f, 0.5 * (dr.abs(dudx) + dr.abs(dudy)))
