@@ -20,7 +20,7 @@ import numpy as np
 
 __all__ = ["SKIMAGE_IMAGES", "PAPER_RANGE", "srgb_to_linear", "texture_image", "mitsuba_texture",
            "prefilter", "LUMINANCE_WEIGHTS", "mip_pyramid", "TextureFilter", "filtered_reflectance",
-           "filtered_scale", "set_footprint"]
+           "filtered_scale", "set_footprint", "box_matched_lod"]
 
 SKIMAGE_IMAGES = (
     "astronaut", "brick", "camera", "coffee", "chelsea", "coins", "grass", "gravel", "moon",
