@@ -185,6 +185,18 @@ def test_a_fine_texture_fires_the_events_of_its_converged_reference(tmp_path):
     assert abs(counts[4] / counts[64] - 1.0) < 0.04, counts
 
 
+def _centre_hits(renderer: Renderer, pose: np.ndarray):
+    """Mitsuba's hits (``RayFlags.All``) of the renderer's pixel-centre rays from ``pose``, and
+    which rays hit."""
+    import mitsuba as mi
+
+    rays = renderer._rays_np @ pose[:3, :3].T
+    ray = mi.Ray3f(mi.Point3f(*pose[:3, 3].astype(np.float32).tolist()),
+                   mi.Vector3f(*(rays[:, i].astype(np.float32) for i in range(3))))
+    si = renderer.mitsuba_scene.ray_intersect(ray, mi.RayFlags.All, True)
+    return si, si.is_valid()
+
+
 def test_the_tables_point_lookup_is_mitsubas():
     """The point value that a filtered lookup divides by (level 0 of the pyramid, the
     checkerboard's mask) is Mitsuba's own texture value (its luminance) on every textured
@@ -202,11 +214,7 @@ def test_the_tables_point_lookup_is_mitsubas():
     scene = load_scene(resolve_scene("boxes_6dof"))
     renderer = Renderer(replace(scene, camera=scene.camera.with_resolution(96, 72)))
     pose = scene.trajectory.pose(2.0)
-    rays = renderer._rays_np @ pose[:3, :3].T
-    ray = mi.Ray3f(mi.Point3f(*pose[:3, 3].astype(np.float32).tolist()),
-                   mi.Vector3f(*(rays[:, i].astype(np.float32) for i in range(3))))
-    si = renderer.mitsuba_scene.ray_intersect(ray, mi.RayFlags.All, True)
-    hit = si.is_valid()
+    si, hit = _centre_hits(renderer, pose)
     filtered, point, textured = filtered_reflectance(renderer.texture_filter.arrays, si, hit)
     mitsuba = mi.luminance(si.bsdf().eval_diffuse_reflectance(si, hit))
     textured = np.array(textured)
@@ -233,11 +241,7 @@ def test_a_footprint_that_crosses_a_face_s_edge_is_clipped_to_the_face():
     scene = parse_scene(scene_text(tile, camera=CAMERA, trajectory=STILL, duration=0.3))
     renderer = Renderer(scene)
     pose = scene.trajectory.pose(0.0)
-    rays = renderer._rays_np @ pose[:3, :3].T
-    ray = mi.Ray3f(mi.Point3f(*pose[:3, 3].astype(np.float32).tolist()),
-                   mi.Vector3f(*(rays[:, i].astype(np.float32) for i in range(3))))
-    si = renderer.mitsuba_scene.ray_intersect(ray, mi.RayFlags.All, True)
-    hit = si.is_valid()
+    si, hit = _centre_hits(renderer, pose)
     half = 0.2
     si.duv_dx = mi.Vector2f(2.0 * half, 0.0)
     si.duv_dy = mi.Vector2f(0.0, 2.0 * half)
