@@ -31,6 +31,8 @@ class EventAgreement:
         Largest ``|count / reference count - 1|`` over those blocks (0 when there are none).
     worst_block : tuple of int
         (row, column) of that block, in blocks.
+    worst_block_events : int
+        Reference events in that block (0 when there are none).
     matched : float
         Share of the reference's events matched (the i-th event of a pixel and polarity in one
         stream to the i-th in the other).
@@ -44,6 +46,7 @@ class EventAgreement:
     blocks: int
     worst_block_error: float
     worst_block: tuple[int, int]
+    worst_block_events: int
     matched: float
     dt_median_us: float
     dt_p95_us: float
@@ -104,4 +107,5 @@ def event_agreement(reference: np.ndarray, events: np.ndarray, shape: tuple[int,
     dt = np.abs(t[at] - t_ref[at_ref]) * 1e-3
     stats = (np.percentile(dt, [50, 95]).tolist() + [float(dt.max())]) if len(dt) else [0.0] * 3
     return EventAgreement(n_ref, n, float(count_error), int(dense.sum()), worst, where,
+                          int(want[where]) if dense.any() else 0,
                           len(common) / n_ref if n_ref else 1.0, *map(float, stats))

@@ -139,8 +139,9 @@ def table(rows: list[dict]) -> str:
     lines = [f"goals: events within {100 * COUNT_GOAL:.0f} %, every block with >= 100 events "
              f"within {100 * BLOCK_GOAL:.0f} %, frames >= {PSNR_GOAL:.0f} dB "
              f"(reference: {REFERENCE_SPP} samples per pixel)",
+             "worst block: its error (its reference events, blocks with >= 100 of them)",
              "scene                t (s)  sampler  events  reference  count        "
-             "worst block (n)      frames PSNR     pixel samples  event render s"]
+             "worst block (events, blocks)   frames PSNR     pixel samples  event render s"]
     for row in rows:
         a, d, ok = row["agreement"], row["default"], row["pass"]
         frames = (f"{row['frame_psnr_db']:5.1f} dB {_verdict(ok['frames'])}"
@@ -148,7 +149,8 @@ def table(rows: list[dict]) -> str:
         lines.append(
             f"{row['scene']:<20} {row['window_s'][0]:5.1f}  {d['sampler']:<7} "
             f"{a['count']:7,} {a['reference_count']:10,}  {100 * a['count_error']:+6.1f} % "
-            f"{_verdict(ok['count'])}  {100 * a['worst_block_error']:5.1f} % ({a['blocks']:3}) "
+            f"{_verdict(ok['count'])}  {100 * a['worst_block_error']:5.1f} % "
+            f"({a['worst_block_events']:5,}, {a['blocks']:3}) "
             f"{_verdict(ok['blocks'])}  {frames}  {d['pixel_samples']:13,}  "
             f"{d['event_render_s']:14.2f}")
     return "\n".join(lines)

@@ -4,21 +4,25 @@
 one Dr.Jit launch, every sample seen from the camera pose at its own time: what a per-pixel event
 sampler needs, where :meth:`sim.render.Renderer.luminance` renders whole frames at one pose.
 
-Shading is the expected value of Mitsuba's ``direct`` integrator as :class:`~sim.render.Renderer`
-configures it (point, spot and directional lights, diffuse BSDFs, no interreflection), without its
-noise: ``mi.render`` picks ONE light at random per sub-sample (and weights it by the number of
-lights), which leaves a fixed pattern of light-selection noise; here every sub-sample adds the
-contribution of EVERY light, each with its own shadow ray. Missed rays give 0 (evfuse scenes have
-no environment light).
+Shading is the expected value of Mitsuba's ``direct`` integrator (point, spot and directional
+lights, diffuse BSDFs, no interreflection), without its noise: ``direct`` picks ONE light at
+random per sub-sample (and weights it by the number of lights), which leaves a fixed pattern of
+light-selection noise; here every sub-sample adds the contribution of EVERY light, each with its
+own shadow ray (:func:`sim.render.direct_light`, which the frames' ``evfuse_direct`` integrator
+calls too). Missed rays give 0 (evfuse scenes have no environment light).
 
 Textures are read filtered over each sub-sample's footprint on the surface, its stratum of the
 pixel (``1 / sqrt(spp)`` pixel on a side, projected through the pinhole at the hit, at that
 sample's pose and distance): :func:`sim.textures.filtered_scale`, the lookup that the frames'
-``evfuse_direct`` integrator makes too (:func:`sim.render.register_integrator`). The
-sub-samples then approximate the pixel's box integral of the filtered texture: a texture's
-detail finer than a stratum is averaged, not aliased; what point sub-samples still sample is
-geometry (an object's edge, a shadow's edge) and detail at the stratum's scale (see
-:class:`sim.textures.TextureFilter` for the filters' bounds).
+``evfuse_direct`` integrator makes too (:func:`sim.render.register_integrator`). The filter is
+centred on the stratum's centre, not on the jittered sub-sample: the hit's uv moved back by
+the jitter along the footprint's uv partials, so that on a plane the sub-samples' footprints
+tile the pixel and their mean is the texture's box integral over the pixel (footprints
+centred on the jittered points overlap and leave gaps: on boxes_6dof's gravel floor a pixel's
+log luminance varied 1.5 times as much as the 256-sample reference's). What point
+sub-samples still sample is geometry (an object's edge, a shadow's edge) and where the
+texture comes from (which object, which face); see :class:`sim.textures.TextureFilter` for
+the filters' bounds.
 
 Sub-pixel positions are a fixed stratified jittered pattern per pixel (``sqrt(spp) x sqrt(spp)``
 strata, jitter from ``numpy.random.default_rng(renderer.seed)``), the same at every time: the
@@ -50,11 +54,11 @@ from collections import OrderedDict
 import numpy as np
 
 from sim.camera import Camera
-from sim.render import Renderer
+from sim.render import Renderer, direct_light
 from sim.textures import filtered_scale, set_footprint
 from sim.trajectory import Trajectory
 
-__all__ = ["EventShader", "subsample_directions"]
+__all__ = ["EventShader", "subsample_directions", "subsample_jitter"]
 
 MAX_RAYS_PER_LAUNCH = 1 << 22
 """Most rays (samples times spp) that one launch traces; larger calls are split into launches of
@@ -91,12 +95,38 @@ def require_jit_variant(variant: str) -> None:
                          f"{variant}; render whole frames with Renderer.luminance instead")
 
 
+def subsample_jitter(camera: Camera, spp: int, seed: int) -> np.ndarray:
+    """Offset of each sub-sample from the centre of its stratum, pixels.
+
+    Sub-sample ``k`` of a pixel lies in stratum ``(k % n, k // n)`` of the ``n x n`` grid over the
+    pixel's square (``n = sqrt(spp)``), at a uniform jitter within it.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera model (its size).
+    spp : int
+        Sub-samples per pixel, a perfect square.
+    seed : int
+        Seed of ``numpy.random.default_rng`` that draws the jitter, shape ``(H * W, spp, 2)``.
+
+    Returns
+    -------
+    (H * W * spp, 2) float64 ndarray, pixels
+        ``(dx, dy)`` in ``[-1 / (2 n), 1 / (2 n))``, sub-sample ``k`` of flat pixel
+        ``p = y W + x`` at row ``p * spp + k``.
+    """
+    n = math.isqrt(spp)
+    jitter = np.random.default_rng(seed).random((camera.height * camera.width, spp, 2))
+    return ((jitter - 0.5) / n).reshape(-1, 2)
+
+
 def subsample_directions(camera: Camera, spp: int, seed: int) -> np.ndarray:
     """Camera-frame unit ray directions of a fixed stratified jittered pattern in every pixel.
 
     Sub-sample ``k`` of a pixel lies in stratum ``(k % n, k // n)`` of the ``n x n`` grid over the
     pixel's square (``n = sqrt(spp)``; pixel ``(u, v)`` covers ``[u - 0.5, u + 0.5) x
-    [v - 0.5, v + 0.5)``), at a uniform jitter within it.
+    [v - 0.5, v + 0.5)``), at :func:`subsample_jitter`'s offset from the stratum's centre.
 
     Parameters
     ----------
@@ -105,7 +135,7 @@ def subsample_directions(camera: Camera, spp: int, seed: int) -> np.ndarray:
     spp : int
         Sub-samples per pixel, a perfect square.
     seed : int
-        Seed of ``numpy.random.default_rng`` that draws the jitter, shape ``(H * W, spp, 2)``.
+        Seed of the jitter (:func:`subsample_jitter`).
 
     Returns
     -------
@@ -115,9 +145,9 @@ def subsample_directions(camera: Camera, spp: int, seed: int) -> np.ndarray:
     """
     n = math.isqrt(spp)
     strata = np.arange(spp)
-    jitter = np.random.default_rng(seed).random((camera.height * camera.width, spp, 2))
     centres = camera.pixel_centres().reshape(-1, 1, 2)
-    offsets = (np.stack([strata % n, strata // n], axis=-1) + jitter) / n - 0.5
+    offsets = (np.stack([strata % n, strata // n], axis=-1) + 0.5) / n - 0.5
+    offsets = offsets + subsample_jitter(camera, spp, seed).reshape(-1, spp, 2)
     xy_d = (centres + offsets - [camera.cx, camera.cy]) / [camera.fx, camera.fy]
     xy = camera.undistort(xy_d.reshape(-1, 2))
     rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
@@ -302,18 +332,21 @@ class EventShader:
         self._poses = _PoseGrid(trajectory, t0, t1, pose_step)
         rays = subsample_directions(camera, spp, renderer.seed).astype(np.float32)
         self._directions = mi.Vector3f(*(rays[:, i] for i in range(3)))
+        jitter = subsample_jitter(camera, spp, renderer.seed).astype(np.float32)
+        self._jitter = mi.Vector2f(jitter[:, 0], jitter[:, 1])
         self._samples_per_launch = max(1, MAX_RAYS_PER_LAUNCH // spp)
 
         textures = renderer.texture_filter
         lens = (float(camera.fx), float(camera.fy))
 
-        def trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering):
-            return _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
-                          spp=spp, lens=lens)
+        def trace(scene, directions, jitter, pixels, nodes, fractions, table, zeros, filtering):
+            return _trace(scene, directions, jitter, pixels, nodes, fractions, table, zeros,
+                          filtering, spp=spp, lens=lens)
 
-        def trace_one(scene, directions, pixels, nodes, fractions, table, zeros, filtering):
-            return _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
-                          spp=1, lens=lens, footprint=1.0 / math.isqrt(spp))
+        def trace_one(scene, directions, jitter, pixels, nodes, fractions, table, zeros,
+                      filtering):
+            return _trace(scene, directions, jitter, pixels, nodes, fractions, table, zeros,
+                          filtering, spp=1, lens=lens, footprint=1.0 / math.isqrt(spp))
 
         self._filtering = None if textures is None else textures.arrays
 
@@ -537,8 +570,8 @@ class EventShader:
         collecting = gc.isenabled()
         gc.disable()
         try:
-            total = trace(self.renderer.mitsuba_scene, self._directions, index, nodes,
-                          fractions, table, zeros, self._filtering)
+            total = trace(self.renderer.mitsuba_scene, self._directions, self._jitter, index,
+                          nodes, fractions, table, zeros, self._filtering)
             return np.asarray(total, dtype=np.float32)
         finally:
             if collecting:
@@ -572,14 +605,15 @@ def _pose_groups(node: np.ndarray):
         yield sel, int(node[sel].min()), int(node[sel].max()) + 1
 
 
-def _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering, *, spp: int,
-           lens: tuple[float, float], footprint: float | None = None):
+def _trace(scene, directions, jitter, pixels, nodes, fractions, table, zeros, filtering, *,
+           spp: int, lens: tuple[float, float], footprint: float | None = None):
     """Mean luminance over the ``spp`` sub-samples of each (pixel, pose) sample.
 
     The pose of each sample is interpolated entry by entry between two nodes of the pose table,
     in float32: ``a + fraction (b - a)``. One thread per sample loops over its sub-samples:
-    primary ray, then for every emitter its (delta) direction, a shadow ray and the BSDF times
-    the emitter's weight; luminance summed in sub-sample order. With ``filtering``, the BSDF's
+    primary ray, then every light's direct light (:func:`sim.render.direct_light`: per light
+    its (delta) direction, a shadow ray and the BSDF times its weight); luminance summed in
+    sub-sample order. With ``filtering``, the BSDF's
     texture is read filtered over the sub-sample's footprint, its stratum (``1 / sqrt(spp)``
     of the pixel on a side): :func:`sim.textures.filtered_scale`.
 
@@ -588,6 +622,8 @@ def _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
     scene : mi.Scene
     directions : mi.Vector3f, (H W spp,)
         Camera-frame unit directions of the sub-samples (:func:`subsample_directions`).
+    jitter : mi.Vector2f, (H W spp,)
+        Their offsets from their strata's centres, pixels (:func:`subsample_jitter`).
     pixels : mi.UInt32, (N,)
         Flat pixel indices.
     nodes : mi.UInt32, (N,)
@@ -625,9 +661,6 @@ def _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
     rotation = mi.Matrix3f(*(rows[r][c] for r in range(3) for c in range(3)))
     origin = mi.Point3f(rows[0][3], rows[1][3], rows[2][3])
     first = pixels * spp
-    emitters = scene.emitters()
-    context = mi.BSDFContext()
-    centre = mi.Point2f(0.5, 0.5)                # delta lights ignore their sample
     if filtering is not None:
         scale = 1.0 / math.isqrt(spp) if footprint is None else footprint
         axes = tuple(mi.Vector3f(rotation[0][c], rotation[1][c], rotation[2][c])
@@ -644,15 +677,12 @@ def _trace(scene, directions, pixels, nodes, fractions, table, zeros, filtering,
         texture = mi.Float(1.0)
         if filtering is not None:
             set_footprint(si, ray, axes, scale)
-            texture = filtered_scale(filtering, si, bsdf, hit)
-        rgb = mi.Color3f(0.0)
-        for emitter in emitters:
-            ds, weight = emitter.sample_direction(si, centre, hit)
-            lit = hit & (ds.pdf != 0.0)
-            lit &= ~scene.ray_test(si.spawn_ray_to(ds.p), lit)
-            value = bsdf.eval(context, si, si.to_local(ds.d), lit) * weight * texture
-            rgb += dr.select(lit, value, 0.0)
-        return k + 1, total + mi.luminance(rgb)
+            # The filter's box is the sub-sample's stratum: centred on the stratum's centre,
+            # the jitter undone along the surface (the footprint's uv partials per stratum).
+            offset = dr.gather(mi.Vector2f, jitter, first + k) * (-1.0 / scale)
+            shift = si.duv_dx * offset.x + si.duv_dy * offset.y
+            texture = filtered_scale(filtering, si, bsdf, hit, shift)
+        return k + 1, total + mi.luminance(direct_light(scene, si, bsdf, hit, texture))
 
     _, total = dr.while_loop((mi.UInt32(0), zeros), lambda k, total: k < spp, body)
     return total * (1.0 / spp)

@@ -37,3 +37,25 @@ def test_psnr_of_a_uniform_one_level_error_is_48_db():
     reference = np.full((4, 5), 100.0)
     assert psnr(reference, reference + 1.0) == pytest.approx(20 * np.log10(255.0))
     assert psnr(reference, reference) == float("inf")
+
+
+def test_the_worst_block_counts_only_blocks_with_100_reference_events():
+    """A block of 9 reference events that the stream doubles is not compared; the worst block
+    is the dense one (150 events, 165 in the stream: +10 %), and its reference events are
+    reported beside it."""
+    from benchmarks.agreement import event_agreement
+
+    def stream(counts: dict[tuple[int, int], int]) -> np.ndarray:
+        events = np.zeros(sum(counts.values()), dtype=[("t", "<i8"), ("x", "<u2"),
+                                                       ("y", "<u2"), ("p", "i1")])
+        rows = [(y, x) for (y, x), n in counts.items() for _ in range(n)]
+        events["y"], events["x"] = np.array(rows).T
+        events["t"] = np.arange(len(rows))
+        events["p"] = 1
+        return events
+
+    reference = stream({(3, 3): 150, (20, 40): 9})
+    agreement = event_agreement(reference, stream({(3, 3): 165, (20, 40): 18}), (36, 48))
+    assert agreement.blocks == 1
+    assert agreement.worst_block == (0, 0) and agreement.worst_block_events == 150
+    assert agreement.worst_block_error == pytest.approx(0.1)

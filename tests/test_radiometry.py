@@ -67,6 +67,26 @@ def test_oblique_directional_light_gives_the_cosine_law():
     np.testing.assert_allclose(image, lambertian_luminance(250.0, ALBEDO), rtol=1e-5)
 
 
+def test_every_light_is_shaded_in_frames_and_the_event_camera_at_one_sample_per_pixel():
+    """Three directional lights: 300 lux along the optical axis, 500 lux at 60 degrees from the
+    plane's normal (250 lux on it) and 400 lux from behind the plane (none on its lit face).
+    Every pixel is rho (300 + 250) / pi, to float32 rounding, at ONE sample per pixel in the
+    frames and in the event camera: both shade every light (sim.render.direct_light), where
+    Mitsuba's direct integrator picks one at random per sample (each pixel then 3 rho E_i / pi
+    for one light i: 229, 191 or 0 cd/m^2)."""
+    from sim.shader import EventShader
+
+    oblique = (math.sin(math.radians(60.0)), math.cos(math.radians(60.0)), 0.0)
+    lights = (_directional(300.0) + _directional(500.0, oblique)
+              + _directional(400.0, (0.0, -1.0, 0.0)))
+    scene = parse_scene(scene_text(WHITE_PLANE, lights=lights))
+    renderer = Renderer(scene, spp=1)
+    expected = lambertian_luminance(550.0, ALBEDO)
+    np.testing.assert_allclose(renderer.luminance(0.0), expected, rtol=1e-5)
+    np.testing.assert_allclose(EventShader(renderer, 1, t0=0.0, t1=1.0).frame(0.5), expected,
+                               rtol=1e-5)
+
+
 def test_point_light_in_candela_gives_inverse_square_illuminance():
     """A 100 cd point light at the camera, the plane 1 m ahead: a surface point at distance r
     gets E = I cos / r^2 = I / r^3 lux, so its pixel renders rho I / (pi r^3) cd/m^2. Pixels

@@ -71,9 +71,10 @@ def test_a_checkerboard_finer_than_a_pixel_fires_the_events_of_its_blurred_twin(
 
 
 def test_frames_and_the_event_camera_see_the_same_filtered_checkerboard():
-    """Both cameras' renders of the checkerboard equal those of its twin (the analytic box
-    filter is exact here: every sample's footprint is a whole period of the checkerboard), and
-    with filtering off they do not (point samples alias)."""
+    """Both cameras' renders of the checkerboard equal those of its twin inside the poster's
+    border (the analytic box filter is exact here: every sample's footprint is a whole period of
+    the checkerboard; at the border it is clipped to the poster), and with filtering off they
+    do not (point samples alias)."""
     t = 0.1
     twin = Renderer(_scene(TWIN), spp=4)
     renders = {}
@@ -83,8 +84,16 @@ def test_frames_and_the_event_camera_see_the_same_filtered_checkerboard():
                               EventShader(checker, 4, t0=0.0, t1=0.3).frame(t))
     reference = (twin.luminance(t), EventShader(twin, 4, t0=0.0, t1=0.3).frame(t))
     poster = reference[1] > 1.5 * reference[1].min()          # the poster's pixels
+    # Inside its border: at the border a sub-sample's footprint is clipped to the poster, part
+    # of a period of the checkerboard, whose mean is not the twin's (2 % off here).
+    inside = poster.copy()
+    inside[:, 1:] &= poster[:, :-1]
+    inside[:, :-1] &= poster[:, 1:]
+    inside[1:] &= poster[:-1]
+    inside[:-1] &= poster[1:]
     for ours, theirs in zip(renders[True], reference, strict=True):
-        np.testing.assert_allclose(ours[poster], theirs[poster], rtol=1e-3)
+        np.testing.assert_allclose(ours[inside], theirs[inside], rtol=1e-3)
+        np.testing.assert_allclose(ours[poster], theirs[poster], rtol=0.03)
         np.testing.assert_allclose(ours, theirs, rtol=0.05, atol=1e-3 * theirs.max())
     for ours, theirs in zip(renders[False], reference, strict=True):
         assert np.max(np.abs(ours - theirs)[poster] / theirs[poster]) > 0.2
@@ -110,15 +119,8 @@ def test_the_square_wave_mean_is_its_integral():
     assert dr.width(mi.Float(x)) == 200
 
 
-def test_filtered_bitmaps_approach_the_converged_point_render():
-    """A fine noise texture on a floor receding to the horizon (sub-sample footprints from 2 x 4
-    to hundreds of texels): the filtered 4-sample event camera against 1,024 point sub-samples
-    with filtering off, the converged box filter of each pixel (256 samples are within 0.5 % of
-    it). The bound: the filter is a tent up to one footprint wider than the box (see
-    TextureFilter), measured 2.5 % mean error, against 5 % for 4 point samples, which alias.
-    The horizon's row (half floor, half nothing: a geometric edge, which filtering does not
-    touch) is left out."""
-    floor = """
+# A fine noise texture on a floor 0.4 m below the camera, receding to 40 m.
+FLOOR = """
 [[objects]]
 name = "floor"
 type = "rectangle"
@@ -130,18 +132,69 @@ up = [0.0, 1.0, 0.0]
 texture = { type = "noise", resolution = 512, feature_size = 1.0 }
 texture_scale = [8.0, 10.0]
 """
-    above = ('[[lights]]\ntype = "directional"\ndirection = [0.0, 0.5, -1.0]\n'
-             "illuminance_lux = 400.0\n")
-    scene = parse_scene(scene_text(floor, camera=CAMERA, lights=above, duration=0.3))
+ABOVE = ('[[lights]]\ntype = "directional"\ndirection = [0.0, 0.5, -1.0]\n'
+         "illuminance_lux = 400.0\n")
+
+
+def test_filtered_bitmaps_approach_the_converged_point_render():
+    """The floor to the horizon (sub-sample footprints from 2 x 4 to hundreds of texels): the
+    filtered 4-sample event camera against 1,024 point sub-samples with filtering off, the
+    converged box filter of each pixel (256 samples are within 0.5 % of it). The bound: each
+    sub-sample's filter is the box of its stratum in mean and variance, and the strata's
+    filters tile the pixel (see TextureFilter and sim.shader): measured 0.5 % mean error,
+    against 5.2 % for 4 point samples, which alias (main's filter, one to two footprints wide
+    and centred on the jittered sub-samples: 2.4 %). The frames' 16 samples (Mitsuba's
+    stratified sampler, each filtered over its own footprint, not centred on its stratum):
+    1.0 %. The horizon's row (half floor, half nothing: a geometric edge, which filtering does
+    not touch) is left out."""
+    scene = parse_scene(scene_text(FLOOR, camera=CAMERA, lights=ABOVE, duration=0.3))
     point = Renderer(scene, texture_filter=False)
     reference = EventShader(point, 1024, t0=0.0, t1=0.3).frame(0.1)
-    images = {"filtered": EventShader(Renderer(scene), 4, t0=0.0, t1=0.3).frame(0.1),
-              "point": EventShader(point, 4, t0=0.0, t1=0.3).frame(0.1)}
+    filtered = Renderer(scene)
+    images = {"filtered": EventShader(filtered, 4, t0=0.0, t1=0.3).frame(0.1),
+              "point": EventShader(point, 4, t0=0.0, t1=0.3).frame(0.1),
+              "frames": filtered.luminance(0.1)}
     rows = np.flatnonzero(reference.min(axis=1) > 0)[2:]          # below the horizon's row
     error = {name: float(np.mean(np.abs(image - reference)[rows] / reference[rows]))
              for name, image in images.items()}
-    assert error["filtered"] < 0.03, error
-    assert error["filtered"] < 0.6 * error["point"], error
+    assert error["filtered"] < 0.01, error
+    assert error["filtered"] < 0.2 * error["point"], error
+    assert error["frames"] < 0.015, error
+
+
+def test_a_fine_texture_fires_the_events_of_its_converged_reference(tmp_path):
+    """The floor seen from 0.4 m above, looking 27 degrees down (no edge, no horizon in view:
+    texture only, white noise at the texel, 2 x 4 to 60 x 300 texels a pixel), the camera
+    sliding sideways at 1 m/s for 0.1 s: the default 4 sub-samples fire within 4 % of 64
+    sub-samples (64 are within 0.5 % of 256 here). Measured 776 against 762 (+1.8 %); main's
+    filter, centred on the jittered sub-samples and one to two footprints wide: 875 against
+    756 (+16 %)."""
+    from dataclasses import replace
+
+    sliding = ('[trajectory]\ntype = "linear"\nposition = [0.0, 0.0, 0.0]\n'
+               "velocity = [1.0, 0.0, 0.0]\nlook_at = [0.0, 1.0, -0.5]\n")
+    scene = parse_scene(scene_text(FLOOR, camera=CAMERA, lights=ABOVE, duration=0.1,
+                                   trajectory=sliding, extra=EXTRA))
+    counts = {}
+    for spp in (4, 64):
+        result = simulate(replace(scene, render=replace(scene.render, event_spp=spp)),
+                          tmp_path / str(spp), progress=False, sampler="pixel",
+                          event_formats=("txt",), motion_truth=False)
+        counts[spp] = result.n_events
+    assert counts[64] > 500, counts
+    assert abs(counts[4] / counts[64] - 1.0) < 0.04, counts
+
+
+def _centre_hits(renderer: Renderer, pose: np.ndarray):
+    """Mitsuba's hits (``RayFlags.All``) of the renderer's pixel-centre rays from ``pose``, and
+    which rays hit."""
+    import mitsuba as mi
+
+    rays = renderer._rays_np @ pose[:3, :3].T
+    ray = mi.Ray3f(mi.Point3f(*pose[:3, 3].astype(np.float32).tolist()),
+                   mi.Vector3f(*(rays[:, i].astype(np.float32) for i in range(3))))
+    si = renderer.mitsuba_scene.ray_intersect(ray, mi.RayFlags.All, True)
+    return si, si.is_valid()
 
 
 def test_the_tables_point_lookup_is_mitsubas():
@@ -161,11 +214,7 @@ def test_the_tables_point_lookup_is_mitsubas():
     scene = load_scene(resolve_scene("boxes_6dof"))
     renderer = Renderer(replace(scene, camera=scene.camera.with_resolution(96, 72)))
     pose = scene.trajectory.pose(2.0)
-    rays = renderer._rays_np @ pose[:3, :3].T
-    ray = mi.Ray3f(mi.Point3f(*pose[:3, 3].astype(np.float32).tolist()),
-                   mi.Vector3f(*(rays[:, i].astype(np.float32) for i in range(3))))
-    si = renderer.mitsuba_scene.ray_intersect(ray, mi.RayFlags.All, True)
-    hit = si.is_valid()
+    si, hit = _centre_hits(renderer, pose)
     filtered, point, textured = filtered_reflectance(renderer.texture_filter.arrays, si, hit)
     mitsuba = mi.luminance(si.bsdf().eval_diffuse_reflectance(si, hit))
     textured = np.array(textured)
@@ -174,3 +223,43 @@ def test_the_tables_point_lookup_is_mitsubas():
                                rtol=1e-4, atol=1e-6)
     np.testing.assert_allclose(np.array(filtered)[textured], np.array(point)[textured],
                                rtol=1e-5, atol=1e-6)
+
+
+def test_a_footprint_that_crosses_a_face_s_edge_is_clipped_to_the_face():
+    """A 2 x 2 checkerboard tile seen square on, every hit given a footprint 0.4 of the tile
+    wide (uv partials set by hand): the filtered value is the checkerboard's exact mean over the
+    footprint's box clipped to the tile's (u, v) in [0, 1] (what lies beyond the edge is not
+    this face), where main's wrapped round to the opposite edge; a footprint inside the tile is
+    not touched."""
+    import mitsuba as mi
+
+    from sim.textures import filtered_reflectance, to_uv_affine
+
+    tile = ('[[objects]]\nname = "tile"\ntype = "rectangle"\ncenter = [0.03, 1.0, 0.02]\n'
+            'size = [0.7, 0.7]\nmaterial = { texture = { type = "checkerboard", '
+            "squares = [2, 2], color0 = 0.1, color1 = 0.8 } }\n")
+    scene = parse_scene(scene_text(tile, camera=CAMERA, trajectory=STILL, duration=0.3))
+    renderer = Renderer(scene)
+    pose = scene.trajectory.pose(0.0)
+    si, hit = _centre_hits(renderer, pose)
+    half = 0.2
+    si.duv_dx = mi.Vector2f(2.0 * half, 0.0)
+    si.duv_dy = mi.Vector2f(0.0, 2.0 * half)
+    filtered, _, textured = filtered_reflectance(renderer.texture_filter.arrays, si, hit)
+    on = np.array(textured)
+    uv = np.array(si.uv).T[on]                                   # (N, 2)
+    a_u, b_u, a_v, b_v = to_uv_affine({"type": "checkerboard", "squares": [2, 2]}, (1.0, 1.0),
+                                      flip_v=True)
+    s = np.linspace(0.0, 1.0, 2001)
+
+    def mask_mean(low, high, a, b):              # of frac(a x + b) > 1/2 over [low, high]
+        x = a * (low[:, None] + (high - low)[:, None] * s[None, :]) + b
+        return np.trapezoid(((x - np.floor(x)) > 0.5).astype(float), s, axis=1)
+
+    pu = mask_mean(np.clip(uv[:, 0] - half, 0, 1), np.clip(uv[:, 0] + half, 0, 1), a_u, b_u)
+    pv = mask_mean(np.clip(uv[:, 1] - half, 0, 1), np.clip(uv[:, 1] + half, 0, 1), a_v, b_v)
+    same = pu * pv + (1.0 - pu) * (1.0 - pv)
+    expected = 0.1 * same + 0.8 * (1.0 - same)
+    crossing = np.any((uv < half) | (uv > 1.0 - half), axis=1)
+    assert on.sum() > 300 and crossing.sum() > 100 and (~crossing).sum() > 20
+    np.testing.assert_allclose(np.array(filtered)[on], expected, atol=2e-3)
