@@ -29,7 +29,6 @@ files and keep the window's rows only. A sequence without them has None.
 
 from __future__ import annotations
 
-import csv
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -38,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.camera import Camera
-from sim.dataset._manifest import MANIFEST_CSV
+from sim.dataset._manifest import MANIFEST_CSV, read_manifest
 from sim.eventio import EVENT_DTYPE, line_offsets, read_text_span, read_window, text_offsets
 from sim.sequence import Sequence, load_sequence
 from sim.validation import ParameterError
@@ -169,29 +168,6 @@ class Sample:
     def sensor_size(self) -> tuple[int, int, int]:
         """``(width, height, 2)`` of the event camera: tonic's ``sensor_size``."""
         return (self.event_camera.width, self.event_camera.height, 2)
-
-
-def _manifest_rows(folder: Path) -> list[dict[str, str]]:
-    """The rows of ``folder/manifest.csv``, checked for the columns the loader needs."""
-    path = folder / MANIFEST
-    if not folder.is_dir():
-        raise ParameterError(f"dataset folder {ParameterError.literal(folder)} does not exist "
-                             "or is not a folder")
-    if not path.is_file():
-        raise ParameterError(f"{ParameterError.literal(folder)} has no {MANIFEST}: not a dataset "
-                             "folder (evfuse generate writes one)")
-    with path.open(newline="", encoding="utf-8") as handle:
-        reader = csv.DictReader(handle)
-        missing = [c for c in ("job_id", "path", "status") if c not in (reader.fieldnames or ())]
-        if missing:
-            raise ParameterError(f"{ParameterError.literal(path)}: no column "
-                                 f"{', '.join(missing)}; expected job_id, path, status, ...")
-        rows = list(reader)
-    for number, row in enumerate(rows, 2):
-        if row["status"] not in ("done", *_REPORTED):
-            raise ParameterError(f"{ParameterError.literal(path)}:{number}: status "
-                                 f"{row['status']!r}; expected done, failed or pending")
-    return rows
 
 
 class Dataset:
@@ -516,7 +492,7 @@ def open_dataset(folder: str | Path, time_unit: str = "us", *, report: bool = Tr
         raise ParameterError(f"{{time_unit}} must be one of {', '.join(TIME_UNITS)}, got "
                              f"{ParameterError.literal(repr(time_unit))}", time_unit="time_unit")
     folder = Path(folder)
-    dataset = Dataset(folder, time_unit, _manifest_rows(folder))
+    dataset = Dataset(folder, time_unit, read_manifest(folder))
     if report:
         for job_id, error in dataset.failed:
             print(f"evfuse: dataset {folder}: job {job_id} failed (skipped): {error}",

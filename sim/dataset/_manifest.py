@@ -13,12 +13,15 @@ import os
 from pathlib import Path
 
 from sim._atomic import partial_path, write_bytes_atomically
+from sim.validation import ParameterError
 
 __all__ = ["MANIFEST_CSV", "MANIFEST_PARQUET", "SOFTWARE_COLUMNS", "job_record",
            "manifest_columns", "output_hash", "read_manifest", "write_manifest"]
 
 MANIFEST_CSV = "manifest.csv"
 MANIFEST_PARQUET = "manifest.parquet"
+STATUSES = ("done", "failed", "pending")
+"""A job's status in the manifest."""
 _TIMING_KEYS = ("timings_s",)
 """``sequence.json``'s keys that hold wall-clock times, left out of :func:`output_hash`."""
 _HEAD = ("job_id", "path", "status", "error", "scene", "seed", "attempts")
@@ -140,12 +143,33 @@ def _column(pa, values: list) -> object:
 
 
 def read_manifest(folder: str | Path) -> list[dict]:
-    """The rows of ``DIR/manifest.csv`` (values as text; empty cells ``""``).
+    """The rows of ``DIR/manifest.csv`` (values as text; empty cells ``""``), checked: the
+    folder exists, it holds a manifest with the columns ``job_id``, ``path`` and ``status``,
+    and each status is one of :data:`STATUSES`. The one reader of the manifest (``generate
+    --resume``, :func:`sim.open_dataset`, ``evfuse dataset``).
 
     Raises
     ------
-    FileNotFoundError
-        No manifest in the folder.
+    ParameterError
+        Not a folder, no manifest, a missing column or an unknown status (naming the line).
     """
-    with (Path(folder) / MANIFEST_CSV).open(newline="") as handle:
-        return list(csv.DictReader(handle))
+    folder = Path(folder)
+    path = folder / MANIFEST_CSV
+    if not folder.is_dir():
+        raise ParameterError(f"dataset folder {ParameterError.literal(folder)} does not exist "
+                             "or is not a folder")
+    if not path.is_file():
+        raise ParameterError(f"{ParameterError.literal(folder)} has no {MANIFEST_CSV}: not a "
+                             "dataset folder (evfuse generate writes one)")
+    with path.open(newline="", encoding="utf-8") as handle:
+        reader = csv.DictReader(handle)
+        missing = [c for c in ("job_id", "path", "status") if c not in (reader.fieldnames or ())]
+        if missing:
+            raise ParameterError(f"{ParameterError.literal(path)}: no column "
+                                 f"{', '.join(missing)}; expected job_id, path, status, ...")
+        rows = list(reader)
+    for number, row in enumerate(rows, 2):
+        if row["status"] not in STATUSES:
+            raise ParameterError(f"{ParameterError.literal(path)}:{number}: status "
+                                 f"{row['status']!r}; expected done, failed or pending")
+    return rows
