@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sim.scene._meshes import heightfield_mesh
+from sim.scene._meshes import heightfield_mesh, vertex_normals
 from sim.scene._model import Light, Scene, SceneObject
 from sim.variant import use_variant
 
@@ -85,8 +85,40 @@ def _heightfield_mesh(name: str, obj: SceneObject):
     params["faces"] = mi.UInt32(faces.astype(np.uint32).ravel())
     params["vertex_texcoords"] = mi.Float(uv.astype(np.float32).ravel())
     params.update()
-    mesh.recompute_vertex_normals()
     return mesh
+
+
+def _set_normals(mesh_params, prefix: str = "") -> None:
+    """Give a mesh the normals of :func:`sim.scene.vertex_normals`, from its positions and
+    faces in ``mesh_params`` (its ``mi.traverse``, or the scene's with ``prefix`` its key and a
+    dot), replacing the ones Mitsuba summed in thread order (see there); a mesh without vertex
+    normals (flat shaded) is left alone.
+
+    Call it after an update that changed the positions: Mitsuba recomputes the normals then,
+    in its own order.
+    """
+    import mitsuba as mi
+
+    if len(mesh_params[f"{prefix}vertex_normals"]) == 0:
+        return
+    positions = np.asarray(mesh_params[f"{prefix}vertex_positions"]).reshape(-1, 3)
+    faces = np.asarray(mesh_params[f"{prefix}faces"]).reshape(-1, 3)
+    mesh_params[f"{prefix}vertex_normals"] = mi.Float(vertex_normals(positions, faces).ravel())
+    mesh_params.update()
+
+
+def _file_has_normals(path: str) -> bool:
+    """Whether a mesh file gives its own vertex normals (OBJ ``vn`` lines, a PLY vertex
+    property ``nx``), which Mitsuba then reads instead of computing them."""
+    with open(path, "rb") as file:
+        if path.lower().endswith(".ply"):
+            for line in file:
+                if line.strip() == b"end_header":
+                    return False
+                if line.split()[-1:] == [b"nx"]:
+                    return True
+            return False
+        return any(line.startswith(b"vn ") for line in file)
 
 
 def _texture_extent(obj: SceneObject) -> tuple[float, float] | None:
@@ -260,13 +292,20 @@ def _shape_dicts(index: int, obj: SceneObject, scene: Scene,
         world = local @ pose[:3, :3].T + pose[:3, 3]
         mesh_params["vertex_positions"] = mi.Float(world.astype(np.float32).ravel())
         mesh_params.update()
-        mesh.recompute_vertex_normals()
+        _set_normals(mesh_params)
         mesh.set_bsdf(mi.load_dict(bsdf))
         return {key: mesh}
     suffix = p["path"].rsplit(".", 1)[-1].lower()
     s = p["scale"]
-    return {key: {"type": suffix, "filename": p["path"], "bsdf": bsdf,
-                  "to_world": _transform(pose @ _diag(s, s, s))}}
+    description = {"type": suffix, "filename": p["path"], "bsdf": bsdf,
+                   "to_world": _transform(pose @ _diag(s, s, s))}
+    if _file_has_normals(p["path"]):
+        return {key: description}
+    import mitsuba as mi
+
+    mesh = mi.load_dict({**description, "id": key})
+    _set_normals(mi.traverse(mesh))
+    return {key: mesh}
 
 
 def _light_dict(light: Light) -> dict:
@@ -409,7 +448,7 @@ class Renderer:
         pose = np.asarray(pose, dtype=np.float64)
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
             raise ValueError(f"pose must be a finite (4, 4) T_world_camera, got shape {pose.shape}")
-        changed = False
+        changed = moved = False
         if self._pose is None or not np.array_equal(pose, self._pose):
             self._params["sensor.R"] = mi.Matrix3f(pose[:3, :3].astype(np.float32))
             self._params["sensor.t"] = mi.Point3f(*pose[:3, 3].astype(np.float32).tolist())
@@ -430,9 +469,12 @@ class Renderer:
                     self._params[f"{key}.{kind}"] = mi.Transform4f(
                         (about @ delta @ back @ initial).tolist())
             self._time = t
-            changed = True
+            changed = moved = True
         if changed:
             self._params.update()
+            for _, key, kind, _ in self._moving if moved else ():
+                if kind == "vertex_positions":
+                    _set_normals(self._params, f"{key}.")
         return pose
 
     def set_time(self, t: float) -> None:
