@@ -225,3 +225,92 @@ def test_scalar_fallback_renders_the_same_depth(tmp_path):
     np.testing.assert_allclose(np.load(tmp_path / "scalar.npy"), renderer.depth(0.0), atol=1e-5)
     # Uniform plane under a directional light: both variants see the same shading.
     np.testing.assert_allclose(np.load(tmp_path / "lum.npy"), renderer.luminance(0.0), rtol=1e-4)
+
+
+MESHES = """
+[[objects]]
+name = "waves"
+type = "heightfield"
+center = [0.0, 1.5, 0.0]
+rotation = [90.0, 0.0, 0.0]
+size = [1.2, 0.9]
+amplitude = 0.05
+wavelength = [0.3, 0.4]
+resolution = [400, 300]
+material = { color = 0.5 }
+
+[[objects]]
+name = "knot"
+type = "mesh"
+path = "builtin:torus"
+center = [0.3, 1.2, 0.1]
+scale = 0.15
+material = { color = 0.7 }
+"""
+
+
+def _normals(renderer: Renderer) -> dict[str, np.ndarray]:
+    params = renderer._params
+    return {key: np.array(params[key]) for key in params.keys()
+            if key.endswith("vertex_normals")}
+
+
+def test_mesh_normals_and_renders_are_the_same_bits_whatever_the_dr_jit_threads():
+    """Mitsuba's JIT variants sum a mesh's vertex normals with atomic adds in the order of
+    Dr.Jit's worker threads: on eight threads a height field and a mesh loaded twice got
+    different last bits, and so did the event camera's luminance and the events (1-4 ns); this
+    test failed in 10 of 10 runs on that code (2 loaded cores). The renderer gives them
+    :func:`sim.scene.vertex_normals` (a fixed order)."""
+    import drjit as dr
+
+    from sim.shader import EventShader
+
+    scene = parse_scene(scene_text(MESHES))
+    threads = dr.thread_count()
+    dr.set_thread_count(8)
+    try:
+        loads = [Renderer(scene, spp=4) for _ in range(4)]
+        normals = [_normals(renderer) for renderer in loads]
+        assert len(normals[0]) == 2                          # the height field and the mesh
+        pixels = np.arange(scene.camera.width * scene.camera.height)
+        times = np.full(len(pixels), 0.01)
+        values = [EventShader(renderer, 4, t0=0.0, t1=0.05).luminance(pixels, times)
+                  for renderer in loads]
+    finally:
+        dr.set_thread_count(threads)
+    for other in normals[1:]:
+        for key, value in normals[0].items():
+            assert np.array_equal(other[key], value), key
+    assert np.any(values[0] > 0)
+    for other in values[1:]:
+        assert np.array_equal(other, values[0])
+
+
+def test_vertex_normals_are_mitsubas_to_float_rounding():
+    """:func:`sim.scene.vertex_normals` is Mitsuba's angle-weighted scheme (its
+    ``recompute_vertex_normals`` on one thread, float32 sums) to a few float32 ulps, and exact
+    on a flat grid."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from sim.scene import heightfield_mesh, vertex_normals
+    from sim.variant import use_variant
+
+    use_variant()
+    vertices, _, faces = heightfield_mesh((1.2, 0.9), 0.05, (0.3, 0.4), (48, 36))
+    flat = vertex_normals(vertices * [1.0, 1.0, 0.0], faces)
+    assert np.array_equal(flat, np.tile(np.float32([0.0, 0.0, 1.0]), (len(vertices), 1)))
+    mesh = mi.Mesh("waves", len(vertices), len(faces), has_vertex_normals=True)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = mi.Float(vertices.astype(np.float32).ravel())
+    params["faces"] = mi.UInt32(faces.astype(np.uint32).ravel())
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        params.update()                                     # Mitsuba recomputes the normals
+        theirs = np.array(params["vertex_normals"]).reshape(-1, 3)
+    finally:
+        dr.set_thread_count(threads)
+    ours = vertex_normals(vertices.astype(np.float32), faces)
+    assert np.all(np.abs(np.linalg.norm(ours, axis=1) - 1.0) < 1e-6)
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-6)
