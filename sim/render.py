@@ -95,16 +95,24 @@ def _set_normals(mesh_params, prefix: str = "") -> None:
     normals (flat shaded) is left alone.
 
     Call it after an update that changed the positions: Mitsuba recomputes the normals then,
-    in its own order.
+    in its own order. Scalar variants sum them in face order already and are left alone.
     """
     import mitsuba as mi
 
-    if len(mesh_params[f"{prefix}vertex_normals"]) == 0:
+    if not _jit() or len(mesh_params[f"{prefix}vertex_normals"]) == 0:
         return
     positions = np.asarray(mesh_params[f"{prefix}vertex_positions"]).reshape(-1, 3)
     faces = np.asarray(mesh_params[f"{prefix}faces"]).reshape(-1, 3)
     mesh_params[f"{prefix}vertex_normals"] = mi.Float(vertex_normals(positions, faces).ravel())
     mesh_params.update()
+
+
+def _jit() -> bool:
+    """Whether the active Mitsuba variant is a JIT one (LLVM or CUDA)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    return dr.is_jit_v(mi.Float)
 
 
 def _file_has_normals(path: str) -> bool:
@@ -299,7 +307,7 @@ def _shape_dicts(index: int, obj: SceneObject, scene: Scene,
     s = p["scale"]
     description = {"type": suffix, "filename": p["path"], "bsdf": bsdf,
                    "to_world": _transform(pose @ _diag(s, s, s))}
-    if _file_has_normals(p["path"]):
+    if not _jit() or _file_has_normals(p["path"]):
         return {key: description}
     import mitsuba as mi
 
