@@ -323,6 +323,30 @@ def test_moving_meshes_get_fixed_order_normals_at_every_time():
             assert np.array_equal(frame, first)
 
 
+def test_scalar_fallback_loads_a_mesh_file(tmp_path):
+    """scalar_rgb keeps Mitsuba's own normals (summed in face order there) and loads a mesh file
+    as before: the same depth as the vectorised variant."""
+    import os
+    import subprocess
+    import sys
+
+    camera = "[camera]\nwidth = 16\nheight = 12\nfx = 15.0\nfy = 11.0\ncx = 7.3\ncy = 5.6\n"
+    text = scene_text(MESHES[MESHES.index('[[objects]]\nname = "knot"'):], camera=camera)
+    scene_file = tmp_path / "knot.toml"
+    scene_file.write_text(text)
+    code = ("import numpy as np; from sim import load_scene, Renderer;"
+            f"r = Renderer(load_scene({str(scene_file)!r}), spp=1);"
+            f"np.save({str(tmp_path / 'scalar.npy')!r}, r.depth(0.0))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300, check=False,
+                          env={**os.environ, "EVFUSE_VARIANT": "scalar_rgb"})
+    assert done.returncode == 0, done.stderr
+    assert "scalar_rgb" in done.stderr
+    depth = Renderer(parse_scene(text), spp=1).depth(0.0)
+    assert np.any(depth > 0)
+    np.testing.assert_allclose(np.load(tmp_path / "scalar.npy"), depth, atol=1e-5)
+
+
 def test_vertex_normals_are_mitsubas_to_float_rounding():
     """:func:`sim.scene.vertex_normals` is Mitsuba's angle-weighted scheme (its
     ``recompute_vertex_normals`` on one thread, float32 sums) to a few float32 ulps, and exact
