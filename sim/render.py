@@ -409,6 +409,8 @@ class Renderer:
         for i, light in enumerate(scene.lights):
             description[f"light{i}"] = _light_dict(light)
         self._moving: list[tuple[SceneObject, str, str, np.ndarray]] = []
+        # Normals at rest of the moving meshes (JIT variants): rotated with them at every move.
+        self._rest_normals: dict[str, np.ndarray] = {}
         shape_keys: list[tuple[SceneObject, str]] = []
         for i, obj in enumerate(scene.objects):
             shapes = _shape_dicts(i, obj, scene)
@@ -433,6 +435,9 @@ class Renderer:
             if f"{key}.vertex_positions" in self._params.keys():
                 initial = np.array(self._params[f"{key}.vertex_positions"]).reshape(-1, 3)
                 self._moving.append((obj, key, "vertex_positions", initial))
+                if _jit() and len(self._params[f"{key}.vertex_normals"]):
+                    self._rest_normals[key] = np.array(
+                        self._params[f"{key}.vertex_normals"], dtype=np.float64).reshape(-1, 3)
             else:
                 initial = np.array(self._params[f"{key}.to_world"].matrix).reshape(4, 4)
                 self._moving.append((obj, key, "to_world", initial))
@@ -456,7 +461,8 @@ class Renderer:
         pose = np.asarray(pose, dtype=np.float64)
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
             raise ValueError(f"pose must be a finite (4, 4) T_world_camera, got shape {pose.shape}")
-        changed = moved = False
+        changed = False
+        normals: dict[str, np.ndarray] = {}
         if self._pose is None or not np.array_equal(pose, self._pose):
             self._params["sensor.R"] = mi.Matrix3f(pose[:3, :3].astype(np.float32))
             self._params["sensor.t"] = mi.Point3f(*pose[:3, 3].astype(np.float32).tolist())
@@ -469,6 +475,8 @@ class Renderer:
                 if kind == "vertex_positions":
                     moved = (initial - center) @ delta[:3, :3].T + center + delta[:3, 3]
                     self._params[f"{key}.{kind}"] = mi.Float(moved.astype(np.float32).ravel())
+                    if key in self._rest_normals:
+                        normals[key] = self._rest_normals[key] @ delta[:3, :3].T
                 else:
                     about = np.eye(4)
                     about[:3, 3] = center
@@ -477,12 +485,15 @@ class Renderer:
                     self._params[f"{key}.{kind}"] = mi.Transform4f(
                         (about @ delta @ back @ initial).tolist())
             self._time = t
-            changed = moved = True
+            changed = True
         if changed:
             self._params.update()
-            for _, key, kind, _ in self._moving if moved else ():
-                if kind == "vertex_positions":
-                    _set_normals(self._params, f"{key}.")
+        if normals:
+            # Mitsuba recomputed the moved meshes' normals in thread order (see _set_normals):
+            # the fixed-order ones at rest, rotated with the mesh, replace them.
+            for key, value in normals.items():
+                self._params[f"{key}.vertex_normals"] = mi.Float(value.astype(np.float32).ravel())
+            self._params.update()
         return pose
 
     def set_time(self, t: float) -> None:
