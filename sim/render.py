@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from sim.scene._meshes import heightfield_mesh
+from sim.scene._meshes import heightfield_mesh, vertex_normals
 from sim.scene._model import Light, Scene, SceneObject
 from sim.variant import use_variant
 
@@ -85,8 +85,48 @@ def _heightfield_mesh(name: str, obj: SceneObject):
     params["faces"] = mi.UInt32(faces.astype(np.uint32).ravel())
     params["vertex_texcoords"] = mi.Float(uv.astype(np.float32).ravel())
     params.update()
-    mesh.recompute_vertex_normals()
     return mesh
+
+
+def _set_normals(mesh_params, prefix: str = "") -> None:
+    """Give a mesh the normals of :func:`sim.scene.vertex_normals`, from its positions and
+    faces in ``mesh_params`` (its ``mi.traverse``, or the scene's with ``prefix`` its key and a
+    dot), replacing the ones Mitsuba summed in thread order (see there); a mesh without vertex
+    normals (flat shaded) is left alone.
+
+    Call it after an update that changed the positions: Mitsuba recomputes the normals then,
+    in its own order. Scalar variants sum them in face order already and are left alone.
+    """
+    import mitsuba as mi
+
+    if not _jit() or len(mesh_params[f"{prefix}vertex_normals"]) == 0:
+        return
+    positions = np.asarray(mesh_params[f"{prefix}vertex_positions"]).reshape(-1, 3)
+    faces = np.asarray(mesh_params[f"{prefix}faces"]).reshape(-1, 3)
+    mesh_params[f"{prefix}vertex_normals"] = mi.Float(vertex_normals(positions, faces).ravel())
+    mesh_params.update()
+
+
+def _jit() -> bool:
+    """Whether the active Mitsuba variant is a JIT one (LLVM or CUDA)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    return dr.is_jit_v(mi.Float)
+
+
+def _file_has_normals(path: str) -> bool:
+    """Whether a mesh file gives its own vertex normals (OBJ ``vn`` lines, a PLY vertex
+    property ``nx``), which Mitsuba then reads instead of computing them."""
+    with open(path, "rb") as file:
+        if path.lower().endswith(".ply"):
+            for line in file:
+                if line.strip() == b"end_header":
+                    return False
+                if line.split()[-1:] == [b"nx"]:
+                    return True
+            return False
+        return any(line.startswith(b"vn ") for line in file)
 
 
 def _texture_extent(obj: SceneObject) -> tuple[float, float] | None:
@@ -313,13 +353,20 @@ def _shape_dicts(index: int, obj: SceneObject, scene: Scene,
         world = local @ pose[:3, :3].T + pose[:3, 3]
         mesh_params["vertex_positions"] = mi.Float(world.astype(np.float32).ravel())
         mesh_params.update()
-        mesh.recompute_vertex_normals()
+        _set_normals(mesh_params)
         mesh.set_bsdf(mi.load_dict(bsdf))
         return {key: mesh}
     suffix = p["path"].rsplit(".", 1)[-1].lower()
     s = p["scale"]
-    return {key: {"type": suffix, "filename": p["path"], "bsdf": bsdf,
-                  "to_world": _transform(pose @ _diag(s, s, s))}}
+    description = {"type": suffix, "filename": p["path"], "bsdf": bsdf,
+                   "to_world": _transform(pose @ _diag(s, s, s))}
+    if not _jit() or _file_has_normals(p["path"]):
+        return {key: description}
+    import mitsuba as mi
+
+    mesh = mi.load_dict({**description, "id": key})
+    _set_normals(mi.traverse(mesh))
+    return {key: mesh}
 
 
 def _light_dict(light: Light) -> dict:
@@ -416,6 +463,8 @@ class Renderer:
         for i, light in enumerate(scene.lights):
             description[f"light{i}"] = _light_dict(light)
         self._moving: list[tuple[SceneObject, str, str, np.ndarray]] = []
+        # Normals at rest of the moving meshes (JIT variants): rotated with them at every move.
+        self._rest_normals: dict[str, np.ndarray] = {}
         shape_keys: list[tuple[SceneObject, str]] = []
         for i, obj in enumerate(scene.objects):
             shapes = _shape_dicts(i, obj, scene)
@@ -440,6 +489,9 @@ class Renderer:
             if f"{key}.vertex_positions" in self._params.keys():
                 initial = np.array(self._params[f"{key}.vertex_positions"]).reshape(-1, 3)
                 self._moving.append((obj, key, "vertex_positions", initial))
+                if _jit() and len(self._params[f"{key}.vertex_normals"]):
+                    self._rest_normals[key] = np.array(
+                        self._params[f"{key}.vertex_normals"], dtype=np.float64).reshape(-1, 3)
             else:
                 initial = np.array(self._params[f"{key}.to_world"].matrix).reshape(4, 4)
                 self._moving.append((obj, key, "to_world", initial))
@@ -464,6 +516,7 @@ class Renderer:
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
             raise ValueError(f"pose must be a finite (4, 4) T_world_camera, got shape {pose.shape}")
         changed = False
+        normals: dict[str, np.ndarray] = {}
         if self._pose is None or not np.array_equal(pose, self._pose):
             self._params["sensor.R"] = mi.Matrix3f(pose[:3, :3].astype(np.float32))
             self._params["sensor.t"] = mi.Point3f(*pose[:3, 3].astype(np.float32).tolist())
@@ -476,6 +529,8 @@ class Renderer:
                 if kind == "vertex_positions":
                     moved = (initial - center) @ delta[:3, :3].T + center + delta[:3, 3]
                     self._params[f"{key}.{kind}"] = mi.Float(moved.astype(np.float32).ravel())
+                    if key in self._rest_normals:
+                        normals[key] = self._rest_normals[key] @ delta[:3, :3].T
                 else:
                     about = np.eye(4)
                     about[:3, 3] = center
@@ -486,6 +541,12 @@ class Renderer:
             self._time = t
             changed = True
         if changed:
+            self._params.update()
+        if normals:
+            # Mitsuba recomputed the moved meshes' normals in thread order (see _set_normals):
+            # the fixed-order ones at rest, rotated with the mesh, replace them.
+            for key, value in normals.items():
+                self._params[f"{key}.vertex_normals"] = mi.Float(value.astype(np.float32).ravel())
             self._params.update()
         return pose
 

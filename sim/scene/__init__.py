@@ -16,7 +16,8 @@ Modules (private; everything public is re-exported here):
 - ``_freeze``: :func:`freeze_scene`, a dynamic scene with its objects frozen at one time.
 - ``_meshes``: the built-in meshes (``path = "builtin:NAME"`` in a scene file,
   :func:`builtin_mesh_path`, :func:`obj_vertices`) and a height field's grid
-  (:func:`heightfield_mesh`).
+  (:func:`heightfield_mesh`), a mesh's vertex normals summed in a fixed order
+  (:func:`vertex_normals`).
 - ``procedural``: random scene files per seed, the ``tabletop`` and ``room`` families
   (:func:`tabletop_scene`, :func:`room_scene`, :data:`PROCEDURAL_FAMILIES`, their ranges
   :class:`TabletopRanges` / :class:`RoomRanges`, and :func:`trajectory_check`).
@@ -33,6 +34,7 @@ from sim.scene._meshes import (
     builtin_mesh_path,
     heightfield_mesh,
     obj_vertices,
+    vertex_normals,
 )
 from sim.scene._model import (
     Light,
@@ -99,4 +101,5 @@ __all__ = [
     "room_scene",
     "tabletop_scene",
     "trajectory_check",
+    "vertex_normals",
 ]
