@@ -18,6 +18,7 @@ import pytest
 
 from sim.dataset import generate, load_sweep, output_hash, read_manifest
 from sim.output import OutputError
+from sim.validation import ParameterError
 
 ROOT = Path(__file__).resolve().parent.parent
 TINY = ROOT / "sweeps" / "tiny.toml"
@@ -107,6 +108,20 @@ def _stop_when_checkpointed(out: Path, job_id: str, stop) -> threading.Thread:
     thread = threading.Thread(target=watch, daemon=True)
     thread.start()
     return thread
+
+
+def test_gpu_shares_are_met_by_a_local_clusters_workers(reference, tmp_path):
+    """``gpu`` (``--gpu-per-job``) asks each job for a share of a worker's ``GPU`` resource; a
+    local cluster's workers declare one each, so the jobs run (no GPU is needed to schedule
+    them: they render on this machine's variant) and write the in-process bytes; a share of
+    more than the one GPU a local worker has is refused, not left waiting forever."""
+    out = tmp_path / "tiny"
+    result = generate(TINY, out, workers=2, threads=1, gpu=0.5, **QUIET)
+    assert (result.ran, result.failed) == (4, 0)
+    assert [r["output_hash"] for r in read_manifest(out)] == \
+        [r["output_hash"] for r in read_manifest(reference / "tiny")]
+    with pytest.raises(ParameterError, match="share one GPU"):
+        generate(TINY, tmp_path / "two", workers=2, gpu=2.0, **QUIET)
 
 
 def test_a_killed_workers_job_runs_again_from_its_checkpoint(reference, tmp_path):

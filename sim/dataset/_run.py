@@ -127,8 +127,11 @@ def _row(job: Job, status: str, record: dict | None = None, error: str = "") -> 
             **(record or {})}
 
 
-def _client(scheduler: str | None, workers: int | None, threads: int | None):
-    """A Dask client, the cluster it made (None for ``scheduler``) and its description."""
+def _client(scheduler: str | None, workers: int | None, threads: int | None,
+            gpu: float | None = None):
+    """A Dask client, the cluster it made (None for ``scheduler``) and its description. With
+    ``gpu`` each local worker declares ``GPU = 1`` (this machine's GPU, shared by them), so that
+    the jobs' requests are met; a remote cluster's workers declare their own."""
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
@@ -137,7 +140,8 @@ def _client(scheduler: str | None, workers: int | None, threads: int | None):
     n, t = default_cluster_size()
     n, t = workers or n, threads or t
     cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True,
-                           dashboard_address=":0" if _has_bokeh() else None, silence_logs=40)
+                           dashboard_address=":0" if _has_bokeh() else None, silence_logs=40,
+                           resources={"GPU": 1.0} if gpu else None)
     client = Client(cluster)
     client.register_plugin(_drjit_threads(max(1, _cores() // n)))   # no oversubscription
     return client, cluster, f"LocalCluster {n} x {t} thread{'s' * (t > 1)}"
@@ -205,7 +209,9 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
         Mitsuba variant of every job (default: simulate's choice on each worker).
     gpu : float, optional
         Each job's share of a worker's ``GPU`` resource (e.g. 1/16: sixteen jobs per GPU);
-        workers must declare it (``dask worker --resources GPU=1``). None: none asked.
+        a remote cluster's workers must declare it (``dask worker --resources GPU=1``), a local
+        cluster's workers each declare ``GPU = 1`` (the one GPU they share; a share <= 1).
+        None: none asked.
     report : callable, optional
         Called with each progress line (default: stderr; a tqdm bar on a terminal).
 
@@ -228,6 +234,10 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
                              retries="retries")
     if gpu is not None and not 0 < gpu:
         raise ParameterError(f"{{gpu}} {gpu}: expected a share of a GPU > 0", gpu="gpu")
+    if gpu is not None and scheduler is None and gpu > 1:
+        raise ParameterError(f"{{gpu}} {gpu}: a local cluster's workers share one GPU; expected "
+                             "a share <= 1 (more GPUs a job: use a cluster, {scheduler})",
+                             gpu="gpu", scheduler="scheduler")
     if scheduler is not None and (workers is not None or threads is not None):
         raise ParameterError("{workers} and {threads} size a local cluster; with {scheduler} "
                              "the cluster's workers are its own (start them with `dask worker "
@@ -275,7 +285,7 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
             else:
                 finish(job, record)
     else:
-        client, cluster, cluster_name = _client(scheduler, workers, threads)
+        client, cluster, cluster_name = _client(scheduler, workers, threads, gpu)
         link = client.dashboard_link if cluster is None or _has_bokeh() else None
         progress.say(f"generate: {len(todo)} jobs on {cluster_name}; dashboard: "
                      f"{link or 'none (install bokeh for it)'}")
