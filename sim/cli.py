@@ -109,12 +109,8 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from scenes import resolve_scene
-    from sim.capture_errors import RigParams
-    from sim.events import EventParams
-    from sim.frames import with_frame_sensor
-    from sim.sampling import SamplingParams
     from sim.scene import load_scene
-    from sim.simulate import simulate
+    from sim.simulate import simulate, simulate_inputs
 
     # Said in the flags' terms, before the dataclasses would say it in their fields' names.
     if not (math.isfinite(args.contrast) and args.contrast > 0):
@@ -126,18 +122,15 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if not 0 < args.min_rate <= args.max_rate:
         raise ValueError(f"--min-rate {args.min_rate:g} and --max-rate {args.max_rate:g}: "
                          "expected 0 < --min-rate <= --max-rate (Hz)")
-    scene = load_scene(resolve_scene(args.scene), seed=args.seed)
-    rig = None if args.rig is None else RigParams.from_preset(args.rig)
-    if args.frame_sensor is not None:
-        scene = with_frame_sensor(scene, args.frame_sensor)
-    events = EventParams.preset(args.noise, contrast=args.contrast, seed=scene.seed)
-    sampling = SamplingParams(lam=args.lam, min_rate=args.min_rate, max_rate=args.max_rate)
+    scene, inputs = simulate_inputs(
+        load_scene(resolve_scene(args.scene), seed=args.seed), start=args.start,
+        duration=args.duration, contrast=args.contrast, noise=args.noise, lam=args.lam,
+        min_rate=args.min_rate, max_rate=args.max_rate, sampler=args.sampler, spp=args.spp,
+        frame_sensor=args.frame_sensor, rig=args.rig, motion_truth=not args.no_motion_truth)
     formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
-    result = simulate(scene, args.out, duration=args.duration, start=args.start, spp=args.spp,
-                      variant=args.variant, overwrite=args.overwrite, progress=not args.quiet,
-                      events=events, sampling=sampling, with_events=not args.no_events,
-                      event_formats=formats, resume=args.resume, sampler=args.sampler, rig=rig,
-                      motion_truth=not args.no_motion_truth)
+    result = simulate(scene, args.out, variant=args.variant, overwrite=args.overwrite,
+                      progress=not args.quiet, with_events=not args.no_events,
+                      event_formats=formats, resume=args.resume, **inputs)
     what = f"{result.n_frames} frames and depth maps ({result.n_renders} renders)"
     if result.n_events is not None and result.sampler == "pixel":
         what += (f", {result.n_events} events ({result.event_renders} frames and "

@@ -16,11 +16,11 @@ import re
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim._atomic import write_bytes_atomically
-from sim.validation import ParameterError, finite, integer, non_negative, positive
+from sim.validation import finite, integer, non_negative, positive
 
 __all__ = ["JOBS_FOLDER", "PARAMETERS", "RUNS_LOG", "SCENE_FILE", "Job", "job_inputs",
            "job_scene", "run_job"]
@@ -250,7 +250,8 @@ def job_inputs(job: Job, scene=None) -> tuple[object, dict]:
         With the job's sensor size, frame rate, frame sensor and speed.
     kwargs : dict
         ``start``, ``duration``, ``events``, ``sampling``, ``rig``, ``sampler``, ``spp``,
-        ``motion_truth`` for simulate.
+        ``motion_truth`` for simulate: :func:`sim.simulate.simulate_inputs` of the job's
+        parameters (``t0`` its ``start``, ``t1`` its ``end``, default the scene's end).
 
     Raises
     ------
@@ -258,41 +259,16 @@ def job_inputs(job: Job, scene=None) -> tuple[object, dict]:
         A parameter the scene or simulate's objects refuse (e.g. an exposure longer than the
         frame period at ``frame_rate``).
     """
-    from sim.capture_errors import RigParams
-    from sim.events import EventParams
-    from sim.frames import with_frame_sensor
-    from sim.sampling import SamplingParams
-    from sim.trajectory import TimeScaledTrajectory
+    from sim.simulate import simulate_inputs
 
-    p = job.params
+    p = dict(job.params)
     scene = job_scene(job) if scene is None else scene
     if "sensor" in p:
-        width, height = (int(v) for v in p["sensor"].split("x"))
-        scene = replace(scene, camera=scene.camera.with_resolution(width, height))
-    if "frame_rate" in p:
-        scene = replace(scene, frames=replace(scene.frames, rate=p["frame_rate"]))
-    if "frame_sensor" in p:
-        scene = with_frame_sensor(scene, p["frame_sensor"])
-    if "speed" in p:
-        scene = replace(scene, trajectory=TimeScaledTrajectory(scene.trajectory, p["speed"]),
-                        duration=scene.duration / p["speed"])
-    start = float(p.get("t0", 0.0))
-    end = float(p.get("t1", scene.duration))
-    if not end > start:
-        raise ParameterError(f"window {{t0}} {start:g} s to {{t1}} {end:g} s: expected t1 > t0 "
-                             f"(scene {ParameterError.literal(scene.name)} lasts "
-                             f"{scene.duration:g} s)", t0="t0", t1="t1")
-    kwargs = {
-        "start": start, "duration": end - start,
-        "events": EventParams.preset(p.get("noise", "ideal"), contrast=p.get("contrast", 0.2),
-                                     seed=scene.seed),
-        "sampling": SamplingParams(**{k: p[k] for k in ("lam", "min_rate", "max_rate")
-                                      if k in p}),
-        "rig": RigParams.from_preset(p["rig"]) if "rig" in p else None,
-        "sampler": p.get("sampler"), "spp": p.get("spp"),
-        "motion_truth": p.get("motion_truth", True),
-    }
-    return scene, kwargs
+        p["sensor"] = tuple(int(v) for v in p["sensor"].split("x"))
+    if "t0" in p:
+        p["start"] = p.pop("t0")
+    p["end"] = p.pop("t1", "scene")
+    return simulate_inputs(scene, **p)
 
 
 def _log(dataset: Path, event: str, job: Job, rest: str = "") -> None:

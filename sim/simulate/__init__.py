@@ -30,6 +30,8 @@ The package's modules:
 - ``_frames``: the standard camera's frames and depth maps and their files;
 - ``_events``: the event camera: one driver for both samplers (whole frames at one adaptive
   rate, or each pixel at its own times), the event files;
+- ``_inputs``: :func:`simulate_inputs`, simulate's scene changes and parameter objects from
+  plain values (``evfuse simulate``'s flags, a dataset job's parameters);
 - ``_checkpoint``: the run's identity and the checkpoint a resumed run continues from;
 - ``window``: one simulated window of a scene, cached under a key of everything that makes it
   (:func:`sim.simulate.window.simulate_window`, used by ``evfuse run``, ``reproduce`` and
@@ -38,7 +40,8 @@ The package's modules:
 
 from sim.simulate._checkpoint import CHECKPOINT_FOLDER, CHECKPOINT_SAMPLES, CHECKPOINT_SECONDS
 from sim.simulate._frames import FRAME_NOISE_STREAM
+from sim.simulate._inputs import simulate_inputs
 from sim.simulate._run import SimulationResult, scene_files, simulate
 
 __all__ = ["CHECKPOINT_FOLDER", "CHECKPOINT_SAMPLES", "CHECKPOINT_SECONDS", "FRAME_NOISE_STREAM",
-           "SimulationResult", "scene_files", "simulate"]
+           "SimulationResult", "scene_files", "simulate", "simulate_inputs"]
