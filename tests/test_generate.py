@@ -263,3 +263,24 @@ def test_the_dataset_card_reads_a_generated_dataset(reference, tmp_path):
     assert (folder / "card.md").is_file() and summary.text()
     dataset = open_dataset(folder)
     assert len(dataset) >= 4 and len(dataset[0].events) > 0
+
+
+def test_the_output_hash_is_independent_of_where_evfuse_is_installed(reference, tmp_path):
+    """A built-in scene's job records the worker's install path (``sequence.json``'s
+    ``scene.source``, the ``.evfuse`` marker's inputs): two workers installed in different
+    folders write the same job with the same hash, and any other change still changes it."""
+    import shutil
+
+    job = next((reference / "tiny" / "jobs").glob("slider_close-*"))
+    moved = tmp_path / job.name
+    shutil.copytree(job, moved)
+    for name in ("sequence.json", ".evfuse"):
+        path = moved / name
+        text = path.read_text()
+        assert "scenes/slider_close.toml" in text
+        path.write_text(text.replace(str(ROOT), "/elsewhere/evfuse"))
+    assert output_hash(moved) == output_hash(job)
+    record = json.loads((moved / "sequence.json").read_text())
+    record["seed"] = record["seed"] + 1
+    (moved / "sequence.json").write_text(json.dumps(record))
+    assert output_hash(moved) != output_hash(job)

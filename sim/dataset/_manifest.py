@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 
 from sim._atomic import partial_path, write_bytes_atomically
+from sim.output import MARKER
 from sim.validation import ParameterError
 
 __all__ = ["MANIFEST_CSV", "MANIFEST_PARQUET", "SOFTWARE_COLUMNS", "job_record",
@@ -34,7 +35,10 @@ SOFTWARE_COLUMNS = ("evfuse_version", "mitsuba_version", "drjit_version", "numpy
 def output_hash(folder: str | Path) -> str:
     """sha256 over a sequence folder's files: each file's relative path (sorted, ``/``
     separated) then its bytes; ``sequence.json`` without its timings (``timings_s``, the
-    only wall-clock content of a sequence folder), re-serialised with sorted keys.
+    only wall-clock content of a sequence folder) and without the scene file's path
+    (``scene.source``: a built-in scene's path is the worker's install, while the scene's text,
+    ``scene.toml``, stays in), re-serialised with sorted keys; the ``.evfuse`` marker (who
+    wrote the folder, from which real input paths) is left out.
 
     Parameters
     ----------
@@ -51,11 +55,15 @@ def output_hash(folder: str | Path) -> str:
     files = sorted(p for p in folder.rglob("*") if p.is_file())
     for path in sorted(files, key=lambda p: p.relative_to(folder).as_posix()):
         name = path.relative_to(folder).as_posix()
+        if name == MARKER:
+            continue
         data = path.read_bytes()
         if name == "sequence.json":
             record = json.loads(data)
             for key in _TIMING_KEYS:
                 record.pop(key, None)
+            if isinstance(record.get("scene"), dict):
+                record["scene"].pop("source", None)
             data = json.dumps(record, sort_keys=True).encode()
         digest.update(name.encode() + b"\0" + len(data).to_bytes(8, "little") + data)
     return digest.hexdigest()
