@@ -81,11 +81,31 @@ def _heightfield_mesh(name: str, obj: SceneObject):
                    has_vertex_texcoords=True)
     mesh.set_id(name)
     params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(vertices.astype(np.float32).ravel())
-    params["faces"] = mi.UInt32(faces.astype(np.uint32).ravel())
-    params["vertex_texcoords"] = mi.Float(uv.astype(np.float32).ravel())
+    _set_buffer(params, "vertex_positions", vertices)
+    _set_buffer(params, "faces", faces)
+    _set_buffer(params, "vertex_texcoords", uv)
     params.update()
     return mesh
+
+
+def _set_buffer(params, key: str, values: np.ndarray) -> None:
+    """Set a mesh's buffer parameter (``...vertex_positions``, ``...faces``, ...) from an array.
+
+    In the parameter's own array type, which is ``mi.Float`` or ``mi.UInt32`` on JIT variants
+    but a dynamic array on ``scalar_rgb`` (where ``mi.Float`` is a Python float, which refused
+    an array: height fields did not load there).
+
+    Parameters
+    ----------
+    params : mi.SceneParameters
+        A mesh's or a scene's ``mi.traverse``.
+    key : str
+        The parameter's key.
+    values : ndarray
+        Its new values, any shape (flattened), float32 (unsigned 32-bit integers for faces).
+    """
+    dtype = np.uint32 if key.endswith("faces") else np.float32
+    params[key] = type(params[key])(np.ascontiguousarray(values, dtype=dtype).ravel())
 
 
 def _set_normals(mesh_params, prefix: str = "") -> None:
@@ -97,13 +117,11 @@ def _set_normals(mesh_params, prefix: str = "") -> None:
     Call it after an update that changed the positions: Mitsuba recomputes the normals then,
     in its own order. Scalar variants sum them in face order already and are left alone.
     """
-    import mitsuba as mi
-
     if not _jit() or len(mesh_params[f"{prefix}vertex_normals"]) == 0:
         return
     positions = np.asarray(mesh_params[f"{prefix}vertex_positions"]).reshape(-1, 3)
     faces = np.asarray(mesh_params[f"{prefix}faces"]).reshape(-1, 3)
-    mesh_params[f"{prefix}vertex_normals"] = mi.Float(vertex_normals(positions, faces).ravel())
+    _set_buffer(mesh_params, f"{prefix}vertex_normals", vertex_normals(positions, faces))
     mesh_params.update()
 
 
@@ -351,7 +369,7 @@ def _shape_dicts(index: int, obj: SceneObject, scene: Scene,
         mesh_params = mi.traverse(mesh)
         local = np.asarray(mesh_params["vertex_positions"]).reshape(-1, 3)
         world = local @ pose[:3, :3].T + pose[:3, 3]
-        mesh_params["vertex_positions"] = mi.Float(world.astype(np.float32).ravel())
+        _set_buffer(mesh_params, "vertex_positions", world)
         mesh_params.update()
         _set_normals(mesh_params)
         mesh.set_bsdf(mi.load_dict(bsdf))
@@ -528,7 +546,7 @@ class Renderer:
                 center = obj.center
                 if kind == "vertex_positions":
                     moved = (initial - center) @ delta[:3, :3].T + center + delta[:3, 3]
-                    self._params[f"{key}.{kind}"] = mi.Float(moved.astype(np.float32).ravel())
+                    _set_buffer(self._params, f"{key}.{kind}", moved)
                     if key in self._rest_normals:
                         normals[key] = self._rest_normals[key] @ delta[:3, :3].T
                 else:
@@ -546,7 +564,7 @@ class Renderer:
             # Mitsuba recomputed the moved meshes' normals in thread order (see _set_normals):
             # the fixed-order ones at rest, rotated with the mesh, replace them.
             for key, value in normals.items():
-                self._params[f"{key}.vertex_normals"] = mi.Float(value.astype(np.float32).ravel())
+                _set_buffer(self._params, f"{key}.vertex_normals", value)
             self._params.update()
         return pose
 
