@@ -366,6 +366,26 @@ def test_scalar_fallback_simulates_a_moving_height_field(tmp_path):
     assert (out / "events.h5").is_file()
 
 
+def test_scalar_fallback_sums_every_light_as_the_jit_variants(tmp_path):
+    """scalar_rgb shades with the same estimator as the JIT variants (every light in turn,
+    :func:`sim.render.direct_light`), not Mitsuba's ``direct`` (one light picked at random per
+    sample: unbiased, but 24 % off in this mean at spp 1): a mesh under two lights has the same
+    mean luminance to 1 % (what is left: the variants' sub-pixel positions differ; 0.01 %
+    measured)."""
+    lights = ('[[lights]]\ntype = "point"\nposition = [0.3, 0.0, 0.4]\nintensity_cd = 5.0\n'
+              '[[lights]]\ntype = "directional"\ndirection = [0.2, 1.0, -0.3]\n'
+              "illuminance_lux = 300.0\n")
+    torus = ('[[objects]]\nname = "knot"\ntype = "mesh"\npath = "builtin:torus"\n'
+             "center = [0.0, 1.2, 0.0]\nscale = 0.35\nmaterial = { color = 0.7 }\n")
+    camera = "[camera]\nwidth = 48\nheight = 36\nfx = 45.0\nfy = 33.0\ncx = 23.3\ncy = 17.6\n"
+    text = scene_text(torus, camera=camera, lights=lights)
+    depth, luminance = _scalar_render(tmp_path, text)
+    renderer = Renderer(parse_scene(text), spp=1)
+    expected = renderer.luminance(0.0)
+    assert np.count_nonzero(depth) > 100
+    np.testing.assert_allclose(luminance.mean(), expected.mean(), rtol=0.01)
+
+
 def test_vertex_normals_are_mitsubas_to_float_rounding():
     """:func:`sim.scene.vertex_normals` is Mitsuba's angle-weighted scheme (its
     ``recompute_vertex_normals`` on one thread, float32 sums) to a few float32 ulps, and exact
