@@ -80,7 +80,8 @@ class _EventCamera:
 
     On a JIT variant the event camera is shaded by :class:`sim.shader.EventShader` (every light
     in turn, a fixed sub-pixel pattern), whichever sampler drives it, so that the two samplers
-    see the same luminance; on ``scalar_rgb`` by Mitsuba's ``direct`` integrator.
+    see the same luminance; on ``scalar_rgb`` by the frames' ``evfuse_direct`` (every light in
+    turn too, :func:`sim.render.register_integrator`).
     """
 
     def __init__(self, renderer: Renderer, spp: int, start: float, end: float):
