@@ -215,10 +215,112 @@ def _cmd_fill(args: argparse.Namespace) -> int:
     return 0
 
 
+def _global_params(args: argparse.Namespace, method):
+    """The global map's parameters from the flags (``map-global``, ``run --global``)."""
+    from dataclasses import replace
+
+    from fusion.globalmap.fuse import FusionParams
+    from fusion.globalmap.keyviews import KeyViewParams
+    from fusion.globalmap.pipeline import GlobalParams
+    from fusion.globalmap.tsdf import TSDFParams
+    from fusion.map.emvs import DepthMapParams
+
+    keyviews = {key: value for key, value in (("baseline", args.baseline),
+                                              ("angle_deg", args.angle),
+                                              ("max_events", args.max_events))
+                if value is not None}
+    fusion = {key: value for key, value in (("min_views", args.min_views),
+                                            ("depth_tolerance", args.depth_tolerance),
+                                            ("voxel_size", args.voxel)) if value is not None}
+    return GlobalParams(
+        keyviews=KeyViewParams(**keyviews), fusion=replace(FusionParams(), **fusion),
+        tsdf=TSDFParams(voxel_size=args.voxel), method=method.method.name,
+        method_params=method.settings, dense=method.params, min_depth=args.min_depth,
+        max_depth=args.max_depth, planes=args.planes,
+        depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median,
+                             keep_boundary_planes=args.keep_boundary_planes),
+        workers=args.workers)
+
+
+def _print_global(document: dict, out: Path) -> None:
+    """The global map's summary: key views, rounds, and the scores (or the views' agreement)."""
+    rounds = document["rounds"]
+    print(f"{document['key_views']} key views after {len(rounds)} round(s) of selection"
+          f"{'' if document['rounds_converged'] else ' (the last not re-checked)'}")
+
+    def scores(m: dict | None) -> str:
+        if m is None:
+            return "-"
+        return (f"accuracy {m['accuracy_cm']:.2f} cm, completeness {m['completeness_cm']:.2f} cm,"
+                f" F-score {100 * m['fscore_1cm']:.1f} / {100 * m['fscore_2cm']:.1f} / "
+                f"{100 * m['fscore_5cm']:.1f} % at 1 / 2 / 5 cm")
+
+    for view in document["views"]:
+        line = f"  {view['folder']}: t_ref {view['t_ref']:.3f} s, N1 {view['N1']:,}"
+        if document["simulated"]:
+            line += f"; semi-dense {scores(view['semidense'])}"
+        if view["fill_error"]:
+            line += f"; not filled: {view['fill_error']}"
+        print(line)
+    if document["simulated"]:
+        for name in ("semidense", "filled", "tsdf"):
+            print(f"  global {name}: {scores(document['global'][name])}")
+    else:
+        agreement = document["view_agreement"]
+        median = agreement.get("median_abs_difference_m")
+        print("  no exact depth (real data): views agree within "
+              + ("- (no overlap)" if median is None else f"{100 * median:.2f} cm (median)")
+              + f", {100 * agreement['confirmed_share']:.1f} % of the points confirmed by "
+                "another view")
+    files = document["files"]
+    mesh = out / files["mesh"] if files["mesh"] else "-"
+    print(f"fused points: {out / files['global']}\nmesh: {mesh}\n"
+          f"figure: {out / files['figure']}\nwritten to {out}")
+
+
+def _cmd_map_global(args: argparse.Namespace) -> int:
+    from fusion.globalmap.pipeline import map_global
+
+    _check_depth_flags(args)
+    params = _global_params(args, _fill_method(args))
+    document = map_global(args.sequence, args.out, params, overwrite=args.overwrite,
+                          progress=not args.quiet)
+    _print_global(document, Path(args.out))
+    return 0
+
+
+def _cmd_run_global(args: argparse.Namespace) -> int:
+    from fusion.globalmap.pipeline import run_global
+    from fusion.pipeline import is_sequence_folder
+
+    refused = [flag for flag, on in (("--resume", args.resume),
+                                     ("--clip-window", args.clip_window),
+                                     ("--depth-range oracle", args.depth_range == "oracle"))
+               if on]
+    if refused:
+        raise ValueError(f"{', '.join(refused)} cannot be used with --global (it simulates the "
+                         "whole window and maps it blind from key views)")
+    if is_sequence_folder(args.source):
+        raise ValueError(f"{args.source} is a sequence folder: map it with evfuse map-global "
+                         "(run --global simulates a scene)")
+    _check_depth_flags(args)
+    params = _global_params(args, _fill_method(args))
+    document = run_global(args.source, args.out, args.t0, args.t1, params, spp=args.spp,
+                          seed=args.seed, overwrite=args.overwrite, progress=not args.quiet)
+    _print_global(document, Path(args.out))
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.map.emvs import DepthMapParams
     from fusion.pipeline import RunParams, is_sequence_folder, run_pipeline
 
+    if args.global_map:
+        return _cmd_run_global(args)
+    given = [f"--{name.replace('_', '-')}" for name in GLOBAL_DEFAULTS
+             if getattr(args, name) is not None]
+    if given:
+        raise ValueError(f"{', '.join(given)}: only with --global (the global map's flags)")
     _check_depth_flags(args)
     method = _fill_method(args)
     params = RunParams(t0=args.t0, t1=args.t1, min_depth=args.min_depth,
@@ -341,6 +443,15 @@ MAP_FLAG_NAMES = {**VARIANT_FLAG_NAMES, "oracle": "--depth-range oracle"}
 """The library parameters that ``map`` and ``run`` name by another flag (see :func:`_in_flags`):
 ``resolve_dsi_range(oracle=True)`` is ``--depth-range oracle``."""
 
+GLOBAL_FLAG_NAMES = {**MAP_FLAG_NAMES, "angle_deg": "--angle", "voxel_size": "--voxel",
+                     "min_views": "--min-views", "depth_tolerance": "--depth-tolerance"}
+"""The library parameters that ``map-global`` and ``run --global`` name by another flag."""
+
+GLOBAL_DEFAULTS = {"baseline": None, "angle": None, "max_events": None, "min_views": None,
+                   "depth_tolerance": None, "voxel": None, "workers": None}
+"""The global map's flags and their unset values (``run`` refuses them without --global)."""
+
+
 KEEP_BOUNDARY_HELP = ("keep the map points whose DSI maximum lies on the first or the last "
                       "depth plane, as rpg_emvs does (default: dropped, and counted in "
                       "map.json's boundary_plane_points: such a maximum says the depth lies "
@@ -424,6 +535,27 @@ def _add_dense_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scale", type=POSITIVE, default=1.0,
                         help="exponential weights' decay length, px: exp(-d / scale) "
                              "(default 1, the paper's exp(-d))")
+
+
+def _add_global_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--baseline", type=POSITIVE, default=None,
+                        help="a new key view when the camera has moved this share of the last "
+                             "key view's median map depth (default 0.1)")
+    parser.add_argument("--angle", type=POSITIVE, default=None,
+                        help="... or rotated this many degrees (default 10)")
+    parser.add_argument("--max-events", type=count_type(1), default=None,
+                        help="... or this many events have come since it (default: no budget)")
+    parser.add_argument("--min-views", type=count_type(0), default=None,
+                        help="k: other views that must agree on a point for the fused cloud to "
+                             "keep it (default 1; 0 keeps every point)")
+    parser.add_argument("--depth-tolerance", type=POSITIVE, default=None,
+                        help="views agree on a point within this share of its depth "
+                             "(default 0.02)")
+    parser.add_argument("--voxel", type=POSITIVE, default=None,
+                        help="voxel of the fused clouds and the TSDF, m (default: from the data)")
+    parser.add_argument("--workers", type=count_type(1), default=None,
+                        help="key views mapped at once, one process each (default: the "
+                             "machine's cores)")
 
 
 def _write_event_figure(path: Path, frame: np.ndarray, title: str) -> None:
@@ -536,6 +668,25 @@ def _parser() -> argparse.ArgumentParser:
     mapping.add_argument("--quiet", action="store_true", help="no progress bar")
     mapping.set_defaults(run=_cmd_map, flag_names=MAP_FLAG_NAMES)
 
+    map_global = sub.add_parser(
+        "map-global", help="one global map of a sequence from many key views: fused points, "
+                           "a TSDF mesh, scores",
+        description="Key views along the sequence (EMVS's criteria: --baseline, --angle, "
+                    "--max-events), each mapped and filled as evfuse map and evfuse fill do "
+                    "(views/NNN/map, views/NNN/fill), fused in the world frame (global.ply: "
+                    "points that --min-views other views confirm), integrated into a TSDF "
+                    "(mesh.ply), scored against the exact surface (simulated sequences) or "
+                    "checked by the views' agreement (real recordings): global.json, "
+                    "global_error.ply, global.png.")
+    map_global.add_argument("sequence", help="sequence folder (simulated or ECD)")
+    map_global.add_argument("--out", required=True, help="folder to write")
+    _add_map_options(map_global)
+    _add_global_options(map_global)
+    _add_dense_options(map_global)
+    map_global.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    map_global.add_argument("--quiet", action="store_true", help="no progress lines")
+    map_global.set_defaults(run=_cmd_map_global, flag_names=GLOBAL_FLAG_NAMES)
+
     fill = sub.add_parser(
         "fill", help="fill a semi-dense map into a dense one with the standard frame",
         description="Fill the map points projected into the standard frame nearest the map's "
@@ -573,7 +724,11 @@ def _parser() -> argparse.ArgumentParser:
                           "its simulation resumes from its checkpoint (as simulate --resume), "
                           "then the map and the fill are made again")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
-    run.set_defaults(run=_cmd_run, flag_names={**MAP_FLAG_NAMES, "ref_time": "--ref-time"},
+    run.add_argument("--global", dest="global_map", action="store_true",
+                     help="one global map from many key views (as evfuse map-global) over the "
+                          "window, by default the whole scene")
+    _add_global_options(run)
+    run.set_defaults(run=_cmd_run, flag_names={**GLOBAL_FLAG_NAMES, "ref_time": "--ref-time"},
                      interrupted="resume with the same command plus --resume (a simulation "
                                  "continues from its last checkpoint)")
 

@@ -1,0 +1,598 @@
+"""``evfuse map-global`` and ``evfuse run --global``: key views, maps, fills, fusion, TSDF, scores.
+
+The one place where the global map's stages are wired together::
+
+    sequence/ --key views--> views/NNN/map, views/NNN/fill  (each as evfuse map and evfuse fill)
+              --fuse-->      global.ply (semi-dense views), global_filled.ply (filled views)
+              --TSDF-->      mesh.ply (filled views)
+              --score-->     global.json, global_error.ply, global.png
+
+Key views (:mod:`fusion.globalmap.keyviews`) are chosen on the poses of ``groundtruth.txt`` with
+a depth scale: first the DSI range's middle in inverse depth; once mapped, each key view's own
+median map depth. The views whose selection changes are re-mapped, for at most
+``GlobalParams.max_rounds`` rounds (recorded in ``global.json``'s ``rounds``). Each key view maps
+the events from the previous key view's time to the next's with its reference at the standard
+frame nearest it (:func:`fusion.pipeline.map_window`), fills with that frame
+(:func:`fusion.pipeline.fill_window`; a two-camera rig fills in the frame camera), in parallel
+over ``workers`` processes (``spawn``; numba's threads 1 in each).
+
+A simulated sequence is scored against the exact surface of its key views
+(:mod:`fusion.globalmap.score`); a real recording (no exact depth) reports what can be checked
+without it: the agreement of overlapping views (:func:`fusion.globalmap.fuse.view_agreement`).
+Everything is written into ``<out>.partial`` and renamed when complete
+(:func:`sim.output.atomic_output_dir`); the source is never written into.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import shutil
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field, replace
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from fusion.figures import write_image
+from fusion.fill.dense import DenseParams, resolve_method
+from fusion.globalmap.fuse import FusionParams, fuse_views, view_agreement
+from fusion.globalmap.keyviews import (
+    KeyViewParams,
+    inverse_depth_middle,
+    key_view_windows,
+    select_key_views,
+)
+from fusion.globalmap.score import (
+    TAUS_M,
+    cloud_scores,
+    draw_global_figure,
+    error_colours,
+    exact_surface,
+    exact_view,
+)
+from fusion.globalmap.tsdf import TSDFParams, tsdf_mesh
+from fusion.globalmap.views import DepthView
+from fusion.io import to_json, write_mesh_ply, write_ply
+from fusion.map.dsi_range import resolve_dsi_range
+from fusion.map.emvs import DepthMapParams
+from fusion.map.mapping import time_window
+from fusion.pipeline import RunParams, _simulate_window, fill_window, is_sequence_folder, map_window
+from sim.camera import Camera
+from sim.eventio import iter_event_chunks
+from sim.exr import read_depth
+from sim.output import atomic_output_dir, check_output_dir
+from sim.progress import progress as progress_stage
+from sim.sequence import Sequence, load_sequence
+from sim.trajectory import read_trajectory
+from sim.validation import ParameterError
+
+__all__ = ["GlobalParams", "map_global", "run_global"]
+
+WORK_FOLDER = ".keyviews"
+"""Where the key views of every round are mapped inside ``<out>.partial``; the final ones are
+moved to ``views/NNN`` and the folder removed."""
+
+
+@dataclass(frozen=True)
+class GlobalParams:
+    """Parameters of ``evfuse map-global`` (and ``evfuse run --global``).
+
+    Attributes
+    ----------
+    keyviews : KeyViewParams
+        When a new key view is taken.
+    fusion : FusionParams
+        Multi-view consistency and the merge voxel of the fused clouds.
+    tsdf : TSDFParams
+        The TSDF volume of the filled views.
+    method : str or None
+        Filling method (default: the paper's, ``paper-idw``); resolved once, before any work.
+    method_params : dict
+        The method's own settings.
+    dense : DenseParams
+        The paper's fill stages' parameters.
+    min_depth, max_depth : float or None, metres
+        The DSI range (default: the scene's declared range, else 0.2-5 m:
+        :func:`fusion.map.dsi_range.resolve_dsi_range`, never the exact depth).
+    planes : int
+        DSI depth planes.
+    depth : DepthMapParams
+        The semi-dense map's extraction from the DSI.
+    t0, t1 : float or None, seconds
+        The span to map (default: the data's).
+    workers : int or None
+        Key views mapped at once, one process each (default ``os.cpu_count()``; 1: in this
+        process).
+    max_rounds : int
+        Most rounds of key-view selection (the first with the DSI's middle depth, each next
+        with the mapped views' median depths).
+    """
+
+    keyviews: KeyViewParams = field(default_factory=KeyViewParams)
+    fusion: FusionParams = field(default_factory=FusionParams)
+    tsdf: TSDFParams = field(default_factory=TSDFParams)
+    method: str | None = None
+    method_params: dict = field(default_factory=dict)
+    dense: DenseParams = field(default_factory=DenseParams)
+    min_depth: float | None = None
+    max_depth: float | None = None
+    planes: int = 100
+    depth: DepthMapParams = field(default_factory=DepthMapParams)
+    t0: float | None = None
+    t1: float | None = None
+    workers: int | None = None
+    max_rounds: int = 3
+
+    def __post_init__(self) -> None:
+        for name in ("workers", "max_rounds"):
+            value = getattr(self, name)
+            if value is None and name == "workers":
+                continue
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ParameterError(f"{{{name}}} must be a whole number >= 1, got {value!r}",
+                                     **{name: name})
+
+    @property
+    def worker_count(self) -> int:
+        """Processes that map key views: ``workers``, or the machine's cores."""
+        return self.workers or os.cpu_count() or 1
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One key view to map and fill: its selected time, reference time and event window."""
+
+    t_key: float
+    t_ref: float
+    t0: float | None
+    t1: float | None
+
+    @property
+    def key(self) -> tuple:
+        return (self.t_ref, self.t0, self.t1)
+
+
+def map_global(source: str | Path, out: str | Path, params: GlobalParams | None = None,
+               overwrite: bool = False, progress: bool = True) -> dict:
+    """Map a sequence from key views, fuse them, build a TSDF mesh and score them.
+
+    Parameters
+    ----------
+    source : str or Path
+        A sequence folder (simulated, or a real ECD recording).
+    out : str or Path
+        Folder to write: ``views/NNN/map``, ``views/NNN/fill``, ``global.ply``,
+        ``global_filled.ply``, ``mesh.ply``, ``global.png``, ``global.json`` (and
+        ``global_error.ply`` for a simulated sequence).
+    params : GlobalParams, optional
+    overwrite : bool
+        Replace an existing ``out`` that evfuse wrote, once the new one is complete.
+    progress : bool
+        One line (or a bar on a terminal) per stage.
+
+    Returns
+    -------
+    dict
+        The content of ``global.json``: ``views`` (per key view ``t_ref``, ``semidense`` and
+        ``filled`` scores), ``global`` (``semidense``, ``filled``, ``tsdf`` scores), each score
+        None for a real recording, which has ``view_agreement`` instead; plus ``rounds``,
+        ``timings``, ``memory_peak_mb`` and ``params``.
+
+    Raises
+    ------
+    ValueError
+        Not a sequence folder, an unknown filling method, an ``out`` that is, holds or lies in
+        the source, or an existing ``out`` without ``overwrite`` (before any work).
+    """
+    params = params or GlobalParams()
+    if not is_sequence_folder(source):
+        raise ValueError(f"{source}: not a sequence folder (calib.txt, images.txt, events and "
+                         "groundtruth.txt); simulate a scene first, or use evfuse run SCENE "
+                         "--global")
+    resolve_method(params.method, params.dense, params.method_params)        # up front
+    check_output_dir(out, overwrite, [source])
+    with atomic_output_dir(out, overwrite=overwrite, inputs=[source],
+                           command="evfuse map-global") as tmp:
+        return _map_global(Path(source), tmp, params, progress, {})
+
+
+def run_global(scene: str | Path, out: str | Path, t0: float | None = None,
+               t1: float | None = None, params: GlobalParams | None = None,
+               spp: int | None = None, seed: int | None = None, overwrite: bool = False,
+               progress: bool = True) -> dict:
+    """Simulate a scene's window into ``out/sequence`` (as ``evfuse run`` does), then map it
+    globally into ``out`` (:func:`map_global`).
+
+    Parameters
+    ----------
+    scene : str or Path
+        A built-in scene name or a scene ``.toml`` file.
+    out : str or Path
+    t0, t1 : float or None, seconds
+        The window simulated and mapped (default: the whole scene).
+    params : GlobalParams, optional
+        Its ``t0``/``t1`` are replaced by the window.
+    spp, seed : int or None
+        Samples per pixel and seed of the simulation (default: the scene's).
+    overwrite, progress : bool
+
+    Returns
+    -------
+    dict
+        ``global.json``'s content, with ``timings["simulate_s"]``.
+    """
+    from scenes import resolve_scene
+    from sim.scene import load_scene
+    from sim.simulate import scene_files
+
+    params = params or GlobalParams()
+    resolve_method(params.method, params.dense, params.method_params)        # up front
+    loaded = load_scene(resolve_scene(scene), seed=seed)
+    t0 = 0.0 if t0 is None else float(t0)
+    t1 = float(loaded.duration) if t1 is None else float(t1)
+    inputs = scene_files(loaded)
+    check_output_dir(out, overwrite, inputs)
+    timings: dict = {}
+    with atomic_output_dir(out, overwrite=overwrite, inputs=inputs,
+                           command="evfuse run --global") as tmp:
+        folder, t0, t1 = _simulate_window(loaded, tmp / "sequence",
+                                          RunParams(t0=t0, t1=t1, spp=spp, seed=seed),
+                                          progress, timings)
+        return _map_global(folder, tmp, replace(params, t0=t0, t1=t1), progress, timings)
+
+
+def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
+                timings: dict) -> dict:
+    """The body of :func:`map_global`, writing into the open output folder ``tmp``."""
+    clock = time.perf_counter()
+    sequence = load_sequence(source)
+    jobs, results, rounds, converged = _key_views(sequence, tmp, params, progress, timings)
+    views_root = tmp / "views"
+    views_root.mkdir()
+    entries = []
+    for index, job in enumerate(jobs):
+        folder = views_root / f"{index:03d}"
+        results[job.key]["folder"].rename(folder)
+        entries.append({"folder": f"views/{folder.name}", **_view_entry(job, results[job.key])})
+    shutil.rmtree(tmp / WORK_FOLDER)
+    semidense = [_semidense_view(views_root / f"{k:03d}" / "map") for k in range(len(jobs))]
+    filled = [_filled_view(views_root / f"{k:03d}" / "fill") for k in range(len(jobs))]
+    filled_views = [view for view in filled if view is not None]
+
+    tick = time.perf_counter()
+    stage = progress_stage(desc="fuse", unit="view", noun="views", enabled=progress)
+    fused = fuse_views(semidense, params.fusion)
+    fused_filled = fuse_views(filled_views, params.fusion) if filled_views else None
+    stage.update(len(semidense) + len(filled_views))
+    stage.close()
+    timings["fusion_s"] = time.perf_counter() - tick
+    write_ply(tmp / "global.ply", fused.points, np.eye(4), frame_name="T_world_points")
+    if fused_filled is not None:
+        write_ply(tmp / "global_filled.ply", fused_filled.points, np.eye(4),
+                  frame_name="T_world_points")
+
+    tick = time.perf_counter()
+    stage = progress_stage(desc="TSDF", unit="view", noun="views", enabled=progress)
+    mesh = tsdf_mesh(filled_views, params.tsdf) if filled_views else None
+    stage.update(len(filled_views))
+    stage.close()
+    timings["tsdf_s"] = time.perf_counter() - tick
+    if mesh is not None:
+        write_mesh_ply(tmp / "mesh.ply", mesh.vertices, mesh.faces)
+
+    tick = time.perf_counter()
+    stage = progress_stage(desc="score", unit="view", noun="views", enabled=progress)
+    exact = [exact_view(sequence, entry["t_ref"]) for entry in entries]
+    simulated = all(view is not None for view in exact)
+    document: dict = {"views": entries, "global": None}
+    trajectory = _trajectory_positions(sequence, jobs)
+    centres = np.array([view.centre for view in semidense]).reshape(-1, 3)
+    if simulated:
+        errors = _score(document, semidense, filled, fused, fused_filled, mesh, exact)
+        write_ply(tmp / "global_error.ply", fused.points, np.eye(4),
+                  error_colours(errors, max(TAUS_M)), frame_name="T_world_points")
+        figure = draw_global_figure(fused.points, errors, trajectory, centres, max(TAUS_M))
+    else:
+        for entry in entries:
+            entry["semidense"] = entry["filled"] = None
+        document["global"] = {"semidense": None, "filled": None, "tsdf": None}
+        document["view_agreement"] = view_agreement(semidense, params.fusion)
+        figure = draw_global_figure(fused.points, None, trajectory, centres, max(TAUS_M))
+    stage.update(len(entries))
+    stage.close()
+    timings["scoring_s"] = time.perf_counter() - tick
+    write_image(tmp / "global.png", figure)
+
+    timings["total_s"] = time.perf_counter() - clock + timings.get("simulate_s", 0.0)
+    document.update({
+        "sequence": os.path.relpath(sequence.folder.resolve(), tmp.resolve()),
+        "simulated": simulated,
+        "key_views": len(jobs), "rounds": rounds, "rounds_converged": converged,
+        "fused": {"semidense_points": len(fused.points), "voxel_size_m": fused.voxel_size,
+                  "support_median": (float(np.median(fused.support)) if len(fused.points)
+                                     else None),
+                  "filled_points": None if fused_filled is None else len(fused_filled.points)},
+        "mesh": None if mesh is None else {"vertices": len(mesh.vertices),
+                                           "faces": len(mesh.faces)},
+        "timings": timings,
+        "memory_peak_mb": _memory_peak_mb(),
+        "params": json.loads(to_json(asdict(params))),
+        "files": {"views": "views/NNN/map, views/NNN/fill", "global": "global.ply",
+                  "global_filled": "global_filled.ply" if fused_filled is not None else None,
+                  "mesh": "mesh.ply" if mesh is not None else None,
+                  "error_cloud": "global_error.ply" if simulated else None,
+                  "figure": "global.png"},
+    })
+    (tmp / "global.json").write_text(to_json(document))
+    return document
+
+
+def _key_views(sequence: Sequence, tmp: Path, params: GlobalParams, progress: bool,
+               timings: dict) -> tuple[list[_Job], dict, list[dict], bool]:
+    """Select, map and fill the key views, re-selecting with the maps' median depths.
+
+    Returns
+    -------
+    jobs : list of _Job, the final key views in time order
+    results : dict, each mapped job's result by its key (every round's)
+    rounds : list of dict, per round the key views' times and how many were mapped
+    converged : bool, whether the last selection was confirmed by the maps' depths
+    """
+    tick = time.perf_counter()
+    window = time_window(sequence, params.t0, params.t1, clip=True)
+    trajectory = read_trajectory(sequence.groundtruth_path)      # blind: never the exact poses
+    inside = (trajectory.times >= window.t0) & (trajectory.times < window.t1)
+    times = np.unique(np.r_[window.t0, trajectory.times[inside]])
+    poses = trajectory.pose(times)
+    dsi = resolve_dsi_range(sequence, params.min_depth, params.max_depth)
+    initial = inverse_depth_middle(dsi.min_depth, dsi.max_depth)
+    events = (_event_times(sequence, window.t0, window.t1)
+              if params.keyviews.max_events is not None else None)
+    frames = sequence.standard_frames()
+    medians: dict[float, float] = {}
+    results: dict[tuple, dict] = {}
+    rounds: list[dict] = []
+    previous: list[float] | None = None
+    converged = False
+    jobs: list[_Job] = []
+    timings["key_views_s"] = time.perf_counter() - tick
+    timings["map_fill_s"] = 0.0
+
+    def scale(t: float) -> float:
+        """A key view's depth scale: its map's median depth; before it is mapped (or where its
+        map is empty) the nearest mapped key view's; before any, the DSI range's middle."""
+        if not medians:
+            return initial
+        return medians[min(medians, key=lambda key: abs(key - t))]
+
+    with _Workers(params.worker_count) as workers:
+        for number in range(1, params.max_rounds + 1):
+            keys = select_key_views(times, poses, params.keyviews, scale, event_times=events)
+            scales = [scale(t) for t in keys]
+            if keys == previous:
+                converged = True
+                break
+            jobs = _plan(keys, frames, params.t0, params.t1)
+            todo = [job for job in jobs if job.key not in results]
+            tick = time.perf_counter()
+            for job, result in zip(todo, _map_and_fill(workers, sequence.folder, tmp, todo, params,
+                                                       len(results), number, progress),
+                                   strict=True):
+                results[job.key] = result
+            timings["map_fill_s"] += time.perf_counter() - tick
+            for job in jobs:
+                median = results[job.key]["depth_median_m"]
+                if median is not None:
+                    medians[job.t_key] = float(median)
+            rounds.append({"round": number, "key_times": keys,
+                           "t_ref": [job.t_ref for job in jobs], "mapped": len(todo),
+                           "depth_scale_m": scales})
+            previous = keys
+    return jobs, results, rounds, converged
+
+
+def _plan(keys: list[float], frames, t0: float | None, t1: float | None) -> list[_Job]:
+    """One job per key view: its reference at the standard frame nearest it (map_window's rule;
+    the key time where there are no frames), two key views on one frame made one."""
+    windows = key_view_windows(keys, t0, t1)
+    jobs: list[_Job] = []
+    for t_key, (w0, w1) in zip(keys, windows, strict=True):
+        t_ref = (float(frames.image_times[frames.nearest_frame(t_key)])
+                 if len(frames.image_times) else t_key)
+        if jobs and jobs[-1].t_ref == t_ref:
+            continue
+        jobs.append(_Job(t_key, t_ref, w0, w1))
+    # a dropped key view's neighbours take its window: each maps from its neighbours' times
+    kept = [job.t_key for job in jobs]
+    return [replace(job, t0=w0, t1=w1)
+            for job, (w0, w1) in zip(jobs, key_view_windows(kept, t0, t1), strict=True)]
+
+
+class _Workers:
+    """The processes that map key views: a ``spawn`` pool of ``count`` processes (numba's
+    threads 1 in each), started on the first batch of more than one view and kept for every
+    round; with ``count`` 1, this process."""
+
+    def __init__(self, count: int) -> None:
+        self.count = count
+        self.pool: ProcessPoolExecutor | None = None
+
+    def __enter__(self) -> _Workers:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(cancel_futures=True)
+
+    def map(self, tasks: list[dict], stage) -> list[dict]:
+        """:func:`map_and_fill_view` of each task, in order, ``stage`` updated per view."""
+        results: list[dict] = [{}] * len(tasks)
+        if self.count <= 1 or len(tasks) <= 1 and self.pool is None:
+            for k, task in enumerate(tasks):
+                results[k] = map_and_fill_view(task)
+                stage.update(1)
+            return results
+        if self.pool is None:
+            self.pool = ProcessPoolExecutor(max_workers=self.count,
+                                            mp_context=get_context("spawn"),
+                                            initializer=_single_threaded)
+        futures = {self.pool.submit(map_and_fill_view, task): k for k, task in enumerate(tasks)}
+        for future in as_completed(futures):
+            results[futures[future]] = future.result()
+            stage.update(1)
+        return results
+
+
+def _map_and_fill(workers: _Workers, sequence_folder: Path, tmp: Path, jobs: list[_Job],
+                  params: GlobalParams, first: int, number: int, progress: bool) -> list[dict]:
+    """Map and fill ``jobs`` into ``tmp/.keyviews/NNN`` (numbered from ``first``) on
+    ``workers``; results in the order of ``jobs``."""
+    tasks = [{"sequence": str(sequence_folder),
+              "folder": str(tmp / WORK_FOLDER / f"{first + k:03d}"),
+              "t_ref": job.t_ref, "t0": job.t0, "t1": job.t1,
+              "min_depth": params.min_depth, "max_depth": params.max_depth,
+              "planes": params.planes, "depth": params.depth, "dense": params.dense,
+              "method": params.method, "method_params": params.method_params}
+             for k, job in enumerate(jobs)]
+    stage = progress_stage(desc=f"key views, round {number}", unit="view", noun="views",
+                           total=len(tasks), enabled=progress)
+    results = workers.map(tasks, stage)
+    stage.close()
+    return results
+
+
+def _single_threaded() -> None:
+    """A worker's initialiser: one numba thread (the processes share the cores)."""
+    import numba
+
+    numba.set_num_threads(1)
+
+
+def map_and_fill_view(task: dict) -> dict:
+    """Map and fill one key view (a worker's job): ``folder/map`` as ``evfuse map`` writes it,
+    ``folder/fill`` as ``evfuse fill`` does.
+
+    Parameters
+    ----------
+    task : dict
+        ``sequence``, ``folder``, ``t_ref``, ``t0``, ``t1`` and the map's and the fill's
+        parameters (see :func:`_map_and_fill`).
+
+    Returns
+    -------
+    dict
+        ``folder`` (Path), ``t_ref``, ``t_frame``, ``N1``, ``depth_median_m``, ``window_s``,
+        ``events``, ``fill_error`` (None, or why the view could not be filled) and
+        ``timings`` (``map_s``, ``fill_s``).
+    """
+    folder = Path(task["folder"])
+    folder.mkdir(parents=True)
+    tick = time.perf_counter()
+    mapped, _ = map_window(task["sequence"], folder / "map", task["t0"], task["t1"],
+                           ref_time=task["t_ref"], min_depth=task["min_depth"],
+                           max_depth=task["max_depth"], planes=task["planes"],
+                           depth=task["depth"], clip_window=True, progress=False)
+    map_s = time.perf_counter() - tick
+    tick = time.perf_counter()
+    fill_error = t_frame = None
+    try:
+        filled = fill_window(folder / "map", folder / "fill", params=task["dense"],
+                             method=task["method"], method_params=task["method_params"])
+        t_frame = filled.info["t_frame"]
+    except ValueError as exc:             # e.g. no map point lands in the frame
+        fill_error = str(exc)
+    return {"folder": folder, "t_ref": mapped.t_ref, "t_frame": t_frame, "N1": mapped.n1,
+            "depth_median_m": mapped.info.get("depth_median_m"),
+            "window_s": mapped.info["window_s"], "events": mapped.info["events_used"],
+            "fill_error": fill_error,
+            "timings": {"map_s": map_s, "fill_s": time.perf_counter() - tick}}
+
+
+def _view_entry(job: _Job, result: dict) -> dict:
+    """A key view's line in ``global.json`` (its scores are added by :func:`_score`)."""
+    return {"t_ref": result["t_ref"], "t_key": job.t_key, "t_frame": result["t_frame"],
+            "window_s": result["window_s"], "events": result["events"], "N1": result["N1"],
+            "depth_median_m": result["depth_median_m"], "fill_error": result["fill_error"],
+            "semidense": None, "filled": None, "timings": result["timings"]}
+
+
+def _camera(record: dict) -> Camera:
+    """The camera a ``map.json`` or ``fill.json`` records."""
+    return Camera(int(record["width"]), int(record["height"]), float(record["fx"]),
+                  float(record["fy"]), float(record["cx"]), float(record["cy"]),
+                  tuple(record.get("distortion", (0.0,) * 5)))
+
+
+def _semidense_view(map_folder: Path) -> DepthView:
+    """A key view's semi-dense map (``evfuse map``'s folder) as a DepthView: the map's
+    undistorted pixel grid at its reference pose (``groundtruth.txt``'s)."""
+    meta = json.loads((map_folder / "map.json").read_text())
+    return DepthView(read_depth(map_folder / "semidense_depth.exr"), _camera(meta["camera"]),
+                     np.array(meta["T_world_ref"], np.float64), float(meta["t_ref"]),
+                     f"semidense {map_folder.parent.name}")
+
+
+def _filled_view(fill_folder: Path) -> DepthView | None:
+    """A key view's filled map (``evfuse fill``'s folder) as a DepthView in the frame's camera
+    (a rig's frame camera) at the frame's pose; None where the view was not filled."""
+    if not (fill_folder / "fill.json").is_file():
+        return None
+    meta = json.loads((fill_folder / "fill.json").read_text())
+    return DepthView(read_depth(fill_folder / "dense_depth.exr"), _camera(meta["camera"]),
+                     np.array(meta["T_world_frame"], np.float64), float(meta["t_frame"]),
+                     f"filled {fill_folder.parent.name}")
+
+
+def _score(document: dict, semidense: list[DepthView], filled: list[DepthView | None],
+           fused, fused_filled, mesh, exact: list[DepthView]) -> np.ndarray:
+    """Score every key view and the global maps against the exact surface into ``document``;
+    return the fused semi-dense points' distances to it (metres)."""
+    reference = exact_surface(exact)
+    depths = np.concatenate([view.depth[view.valid] for view in exact])
+    scene_depth = float(np.median(depths)) if len(depths) else 1.0
+    for entry, own, dense, truth in zip(document["views"], semidense, filled, exact,
+                                        strict=True):
+        surface = exact_surface([truth])
+        entry["semidense"] = cloud_scores(own.points_world(), surface, scene_depth)
+        entry["filled"] = (None if dense is None
+                           else cloud_scores(dense.points_world(), surface, scene_depth))
+    document["global"] = {
+        "semidense": cloud_scores(fused.points, reference, scene_depth),
+        "filled": (None if fused_filled is None
+                   else cloud_scores(fused_filled.points, reference, scene_depth)),
+        "tsdf": (None if mesh is None else cloud_scores(
+            mesh.sample(fused_filled.voxel_size / 2), reference, scene_depth)),
+    }
+    document["scene_depth_m"] = scene_depth
+    if len(fused.points) == 0 or len(reference) == 0:
+        return np.zeros(len(fused.points))
+    return cKDTree(reference).query(fused.points)[0]
+
+
+def _trajectory_positions(sequence: Sequence, jobs: list[_Job]) -> np.ndarray:
+    """(N, 3) camera centres of ``groundtruth.txt`` over the key views' span, for the figure."""
+    trajectory = read_trajectory(sequence.groundtruth_path)
+    lo = min(job.t0 if job.t0 is not None else trajectory.t_start for job in jobs)
+    hi = max(job.t1 if job.t1 is not None else trajectory.t_end for job in jobs)
+    inside = (trajectory.times >= lo) & (trajectory.times <= hi)
+    return trajectory.poses[inside][:, :3, 3]
+
+
+def _event_times(sequence: Sequence, t0: float, t1: float) -> np.ndarray:
+    """(M,) float64 seconds: the times of the events in ``[t0, t1]`` (for the event budget)."""
+    path = sequence.events_h5 or sequence.events_txt
+    chunks = [chunk["t"] * 1e-9 for chunk in iter_event_chunks(
+        path, 10**6, int(round(t0 * 1e9)), int(round(t1 * 1e9)) + 1)]
+    return np.concatenate(chunks) if chunks else np.zeros(0)
+
+
+def _memory_peak_mb() -> dict:
+    """Peak resident memory, MiB: this process's and the largest worker's."""
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    workers = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    return {"main": own, "largest_worker": workers}
