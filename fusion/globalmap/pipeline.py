@@ -71,7 +71,7 @@ from sim.sequence import Sequence, load_sequence
 from sim.trajectory import read_trajectory
 from sim.validation import ParameterError
 
-__all__ = ["GlobalParams", "map_global", "run_global"]
+__all__ = ["GlobalParams", "map_and_fill_view", "map_global", "run_global", "sequence_poses"]
 
 WORK_FOLDER = ".keyviews"
 """Where the key views of every round are mapped inside ``<out>.partial``; the final ones are
@@ -345,10 +345,7 @@ def _key_views(sequence: Sequence, tmp: Path, params: GlobalParams, progress: bo
     """
     tick = time.perf_counter()
     window = time_window(sequence, params.t0, params.t1, clip=True)
-    trajectory = read_trajectory(sequence.groundtruth_path)      # blind: never the exact poses
-    inside = (trajectory.times >= window.t0) & (trajectory.times < window.t1)
-    times = np.unique(np.r_[window.t0, trajectory.times[inside]])
-    poses = trajectory.pose(times)
+    times, poses = sequence_poses(sequence, window.t0, window.t1)
     dsi = resolve_dsi_range(sequence, params.min_depth, params.max_depth)
     initial = inverse_depth_middle(dsi.min_depth, dsi.max_depth)
     events = (_event_times(sequence, window.t0, window.t1)
@@ -394,6 +391,31 @@ def _key_views(sequence: Sequence, tmp: Path, params: GlobalParams, progress: bo
                            "depth_scale_m": scales})
             previous = keys
     return jobs, results, rounds, converged
+
+
+def sequence_poses(sequence: Sequence, t0: float | None = None, t1: float | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The poses key views are chosen on: ``groundtruth.txt``'s samples (blind: never
+    ``groundtruth_exact.txt``) in ``[t0, t1)``, with the pose at ``t0`` first.
+
+    Parameters
+    ----------
+    sequence : Sequence
+    t0, t1 : float or None, seconds
+        The span (default: the data's, :func:`fusion.map.mapping.time_window`).
+
+    Returns
+    -------
+    times : (N,) float64 ndarray, seconds
+    poses : (N, 4, 4) float64 ndarray, ``T_world_camera``
+    """
+    if t0 is None or t1 is None:
+        window = time_window(sequence, t0, t1, clip=True)
+        t0, t1 = window.t0, window.t1
+    trajectory = read_trajectory(sequence.groundtruth_path)
+    inside = (trajectory.times >= t0) & (trajectory.times < t1)
+    times = np.unique(np.r_[t0, trajectory.times[inside]])
+    return times, trajectory.pose(times)
 
 
 def _plan(keys: list[float], frames, t0: float | None, t1: float | None) -> list[_Job]:
