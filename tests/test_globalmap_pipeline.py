@@ -16,6 +16,7 @@ from fusion.globalmap.pipeline import (
     _semidense_view,
     sequence_poses,
 )
+from fusion.pipeline import fill_window
 from sim.sequence import load_sequence
 from sim.trajectory import read_trajectory
 from tests.conftest import run_cli, tree_hashes
@@ -210,3 +211,42 @@ def test_parameters_name_their_flags(plane_sequence, tmp_path, capsys):
                     "--method", "no-such-method", "--quiet"]) == 2
     assert "no-such-method" in capsys.readouterr().err
     assert not (tmp_path / "g").exists()
+
+
+def test_a_rig_s_key_views_fill_in_the_frame_camera(tmp_path):
+    """A two-camera rig: the filled view is the frame camera's (its own size and lens) at the
+    frame camera's pose, T_world_event(t_frame) @ T_event_frame (the rig of
+    tests/test_rig_pipeline.py, built without evfuse's camera or pose code)."""
+    from tests.test_rig_pipeline import FRAME, T_EVENT_FRAME, pose, write_rig
+
+    map_folder = write_rig(tmp_path)
+    fill = tmp_path / "fill"
+    fill_window(map_folder, fill, method="plane")
+    view = _filled_view(fill)
+    assert view.camera == FRAME and view.depth.shape == (FRAME.height, FRAME.width)
+    assert view.t == pytest.approx(0.09)
+    np.testing.assert_allclose(view.T_world_cam, pose(0.09)[0] @ T_EVENT_FRAME, atol=1e-9)
+    semidense = _semidense_view(map_folder)
+    assert semidense.camera.resolution == (64, 48)
+
+
+def test_run_global_simulates_the_scene_then_maps_it(tmp_path, capsys):
+    """evfuse run SCENE.toml --global: the window simulated into OUT/sequence (fusion.pipeline's
+    simulate step), then map-global's files beside it, the views' map.json naming it."""
+    from tests.conftest import FAST, WALL, scene_text
+
+    extra = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 1\n"
+    scene = tmp_path / "wall.toml"
+    scene.write_text(scene_text(WALL, trajectory=FAST, duration=0.25, extra=extra))
+    out = tmp_path / "run"
+    assert run_cli(["run", str(scene), "--global", "--out", str(out), "--workers", "1",
+                    "--baseline", "0.08"]) == 0
+    printed = capsys.readouterr().out
+    assert "key views after" in printed and "global semidense" in printed
+    document = json.loads((out / "global.json").read_text())
+    assert document["sequence"] == "sequence"
+    assert (out / "sequence" / "groundtruth.txt").is_file()
+    assert "simulate_s" in document["timings"] and len(document["views"]) >= 2
+    meta = json.loads((out / "views" / "000" / "map" / "map.json").read_text())
+    assert (out / "views" / "000" / "map" / meta["sequence"]).resolve() == (
+        out / "sequence").resolve()
