@@ -36,7 +36,6 @@ from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from fusion.figures import write_image
 from fusion.fill.dense import DenseParams, resolve_method
@@ -48,12 +47,14 @@ from fusion.globalmap.keyviews import (
     select_key_views,
 )
 from fusion.globalmap.score import (
+    SURFACE_SUPERSAMPLE,
     TAUS_M,
     cloud_scores,
     draw_global_figure,
-    error_colours,
     exact_surface,
     exact_view,
+    nearest_distances,
+    write_error_cloud,
 )
 from fusion.globalmap.tsdf import TSDFParams, tsdf_mesh
 from fusion.globalmap.views import DepthView
@@ -271,10 +272,10 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
     stage.update(len(semidense) + len(filled_views))
     stage.close()
     timings["fusion_s"] = time.perf_counter() - tick
-    write_ply(tmp / "global.ply", fused.points, np.eye(4), frame_name="T_world_points")
+    write_ply(tmp / "global.ply", fused.points, np.eye(4), frame_name="T_world")
     if fused_filled is not None:
         write_ply(tmp / "global_filled.ply", fused_filled.points, np.eye(4),
-                  frame_name="T_world_points")
+                  frame_name="T_world")
 
     tick = time.perf_counter()
     stage = progress_stage(desc="TSDF", unit="view", noun="views", enabled=progress)
@@ -287,15 +288,15 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
 
     tick = time.perf_counter()
     stage = progress_stage(desc="score", unit="view", noun="views", enabled=progress)
-    exact = [exact_view(sequence, entry["t_ref"]) for entry in entries]
+    # the exact surface sampled SURFACE_SUPERSAMPLE^2 times per pixel (score's measured bias)
+    exact = [exact_view(sequence, entry["t_ref"], SURFACE_SUPERSAMPLE) for entry in entries]
     simulated = all(view is not None for view in exact)
     document: dict = {"views": entries, "global": None}
     trajectory = _trajectory_positions(sequence, jobs)
     centres = np.array([view.centre for view in semidense]).reshape(-1, 3)
     if simulated:
         errors = _score(document, semidense, filled, fused, fused_filled, mesh, exact)
-        write_ply(tmp / "global_error.ply", fused.points, np.eye(4),
-                  error_colours(errors, max(TAUS_M)), frame_name="T_world_points")
+        write_error_cloud(tmp / "global_error.ply", fused.points, errors, max(TAUS_M))
         figure = draw_global_figure(fused.points, errors, trajectory, centres, max(TAUS_M))
     else:
         for entry in entries:
@@ -591,9 +592,7 @@ def _score(document: dict, semidense: list[DepthView], filled: list[DepthView | 
             mesh.sample(fused_filled.voxel_size / 2), reference, scene_depth)),
     }
     document["scene_depth_m"] = scene_depth
-    if len(fused.points) == 0 or len(reference) == 0:
-        return np.zeros(len(fused.points))
-    return cKDTree(reference).query(fused.points)[0]
+    return nearest_distances(fused.points, reference)
 
 
 def _trajectory_positions(sequence: Sequence, jobs: list[_Job]) -> np.ndarray:
