@@ -592,7 +592,33 @@ def _score(document: dict, semidense: list[DepthView], filled: list[DepthView | 
             mesh.sample(fused_filled.voxel_size / 2), reference, scene_depth)),
     }
     document["scene_depth_m"] = scene_depth
+    document["gain_over_best_view"] = {
+        name: _gain(document["global"][name], views, reference, scene_depth)
+        for name, views in (("semidense", semidense), ("filled", filled))}
     return nearest_distances(fused.points, reference)
+
+
+def _gain(fused: dict | None, views: list[DepthView | None], reference: np.ndarray,
+          scene_depth: float) -> dict | None:
+    """The fused map against the best single key view, both scored against the same (global)
+    exact surface: the view with the highest F-score at the largest tau, its scores, and the
+    fused map's recall over that view's at each tau and its accuracy and completeness changes
+    (cm; negative: better). None without a fused map or a view."""
+    scored = [(k, cloud_scores(view.points_world(), reference, scene_depth))
+              for k, view in enumerate(views) if view is not None]
+    if fused is None or not scored:
+        return None
+    widest = f"fscore_{round(100 * max(TAUS_M))}cm"
+    best, scores = max(scored, key=lambda item: item[1][widest])
+    gain: dict = {"view": best, "view_scores": scores}
+    for tau in TAUS_M:
+        key = f"recall_{round(100 * tau)}cm"
+        gain[f"recall_ratio_{round(100 * tau)}cm"] = (fused[key] / scores[key] if scores[key]
+                                                      else None)
+    for key in ("accuracy_cm", "completeness_cm"):
+        both = fused[key] is not None and scores[key] is not None
+        gain[f"{key.removesuffix('_cm')}_change_cm"] = fused[key] - scores[key] if both else None
+    return gain
 
 
 def _trajectory_positions(sequence: Sequence, jobs: list[_Job]) -> np.ndarray:
