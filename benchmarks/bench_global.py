@@ -1,0 +1,135 @@
+"""The global map (``evfuse map-global``, issue 25): time, memory and F-scores on long windows.
+
+For each case (:data:`CASES`: ``slider_close`` over its whole 6.5 s, ``boxes_6dof`` over 6 s),
+the window is simulated once into a cache folder (``runs/bench_global``,
+:func:`sim.simulate.window.cached_window`) and mapped by
+:func:`fusion.globalmap.pipeline.map_global` with the defaults (key views at 10 % of the median
+depth or 10 degrees, the paper's fill, fusion with one other view agreeing within 2 %, the TSDF
+of the filled views). Reported per case:
+
+- time per key view (map and fill, median and total over the rounds), of the fusion, of the
+  TSDF and of the scoring; the key views, the rounds, the workers;
+- memory peak (MiB): the main process's and the largest worker's (``getrusage``);
+- F-score at 1, 2 and 5 cm (and accuracy, completeness) of the semi-dense, filled and TSDF maps
+  against the exact surface of the key views;
+- the gain of fusion over the best single view, both scored against the same exact surface:
+  the fused map's recall over the view's at 1, 2, 5 cm and its accuracy change (cm).
+
+``--quick``: 1-second windows (slider_close [0, 1] s, boxes_6dof [3.5, 4.5] s). The times are
+wall-clock seconds on whatever machine runs it (the table says how many cores); compare them
+only within one run.
+
+Run: ``PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_global.py [--quick] [--workers N]``.
+Results are printed and written to ``benchmarks/results/global.json`` (``global_quick.json``
+for ``--quick``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fusion.globalmap.pipeline import GlobalParams, map_global
+from scenes import resolve_scene
+from sim.scene import load_scene
+from sim.simulate.window import cached_window
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+CACHE = ROOT / "runs" / "bench_global"
+CASES = {"slider_close": (0.0, 6.5), "boxes_6dof": (0.0, 6.0)}
+"""Scene -> (start, length) in seconds: the issue's windows."""
+QUICK = {"slider_close": (0.0, 1.0), "boxes_6dof": (3.5, 1.0)}
+"""``--quick``'s windows."""
+
+
+def run_case(name: str, start: float, length: float, workers: int | None) -> dict:
+    """Simulate (cached) and map one case globally; the row of the table."""
+    scene = load_scene(resolve_scene(name))
+    tick = time.perf_counter()
+    folder = cached_window(scene, CACHE, name, start, length, progress=True)
+    simulate_s = time.perf_counter() - tick
+    with tempfile.TemporaryDirectory() as tmp:
+        document = map_global(folder, Path(tmp) / "global", GlobalParams(workers=workers),
+                              progress=True)
+    views = document["views"]
+    per_view = np.array([v["timings"]["map_s"] + v["timings"]["fill_s"] for v in views])
+    timings = document["timings"]
+    row = {
+        "scene": name, "window_s": [start, start + length], "simulate_s": simulate_s,
+        "key_views": len(views), "rounds": len(document["rounds"]),
+        "rounds_converged": document["rounds_converged"],
+        "workers": document["params"]["workers"] or os.cpu_count(),
+        "view_s_median": float(np.median(per_view)), "views_s_total": timings["map_fill_s"],
+        "fusion_s": timings["fusion_s"], "tsdf_s": timings["tsdf_s"],
+        "scoring_s": timings["scoring_s"], "total_s": timings["total_s"],
+        "memory_peak_mb": document["memory_peak_mb"],
+        "fused_points": document["fused"], "mesh": document["mesh"],
+        "scores": document["global"], "gain_over_best_view": document["gain_over_best_view"],
+        "views": [{"t_ref": v["t_ref"], "N1": v["N1"], "semidense": v["semidense"],
+                   "filled": v["filled"]} for v in views],
+    }
+    return row
+
+
+def _f(value: float | None, scale: float = 1.0, digits: int = 1) -> str:
+    return "-" if value is None else f"{scale * value:.{digits}f}"
+
+
+def print_table(rows: list[dict]) -> None:
+    """The rows as two tables: time and memory; scores and gain."""
+    print("\n| scene | window s | key views (rounds) | s per view (median) | views s | "
+          "fusion s | TSDF s | scoring s | memory MiB (main / worker) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        memory = r["memory_peak_mb"]
+        print(f"| {r['scene']} | {r['window_s'][0]:g}-{r['window_s'][1]:g} | {r['key_views']} "
+              f"({r['rounds']}) | {r['view_s_median']:.1f} | {r['views_s_total']:.1f} | "
+              f"{r['fusion_s']:.1f} | {r['tsdf_s']:.1f} | {r['scoring_s']:.1f} | "
+              f"{memory['main']:.0f} / {memory['largest_worker']:.0f} |")
+    print("\n| scene | map | accuracy cm | completeness cm | F 1 cm % | F 2 cm % | F 5 cm % | "
+          "recall x best view 1 / 2 / 5 cm | accuracy change cm |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        for name in ("semidense", "filled", "tsdf"):
+            m = r["scores"][name]
+            gain = (r["gain_over_best_view"] or {}).get(name)
+            ratios = "-" if gain is None else " / ".join(
+                _f(gain[f"recall_ratio_{x}cm"], digits=2) for x in (1, 2, 5))
+            change = "-" if gain is None else _f(gain["accuracy_change_cm"], digits=2)
+            if m is None:
+                print(f"| {r['scene']} | {name} | - | - | - | - | - | - | - |")
+                continue
+            print(f"| {r['scene']} | {name} | {_f(m['accuracy_cm'], digits=2)} | "
+                  f"{_f(m['completeness_cm'], digits=2)} | {_f(m['fscore_1cm'], 100)} | "
+                  f"{_f(m['fscore_2cm'], 100)} | {_f(m['fscore_5cm'], 100)} | {ratios} | "
+                  f"{change} |")
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="1-second windows")
+    parser.add_argument("--scenes", default=None, help="comma-separated subset of the cases")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="key views mapped at once (default: the machine's cores)")
+    args = parser.parse_args(argv)
+    cases = QUICK if args.quick else CASES
+    names = args.scenes.split(",") if args.scenes else list(cases)
+    rows = [run_case(name, *cases[name], args.workers) for name in names]
+    print_table(rows)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / ("global_quick.json" if args.quick else "global.json")
+    path.write_text(json.dumps({"cores": os.cpu_count(), "rows": rows}, indent=2,
+                               default=float))
+    print(f"written to {path}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
