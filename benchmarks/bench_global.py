@@ -64,6 +64,7 @@ def run_case(name: str, start: float, length: float, workers: int | None) -> dic
     row = {
         "scene": name, "window_s": [start, start + length], "simulate_s": simulate_s,
         "key_views": len(views), "rounds": len(document["rounds"]),
+        "selection": document["rounds"],
         "rounds_converged": document["rounds_converged"],
         "workers": document["params"]["workers"] or os.cpu_count(),
         "view_s_median": float(np.median(per_view)), "views_s_total": timings["map_fill_s"],
