@@ -14,6 +14,7 @@ from fusion.globalmap.pipeline import (
     GlobalParams,
     _filled_view,
     _semidense_view,
+    _sequence_folder,
     sequence_poses,
 )
 from fusion.pipeline import fill_window
@@ -250,3 +251,17 @@ def test_run_global_simulates_the_scene_then_maps_it(tmp_path, capsys):
     meta = json.loads((out / "views" / "000" / "map" / "map.json").read_text())
     assert (out / "views" / "000" / "map" / meta["sequence"]).resolve() == (
         out / "sequence").resolve()
+
+
+def test_the_source_may_be_a_run_folder(plane_sequence, tmp_path, capsys):
+    """evfuse map-global runs/boxes --out runs/boxes/global (the issue's command): a folder
+    written by evfuse run stands for the sequence its report.json names."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "report.json").write_text(json.dumps({"sequence": str(plane_sequence)}))
+    assert _sequence_folder(run) == plane_sequence
+    assert _sequence_folder(plane_sequence) == plane_sequence
+    with pytest.raises(ValueError, match="nor a folder written by evfuse run"):
+        _sequence_folder(tmp_path)
+    assert run_cli(["map-global", str(tmp_path), "--out", str(tmp_path / "g")]) == 2
+    assert "not a sequence folder" in capsys.readouterr().err

@@ -62,7 +62,14 @@ from fusion.io import to_json, write_mesh_ply, write_ply
 from fusion.map.dsi_range import resolve_dsi_range
 from fusion.map.emvs import DepthMapParams
 from fusion.map.mapping import time_window
-from fusion.pipeline import RunParams, _simulate_window, fill_window, is_sequence_folder, map_window
+from fusion.pipeline import (
+    RunParams,
+    _simulate_window,
+    fill_window,
+    is_sequence_folder,
+    map_window,
+    run_sources,
+)
 from sim.camera import Camera
 from sim.eventio import iter_event_chunks
 from sim.exr import read_depth
@@ -165,7 +172,8 @@ def map_global(source: str | Path, out: str | Path, params: GlobalParams | None 
     Parameters
     ----------
     source : str or Path
-        A sequence folder (simulated, or a real ECD recording).
+        A sequence folder (simulated, or a real ECD recording), or a folder ``evfuse run``
+        wrote (its sequence is mapped; ``out`` may then lie in it).
     out : str or Path
         Folder to write: ``views/NNN/map``, ``views/NNN/fill``, ``global.ply``,
         ``global_filled.ply``, ``mesh.ply``, ``global.png``, ``global.json`` (and
@@ -191,15 +199,27 @@ def map_global(source: str | Path, out: str | Path, params: GlobalParams | None 
         the source, or an existing ``out`` without ``overwrite`` (before any work).
     """
     params = params or GlobalParams()
-    if not is_sequence_folder(source):
-        raise ValueError(f"{source}: not a sequence folder (calib.txt, images.txt, events and "
-                         "groundtruth.txt); simulate a scene first, or use evfuse run SCENE "
-                         "--global")
+    source = _sequence_folder(source)
     resolve_method(params.method, params.dense, params.method_params)        # up front
     check_output_dir(out, overwrite, [source])
     with atomic_output_dir(out, overwrite=overwrite, inputs=[source],
                            command="evfuse map-global") as tmp:
         return _map_global(Path(source), tmp, params, progress, {})
+
+
+def _sequence_folder(source: str | Path) -> Path:
+    """The sequence folder of ``source``: itself, or the one an ``evfuse run`` folder's
+    ``report.json`` names (so that ``evfuse map-global runs/boxes --out runs/boxes/global``
+    maps the sequence that run simulated)."""
+    source = Path(source)
+    if is_sequence_folder(source):
+        return source
+    sequence = [path for path in run_sources(source)[1:] if is_sequence_folder(path)]
+    if sequence:
+        return sequence[0]
+    raise ValueError(f"{source}: not a sequence folder (calib.txt, images.txt, events and "
+                     "groundtruth.txt) nor a folder written by evfuse run; simulate a scene "
+                     "first, or use evfuse run SCENE --global")
 
 
 def run_global(scene: str | Path, out: str | Path, t0: float | None = None,
