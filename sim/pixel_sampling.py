@@ -619,6 +619,24 @@ def _max_met_slopes(pix, times, levels, bound, scale, n_pixels):  # pragma: no c
     return out
 
 
+@numba.njit(cache=True)
+def _breaking_intervals(pix, levels, bound, scale):  # pragma: no cover - compiled
+    """Indices ``i`` of the intervals ``(i, i + 1)`` within one pixel whose (scaled) change
+    ``|levels[i + 1] - levels[i]|`` exceeds ``bound``; ``scale`` empty: all thresholds equal."""
+    scaled = scale.shape[0] > 0
+    out = np.empty(max(pix.shape[0] - 1, 0), np.int64)
+    count = 0
+    for i in range(pix.shape[0] - 1):
+        p = pix[i]
+        if pix[i + 1] != p:
+            continue
+        change = abs(levels[i + 1] - levels[i])
+        if (change * scale[p] if scaled else change) > bound:
+            out[count] = i
+            count += 1
+    return out[:count]
+
+
 @numba.njit(cache=True, parallel=True)
 def _insert_samples(pix, times, levels, lums, at, new_p, new_t, new_l, new_y):  # pragma: no cover
     """``np.insert(a, at, new_a)`` of the four arrays at once (``at`` non-decreasing: each new
@@ -779,16 +797,16 @@ def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.
     ``bound`` on the change scaled by ``scale``) at its midpoint, level by level (one launch
     per level, only the intervals still breaking it); then merge the midpoints into the
     samples, which stay sorted by pixel and time."""
-    same = pix[1:] == pix[:-1]
-    index = np.flatnonzero(same & (_scaled(np.abs(np.diff(levels)), pix[:-1], scale) > bound))
-    # The intervals still to split: pixel, start time and level, end time and level.
-    p, ta, la, tb, lb = pix[index], times[index], levels[index], times[index + 1], \
-        levels[index + 1]
+    index = _breaking_intervals(pix, levels, bound, np.empty(0) if scale is None else scale)
+    # The intervals still to split: pixel, start time and level, end time and level, and the
+    # sample the original interval starts at (each of its midpoints goes in after it).
+    p, ta, la, tb, lb, o = pix[index], times[index], levels[index], times[index + 1], \
+        levels[index + 1], index
     found: list[tuple[np.ndarray, ...]] = []
     while len(p):
         splittable = tb - ta >= 2 * dt_min_ns
         stats.at_max_rate += int(np.count_nonzero(~splittable))
-        p, ta, la, tb, lb = (a[splittable] for a in (p, ta, la, tb, lb))
+        p, ta, la, tb, lb, o = (a[splittable] for a in (p, ta, la, tb, lb, o))
         if not len(p):
             break
         mt = (ta + tb) // 2
@@ -799,19 +817,17 @@ def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.
         share = np.abs(ml - la) / np.abs(lb - la)
         continuous = (share > SPLIT) & (share < 1 - SPLIT)
         stats.steps += int(np.count_nonzero(~continuous))
-        found.append((p, mt, ml, my))
+        found.append((p, mt, ml, my, o))
         first = _scaled(np.abs(ml - la), p, scale) > bound
         second = _scaled(np.abs(lb - ml), p, scale) > bound
-        p, ta, la, tb, lb = (np.concatenate([x[first], y[second]]) for x, y in (
-            (p, p), (ta, mt), (la, ml), (mt, tb), (ml, lb)))
+        p, ta, la, tb, lb, o = (np.concatenate([x[first], y[second]]) for x, y in (
+            (p, p), (ta, mt), (la, ml), (mt, tb), (ml, lb), (o, o)))
     if not found:
         return pix, times, levels, lums
-    new_p, new_t, new_l, new_y = (np.concatenate(parts) for parts in zip(*found, strict=True))
-    # Samples sorted by (pixel, time): one key, then one insertion per array.
-    origin, span = int(times.min()), int(times.max() - times.min()) + 1
-    key = pix * span + (times - origin)
-    new_key = new_p * span + (new_t - origin)
-    order = np.argsort(new_key)
-    at = np.searchsorted(key, new_key[order])
-    return _insert_samples(pix, times, levels, lums, at, new_p[order], new_t[order],
-                           new_l[order], new_y[order])
+    new_p, new_t, new_l, new_y, new_o = (np.concatenate(parts)
+                                         for parts in zip(*found, strict=True))
+    # Samples sorted by (pixel, time): a midpoint lies strictly inside its original interval,
+    # so it goes in before sample new_o + 1, the midpoints of one interval in time order.
+    order = np.lexsort((new_t, new_o))
+    return _insert_samples(pix, times, levels, lums, new_o[order] + 1, new_p[order],
+                           new_t[order], new_l[order], new_y[order])
