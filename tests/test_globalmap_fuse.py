@@ -171,7 +171,7 @@ def _two_walls(depth_j, tx=0.0, depth_i=2.0, camera=None):
 
 
 @pytest.mark.parametrize("sign", [1.0, -1.0])
-def test_depth_tolerance_is_relative_to_the_other_views_depth_and_inclusive(sign):
+def test_depth_tolerance_is_relative_to_the_other_views_depth(sign):
     tol = 0.02
     params = FusionParams(depth_tolerance=tol, search_radius=0)
     for factor, agrees in ((1 - 1e-4, True), (1 + 1e-4, False)):
@@ -250,12 +250,28 @@ def test_points_in_one_voxel_merge_to_their_mean():
     assert cloud.view.tolist() == [0, 0] and cloud.support.tolist() == [1, 1]
 
 
+def test_a_voxels_support_is_the_most_views_that_agreed_on_any_of_its_points():
+    camera = Camera(4, 1, 1.0, 1.0, 1.5, 0.0)
+    T = _pose([0, 0, 0], [10.0, 0.0, 0.0])                      # all in voxel (0, 0, 0)
+    a = DepthView(np.full((1, 4), 1.0, np.float32), camera, T)
+    b = DepthView(np.array([[0.0, 0.0, 0.0, 1.0]], np.float32), camera, T)
+    params = FusionParams(min_views=0, search_radius=0, voxel_size=100.0)
+    assert agreement_counts([a, b], params)[0].tolist() == [0, 0, 0, 1]
+    cloud = fuse_views([a, b], params)                           # one voxel holds all
+    assert cloud.support.tolist() == [2] and cloud.view.tolist() == [0]
+    np.testing.assert_allclose(cloud.points, [[10.3, 0.0, 1.0]])  # x = 10 + mean(-1.5 .. 1.5, 1.5)
+
+
 def test_fuse_into_view_is_denser_and_lands_at_the_exact_depth():
     views = _views()
     exact = _room_depth(views[0].camera, views[0].T_world_cam)
     sparse = np.zeros_like(views[0].depth)
     sparse[::4, ::4] = views[0].depth[::4, ::4]                  # a semi-dense reference map
     views[0] = DepthView(sparse, views[0].camera, views[0].T_world_cam)
+    spurious = views[1].depth.copy()                             # off the walls, view 1 only
+    spurious[np.random.default_rng(2).integers(0, 120, 80),
+             np.random.default_rng(3).integers(0, 160, 80)] *= 0.8
+    views[1] = DepthView(spurious, views[1].camera, views[1].T_world_cam)
     params = FusionParams(min_views=1)
     own = agreement_counts(views, params)[0] >= 1
     fused = fuse_into_view(views, 0, params)
@@ -289,7 +305,8 @@ def test_view_agreement_returns_a_known_depth_offset():
     assert pair["overlap_points"] > 10_000
     assert pair["median_abs_difference_m"] == pytest.approx(offset, rel=0.05)
     assert report["median_abs_difference_m"] == pytest.approx(offset, rel=0.05)
-    assert pair["median_rel_difference"] == pytest.approx(offset / 2.0, rel=0.25)
+    typical = np.median(np.concatenate([v.depth[v.valid] for v in views]))
+    assert pair["median_rel_difference"] == pytest.approx(offset / typical, rel=0.05)
     assert 0 < report["confirmed_points"] <= report["points"]
     assert report["confirmed_share"] == report["confirmed_points"] / report["points"]
     assert pair["agreeing_share"] == pair["agreeing_points"] / pair["overlap_points"]
@@ -313,3 +330,14 @@ def test_views_must_be_depth_views():
         agreement_counts([np.zeros((2, 2))], FusionParams())
     with pytest.raises(ParameterError, match="ref must be the index"):
         fuse_into_view(_views(n=1), 3, FusionParams())
+
+
+@pytest.mark.parametrize("other,expected", [(1.0, 1.0), (3.0, 2.0)])
+def test_fuse_into_view_keeps_the_nearest_depth_per_pixel(other, expected):
+    camera = Camera(40, 30, 40.0, 40.0, 19.5, 14.5)
+    own, theirs = np.zeros((30, 40), np.float32), np.zeros((30, 40), np.float32)
+    own[15, 20], theirs[15, 20], theirs[5, 7] = 2.0, other, 1.5
+    views = [DepthView(own, camera, np.eye(4)), DepthView(theirs, camera, np.eye(4))]
+    fused = fuse_into_view(views, 0, FusionParams(min_views=0))
+    assert fused[15, 20] == pytest.approx(expected) and fused[5, 7] == pytest.approx(1.5)
+    assert np.count_nonzero(fused) == 2
