@@ -341,3 +341,18 @@ def test_fuse_into_view_keeps_the_nearest_depth_per_pixel(other, expected):
     fused = fuse_into_view(views, 0, FusionParams(min_views=0))
     assert fused[15, 20] == pytest.approx(expected) and fused[5, 7] == pytest.approx(1.5)
     assert np.count_nonzero(fused) == 2
+
+
+def test_precomputed_counts_give_the_same_results_and_are_checked():
+    views = _views(noise=1.0)
+    params = FusionParams(min_views=2, depth_tolerance=0.03)
+    counts = agreement_counts(views, params)
+    a, b = fuse_views(views, params), fuse_views(views, params, counts=counts)
+    np.testing.assert_array_equal(a.points, b.points)
+    np.testing.assert_array_equal(a.support, b.support)
+    np.testing.assert_array_equal(fuse_into_view(views, 1, params),
+                                  fuse_into_view(views, 1, params, counts=counts))
+    zero = [np.zeros_like(c) for c in counts]                    # the counts are what is used
+    assert len(fuse_views(views, params, counts=zero).points) == 0
+    with pytest.raises(ParameterError, match="counts must hold one count per point"):
+        fuse_views(views, params, counts=counts[:2])
