@@ -141,6 +141,75 @@ def test_the_fused_cloud_lies_on_the_walls_within_one_plane_spacing():
     assert loose.support.min() == 1
 
 
+BOX_LO, BOX_HI, WALL_Z = np.array([-0.3, -0.25, 1.2]), np.array([0.3, 0.25, 1.7]), 2.6
+
+
+def _box_and_wall_depth(camera, T):
+    """Exact z-depth of a box standing before a wall (z = WALL_Z) through every pixel centre:
+    the nearer of the ray's entry into the box (slab method) and its hit on the wall."""
+    xy = camera.normalized_pixel_centres().reshape(-1, 2)
+    rays = np.concatenate([xy, np.ones((len(xy), 1))], 1) @ T[:3, :3].T
+    o = T[:3, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (BOX_LO - o) / rays, (BOX_HI - o) / rays
+        near = np.nanmax(np.minimum(t1, t2), axis=1)
+        far = np.nanmin(np.maximum(t1, t2), axis=1)
+        wall = np.where(rays[:, 2] > 0, (WALL_Z - o[2]) / rays[:, 2], np.inf)
+    box = np.where((near <= far) & (near > 0), near, np.inf)
+    return np.minimum(box, wall).reshape(camera.height, camera.width)
+
+
+def _box_and_wall_distance(points):
+    q = np.abs(points - (BOX_LO + BOX_HI) / 2) - (BOX_HI - BOX_LO) / 2
+    box = np.abs(np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0))
+    return np.minimum(box, np.abs(points[:, 2] - WALL_Z))
+
+
+def test_views_of_a_box_before_a_wall_fuse_onto_the_box_and_the_wall():
+    # seen from outside, the box hides part of the wall from each view: occlusion is real here
+    poses = [_pose([0.0, 0.12, 0.0], [-0.3, 0.0, 0.0]),
+             _pose([0.05, -0.1, 0.02], [0.3, 0.1, 0.05])]
+    cameras = [PINHOLE, DISTORTED]
+    rng = np.random.default_rng(4)
+    views = []
+    for camera, T in zip(cameras, poses, strict=True):
+        depth = _box_and_wall_depth(camera, T)
+        depth = depth + rng.uniform(-0.5, 0.5, depth.shape) * _spacing(depth)
+        views.append(DepthView(depth.astype(np.float32), camera, T))
+    for view in views:                                           # the test's reference
+        exact = _box_and_wall_depth(view.camera, view.T_world_cam).astype(np.float32)
+        assert _box_and_wall_distance(
+            DepthView(exact, view.camera, view.T_world_cam).points_world()).max() < 1e-5
+    depth = views[0].depth.copy()
+    depth[rng.integers(5, 115, 60), rng.integers(5, 155, 60)] *= 0.8   # spurious, view 0 only
+    views[0] = DepthView(depth, views[0].camera, views[0].T_world_cam)
+    params = FusionParams(min_views=1, depth_tolerance=0.03)
+    cloud = fuse_views(views, params)
+    z = np.array([to_camera(p[None], views[v].T_world_cam)[0, 2]
+                  for p, v in zip(cloud.points, cloud.view, strict=True)])
+    assert len(cloud.points) > 10_000
+    assert np.all(_box_and_wall_distance(cloud.points) <= _spacing(z))
+    on_box = _box_and_wall_distance(cloud.points) < np.abs(cloud.points[:, 2] - WALL_Z)
+    assert np.count_nonzero(on_box) > 1000
+    # a wall point of view 0 that the box hides from view 1 is not confirmed by view 1
+    counts = agreement_counts(views, params)[0]
+    wall = views[0].points_world()
+    local = to_camera(wall, poses[1])
+    uv = DISTORTED.project(local)
+    inside = DISTORTED.in_image(uv)
+    seen_depth = np.full(len(wall), np.nan)
+    col, row = np.round(uv[inside]).astype(int).T
+    exact1 = np.pad(_box_and_wall_depth(DISTORTED, poses[1]), 2, mode="edge")
+    farthest = np.max([exact1[2 + dy:122 + dy, 2 + dx:162 + dx]                # 5x5 window
+                       for dy in range(-2, 3) for dx in range(-2, 3)], axis=0)
+    seen_depth[inside] = farthest[row, col]                     # the box all around it in 1
+    hidden = inside & (np.abs(wall[:, 2] - WALL_Z) < 0.05) & (seen_depth < local[:, 2] - 0.3)
+    assert np.count_nonzero(hidden) > 100
+    assert np.all(counts[hidden] == 0)
+    loose = fuse_views(views, FusionParams(min_views=0, depth_tolerance=0.03))
+    assert np.count_nonzero(_box_and_wall_distance(loose.points) > 0.1) >= 50
+
+
 def test_a_point_seen_by_one_view_only_is_dropped_at_k_1_and_kept_at_k_0():
     views = _views(n=2)
     points = views[0].points_world()
