@@ -32,9 +32,13 @@ caller fusing into every key view computes them once.
 Merging: the kept points are binned in cubic voxels of ``voxel_size`` (aligned to the world
 origin); each occupied voxel gives the mean of its points, which lies in the voxel (within
 ``sqrt(3) voxel_size`` of each point merged) and on the surface where the voxel's points lie on
-one plane (a mean of coplanar points). The default voxel is one pixel's footprint at the views'
-typical depth: the median over views of ``median depth / fx`` (:func:`default_voxel_size`),
-so merging thins the cloud to about one point per pixel of the views' resolution, no coarser.
+one plane (a mean of coplanar points); where it straddles an edge of two faces, the mean is
+off the nearer face by at most half the voxel's extent along that face's normal (the smaller
+face's share, at most 1/2, times its points' distance to the other plane): ``voxel_size / 2``
+for the faces of an axis-aligned box, ``sqrt(3) voxel_size / 2`` at worst. The default voxel
+is one pixel's footprint at the views' typical depth: the median over views of ``median depth
+/ fx`` (:func:`default_voxel_size`), so merging thins the cloud to about one point per pixel of
+the views' resolution, no coarser.
 """
 
 from __future__ import annotations
