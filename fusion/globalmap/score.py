@@ -47,7 +47,7 @@ RELATIVE_TAU = 0.01
 
 # --- the exact surface --------------------------------------------------------------------------
 
-def exact_view(sequence: Sequence, t_ref: float) -> DepthView | None:
+def exact_view(sequence: Sequence, t_ref: float, supersample: int = 1) -> DepthView | None:
     """The exact depth of the key view at ``t_ref``, with the camera and pose it is exact in.
 
     Scoring only. The rule of a map's own scoring (:func:`fusion.map.mapping._exact_depth_view`,
@@ -60,14 +60,23 @@ def exact_view(sequence: Sequence, t_ref: float) -> DepthView | None:
     ----------
     sequence : Sequence
     t_ref : float, seconds, on the poses' clock (a key view's ``t_ref``)
+    supersample : int, >= 1
+        1 (default): the map's pixel grid (to compare depth maps pixel by pixel). ``n > 1``:
+        each pixel split into ``n x n`` (same field of view, rendered), a denser exact sampling
+        for :func:`exact_surface`: a point on the surface is then nearer to a sample, so that
+        distances to the reference measure the map and not the reference's sampling (4 puts a
+        DAVIS240C's samples 1.9 mm apart at 1.5 m, 7.5 mm with 1).
 
     Returns
     -------
     DepthView or None
-        ``depth`` (H, W) float32 metres, 0 where no surface; ``camera`` the true undistorted
-        camera; ``T_world_cam`` the exact pose; ``t`` = ``t_ref``. None for a real recording.
+        ``depth`` (n H, n W) float32 metres, 0 where no surface; ``camera`` the true
+        undistorted camera (resampled by ``n``); ``T_world_cam`` the exact pose; ``t`` =
+        ``t_ref``. None for a real recording.
     """
-    exact = _exact_depth_view(sequence, t_ref)
+    if isinstance(supersample, bool) or int(supersample) != supersample or supersample < 1:
+        raise ValueError(f"supersample must be an integer >= 1, got {supersample!r}")
+    exact = _exact_depth_view(sequence, t_ref, int(supersample))
     if exact is None:
         return None
     depth, camera, pose = exact
@@ -101,7 +110,12 @@ def exact_surface(views: list[DepthView], spacing: float | None = None) -> np.nd
     ``spacing`` (origin at the world origin): of the points in a cube, the one nearest its centre
     is kept, an exact point (a mean would leave a curved surface or an edge). Bound: every point
     of the union lies within ``sqrt(3) spacing`` (the cube's diagonal) of a kept one, so a
-    distance measured to the thinned surface is at most that larger than to the union.
+    distance measured to the thinned surface is at most that larger than to the union. A point
+    of a fronto-parallel surface that the views see lies within half a pixel's diagonal of a
+    view's sample, so within ``(sqrt(2) / 2 + sqrt(3))`` footprints of the default surface
+    (measured on a plane seen by two overlapping views: at most 1.12, on average 0.39
+    footprints; the union alone 0.70 and 0.32). Denser views (:func:`exact_view`'s
+    ``supersample``) shrink the footprint and with it this bias of accuracy and precision.
 
     Parameters
     ----------

@@ -329,7 +329,7 @@ def _exact_reference(sequence: Sequence, t_ref: float
     return camera, pose, t_true, sensor.has_distortion
 
 
-def _exact_depth_view(sequence: Sequence, t_ref: float
+def _exact_depth_view(sequence: Sequence, t_ref: float, supersample: int = 1
                       ) -> tuple[np.ndarray, Camera, np.ndarray] | None:
     """Exact depth of the reference view with the camera and pose it is exact in, or None
     without a scene. Scoring only (:func:`_ground_truth_depth` of a map, and
@@ -350,10 +350,15 @@ def _exact_depth_view(sequence: Sequence, t_ref: float
     ----------
     sequence : Sequence
     t_ref : float, seconds, on the poses' clock (as ``map.json``'s ``t_ref``)
+    supersample : int, >= 1
+        Each pixel split into ``supersample x supersample`` (the same field of view,
+        :meth:`Camera.with_resolution`), always rendered: a denser exact sampling of the surface
+        (default 1: the map's own pixels).
 
     Returns
     -------
     depth : (H, W) float32 ndarray, metres, 0 where no surface
+        (``supersample`` times ``H`` and ``W``)
     camera : Camera
         The true camera, undistorted: ``depth``'s pixel grid.
     T_world_cam : (4, 4) float64 ndarray
@@ -364,8 +369,11 @@ def _exact_depth_view(sequence: Sequence, t_ref: float
     if reference is None:
         return None
     camera, pose, t_true, distorted = reference
+    n = int(supersample)
+    if n > 1:
+        camera = camera.with_resolution(n * camera.width, n * camera.height)
     k = None
-    if not distorted:
+    if not distorted and n == 1:
         from sim.capture_errors import true_time
 
         frames_offset = t_ref - true_time(sequence.metadata, t_ref, "frames")
