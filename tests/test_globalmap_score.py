@@ -126,6 +126,13 @@ def test_exact_surface_keeps_one_exact_point_per_cube_within_its_diagonal():
         kept = exact_surface(views, spacing)
         side = 0.02 if spacing is None else spacing                  # the footprint: 1 m / 50
         assert nearest_distances(kept, union).max() == 0.0           # exact points
+        best: dict = {}                         # per cube, the union's point nearest its centre
+        for point in union:
+            cube = tuple(np.floor(point / side).astype(int))
+            offset = np.linalg.norm(point - (np.array(cube) + 0.5) * side)
+            if cube not in best or offset < best[cube][0]:
+                best[cube] = (offset, point)
+        np.testing.assert_array_equal(kept, [best[c][1] for c in sorted(best)])
         cells = np.floor(kept / side).astype(np.int64)
         assert len(np.unique(cells, axis=0)) == len(kept)
         assert nearest_distances(union, kept).max() <= math.sqrt(3) * side

@@ -130,15 +130,24 @@ def exact_surface(views: list[DepthView], spacing: float | None = None) -> np.nd
     (M, 3) float64 ndarray, metres, world frame, ordered by cube (lexicographic cube index);
     (0, 3) without points.
     """
-    points = [v.points_world() for v in views]
-    points = np.concatenate(points) if points else np.empty((0, 3))
-    if len(points) == 0:
-        return np.empty((0, 3))
     if spacing is None:
         spacing = pixel_footprint(views)
+        if math.isnan(spacing):                          # no points at all
+            return np.empty((0, 3))
     spacing = float(spacing)
     if not (math.isfinite(spacing) and spacing > 0):
         raise ValueError(f"spacing must be a finite number > 0 metres, got {spacing}")
+    kept = np.empty((0, 3))
+    for view in views:              # one view at a time: memory of the surface and one view
+        kept = _thin(np.concatenate([kept, _thin(view.points_world(), spacing)]), spacing)
+    return kept
+
+
+def _thin(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Of the points in each cube of side ``spacing``, the one nearest its centre (the first
+    on a tie), ordered by cube. Thinning a union of thinned sets gives the union's thinning."""
+    if len(points) == 0:
+        return points
     cells = np.floor(points / spacing)
     offset = np.linalg.norm(points - (cells + 0.5) * spacing, axis=1)
     cells = cells.astype(np.int64)
