@@ -233,8 +233,8 @@ TURBO = cv2.applyColorMap(np.arange(256, dtype=np.uint8)[:, None], cv2.COLORMAP_
 
 def test_error_colours_are_turbo_from_zero_to_the_maximum_clipped():
     """0, 2, 10 and 30 cm with a 10 cm maximum: TURBO's levels 0, 51 (2/10 of 255), 255, 255."""
-    colours = error_colours([0.0, 0.02, 0.1, 0.3], 0.1)
-    np.testing.assert_array_equal(colours, TURBO[[0, 51, 255, 255]])
+    colours = error_colours([0.0, 0.02, 0.1, 0.3, math.inf], 0.1)
+    np.testing.assert_array_equal(colours, TURBO[[0, 51, 255, 255, 255]])
     assert error_colours([], 0.1).shape == (0, 3)
     with pytest.raises(ValueError, match="errors_m"):
         error_colours([math.nan], 0.1)
@@ -308,3 +308,6 @@ def test_the_figure_draws_empty_clouds_and_heights(points):
         assert figure.shape == FIGURE_SHAPE
     empty = draw_global_figure(np.empty((0, 3)), np.empty(0), TRAJECTORY, KEY_VIEWS, 0.1)
     assert empty.shape == FIGURE_SHAPE
+    no_reference = nearest_distances(GRID, np.empty((0, 3)))            # inf: the last colour
+    figure = draw_global_figure(GRID, no_reference, TRAJECTORY, KEY_VIEWS, 0.1)
+    assert figure.shape == FIGURE_SHAPE

@@ -272,7 +272,9 @@ def error_colours(errors_m: np.ndarray, max_error_m: float) -> np.ndarray:
 
     Parameters
     ----------
-    errors_m : (N,) array_like, metres, finite, >= 0
+    errors_m : (N,) array_like, metres, >= 0
+        ``inf`` allowed (no reference: :func:`nearest_distances`), drawn as any error above
+        ``max_error_m``; NaN refused.
     max_error_m : float, metres, > 0
 
     Returns
@@ -280,14 +282,17 @@ def error_colours(errors_m: np.ndarray, max_error_m: float) -> np.ndarray:
     (N, 3) uint8 ndarray, BGR
     """
     errors = np.asarray(errors_m, dtype=np.float64).reshape(-1)
-    if not np.isfinite(errors).all() or (errors < 0).any():
-        raise ValueError("errors_m must be finite distances >= 0 metres")
+    if np.isnan(errors).any() or (errors < 0).any():
+        raise ValueError("errors_m must be distances >= 0 metres (inf allowed), found NaN or "
+                         "negative values")
     max_error_m = float(max_error_m)
     if not (math.isfinite(max_error_m) and max_error_m > 0):
         raise ValueError(f"max_error_m must be a finite number > 0 metres, got {max_error_m}")
     if errors.size == 0:
         return np.empty((0, 3), np.uint8)
-    # error_image scores |depth - gt|: a row of depths 1 + e against 1 m is the error e
+    # error_image scores |depth - gt|: a row of depths 1 + e against 1 m is the error e (those
+    # above the maximum clipped first: the same last colour, and inf stays finite)
+    errors = np.minimum(errors, max_error_m)
     return error_image(1.0 + errors[None, :], np.ones((1, errors.size)), max_error_m)[0]
 
 
