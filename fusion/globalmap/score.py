@@ -4,13 +4,16 @@ DTU (Aanaes et al., "Large-Scale Data for Multiple-View Stereopsis", IJCV 2016) 
 Temples (Knapitsch et al., SIGGRAPH 2017) score a reconstructed point cloud against a dense
 reference cloud by nearest-neighbour distances both ways: *accuracy* (ours to the reference),
 *completeness* (the reference to ours), their mean (DTU's "overall", the Chamfer distance), and
-at a distance ``tau``: *precision* (share of our points within ``tau`` of the reference),
-*recall* (share of the reference within ``tau`` of ours) and their harmonic mean, the F-score.
+at a distance ``tau``: *precision* (share of our points nearer than ``tau`` to the
+reference), *recall* (share of the reference nearer than ``tau`` to ours) and their harmonic
+mean, the F-score.
 
-Here the reference is exact: the depth each key view's TRUE camera sees at the exact pose
-(:func:`exact_view`, the same rule as a map's own scoring), put in the world frame and thinned
-per voxel (:func:`exact_surface`) so that a surface that several views see is not counted
-several times. Scoring only: nothing here feeds the map.
+Here the reference is exact points: the depth each key view's TRUE camera sees at the exact
+pose (:func:`exact_view`, the same rule as a map's own scoring; rendered ``n x n`` per pixel
+for a denser sampling), put in the world frame and thinned per voxel (:func:`exact_surface`) so
+that a surface that several views see is not counted several times. A sampled surface is
+farther from a perfect point than the surface itself: :func:`exact_surface` states by how
+much. Scoring only: nothing here feeds the map.
 
 The figure (:func:`draw_global_figure`) and the error-coloured cloud (:func:`error_colours`,
 :func:`write_error_cloud`) show where the errors are. OpenCV draws everything (no matplotlib).
@@ -35,14 +38,17 @@ from sim.camera import Camera
 from sim.se3 import look_at
 from sim.sequence import Sequence
 
-__all__ = ["FIGURE_PANEL", "KEY_VIEW_COLOUR", "RELATIVE_TAU", "TAUS_M", "cloud_scores",
-           "draw_global_figure", "error_colours", "exact_surface", "exact_view",
+__all__ = ["FIGURE_PANEL", "KEY_VIEW_COLOUR", "RELATIVE_TAU", "SURFACE_SUPERSAMPLE", "TAUS_M",
+           "cloud_scores", "draw_global_figure", "error_colours", "exact_surface", "exact_view",
            "nearest_distances", "pixel_footprint", "write_error_cloud"]
 
 TAUS_M = (0.01, 0.02, 0.05)
 """Distances (m) at which precision, recall and F-score are given: 1, 2 and 5 cm."""
 RELATIVE_TAU = 0.01
 """A further ``tau``: this share of the scene depth (1 %: the keys ``*_rel1pct``)."""
+SURFACE_SUPERSAMPLE = 4
+"""The ``supersample`` of :func:`exact_view` for the views of a reference surface: a perfect
+point then scores about 1 mm (:func:`exact_view`), a tenth of the smallest ``tau``."""
 
 
 # --- the exact surface --------------------------------------------------------------------------
@@ -64,8 +70,12 @@ def exact_view(sequence: Sequence, t_ref: float, supersample: int = 1) -> DepthV
         1 (default): the map's pixel grid (to compare depth maps pixel by pixel). ``n > 1``:
         each pixel split into ``n x n`` (same field of view, rendered), a denser exact sampling
         for :func:`exact_surface`: a point on the surface is then nearer to a sample, so that
-        distances to the reference measure the map and not the reference's sampling (4 puts a
-        DAVIS240C's samples 1.9 mm apart at 1.5 m, 7.5 mm with 1).
+        distances to the reference measure the map and not the reference's sampling (4,
+        :data:`SURFACE_SUPERSAMPLE`, puts a DAVIS240C's samples 1.9 mm apart at 1.5 m, 7.5 mm
+        with 1). Measured on boxes_6dof (the exact view at 0.5 s, 43,200 perfect points, scored
+        against the exact surface of the views at 0.2, 0.45, 0.55 and 0.8 s): accuracy
+        0.447 cm and precision at 1 cm 0.981 with 1; 0.231 cm, 0.999 with 2; 0.112 cm, 1.000
+        with 4 (each render 240x180 x n^2 px of depth: 8 ms at n = 4 on 2 CPU cores).
 
     Returns
     -------
