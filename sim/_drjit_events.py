@@ -32,8 +32,12 @@ Exactness, against the numba kernel:
   refractory drop. Tested: the same number of events, each within 1 ns, on the reference
   test's noisy blocks (``tests/test_drjit_events.py``), and measured on recorded blocks of
   built-in scenes in ``benchmarks/bench_emulator.py``.
-- ``cuda`` evaluates the same float64 operations (IEEE, round to nearest), but is not
-  measured: no GPU was lent to this work.
+- ``cuda`` evaluates the same float64 operations, IEEE and rounded to nearest once Dr.Jit's
+  fast-math mode is off (:func:`pixel_events` turns it off for its launches: with it, CUDA's
+  division is approximate and the carried levels differed from the numba kernel's by up to
+  3 ulp, measured on an H200). Measured on an H200 with ``cuda_ad_rgb`` (2026-11-26): the
+  tests below pass there unchanged (bit for bit without the low-pass), and
+  ``benchmarks/bench_emulator.py`` found identical events on every recorded block.
 
 Each crossing's cause (signal or leak, :mod:`sim.noise`'s rule) is written beside it, as the
 numba kernels do. To add another per-event output: compute it where the crossing is written
@@ -393,6 +397,17 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
         False for the crossings the refractory period drops.
         In (pixel, time) order, as the numba kernel gives them.
     """
+    # Strict IEEE arithmetic on every device: Dr.Jit's default fast-math mode divides
+    # approximately on CUDA (measured on an H200: the carried levels then differed from the
+    # numba kernel's by up to 3 ulp) and folds ``a * 0`` to 0.
+    with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+        return _pixel_events(pix, t, L, cutoff, ref, level, raw, last_t, c_on, c_off, leak,
+                             normals, refractory, tolerance_ns, device, leak_free)
+
+
+def _pixel_events(pix, t, L, cutoff, ref, level, raw, last_t, c_on, c_off, leak, normals,
+                  refractory, tolerance_ns, device, leak_free):
+    """:func:`pixel_events`' body, under strict IEEE arithmetic."""
     m = _backend(device)
     if len(pix) == 0:
         return (np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.int8),

@@ -375,7 +375,8 @@ def test_a_closed_standard_output_ends_the_listing_quietly():
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    env = {**os.environ, "PYTHONPATH": str(root)}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(root)] + ([os.environ["PYTHONPATH"]] if os.environ.get("PYTHONPATH") else []))}
     child = subprocess.Popen([sys.executable, "-m", "fusion.cli", "methods", "--params"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=root)
     child.stdout.close()                 # the reader goes before the listing is written (| head)

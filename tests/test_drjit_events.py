@@ -2,11 +2,11 @@
 
 Both kernels see the same blocks (the reference test's random walks: several crossings per
 interval, both polarities, per-pixel thresholds, plus a pixel ramping up then down by five
-thresholds within one interval each); this machine runs Dr.Jit's ``llvm`` backend (every core),
-the ``cuda`` one is the same code on the GPU and is not run here. Without the photoreceptor
-low-pass the events and the state carried on are identical bit for bit (leak, refractory period,
-shot noise and hot pixels on); with it, within the bound the module states: the same events,
-each within 1 ns, the filtered level within 1e-12.
+thresholds within one interval each); on a CPU Dr.Jit's ``llvm`` backend (every core), on a GPU
+machine with ``cuda_ad_rgb`` active its ``cuda`` one (run there on an H200, 2026-11-26).
+Without the photoreceptor low-pass the events and the state carried on are identical bit for
+bit (leak, refractory period, shot noise and hot pixels on); with it, within the bound the
+module states: the same events, each within 1 ns, the filtered level within 1e-12.
 """
 
 from __future__ import annotations
@@ -115,8 +115,11 @@ def test_the_kernel_is_chosen_by_a_stated_rule():
     params = EventParams()
     with pytest.raises(ValueError, match="kernel must be one of"):
         PixelEventEmulator((2, 2), params, kernel="gpu")
-    # no cuda variant is active in the tests: auto is the numba kernel
-    assert PixelEventEmulator((2, 2), params).kernel == "numba"
+    # auto: the numba kernel, unless a cuda variant is active (the suite on a GPU machine)
+    from sim._drjit_events import active_device
+
+    expected = "drjit" if active_device() == "cuda" else "numba"
+    assert PixelEventEmulator((2, 2), params).kernel == expected
     emulator = PixelEventEmulator((2, 2), params, kernel="drjit")
     assert emulator.warm_up() > 0
     assert emulator.seconds == 0.0

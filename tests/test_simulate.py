@@ -72,13 +72,15 @@ def test_events_are_written_in_both_formats_and_agree(tiny_run):
     from_h5 = read_events(out / "events.h5", 64, 48)
     from_txt = read_events(out / "events.txt", 64, 48)
     np.testing.assert_array_equal(from_h5, from_txt)
-    meta = json.loads((out / "sequence.json").read_text())["events"]
+    document = json.loads((out / "sequence.json").read_text())
+    meta, variant = document["events"], document["render"]["variant"]
     assert meta["count"] == len(from_h5) == result.n_events > 50
     assert meta["on"] + meta["off"] == meta["count"] and meta["on"] == int((from_h5["p"] > 0).sum())
     # A static scene: sampled per pixel, in 10 ms blocks (min_rate 100 Hz) with a frame at each
     # end (every sub-sample, which also gives the prediction of the next block).
     assert meta["sampler"] == result.sampler == "pixel"
-    assert meta["emulator_kernel"] == "numba"           # auto on llvm_ad_rgb: the numba kernel
+    # auto: the numba kernel on llvm_ad_rgb, the Dr.Jit one on the GPU with cuda_ad_rgb
+    assert meta["emulator_kernel"] == ("drjit" if variant.startswith("cuda") else "numba")
     assert meta["blocks"] == 30 and meta["full_renders"] == 1 + 30 == result.event_renders
     assert meta["pixel_samples"] == result.event_pixel_samples      # a slow scene: few or none
     assert from_h5["t"][0] > 0 and from_h5["t"][-1] <= 0.3e9

@@ -219,8 +219,12 @@ def test_the_tables_point_lookup_is_mitsubas():
     mitsuba = mi.luminance(si.bsdf().eval_diffuse_reflectance(si, hit))
     textured = np.array(textured)
     assert textured.mean() > 0.8 and dr.width(filtered) == 96 * 72
+    # On cuda_* variants Mitsuba's bitmap reads through the GPU's texture units, whose bilinear
+    # weights have 8 fractional bits: within 1/256 of the exact lookup (texel values <= 1;
+    # measured on an H200: 0.0017). The table's lookup is the exact one on every variant.
+    atol = 1 / 256 if mi.variant().startswith("cuda") else 1e-6
     np.testing.assert_allclose(np.array(point)[textured], np.array(mitsuba)[textured],
-                               rtol=1e-4, atol=1e-6)
+                               rtol=1e-4, atol=atol)
     np.testing.assert_allclose(np.array(filtered)[textured], np.array(point)[textured],
                                rtol=1e-5, atol=1e-6)
 

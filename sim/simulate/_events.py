@@ -171,11 +171,12 @@ def _choose_sampler(scene: Scene, variant: str, requested: str | None) -> tuple[
 
 @contextmanager
 def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions: dict,
-                 seconds: float, progress: bool, depth: EventDepth | None, timings: dict):
+                 seconds: float, progress: bool, depth: EventDepth | None, timings: dict,
+                 cpu_render: bool = True):
     """The event stage's progress bar and event writers (resumed at ``positions``, behind
     :class:`sim.event_depth.EventOutputs`, which adds ``depth`` where a file holds it, and the
-    per-event labels with it: :mod:`sim.event_labels`), with the emulator on one thread; all
-    undone on exit."""
+    per-event labels with it: :mod:`sim.event_labels`), with numba's kernels on one thread
+    where the renders run on the CPU (``cpu_render``); all undone on exit."""
     camera = scene.camera
     bar = progress_stage(total=round(seconds, 6), desc=f"events {scene.name}", unit="s",
                          noun="s simulated", enabled=progress,
@@ -183,12 +184,14 @@ def _event_stage(scene: Scene, folder: Path, formats: tuple[str, ...], positions
                                     "[{elapsed}<{remaining}{postfix}]")
     with ExitStack() as stack:
         stack.callback(bar.close)
-        # Dr.Jit's worker threads stay busy between renders, and numba's parallel regions then
-        # fight them for the two cores (14 ms instead of 0.6 ms a step at 240x180): interleaved
-        # with rendering, the emulator runs on one thread.
-        threads = numba.get_num_threads()
-        numba.set_num_threads(1)
-        stack.callback(numba.set_num_threads, threads)
+        # On the CPU (llvm), Dr.Jit's worker threads stay busy between renders, and numba's
+        # parallel regions then fight them for the cores (14 ms instead of 0.6 ms a step at
+        # 240x180): interleaved with rendering, the emulator and the sampler's kernels run on one
+        # thread. On a GPU (cuda) the cores are free for them.
+        if cpu_render:
+            threads = numba.get_num_threads()
+            numba.set_num_threads(1)
+            stack.callback(numba.set_num_threads, threads)
         writers: dict[str, H5EventWriter | TextEventWriter] = {}
         labels = _labelled(formats, depth is not None)
         if "h5" in formats and depth is None:
@@ -470,7 +473,8 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                       EventDepth(event_camera.depth, start if resumed_at is None else resumed_at,
                                  objects=objects, objects_at=objects_at)
                       if event_depth else None,
-                      timings) as (bar, writers):
+                      timings, cpu_render=not renderer.variant.startswith("cuda")
+                      ) as (bar, writers):
         # The sampler's step splits into its renders (event_render), the emulator's own time
         # (emulate) and the rest: choosing the samples (event_sample).
         timings["emulate_compile"] += emulator.warm_up()

@@ -1,0 +1,418 @@
+"""Multi-view consistent fusion of key views' depth maps in the world frame (issue 25, parts 2a,
+2c and 4).
+
+A point of view ``i`` is *seen* by another view ``j`` when it lies in front of ``j``'s camera
+(z > 0), projects (:meth:`sim.camera.Camera.project`, distortion included) onto ``j``'s image
+(rounded to the nearest pixel, :func:`fusion.fill.projection.nearest_per_pixel`'s rule) and its
+undistorted normalised radius is within ``j``'s field of view (the largest radius of a pixel
+centre: a lens polynomial can fold points far outside the field back into the image). A seen
+point *agrees* with ``j`` when some point of ``j`` within ``search_radius`` pixels (a square
+window around the pixel it lands on) has ``|z_ij - depth_j| <= depth_tolerance * depth_j``,
+``z_ij`` the point's depth in ``j``. A point not seen by ``j`` (behind it, outside its image)
+neither agrees nor counts against; a point that ``j`` sees behind a nearer surface (occluded)
+finds only that surface's depth and does not agree.
+
+* :func:`agreement_counts`: per point, how many other views agree (the multi-view check).
+* :func:`fuse_views`: the points with at least ``min_views`` agreeing other views, merged per
+  voxel into one world-frame cloud (:class:`FusedCloud`).
+* :func:`fuse_into_view`: a reference view's own agreed points plus the others' agreed points
+  projected into its pixels (a z-buffer): a denser, consistency-checked map in one view.
+* :func:`view_agreement`: what a real recording can check without ground truth: the depth
+  difference of overlapping views and the share of points other views confirm.
+
+Cost: the match is a compiled kernel (numba) of ``(2 r + 1)^2`` look-ups per point and other
+view, ``O(sum_i N_i (V - 1) (2 r + 1)^2)`` for ``V`` views of ``N_i`` points and search radius
+``r``, after the same number of point projections in NumPy (``O(sum_i N_i (V - 1))``); memory
+``O(max_i N_i)`` per view pair beside the views themselves. Measured on 2 loaded cores
+(240x180 views of a room, r = 1): 10 views of 43,200 points in 0.20 s, 30 views of 10,800
+points in 0.61 s (50-65 ns per point and other view). :func:`fuse_views` and
+:func:`fuse_into_view` take the counts of :func:`agreement_counts` (``counts=``) so that a
+caller fusing into every key view computes them once.
+
+Merging: the kept points are binned in cubic voxels of ``voxel_size`` (aligned to the world
+origin); each occupied voxel gives the mean of its points, which lies in the voxel (within
+``sqrt(3) voxel_size`` of each point merged) and on the surface where the voxel's points lie on
+one plane (a mean of coplanar points); where it straddles an edge of two faces, the mean is
+off the nearer face by at most half the voxel's extent along that face's normal (the smaller
+face's share, at most 1/2, times its points' distance to the other plane): ``voxel_size / 2``
+for the faces of an axis-aligned box, ``sqrt(3) voxel_size / 2`` at worst. The default voxel
+is one pixel's footprint at the views' typical depth: the median over views of ``median depth
+/ fx`` (:func:`default_voxel_size`), so merging thins the cloud to about one point per pixel of
+the views' resolution, no coarser.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from fusion.fill.projection import nearest_per_pixel
+from fusion.globalmap.views import DepthView, to_camera
+from sim.camera import Camera
+from sim.validation import ParameterError, check_parameter, integer, positive
+
+__all__ = ["FusedCloud", "FusionParams", "agreement_counts", "default_voxel_size",
+           "fuse_into_view", "fuse_views", "view_agreement"]
+
+
+def _count(name: str, value: object) -> int:
+    return integer(name, value, 0)
+
+
+@dataclass(frozen=True)
+class FusionParams:
+    """Parameters of the multi-view consistency check and the merge.
+
+    Attributes
+    ----------
+    min_views : int
+        k: how many OTHER views must agree for a point to be kept (0 keeps every point).
+    depth_tolerance : float
+        Relative depth tolerance of an agreement: ``|z_seen - z_view| <= depth_tolerance *
+        z_view`` (default 0.02, 2 %).
+    search_radius : int, pixels
+        A projected point agrees with any point of the other view within this many pixels
+        (a square window around the pixel it lands on; semi-dense maps are thin edges).
+    voxel_size : float or None, metres
+        The merge voxel; None: :func:`default_voxel_size` of the views.
+    """
+
+    min_views: int = 1
+    depth_tolerance: float = 0.02
+    search_radius: int = 1
+    voxel_size: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "min_views", check_parameter(_count, "min_views",
+                                                              self.min_views))
+        object.__setattr__(self, "search_radius", check_parameter(_count, "search_radius",
+                                                                  self.search_radius))
+        object.__setattr__(self, "depth_tolerance", check_parameter(
+            positive, "depth_tolerance", self.depth_tolerance))
+        if self.voxel_size is not None:
+            object.__setattr__(self, "voxel_size", check_parameter(
+                positive, "voxel_size", self.voxel_size))
+
+
+@dataclass
+class FusedCloud:
+    """The fused point cloud.
+
+    Attributes
+    ----------
+    points : (N, 3) float64 ndarray, metres, world frame
+        One point per occupied voxel: the mean of the kept points in it.
+    support : (N,) int32 ndarray
+        The most views that agreed on a point merged into the voxel, the point's own view
+        included (``>= 1 + min_views``).
+    view : (N,) int32 ndarray
+        Index of the view the voxel's first point came from (views in order, then each view's
+        points in the order of :meth:`DepthView.pixels`).
+    voxel_size : float, metres
+        The merge voxel used (NaN when there was no point to derive it from).
+    """
+
+    points: np.ndarray
+    support: np.ndarray
+    view: np.ndarray
+    voxel_size: float
+
+
+def _check_views(views: list[DepthView]) -> list[DepthView]:
+    views = list(views)
+    if not views:
+        raise ParameterError("{views} is empty: fusion needs at least one depth view",
+                             views="views")
+    for index, view in enumerate(views):
+        if not isinstance(view, DepthView):
+            raise ParameterError(f"{{views}}[{index}] is a {type(view).__name__}, expected a "
+                                 "DepthView", views="views")
+    return views
+
+
+def default_voxel_size(views: list[DepthView]) -> float:
+    """The merge voxel from the data: one pixel's footprint at the views' typical depth.
+
+    The rule: the median over the views that hold points of ``median(depth) / fx``.
+
+    Parameters
+    ----------
+    views : list of DepthView
+
+    Returns
+    -------
+    float, metres
+        NaN when no view holds a point.
+    """
+    sizes = [float(np.median(view.depth[view.valid])) / view.camera.fx
+             for view in views if view.valid.any()]
+    return float(np.median(sizes)) if sizes else math.nan
+
+
+def _field_radius2(camera: Camera) -> float:
+    """The largest squared undistorted normalised radius of a pixel centre (inf without
+    distortion: a pinhole's projection never folds)."""
+    if not camera.has_distortion:
+        return math.inf
+    xy = camera.normalized_pixel_centres()
+    return float(np.nanmax(np.sum(xy * xy, axis=-1)))
+
+
+def _project(points_world: np.ndarray, view: DepthView, field_r2: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """World points in ``view``'s pixels: ``(uv (N, 2) float64, NaN where not seen; z (N,)
+    float64, the depth in the view)``; not seen: behind the camera, beyond its field."""
+    local = to_camera(points_world, view.T_world_cam)
+    z = local[:, 2]
+    uv = view.camera.project(local)
+    if math.isfinite(field_r2):
+        with np.errstate(all="ignore"):
+            r2 = (local[:, 0] ** 2 + local[:, 1] ** 2) / (z * z)
+        uv[~(r2 <= field_r2)] = np.nan
+    return uv, z
+
+
+@numba.njit(cache=True)
+def _match(col, row, z, depth, radius, tolerance, agree, nearest):  # pragma: no cover - compiled
+    """Per projected point (pixel ``(col, row)``, -1 where not seen, depth ``z``): ``agree``
+    whether a point of ``depth`` in the window of ``radius`` pixels is within ``tolerance *
+    depth``; ``nearest`` the depth of the window's point nearest the pixel (NaN: none)."""
+    height, width = depth.shape
+    for n in range(z.shape[0]):
+        agree[n] = False
+        nearest[n] = np.nan
+        c = col[n]
+        r = row[n]
+        if c < 0:
+            continue
+        zn = z[n]
+        best = np.inf
+        for y in range(max(r - radius, 0), min(r + radius + 1, height)):
+            for x in range(max(c - radius, 0), min(c + radius + 1, width)):
+                d = np.float64(depth[y, x])
+                if not d > 0.0:
+                    continue
+                if abs(zn - d) <= tolerance * d:
+                    agree[n] = True
+                dist2 = (x - c) * (x - c) + (y - r) * (y - r)
+                if dist2 < best:
+                    best = dist2
+                    nearest[n] = d
+
+
+def _pixels(uv: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest pixel of each projection (``nearest_per_pixel``'s rounding), -1 where it is not
+    on the image."""
+    with np.errstate(invalid="ignore"):
+        col, row = np.round(uv[:, 0]), np.round(uv[:, 1])
+        inside = (np.isfinite(col) & np.isfinite(row) & (col >= 0) & (col < camera.width)
+                  & (row >= 0) & (row < camera.height))
+    col = np.where(inside, col, -1).astype(np.int64)
+    row = np.where(inside, row, -1).astype(np.int64)
+    return col, row
+
+
+def _matches(views: list[DepthView], params: FusionParams):
+    """Yield ``(i, j, agree, nearest, z)`` for every ordered pair of distinct views: whether
+    each point of ``i`` agrees with ``j``, the depth of ``j``'s nearest point to where it lands
+    (NaN: not seen or no point of ``j`` in the window) and its depth in ``j``."""
+    points = [view.points_world() for view in views]
+    fields = [_field_radius2(view.camera) for view in views]
+    for i in range(len(views)):
+        n = len(points[i])
+        agree = np.empty(n, np.bool_)
+        nearest = np.empty(n, np.float64)
+        for j, other in enumerate(views):
+            if j == i:
+                continue
+            uv, z = _project(points[i], other, fields[j])
+            col, row = _pixels(uv, other.camera)
+            _match(col, row, np.ascontiguousarray(z), other.depth, params.search_radius,
+                   params.depth_tolerance, agree, nearest)
+            yield i, j, agree, nearest, z
+
+
+def agreement_counts(views: list[DepthView], params: FusionParams) -> list[np.ndarray]:
+    """How many other views agree with each point of each view.
+
+    Parameters
+    ----------
+    views : list of DepthView
+    params : FusionParams
+        ``depth_tolerance`` and ``search_radius`` are used.
+
+    Returns
+    -------
+    list of (N_i,) int32 ndarray
+        Per view, in the order of :meth:`DepthView.pixels`: the number of OTHER views that see
+        the point and hold a point within the tolerance near where it lands (0 to V - 1).
+    """
+    views = _check_views(views)
+    counts = [np.zeros(int(view.valid.sum()), np.int32) for view in views]
+    for i, _j, agree, _nearest, _z in _matches(views, params):
+        counts[i] += agree
+    return counts
+
+
+def _kept(views: list[DepthView], params: FusionParams,
+          counts: list[np.ndarray] | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per view: the kept points' mask and their support (count + 1, the point's own view
+    included); at k = 0 every point is kept. ``counts``: :func:`agreement_counts`' (computed
+    when None, checked against the views otherwise)."""
+    if counts is None:
+        counts = agreement_counts(views, params)
+    else:
+        counts = [np.asarray(c) for c in counts]
+        sizes = [int(view.valid.sum()) for view in views]
+        if [c.shape for c in counts] != [(n,) for n in sizes]:
+            raise ParameterError(f"{{counts}} must hold one count per point of each view, "
+                                 f"{sizes} points, got shapes {[c.shape for c in counts]}",
+                                 counts="counts")
+    keep = [c >= params.min_views for c in counts]
+    return keep, [c + 1 for c in counts]
+
+
+def fuse_views(views: list[DepthView], params: FusionParams, *,
+               counts: list[np.ndarray] | None = None) -> FusedCloud:
+    """The fused cloud: points that at least ``min_views`` other views agree with, merged per
+    voxel.
+
+    Parameters
+    ----------
+    views : list of DepthView
+    params : FusionParams
+    counts : list of (N_i,) int ndarray, optional
+        :func:`agreement_counts` of ``views`` with ``params``, if already computed.
+
+    Returns
+    -------
+    FusedCloud
+        One point per occupied voxel (the mean of its kept points), in the order of the voxels'
+        first points; points that cannot be back-projected (outside the lens model's invertible
+        range) are left out.
+    """
+    views = _check_views(views)
+    voxel = params.voxel_size if params.voxel_size is not None else default_voxel_size(views)
+    keep, support = _kept(views, params, counts)
+    points = np.concatenate([view.points_world()[k] for view, k in zip(views, keep, strict=True)])
+    sup = np.concatenate([s[k] for s, k in zip(support, keep, strict=True)]).astype(np.int32)
+    origin = np.concatenate([np.full(int(k.sum()), i, np.int32) for i, k in enumerate(keep)])
+    finite = np.isfinite(points).all(axis=1)
+    points, sup, origin = points[finite], sup[finite], origin[finite]
+    if len(points) == 0:
+        return FusedCloud(np.zeros((0, 3)), np.zeros(0, np.int32), np.zeros(0, np.int32),
+                          float(voxel))
+    keys = np.floor(points / voxel).astype(np.int64)
+    _, first, inverse, members = np.unique(keys, axis=0, return_index=True,
+                                           return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    merged = np.stack([np.bincount(inverse, weights=points[:, c]) for c in range(3)], 1)
+    merged /= members[:, None]
+    best = np.zeros(len(first), np.int32)
+    np.maximum.at(best, inverse, sup)
+    order = np.argsort(first, kind="stable")                # voxels in order of first point
+    return FusedCloud(merged[order], best[order], origin[first[order]], float(voxel))
+
+
+def fuse_into_view(views: list[DepthView], ref: int, params: FusionParams, *,
+                   counts: list[np.ndarray] | None = None) -> np.ndarray:
+    """A denser, consistency-checked depth map in one view: its own agreed points plus the
+    other views' agreed points projected into its pixels, the nearest per pixel.
+
+    Parameters
+    ----------
+    views : list of DepthView
+    ref : int
+        Index of the reference view in ``views``.
+    params : FusionParams
+        ``voxel_size`` is not used (no merge: each pixel holds one depth).
+    counts : list of (N_i,) int ndarray, optional
+        :func:`agreement_counts` of ``views`` with ``params``, if already computed.
+
+    Returns
+    -------
+    (H, W) float32 ndarray, metres
+        Depth in ``views[ref]``'s pixels; 0 where no point lands. A pixel where several points
+        land holds the nearest (a z-buffer), its own point included.
+    """
+    views = _check_views(views)
+    if isinstance(ref, bool) or not isinstance(ref, int | np.integer) or not (
+            -len(views) <= ref < len(views)):
+        raise ParameterError(f"{{ref}} must be the index of one of the {len(views)} views, "
+                             f"got {ref!r}", ref="ref")
+    ref = int(ref) % len(views)
+    keep, _ = _kept(views, params, counts)
+    target = views[ref]
+    own = np.zeros_like(target.depth)
+    uv = target.pixels()[keep[ref]]
+    own[uv[:, 1], uv[:, 0]] = target.depth[uv[:, 1], uv[:, 0]]
+    others = [views[i].points_world()[keep[i]] for i in range(len(views)) if i != ref]
+    if not others:
+        return own
+    uv, z = _project(np.concatenate(others), target, _field_radius2(target.camera))
+    projected = nearest_per_pixel(uv, z, target.camera)
+    return np.where((own > 0) & ((projected <= 0) | (own <= projected)), own,
+                    projected).astype(np.float32)
+
+
+def view_agreement(views: list[DepthView], params: FusionParams) -> dict:
+    """What a recording without ground truth can check: whether overlapping views agree.
+
+    For each pair of views ``a < b``, a point of either that the other sees and near which the
+    other holds a point is an *overlap point*; its difference is its depth in the other view
+    minus the depth of the other's point nearest where it lands (both directions pooled).
+
+    Parameters
+    ----------
+    views : list of DepthView
+    params : FusionParams
+        ``min_views``, ``depth_tolerance`` and ``search_radius`` are used.
+
+    Returns
+    -------
+    dict
+        ``pairs``: one entry per pair with overlap points, ``{"a", "b", "overlap_points",
+        "agreeing_points", "agreeing_share", "median_abs_difference_m",
+        "median_rel_difference"}`` (relative: to the other view's depth);
+        ``median_abs_difference_m`` and ``median_rel_difference`` over all overlap points
+        (NaN where there are none) with ``overlap_points``; ``points`` (all views' points),
+        ``confirmed_points`` (those with at least ``max(1, min_views)`` agreeing other views)
+        and ``confirmed_share``; ``min_views_confirmed``, the threshold used.
+    """
+    views = _check_views(views)
+    need = max(1, params.min_views)
+    counts = [np.zeros(int(view.valid.sum()), np.int32) for view in views]
+    pairs: dict[tuple[int, int], list] = {}
+    for i, j, agree, nearest, z in _matches(views, params):
+        counts[i] += agree
+        seen = np.isfinite(nearest)
+        entry = pairs.setdefault((min(i, j), max(i, j)), [[], [], 0])
+        entry[0].append(z[seen] - nearest[seen])
+        entry[1].append(nearest[seen])
+        entry[2] += int(np.count_nonzero(agree))
+    rows, all_abs, all_rel = [], [], []
+    for (a, b), (diffs, depths, agreeing) in sorted(pairs.items()):
+        diff, depth = np.concatenate(diffs), np.concatenate(depths)
+        if len(diff) == 0:
+            continue
+        abs_diff, rel = np.abs(diff), np.abs(diff) / depth
+        all_abs.append(abs_diff)
+        all_rel.append(rel)
+        rows.append({"a": a, "b": b, "overlap_points": len(diff), "agreeing_points": agreeing,
+                     "agreeing_share": agreeing / len(diff),
+                     "median_abs_difference_m": float(np.median(abs_diff)),
+                     "median_rel_difference": float(np.median(rel))})
+    abs_all = np.concatenate(all_abs) if all_abs else np.zeros(0)
+    rel_all = np.concatenate(all_rel) if all_rel else np.zeros(0)
+    points = int(sum(len(c) for c in counts))
+    confirmed = int(sum(int(np.count_nonzero(c >= need)) for c in counts))
+    return {"pairs": rows,
+            "overlap_points": len(abs_all),
+            "median_abs_difference_m": float(np.median(abs_all)) if len(abs_all) else math.nan,
+            "median_rel_difference": float(np.median(rel_all)) if len(rel_all) else math.nan,
+            "points": points, "confirmed_points": confirmed,
+            "confirmed_share": confirmed / points if points else math.nan,
+            "min_views_confirmed": need}
