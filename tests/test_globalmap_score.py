@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from fusion.figures import _TITLE_H
+from fusion.globalmap.fuse import default_voxel_size
 from fusion.globalmap.score import (
     FIGURE_PANEL,
     KEY_VIEW_COLOUR,
@@ -21,7 +22,6 @@ from fusion.globalmap.score import (
     exact_surface,
     exact_view,
     nearest_distances,
-    pixel_footprint,
     write_error_cloud,
 )
 from fusion.globalmap.views import DepthView
@@ -106,16 +106,6 @@ def _wall_view(x: float = 0.0, depth: float = 1.0, fx: float = 50.0, fy: float =
     return DepthView(np.full((30, 40), depth, np.float32), camera, pose)
 
 
-def test_pixel_footprint_is_the_median_depth_over_the_focal_length():
-    """fx 40, fy 60 (mean 50): half the pixels at 1 m (2 cm), half at 2 m (4 cm): median 3 cm."""
-    view = _wall_view(fx=40.0, fy=60.0)
-    depth = view.depth.copy()
-    depth[15:] = 2.0
-    assert pixel_footprint([DepthView(depth, view.camera, view.T_world_cam)]) == \
-        pytest.approx(0.03, rel=1e-12)
-    assert math.isnan(pixel_footprint([]))
-
-
 def test_exact_surface_keeps_one_exact_point_per_cube_within_its_diagonal():
     """Two overlapping views of the plane z = 1 (footprint 2 cm): the kept points are points of
     the union, no two share a cube of the spacing, and every point of the union lies within
@@ -138,6 +128,8 @@ def test_exact_surface_keeps_one_exact_point_per_cube_within_its_diagonal():
         assert nearest_distances(union, kept).max() <= math.sqrt(3) * side
         assert len(kept) < len(union)
         np.testing.assert_array_equal(exact_surface(views + [views[0]], spacing), kept)
+    # the default spacing is the fused cloud's merge voxel (here 1 m / 50 px)
+    assert default_voxel_size(views) == 0.02
     # one cube per footprint: the 2 views of 40x30 px overlap by 27.5 of their 40 columns
     assert len(exact_surface(views)) == pytest.approx(52.5 * 30, rel=0.1)
     assert exact_surface([]).shape == (0, 3)

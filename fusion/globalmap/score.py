@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fusion.figures import Legend, panel_grid
+from fusion.globalmap.fuse import default_voxel_size
 from fusion.globalmap.views import DepthView, to_camera
 from fusion.io import write_ply
 from fusion.map.mapping import _exact_depth_view
@@ -40,7 +41,7 @@ from sim.sequence import Sequence
 
 __all__ = ["FIGURE_PANEL", "KEY_VIEW_COLOUR", "RELATIVE_TAU", "SURFACE_SUPERSAMPLE", "TAUS_M",
            "cloud_scores", "draw_global_figure", "error_colours", "exact_surface", "exact_view",
-           "nearest_distances", "pixel_footprint", "write_error_cloud"]
+           "nearest_distances", "write_error_cloud"]
 
 TAUS_M = (0.01, 0.02, 0.05)
 """Distances (m) at which precision, recall and F-score are given: 1, 2 and 5 cm."""
@@ -74,7 +75,7 @@ def exact_view(sequence: Sequence, t_ref: float, supersample: int = 1) -> DepthV
         :data:`SURFACE_SUPERSAMPLE`, puts a DAVIS240C's samples 1.9 mm apart at 1.5 m, 7.5 mm
         with 1). Measured on boxes_6dof (the exact view at 0.5 s, 43,200 perfect points, scored
         against the exact surface of the views at 0.2, 0.45, 0.55 and 0.8 s): accuracy
-        0.447 cm and precision at 1 cm 0.981 with 1; 0.231 cm, 0.999 with 2; 0.112 cm, 1.000
+        0.446 cm and precision at 1 cm 0.981 with 1; 0.230 cm, 0.999 with 2; 0.111 cm, 1.000
         with 4 (each render 240x180 x n^2 px of depth: 8 ms at n = 4 on 2 CPU cores).
 
     Returns
@@ -91,25 +92,6 @@ def exact_view(sequence: Sequence, t_ref: float, supersample: int = 1) -> DepthV
         return None
     depth, camera, pose = exact
     return DepthView(depth, camera, pose, t=float(t_ref), name=f"exact {float(t_ref):.6g} s")
-
-
-def pixel_footprint(views: list[DepthView]) -> float:
-    """The median one-pixel footprint of the views' points: ``z / f`` metres (``f`` the mean of
-    the view's ``fx`` and ``fy``), the spacing at which a depth image samples a fronto-parallel
-    surface; NaN without points.
-
-    Parameters
-    ----------
-    views : list of DepthView
-
-    Returns
-    -------
-    float, metres
-    """
-    sizes = [v.depth[v.valid].astype(np.float64) / (0.5 * (v.camera.fx + v.camera.fy))
-             for v in views]
-    sizes = np.concatenate(sizes) if sizes else np.empty(0)
-    return float(np.median(sizes)) if sizes.size else math.nan
 
 
 def exact_surface(views: list[DepthView], spacing: float | None = None) -> np.ndarray:
@@ -132,8 +114,10 @@ def exact_surface(views: list[DepthView], spacing: float | None = None) -> np.nd
     views : list of DepthView
         Exact views (:func:`exact_view`), world frame by their poses.
     spacing : float, metres, > 0, optional
-        Side of the cubes. Default: :func:`pixel_footprint` of the views (the views' own
-        sampling: one view of a surface loses little, two views of it thin to about one).
+        Side of the cubes. Default: one pixel's footprint at the views' typical depth,
+        :func:`fusion.globalmap.fuse.default_voxel_size` (the fused cloud's merge voxel: the
+        views' own sampling, so one view of a surface loses little and two views of it thin to
+        about one).
 
     Returns
     -------
@@ -141,7 +125,7 @@ def exact_surface(views: list[DepthView], spacing: float | None = None) -> np.nd
     (0, 3) without points.
     """
     if spacing is None:
-        spacing = pixel_footprint(views)
+        spacing = default_voxel_size(views)
         if math.isnan(spacing):                          # no points at all
             return np.empty((0, 3))
     spacing = float(spacing)
