@@ -62,25 +62,17 @@ SIZE, FOCAL = (240, 180), 200.0
 
 # --- the analytic scene -------------------------------------------------------------------
 
-def look_at(eye, target=(0.0, 0.0, 0.05), up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """(4, 4) camera-to-world pose looking from ``eye`` at ``target`` (x right, y down)."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, np.cross(z, x), z], 1)
-    T[:3, 3] = eye
-    return T
-
-
 def ring_poses(count: int) -> list[np.ndarray]:
-    """``count`` poses on a ring of radius 1.0 m, 0.55-0.85 m above the floor."""
+    """``count`` poses on a ring of radius 1.0 m, 0.55-0.85 m above the floor, looking at a
+    point 5 cm above the floor's centre."""
+    from sim.se3 import look_at, make_pose
+
     poses = []
     for i in range(count):
         angle = 2 * np.pi * i / count
         height = 0.7 + 0.15 * np.sin(3 * angle)
-        poses.append(look_at((np.cos(angle), np.sin(angle), height)))
+        eye = (np.cos(angle), np.sin(angle), height)
+        poses.append(make_pose(look_at(eye, (0.0, 0.0, 0.05)), eye))
     return poses
 
 

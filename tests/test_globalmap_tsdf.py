@@ -20,6 +20,7 @@ from fusion.globalmap.tsdf import (
 from fusion.globalmap.views import DepthView, to_camera
 from fusion.io import read_mesh_ply, write_mesh_ply
 from sim.camera import Camera
+from sim.se3 import look_at, make_pose
 from sim.validation import ParameterError
 
 BOX_HALF = np.array([0.2, 0.15, 0.1])   # an axis-aligned box at the origin, metres
@@ -27,19 +28,9 @@ PLAIN = Camera(96, 72, 90.0, 90.0, 47.5, 35.5)
 DISTORTED = Camera(96, 72, 88.0, 92.0, 48.3, 35.1, distortion=(-0.25, 0.08, 0.002, -0.001, 0.0))
 
 
-def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """(4, 4) camera-to-world pose of a camera at ``eye`` looking at ``target`` (x right,
-    y down, z forward)."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], 1)
-    T[:3, 3] = eye
-    return T
+def pose_at(eye, target=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """(4, 4) camera-to-world pose of a camera at ``eye`` looking at ``target`` (z up)."""
+    return make_pose(look_at(eye, target), eye)
 
 
 def box_view(camera: Camera, T: np.ndarray) -> DepthView:
@@ -111,8 +102,8 @@ def seen(points: np.ndarray, view: DepthView, tolerance: float = 1e-3) -> np.nda
 
 @pytest.fixture(scope="module")
 def box_views() -> list[DepthView]:
-    return [box_view(PLAIN, look_at((0.9, -0.6, 0.7))),
-            box_view(DISTORTED, look_at((-0.7, -0.8, 0.5), target=(0.02, 0.01, -0.01)))]
+    return [box_view(PLAIN, pose_at((0.9, -0.6, 0.7))),
+            box_view(DISTORTED, pose_at((-0.7, -0.8, 0.5), target=(0.02, 0.01, -0.01)))]
 
 
 def test_box_mesh_lies_on_the_box_and_covers_the_seen_faces(box_views):
@@ -133,7 +124,7 @@ def test_box_mesh_lies_on_the_box_and_covers_the_seen_faces(box_views):
 def test_sphere_from_several_views_lies_on_the_sphere():
     centre, radius = np.array([0.1, -0.05, 0.02]), 0.25
     eyes = [(1.0, 0.0, 0.3), (0.0, 1.1, -0.2), (-0.9, -0.4, 0.4), (0.2, -1.0, -0.5)]
-    views = [sphere_view(DISTORTED if i % 2 else PLAIN, look_at(e, centre), centre, radius)
+    views = [sphere_view(DISTORTED if i % 2 else PLAIN, pose_at(e, centre), centre, radius)
              for i, e in enumerate(eyes)]
     lo, hi, voxel, _ = tsdf_grid(views)
     mesh = tsdf_mesh(views)
@@ -153,7 +144,7 @@ def test_the_kernel_reads_the_pixel_camera_project_gives():
     camera = DISTORTED
     index = np.arange(camera.height * camera.width).reshape(camera.height, camera.width)
     depth = (2.0 + 1e-4 * index).astype(np.float64)
-    view = DepthView(depth.astype(np.float32), camera, look_at((0.0, 0.0, 0.0), (0.1, 0.05, 1.0)))
+    view = DepthView(depth.astype(np.float32), camera, pose_at((0.0, 0.0, 0.0), (0.1, 0.05, 1.0)))
     lo, voxel = np.array([-0.7, -0.5, 1.75]), 0.05
     volume = TSDFVolume(lo, lo + [1.4, 1.0, 0.1], voxel, truncation=2.0)
     volume.integrate(view)
@@ -278,3 +269,17 @@ def test_mesh_ply_size_is_the_binary_layout(tmp_path):
     body = data[data.index(b"end_header\n") + len(b"end_header\n"):]
     assert len(body) == 4 * 12 + 2 * 13
     assert body[48:49] == b"\x03"
+
+
+def test_bench_tsdf_scene_depth_lies_on_its_surface_distance():
+    # benchmarks/bench_tsdf.py scores meshes with surface_distance: its own ray-cast points
+    # must be at distance 0 from it, and points off the surface at their known distance
+    from benchmarks.bench_tsdf import BALL, make_views, surface_distance
+
+    views = make_views(3)
+    points = np.concatenate([view.points_world() for view in views])
+    assert len(points) > 50_000
+    assert surface_distance(points).max() < 1e-6
+    centre, radius = BALL
+    probe = centre + np.array([[0.0, 0.0, radius + 0.01], [0.0, 0.0, 0.0]])
+    np.testing.assert_allclose(surface_distance(probe), [0.01, 0.13], atol=1e-12)
