@@ -283,3 +283,17 @@ def test_bench_tsdf_scene_depth_lies_on_its_surface_distance():
     centre, radius = BALL
     probe = centre + np.array([[0.0, 0.0, radius + 0.01], [0.0, 0.0, 0.0]])
     np.testing.assert_allclose(surface_distance(probe), [0.01, 0.13], atol=1e-12)
+
+
+def test_an_observation_of_weight_zero_leaves_the_voxel_unseen():
+    """A voxel first seen exactly at -truncation (weight 0) stays unseen, not NaN: a later view
+    then sets it (0 / 0 used to write a NaN that stayed, and marching cubes turned it into
+    non-finite vertices)."""
+    camera = Camera(8, 8, 8.0, 8.0, 3.5, 3.5)
+    volume = TSDFVolume((-0.125, -0.125, 0.0), (0.125, 0.125, 1.5), 0.125, 0.25)
+    k = 8                                                     # the voxels at z = 1.0 m
+    volume.integrate(DepthView(np.full((8, 8), 0.75, np.float32), camera, np.eye(4)))
+    assert np.all(volume.weight[:, :, k] == 0) and np.all(np.isfinite(volume.tsdf))
+    volume.integrate(DepthView(np.full((8, 8), 1.0, np.float32), camera, np.eye(4)))
+    assert np.all(np.isfinite(volume.tsdf))
+    np.testing.assert_allclose(volume.tsdf[:, :, k], 0.0, atol=1e-7)

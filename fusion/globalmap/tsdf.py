@@ -174,6 +174,10 @@ def _integrate(tsdf, weight, lo, voxel, truncation, R_cw, t_cw, fx, fy, cx, cy, 
                     sdf = truncation
                 # behind the surface the weight drops linearly to 0 at -truncation
                 observation = 1.0 if sdf >= 0.0 else 1.0 + sdf / truncation
+                if not observation > 0.0:
+                    # at -truncation (to rounding) the weight is 0: adding it to an unseen
+                    # voxel would write 0 / 0, a NaN that no later view could replace
+                    continue
                 w = weight[i, j, k]
                 tsdf[i, j, k] = (tsdf[i, j, k] * w + sdf * observation) / (w + observation)
                 weight[i, j, k] = w + observation
