@@ -246,7 +246,7 @@ def _print_global(document: dict, out: Path) -> None:
     """The global map's summary: key views, rounds, and the scores (or the views' agreement)."""
     rounds = document["rounds"]
     print(f"{document['key_views']} key views after {len(rounds)} round(s) of selection"
-          f"{'' if document['rounds_converged'] else ' (the last not re-checked)'}")
+          f"{'' if document['rounds_converged'] else ' (not settled: the last round stands)'}")
 
     def scores(m: dict | None) -> str:
         if m is None:

@@ -9,12 +9,14 @@ The one place where the global map's stages are wired together::
 
 Key views (:mod:`fusion.globalmap.keyviews`) are chosen on the poses of ``groundtruth.txt`` with
 a depth scale: first the DSI range's middle in inverse depth; once mapped, each key view's own
-median map depth. The views whose selection changes are re-mapped, for at most
-``GlobalParams.max_rounds`` rounds (recorded in ``global.json``'s ``rounds``). Each key view maps
-the events from the previous key view's time to the next's with its reference at the standard
-frame nearest it (:func:`fusion.pipeline.map_window`), fills with that frame
-(:func:`fusion.pipeline.fill_window`; a two-camera rig fills in the frame camera), in parallel
-over ``workers`` processes (``spawn``; numba's threads 1 in each).
+median map depth. The views whose selection changes are re-mapped until every view was
+selected with a depth scale within ``GlobalParams.depth_scale_tolerance`` of its own median
+depth (or the selection repeats), for at most ``GlobalParams.max_rounds`` rounds (recorded in
+``global.json``'s ``rounds``). Each key view maps the events from the previous key view's time
+to the next's with its reference at the standard frame nearest it
+(:func:`fusion.pipeline.map_window`), fills with that frame (:func:`fusion.pipeline.fill_window`;
+a two-camera rig fills in the frame camera), in parallel over ``workers`` processes (``spawn``;
+numba's threads 1 in each).
 
 A simulated sequence is scored against the exact surface of its key views
 (:mod:`fusion.globalmap.score`); a real recording (no exact depth) reports what can be checked
@@ -77,7 +79,7 @@ from sim.output import atomic_output_dir, check_output_dir
 from sim.progress import progress as progress_stage
 from sim.sequence import Sequence, load_sequence
 from sim.trajectory import read_trajectory
-from sim.validation import ParameterError
+from sim.validation import ParameterError, check_parameter, positive
 
 __all__ = ["GlobalParams", "map_and_fill_view", "map_global", "run_global", "sequence_poses"]
 
@@ -119,6 +121,10 @@ class GlobalParams:
     max_rounds : int
         Most rounds of key-view selection (the first with the DSI's middle depth, each next
         with the mapped views' median depths).
+    depth_scale_tolerance : float
+        The selection stands once every key view's depth scale (the one it was selected with)
+        lies within this share of its own map's median depth (default 0.1; a view without map
+        points has no say); else the views are selected and mapped again.
     """
 
     keyviews: KeyViewParams = field(default_factory=KeyViewParams)
@@ -135,8 +141,10 @@ class GlobalParams:
     t1: float | None = None
     workers: int | None = None
     max_rounds: int = 3
+    depth_scale_tolerance: float = 0.1
 
     def __post_init__(self) -> None:
+        check_parameter(positive, "depth_scale_tolerance", self.depth_scale_tolerance)
         for name in ("workers", "max_rounds"):
             value = getattr(self, name)
             if value is None and name == "workers":
@@ -411,6 +419,12 @@ def _key_views(sequence: Sequence, tmp: Path, params: GlobalParams, progress: bo
                            "t_ref": [job.t_ref for job in jobs], "mapped": len(todo),
                            "depth_scale_m": scales})
             previous = keys
+            used = dict(zip(keys, scales, strict=True))
+            if all(abs(used[job.t_key] - medians[job.t_key])
+                   <= params.depth_scale_tolerance * medians[job.t_key]
+                   for job in jobs if job.t_key in medians):
+                converged = True              # every view was selected with its own depth
+                break
     return jobs, results, rounds, converged
 
 
