@@ -278,11 +278,25 @@ def _print_global(document: dict, out: Path) -> None:
           f"figure: {out / files['figure']}\nwritten to {out}")
 
 
+def _refuse_for_global(args: argparse.Namespace) -> None:
+    """Refuse, in one line, the map flags a global map cannot honour."""
+    refused = [flag for flag, on in (("--resume", getattr(args, "resume", False)),
+                                     ("--clip-window", args.clip_window),
+                                     ("--depth-range oracle", args.depth_range == "oracle"))
+               if on]
+    if refused:
+        raise ValueError(f"{', '.join(refused)} cannot be used with a global map (its key "
+                         "views' windows are clipped to the data, its DSI range blind)")
+
+
 def _cmd_map_global(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from fusion.globalmap.pipeline import map_global
 
+    _refuse_for_global(args)
     _check_depth_flags(args)
-    params = _global_params(args, _fill_method(args))
+    params = replace(_global_params(args, _fill_method(args)), t0=args.t0, t1=args.t1)
     document = map_global(args.sequence, args.out, params, overwrite=args.overwrite,
                           progress=not args.quiet)
     _print_global(document, Path(args.out))
@@ -293,13 +307,7 @@ def _cmd_run_global(args: argparse.Namespace) -> int:
     from fusion.globalmap.pipeline import run_global
     from fusion.pipeline import is_sequence_folder
 
-    refused = [flag for flag, on in (("--resume", args.resume),
-                                     ("--clip-window", args.clip_window),
-                                     ("--depth-range oracle", args.depth_range == "oracle"))
-               if on]
-    if refused:
-        raise ValueError(f"{', '.join(refused)} cannot be used with --global (it simulates the "
-                         "whole window and maps it blind from key views)")
+    _refuse_for_global(args)
     if is_sequence_folder(args.source):
         raise ValueError(f"{args.source} is a sequence folder: map it with evfuse map-global "
                          "(run --global simulates a scene)")

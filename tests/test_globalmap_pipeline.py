@@ -145,9 +145,13 @@ def test_a_real_recording_reports_the_views_agreement(plane_sequence, tmp_path):
     out = tmp_path / "g"
     before = tree_hashes(real)
     assert run_cli(["map-global", str(real), "--out", str(out), "--workers", "1",
-                    "--quiet"]) == 0
+                    "--t0", "0.05", "--t1", "0.25", "--quiet"]) == 0
     assert tree_hashes(real) == before
     document = json.loads((out / "global.json").read_text())
+    # --t0 / --t1: the span the key views cover
+    assert document["views"][0]["t_key"] == pytest.approx(0.05)
+    assert document["views"][0]["window_s"][0] == pytest.approx(0.05, abs=1e-3)
+    assert document["views"][-1]["window_s"][1] <= 0.25 + 1e-9
     assert document["simulated"] is False
     assert document["global"] == {"semidense": None, "filled": None, "tsdf": None}
     assert all(v["semidense"] is None and v["filled"] is None for v in document["views"])
@@ -198,7 +202,11 @@ def test_key_views_are_chosen_on_groundtruth_txt_never_the_exact_poses(plane_seq
 def test_run_global_refuses_what_makes_no_sense_in_one_line(plane_sequence, tmp_path, capsys):
     out = str(tmp_path / "r")
     assert run_cli(["run", "complex_sphere", "--global", "--resume", "--out", out]) == 2
-    assert "--resume cannot be used with --global" in capsys.readouterr().err
+    assert "--resume cannot be used with a global map" in capsys.readouterr().err
+    assert run_cli(["map-global", str(plane_sequence), "--out", out, "--clip-window",
+                    "--depth-range", "oracle"]) == 2
+    assert ("--clip-window, --depth-range oracle cannot be used with a global map"
+            in capsys.readouterr().err)
     assert run_cli(["run", str(plane_sequence), "--global", "--out", out]) == 2
     assert "evfuse map-global" in capsys.readouterr().err
     assert run_cli(["run", "complex_sphere", "--baseline", "0.2", "--out", out]) == 2
