@@ -277,3 +277,16 @@ def test_the_source_may_be_a_run_folder(plane_sequence, tmp_path, capsys):
         _sequence_folder(tmp_path)
     assert run_cli(["map-global", str(tmp_path), "--out", str(tmp_path / "g")]) == 2
     assert "not a sequence folder" in capsys.readouterr().err
+
+
+def test_the_event_budget_counts_every_event_of_the_span(plane_sequence):
+    """The times the event budget counts: every event in [t0, t1] (both ends), in order."""
+    from fusion.globalmap.pipeline import _event_times
+    from sim.eventio import read_events
+
+    sequence = load_sequence(plane_sequence)
+    events = read_events(sequence.events_h5 or sequence.events_txt)
+    t = events["t"] * 1e-9
+    t0, t1 = float(t[len(t) // 4]), float(t[len(t) // 2])
+    times = _event_times(sequence, t0, t1)
+    assert len(times) == np.count_nonzero((t >= t0) & (t <= t1)) and np.all(np.diff(times) >= 0)
