@@ -34,6 +34,7 @@ import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field, replace
+from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -79,7 +80,7 @@ from sim.output import atomic_output_dir, check_output_dir
 from sim.progress import progress as progress_stage
 from sim.sequence import Sequence, load_sequence
 from sim.trajectory import read_trajectory
-from sim.validation import ParameterError, check_parameter, positive
+from sim.validation import check_parameter, integer, positive
 
 __all__ = ["GlobalParams", "map_and_fill_view", "map_global", "run_global", "sequence_poses"]
 
@@ -146,12 +147,9 @@ class GlobalParams:
     def __post_init__(self) -> None:
         check_parameter(positive, "depth_scale_tolerance", self.depth_scale_tolerance)
         for name in ("workers", "max_rounds"):
-            value = getattr(self, name)
-            if value is None and name == "workers":
-                continue
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ParameterError(f"{{{name}}} must be a whole number >= 1, got {value!r}",
-                                     **{name: name})
+            if getattr(self, name) is not None or name == "max_rounds":
+                object.__setattr__(self, name, check_parameter(
+                    partial(integer, minimum=1), name, getattr(self, name)))
 
     @property
     def worker_count(self) -> int:
