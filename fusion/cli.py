@@ -219,10 +219,7 @@ def _global_params(args: argparse.Namespace, method):
     """The global map's parameters from the flags (``map-global``, ``run --global``)."""
     from dataclasses import replace
 
-    from fusion.globalmap.fuse import FusionParams
-    from fusion.globalmap.keyviews import KeyViewParams
-    from fusion.globalmap.pipeline import GlobalParams
-    from fusion.globalmap.tsdf import TSDFParams
+    from fusion.globalmap import FusionParams, GlobalParams, KeyViewParams, TSDFParams
     from fusion.map.emvs import DepthMapParams
 
     keyviews = {key: value for key, value in (("baseline", args.baseline),
@@ -292,7 +289,7 @@ def _refuse_for_global(args: argparse.Namespace) -> None:
 def _cmd_map_global(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
-    from fusion.globalmap.pipeline import map_global
+    from fusion.globalmap import map_global
 
     _refuse_for_global(args)
     _check_depth_flags(args)
@@ -304,7 +301,7 @@ def _cmd_map_global(args: argparse.Namespace) -> int:
 
 
 def _cmd_run_global(args: argparse.Namespace) -> int:
-    from fusion.globalmap.pipeline import run_global
+    from fusion.globalmap import run_global
     from fusion.pipeline import is_sequence_folder
 
     _refuse_for_global(args)
