@@ -241,19 +241,13 @@ def _nan_max(a, b):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _pairwise_sum(values, lo, n):  # pragma: no cover - compiled
-    """``values[lo:lo + n]`` (float32) summed in float64 as NumPy's ``sum(dtype=float64)``
-    does (its pairwise summation: a plain loop under 8 terms, 8 partial sums up to 128, then
-    halves)."""
+def _pairwise_leaf(values, lo, n):  # pragma: no cover - compiled
+    """:func:`_pairwise_sum` of at most 128 terms."""
     if n < 8:
         res = -0.0
         for i in range(n):
             res += np.float64(values[lo + i])
         return res
-    if n > 128:
-        half = n // 2
-        half -= half % 8
-        return _pairwise_sum(values, lo, half) + _pairwise_sum(values, lo + half, n - half)
     r = np.empty(8)
     for q in range(8):
         r[q] = np.float64(values[lo + q])
@@ -267,6 +261,43 @@ def _pairwise_sum(values, lo, n):  # pragma: no cover - compiled
         res += np.float64(values[lo + i])
         i += 1
     return res
+
+
+@numba.njit(cache=True)
+def _pairwise_sum(values, lo, n):  # pragma: no cover - compiled
+    """``values[lo:lo + n]`` (float32) summed in float64 as NumPy's ``sum(dtype=float64)``
+    does: its pairwise summation (a plain loop under 8 terms, 8 partial sums up to 128, then
+    the two halves' sums added; the halves walked with a stack, not by recursion, which
+    numba's cache cannot link)."""
+    if n <= 128:
+        return _pairwise_leaf(values, lo, n)
+    starts = np.empty(64, np.int64)
+    sizes = np.empty(64, np.int64)
+    stages = np.empty(64, np.int64)
+    sums = np.empty(64)
+    top, done = 0, 0
+    starts[0], sizes[0], stages[0] = lo, n, 0
+    while top >= 0:
+        start, size = starts[top], sizes[top]
+        if size <= 128:
+            sums[done] = _pairwise_leaf(values, start, size)
+            done += 1
+            top -= 1
+            continue
+        half = size // 2
+        half -= half % 8
+        if stages[top] == 2:                     # both halves summed: add them
+            sums[done - 2] = sums[done - 2] + sums[done - 1]
+            done -= 1
+            top -= 1
+            continue
+        stages[top] += 1
+        first = stages[top] == 1
+        top += 1
+        starts[top] = start if first else start + half
+        sizes[top] = half if first else size - half
+        stages[top] = 0
+    return sums[0]
 
 
 @numba.njit(cache=True, parallel=True)

@@ -175,7 +175,7 @@ def test_the_intra_counts_kernel_is_numpys_expression():
                 assert np.array_equal(got, want)
 
 
-@pytest.mark.parametrize("n", [2, 3, 7, 8, 9, 16, 17, 130, 300])
+@pytest.mark.parametrize("n", [2, 3, 7, 8, 9, 16, 17, 130, 300, 1000])
 def test_float64_sums_of_float32_take_numpys_order(n):
     """Terms of 1 and 2^-53 (half an ulp of 1): each order of summation rounds differently, so
     only NumPy's own (a loop under 8 terms, 8 partial sums, halves over 128) gives its sums."""
