@@ -305,39 +305,50 @@ def _weighted_slopes(logw, weight, height, width, n):  # pragma: no cover - comp
     """Each pixel's ``sum_s w_s |dL_s/du|`` and ``|dL_s/dv|`` (one-sided, the larger of the two
     differences on the sub-sample grid) over its ``n x n`` sub-samples, divided by
     ``sum_s w_s / n``: :func:`rate_map`'s slopes (H, W) float64. ``logw`` and ``weight`` are
-    the (H n, W n) float32 log weights and weights; sub-sample rows are summed in float32, in
-    order, then a pixel's ``n`` column sums in float64 (:func:`_pairwise_sum`)."""
+    the (H n, W n) float32 log weights and weights; a pixel row's ``n`` sub-sample rows are
+    summed in float32, in order, then each pixel's ``n`` column sums in float64 (in NumPy's
+    order: :func:`_pairwise_sum`, a plain loop under 8 terms)."""
     rows, cols = logw.shape
     zero = np.float32(0.0)
     slope_u = np.empty((height, width))
     slope_v = np.empty((height, width))
     nn = n * n
     for y in numba.prange(height):
-        sum_w = np.empty(n, np.float32)
-        sum_u = np.empty(n, np.float32)
-        sum_v = np.empty(n, np.float32)
+        acc_w = np.empty(cols, np.float32)
+        acc_u = np.empty(cols, np.float32)
+        acc_v = np.empty(cols, np.float32)
+        for j in range(n):
+            r = y * n + j
+            for c in range(cols):
+                level = logw[r, c]
+                gu = abs(logw[r, c + 1] - level) if c + 1 < cols else zero
+                if c > 0:
+                    gu = _nan_max(gu, abs(level - logw[r, c - 1]))
+                gv = abs(logw[r + 1, c] - level) if r + 1 < rows else zero
+                if r > 0:
+                    gv = _nan_max(gv, abs(level - logw[r - 1, c]))
+                w = weight[r, c]
+                if j == 0:
+                    acc_w[c], acc_u[c], acc_v[c] = w, gu * w, gv * w
+                else:
+                    acc_w[c] = acc_w[c] + w
+                    acc_u[c] = acc_u[c] + gu * w
+                    acc_v[c] = acc_v[c] + gv * w
         for x in range(width):
-            for i in range(n):
-                c = x * n + i
-                for j in range(n):
-                    r = y * n + j
-                    level = logw[r, c]
-                    gu = abs(logw[r, c + 1] - level) if c + 1 < cols else zero
-                    if c > 0:
-                        gu = _nan_max(gu, abs(level - logw[r, c - 1]))
-                    gv = abs(logw[r + 1, c] - level) if r + 1 < rows else zero
-                    if r > 0:
-                        gv = _nan_max(gv, abs(level - logw[r - 1, c]))
-                    w = weight[r, c]
-                    if j == 0:
-                        sum_w[i], sum_u[i], sum_v[i] = w, gu * w, gv * w
-                    else:
-                        sum_w[i] = sum_w[i] + w
-                        sum_u[i] = sum_u[i] + gu * w
-                        sum_v[i] = sum_v[i] + gv * w
-            mean = _pairwise_sum(sum_w, 0, n) / nn
-            slope_u[y, x] = _pairwise_sum(sum_u, 0, n) / nn * (n / mean)
-            slope_v[y, x] = _pairwise_sum(sum_v, 0, n) / nn * (n / mean)
+            lo = x * n
+            if n < 8:
+                s_w, s_u, s_v = -0.0, -0.0, -0.0
+                for i in range(lo, lo + n):
+                    s_w += np.float64(acc_w[i])
+                    s_u += np.float64(acc_u[i])
+                    s_v += np.float64(acc_v[i])
+            else:
+                s_w = _pairwise_sum(acc_w, lo, n)
+                s_u = _pairwise_sum(acc_u, lo, n)
+                s_v = _pairwise_sum(acc_v, lo, n)
+            mean = s_w / nn
+            slope_u[y, x] = s_u / nn * (n / mean)
+            slope_v[y, x] = s_v / nn * (n / mean)
     return slope_u, slope_v
 
 
