@@ -12,7 +12,16 @@ import numpy as np
 import pytest
 
 from sim.camera import Camera
-from sim.pixel_sampling import MARGIN, MAX_DILATION, _intra_counts, _pairwise_sum, rate_map
+from sim.pixel_sampling import (
+    MARGIN,
+    MAX_DILATION,
+    _block_samples,
+    _fill_middle,
+    _insert_samples,
+    _intra_counts,
+    _pairwise_sum,
+    rate_map,
+)
 from sim.sampling import motion_field
 
 
@@ -184,3 +193,43 @@ def test_float64_sums_of_float32_take_numpys_order(n):
     want = values.sum(axis=2, dtype=np.float64)
     got = np.array([[_pairwise_sum(values[i, j], 0, n) for j in range(5)] for i in range(6)])
     assert np.array_equal(got, want)
+
+
+def test_the_block_samples_kernels_are_numpys_expression():
+    rng = np.random.default_rng(5)
+    n_pixels = 3000
+    inner = rng.integers(0, 30, n_pixels)
+    inner[:5] = [0, 0, 1, 199, 0]
+    log_b, lum_b, log_e, lum_e = rng.normal(size=(4, n_pixels))
+    t_b, length, t0, t1 = 1_234_567_891, 9_999_991, 1.2345, 1.2395
+    pix, times, levels, lums, mid_pix, mid_s = _block_samples(
+        inner, t_b, length, log_b, lum_b, log_e, lum_e, t0, t1)
+    counts = inner + 2
+    want_pix = np.repeat(np.arange(n_pixels), counts)
+    k = np.arange(len(want_pix)) - np.repeat(np.cumsum(counts) - counts, counts)
+    want_times = t_b + (k * length) // (inner[want_pix] + 1)
+    middle = (k > 0) & (k <= inner[want_pix])
+    assert np.array_equal(pix, want_pix) and np.array_equal(times, want_times)
+    assert np.array_equal(mid_pix, want_pix[middle])
+    assert np.array_equal(mid_s, np.clip(want_times[middle] * 1e-9, t0, t1))
+    start, end = k == 0, k == inner[want_pix] + 1
+    assert np.array_equal(levels[start], log_b) and np.array_equal(lums[start], lum_b)
+    assert np.array_equal(levels[end], log_e) and np.array_equal(lums[end], lum_e)
+    values = rng.random(len(mid_pix))
+    _fill_middle(inner, values, np.log(values), levels, lums)
+    assert np.array_equal(lums[middle], values) and np.array_equal(levels[middle], np.log(values))
+    assert np.array_equal(levels[start], log_b) and np.array_equal(lums[end], lum_e)
+
+
+def test_the_insert_kernel_is_numpys_insert():
+    rng = np.random.default_rng(6)
+    n, m = 5000, 700
+    arrays = (rng.integers(0, 99, n), rng.integers(0, 10**12, n), rng.normal(size=n),
+              rng.random(n))
+    at = np.sort(rng.integers(0, n + 1, m))
+    at[:3] = [0, 0, 0]
+    at[-2:] = n
+    new = (rng.integers(0, 99, m), rng.integers(0, 10**12, m), rng.normal(size=m), rng.random(m))
+    got = _insert_samples(*arrays, at, *new)
+    for a, b, g in zip(arrays, new, got, strict=True):
+        assert g.dtype == np.result_type(a, b) and np.array_equal(g, np.insert(a, at, b))
