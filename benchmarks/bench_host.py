@@ -74,14 +74,23 @@ def run_case(name: str, record_blocks: int) -> tuple[dict, list]:
     spent = {stage: 0.0 for stage in STAGES if hasattr(ps, stage)}
     originals = {stage: getattr(ps, stage) for stage in spent}
 
+    first_call = {stage: None for stage in spent}
+
     def timed(stage, function):
         @functools.wraps(function)
         def wrapper(*args, **kwargs):
+            # _refine renders its midpoints: their seconds (event_render's) are left out.
+            source = args[0] if stage == "_refine" else None
+            rendered = getattr(source, "seconds", 0.0)
             tick = time.perf_counter()
             try:
                 return function(*args, **kwargs)
             finally:
-                spent[stage] += time.perf_counter() - tick
+                took = time.perf_counter() - tick - (getattr(source, "seconds", 0.0)
+                                                     - rendered)
+                spent[stage] += took
+                if first_call[stage] is None:
+                    first_call[stage] = took
         return wrapper
 
     record: list = []
@@ -115,6 +124,9 @@ def run_case(name: str, record_blocks: int) -> tuple[dict, list]:
            "pixel_samples": result.event_pixel_samples,
            "stages_s": {k: round(v, 4) for k, v in spent.items()}}
     row["stages_s"]["rest"] = round(t["event_sample"] - sum(spent.values()), 4)
+    # The first call of each stage loads its compiled kernels from numba's cache (or compiles
+    # them): in event_sample's first block, not in the blocks after it.
+    row["first_calls_s"] = {k: round(v or 0.0, 4) for k, v in first_call.items()}
     row["blocks"] = blocks
     row["event_sample_ms_per_block"] = round(1e3 * t["event_sample"] / blocks, 2)
     return row, record
@@ -186,10 +198,11 @@ def main(argv=None) -> list:
         del record
         rows.append(row)
         stages = "  ".join(f"{k} {v:.3f}" for k, v in row["stages_s"].items())
+        first = sum(row["first_calls_s"].values())
         print(f"{name} {row['shape'][1]}x{row['shape'][0]} ({row['variant']}): event_render "
               f"{row['event_render_s']:.2f} s, emulate {row['emulate_s']:.2f} s, event_sample "
               f"{row['event_sample_s']:.2f} s ({row['event_sample_ms_per_block']:.1f} ms a block, "
-              f"{row['blocks']} blocks) = {stages}")
+              f"{row['blocks']} blocks) = {stages}; first calls {first:.3f}")
         if "drjit_host_s" in row:
             print(f"  drjit replay: {row['drjit_host_s']}")
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -748,10 +748,17 @@ def _block_samples_kernel(inner, first, mid_first, t_b, length, log_b, lum_b, lo
 
 def _fill_middle(inner: np.ndarray, values: np.ndarray, logs: np.ndarray, levels: np.ndarray,
                  lums: np.ndarray) -> None:
-    """Write the middle samples' luminances and levels (in :func:`_block_samples`' order) into
-    the block's arrays."""
+    """Write the middle samples' luminances (any float type, stored as float64) and levels
+    (in :func:`_block_samples`' order) into the block's arrays."""
     first, mid_first = _sample_offsets(inner)
     _fill_middle_kernel(inner, first, mid_first, values, logs, levels, lums)
+
+
+@numba.njit(cache=True, parallel=True)
+def _plus(values, offset, out):  # pragma: no cover - compiled
+    """``out[...] = np.asarray(values, np.float64) + offset``, in one pass."""
+    for i in numba.prange(values.shape[0]):
+        out[i] = np.float64(values[i]) + offset
 
 
 @numba.njit(cache=True, parallel=True)
@@ -975,8 +982,11 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
             inner, t_b, length, log_b.reshape(-1), lum_b.reshape(-1), log_e.reshape(-1),
             lum_e.reshape(-1), float(t0), float(t1))
         if len(mid_pix):
-            values = np.asarray(source.luminance(mid_pix, mid_s), np.float64)
-            _fill_middle(inner, values, np.log(values + log_eps), levels, lums)
+            values = np.asarray(source.luminance(mid_pix, mid_s))
+            logs = np.empty(len(values))                # log(float64(value) + log_eps):
+            _plus(values, log_eps, logs)                # NumPy's log, in place
+            np.log(logs, out=logs)
+            _fill_middle(inner, values, logs, levels, lums)
             stats.pixel_samples += len(mid_pix)
         pix, times, levels, lums = _refine(source, pix, times, levels, lums, bound, scale,
                                            dt_min_ns, log_eps, stats, seconds)

@@ -20,6 +20,7 @@ from sim.pixel_sampling import (
     _insert_samples,
     _intra_counts,
     _pairwise_sum,
+    _plus,
     rate_map,
 )
 from sim.sampling import motion_field
@@ -233,3 +234,11 @@ def test_the_insert_kernel_is_numpys_insert():
     got = _insert_samples(*arrays, at, *new)
     for a, b, g in zip(arrays, new, got, strict=True):
         assert g.dtype == np.result_type(a, b) and np.array_equal(g, np.insert(a, at, b))
+
+
+def test_the_shifted_luminance_kernel_is_numpys_expression():
+    rng = np.random.default_rng(8)
+    for values in (_luminance(rng, 4097), rng.random(100)):
+        out = np.empty(len(values))
+        _plus(values, 0.43, out)
+        assert np.array_equal(out, np.asarray(values, np.float64) + 0.43)
