@@ -23,7 +23,7 @@ from sim.pixel_sampling import (
     _plus,
     rate_map,
 )
-from sim.sampling import motion_field
+from sim.sampling import _one_sided_gradient, motion_field
 
 
 def _numpy_motion_field(camera, depth, v_cam, w_cam, centres=None):
@@ -43,25 +43,13 @@ def _numpy_motion_field(camera, depth, v_cam, w_cam, centres=None):
     return np.where(seen, du, 0.0), np.where(seen, dv, 0.0)
 
 
-def _numpy_one_sided_gradient(image):
-    grad_u = np.zeros_like(image)
-    grad_v = np.zeros_like(image)
-    du = np.abs(np.diff(image, axis=1))
-    dv = np.abs(np.diff(image, axis=0))
-    grad_u[:, :-1] = du
-    grad_u[:, 1:] = np.maximum(grad_u[:, 1:], du)
-    grad_v[:-1] = dv
-    grad_v[1:] = np.maximum(grad_v[1:], dv)
-    return grad_u, grad_v
-
-
 def _numpy_rate_map(camera, subsamples, depth, twists, seconds, log_eps, centres=None):
     """``sim.pixel_sampling.rate_map`` as it was in NumPy (commit 0b557af)."""
     height, width = camera.height, camera.width
     luminance = np.asarray(subsamples, dtype=np.float32)
     n = luminance.shape[0] // height
     weight = luminance + np.float32(log_eps)
-    grad_u, grad_v = _numpy_one_sided_gradient(np.log(weight))
+    grad_u, grad_v = _one_sided_gradient(np.log(weight))      # (NumPy, kept)
 
     def per_pixel(values):
         rows = values.reshape(height, n, width * n).sum(axis=1)
