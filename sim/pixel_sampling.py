@@ -691,49 +691,27 @@ class PixelEventEmulator(EventEmulator):
 # float64 operations: the samples are identical, tests/test_sampler_kernels.py).
 
 
-def _block_samples(inner: np.ndarray, t_b: int, length: int, log_b: np.ndarray,
-                   lum_b: np.ndarray, log_e: np.ndarray, lum_e: np.ndarray, t0: float,
-                   t1: float) -> tuple[np.ndarray, ...]:
+@numba.njit(cache=True, parallel=True)
+def _block_samples(inner, t_b, length, log_b, lum_b, log_e, lum_e, t0, t1):  # pragma: no cover
     """Every pixel's samples of a block, sorted by (pixel, time): its start sample, ``inner[p]``
     evenly spaced ones at ``t_b + (k * length) // (inner[p] + 1)`` ns, its end sample; the
-    start and end ones hold the frames' levels and luminances (flat (P,) ``log_b``, ``lum_b``,
-    ``log_e``, ``lum_e``), the middle ones are returned as pixels and seconds
-    (``clip(ns * 1e-9, t0, t1)``) to render.
-
-    Returns
-    -------
-    pix, times : (S,) int64 ndarray
-    levels, lums : (S,) float64 ndarray
-        Only the start and end samples' are written (:func:`_fill_middle` writes the rest).
-    mid_pix : (M,) int64 ndarray
-    mid_s : (M,) float64 ndarray, seconds
-    """
-    first, mid_first = _sample_offsets(inner)
-    total, middle = int(first[-1]), int(mid_first[-1])
-    pix, times = np.empty(total, np.int64), np.empty(total, np.int64)
-    levels, lums = np.empty(total), np.empty(total)
-    mid_pix, mid_s = np.empty(middle, np.int64), np.empty(middle)
-    _block_samples_kernel(inner, first, mid_first, t_b, length, log_b, lum_b, log_e, lum_e,
-                          float(t0), float(t1), pix, times, levels, lums, mid_pix, mid_s)
-    return pix, times, levels, lums, mid_pix, mid_s
-
-
-def _sample_offsets(inner: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Each pixel's first sample in the block's arrays and first middle sample (P + 1,
-    the last entries the totals) for ``inner`` middle samples a pixel."""
-    first = np.zeros(len(inner) + 1, np.int64)
-    mid_first = np.zeros(len(inner) + 1, np.int64)
-    np.cumsum(inner + 2, out=first[1:])
-    np.cumsum(inner, out=mid_first[1:])
-    return first, mid_first
-
-
-@numba.njit(cache=True, parallel=True)
-def _block_samples_kernel(inner, first, mid_first, t_b, length, log_b, lum_b, log_e, lum_e, t0,
-                          t1, pix, times, levels, lums, mid_pix, mid_s):  # pragma: no cover
-    """:func:`_block_samples` into its outputs (allocated by the caller: numba's own
-    allocation of such arrays made the kernel three times slower), pixels in parallel."""
-    for p in numba.prange(inner.shape[0]):
+    start and end ones hold the frames' levels and luminances, the middle ones are returned as
+    pixels and seconds (``clip(ns * 1e-9, t0, t1)``) to render."""
+    n_pixels = inner.shape[0]
+    first = np.empty(n_pixels, np.int64)
+    mid_first = np.empty(n_pixels, np.int64)
+    total, middle = 0, 0
+    for p in range(n_pixels):
+        first[p], mid_first[p] = total, middle
+        total += inner[p] + 2
+        middle += inner[p]
+    pix = np.empty(total, np.int64)
+    times = np.empty(total, np.int64)
+    levels = np.empty(total)
+    lums = np.empty(total)
+    mid_pix = np.empty(middle, np.int64)
+    mid_s = np.empty(middle)
+    for p in numba.prange(n_pixels):
         f, k_in, m = first[p], inner[p], mid_first[p]
         for k in range(k_in + 2):
             t = t_b + (k * length) // (k_in + 1)
@@ -744,14 +722,26 @@ def _block_samples_kernel(inner, first, mid_first, t_b, length, log_b, lum_b, lo
                 mid_s[m + k - 1] = min(max(t * 1e-9, t0), t1)
         levels[f], lums[f] = log_b[p], lum_b[p]
         levels[f + k_in + 1], lums[f + k_in + 1] = log_e[p], lum_e[p]
+    return pix, times, levels, lums, mid_pix, mid_s
 
 
-def _fill_middle(inner: np.ndarray, values: np.ndarray, logs: np.ndarray, levels: np.ndarray,
-                 lums: np.ndarray) -> None:
-    """Write the middle samples' luminances (any float type, stored as float64) and levels
-    (in :func:`_block_samples`' order) into the block's arrays."""
-    first, mid_first = _sample_offsets(inner)
-    _fill_middle_kernel(inner, first, mid_first, values, logs, levels, lums)
+@numba.njit(cache=True, parallel=True)
+def _fill_middle(inner, values, logs, levels, lums):  # pragma: no cover - compiled
+    """Write the middle samples' luminances and levels (in :func:`_block_samples`' order) into
+    the block's arrays."""
+    n_pixels = inner.shape[0]
+    first = np.empty(n_pixels, np.int64)
+    mid_first = np.empty(n_pixels, np.int64)
+    total, middle = 0, 0
+    for p in range(n_pixels):
+        first[p], mid_first[p] = total, middle
+        total += inner[p] + 2
+        middle += inner[p]
+    for p in numba.prange(n_pixels):
+        f, m = first[p], mid_first[p]
+        for k in range(inner[p]):
+            lums[f + 1 + k] = values[m + k]
+            levels[f + 1 + k] = logs[m + k]
 
 
 @numba.njit(cache=True, parallel=True)
@@ -759,17 +749,6 @@ def _plus(values, offset, out):  # pragma: no cover - compiled
     """``out[...] = np.asarray(values, np.float64) + offset``, in one pass."""
     for i in numba.prange(values.shape[0]):
         out[i] = np.float64(values[i]) + offset
-
-
-@numba.njit(cache=True, parallel=True)
-def _fill_middle_kernel(inner, first, mid_first, values, logs, levels,
-                        lums):  # pragma: no cover - compiled
-    """:func:`_fill_middle`, pixels in parallel."""
-    for p in numba.prange(inner.shape[0]):
-        f, m = first[p], mid_first[p]
-        for k in range(inner[p]):
-            lums[f + 1 + k] = values[m + k]
-            levels[f + 1 + k] = logs[m + k]
 
 
 @numba.njit(cache=True)
@@ -808,24 +787,16 @@ def _breaking_intervals(pix, levels, bound, scale):  # pragma: no cover - compil
     return out[:count]
 
 
-def _insert_samples(pix: np.ndarray, times: np.ndarray, levels: np.ndarray, lums: np.ndarray,
-                    at: np.ndarray, new_p: np.ndarray, new_t: np.ndarray, new_l: np.ndarray,
-                    new_y: np.ndarray) -> tuple[np.ndarray, ...]:
-    """``np.insert(a, at, new_a)`` of the four arrays at once (``at`` non-decreasing: each new
-    sample goes before the old one at its index, new ones at one index in their order)."""
-    size = len(pix) + len(at)
-    out = (np.empty(size, np.int64), np.empty(size, np.int64), np.empty(size), np.empty(size))
-    _insert_kernel(pix, times, levels, lums, at, new_p, new_t, new_l, new_y, *out)
-    return out
-
-
 @numba.njit(cache=True, parallel=True)
-def _insert_kernel(pix, times, levels, lums, at, new_p, new_t, new_l, new_y, out_p, out_t, out_l,
-                   out_y):  # pragma: no cover - compiled
-    """:func:`_insert_samples` into its outputs (allocated by the caller, as
-    :func:`_block_samples_kernel`'s). The old samples between two insertion points move as
-    one run, the runs in parallel."""
+def _insert_samples(pix, times, levels, lums, at, new_p, new_t, new_l, new_y):  # pragma: no cover
+    """``np.insert(a, at, new_a)`` of the four arrays at once (``at`` non-decreasing: each new
+    sample goes before the old one at its index, new ones at one index in their order). The
+    old samples between two insertion points move as one run, the runs in parallel."""
     n, m = pix.shape[0], at.shape[0]
+    out_p = np.empty(n + m, np.int64)
+    out_t = np.empty(n + m, np.int64)
+    out_l = np.empty(n + m)
+    out_y = np.empty(n + m)
     for i in numba.prange(m + 1):
         lo = at[i - 1] if i > 0 else 0
         hi = at[i] if i < m else n
@@ -839,6 +810,7 @@ def _insert_kernel(pix, times, levels, lums, at, new_p, new_t, new_l, new_y, out
             out_t[i + hi] = new_t[i]
             out_l[i + hi] = new_l[i]
             out_y[i + hi] = new_y[i]
+    return out_p, out_t, out_l, out_y
 
 
 def _intra_counts(rate: np.ndarray, log_b: np.ndarray, log_e: np.ndarray,
@@ -986,7 +958,7 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
             logs = np.empty(len(values))                # log(float64(value) + log_eps):
             _plus(values, log_eps, logs)                # NumPy's log, in place
             np.log(logs, out=logs)
-            _fill_middle(inner, values, logs, levels, lums)
+            _fill_middle(inner, values, logs, levels, lums)         # (values: float32)
             stats.pixel_samples += len(mid_pix)
         pix, times, levels, lums = _refine(source, pix, times, levels, lums, bound, scale,
                                            dt_min_ns, log_eps, stats, seconds)
