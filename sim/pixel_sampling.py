@@ -226,7 +226,7 @@ def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
 
 # The prediction's per-pixel work, compiled (rows in parallel): each kernel gives exactly the
 # NumPy expression of the issue-23 code it replaced, float for float (the same float32 and
-# float64 operations in the same order; tests/test_pixel_sampling.py checks them bit for bit
+# float64 operations in the same order; tests/test_sampler_kernels.py checks them bit for bit
 # on random inputs).
 
 
@@ -307,7 +307,9 @@ def _weighted_slopes(logw, weight, height, width, n):  # pragma: no cover - comp
     ``sum_s w_s / n``: :func:`rate_map`'s slopes (H, W) float64. ``logw`` and ``weight`` are
     the (H n, W n) float32 log weights and weights; a pixel row's ``n`` sub-sample rows are
     summed in float32, in order, then each pixel's ``n`` column sums in float64 (in NumPy's
-    order: :func:`_pairwise_sum`, a plain loop under 8 terms)."""
+    order: :func:`_pairwise_sum`, a plain loop under 8 terms). The motion field is one value
+    per pixel, so the sub-sample sum factors: the weighted gradients are averaged once (times
+    ``n``: per pixel, not per sub-sample spacing)."""
     rows, cols = logw.shape
     zero = np.float32(0.0)
     slope_u = np.empty((height, width))
