@@ -300,16 +300,26 @@ _DTYPES = {dr.VarType.Int64: np.int64, dr.VarType.UInt32: np.uint32,
 
 
 def _device_array(kind, values: np.ndarray):
-    """``values`` as a Dr.Jit array of type ``kind``, from a 128-byte aligned copy: Dr.Jit
-    maps a host array without copying it, and the alignment it sees enters the compiled
-    kernel, so that arrays at other alignments would compile the kernel again (a cache miss,
-    20-35 ms, on most blocks)."""
+    """``values`` as a Dr.Jit array of type ``kind``.
+
+    On ``llvm`` Dr.Jit maps a host array without copying it, and the alignment it sees enters
+    the compiled kernel, so that arrays at other alignments would compile the kernel again (a
+    cache miss, 20-35 ms, on most blocks): an array already 128-byte aligned is mapped as it
+    is, any other goes through a 128-byte aligned copy. On ``cuda`` Dr.Jit copies the array
+    into device memory, whose alignment is its own: the host array goes as it is (one copy,
+    host to device, instead of two)."""
     values = np.ascontiguousarray(values, dtype=_DTYPES[dr.type_v(kind)])
-    buffer = np.empty(values.nbytes + 128, np.uint8)
-    start = -buffer.ctypes.data % 128
+    if dr.backend_v(kind) == dr.JitBackend.CUDA or values.ctypes.data % ALIGNMENT == 0:
+        return kind(values)
+    buffer = np.empty(values.nbytes + ALIGNMENT, np.uint8)
+    start = -buffer.ctypes.data % ALIGNMENT
     aligned = buffer[start:start + values.nbytes].view(values.dtype)
     aligned[...] = values
     return kind(aligned)
+
+
+ALIGNMENT = 128
+"""Bytes to which the host arrays Dr.Jit maps on ``llvm`` are aligned (:func:`_device_array`)."""
 
 
 PACKET = 32

@@ -68,7 +68,7 @@ from sim.noise import (
     _cutoff,
     _lowpass_exponent,
 )
-from sim.sampling import SPLIT, SamplingParams, contrast_scale, motion_field
+from sim.sampling import SPLIT, SamplingParams, _point_flow, _twist, contrast_scale
 
 __all__ = ["MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
            "PixelSource", "pixel_blocks", "rate_map"]
@@ -200,8 +200,6 @@ def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
         The largest predicted rate over the twists, dilated by the distance the fastest pixel
         moves in ``seconds`` (at most :data:`MAX_DILATION`).
     """
-    from sim.sampling import _one_sided_gradient
-
     height, width = camera.height, camera.width
     luminance = np.asarray(subsamples, dtype=np.float32)       # float32: a rate, not a level
     n = luminance.shape[0] // height
@@ -209,31 +207,178 @@ def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
         raise ValueError(f"subsamples must have shape (H n, W n) for the camera's {height}x"
                          f"{width} pixels, got {luminance.shape}")
     weight = luminance + np.float32(log_eps)
-    grad_u, grad_v = _one_sided_gradient(np.log(weight))
-
-    def per_pixel(values: np.ndarray) -> np.ndarray:
-        rows = values.reshape(height, n, width * n).sum(axis=1)
-        return rows.reshape(height, width, n).sum(axis=2, dtype=np.float64) / (n * n)
-
-    # The motion field is one value per pixel, so the sub-sample sum factors: the weighted
-    # gradients are averaged once (times n: per pixel, not per sub-sample spacing).
-    mean = per_pixel(weight)
-    grad_u *= weight
-    grad_v *= weight
-    slope_u = per_pixel(grad_u) * (n / mean)
-    slope_v = per_pixel(grad_v) * (n / mean)
-    rate = np.zeros((height, width))
+    # NumPy's float32 log (numba's, libm's, may differ in the last bit); the rest is compiled.
+    slope_u, slope_v = _weighted_slopes(np.log(weight), weight, height, width, n)
+    xy = camera.normalized_pixel_centres() if centres is None else centres
+    rate, speeds = _predicted_rate(float(camera.fx), float(camera.fy), np.asarray(xy, np.float64),
+                                   np.asarray(depth),
+                                   np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6),
+                                   slope_u, slope_v)
     speed = 0.0
-    for v_cam, w_cam in twists:
-        with np.errstate(invalid="ignore"):
-            flow_u, flow_v = motion_field(camera, depth, v_cam, w_cam, centres)
-        rate = np.maximum(rate, slope_u * np.abs(flow_u) + slope_v * np.abs(flow_v))
-        speed = max(speed, float(np.max(np.hypot(flow_u, flow_v), initial=0.0)))
+    for top in speeds:             # as ``max(speed, np.max(hypot))``: a NaN twist is skipped
+        speed = max(speed, float(top))
     radius = min(MAX_DILATION, math.ceil(speed * seconds))
     if radius > 0:
         kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
         rate = cv2.dilate(rate, kernel, borderType=cv2.BORDER_REPLICATE)
     return rate
+
+
+# The prediction's per-pixel work, compiled (rows in parallel): each kernel gives exactly the
+# NumPy expression of the issue-23 code it replaced, float for float (the same float32 and
+# float64 operations in the same order; tests/test_sampler_kernels.py checks them bit for bit
+# on random inputs).
+
+
+@numba.njit(cache=True, inline="always")
+def _nan_max(a, b):  # pragma: no cover - compiled
+    """``np.maximum(a, b)``: the larger, NaN if either is."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return a if a >= b else b
+
+
+@numba.njit(cache=True)
+def _pairwise_leaf(values, lo, n):  # pragma: no cover - compiled
+    """:func:`_pairwise_sum` of at most 128 terms."""
+    if n < 8:
+        res = -0.0
+        for i in range(n):
+            res += np.float64(values[lo + i])
+        return res
+    r = np.empty(8)
+    for q in range(8):
+        r[q] = np.float64(values[lo + q])
+    i = 8
+    while i < n - n % 8:
+        for q in range(8):
+            r[q] += np.float64(values[lo + i + q])
+        i += 8
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        res += np.float64(values[lo + i])
+        i += 1
+    return res
+
+
+@numba.njit(cache=True)
+def _pairwise_sum(values, lo, n):  # pragma: no cover - compiled
+    """``values[lo:lo + n]`` (float32) summed in float64 as NumPy's ``sum(dtype=float64)``
+    does: its pairwise summation (a plain loop under 8 terms, 8 partial sums up to 128, then
+    the two halves' sums added; the halves walked with a stack, not by recursion, which
+    numba's cache cannot link)."""
+    if n <= 128:
+        return _pairwise_leaf(values, lo, n)
+    starts = np.empty(64, np.int64)
+    sizes = np.empty(64, np.int64)
+    stages = np.empty(64, np.int64)
+    sums = np.empty(64)
+    top, done = 0, 0
+    starts[0], sizes[0], stages[0] = lo, n, 0
+    while top >= 0:
+        start, size = starts[top], sizes[top]
+        if size <= 128:
+            sums[done] = _pairwise_leaf(values, start, size)
+            done += 1
+            top -= 1
+            continue
+        half = size // 2
+        half -= half % 8
+        if stages[top] == 2:                     # both halves summed: add them
+            sums[done - 2] = sums[done - 2] + sums[done - 1]
+            done -= 1
+            top -= 1
+            continue
+        stages[top] += 1
+        first = stages[top] == 1
+        top += 1
+        starts[top] = start if first else start + half
+        sizes[top] = half if first else size - half
+        stages[top] = 0
+    return sums[0]
+
+
+@numba.njit(cache=True, parallel=True)
+def _weighted_slopes(logw, weight, height, width, n):  # pragma: no cover - compiled
+    """Each pixel's ``sum_s w_s |dL_s/du|`` and ``|dL_s/dv|`` (one-sided, the larger of the two
+    differences on the sub-sample grid) over its ``n x n`` sub-samples, divided by
+    ``sum_s w_s / n``: :func:`rate_map`'s slopes (H, W) float64. ``logw`` and ``weight`` are
+    the (H n, W n) float32 log weights and weights; a pixel row's ``n`` sub-sample rows are
+    summed in float32, in order, then each pixel's ``n`` column sums in float64 (in NumPy's
+    order: :func:`_pairwise_sum`, a plain loop under 8 terms). The motion field is one value
+    per pixel, so the sub-sample sum factors: the weighted gradients are averaged once (times
+    ``n``: per pixel, not per sub-sample spacing)."""
+    rows, cols = logw.shape
+    zero = np.float32(0.0)
+    slope_u = np.empty((height, width))
+    slope_v = np.empty((height, width))
+    nn = n * n
+    for y in numba.prange(height):
+        acc_w = np.empty(cols, np.float32)
+        acc_u = np.empty(cols, np.float32)
+        acc_v = np.empty(cols, np.float32)
+        for j in range(n):
+            r = y * n + j
+            for c in range(cols):
+                level = logw[r, c]
+                gu = abs(logw[r, c + 1] - level) if c + 1 < cols else zero
+                if c > 0:
+                    gu = _nan_max(gu, abs(level - logw[r, c - 1]))
+                gv = abs(logw[r + 1, c] - level) if r + 1 < rows else zero
+                if r > 0:
+                    gv = _nan_max(gv, abs(level - logw[r - 1, c]))
+                w = weight[r, c]
+                if j == 0:
+                    acc_w[c], acc_u[c], acc_v[c] = w, gu * w, gv * w
+                else:
+                    acc_w[c] = acc_w[c] + w
+                    acc_u[c] = acc_u[c] + gu * w
+                    acc_v[c] = acc_v[c] + gv * w
+        for x in range(width):
+            lo = x * n
+            if n < 8:
+                s_w, s_u, s_v = -0.0, -0.0, -0.0
+                for i in range(lo, lo + n):
+                    s_w += np.float64(acc_w[i])
+                    s_u += np.float64(acc_u[i])
+                    s_v += np.float64(acc_v[i])
+            else:
+                s_w = _pairwise_sum(acc_w, lo, n)
+                s_u = _pairwise_sum(acc_u, lo, n)
+                s_v = _pairwise_sum(acc_v, lo, n)
+            mean = s_w / nn
+            slope_u[y, x] = s_u / nn * (n / mean)
+            slope_v[y, x] = s_v / nn * (n / mean)
+    return slope_u, slope_v
+
+
+@numba.njit(cache=True, parallel=True)
+def _predicted_rate(fx, fy, xy, depth, twists, slope_u, slope_v):  # pragma: no cover
+    """Each pixel's largest ``slope_u |du/dt| + slope_v |dv/dt|`` over the twists (motion field
+    :func:`sim.sampling._point_flow`, 0 where ``depth`` <= 0), (H, W) float64, and per twist
+    the largest ``hypot(du/dt, dv/dt)`` (0 at least, NaN if any is)."""
+    height, width = depth.shape
+    n_twists = twists.shape[0]
+    rate = np.empty((height, width))
+    tops = np.zeros((height, n_twists))
+    for y in numba.prange(height):
+        for x in range(width):
+            z = np.float64(depth[y, x])
+            best = 0.0
+            for k in range(n_twists):
+                du, dv = 0.0, 0.0
+                if z > 0.0:
+                    du, dv = _point_flow(fx, fy, xy[y, x, 0], xy[y, x, 1], z, twists[k])
+                best = _nan_max(best, slope_u[y, x] * abs(du) + slope_v[y, x] * abs(dv))
+                tops[y, k] = _nan_max(tops[y, k], math.hypot(du, dv))
+            rate[y, x] = best
+    speeds = np.zeros(n_twists)
+    for k in range(n_twists):
+        for y in range(height):
+            speeds[k] = _nan_max(speeds[k], tops[y, k])
+    return rate, speeds
 
 
 def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
@@ -545,7 +690,7 @@ class PixelEventEmulator(EventEmulator):
 # The scheduler's bookkeeping, compiled: one pass per array instead of NumPy's temporaries (at
 # 1280x720 a block holds millions of samples; the NumPy version took about 130 ns a sample).
 # Each kernel does exactly what the NumPy expression in its docstring does (the same integer and
-# float64 operations: the samples are identical, tests/test_pixel_sampling.py).
+# float64 operations: the samples are identical, tests/test_sampler_kernels.py).
 
 
 @numba.njit(cache=True, parallel=True)
@@ -599,6 +744,13 @@ def _fill_middle(inner, values, logs, levels, lums):  # pragma: no cover - compi
         for k in range(inner[p]):
             lums[f + 1 + k] = values[m + k]
             levels[f + 1 + k] = logs[m + k]
+
+
+@numba.njit(cache=True, parallel=True)
+def _plus(values, offset, out):  # pragma: no cover - compiled
+    """``out[...] = np.asarray(values, np.float64) + offset``, in one pass."""
+    for i in numba.prange(values.shape[0]):
+        out[i] = np.float64(values[i]) + offset
 
 
 @numba.njit(cache=True)
@@ -663,13 +815,56 @@ def _insert_samples(pix, times, levels, lums, at, new_p, new_t, new_l, new_y):  
     return out_p, out_t, out_l, out_y
 
 
-def _intra_counts(rate: np.ndarray, block_ns: int, bound: float, dt_min_ns: int) -> np.ndarray:
-    """Samples each pixel needs strictly inside a block, from its predicted rate."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        wanted = np.ceil(rate * (block_ns * 1e-9) / (MARGIN * bound))
-    wanted = np.nan_to_num(wanted, nan=0.0, posinf=0.0)
+def _intra_counts(rate: np.ndarray, log_b: np.ndarray, log_e: np.ndarray,
+                  observed: np.ndarray | None, scale: np.ndarray | None, block_ns: int,
+                  bound: float, dt_min_ns: int) -> np.ndarray:
+    """Samples each pixel needs strictly inside a block, from its predicted rate.
+
+    Parameters
+    ----------
+    rate : (P,) float64 ndarray, 1/s
+        :func:`rate_map`'s prediction, flat.
+    log_b, log_e : (P,) float64 ndarray
+        Each pixel's log intensity at the block's start and end: the rate is at least their
+        net change over the block.
+    observed : (P,) float64 ndarray or None, 1/s
+        The last block's observed rates (:attr:`PixelBlock.observed`): at least those too.
+    scale : (P,) float64 ndarray or None
+        :func:`sim.sampling.contrast_scale`'s, flat (None: all thresholds equal).
+    block_ns, dt_min_ns : int, ns
+        The block's length and the shortest interval.
+    bound : float
+        ``lam C``.
+
+    Returns
+    -------
+    (P,) int64 ndarray
+        ``ceil(r B / (MARGIN bound)) - 1`` clipped to ``[0, B / dt_min - 1]`` (0 where that is
+        NaN or infinite).
+    """
     most = max(block_ns // dt_min_ns, 1)
-    return (np.clip(wanted, 1, most) - 1).astype(np.int64)
+    return _intra_kernel(rate, log_b, log_e, np.empty(0) if observed is None else observed,
+                         np.empty(0) if scale is None else scale, block_ns * 1e-9,
+                         MARGIN * bound, float(most))
+
+
+@numba.njit(cache=True, parallel=True)
+def _intra_kernel(rate, log_b, log_e, observed, scale, seconds, per_sample,
+                  most):  # pragma: no cover - compiled
+    """:func:`_intra_counts`, per pixel; ``observed`` and ``scale`` empty: not given."""
+    n_pixels = rate.shape[0]
+    out = np.empty(n_pixels, np.int64)
+    for p in numba.prange(n_pixels):
+        r = _nan_max(rate[p], abs(log_e[p] - log_b[p]) / seconds)
+        if observed.shape[0] > 0:
+            r = _nan_max(r, observed[p])
+        if scale.shape[0] > 0:
+            r = r * scale[p]
+        wanted = np.ceil(r * seconds / per_sample)
+        if wanted != wanted or wanted == np.inf:
+            wanted = 0.0
+        out[p] = np.int64(min(max(wanted, 1.0), most) - 1.0)
+    return out
 
 
 def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t1: float,
@@ -754,17 +949,18 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         twists = [source.camera_velocity(float(seconds(t_b))),
                   source.camera_velocity(float(seconds(t_e)))]
         rate = rate_map(camera, sub_b, depth, twists, length * 1e-9, log_eps, centres)
-        rate = np.maximum(rate, np.abs(log_e - log_b) / (length * 1e-9)).reshape(-1)
-        if observed is not None:
-            rate = np.maximum(rate, observed)
-        inner = _intra_counts(rate if scale is None else rate * scale, length, bound, dt_min_ns)
+        inner = _intra_counts(rate.reshape(-1), log_b.reshape(-1), log_e.reshape(-1), observed,
+                              scale, length, bound, dt_min_ns)
         # Every pixel: its block-start sample, `inner` evenly spaced samples, its block-end one.
         pix, times, levels, lums, mid_pix, mid_s = _block_samples(
             inner, t_b, length, log_b.reshape(-1), lum_b.reshape(-1), log_e.reshape(-1),
             lum_e.reshape(-1), float(t0), float(t1))
         if len(mid_pix):
-            values = np.asarray(source.luminance(mid_pix, mid_s), np.float64)
-            _fill_middle(inner, values, np.log(values + log_eps), levels, lums)
+            values = np.asarray(source.luminance(mid_pix, mid_s))
+            logs = np.empty(len(values))                # log(float64(value) + log_eps):
+            _plus(values, log_eps, logs)                # NumPy's log, in place
+            np.log(logs, out=logs)
+            _fill_middle(inner, values, logs, levels, lums)         # (values: float32)
             stats.pixel_samples += len(mid_pix)
         pix, times, levels, lums = _refine(source, pix, times, levels, lums, bound, scale,
                                            dt_min_ns, log_eps, stats, seconds)

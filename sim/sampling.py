@@ -38,6 +38,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from sim.camera import Camera
@@ -259,19 +260,48 @@ def motion_field(camera: Camera, depth: np.ndarray, v_cam: np.ndarray, w_cam: np
         du/dt and dv/dt in pixels per second (0 where depth is 0).
     """
     xy = camera.normalized_pixel_centres() if centres is None else centres
-    x, y = xy[..., 0], xy[..., 1]
-    z = np.where(depth > 0, depth, np.inf)
-    vx, vy, vz = np.asarray(v_cam, dtype=np.float64)
-    wx, wy, wz = np.asarray(w_cam, dtype=np.float64)
-    # A static point P = z (x, y, 1) moves in the camera frame as dP/dt = -v - w x P.
+    depth = np.asarray(depth)
+    flow_u = np.empty(depth.shape)
+    flow_v = np.empty(depth.shape)
+    _motion_field_kernel(float(camera.fx), float(camera.fy), np.asarray(xy, np.float64), depth,
+                         _twist(v_cam, w_cam), flow_u, flow_v)
+    return flow_u, flow_v
+
+
+def _twist(v_cam: np.ndarray, w_cam: np.ndarray) -> np.ndarray:
+    """``(vx, vy, vz, wx, wy, wz)`` as a float64 (6,) array (the kernels' twist)."""
+    return np.concatenate([np.asarray(v_cam, np.float64).reshape(3),
+                           np.asarray(w_cam, np.float64).reshape(3)])
+
+
+@numba.njit(cache=True, inline="always")
+def _point_flow(fx, fy, x, y, z, twist):  # pragma: no cover - compiled
+    """Image velocity (du/dt, dv/dt), pixels/s, of the static point at depth ``z`` > 0 seen at
+    normalized coordinates ``(x, y)`` by a camera with twist ``(vx, vy, vz, wx, wy, wz)`` (camera
+    frame): ``P = z (x, y, 1)`` moves as ``dP/dt = -v - w x P``. The one home of the formula:
+    :func:`motion_field` and the per-pixel sampler's rate kernel
+    (:func:`sim.pixel_sampling.rate_map`) both call it, float64 operations in this order."""
+    vx, vy, vz, wx, wy, wz = twist[0], twist[1], twist[2], twist[3], twist[4], twist[5]
     px = -vx - z * (wy - wz * y)
     py = -vy - z * (wz * x - wx)
     pz = -vz - z * (wx * y - wy * x)
-    with np.errstate(invalid="ignore"):
-        du = camera.fx * (px - x * pz) / z
-        dv = camera.fy * (py - y * pz) / z
-    seen = depth > 0
-    return np.where(seen, du, 0.0), np.where(seen, dv, 0.0)
+    return fx * (px - x * pz) / z, fy * (py - y * pz) / z
+
+
+@numba.njit(cache=True, parallel=True)
+def _motion_field_kernel(fx, fy, xy, depth, twist, flow_u, flow_v):  # pragma: no cover
+    """:func:`motion_field` into ``flow_u``, ``flow_v`` (H, W): :func:`_point_flow` where
+    ``depth`` > 0, else 0 (rows in parallel)."""
+    height, width = depth.shape
+    for i in numba.prange(height):
+        for j in range(width):
+            z = np.float64(depth[i, j])
+            if z > 0.0:
+                flow_u[i, j], flow_v[i, j] = _point_flow(fx, fy, xy[i, j, 0], xy[i, j, 1], z,
+                                                        twist)
+            else:
+                flow_u[i, j] = 0.0
+                flow_v[i, j] = 0.0
 
 
 def _one_sided_gradient(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

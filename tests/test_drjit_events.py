@@ -191,3 +191,28 @@ def test_the_frame_emulator_on_drjit_refuses_a_non_finite_level():
     emulator.start(np.zeros((1, 2)), 0.0)
     with pytest.raises(ValueError, match="non-finite"):
         emulator.advance(np.array([[0.0, np.nan]]), 1e-3)
+
+
+def test_host_arrays_reach_drjit_with_one_copy_at_most():
+    """On ``llvm`` an array already 128-byte aligned is mapped as it is (no copy: a change to
+    it shows in the Dr.Jit array), any other is copied once into an aligned buffer; the values
+    are the same either way."""
+    import drjit.llvm as m
+
+    from sim._drjit_events import ALIGNMENT, _device_array
+
+    buffer = np.empty(100 * 8 + ALIGNMENT, np.uint8)
+    start = -buffer.ctypes.data % ALIGNMENT
+    aligned = buffer[start:start + 800].view(np.float64)
+    aligned[:] = np.arange(100.0)
+    mapped = _device_array(m.Float64, aligned)
+    aligned[0] = 42.0
+    assert mapped.numpy()[0] == 42.0
+    values = np.arange(101.0)[1:]
+    if values.ctypes.data % ALIGNMENT == 0:                  # (allocators differ)
+        values = np.arange(102.0)[2:]
+    copied = _device_array(m.Float64, values)
+    values[0] = -1.0
+    assert np.array_equal(copied.numpy(), np.arange(1.0, 101.0))
+    assert np.array_equal(_device_array(m.Int64, np.arange(5, dtype=np.int32)).numpy(),
+                          np.arange(5))
