@@ -233,8 +233,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if is_sequence_folder(args.source):       # nothing to resume: map and fill start over
         args.interrupted = ("no complete output was written; the same command starts over "
                             "(it maps and fills again)")
+    extra_map = None
+    if args.views > 1:
+        from fusion.globalmap.neighbours import FusedViews
+
+        extra_map = FusedViews(views=args.views)
     report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,
-                          progress=not args.quiet, resume=args.resume)
+                          progress=not args.quiet, resume=args.resume, extra_map=extra_map)
     _print_report(report, Path(args.out))
     return 0
 
@@ -289,6 +294,14 @@ def _print_report(report: dict, out: Path) -> None:
                           ("filled pixels", "filled"), ("dense map", "all")):
             rows.append((name, _error_line(summary[key])))
             rows += [("", text) for text in _motion_lines(split.get(key), "  ")]
+    fused = report.get("fused")
+    if fused is not None:
+        rows += [(f"fused, {fused['views']} views", f"N1 {fused['N1']:,} (one view "
+                  f"{fused['N1_reference']:,}), N1 in the frame {fused['N1_in_frame']:,}, N2 "
+                  f"{fused['N2']:,}, beta {fused['beta']:.4f}")]
+        if fused["errors_summary"] is not None:
+            rows += [(f"fused {name}", _error_line(fused["errors_summary"][key]))
+                     for name, key in (("event map", "map"), ("dense map", "all"))]
     width = max(len(k) for k, _ in rows)
     print()
     for key, value in rows:
@@ -572,6 +585,11 @@ def _parser() -> argparse.ArgumentParser:
                      help="continue an interrupted run of the same command from OUT.partial: "
                           "its simulation resumes from its checkpoint (as simulate --resume), "
                           "then the map and the fill are made again")
+    run.add_argument("--views", type=count_type(1), default=1, metavar="N",
+                     help="also fuse the map with those of N-1 neighbouring views (reference "
+                          "times t_ref +- k half-windows, windows of the same length) into the "
+                          "reference view, fill and score it: OUT/fused/ and report.json's "
+                          "fused block (default 1: the one-view map only)")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     run.set_defaults(run=_cmd_run, flag_names={**MAP_FLAG_NAMES, "ref_time": "--ref-time"},
                      interrupted="resume with the same command plus --resume (a simulation "
