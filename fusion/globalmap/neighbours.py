@@ -167,8 +167,9 @@ def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DE
     dict
         The fused map's description (also ``map/map.json``'s ``fused``): ``views``,
         ``view_times_s`` (reference first), ``spacing_s``, ``fusion``, ``N1_views`` (each map's
-        points), ``N1_reference``, ``N1`` (the fused map's), ``reference_points_kept``,
-        ``neighbour_points`` (pixels whose depth came from a neighbour), ``folders``.
+        points), ``N1_reference``, ``N1`` (the fused map's), ``pixels_from_reference`` (pixels
+        holding the reference map's own depth: its points that other views confirm and no
+        nearer confirmed point hides), ``pixels_from_neighbours`` (the rest), ``folders``.
     """
     map_folder = Path(map_folder)
     views = _views(views)
@@ -212,8 +213,8 @@ def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DE
             "N1_views": [int(np.count_nonzero(v.valid)) for v in depth_views],
             "N1_reference": int(np.count_nonzero(reference.valid)),
             "N1": int(np.count_nonzero(fused)),
-            "reference_points_kept": int(np.count_nonzero(own)),
-            "neighbour_points": int(np.count_nonzero((fused > 0) & ~own)),
+            "pixels_from_reference": int(np.count_nonzero(own)),
+            "pixels_from_neighbours": int(np.count_nonzero((fused > 0) & ~own)),
             "folders": {"views": folders, "map": "map/"},
         }
         info = {k: v for k, v in meta.items() if k not in MAP_POINT_KEYS}
