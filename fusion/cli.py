@@ -340,7 +340,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
                              event_noise=args.event_noise,
                              keep_boundary_planes=args.keep_boundary_planes)
     report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
-                       progress=not args.quiet)
+                       progress=not args.quiet, views=args.views)
     print(f"{len(report['rows'])} windows in {report['total_s'] / 60:.1f} min")
     print(f"written to {Path(args.out) / 'report.md'}")
     return 0
@@ -634,6 +634,10 @@ def _parser() -> argparse.ArgumentParser:
                             "KEY=VALUE only with one --method. Never changes the paper's "
                             "tables; `evfuse methods --params` lists the settings")
     repro.add_argument("--keep-boundary-planes", action="store_true", help=KEEP_BOUNDARY_HELP)
+    repro.add_argument("--views", type=count_type(1), default=1, metavar="N",
+                       help="Table 1 also with each map fused with N-1 neighbouring views' "
+                            "(as evfuse run --views), beside the one-view columns (default 1: "
+                            "one view only)")
     repro.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     repro.add_argument("--quiet", action="store_true", help="no progress bar")
     repro.set_defaults(run=_cmd_reproduce)
