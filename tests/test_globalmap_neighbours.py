@@ -205,3 +205,15 @@ def test_fused_reference_map_refuses_views_the_data_cannot_hold(one_view, tmp_pa
     with pytest.raises(ParameterError, match="views 9 needs 8 neighbouring windows"):
         fused_reference_map(folder / "map", tmp_path / "nine", views=9, progress=False)
     assert not (tmp_path / "nine").exists()
+
+
+def test_run_refuses_more_views_than_the_scene_holds_before_simulating(tmp_path, capsys):
+    scene = tmp_path / "wall.toml"
+    scene.write_text(scene_text(WALL, trajectory=SLOW, duration=0.6, extra=EXTRA))
+    out = tmp_path / "run"
+    assert run_cli(["run", str(scene), "--t0", "0.2", "--t1", "0.4", "--views", "9",
+                    "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("evfuse run: error: --views 9 needs 8 neighbouring windows")
+    assert "\n" not in err and "give fewer --views" in err
+    assert not out.exists() and not (tmp_path / "run.partial").exists()
