@@ -444,7 +444,7 @@ def _run(source, scene, out: Path, params: RunParams, method: ResolvedMethod, ov
         }
         if extra_map is not None:
             tick = time.perf_counter()
-            report[extra_map.name] = _extra_map(extra_map, tmp, method, progress)
+            report[extra_map.name] = _extra_map(extra_map, tmp, method, progress, resume)
             timings[f"{extra_map.name}_s"] = time.perf_counter() - tick
         write_image(tmp / "overview.png", draw_overview(tmp, report))
         timings["total_s"] = time.perf_counter() - clock
@@ -454,11 +454,16 @@ def _run(source, scene, out: Path, params: RunParams, method: ResolvedMethod, ov
     return report
 
 
-def _extra_map(extra_map: ExtraMap, run: Path, method: ResolvedMethod, progress: bool) -> dict:
+def _extra_map(extra_map: ExtraMap, run: Path, method: ResolvedMethod, progress: bool,
+               resume: bool = False) -> dict:
     """Make, fill and score a run's extra map; its ``report.json`` block: its description,
     N1, N1 in frame, N2, Res, beta and the errors as the run's own (``errors_summary``,
-    ``mae_cm``, ``map_errors_at_reference``), its files."""
+    ``mae_cm``, ``map_errors_at_reference``), its files. A resumed run makes it again (as
+    its map and fill): what an interruption left of it is removed first."""
     folder = run / extra_map.name
+    if resume:
+        for stale in (folder, folder.with_name(folder.name + PARTIAL_SUFFIX)):
+            shutil.rmtree(stale, ignore_errors=True)
     description = extra_map(run / "map", folder, progress)
     filled = fill_window(folder / "map", folder / "fill", method=method)
     mapped = json.loads((folder / "map" / "map.json").read_text())
