@@ -128,7 +128,7 @@ def _reference(map_folder: Path) -> tuple[dict, DepthView, Path]:
                          np.array(meta["T_world_ref"], np.float64), float(meta["t_ref"]),
                          "reference")
         sequence = map_folder / meta["sequence"]
-        meta["window_s"], meta["params"]["dsi"], meta["params"]["depth"]    # noqa: B018
+        _ = (meta["window_s"][1], meta["params"]["dsi"], meta["params"]["depth"])  # present
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: not a map.json written by evfuse map ({exc})") from exc
     return meta, view, sequence
