@@ -3,6 +3,11 @@
 * :mod:`fusion.globalmap.views` -- :class:`DepthView`: a depth image with its camera and world pose.
 * :mod:`fusion.globalmap.fuse` -- multi-view consistency: agreement counts, the fused point cloud,
   the fused map in one reference view, and the agreement of overlapping views (no ground truth).
+* :mod:`fusion.globalmap.tsdf` -- the truncated signed distance volume integrated from depth views
+  (a numba kernel) and its marching-cubes mesh.
+* :mod:`fusion.globalmap.score` -- scoring against the exact geometry (simulated sequences only):
+  the key views' exact depth, the exact surface, accuracy / completeness / F-scores, the
+  error-coloured cloud and the figure.
 """
 
 from fusion.globalmap.fuse import (
@@ -14,9 +19,22 @@ from fusion.globalmap.fuse import (
     fuse_views,
     view_agreement,
 )
+from fusion.globalmap.score import (
+    TAUS_M,
+    cloud_scores,
+    draw_global_figure,
+    error_colours,
+    exact_surface,
+    exact_view,
+    write_error_cloud,
+)
+from fusion.globalmap.tsdf import Mesh, TSDFParams, TSDFVolume, tsdf_grid, tsdf_mesh
 from fusion.globalmap.views import DepthView, to_camera, to_world
 
 __all__ = [
-    "DepthView", "FusedCloud", "FusionParams", "agreement_counts", "default_voxel_size",
+    "TAUS_M", "DepthView", "FusedCloud", "FusionParams", "Mesh", "TSDFParams", "TSDFVolume",
+    "agreement_counts", "cloud_scores",
+    "default_voxel_size", "draw_global_figure", "error_colours", "exact_surface", "exact_view",
     "fuse_into_view", "fuse_views", "to_camera", "to_world", "view_agreement",
+    "tsdf_grid", "tsdf_mesh", "write_error_cloud",
 ]

@@ -289,19 +289,56 @@ def time_window(sequence: Sequence, t0: float | None = None, t1: float | None = 
     return TimeWindow((t0, t1), used[0], used[1], clipped, t_ref, events, poses)
 
 
-def _ground_truth_depth(sequence: Sequence, t_ref: float) -> np.ndarray | None:
-    """Exact depth of the reference view, in the pixel grid the map should have, or None
-    without a scene. Scoring only: the one place that reads the rig's exact files.
+def _exact_reference(sequence: Sequence, t_ref: float
+                     ) -> tuple[Camera, np.ndarray, float, bool] | None:
+    """The TRUE camera of the reference view at ``t_ref``, or None without a scene (a real
+    recording). Scoring only: the one place that reads the rig's exact files.
 
-    The map is the depth seen from the reference view: the camera whose pose ``groundtruth.txt``
-    gives at ``t_ref``, in that camera's undistorted pixels. With a perfect rig that is the pose
-    and calibration the map was built with. With an imperfect one (:mod:`sim.capture_errors`) the
-    truth is
-    the TRUE camera at that instant: the exact pose (``groundtruth_exact.txt``) at the true time
-    ``t_ref - poses_offset``, and the true intrinsics (``calib_exact.txt``) without distortion.
-    So a map built from noisy poses or a wrong calibration is scored against what it should have
-    been, and its errors include theirs; it is never compared with a truth rendered at its own
-    (wrong) pose.
+    With a perfect rig that is the pose and calibration the map was built with. With an
+    imperfect one (:mod:`sim.capture_errors`) it is the true camera at that instant: the exact
+    pose (``groundtruth_exact.txt``) at the true time ``t_ref - poses_offset`` and the true
+    intrinsics (``calib_exact.txt``) without distortion.
+
+    Parameters
+    ----------
+    sequence : Sequence
+    t_ref : float, seconds, on the poses' clock (as ``map.json``'s ``t_ref``)
+
+    Returns
+    -------
+    camera : Camera
+        The true intrinsics, undistorted (the map's pixel grid).
+    T_world_cam : (4, 4) float64 ndarray
+        The exact pose at the true time (camera to world).
+    t_true : float, seconds
+        The true time of ``t_ref``.
+    distorted : bool
+        The true sensor has lens distortion (its ``depth/`` images are not in ``camera``'s
+        pixels).
+    """
+    meta = sequence.metadata or {}
+    toml = (meta.get("scene") or {}).get("toml")
+    if not toml:
+        return None
+    from sim.capture_errors import exact_camera, exact_trajectory, true_time
+
+    sensor = exact_camera(sequence)
+    camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
+    t_true = true_time(meta, t_ref, "poses")
+    pose = exact_trajectory(sequence).pose(t_true)
+    return camera, pose, t_true, sensor.has_distortion
+
+
+def _exact_depth_view(sequence: Sequence, t_ref: float, supersample: int = 1
+                      ) -> tuple[np.ndarray, Camera, np.ndarray] | None:
+    """Exact depth of the reference view with the camera and pose it is exact in, or None
+    without a scene. Scoring only (:func:`_ground_truth_depth` of a map, and
+    :func:`fusion.globalmap.score.exact_view` of a global map's key views).
+
+    The map is the depth seen from the reference view: the TRUE camera at that instant
+    (:func:`_exact_reference`), in that camera's undistorted pixels. So a map built from noisy
+    poses or a wrong calibration is scored against what it should have been, and its errors
+    include theirs; it is never compared with a truth rendered at its own (wrong) pose.
 
     The exact depth written in ``depth/`` is used when it is that very image (a sensor without
     distortion and a depth map at the true reference time; ``depthmaps.txt`` is on the frames'
@@ -313,48 +350,72 @@ def _ground_truth_depth(sequence: Sequence, t_ref: float) -> np.ndarray | None:
     ----------
     sequence : Sequence
     t_ref : float, seconds, on the poses' clock (as ``map.json``'s ``t_ref``)
+    supersample : int, >= 1
+        Each pixel split into ``supersample x supersample`` (the same field of view,
+        :meth:`Camera.with_resolution`), always rendered: a denser exact sampling of the surface
+        (default 1: the map's own pixels).
+
+    Returns
+    -------
+    depth : (H, W) float32 ndarray, metres, 0 where no surface
+        (``supersample`` times ``H`` and ``W``)
+    camera : Camera
+        The true camera, undistorted: ``depth``'s pixel grid.
+    T_world_cam : (4, 4) float64 ndarray
+        The exact pose of ``camera`` at the true time (camera to world).
+    Or None (a real recording).
+    """
+    reference = _exact_reference(sequence, t_ref)
+    if reference is None:
+        return None
+    camera, pose, t_true, distorted = reference
+    n = int(supersample)
+    if n > 1:
+        camera = camera.with_resolution(n * camera.width, n * camera.height)
+    k = None
+    if not distorted and n == 1:
+        from sim.capture_errors import true_time
+
+        frames_offset = t_ref - true_time(sequence.metadata, t_ref, "frames")
+        k = sequence.nearest_depth(t_true + frames_offset)
+    if k is not None:
+        return read_depth(sequence.depth_paths[k]), camera, pose
+    from sim.render import Renderer
+
+    scene = replace(recorded_scene(sequence.metadata), camera=camera)
+    return Renderer(scene, spp=1).depth(t_true, pose=pose), camera, pose
+
+
+def _ground_truth_depth(sequence: Sequence, t_ref: float) -> np.ndarray | None:
+    """Exact depth of the reference view, in the pixel grid the map should have, or None
+    without a scene: the depth of :func:`_exact_depth_view` (the true camera, undistorted, at
+    the exact pose and the true time). Scoring only.
+
+    Parameters
+    ----------
+    sequence : Sequence
+    t_ref : float, seconds, on the poses' clock (as ``map.json``'s ``t_ref``)
 
     Returns
     -------
     (H, W) float32 ndarray, metres, 0 where no surface; or None (a real recording)
     """
-    meta = sequence.metadata or {}
-    toml = (meta.get("scene") or {}).get("toml")
-    if not toml:
-        return None
-    from sim.capture_errors import exact_camera, exact_trajectory, true_time
-
-    sensor = exact_camera(sequence)
-    camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
-    t_true = true_time(meta, t_ref, "poses")
-    k = None
-    if not sensor.has_distortion:
-        frames_offset = t_ref - true_time(meta, t_ref, "frames")
-        k = sequence.nearest_depth(t_true + frames_offset)
-    if k is not None:
-        return read_depth(sequence.depth_paths[k])
-    from sim.render import Renderer
-
-    pose = exact_trajectory(sequence).pose(t_true)
-    scene = replace(recorded_scene(meta), camera=camera)
-    return Renderer(scene, spp=1).depth(t_true, pose=pose)
+    exact = _exact_depth_view(sequence, t_ref)
+    return None if exact is None else exact[0]
 
 
 def _motion_regions(sequence: Sequence, t_ref: float, window: tuple[float, float]
                     ) -> np.ndarray | None:
     """:func:`fusion.scoring.motion_regions` of the reference view (the true camera, undistorted,
-    at the true pose and time, as :func:`_ground_truth_depth`), or None for a real recording
-    or a scene whose objects do not move. Scoring only."""
+    at the true pose and time: :func:`_exact_reference`), or None for a real recording or a
+    scene whose objects do not move. Scoring only."""
     meta = sequence.metadata or {}
     scene = recorded_scene(meta)
     if scene is None or not scene.is_dynamic:
         return None
-    from sim.capture_errors import exact_camera, exact_trajectory, true_time
+    from sim.capture_errors import true_time
 
-    sensor = exact_camera(sequence)
-    camera = Camera(sensor.width, sensor.height, sensor.fx, sensor.fy, sensor.cx, sensor.cy)
-    t_true = true_time(meta, t_ref, "poses")
-    pose = exact_trajectory(sequence).pose(t_true)
+    camera, pose, t_true, _ = _exact_reference(sequence, t_ref)
     return motion_regions(scene, camera, pose, t_true,
                           tuple(true_time(meta, t, "events") for t in window))
 
