@@ -148,12 +148,17 @@ def test_a_stricter_check_keeps_fewer_points(one_view, fused3, tmp_path):
     assert strict["pixels_from_reference"] <= loose["pixels_from_reference"]
 
 
-def test_run_views_writes_the_fused_map_beside_the_one_view_one(tmp_path, capsys):
+def _run_views(tmp_path, views: int, out) -> int:
+    """``evfuse run`` of the sliding wall's [0.2, 0.4] s with ``--views``; its exit status."""
     scene = tmp_path / "wall.toml"
     scene.write_text(scene_text(WALL, trajectory=SLOW, duration=0.6, extra=EXTRA))
+    return run_cli(["run", str(scene), "--t0", "0.2", "--t1", "0.4", "--views", str(views),
+                    "--out", str(out), "--quiet"])
+
+
+def test_run_views_writes_the_fused_map_beside_the_one_view_one(tmp_path, capsys):
     out = tmp_path / "run"
-    assert run_cli(["run", str(scene), "--t0", "0.2", "--t1", "0.4", "--views", "3",
-                    "--out", str(out), "--quiet"]) == 0
+    assert _run_views(tmp_path, 3, out) == 0
     printed = capsys.readouterr().out
     report = json.loads((out / "report.json").read_text())
     fused = report["fused"]
@@ -208,11 +213,8 @@ def test_fused_reference_map_refuses_views_the_data_cannot_hold(one_view, tmp_pa
 
 
 def test_run_refuses_more_views_than_the_scene_holds_before_simulating(tmp_path, capsys):
-    scene = tmp_path / "wall.toml"
-    scene.write_text(scene_text(WALL, trajectory=SLOW, duration=0.6, extra=EXTRA))
     out = tmp_path / "run"
-    assert run_cli(["run", str(scene), "--t0", "0.2", "--t1", "0.4", "--views", "9",
-                    "--out", str(out), "--quiet"]) == 2
+    assert _run_views(tmp_path, 9, out) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("evfuse run: error: --views 9 needs 8 neighbouring windows")
     assert "\n" not in err and "give fewer --views" in err
