@@ -340,8 +340,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if is_sequence_folder(args.source):       # nothing to resume: map and fill start over
         args.interrupted = ("no complete output was written; the same command starts over "
                             "(it maps and fills again)")
+    extra_map = None
+    if args.views > 1:
+        from fusion.globalmap.neighbours import FusedViews
+
+        extra_map = FusedViews(views=args.views)
     report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,
-                          progress=not args.quiet, resume=args.resume)
+                          progress=not args.quiet, resume=args.resume, extra_map=extra_map)
     _print_report(report, Path(args.out))
     return 0
 
@@ -396,6 +401,14 @@ def _print_report(report: dict, out: Path) -> None:
                           ("filled pixels", "filled"), ("dense map", "all")):
             rows.append((name, _error_line(summary[key])))
             rows += [("", text) for text in _motion_lines(split.get(key), "  ")]
+    fused = report.get("fused")
+    if fused is not None:
+        rows += [(f"fused, {fused['views']} views", f"N1 {fused['N1']:,} (one view "
+                  f"{fused['N1_reference']:,}), N1 in the frame {fused['N1_in_frame']:,}, N2 "
+                  f"{fused['N2']:,}, beta {fused['beta']:.4f}")]
+        if fused["errors_summary"] is not None:
+            rows += [(f"fused {name}", _error_line(fused["errors_summary"][key]))
+                     for name, key in (("event map", "map"), ("dense map", "all"))]
     width = max(len(k) for k, _ in rows)
     print()
     for key, value in rows:
@@ -434,7 +447,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
                              event_noise=args.event_noise,
                              keep_boundary_planes=args.keep_boundary_planes)
     report = reproduce(args.out, params, cache=args.cache, overwrite=args.overwrite,
-                       progress=not args.quiet)
+                       progress=not args.quiet, views=args.views)
     print(f"{len(report['rows'])} windows in {report['total_s'] / 60:.1f} min")
     print(f"written to {Path(args.out) / 'report.md'}")
     return 0
@@ -728,6 +741,11 @@ def _parser() -> argparse.ArgumentParser:
                      help="continue an interrupted run of the same command from OUT.partial: "
                           "its simulation resumes from its checkpoint (as simulate --resume), "
                           "then the map and the fill are made again")
+    run.add_argument("--views", type=count_type(1), default=1, metavar="N",
+                     help="also fuse the map with those of N-1 neighbouring views (reference "
+                          "times t_ref +- k half-windows, windows of the same length) into the "
+                          "reference view, fill and score it: OUT/fused/ and report.json's "
+                          "fused block (default 1: the one-view map only)")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     run.add_argument("--global", dest="global_map", action="store_true",
                      help="one global map from many key views (as evfuse map-global) over the "
@@ -776,6 +794,10 @@ def _parser() -> argparse.ArgumentParser:
                             "KEY=VALUE only with one --method. Never changes the paper's "
                             "tables; `evfuse methods --params` lists the settings")
     repro.add_argument("--keep-boundary-planes", action="store_true", help=KEEP_BOUNDARY_HELP)
+    repro.add_argument("--views", type=count_type(1), default=1, metavar="N",
+                       help="Table 1 also with each map fused with N-1 neighbouring views' "
+                            "(as evfuse run --views), beside the one-view columns (default 1: "
+                            "one view only)")
     repro.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     repro.add_argument("--quiet", action="store_true", help="no progress bar")
     repro.set_defaults(run=_cmd_reproduce)

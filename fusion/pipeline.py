@@ -21,6 +21,7 @@ import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -65,8 +66,8 @@ from sim.sequence import load_sequence
 from sim.statistics import event_frame
 from sim.validation import ParameterError, finite
 
-__all__ = ["RunParams", "draw_overview", "fill_sources", "fill_window", "is_sequence_folder",
-           "map_window", "run_pipeline", "run_sources"]
+__all__ = ["ExtraMap", "RunParams", "draw_overview", "fill_sources", "fill_window",
+           "is_sequence_folder", "map_window", "run_pipeline", "run_sources"]
 
 DEFAULT_WINDOW = 1.0
 """Seconds of a scene simulated and mapped when no window is given."""
@@ -266,8 +267,32 @@ def _check_run_resumable(out: Path, overwrite: bool, inputs: list, identity: dic
                          "again)")
 
 
+class ExtraMap(Protocol):
+    """A second map of the run's reference view, made from its map and filled like it
+    (``evfuse run --views N``: :class:`fusion.globalmap.neighbours.FusedViews`). The pipeline
+    never imports what makes it: the caller passes it to :func:`run_pipeline`.
+
+    Attributes
+    ----------
+    name : str
+        Its folder in the run (``<name>/map/``, ``<name>/fill/``) and its block in
+        ``report.json``.
+    """
+
+    name: str
+
+    def span(self, t0: float, t1: float, duration: float) -> tuple[float, float]:
+        """The part ``(start, end)`` of a scene's ``[0, duration]`` to simulate for a map of
+        ``[t0, t1]`` (containing it)."""
+
+    def __call__(self, map_folder: Path, out: Path, progress: bool) -> dict:
+        """Write the map folder ``out/map`` from the run's map ``map_folder``; return its
+        description (recorded in ``report.json``)."""
+
+
 def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None = None,
-                 overwrite: bool = False, progress: bool = True, resume: bool = False) -> dict:
+                 overwrite: bool = False, progress: bool = True, resume: bool = False,
+                 extra_map: ExtraMap | None = None) -> dict:
     """Run simulate -> map -> fill -> score on a scene or a sequence folder.
 
     Parameters
@@ -287,6 +312,11 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
         its simulation resumes from its checkpoint (as :func:`sim.simulate.simulate` with
         ``resume``) or is re-used when it was complete; the map and the fill are made again.
         Refused when the source, the scene file or a parameter differ.
+    extra_map : ExtraMap, optional
+        A second map of the reference view (``evfuse run --views N``), written into
+        ``<out>/<name>/map/``, filled into ``<out>/<name>/fill/`` with the same method and
+        scored like the first; ``report.json`` gets its block under ``name``. A scene is then
+        simulated over ``extra_map.span`` (the run's window is mapped as without it).
 
     Returns
     -------
@@ -316,13 +346,15 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
              else load_scene(resolve_scene(source), seed=params.seed))
     inputs = [Path(source)] if scene is None else scene_files(scene)
     identity = _run_identity(source, scene, params)
+    if extra_map is not None:
+        identity["extra_map"] = repr(extra_map)
     if resume:
         _check_run_resumable(out, overwrite, inputs, identity)
     else:
         check_output_dir(out, overwrite, inputs)
     try:
         return _run(source, scene, out, params, method, overwrite, progress, resume, inputs,
-                    identity)
+                    identity, extra_map)
     except ValueError as exc:
         # Bad input (found after the run folder was started): nothing worth keeping. The
         # message must not send the user to the folder deleted here: it names the run folder.
@@ -337,7 +369,8 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
 
 
 def _run(source, scene, out: Path, params: RunParams, method: ResolvedMethod, overwrite: bool,
-         progress: bool, resume: bool, inputs: list, identity: dict) -> dict:
+         progress: bool, resume: bool, inputs: list, identity: dict,
+         extra_map: ExtraMap | None = None) -> dict:
     clock = time.perf_counter()
     timings: dict[str, float] = {}
     with atomic_output_dir(out, overwrite=overwrite, resume=resume, inputs=inputs,
@@ -349,7 +382,7 @@ def _run(source, scene, out: Path, params: RunParams, method: ResolvedMethod, ov
             t0, t1 = params.t0, params.t1
         else:
             sequence_folder, t0, t1 = _simulate_window(scene, tmp / "sequence", params,
-                                                       progress, timings, resume)
+                                                       progress, timings, resume, extra_map)
             simulated_here = True
         tick = time.perf_counter()
         # A window simulated here is all the data there is: a rig's clock offsets
@@ -409,12 +442,41 @@ def _run(source, scene, out: Path, params: RunParams, method: ResolvedMethod, ov
                       **({} if filled.confidence is None
                          else {"confidence": "fill/confidence.exr"})},
         }
+        if extra_map is not None:
+            tick = time.perf_counter()
+            report[extra_map.name] = _extra_map(extra_map, tmp, method, progress, resume)
+            timings[f"{extra_map.name}_s"] = time.perf_counter() - tick
         write_image(tmp / "overview.png", draw_overview(tmp, report))
         timings["total_s"] = time.perf_counter() - clock
         report["timings"] = timings
         (tmp / "report.json").write_text(to_json(report))
         (tmp / RESUME_FILE).unlink()
     return report
+
+
+def _extra_map(extra_map: ExtraMap, run: Path, method: ResolvedMethod, progress: bool,
+               resume: bool = False) -> dict:
+    """Make, fill and score a run's extra map; its ``report.json`` block: its description,
+    N1, N1 in frame, N2, Res, beta and the errors as the run's own (``errors_summary``,
+    ``mae_cm``, ``map_errors_at_reference``), its files. A resumed run makes it again (as
+    its map and fill): what an interruption left of it is removed first."""
+    folder = run / extra_map.name
+    if resume:
+        for stale in (folder, folder.with_name(folder.name + PARTIAL_SUFFIX)):
+            shutil.rmtree(stale, ignore_errors=True)
+    description = extra_map(run / "map", folder, progress)
+    filled = fill_window(folder / "map", folder / "fill", method=method)
+    mapped = json.loads((folder / "map" / "map.json").read_text())
+    info = filled.info
+    summary = _errors_summary(mapped.get("errors"), info.get("errors"))
+    return {**description,
+            "N1": info["N1"], "N1_in_frame": info["N1_in_frame"], "N2": info["N2"],
+            "Res": info["Res"], "beta": info["beta"], "beta_counts": info["beta_counts"],
+            "errors_summary": summary,
+            "mae_cm": None if summary is None else {
+                k: None if v is None else v["mae_cm"] for k, v in summary.items()},
+            "map_errors_at_reference": mapped.get("errors"),
+            "files": {"map": f"{extra_map.name}/map/", "fill": f"{extra_map.name}/fill/"}}
 
 
 SUMMARY_KEYS = ("mae_cm", "median_cm", "n", "completeness", "points", "no_surface",
@@ -453,7 +515,7 @@ def _errors_summary(map_errors: dict | None, fill_errors: dict | None) -> dict |
 
 
 def _simulate_window(scene, folder: Path, params: RunParams, progress: bool, timings: dict,
-                     resume: bool = False):
+                     resume: bool = False, extra_map: ExtraMap | None = None):
     """Simulate the run's window into ``folder`` (:func:`sim.simulate.window.simulate_window`:
     with ``resume``, a complete ``folder`` is re-used and the checkpoint an interruption left in
     its ``.partial`` continued); return the folder and the window ``(t0, t1)`` the map is asked
@@ -481,8 +543,11 @@ def _simulate_window(scene, folder: Path, params: RunParams, progress: bool, tim
         raise ValueError(f"empty time window [{t0}, {end}] s")
     if resume and is_simulated(folder):
         return folder, t0, t1                 # simulated before the interruption
+    start = t0
+    if extra_map is not None:                 # its maps may need more of the scene
+        start, end = extra_map.span(t0, min(t1, scene.duration), scene.duration)
     tick = time.perf_counter()
-    simulate_window(scene, folder, t0, end - t0, resume=resume, progress=progress,
+    simulate_window(scene, folder, start, end - start, resume=resume, progress=progress,
                     spp=params.spp)
     timings["simulate_s"] = time.perf_counter() - tick
     return folder, t0, t1

@@ -194,7 +194,7 @@ def test_reproduce_adds_a_frozen_control_and_splits_the_dynamic_row(plane_sequen
     moving = _with_a_moving_ball(plane_sequence, tmp_path / "moving")
     asked = []
 
-    def simulated(job, params, cache):
+    def simulated(job, params, cache, views=1):
         asked.append(job)
         return plane_sequence if "frozen_of" in job else moving
 

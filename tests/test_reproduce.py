@@ -28,6 +28,9 @@ def test_reproduce_table_1_and_complex_on_one_scene_each(tmp_path, capsys):
     assert {s: r.get("failed") for s, r in rows.items()} == {s: None for s in rows}
     text = (out / "report.md").read_text()
     assert "## Complex surfaces" in text and "## Table 2" not in text
+    # without --views: no fused table, no trace of it in the report (as before it existed)
+    assert "fused" not in text and "views" not in report["settings"]
+    assert not any("fused" in r for r in report["rows"])
     assert "## DSI depth ranges" in text and "| shapes_6dof | 0.4-3 | scene file" in text
     # Table 1's row for shapes_6dof: ours on the paper's window start, the paper's own
     # N1 / N2 / beta in the "paper" columns (header: ... | beta | paper N1 | paper N2 |
@@ -164,3 +167,33 @@ def test_a_cached_window_is_not_taken_for_a_changed_scene(tmp_path):
     assert window_key(load_scene(resolve_scene("slider_far")), 1.0, 0.5) == key
     assert window_key(builtin, 1.0, 0.25) != key            # another window
     assert window_key(builtin, 1.0, 0.5, spp=4) != key      # another parameter
+
+
+def test_reproduce_views_adds_the_fused_table_beside_the_one_view_one(tmp_path, capsys):
+    out, cache = tmp_path / "report", tmp_path / "cache"
+    assert main(["reproduce", "--out", str(out), "--cache", str(cache), "--tables", "1",
+                 "--scenes", "shapes_6dof", "--long-window", "0.15", "--views", "3",
+                 "--quiet"]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["settings"]["views"] == 3
+    (row,) = report["rows"]
+    fused, one = row["fused"], row["fills"]["idw"]
+    assert fused["views"] == 3 and fused["N1_reference"] == one["N1"]
+    assert fused["view_times_s"][0] == pytest.approx(row["t_ref"])
+    assert len(fused["view_times_s"]) == 3 and fused["spacing_s"] == pytest.approx(0.075)
+    # the window was simulated over the span its neighbours need, the map is the window's
+    assert row["window_s"] == pytest.approx([2.0, 2.15])
+    (sequence,) = cache.glob("*/sequence.json")
+    simulated = json.loads(sequence.read_text())
+    assert simulated["start"] < 2.0 - 0.07 and simulated["start"] + simulated["duration"] > 2.22
+    run = out / "runs" / "shapes_6dof_2.00"
+    for name in ("fused/map/map.json", "fused/fill_idw/fill.json", "fused/views/01/map.json",
+                 "fused/views/02/map.json"):
+        assert (run / name).is_file(), name
+    text = (out / "report.md").read_text()
+    assert "## Table 1, fused: each map with 2 neighbouring views' (3 views)" in text
+    line = next(r for r in text.splitlines() if r.startswith("| shapes_6dof | 2.00-2.15 | "
+                                                             f"{fused['N1_reference']} / "))
+    assert f"{fused['N1_reference']} / {fused['N1']} | {fused['N1_in_frame']} | " in line
+    assert "evfuse reproduce --views 3" in text
+

@@ -1,0 +1,276 @@
+"""A reference view's map fused with its neighbours' (issue 25, part 2c): ``--views N``.
+
+The one-view map (``evfuse map``'s, at reference time ``t_ref`` over the window ``[t0, t1]``)
+is joined by the maps of ``N - 1`` neighbouring views made the same way, and
+:func:`fusion.globalmap.fuse.fuse_into_view` re-projects their consistency-checked points into
+the reference view's pixels: a denser map in the same pixel grid, which the fill stage fills
+unchanged.
+
+The neighbours' rule (:func:`neighbour_times`): reference times ``t_ref - h, t_ref + h,
+t_ref - 2 h, t_ref + 2 h, ...`` (``h`` the spacing, by default half the window's length), the
+nearest first and the earlier first at equal distance; each maps the reference's window
+shifted by the same offset (the same length, the same place of its reference view in it), and
+a neighbour is taken only when that whole window lies in the data (the events' and the poses'
+spans); one that does not is skipped and the next one taken. Every neighbour's map has the
+reference's DSI (depth range, planes) and extraction parameters, and its pose is the noisy
+``groundtruth.txt`` pose at its time, as the reference's: the fusion is blind. The exact depth
+is read only to score the fused map, by the map stage's own scoring
+(:func:`fusion.scoring.depth_errors` against the reference view's exact depth).
+
+With ``N = 1`` there is nothing to fuse: the fused map is the one-view map, bit for bit.
+
+Files: ``OUT/views/NN/`` (``NN`` = 01 .. N-1: each neighbour's map folder, as ``evfuse map``
+writes it) and ``OUT/map/`` (the fused map, a map folder: ``semidense_depth.exr``,
+``confidence.exr`` (the reference map's DSI votes at its own points, 0 at points from the
+neighbours), ``mask.png``, ``overlay.png``, ``map.ply``, ``map.json`` with a ``fused`` block).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fusion.globalmap.fuse import FusionParams, agreement_counts, fuse_into_view
+from fusion.globalmap.views import DepthView
+from fusion.map.emvs import DepthMapParams, DSIParams
+from fusion.map.mapping import (
+    MapParams,
+    MapResult,
+    _ground_truth_depth,
+    time_window,
+    write_map,
+)
+from fusion.pipeline import map_window
+from fusion.scoring import depth_errors
+from sim.camera import Camera
+from sim.exr import read_depth, read_exr_channels
+from sim.output import atomic_output_dir
+from sim.sequence import EXACT_TIME_S, load_sequence
+from sim.validation import ParameterError, check_parameter, integer, positive
+
+__all__ = ["FusedViews", "fused_reference_map", "neighbour_times"]
+
+DEFAULT_VIEWS = 3
+"""Views of ``evfuse run --views`` and :class:`FusedViews` when none is given."""
+
+
+def _views(value: object) -> int:
+    return check_parameter(lambda name, v: integer(name, v, 1), "views", value)
+
+
+def neighbour_times(t_ref: float, window: tuple[float, float], views: int,
+                    span: tuple[float, float], spacing: float | None = None) -> list[float]:
+    """The reference times of a reference view's ``views - 1`` neighbours (the module's rule).
+
+    Parameters
+    ----------
+    t_ref : float, seconds
+        The reference view's time.
+    window : (float, float), seconds
+        The reference view's event window ``(t0, t1)``; each neighbour maps it shifted by its
+        offset from ``t_ref``.
+    views : int
+        N >= 1, the reference view included.
+    span : (float, float), seconds
+        What the data covers (events and poses); a neighbour's whole window must lie in it
+        (within :data:`sim.sequence.EXACT_TIME_S`).
+    spacing : float or None, seconds
+        ``h``; None: half the window's length.
+
+    Returns
+    -------
+    list of float, seconds
+        ``views - 1`` times, in the order they were taken (nearest first, earlier first at
+        equal distance).
+
+    Raises
+    ------
+    ParameterError
+        A bad ``views`` or ``spacing``, or fewer than ``views - 1`` neighbours whose windows fit
+        in the data (one line naming ``{views}``).
+    """
+    views = _views(views)
+    t0, t1 = float(window[0]), float(window[1])
+    if not t1 > t0:
+        raise ParameterError(f"empty {{window}} [{t0:g}, {t1:g}] s", window="window")
+    h = 0.5 * (t1 - t0) if spacing is None else check_parameter(positive, "spacing", spacing)
+    lo, hi = float(span[0]) - EXACT_TIME_S, float(span[1]) + EXACT_TIME_S
+    times: list[float] = []
+    k = 1
+    while len(times) < views - 1:
+        earlier, later = t0 - k * h >= lo, t1 + k * h <= hi       # the shifted windows fit
+        if not (earlier or later):
+            raise ParameterError(
+                f"{{views}} {views} needs {views - 1} neighbouring windows of "
+                f"{t1 - t0:g} s spaced {h:g} s apart around {t_ref:g} s within the data "
+                f"[{span[0]:g}, {span[1]:g}] s; only {len(times)} fit: give fewer {{views}} or "
+                "more data", views="views")
+        for t, fits in ((float(t_ref) - k * h, earlier), (float(t_ref) + k * h, later)):
+            if fits and len(times) < views - 1:
+                times.append(t)
+        k += 1
+    return times
+
+
+def _reference(map_folder: Path) -> tuple[dict, DepthView, Path]:
+    """The one-view map's ``map.json``, its depth view and its sequence folder."""
+    path = map_folder / "map.json"
+    if not path.is_file():
+        raise ValueError(f"{map_folder}: no map.json (write a map with evfuse map first)")
+    meta = json.loads(path.read_text())
+    try:
+        c = meta["camera"]
+        camera = Camera(int(c["width"]), int(c["height"]), c["fx"], c["fy"], c["cx"], c["cy"])
+        view = DepthView(read_depth(map_folder / "semidense_depth.exr"), camera,
+                         np.array(meta["T_world_ref"], np.float64), float(meta["t_ref"]),
+                         "reference")
+        sequence = map_folder / meta["sequence"]
+        _ = (meta["window_s"][1], meta["params"]["dsi"], meta["params"]["depth"])  # present
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a map.json written by evfuse map ({exc})") from exc
+    return meta, view, sequence
+
+
+MAP_POINT_KEYS = ("N1", "t_ref", "T_world_ref", "sequence", "params", "camera", "errors",
+                  "errors_by_motion", "depth_median_m")
+"""Keys of the reference's ``map.json`` that describe its own points or are written anew by
+:func:`fusion.map.mapping.write_map`: not copied into the fused map's."""
+
+
+def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DEFAULT_VIEWS,
+                        fusion: FusionParams | None = None, *, spacing: float | None = None,
+                        overwrite: bool = False, progress: bool = True) -> dict:
+    """Fuse a one-view map with its ``views - 1`` neighbours' maps in its own pixels.
+
+    Parameters
+    ----------
+    map_folder : str or Path
+        The one-view map (``evfuse map``'s folder); its ``map.json`` gives the sequence, the
+        reference time, the window, the DSI and the extraction parameters. Only read.
+    out : str or Path
+        Folder to write: ``views/NN/`` (the neighbours' maps) and ``map/`` (the fused map).
+    views : int
+        N >= 1, the reference view included (default 3).
+    fusion : FusionParams, optional
+        The consistency check (default :class:`FusionParams`: one other view within 2 %, a
+        pixel's search radius); ``voxel_size`` is not used.
+    spacing : float or None, seconds
+        Between neighbours' reference times (default half the window's length).
+    overwrite : bool
+    progress : bool
+
+    Returns
+    -------
+    dict
+        The fused map's description (also ``map/map.json``'s ``fused``): ``views``,
+        ``view_times_s`` (reference first), ``spacing_s``, ``fusion``, ``N1_views`` (each map's
+        points), ``N1_reference``, ``N1`` (the fused map's), ``pixels_from_reference`` (pixels
+        holding the reference map's own depth: its points that other views confirm and no
+        nearer confirmed point hides), ``pixels_from_neighbours`` (the rest), ``folders``.
+    """
+    map_folder = Path(map_folder)
+    views = _views(views)
+    fusion = fusion or FusionParams()
+    meta, reference, sequence_folder = _reference(map_folder)
+    t_ref = reference.t
+    window = (float(meta["window_s"][0]), float(meta["window_s"][1]))
+    sequence = load_sequence(sequence_folder)
+    data = time_window(sequence)
+    span = (max(data.events_span[0], data.poses_span[0]),
+            min(data.events_span[1], data.poses_span[1]))
+    times = neighbour_times(t_ref, window, views, span, spacing)
+    h = 0.5 * (window[1] - window[0]) if spacing is None else float(spacing)
+    p = meta["params"]
+    dsi, extraction = DSIParams(**p["dsi"]), DepthMapParams(**p["depth"])
+    depth_views = [reference]
+    folders = []
+    with atomic_output_dir(out, overwrite=overwrite, inputs=[map_folder, sequence_folder],
+                           command="evfuse run --views") as tmp:
+        for index, t in enumerate(times, start=1):
+            folder = Path("views") / f"{index:02d}"
+            shift = t - t_ref
+            mapped, _ = map_window(sequence_folder, tmp / folder, window[0] + shift,
+                                   window[1] + shift, ref_time=t, min_depth=dsi.min_depth,
+                                   max_depth=dsi.max_depth, planes=dsi.planes,
+                                   depth=extraction, progress=progress)
+            depth_views.append(DepthView(mapped.depth, mapped.camera, mapped.T_world_ref,
+                                         mapped.t_ref, f"view {index}"))
+            folders.append(f"{folder.as_posix()}/")
+        if views == 1:
+            fused = reference.depth.copy()
+        else:
+            counts = agreement_counts(depth_views, fusion)
+            fused = fuse_into_view(depth_views, 0, fusion, counts=counts)
+        own = (reference.depth > 0) & (fused == reference.depth)
+        confidence = np.where(own, read_exr_channels(map_folder / "confidence.exr")["Y"],
+                              0).astype(np.float32)
+        description = {
+            "views": views, "view_times_s": [t_ref, *times], "spacing_s": h,
+            "fusion": asdict(fusion),
+            "N1_views": [int(np.count_nonzero(v.valid)) for v in depth_views],
+            "N1_reference": int(np.count_nonzero(reference.valid)),
+            "N1": int(np.count_nonzero(fused)),
+            "pixels_from_reference": int(np.count_nonzero(own)),
+            "pixels_from_neighbours": int(np.count_nonzero((fused > 0) & ~own)),
+            "folders": {"views": folders, "map": "map/"},
+        }
+        info = {k: v for k, v in meta.items() if k not in MAP_POINT_KEYS}
+        info["fused"] = description
+        info["depth_median_m"] = float(np.median(fused[fused > 0])) if fused.any() else None
+        truth = _ground_truth_depth(sequence, t_ref)       # scoring only
+        if truth is not None:
+            info["errors"] = depth_errors(fused, truth)
+        params = MapParams(dsi, extraction, t0=p.get("t0"), t1=p.get("t1"),
+                           ref_time=p.get("ref_time"), clip_window=bool(p.get("clip_window")),
+                           outlier_radius=p["outlier_radius"],
+                           outlier_neighbours=p["outlier_neighbours"])
+        result = MapResult(fused, confidence, fused > 0, reference.camera, t_ref,
+                           reference.T_world_cam, info, sequence)
+        write_map(result, tmp / "map", params)
+    return description
+
+
+@dataclass(frozen=True)
+class FusedViews:
+    """``evfuse run --views N``: the run's map fused with its neighbours' (an extra map of
+    :func:`fusion.pipeline.run_pipeline`, written into ``<run>/fused/``).
+
+    Attributes
+    ----------
+    views : int
+        N >= 2, the reference view included.
+    fusion : FusionParams
+    spacing : float or None, seconds
+        Between neighbours' reference times (default half the window's length).
+    """
+
+    views: int = DEFAULT_VIEWS
+    fusion: FusionParams = field(default_factory=FusionParams)
+    spacing: float | None = None
+    name: str = "fused"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "views", _views(self.views))
+        if self.spacing is not None:
+            object.__setattr__(self, "spacing", check_parameter(positive, "spacing",
+                                                                self.spacing))
+
+    def span(self, t0: float, t1: float, duration: float) -> tuple[float, float]:
+        """The part of a scene ``[0, duration]`` to simulate so that the neighbours of a map of
+        ``[t0, t1]`` fit (:func:`neighbour_times` around the window's middle, widened by half a
+        spacing on each side for a reference view off the middle: the frame nearest it)."""
+        middle = 0.5 * (t0 + t1)
+        h = 0.5 * (t1 - t0) if self.spacing is None else self.spacing
+        times = neighbour_times(middle, (t0, t1), self.views, (0.0, duration), self.spacing)
+        before = min([middle, *times]) - (middle - t0) - 0.5 * h
+        after = max([middle, *times]) + (t1 - middle) + 0.5 * h
+        return max(0.0, min(before, t0)), min(duration, max(after, t1))
+
+    def __call__(self, map_folder: Path, out: Path, progress: bool) -> dict:
+        """Write the fused map into ``out/map`` (:func:`fused_reference_map`)."""
+        return fused_reference_map(map_folder, out, self.views, self.fusion,
+                                   spacing=self.spacing, progress=progress)
+
