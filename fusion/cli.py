@@ -342,7 +342,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
                             "(it maps and fills again)")
     extra_map = None
     if args.views > 1:
-        from fusion.globalmap.neighbours import FusedViews
+        from fusion.globalmap import FusedViews
 
         extra_map = FusedViews(views=args.views)
     report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,

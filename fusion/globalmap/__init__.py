@@ -10,6 +10,8 @@
   error-coloured cloud and the figure.
 * :mod:`fusion.globalmap.keyviews` -- key views along a trajectory (EMVS's criteria: baseline,
   angle, event budget) and their event windows.
+* :mod:`fusion.globalmap.neighbours` -- one reference view's map fused with its neighbours' maps
+  (``evfuse run --views N``, ``evfuse reproduce --views N``).
 * :mod:`fusion.globalmap.pipeline` -- ``evfuse map-global`` / ``evfuse run --global``: key views
   mapped and filled in parallel, fused, meshed, scored, written.
 """
@@ -24,6 +26,7 @@ from fusion.globalmap.fuse import (
     view_agreement,
 )
 from fusion.globalmap.keyviews import KeyViewParams, key_view_windows, select_key_views
+from fusion.globalmap.neighbours import FusedViews, fused_reference_map, neighbour_times
 from fusion.globalmap.pipeline import GlobalParams, map_global, run_global
 from fusion.globalmap.score import (
     TAUS_M,
@@ -38,10 +41,10 @@ from fusion.globalmap.tsdf import Mesh, TSDFParams, TSDFVolume, tsdf_grid, tsdf_
 from fusion.globalmap.views import DepthView, to_camera, to_world
 
 __all__ = [
-    "TAUS_M", "DepthView", "FusedCloud", "FusionParams", "GlobalParams", "KeyViewParams", "Mesh",
-    "TSDFParams", "TSDFVolume", "agreement_counts", "cloud_scores",
+    "TAUS_M", "DepthView", "FusedCloud", "FusedViews", "FusionParams", "GlobalParams",
+    "KeyViewParams", "Mesh", "TSDFParams", "TSDFVolume", "agreement_counts", "cloud_scores",
     "default_voxel_size", "draw_global_figure", "error_colours", "exact_surface", "exact_view",
-    "fuse_into_view", "fuse_views", "key_view_windows", "map_global", "run_global",
-    "select_key_views", "to_camera", "to_world", "tsdf_grid", "tsdf_mesh", "view_agreement",
-    "write_error_cloud",
+    "fuse_into_view", "fuse_views", "fused_reference_map", "key_view_windows", "map_global",
+    "neighbour_times", "run_global", "select_key_views", "to_camera", "to_world", "tsdf_grid",
+    "tsdf_mesh", "view_agreement", "write_error_cloud",
 ]
