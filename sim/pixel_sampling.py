@@ -693,12 +693,11 @@ class PixelEventEmulator(EventEmulator):
 # float64 operations: the samples are identical, tests/test_sampler_kernels.py).
 
 
-@numba.njit(cache=True, parallel=True)
-def _block_samples(inner, t_b, length, log_b, lum_b, log_e, lum_e, t0, t1):  # pragma: no cover
-    """Every pixel's samples of a block, sorted by (pixel, time): its start sample, ``inner[p]``
-    evenly spaced ones at ``t_b + (k * length) // (inner[p] + 1)`` ns, its end sample; the
-    start and end ones hold the frames' levels and luminances, the middle ones are returned as
-    pixels and seconds (``clip(ns * 1e-9, t0, t1)``) to render."""
+@numba.njit(cache=True)
+def _block_offsets(inner):  # pragma: no cover - compiled
+    """Where each pixel's samples of a block start (``first``: its start sample, then
+    ``inner[p]`` middle ones and its end sample) and where its middle ones start among all
+    middle samples (``mid_first``), with the totals of both."""
     n_pixels = inner.shape[0]
     first = np.empty(n_pixels, np.int64)
     mid_first = np.empty(n_pixels, np.int64)
@@ -707,6 +706,17 @@ def _block_samples(inner, t_b, length, log_b, lum_b, log_e, lum_e, t0, t1):  # p
         first[p], mid_first[p] = total, middle
         total += inner[p] + 2
         middle += inner[p]
+    return first, mid_first, total, middle
+
+
+@numba.njit(cache=True, parallel=True)
+def _block_samples(inner, t_b, length, log_b, lum_b, log_e, lum_e, t0, t1):  # pragma: no cover
+    """Every pixel's samples of a block, sorted by (pixel, time): its start sample, ``inner[p]``
+    evenly spaced ones at ``t_b + (k * length) // (inner[p] + 1)`` ns, its end sample; the
+    start and end ones hold the frames' levels and luminances, the middle ones are returned as
+    pixels and seconds (``clip(ns * 1e-9, t0, t1)``) to render."""
+    n_pixels = inner.shape[0]
+    first, mid_first, total, middle = _block_offsets(inner)
     pix = np.empty(total, np.int64)
     times = np.empty(total, np.int64)
     levels = np.empty(total)
@@ -732,13 +742,7 @@ def _fill_middle(inner, values, logs, levels, lums):  # pragma: no cover - compi
     """Write the middle samples' luminances and levels (in :func:`_block_samples`' order) into
     the block's arrays."""
     n_pixels = inner.shape[0]
-    first = np.empty(n_pixels, np.int64)
-    mid_first = np.empty(n_pixels, np.int64)
-    total, middle = 0, 0
-    for p in range(n_pixels):
-        first[p], mid_first[p] = total, middle
-        total += inner[p] + 2
-        middle += inner[p]
+    first, mid_first, total, middle = _block_offsets(inner)
     for p in numba.prange(n_pixels):
         f, m = first[p], mid_first[p]
         for k in range(inner[p]):
