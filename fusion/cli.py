@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
@@ -248,9 +249,13 @@ def _print_global(document: dict, out: Path) -> None:
     def scores(m: dict | None) -> str:
         if m is None:
             return "-"
+        if not m["points"] or not m["reference_points"]:
+            return (f"not scored ({m['points']:,} points against {m['reference_points']:,} "
+                    "exact ones)")
         return (f"accuracy {m['accuracy_cm']:.2f} cm, completeness {m['completeness_cm']:.2f} cm,"
                 f" F-score {100 * m['fscore_1cm']:.1f} / {100 * m['fscore_2cm']:.1f} / "
-                f"{100 * m['fscore_5cm']:.1f} % at 1 / 2 / 5 cm")
+                f"{100 * m['fscore_5cm']:.1f} % at 1 / 2 / 5 cm, on {m['points']:,} points "
+                f"against {m['reference_points']:,} exact ones")
 
     for view in document["views"]:
         line = f"  {view['folder']}: t_ref {view['t_ref']:.3f} s, N1 {view['N1']:,}"
@@ -265,10 +270,14 @@ def _print_global(document: dict, out: Path) -> None:
     else:
         agreement = document["view_agreement"]
         median = agreement.get("median_abs_difference_m")
+        overlap = agreement.get("overlap_points") or 0
+        points = agreement.get("points") or 0
         print("  no exact depth (real data): views agree within "
-              + ("- (no overlap)" if median is None else f"{100 * median:.2f} cm (median)")
-              + f", {100 * agreement['confirmed_share']:.1f} % of the points confirmed by "
-                "another view")
+              + ("- (no overlap)" if median is None or not math.isfinite(median) or not overlap
+                 else f"{100 * median:.2f} cm (median of {overlap:,} overlapping points)")
+              + (f", {agreement['confirmed_points']:,} of {points:,} points "
+                 f"({100 * agreement['confirmed_share']:.1f} %) confirmed by another view"
+                 if points else ", no map points"))
     files = document["files"]
     mesh = out / files["mesh"] if files["mesh"] else "-"
     print(f"fused points: {out / files['global']}\nmesh: {mesh}\n"
@@ -278,6 +287,7 @@ def _print_global(document: dict, out: Path) -> None:
 def _refuse_for_global(args: argparse.Namespace) -> None:
     """Refuse, in one line, the map flags a global map cannot honour."""
     refused = [flag for flag, on in (("--resume", getattr(args, "resume", False)),
+                                     ("--views", (getattr(args, "views", 1) or 1) > 1),
                                      ("--clip-window", args.clip_window),
                                      ("--depth-range oracle", args.depth_range == "oracle"))
                if on]

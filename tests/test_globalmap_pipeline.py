@@ -211,6 +211,10 @@ def test_run_global_refuses_what_makes_no_sense_in_one_line(plane_sequence, tmp_
     assert "evfuse map-global" in capsys.readouterr().err
     assert run_cli(["run", "complex_sphere", "--baseline", "0.2", "--out", out]) == 2
     assert "--baseline: only with --global" in capsys.readouterr().err
+    assert run_cli(["run", "complex_sphere", "--global", "--views", "3", "--out", out]) == 2
+    assert "--views cannot be used with a global map" in capsys.readouterr().err
+    assert run_cli(["map-global", str(plane_sequence), "--out", out, "--t1", "50"]) == 2
+    assert "50" in capsys.readouterr().err                # past the data: refused, not clipped
     with pytest.raises(SystemExit):                   # argparse: a flag's own type check
         run_cli(["map-global", str(plane_sequence), "--out", out, "--angle", "-1"])
     assert "--angle" in capsys.readouterr().err
@@ -277,6 +281,14 @@ def test_the_source_may_be_a_run_folder(plane_sequence, tmp_path, capsys):
         _sequence_folder(tmp_path)
     assert run_cli(["map-global", str(tmp_path), "--out", str(tmp_path / "g")]) == 2
     assert "not a sequence folder" in capsys.readouterr().err
+    # The run's own products are inputs too: never replaced, even with --overwrite.
+    (run / "map").mkdir()
+    (run / "map" / "map.json").write_text("{}")
+    (run / ".evfuse").write_text("evfuse run\n")
+    (run / "map" / ".evfuse").write_text("evfuse map\n")
+    assert run_cli(["map-global", str(run), "--out", str(run / "map"), "--overwrite"]) == 2
+    capsys.readouterr()
+    assert (run / "map" / "map.json").read_text() == "{}"
 
 
 def test_the_event_budget_counts_every_event_of_the_span(plane_sequence):

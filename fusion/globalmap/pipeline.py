@@ -205,10 +205,14 @@ def map_global(source: str | Path, out: str | Path, params: GlobalParams | None 
         the source, or an existing ``out`` without ``overwrite`` (before any work).
     """
     params = params or GlobalParams()
-    source = _sequence_folder(source)
+    given, source = Path(source), _sequence_folder(source)
+    inputs = [source]
+    if source != given:         # a run folder: its own products are inputs too (never replaced)
+        inputs += [child for child in sorted(given.iterdir()) if child != source
+                   and not (child / "global.json").exists()]
     resolve_method(params.method, params.dense, params.method_params)        # up front
-    check_output_dir(out, overwrite, [source])
-    with atomic_output_dir(out, overwrite=overwrite, inputs=[source],
+    check_output_dir(out, overwrite, inputs)
+    with atomic_output_dir(out, overwrite=overwrite, inputs=inputs,
                            command="evfuse map-global") as tmp:
         return _map_global(Path(source), tmp, params, progress, {})
 
@@ -371,7 +375,7 @@ def _key_views(sequence: Sequence, tmp: Path, params: GlobalParams, progress: bo
     converged : bool, whether the last selection was confirmed by the maps' depths
     """
     tick = time.perf_counter()
-    window = time_window(sequence, params.t0, params.t1, clip=True)
+    window = time_window(sequence, params.t0, params.t1)     # past the data: refused
     times, poses = sequence_poses(sequence, window.t0, window.t1)
     dsi = resolve_dsi_range(sequence, params.min_depth, params.max_depth)
     initial = inverse_depth_middle(dsi.min_depth, dsi.max_depth)
