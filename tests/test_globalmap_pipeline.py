@@ -13,6 +13,7 @@ from fusion.globalmap.keyviews import KeyViewParams, key_view_windows, select_ke
 from fusion.globalmap.pipeline import (
     GlobalParams,
     _filled_view,
+    _same_view,
     _semidense_view,
     _sequence_folder,
     sequence_poses,
@@ -53,6 +54,7 @@ def test_map_global_writes_every_file_and_the_contract_s_schema(global_run):
         assert view["folder"] == f"views/{k:03d}"
         assert {"t_ref", "semidense", "filled"} <= set(view)
         assert M_KEYS <= set(view["semidense"]) and M_KEYS <= set(view["filled"])
+        assert view["filled_against"] == "view"        # one camera: its own exact view
         assert set(view["timings"]) == {"map_s", "fill_s"}
         for name in MAP_FILES:
             assert (out / view["folder"] / "map" / name).is_file(), name
@@ -245,6 +247,8 @@ def test_a_rig_s_key_views_fill_in_the_frame_camera(tmp_path):
     np.testing.assert_allclose(view.T_world_cam, pose(0.09)[0] @ T_EVENT_FRAME, atol=1e-9)
     semidense = _semidense_view(map_folder)
     assert semidense.camera.resolution == (64, 48)
+    # scored against the global exact surface, not the event camera's view
+    assert not _same_view(semidense, view) and _same_view(semidense, semidense)
 
 
 def test_run_global_simulates_the_scene_then_maps_it(tmp_path, capsys):

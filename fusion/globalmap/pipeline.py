@@ -618,8 +618,15 @@ def _score(document: dict, semidense: list[DepthView], filled: list[DepthView | 
                                         strict=True):
         surface = exact_surface([truth])
         entry["semidense"] = cloud_scores(own.points_world(), surface, scene_depth)
-        entry["filled"] = (None if dense is None
-                           else cloud_scores(dense.points_world(), surface, scene_depth))
+        if dense is None:
+            entry["filled"] = None
+            continue
+        # A rig's filled view is the frame camera's, which sees another surface than the
+        # event camera's exact view: it is scored against the global exact surface instead.
+        same = _same_view(own, dense)
+        entry["filled"] = cloud_scores(dense.points_world(), surface if same else reference,
+                                       scene_depth)
+        entry["filled_against"] = "view" if same else "global"
     document["global"] = {
         "semidense": cloud_scores(fused.points, reference, scene_depth),
         "filled": (None if fused_filled is None
@@ -632,6 +639,14 @@ def _score(document: dict, semidense: list[DepthView], filled: list[DepthView | 
         name: _gain(document["global"][name], views, reference, scene_depth)
         for name, views in (("semidense", semidense), ("filled", filled))}
     return nearest_distances(fused.points, reference)
+
+
+def _same_view(a: DepthView, b: DepthView) -> bool:
+    """Whether two views are one camera at one pose (a key view's map and its fill, but for a
+    two-camera rig, whose fill is in the frame camera)."""
+    return (a.camera.resolution == b.camera.resolution
+            and np.allclose(a.camera.K, b.camera.K)
+            and np.allclose(a.T_world_cam, b.T_world_cam, atol=1e-9))
 
 
 def _gain(fused: dict | None, views: list[DepthView | None], reference: np.ndarray,
