@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fusion.fill.projection import map_points_world
 from sim.camera import Camera
 
 __all__ = ["DepthView", "to_camera", "to_world"]
@@ -104,8 +105,9 @@ class DepthView:
 
     def points_world(self) -> np.ndarray:
         """(N, 3) float64 ndarray, metres: the points in the world frame, in the order of
-        :meth:`pixels`."""
-        return to_world(self.points_camera(), self.T_world_cam)
+        :meth:`pixels` (the map's own back-projection,
+        :func:`fusion.fill.projection.map_points_world`)."""
+        return map_points_world(self.depth, self.camera, self.T_world_cam)
 
     @property
     def centre(self) -> np.ndarray:
