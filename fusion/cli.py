@@ -753,9 +753,11 @@ def _parser() -> argparse.ArgumentParser:
                           "then the map and the fill are made again")
     run.add_argument("--views", type=count_type(1), default=1, metavar="N",
                      help="also fuse the map with those of N-1 neighbouring views (reference "
-                          "times t_ref +- k half-windows, windows of the same length) into the "
-                          "reference view, fill and score it: OUT/fused/ and report.json's "
-                          "fused block (default 1: the one-view map only)")
+                          "times t_ref +- k quarter-windows, windows of the same length; every "
+                          "view's candidates at c = 0, kept where two other views agree within "
+                          "2 %%) into the reference view, fill and score it: OUT/fused/ and "
+                          "report.json's fused block (default 1: the one-view map only; 5 "
+                          "is a good start)")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     run.add_argument("--global", dest="global_map", action="store_true",
                      help="one global map from many key views (as evfuse map-global) over the "

@@ -180,15 +180,16 @@ def test_reproduce_views_adds_the_fused_table_beside_the_one_view_one(tmp_path, 
     fused, one = row["fused"], row["fills"]["idw"]
     assert fused["views"] == 3 and fused["N1_reference"] == one["N1"]
     assert fused["view_times_s"][0] == pytest.approx(row["t_ref"])
-    assert len(fused["view_times_s"]) == 3 and fused["spacing_s"] == pytest.approx(0.075)
+    assert len(fused["view_times_s"]) == 3 and fused["spacing_s"] == pytest.approx(0.0375)
     # the window was simulated over the span its neighbours need, the map is the window's
     assert row["window_s"] == pytest.approx([2.0, 2.15])
     (sequence,) = cache.glob("*/sequence.json")
     simulated = json.loads(sequence.read_text())
-    assert simulated["start"] < 2.0 - 0.07 and simulated["start"] + simulated["duration"] > 2.22
+    # neighbours at +-0.0375 s (a quarter window), widened by half a spacing: 1.944-2.206 s
+    assert simulated["start"] < 2.0 - 0.05 and simulated["start"] + simulated["duration"] > 2.2
     run = out / "runs" / "shapes_6dof_2.00"
-    for name in ("fused/map/map.json", "fused/fill_idw/fill.json", "fused/views/01/map.json",
-                 "fused/views/02/map.json"):
+    for name in ("fused/map/map.json", "fused/fill_idw/fill.json", "fused/views/00/map.json",
+                 "fused/views/01/map.json", "fused/views/02/map.json"):
         assert (run / name).is_file(), name
     text = (out / "report.md").read_text()
     assert "## Table 1, fused: each map with 2 neighbouring views' (3 views)" in text

@@ -241,6 +241,13 @@ def _window_options(job: dict, params: ReproduceParams) -> tuple[object, dict]:
                    "events": EventParams(noise=noise_preset(params.event_noise))}
 
 
+def _fuses(job: dict, views: int) -> bool:
+    """Whether a job's map is fused with its neighbours': Table 1's windows with ``views`` > 1,
+    not the frozen control (a control of the one-view map's errors on moving objects, whose
+    window would otherwise be simulated over 2.25 times its length by whole frames)."""
+    return views > 1 and job["table"] == "1" and "frozen_of" not in job
+
+
 def _simulated(job: dict, params: ReproduceParams, cache: Path, views: int = 1) -> Path:
     """The cached simulation of a job's window (simulated when missing), in a folder of
     ``cache`` named by the job and :func:`sim.simulate.window.window_key`; a Table 1 window
@@ -252,7 +259,7 @@ def _simulated(job: dict, params: ReproduceParams, cache: Path, views: int = 1) 
         raise ValueError(f"{job['scene']} lasts {scene.duration} s: no window at {job['t0']} s")
     frozen = f"_at{job['frozen_at']:.6f}" if "frozen_of" in job else ""
     start, length = job["t0"], job["length"]
-    if views > 1 and job["table"] == "1":
+    if _fuses(job, views):
         start, end = FusedViews(views).span(start, start + length, scene.duration)
         length = end - start
     return cached_window(scene, cache, f"{job['scene']}{frozen}", start, length, **options)
@@ -296,7 +303,7 @@ def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams,
         row["fills"][weighting]["errors"] = info.get("errors")
         if "errors_by_motion" in info:
             row["fills"][weighting]["errors_by_motion"] = info["errors_by_motion"]
-    if views > 1 and job["table"] == "1":
+    if _fuses(job, views):
         row["fused"] = _fused(out / name, views, params)
     if params.methods:
         row["methods"] = {}
@@ -457,17 +464,22 @@ def _fused_section(table1: list[dict], views: int) -> list[str]:
             f"{f['beta']:.4f} | {_f(p1, 1)} / {_f(pf, 1)} | {_f(m1)} / {_f(mf)} | "
             f"{_f(_mae(one['errors'], 'all'))} / {_f(_mae(f['errors'], 'all'))} | "
             f"{_coverage(f['errors'], 'all')} |")
-    spacing = ", ".join(f"{r['fused']['spacing_s']:g}" for r in rows[:1])
+    first = rows[0]["fused"]
+    check = first["fusion"]
     lines += ["", f"Made by `evfuse reproduce --views {views}`: each window's one-view map "
               f"(the row above) is joined by the maps of {views - 1} neighbouring views, "
-              f"reference times t_ref +- k {spacing} s (half the window), the nearest first, "
-              "each mapping the window shifted by its offset with the same DSI and extraction "
-              "(only the noisy poses), and their points that at least one other view confirms "
-              "within 2 % (a pixel's search radius) are re-projected into the reference view "
+              f"reference times t_ref +- k {first['spacing_s']:g} s (a quarter of the window), "
+              "the nearest first, each mapping the window shifted by its offset with the same "
+              "DSI and extraction (only the noisy poses) but the adaptive threshold's c at "
+              f"{first['c']:g} (candidates; the reference view is mapped again so), and the "
+              f"candidates that at least {check['min_views']} other views confirm within "
+              f"{100 * check['depth_tolerance']:g} % ({check['search_radius']} pixel's search "
+              "radius) are re-projected into the reference view "
               "(fusion.globalmap.neighbours); the fused map is filled with inverse distance "
               "weights and scored against the same exact depth. With --views, each Table 1 "
               "window is simulated over the span its neighbours need, so its one-view numbers "
-              "here come from that longer simulation. Map precision and MAE: the event map at "
+              "here come from that longer simulation (the frozen control is not fused: "
+              "simulated over its window only). Map precision and MAE: the event map at "
               "the reference view.", ""]
     return lines
 

@@ -7,28 +7,42 @@ the reference view's pixels: a denser map in the same pixel grid, which the fill
 unchanged.
 
 The neighbours' rule (:func:`neighbour_times`): reference times ``t_ref - h, t_ref + h,
-t_ref - 2 h, t_ref + 2 h, ...`` (``h`` the spacing, by default half the window's length), the
-nearest first and the earlier first at equal distance; each maps the reference's window
-shifted by the same offset (the same length, the same place of its reference view in it), and
-a neighbour is taken only when that whole window lies in the data (the events' and the poses'
-spans); one that does not is skipped and the next one taken. Every neighbour's map has the
-reference's DSI (depth range, planes) and extraction parameters, and its pose is the noisy
-``groundtruth.txt`` pose at its time, as the reference's: the fusion is blind. The exact depth
-is read only to score the fused map, by the map stage's own scoring
+t_ref - 2 h, t_ref + 2 h, ...`` (``h`` the spacing, by default a quarter of the window's
+length), the nearest first and the earlier first at equal distance; each maps the reference's
+window shifted by the same offset (the same length, the same place of its reference view in
+it), and a neighbour is taken only when that whole window lies in the data (the events' and
+the poses' spans); one that does not is skipped and the next one taken. Every neighbour's map
+has the reference's DSI (depth range, planes) and extraction parameters, and its pose is the
+noisy ``groundtruth.txt`` pose at its time, as the reference's: the fusion is blind. The exact
+depth is read only to score the fused map, by the map stage's own scoring
 (:func:`fusion.scoring.depth_errors` against the reference view's exact depth).
+
+Candidates, then the check. A one-view map has no other view to reject a wrong maximum of its
+DSI, so EMVS keeps only the pixels whose ray density stands ``c`` above its neighbourhood's
+(the adaptive threshold, ``c`` = 5 on the 6-DoF scenes). Fused, every view's map is extracted
+with a lower ``c`` (:attr:`FusedViews.c`, default :data:`CANDIDATE_C` = 0: any local excess of
+ray density): more candidates, more of them wrong, and the multi-view check (default
+:data:`VIEWS_FUSION`: two other views within 2 % in depth) rejects what the threshold let
+through, as multi-view stereo filters its per-view depth maps. The reference view is mapped
+again at that ``c`` (``views/00``). Measured on boxes_6dof's paper window (3.5-5.5 s, one view
+N1 1,050 at 81.9 % within 5 %, ``c`` = 5), 5 views a quarter window apart: ``c`` = 5 and one
+other view gives 1.21x the points at 84.1 %; ``c`` = 0 and two other views 4.06x at 88.3 %
+(README, "Fused reference map", for the other scenes and settings).
 
 With ``N = 1`` there is nothing to fuse: the fused map is the one-view map, bit for bit.
 
 Files: ``OUT/views/NN/`` (``NN`` = 01 .. N-1: each neighbour's map folder, as ``evfuse map``
-writes it) and ``OUT/map/`` (the fused map, a map folder: ``semidense_depth.exr``,
-``confidence.exr`` (the reference map's DSI votes at its own points, 0 at points from the
-neighbours), ``mask.png``, ``overlay.png``, ``map.ply``, ``map.json`` with a ``fused`` block).
+writes it; ``00``: the reference view mapped again at the candidates' ``c``, when it differs
+from the one-view map's) and ``OUT/map/`` (the fused map, a map folder:
+``semidense_depth.exr``, ``confidence.exr`` (the reference view's DSI votes at its own points,
+0 at points from the neighbours), ``mask.png``, ``overlay.png``, ``map.ply``, ``map.json`` with
+a ``fused`` block).
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -49,16 +63,34 @@ from sim.camera import Camera
 from sim.exr import read_depth, read_exr_channels
 from sim.output import atomic_output_dir
 from sim.sequence import EXACT_TIME_S, load_sequence
-from sim.validation import ParameterError, check_parameter, integer, positive
+from sim.validation import ParameterError, check_parameter, finite, integer, positive
 
 __all__ = ["FusedViews", "fused_reference_map", "neighbour_times"]
 
-DEFAULT_VIEWS = 3
-"""Views of ``evfuse run --views`` and :class:`FusedViews` when none is given."""
+DEFAULT_VIEWS = 5
+"""Views of :class:`FusedViews` when none is given."""
+
+CANDIDATE_C = 0.0
+"""The adaptive threshold's ``c`` of every view's map when fused (the module's "Candidates,
+then the check"): a pixel is a candidate where its ray density exceeds its neighbourhood's."""
+
+VIEWS_FUSION = FusionParams(min_views=2)
+"""The multi-view check of a fused reference map: two other views agree within 2 % in depth
+(one pixel's search radius)."""
+
+SPACING_SHARE = 0.25
+"""The neighbours' default spacing ``h``, as a share of the window's length."""
 
 
 def _views(value: object) -> int:
     return check_parameter(lambda name, v: integer(name, v, 1), "views", value)
+
+
+def _spacing(t0: float, t1: float, spacing: float | None) -> float:
+    """``h``: the given spacing, checked, or :data:`SPACING_SHARE` of the window's length."""
+    if spacing is None:
+        return SPACING_SHARE * (t1 - t0)
+    return check_parameter(positive, "spacing", spacing)
 
 
 def neighbour_times(t_ref: float, window: tuple[float, float], views: int,
@@ -78,7 +110,7 @@ def neighbour_times(t_ref: float, window: tuple[float, float], views: int,
         What the data covers (events and poses); a neighbour's whole window must lie in it
         (within :data:`sim.sequence.EXACT_TIME_S`).
     spacing : float or None, seconds
-        ``h``; None: half the window's length.
+        ``h``; None: :data:`SPACING_SHARE` (a quarter) of the window's length.
 
     Returns
     -------
@@ -96,7 +128,7 @@ def neighbour_times(t_ref: float, window: tuple[float, float], views: int,
     t0, t1 = float(window[0]), float(window[1])
     if not t1 > t0:
         raise ParameterError(f"empty {{window}} [{t0:g}, {t1:g}] s", window="window")
-    h = 0.5 * (t1 - t0) if spacing is None else check_parameter(positive, "spacing", spacing)
+    h = _spacing(t0, t1, spacing)
     lo, hi = float(span[0]) - EXACT_TIME_S, float(span[1]) + EXACT_TIME_S
     times: list[float] = []
     k = 1
@@ -142,7 +174,8 @@ MAP_POINT_KEYS = ("N1", "t_ref", "T_world_ref", "sequence", "params", "camera", 
 
 def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DEFAULT_VIEWS,
                         fusion: FusionParams | None = None, *, spacing: float | None = None,
-                        overwrite: bool = False, progress: bool = True) -> dict:
+                        c: float | None = CANDIDATE_C, overwrite: bool = False,
+                        progress: bool = True) -> dict:
     """Fuse a one-view map with its ``views - 1`` neighbours' maps in its own pixels.
 
     Parameters
@@ -151,14 +184,18 @@ def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DE
         The one-view map (``evfuse map``'s folder); its ``map.json`` gives the sequence, the
         reference time, the window, the DSI and the extraction parameters. Only read.
     out : str or Path
-        Folder to write: ``views/NN/`` (the neighbours' maps) and ``map/`` (the fused map).
+        Folder to write: ``views/NN/`` (the neighbours' maps, ``00`` the reference view's
+        candidates) and ``map/`` (the fused map).
     views : int
-        N >= 1, the reference view included (default 3).
+        N >= 1, the reference view included (default 5).
     fusion : FusionParams, optional
-        The consistency check (default :class:`FusionParams`: one other view within 2 %, a
+        The consistency check (default :data:`VIEWS_FUSION`: two other views within 2 %, a
         pixel's search radius); ``voxel_size`` is not used.
     spacing : float or None, seconds
-        Between neighbours' reference times (default half the window's length).
+        Between neighbours' reference times (default a quarter of the window's length).
+    c : float or None
+        The adaptive threshold's ``c`` of every view's map (default :data:`CANDIDATE_C`);
+        None: the one-view map's own (its map is then fused as it is, not mapped again).
     overwrite : bool
     progress : bool
 
@@ -166,14 +203,18 @@ def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DE
     -------
     dict
         The fused map's description (also ``map/map.json``'s ``fused``): ``views``,
-        ``view_times_s`` (reference first), ``spacing_s``, ``fusion``, ``N1_views`` (each map's
-        points), ``N1_reference``, ``N1`` (the fused map's), ``pixels_from_reference`` (pixels
-        holding the reference map's own depth: its points that other views confirm and no
-        nearer confirmed point hides), ``pixels_from_neighbours`` (the rest), ``folders``.
+        ``view_times_s`` (reference first), ``spacing_s``, ``fusion``, ``c`` (the candidates'
+        threshold), ``N1_views`` (each fused map's points, the reference view's candidates
+        first), ``N1_reference`` (the one-view map's points), ``N1`` (the fused map's),
+        ``pixels_from_reference`` (pixels holding the reference view's own candidate depth:
+        its points that other views confirm and no nearer confirmed point hides),
+        ``pixels_from_neighbours`` (the rest), ``folders``.
     """
     map_folder = Path(map_folder)
     views = _views(views)
-    fusion = fusion or FusionParams()
+    fusion = fusion or VIEWS_FUSION
+    if c is not None:
+        c = check_parameter(finite, "c", c)
     meta, reference, sequence_folder = _reference(map_folder)
     t_ref = reference.t
     window = (float(meta["window_s"][0]), float(meta["window_s"][1]))
@@ -182,34 +223,44 @@ def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DE
     span = (max(data.events_span[0], data.poses_span[0]),
             min(data.events_span[1], data.poses_span[1]))
     times = neighbour_times(t_ref, window, views, span, spacing)
-    h = 0.5 * (window[1] - window[0]) if spacing is None else float(spacing)
+    h = _spacing(*window, spacing)
     p = meta["params"]
     dsi, extraction = DSIParams(**p["dsi"]), DepthMapParams(**p["depth"])
-    depth_views = [reference]
+    remap = views > 1 and c is not None and c != extraction.c
+    candidates = replace(extraction, c=c) if remap else extraction
     folders = []
     with atomic_output_dir(out, overwrite=overwrite, inputs=[map_folder, sequence_folder],
                            command="evfuse run --views") as tmp:
-        for index, t in enumerate(times, start=1):
+
+        def mapped_view(index: int, t: float) -> tuple[DepthView, MapResult]:
             folder = Path("views") / f"{index:02d}"
             shift = t - t_ref
             mapped, _ = map_window(sequence_folder, tmp / folder, window[0] + shift,
                                    window[1] + shift, ref_time=t, min_depth=dsi.min_depth,
                                    max_depth=dsi.max_depth, planes=dsi.planes,
-                                   depth=extraction, progress=progress)
-            depth_views.append(DepthView(mapped.depth, mapped.camera, mapped.T_world_ref,
-                                         mapped.t_ref, f"view {index}"))
+                                   depth=candidates, progress=progress)
             folders.append(f"{folder.as_posix()}/")
+            return DepthView(mapped.depth, mapped.camera, mapped.T_world_ref, mapped.t_ref,
+                             f"view {index}"), mapped
+
+        if remap:                   # the reference view's candidates: its map at the lower c
+            own_view, own_map = mapped_view(0, t_ref)
+            own_confidence = own_map.confidence
+        else:
+            own_view = reference
+            own_confidence = read_exr_channels(map_folder / "confidence.exr")["Y"]
+        depth_views = [own_view] + [mapped_view(index, t)[0]
+                                    for index, t in enumerate(times, start=1)]
         if views == 1:
             fused = reference.depth.copy()
         else:
             counts = agreement_counts(depth_views, fusion)
             fused = fuse_into_view(depth_views, 0, fusion, counts=counts)
-        own = (reference.depth > 0) & (fused == reference.depth)
-        confidence = np.where(own, read_exr_channels(map_folder / "confidence.exr")["Y"],
-                              0).astype(np.float32)
+        own = (own_view.depth > 0) & (fused == own_view.depth)
+        confidence = np.where(own, own_confidence, 0).astype(np.float32)
         description = {
             "views": views, "view_times_s": [t_ref, *times], "spacing_s": h,
-            "fusion": asdict(fusion),
+            "fusion": asdict(fusion), "c": candidates.c,
             "N1_views": [int(np.count_nonzero(v.valid)) for v in depth_views],
             "N1_reference": int(np.count_nonzero(reference.valid)),
             "N1": int(np.count_nonzero(fused)),
@@ -223,7 +274,7 @@ def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DE
         truth = _ground_truth_depth(sequence, t_ref)       # scoring only
         if truth is not None:
             info["errors"] = depth_errors(fused, truth)
-        params = MapParams(dsi, extraction, t0=p.get("t0"), t1=p.get("t1"),
+        params = MapParams(dsi, candidates, t0=p.get("t0"), t1=p.get("t1"),
                            ref_time=p.get("ref_time"), clip_window=bool(p.get("clip_window")),
                            outlier_radius=p["outlier_radius"],
                            outlier_neighbours=p["outlier_neighbours"])
@@ -241,15 +292,20 @@ class FusedViews:
     Attributes
     ----------
     views : int
-        N >= 2, the reference view included.
+        N >= 2, the reference view included (default 5).
     fusion : FusionParams
+        The multi-view check (default :data:`VIEWS_FUSION`: two other views within 2 %).
     spacing : float or None, seconds
-        Between neighbours' reference times (default half the window's length).
+        Between neighbours' reference times (default a quarter of the window's length).
+    c : float or None
+        The adaptive threshold's ``c`` of every view's map (default :data:`CANDIDATE_C`, 0);
+        None: the one-view map's own.
     """
 
     views: int = DEFAULT_VIEWS
-    fusion: FusionParams = field(default_factory=FusionParams)
+    fusion: FusionParams = VIEWS_FUSION
     spacing: float | None = None
+    c: float | None = CANDIDATE_C
     name: str = "fused"
 
     def __post_init__(self) -> None:
@@ -257,13 +313,15 @@ class FusedViews:
         if self.spacing is not None:
             object.__setattr__(self, "spacing", check_parameter(positive, "spacing",
                                                                 self.spacing))
+        if self.c is not None:
+            object.__setattr__(self, "c", check_parameter(finite, "c", self.c))
 
     def span(self, t0: float, t1: float, duration: float) -> tuple[float, float]:
         """The part of a scene ``[0, duration]`` to simulate so that the neighbours of a map of
         ``[t0, t1]`` fit (:func:`neighbour_times` around the window's middle, widened by half a
         spacing on each side for a reference view off the middle: the frame nearest it)."""
         middle = 0.5 * (t0 + t1)
-        h = 0.5 * (t1 - t0) if self.spacing is None else self.spacing
+        h = _spacing(t0, t1, self.spacing)
         times = neighbour_times(middle, (t0, t1), self.views, (0.0, duration), self.spacing)
         before = min([middle, *times]) - (middle - t0) - 0.5 * h
         after = max([middle, *times]) + (t1 - middle) + 0.5 * h
@@ -272,5 +330,5 @@ class FusedViews:
     def __call__(self, map_folder: Path, out: Path, progress: bool) -> dict:
         """Write the fused map into ``out/map`` (:func:`fused_reference_map`)."""
         return fused_reference_map(map_folder, out, self.views, self.fusion,
-                                   spacing=self.spacing, progress=progress)
+                                   spacing=self.spacing, c=self.c, progress=progress)
 
