@@ -332,8 +332,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     if args.global_map:
         return _cmd_run_global(args)
-    given = [f"--{name.replace('_', '-')}" for name in GLOBAL_DEFAULTS
-             if getattr(args, name) is not None]
+    given = [flag for flag, name in args.global_flags if getattr(args, name) is not None]
     if given:
         raise ValueError(f"{', '.join(given)}: only with --global (the global map's flags)")
     _check_depth_flags(args)
@@ -475,11 +474,6 @@ GLOBAL_FLAG_NAMES = {**MAP_FLAG_NAMES, "angle_deg": "--angle", "voxel_size": "--
                      "min_views": "--min-views", "depth_tolerance": "--depth-tolerance"}
 """The library parameters that ``map-global`` and ``run --global`` name by another flag."""
 
-GLOBAL_DEFAULTS = {"baseline": None, "angle": None, "max_events": None, "min_views": None,
-                   "depth_tolerance": None, "voxel": None, "workers": None}
-"""The global map's flags and their unset values (``run`` refuses them without --global)."""
-
-
 KEEP_BOUNDARY_HELP = ("keep the map points whose DSI maximum lies on the first or the last "
                       "depth plane, as rpg_emvs does (default: dropped, and counted in "
                       "map.json's boundary_plane_points: such a maximum says the depth lies "
@@ -566,24 +560,34 @@ def _add_dense_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_global_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--baseline", type=POSITIVE, default=None,
-                        help="a new key view when the camera has moved this share of the last "
-                             "key view's median map depth (default 0.1)")
-    parser.add_argument("--angle", type=POSITIVE, default=None,
-                        help="... or rotated this many degrees (default 10)")
-    parser.add_argument("--max-events", type=count_type(1), default=None,
-                        help="... or this many events have come since it (default: no budget)")
-    parser.add_argument("--min-views", type=count_type(0), default=None,
-                        help="k: other views that must agree on a point for the fused cloud to "
-                             "keep it (default 1; 0 keeps every point)")
-    parser.add_argument("--depth-tolerance", type=POSITIVE, default=None,
-                        help="views agree on a point within this share of its depth "
-                             "(default 0.02)")
-    parser.add_argument("--voxel", type=POSITIVE, default=None,
-                        help="voxel of the fused clouds and the TSDF, m (default: from the data)")
-    parser.add_argument("--workers", type=count_type(1), default=None,
-                        help="key views mapped at once, one process each (default: the "
-                             "machine's cores)")
+    """The global map's flags (all unset by default: the library's defaults apply), recorded
+    as ``args.global_flags`` (flag, dest) for ``run``, which refuses them without --global."""
+    group = parser.add_argument_group("global map")
+    actions = []
+
+    def add(*flags, **options) -> None:
+        actions.append(group.add_argument(*flags, **options))
+
+    add("--baseline", type=POSITIVE, default=None,
+        help="a new key view when the camera has moved this share of the last "
+             "key view's median map depth (default 0.1)")
+    add("--angle", type=POSITIVE, default=None,
+        help="... or rotated this many degrees (default 10)")
+    add("--max-events", type=count_type(1), default=None,
+        help="... or this many events have come since it (default: no budget)")
+    add("--min-views", type=count_type(0), default=None,
+        help="k: other views that must agree on a point for the fused cloud to "
+             "keep it (default 1; 0 keeps every point)")
+    add("--depth-tolerance", type=POSITIVE, default=None,
+        help="views agree on a point within this share of its depth "
+             "(default 0.02)")
+    add("--voxel", type=POSITIVE, default=None,
+        help="voxel of the fused clouds and the TSDF, m (default: from the data)")
+    add("--workers", type=count_type(1), default=None,
+        help="key views mapped at once, one process each (default: the "
+             "machine's cores)")
+    parser.set_defaults(global_flags=tuple((action.option_strings[0], action.dest)
+                                           for action in actions))
 
 
 def _write_event_figure(path: Path, frame: np.ndarray, title: str) -> None:

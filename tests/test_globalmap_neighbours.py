@@ -122,6 +122,11 @@ def test_the_fused_map_is_a_map_folder_the_fill_reads(one_view, fused3, tmp_path
     depth = read_depth(out / "map" / "semidense_depth.exr")
     assert meta["N1"] == description["N1"] == int(np.count_nonzero(depth))
     assert meta["fused"] == json.loads(json.dumps(description))
+    # the one-view map's own counts are not the fused map's: left in each view's map.json
+    for key in ("outliers_removed", "boundary_plane_points", "timings"):
+        assert key not in meta and key in json.loads(
+            (out / "views" / "01" / "map.json").read_text())
+    assert meta["window_s"] == pytest.approx(list(WINDOW))
     assert (description["pixels_from_reference"] + description["pixels_from_neighbours"]
             == description["N1"])
     filled = fill_window(out / "map", tmp_path / "fill")

@@ -167,9 +167,13 @@ def _reference(map_folder: Path) -> tuple[dict, DepthView, Path]:
 
 
 MAP_POINT_KEYS = ("N1", "t_ref", "T_world_ref", "sequence", "params", "camera", "errors",
-                  "errors_by_motion", "depth_median_m")
-"""Keys of the reference's ``map.json`` that describe its own points or are written anew by
-:func:`fusion.map.mapping.write_map`: not copied into the fused map's."""
+                  "errors_by_motion", "depth_median_m", "boundary_plane_points",
+                  "outlier_radius_m", "outliers_removed", "timings", "dsi_mev_per_s",
+                  "dsi_timing")
+"""Keys of the reference's ``map.json`` that describe its own points and its own mapping (each
+view's ``views/NN/map.json`` has its own) or are written anew by
+:func:`fusion.map.mapping.write_map`: not copied into the fused map's, which keeps the window's
+and the DSI range's."""
 
 
 def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DEFAULT_VIEWS,
