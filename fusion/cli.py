@@ -312,12 +312,8 @@ def _cmd_map_global(args: argparse.Namespace) -> int:
 
 def _cmd_run_global(args: argparse.Namespace) -> int:
     from fusion.globalmap import run_global
-    from fusion.pipeline import is_sequence_folder
 
     _refuse_for_global(args)
-    if is_sequence_folder(args.source):
-        raise ValueError(f"{args.source} is a sequence folder: map it with evfuse map-global "
-                         "(run --global simulates a scene)")
     _check_depth_flags(args)
     params = _global_params(args, _fill_method(args))
     document = run_global(args.source, args.out, args.t0, args.t1, params, spp=args.spp,

@@ -210,7 +210,8 @@ def test_run_global_refuses_what_makes_no_sense_in_one_line(plane_sequence, tmp_
     assert ("--clip-window, --depth-range oracle cannot be used with a global map"
             in capsys.readouterr().err)
     assert run_cli(["run", str(plane_sequence), "--global", "--out", out]) == 2
-    assert "evfuse map-global" in capsys.readouterr().err
+    assert "is a sequence folder, not a scene: its global map is map-global's" in (
+        capsys.readouterr().err)
     assert run_cli(["run", "complex_sphere", "--baseline", "0.2", "--out", out]) == 2
     assert "--baseline: only with --global" in capsys.readouterr().err
     assert run_cli(["run", "complex_sphere", "--global", "--views", "3", "--out", out]) == 2
@@ -306,3 +307,15 @@ def test_the_event_budget_counts_every_event_of_the_span(plane_sequence):
     t0, t1 = float(t[len(t) // 4]), float(t[len(t) // 2])
     times = _event_times(sequence, t0, t1)
     assert len(times) == np.count_nonzero((t >= t0) & (t <= t1)) and np.all(np.diff(times) >= 0)
+
+
+
+def test_a_global_run_refuses_a_sequence_folder_in_the_library(plane_sequence, tmp_path):
+    """run_global simulates a scene: a sequence folder is refused by the library itself (the
+    command line's refusal is the test above), before anything is written."""
+    from fusion.globalmap import run_global
+
+    with pytest.raises(ValueError, match="is a sequence folder, not a scene: its global map "
+                                         "is map-global's"):
+        run_global(plane_sequence, tmp_path / "lib")
+    assert not (tmp_path / "lib").exists()

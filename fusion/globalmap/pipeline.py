@@ -256,12 +256,20 @@ def run_global(scene: str | Path, out: str | Path, t0: float | None = None,
     -------
     dict
         ``global.json``'s content, with ``timings["simulate_s"]``.
+
+    Raises
+    ------
+    ValueError
+        ``scene`` is a sequence folder (:func:`map_global` maps those).
     """
     from scenes import resolve_scene
     from sim.scene import load_scene
     from sim.simulate import scene_files
 
     params = params or GlobalParams()
+    if is_sequence_folder(scene):
+        raise ValueError(f"{scene} is a sequence folder, not a scene: its global map is "
+                         "map-global's (a global run simulates a scene first)")
     resolve_method(params.method, params.dense, params.method_params)        # up front
     loaded = load_scene(resolve_scene(scene), seed=seed)
     t0 = 0.0 if t0 is None else float(t0)
