@@ -763,7 +763,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="one global map from many key views (as evfuse map-global) over the "
                           "window, by default the whole scene")
     _add_global_options(run)
-    run.set_defaults(run=_cmd_run, flag_names={**GLOBAL_FLAG_NAMES, "ref_time": "--ref-time"},
+    run.set_defaults(run=_cmd_run, flag_names={**GLOBAL_FLAG_NAMES, "ref_time": "--ref-time",
+                                                "map_global": "evfuse map-global",
+                                                "run_global": "run --global"},
                      interrupted="resume with the same command plus --resume (a simulation "
                                  "continues from its last checkpoint)")
 

@@ -281,9 +281,10 @@ class ExtraMap(Protocol):
 
     name: str
 
-    def span(self, t0: float, t1: float, duration: float) -> tuple[float, float]:
+    def span(self, t0: float, t1: float, duration: float,
+             slack: float = 0.0) -> tuple[float, float]:
         """The part ``(start, end)`` of a scene's ``[0, duration]`` to simulate for a map of
-        ``[t0, t1]`` (containing it)."""
+        ``[t0, t1]`` (containing it); ``slack``, seconds: the rig's largest clock offset."""
 
     def __call__(self, map_folder: Path, out: Path, progress: bool) -> dict:
         """Write the map folder ``out/map`` from the run's map ``map_folder``; return its
@@ -545,7 +546,8 @@ def _simulate_window(scene, folder: Path, params: RunParams, progress: bool, tim
         return folder, t0, t1                 # simulated before the interruption
     start = t0
     if extra_map is not None:                 # its maps may need more of the scene
-        start, end = extra_map.span(t0, min(t1, scene.duration), scene.duration)
+        start, end = extra_map.span(t0, min(t1, scene.duration), scene.duration,
+                                    slack=max(map(abs, scene.rig.offsets.values())))
     tick = time.perf_counter()
     simulate_window(scene, folder, start, end - start, resume=resume, progress=progress,
                     spp=params.spp)

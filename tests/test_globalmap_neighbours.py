@@ -260,3 +260,85 @@ def test_run_refuses_more_views_than_the_scene_holds_before_simulating(tmp_path,
     assert err.startswith("evfuse run: error: --views 11 needs 10 neighbouring windows")
     assert "\n" not in err and "give fewer --views" in err
     assert not out.exists() and not (tmp_path / "run.partial").exists()
+
+
+def test_too_few_views_for_the_check_are_refused_naming_views(one_view, tmp_path, capsys):
+    """The default check keeps a point where two other views agree: with two views there is
+    one other, and the fused map would be empty. Refused up front, in one line, before any
+    simulation or mapping; a check of one other view takes two views."""
+    for views in (2,):
+        with pytest.raises(ParameterError, match="views 2 is too few: a point is kept where 2 "
+                                                 "other views agree") as caught:
+            FusedViews(views=views)
+        assert "{views}" in caught.value.template
+    assert FusedViews(views=2, fusion=FusionParams(min_views=1)).views == 2
+    assert FusedViews(views=1).views == 1 and FusedViews(views=3).views == 3
+    folder, _ = one_view
+    with pytest.raises(ParameterError, match="too few"):
+        fused_reference_map(folder / "map", tmp_path / "two", views=2, progress=False)
+    assert not (tmp_path / "two").exists()
+    out = tmp_path / "run"
+    assert _run_views(tmp_path, 2, out) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("evfuse run: error: --views 2 is too few: a point is kept where 2 other "
+                   "views agree on it, so --views must be 1 (the one-view map) or at least 3")
+    assert not out.exists() and not (tmp_path / "run.partial").exists()
+
+
+def test_the_span_holds_every_neighbour_s_window_in_the_recorded_data():
+    """FusedViews.span chooses the neighbours within the scene less a margin of h/2 + slack;
+    the data recorded from that span (shifted by a clock offset of up to ``slack``, its first
+    and last events up to h/4 inside it) holds as many neighbours' windows, wherever the
+    reference view lies in the window (random windows, lengths 5 ms to 3 s)."""
+    rng = np.random.default_rng(7)
+    for _ in range(3000):
+        length = float(np.exp(rng.uniform(np.log(0.005), np.log(3.0))))
+        duration = length * rng.uniform(1.0, 8.0)
+        t0 = rng.uniform(0.0, duration - length)
+        views = int(rng.integers(3, 10))
+        slack = float(rng.choice([0.0, 0.003, 0.02]))
+        fused = FusedViews(views=views)
+        try:
+            start, end = fused.span(t0, t0 + length, duration, slack=slack)
+        except ParameterError:
+            continue                              # the scene cannot hold them: refused
+        assert start <= t0 and end >= t0 + length and 0.0 <= start and end <= duration
+        h = length / 4
+        for shift in (-slack, slack):
+            data = (start + shift + h / 4, end + shift - h / 4)
+            t_ref = t0 + length * rng.uniform(0.0, 1.0)
+            times = neighbour_times(t_ref, (t0, t0 + length), views, data)
+            assert len(times) == views - 1
+
+
+def test_c_equal_to_the_reference_s_is_not_mapped_again(one_view, tmp_path):
+    """``c`` = the one-view map's own (5): the reference's map is fused as it is, exactly as
+    ``c=None`` does (no views/00)."""
+    folder, _ = one_view
+    same = fused_reference_map(folder / "map", tmp_path / "same", views=3, c=5.0,
+                               fusion=FusionParams(), progress=False)
+    none = fused_reference_map(folder / "map", tmp_path / "none", views=3, c=None,
+                               fusion=FusionParams(), progress=False)
+    assert not (tmp_path / "same" / "views" / "00").exists()
+    assert same["c"] == none["c"] == 5.0 and same["N1_views"] == none["N1_views"]
+    assert np.array_equal(read_depth(tmp_path / "same" / "map" / "semidense_depth.exr"),
+                          read_depth(tmp_path / "none" / "map" / "semidense_depth.exr"))
+
+
+def test_the_fused_confidence_is_the_reference_view_s_own_at_its_own_points(one_view, fused3):
+    """confidence.exr: the reference view's candidate map's DSI votes (views/00) where the
+    fused map holds its own depth, 0 at points from the neighbours; some of those own points
+    are pixels the one-view map does not hold (its higher threshold dropped them)."""
+    from sim.exr import read_exr_channels
+
+    folder, mapped = one_view
+    out, description = fused3
+    fused = read_depth(out / "map" / "semidense_depth.exr")
+    candidates = read_depth(out / "views" / "00" / "semidense_depth.exr")
+    confidence = read_exr_channels(out / "map" / "confidence.exr")["Y"]
+    own_votes = read_exr_channels(out / "views" / "00" / "confidence.exr")["Y"]
+    own = (candidates > 0) & (fused == candidates)
+    assert description["pixels_from_reference"] == int(own.sum())
+    assert np.array_equal(confidence[own], own_votes[own]) and (confidence[own] > 0).all()
+    assert (confidence[~own] == 0).all()
+    assert (own & (mapped.depth == 0)).any()

@@ -210,8 +210,8 @@ def test_run_global_refuses_what_makes_no_sense_in_one_line(plane_sequence, tmp_
     assert ("--clip-window, --depth-range oracle cannot be used with a global map"
             in capsys.readouterr().err)
     assert run_cli(["run", str(plane_sequence), "--global", "--out", out]) == 2
-    assert "is a sequence folder, not a scene: its global map is map-global's" in (
-        capsys.readouterr().err)
+    assert ("is a sequence folder, not a scene: evfuse map-global maps a sequence folder "
+            "(run --global simulates a scene first)") in capsys.readouterr().err
     assert run_cli(["run", "complex_sphere", "--baseline", "0.2", "--out", out]) == 2
     assert "--baseline: only with --global" in capsys.readouterr().err
     assert run_cli(["run", "complex_sphere", "--global", "--views", "3", "--out", out]) == 2
@@ -315,7 +315,7 @@ def test_a_global_run_refuses_a_sequence_folder_in_the_library(plane_sequence, t
     command line's refusal is the test above), before anything is written."""
     from fusion.globalmap import run_global
 
-    with pytest.raises(ValueError, match="is a sequence folder, not a scene: its global map "
-                                         "is map-global's"):
+    with pytest.raises(ValueError, match="is a sequence folder, not a scene: map_global maps "
+                                         "a sequence folder"):
         run_global(plane_sequence, tmp_path / "lib")
     assert not (tmp_path / "lib").exists()

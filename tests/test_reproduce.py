@@ -198,3 +198,30 @@ def test_reproduce_views_adds_the_fused_table_beside_the_one_view_one(tmp_path, 
     assert f"{fused['N1_reference']} / {fused['N1']} | {fused['N1_in_frame']} | " in line
     assert "evfuse reproduce --views 3" in text
 
+
+
+def test_with_views_the_frozen_control_is_not_fused_and_keeps_the_moving_row_s_frames():
+    """reproduce --views: Table 1's windows are simulated over their neighbours' span, the
+    frozen control over its own window (it is not fused), started on the moving row's frame
+    grid, so that both map at the same reference frame, for any window length."""
+    from fusion.experiments.reproduce import _fuses, _simulated_span
+    from fusion.globalmap.neighbours import FusedViews
+    from scenes import resolve_scene
+    from sim.scene import load_scene
+
+    scene = load_scene(resolve_scene("dynamic_6dof"))
+    period = 1.0 / scene.frames.rate
+    for length, views in ((2.0, 5), (0.7, 3), (1.3, 5), (0.45, 9)):
+        moving = {"scene": "dynamic_6dof", "table": "1", "t0": 6.2, "length": length}
+        control = {**moving, "scene": "dynamic_6dof_frozen", "frozen_of": "dynamic_6dof"}
+        assert _fuses(moving, views) and not _fuses(control, views)
+        assert not _fuses(moving, 1) and not _fuses({**moving, "table": "2"}, views)
+        start, span = _simulated_span(moving, scene, views)
+        assert (start, start + span) == pytest.approx(FusedViews(views).span(
+            6.2, 6.2 + length, scene.duration))
+        c_start, c_span = _simulated_span(control, scene, views)
+        assert c_start <= 6.2 < c_start + period and c_start + c_span == pytest.approx(
+            6.2 + length)
+        frames = (c_start - start) / period
+        assert frames == pytest.approx(round(frames), abs=1e-6)
+        assert _simulated_span(control, scene, 1) == (6.2, length)

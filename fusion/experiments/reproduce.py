@@ -244,7 +244,8 @@ def _window_options(job: dict, params: ReproduceParams) -> tuple[object, dict]:
 def _fuses(job: dict, views: int) -> bool:
     """Whether a job's map is fused with its neighbours': Table 1's windows with ``views`` > 1,
     not the frozen control (a control of the one-view map's errors on moving objects, whose
-    window would otherwise be simulated over 2.25 times its length by whole frames)."""
+    window would otherwise be simulated by whole frames over ``1 + views / 4`` times its
+    length, :meth:`FusedViews.span`)."""
     return views > 1 and job["table"] == "1" and "frozen_of" not in job
 
 
@@ -258,11 +259,27 @@ def _simulated(job: dict, params: ReproduceParams, cache: Path, views: int = 1) 
     if job["t0"] + job["length"] > scene.duration:
         raise ValueError(f"{job['scene']} lasts {scene.duration} s: no window at {job['t0']} s")
     frozen = f"_at{job['frozen_at']:.6f}" if "frozen_of" in job else ""
-    start, length = job["t0"], job["length"]
-    if _fuses(job, views):
-        start, end = FusedViews(views).span(start, start + length, scene.duration)
-        length = end - start
+    start, length = _simulated_span(job, scene, views)
     return cached_window(scene, cache, f"{job['scene']}{frozen}", start, length, **options)
+
+
+def _simulated_span(job: dict, scene, views: int) -> tuple[float, float]:
+    """``(start, length)`` of the part of the scene a job's window is simulated over, seconds:
+    its window; a fused Table 1 window (:func:`_fuses`) the span its neighbours need
+    (:meth:`FusedViews.span`); with ``views`` > 1, the frozen control its window started on the
+    moving row's frame grid (frames fall at whole periods from a simulation's start, so that
+    the control's reference frame is the moving row's)."""
+    start, length = job["t0"], job["length"]
+    if not (views > 1 and job["table"] == "1"):
+        return start, length
+    moving_start, end = FusedViews(views).span(start, start + length, scene.duration,
+                                               slack=max(map(abs, scene.rig.offsets.values())))
+    if _fuses(job, views):
+        return moving_start, end - moving_start
+    period = 1.0 / scene.frames.rate
+    shift = (start - moving_start) % period
+    shift = 0.0 if min(shift, period - shift) < 1e-9 * period else shift
+    return start - shift, length + shift
 
 
 def _row(job: dict, sequence_folder: Path, out: Path, params: ReproduceParams,
@@ -466,15 +483,19 @@ def _fused_section(table1: list[dict], views: int) -> list[str]:
             f"{_coverage(f['errors'], 'all')} |")
     first = rows[0]["fused"]
     check = first["fusion"]
+    share = first["spacing_s"] / (rows[0]["window_s"][1] - rows[0]["window_s"][0])
+    again = ("; the reference view is mapped again so" if "views/00/" in first["folders"]["views"]
+             else "")
+    radius = check["search_radius"]
     lines += ["", f"Made by `evfuse reproduce --views {views}`: each window's one-view map "
               f"(the row above) is joined by the maps of {views - 1} neighbouring views, "
-              f"reference times t_ref +- k {first['spacing_s']:g} s (a quarter of the window), "
-              "the nearest first, each mapping the window shifted by its offset with the same "
-              "DSI and extraction (only the noisy poses) but the adaptive threshold's c at "
-              f"{first['c']:g} (candidates; the reference view is mapped again so), and the "
+              f"reference times t_ref +- k {first['spacing_s']:g} s ({share:.3g} of the "
+              "window), the nearest first, each mapping the window shifted by its offset with "
+              "the same DSI and extraction (only the noisy poses) but the adaptive threshold's "
+              f"c at {first['c']:g} (candidates{again}), and the "
               f"candidates that at least {check['min_views']} other views confirm within "
-              f"{100 * check['depth_tolerance']:g} % ({check['search_radius']} pixel's search "
-              "radius) are re-projected into the reference view "
+              f"{100 * check['depth_tolerance']:g} % (a search radius of {radius} "
+              f"pixel{'s' if radius != 1 else ''}) are re-projected into the reference view "
               "(fusion.globalmap.neighbours); the fused map is filled with inverse distance "
               "weights and scored against the same exact depth. With --views, each Table 1 "
               "window is simulated over the span its neighbours need, so its one-view numbers "

@@ -12,8 +12,9 @@ length), the nearest first and the earlier first at equal distance; each maps th
 window shifted by the same offset (the same length, the same place of its reference view in
 it), and a neighbour is taken only when that whole window lies in the data (the events' and
 the poses' spans); one that does not is skipped and the next one taken. Every neighbour's map
-has the reference's DSI (depth range, planes) and extraction parameters, and its pose is the
-noisy ``groundtruth.txt`` pose at its time, as the reference's: the fusion is blind. The exact
+has the reference's DSI (depth range, planes) and extraction parameters but the adaptive
+threshold's ``c`` (below), and its pose is the noisy ``groundtruth.txt`` pose at its time, as
+the reference's: the fusion is blind. The exact
 depth is read only to score the fused map, by the map stage's own scoring
 (:func:`fusion.scoring.depth_errors` against the reference view's exact depth).
 
@@ -25,9 +26,10 @@ ray density): more candidates, more of them wrong, and the multi-view check (def
 :data:`VIEWS_FUSION`: two other views within 2 % in depth) rejects what the threshold let
 through, as multi-view stereo filters its per-view depth maps. The reference view is mapped
 again at that ``c`` (``views/00``). Measured on boxes_6dof's paper window (3.5-5.5 s, one view
-N1 1,050 at 81.9 % within 5 %, ``c`` = 5), 5 views a quarter window apart: ``c`` = 5 and one
-other view gives 1.21x the points at 84.1 %; ``c`` = 0 and two other views 4.06x at 88.3 %
-(README, "Fused reference map", for the other scenes and settings).
+N1 1,050 at 81.9 % within 5 %, ``c`` = 5), 5 views: ``c`` = 5, one other view, half a window
+apart (the rule before this one) gives 1.21x the points at 84.1 %; ``c`` = 0, two other views,
+a quarter window apart 4.06x at 88.3 % (``benchmarks/bench_views.py``; README, "Fused
+reference map", for the other scenes and settings).
 
 With ``N = 1`` there is nothing to fuse: the fused map is the one-view map, bit for bit.
 
@@ -84,6 +86,18 @@ SPACING_SHARE = 0.25
 
 def _views(value: object) -> int:
     return check_parameter(lambda name, v: integer(name, v, 1), "views", value)
+
+
+def _enough_views(value: object, fusion: FusionParams) -> int:
+    """``views`` checked: 1 (nothing fused) or more than the check's ``min_views`` (with fewer
+    other views than the check asks to agree, no point could be kept)."""
+    views = _views(value)
+    if 1 < views <= fusion.min_views:
+        raise ParameterError(
+            f"{{views}} {views} is too few: a point is kept where {fusion.min_views} other "
+            f"views agree on it, so {{views}} must be 1 (the one-view map) or at least "
+            f"{fusion.min_views + 1}", views="views")
+    return views
 
 
 def _spacing(t0: float, t1: float, spacing: float | None) -> float:
@@ -191,7 +205,8 @@ def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DE
         Folder to write: ``views/NN/`` (the neighbours' maps, ``00`` the reference view's
         candidates) and ``map/`` (the fused map).
     views : int
-        N >= 1, the reference view included (default 5).
+        N: 1 (the one-view map, bit for bit) or more than ``fusion.min_views``, the reference
+        view included (default 5).
     fusion : FusionParams, optional
         The consistency check (default :data:`VIEWS_FUSION`: two other views within 2 %, a
         pixel's search radius); ``voxel_size`` is not used.
@@ -215,8 +230,8 @@ def fused_reference_map(map_folder: str | Path, out: str | Path, views: int = DE
         ``pixels_from_neighbours`` (the rest), ``folders``.
     """
     map_folder = Path(map_folder)
-    views = _views(views)
     fusion = fusion or VIEWS_FUSION
+    views = _enough_views(views, fusion)
     if c is not None:
         c = check_parameter(finite, "c", c)
     meta, reference, sequence_folder = _reference(map_folder)
@@ -296,7 +311,7 @@ class FusedViews:
     Attributes
     ----------
     views : int
-        N >= 2, the reference view included (default 5).
+        N >= 2 and more than ``fusion.min_views``, the reference view included (default 5).
     fusion : FusionParams
         The multi-view check (default :data:`VIEWS_FUSION`: two other views within 2 %).
     spacing : float or None, seconds
@@ -313,23 +328,39 @@ class FusedViews:
     name: str = "fused"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "views", _views(self.views))
+        object.__setattr__(self, "views", _enough_views(self.views, self.fusion))
         if self.spacing is not None:
             object.__setattr__(self, "spacing", check_parameter(positive, "spacing",
                                                                 self.spacing))
         if self.c is not None:
             object.__setattr__(self, "c", check_parameter(finite, "c", self.c))
 
-    def span(self, t0: float, t1: float, duration: float) -> tuple[float, float]:
+    def span(self, t0: float, t1: float, duration: float,
+             slack: float = 0.0) -> tuple[float, float]:
         """The part of a scene ``[0, duration]`` to simulate so that the neighbours of a map of
-        ``[t0, t1]`` fit (:func:`neighbour_times` around the window's middle, widened by half a
-        spacing on each side for a reference view off the middle: the frame nearest it)."""
-        middle = 0.5 * (t0 + t1)
+        ``[t0, t1]`` fit.
+
+        Each neighbour maps ``[t0 + k h, t1 + k h]`` (``k`` its signed rank,
+        :func:`neighbour_times`; wherever the reference view lies in the window), chosen here
+        within the scene less a margin of ``h / 2 + slack`` at each end; the span holds those
+        windows and the margin. ``slack`` (seconds) is the rig's largest clock offset
+        (:attr:`sim.capture_errors.RigParams.offsets`): the recorded events and poses are
+        shifted from the scene's time by it. Every window chosen here lies in the recorded
+        data with room to spare, so :func:`fused_reference_map` finds at least as many.
+
+        Returns
+        -------
+        (float, float), seconds
+            ``(start, end)`` within ``[0, duration]``, containing ``[t0, t1]``.
+        """
         h = _spacing(t0, t1, self.spacing)
-        times = neighbour_times(middle, (t0, t1), self.views, (0.0, duration), self.spacing)
-        before = min([middle, *times]) - (middle - t0) - 0.5 * h
-        after = max([middle, *times]) + (t1 - middle) + 0.5 * h
-        return max(0.0, min(before, t0)), min(duration, max(after, t1))
+        margin = 0.5 * h + abs(float(slack))
+        middle = 0.5 * (t0 + t1)
+        times = neighbour_times(middle, (t0, t1), self.views, (margin, duration - margin),
+                                self.spacing)
+        offsets = [0.0, *(t - middle for t in times)]
+        return (max(0.0, t0 + min(offsets) - margin),
+                min(duration, t1 + max(offsets) + margin))
 
     def __call__(self, map_folder: Path, out: Path, progress: bool) -> dict:
         """Write the fused map into ``out/map`` (:func:`fused_reference_map`)."""

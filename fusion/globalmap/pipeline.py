@@ -80,7 +80,7 @@ from sim.output import atomic_output_dir, check_output_dir
 from sim.progress import progress as progress_stage
 from sim.sequence import Sequence, load_sequence
 from sim.trajectory import read_trajectory
-from sim.validation import check_parameter, integer, positive
+from sim.validation import ParameterError, check_parameter, integer, positive
 
 __all__ = ["GlobalParams", "map_and_fill_view", "map_global", "run_global", "sequence_poses"]
 
@@ -268,8 +268,10 @@ def run_global(scene: str | Path, out: str | Path, t0: float | None = None,
 
     params = params or GlobalParams()
     if is_sequence_folder(scene):
-        raise ValueError(f"{scene} is a sequence folder, not a scene: its global map is "
-                         "map-global's (a global run simulates a scene first)")
+        raise ParameterError(f"{ParameterError.literal(scene)} is a sequence folder, not a "
+                             "scene: {map_global} maps a sequence folder ({run_global} "
+                             "simulates a scene first)", map_global="map_global",
+                             run_global="run_global")
     resolve_method(params.method, params.dense, params.method_params)        # up front
     loaded = load_scene(resolve_scene(scene), seed=seed)
     t0 = 0.0 if t0 is None else float(t0)
