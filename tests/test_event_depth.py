@@ -123,7 +123,8 @@ def _check_against_direct_renders(scene, result, brackets) -> dict:
     assert np.all((t_a <= t_ns) & (t_ns <= t_b))
     renderer = Renderer(scene, spp=1)
     grid = np.linspace(0.0, 1.0, 5)
-    figures = {"unflagged": 0, "flagged": 0, "smooth": 0, "worst_ratio": 0.0, "worst_rel": 0.0}
+    figures = {"unflagged": 0, "flagged": 0, "smooth": 0, "transient": 0, "worst_ratio": 0.0,
+               "worst_rel": 0.0}
     for event, t, a, b in zip(sample, t_ns, t_a, t_b, strict=True):
         x, y = int(event["x"]), int(event["y"])
         direct = renderer.depth(t * 1e-9)
@@ -144,8 +145,17 @@ def _check_against_direct_renders(scene, result, brackets) -> dict:
             continue
         figures["unflagged"] += 1
         tol = 2e-6 * truth + 1e-7                                    # float32 ray casts
+        steps = np.diff(path)
+        if near_edge and np.any(steps > tol) and np.any(steps < -tol) and min(
+                abs(path[0] - path[1:-1]).max(), abs(path[-1] - path[1:-1]).max()) > (
+                EDGE_JUMP * path.min()):
+            # A surface came and went within the bracket (the two renders agree, the pixel
+            # saw something else between them): outside the bound, which holds for a depth
+            # monotone over the bracket (module docstring of sim.event_depth). Counted.
+            figures["transient"] += 1
+            continue
         # Unflagged: within the edge bound, and no surface means 0.
-        assert error <= EDGE_JUMP * truth + tol
+        assert error <= EDGE_JUMP * truth + tol, (event, truth, path)
         if path.max() == 0:
             assert event["depth"] == 0 and truth == 0
             continue
@@ -169,12 +179,15 @@ def test_static_scene_per_pixel_sampler_depth_within_the_bound(static_run):
     figures = _check_against_direct_renders(*static_run)
     assert figures["smooth"] > SAMPLE / 2 and figures["flagged"] > 0
     assert figures["worst_rel"] < 1e-3
+    # Edges that pass a pixel and leave within one 10-ms bracket are rare (1 of 200 here).
+    assert figures["transient"] <= 0.02 * SAMPLE
 
 
 def test_dynamic_scene_frame_sampler_depth_within_the_bound(dynamic_run):
     figures = _check_against_direct_renders(*dynamic_run)
     assert figures["smooth"] > SAMPLE / 2
     assert figures["worst_rel"] < 1e-3
+    assert figures["transient"] <= 0.02 * SAMPLE
 
 
 @pytest.mark.parametrize("run", ["static_run", "dynamic_run"])
