@@ -71,6 +71,12 @@ POSE_TABLE_NODES = 1 << 16
 """Most grid intervals that the pose table of one launch spans (65537 nodes, 3 MB of float32):
 a call whose times span more is split into launches of samples whose times lie closer together,
 with identical results."""
+MIN_LAUNCH = 4096
+"""Fewest samples of a launch: a smaller call (a block's tail) is padded with copies of its last
+sample, whose results are dropped. Dr.Jit's frozen kernel cannot replay a launch whose size
+equals that of an array in the scene (a box's 36 indices, say): it records the function again
+(boxes_6dof's 0.6 s from 2.25 s: launches of 1, 28, 36 and 48 samples, 4 extra recordings; a
+4.5-s window reached Dr.Jit's warning at 10). A padded launch costs microseconds."""
 POSE_BOUND_SAFETY = 4.0
 """Factor on the second-difference estimate of the interpolation error: it covers a second
 derivative that peaks between nodes and a kink in the trajectory (a sampled trajectory's knot),
@@ -297,9 +303,10 @@ class EventShader:
     calls whose times span more than :data:`POSE_TABLE_NODES` intervals of the pose grid, are
     split), a frozen Dr.Jit function (``dr.freeze``): the first call traces the Python code and
     compiles the kernel, later calls of any size replay it (about 3 ms less per call). Dr.Jit
-    records it once more for a size of 1, or one equal to the size of an array in the scene
-    (a mesh's vertex count, say) or to that of the launch's pose table (12 floats per node): the
-    same kernel, traced again once.
+    records it again for a launch whose size equals that of an array in the scene (a mesh's
+    vertex count, say) or of the launch's pose table (12 floats per node): the same kernel,
+    traced again. Launches of fewer than :data:`MIN_LAUNCH` samples are padded, so that the
+    small arrays of a scene are never matched.
 
     Examples
     --------
@@ -557,6 +564,11 @@ class EventShader:
     def _launch(self, pixels: np.ndarray, node: np.ndarray, fraction: np.ndarray, first: int,
                 table, trace) -> np.ndarray:
         mi, dr = self._mi, self._dr
+        count = len(pixels)
+        if 0 < count < MIN_LAUNCH:                  # a small launch, padded (MIN_LAUNCH)
+            pad = np.full(MIN_LAUNCH - count, count - 1)
+            pixels, node, fraction = (np.concatenate([a, a[pad]])
+                                      for a in (pixels, node, fraction))
         index = mi.UInt32(_aligned(pixels, np.uint32))
         relative = _aligned_empty(len(node), np.uint32)
         np.subtract(node, first, out=relative, casting="unsafe")      # integers: exact
@@ -572,7 +584,7 @@ class EventShader:
         try:
             total = trace(self.renderer.mitsuba_scene, self._directions, self._jitter, index,
                           nodes, fractions, table, zeros, self._filtering)
-            return np.asarray(total, dtype=np.float32)
+            return np.asarray(total, dtype=np.float32)[:count]
         finally:
             if collecting:
                 gc.enable()

@@ -222,6 +222,34 @@ def test_calls_of_any_size_reuse_the_kernel_and_launches_change_nothing(boxes, m
     np.testing.assert_array_equal(split.luminance(pixels, times), whole)
 
 
+def test_small_calls_replay_the_frozen_kernel_and_give_the_same_values(boxes, monkeypatch):
+    """A launch whose size equals that of an array of the scene (a box's 36 indices) is not
+    replayed by Dr.Jit: it records the kernel again (and warns after 10). Small calls are
+    padded (MIN_LAUNCH): one recording serves every size, and the values do not change."""
+    recordings = []
+    real = sim.shader._trace
+
+    def counted(*args, **kwargs):
+        recordings.append(int(args[3].shape[0]))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(sim.shader, "_trace", counted)
+    shader = EventShader(boxes, 4, t0=0.0, t1=4.0)
+    rng = np.random.default_rng(8)
+    pixels, times = rng.integers(0, 48 * 36, 5000), rng.uniform(0.0, 4.0, 5000)
+    whole = shader.luminance(pixels, times)
+    for size in (1, 24, 28, 36, 48, 72, 777):     # a box's vertices, indices, ...; any size
+        np.testing.assert_array_equal(shader.luminance(pixels[:size], times[:size]),
+                                      whole[:size])
+    assert len(recordings) == 1, f"recorded again for launches of {recordings[1:]} samples"
+    monkeypatch.setattr(sim.shader, "MIN_LAUNCH", 1)                   # unpadded: re-recorded
+    bare = EventShader(boxes, 4, t0=0.0, t1=4.0)
+    bare.luminance(pixels, times)
+    for size in (1, 24, 28, 36, 48, 72):
+        bare.luminance(pixels[:size], times[:size])
+    assert len(recordings) > 2
+
+
 def test_scalar_variant_is_refused_in_one_line():
     with pytest.raises(ValueError, match=r"JIT Mitsuba variant .*got scalar_rgb") as info:
         require_jit_variant("scalar_rgb")
