@@ -33,6 +33,21 @@ def scene_text(objects: str, *, camera: str | None = None, trajectory: str | Non
             f"{extra}\n{camera}\n{trajectory}\n{lights}\n{objects}\n")
 
 
+def undistort_points(src, camera_matrix, distortion, R=None, P=None, criteria=None):
+    """OpenCV's ``undistortPoints`` with its iteration's termination criteria, on OpenCV 4
+    (``undistortPointsIter``) and OpenCV 5 (``undistortPoints(..., criteria)``, the other
+    gone): the tests' analytic reference for a distorting lens."""
+    import cv2
+    import numpy as np
+
+    distortion = np.asarray(distortion, dtype=np.float64)
+    if criteria is None:
+        return cv2.undistortPoints(src, camera_matrix, distortion, None, R, P)
+    if hasattr(cv2, "undistortPointsIter"):                             # OpenCV 4
+        return cv2.undistortPointsIter(src, camera_matrix, distortion, R, P, criteria)
+    return cv2.undistortPoints(src, camera_matrix, distortion, None, R, P, criteria)
+
+
 def tree_hashes(*paths: str | Path) -> dict[str, str]:
     """SHA-256 of every file under each of ``paths`` (a file or a folder), by path; a folder as
     ``<dir>``, a link as ``-> target``, a missing path as ``<missing>``: two calls compare equal

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from sim.camera import CAMERA_PRESETS, Camera, camera_preset, read_calib, write_calib
+from tests.conftest import undistort_points
 
 # ECD DAVIS240C calibration (shapes_*, poster_*), real lens distortion included.
 DAVIS = Camera(240, 180, 199.092366542, 198.82882047, 132.192071378, 110.712660011,
@@ -70,8 +71,8 @@ def test_project_matches_cv2_project_points(camera):
 @pytest.mark.parametrize("camera", [DAVIS, ODD])
 def test_undistort_matches_cv2_undistort_points(camera):
     uv = camera.pixel_centres().reshape(-1, 2)
-    expected = cv2.undistortPoints(uv[:, None, :], camera.K, np.array(camera.distortion),
-                                   None, None, None, TIGHT)[:, 0]
+    expected = undistort_points(uv[:, None, :], camera.K, camera.distortion,
+                                criteria=TIGHT)[:, 0]
     ours = camera.normalized_pixel_centres().reshape(-1, 2)
     np.testing.assert_allclose(ours, expected, atol=1e-9)
     # And it really inverts the distortion.

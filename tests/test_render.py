@@ -10,7 +10,7 @@ import pytest
 from sim.render import Renderer
 from sim.scene import parse_scene
 from sim.se3 import look_at
-from tests.conftest import scene_text
+from tests.conftest import scene_text, undistort_points
 
 PLANE = """
 [[objects]]
@@ -133,8 +133,8 @@ def test_distorted_camera_depth_follows_opencv_undistortion():
     v, u = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
     pts = np.stack([u, v], -1).reshape(-1, 1, 2)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    xy = cv2.undistortPoints(pts, cam.K, np.array(cam.distortion), None, None, None,
-                             criteria).reshape(cam.height, cam.width, 2)
+    xy = undistort_points(pts, cam.K, cam.distortion, criteria=criteria).reshape(
+        cam.height, cam.width, 2)
     d = np.concatenate([xy, np.ones_like(xy[..., :1])], -1)
     R = scene.trajectory.pose(0.0)[:3, :3]
     normal = np.array([-0.3, -1.0, 0.4])

@@ -27,6 +27,7 @@ from fusion.pipeline import fill_window
 from sim.camera import Camera
 from sim.exr import read_depth, write_depth
 from sim.sequence import load_sequence
+from tests.conftest import undistort_points
 
 EVENT = Camera(64, 48, 80.0, 78.0, 31.7, 23.2)
 FRAME = Camera(56, 42, 60.0, 58.0, 27.6, 20.7, (-0.15, 0.05, 0.002, -0.001, 0.0))
@@ -56,8 +57,8 @@ def rays(camera: Camera) -> np.ndarray:
     v, u = np.mgrid[0:camera.height, 0:camera.width].astype(np.float64)
     pixels = np.stack([u, v], -1).reshape(-1, 1, 2)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
-    xy = cv2.undistortPoints(pixels, camera.K, np.array(camera.distortion), None, np.eye(3),
-                             np.eye(3), criteria).reshape(camera.height, camera.width, 2)
+    xy = undistort_points(pixels, camera.K, camera.distortion, np.eye(3), np.eye(3),
+                          criteria).reshape(camera.height, camera.width, 2)
     return np.concatenate([xy, np.ones(xy.shape[:2] + (1,))], -1)
 
 
@@ -267,8 +268,8 @@ def test_rolling_shutter_projection_matches_a_search_over_rows():
     row_poses = frame_row_poses(0.09, readout)
     # points seen at random pixels from the middle row's pose, at 1-3 m
     mid = row_poses[FRAME.height // 2]
-    xy = cv2.undistortPoints(uv_pix.reshape(-1, 1, 2), FRAME.K, np.array(FRAME.distortion),
-                             None, np.eye(3), np.eye(3)).reshape(-1, 2)
+    xy = undistort_points(uv_pix.reshape(-1, 1, 2), FRAME.K, FRAME.distortion, np.eye(3),
+                          np.eye(3)).reshape(-1, 2)
     local = np.concatenate([xy, np.ones((200, 1))], 1) * rng.uniform(1, 3, (200, 1))
     world = local @ mid[:3, :3].T + mid[:3, 3]
     times = 0.09 + (np.arange(FRAME.height) / (FRAME.height - 1) - 0.5) * readout

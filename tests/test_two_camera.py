@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 
 from sim.exr import read_depth
 from sim.scene import SceneError, load_scene, parse_scene
-from tests.conftest import scene_text
+from tests.conftest import scene_text, undistort_points
 
 EVENT = "[event_camera]\nwidth = 64\nheight = 48\nfx = 60.0\nfy = 45.0\ncx = 30.3\ncy = 22.7\n"
 FRAME = ("[frame_camera]\nwidth = 80\nheight = 60\nfx = 70.0\nfy = 66.0\ncx = 40.2\n"
@@ -75,8 +75,7 @@ def plane_depth(T_world_cam: np.ndarray, K: np.ndarray, distortion, width: int,
     u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
     uv = np.stack([u.ravel(), v.ravel()], axis=-1)[:, None, :]
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
-    xy = cv2.undistortPoints(uv, K, np.asarray(distortion, dtype=np.float64),
-                             criteria=criteria)[:, 0, :]
+    xy = undistort_points(uv, K, distortion, criteria=criteria)[:, 0, :]
     rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)        # z = 1: s is the depth
     directions = rays @ T_world_cam[:3, :3].T
     s = (PLANE_N @ (PLANE_C - T_world_cam[:3, 3])) / (directions @ PLANE_N)
@@ -463,8 +462,8 @@ def test_rolling_shutter_flow_lands_each_point_on_the_row_that_sees_it(tmp_path)
             continue
         pose = T_world_event(t_src + (v / 59 - 0.5) * 0.03) @ T_event_frame()
         depth = plane_depth(pose, K, DISTORTION, 80, 60)[v, u]
-        xy = cv2.undistortPoints(np.array([[[u, v]]], np.float64), K, np.array(DISTORTION),
-                                 criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
+        xy = undistort_points(np.array([[[u, v]]], np.float64), K, DISTORTION,
+                              criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
                                            200, 1e-15))[0, 0]
         world = pose[:3, :3] @ (depth * np.array([*xy, 1.0])) + pose[:3, 3]
         landed = []
