@@ -197,6 +197,8 @@ def test_reproduce_views_adds_the_fused_table_beside_the_one_view_one(tmp_path, 
                                                              f"{fused['N1_reference']} / "))
     assert f"{fused['N1_reference']} / {fused['N1']} | {fused['N1_in_frame']} | " in line
     assert "evfuse reproduce --views 3" in text
+    # the introduction does not claim every window was simulated over itself only
+    assert "Every window is simulated over itself only but Table 1's fused ones" in text
 
 
 

@@ -505,6 +505,14 @@ def _fused_section(table1: list[dict], views: int) -> list[str]:
     return lines
 
 
+def _simulated_over(views: int) -> str:
+    """What each window of the report is simulated over (Table 1's longer with ``--views``)."""
+    if views <= 1:
+        return "Every window is simulated over itself only"
+    return ("Every window is simulated over itself only but Table 1's fused ones (--views "
+            f"{views}), simulated over the span their neighbours need (see Table 1, fused)")
+
+
 def _markdown(report: dict, params: ReproduceParams) -> str:
     failed = [r for r in report["rows"] if "failed" in r]
     rows = [r for r in report["rows"] if "failed" not in r]
@@ -521,7 +529,7 @@ def _markdown(report: dict, params: ReproduceParams) -> str:
              f"{params.moving_event_spp} sample(s) per pixel and lam = {params.moving_lam:g} "
              "(whole frames at the fastest pixel's rate at full quality would take about 20 "
              "minutes for its window alone). "
-             "Every window is simulated over itself only, mapped at the frame "
+             f"{_simulated_over(report['settings'].get('views', 1))}, mapped at the frame "
              "nearest its middle (DSI of 100 planes over the working range each scene file "
              "declares, listed below: never the exact depth; adaptive threshold 15 / 7 on the "
              "sliders as the paper, 5 / 5 elsewhere), filled "
