@@ -203,9 +203,9 @@ def sweep_markdown(rows: list[dict]) -> str:
              "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "refused" in r:
+            reason = r["refused"].split(":")[0]          # its first clause; whole in the JSON
             lines.append(f"| {r['scene']} | {r['c']:g} | {r['spacing_share']:g} | {r['views']} "
-                         "| - | refused by the map stage (its end planes hold too many "
-                         "points) | - | - |")
+                         f"| - | refused by the map stage: {reason} | - | - |")
             continue
         if r.get("one_view"):
             lines.append(f"| {r['scene']} | one view (c = 5) | - | 1 | - | {r['N1']:,} | "
