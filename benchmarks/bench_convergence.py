@@ -31,6 +31,9 @@ minutes; dynamic_6dof's frame sampler renders whole frames at up to 20 kHz, and 
 about 20 minutes per 0.05-s window, 9.4 minutes for 0.02 s, so the full run would take about
 an hour).
 ``--scenes`` picks scenes, ``--first`` only their first time, ``--window`` sets the seconds.
+``--edge-spp N`` also runs each default with ``[render] edge_spp = N`` (the pixels an edge
+crosses rendered at N samples per pixel, :mod:`sim.pixel_sampling`), after the default, and
+prints its row below the default's (its frames are the default's).
 Results are printed and written to ``benchmarks/results/convergence.json``
 (``convergence_quick.json`` for ``--quick``), row by row (a row replaces an earlier run's of
 the same scene and window).
@@ -75,6 +78,7 @@ def _run(scene, folder: Path, start: float, seconds: float) -> dict:
     record = json.loads((folder / "sequence.json").read_text())
     return {"events": result.n_events, "sampler": record["events"]["sampler"],
             "pixel_samples": event_pixel_samples(scene, record["events"]),
+            "edge_samples": record["events"].get("edge_samples", 0),
             "event_render_s": result.timings["event_render"],
             "gain": record["frames"]["gain_used"]}
 
@@ -103,8 +107,21 @@ def _with_spp(scene, spp: int | None, gain: float | None):
     return replace(scene, frames=frames, render=render)
 
 
-def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool) -> dict:
-    """One scene and window: the default against the reference (see the module docstring)."""
+def _versus(reference_folder: Path, folder: Path, shape: tuple[int, int],
+            psnrs: list[float]) -> tuple[dict, dict]:
+    """Agreement of a run's events with the reference's, and the goals met."""
+    agreement = event_agreement(read_events(reference_folder / "events.h5"),
+                                read_events(folder / "events.h5"), shape)
+    return agreement.as_dict(), {
+        "count": bool(abs(agreement.count_error) <= COUNT_GOAL),
+        "blocks": bool(agreement.worst_block_error <= BLOCK_GOAL),
+        "frames": bool(psnrs) and bool(min(psnrs) >= PSNR_GOAL)}
+
+
+def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool,
+               edge_spp: int = 0) -> dict:
+    """One scene and window: the default against the reference (see the module docstring),
+    and with ``edge_spp`` (> 0) the default with ``[render] edge_spp`` set too."""
     scene = load_scene(resolve_scene(name))
     shape = (scene.camera.height, scene.camera.width)
     tick = time.perf_counter()
@@ -113,19 +130,23 @@ def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool
     if warm:                                                  # trace and compile once
         _run(default_scene, folder / "warm", start, 0.01)
     default = _run(default_scene, folder / "default", start, seconds)
-    agreement = event_agreement(read_events(folder / "reference" / "events.h5"),
-                                read_events(folder / "default" / "events.h5"), shape)
     psnrs = [psnr(r, d) for r, d in zip(_frames(folder / "reference"),
                                         _frames(folder / "default"), strict=True)]
+    agreement, passed = _versus(folder / "reference", folder / "default", shape, psnrs)
     row = {"scene": name, "window_s": [start, start + seconds],
            "event_spp": scene.render.event_spp, "spp": scene.render.spp,
            "reference_spp": REFERENCE_SPP, "default": default, "reference": reference,
-           "agreement": agreement.as_dict(), "frames": len(psnrs),
-           "frame_psnr_db": min(psnrs) if psnrs else None,
-           "wall_s": time.perf_counter() - tick}
-    row["pass"] = {"count": bool(abs(agreement.count_error) <= COUNT_GOAL),
-                   "blocks": bool(agreement.worst_block_error <= BLOCK_GOAL),
-                   "frames": bool(psnrs) and bool(min(psnrs) >= PSNR_GOAL)}
+           "agreement": agreement, "frames": len(psnrs),
+           "frame_psnr_db": min(psnrs) if psnrs else None, "pass": passed}
+    if edge_spp:
+        edged = replace(default_scene, render=replace(default_scene.render, edge_spp=edge_spp))
+        if warm:
+            _run(edged, folder / "warm", start, 0.01)
+        run = _run(edged, folder / "edges", start, seconds)
+        agreement, passed = _versus(folder / "reference", folder / "edges", shape, psnrs)
+        row["edges"] = {"edge_spp": edge_spp, "run": run, "agreement": agreement,
+                        "pass": passed}
+    row["wall_s"] = time.perf_counter() - tick
     print(f"{name} {start:g} s: {row['wall_s']:.0f} s", flush=True)
     return row
 
@@ -153,6 +174,16 @@ def table(rows: list[dict]) -> str:
             f"({a['worst_block_events']:5,}, {a['blocks']:3}) "
             f"{_verdict(ok['blocks'])}  {frames}  {d['pixel_samples']:13,}  "
             f"{d['event_render_s']:14.2f}")
+        if "edges" in row:
+            e, a, ok = row["edges"], row["edges"]["agreement"], row["edges"]["pass"]
+            lines.append(
+                f"  edge_spp {e['edge_spp']:<3} {'':>8}  {e['run']['sampler']:<7} "
+                f"{a['count']:7,} {a['reference_count']:10,}  {100 * a['count_error']:+6.1f} % "
+                f"{_verdict(ok['count'])}  {100 * a['worst_block_error']:5.1f} % "
+                f"({a['worst_block_events']:5,}, {a['blocks']:3}) "
+                f"{_verdict(ok['blocks'])}  {'':13}  {e['run']['pixel_samples']:13,}  "
+                f"{e['run']['event_render_s']:14.2f}  (edge samples "
+                f"{e['run']['edge_samples']:,})")
     return "\n".join(lines)
 
 
@@ -164,6 +195,8 @@ def main() -> None:
     parser.add_argument("--window", type=float, default=None,
                         help="seconds per window (default 0.05, --quick 0.02)")
     parser.add_argument("--first", action="store_true", help="only each scene's first time")
+    parser.add_argument("--edge-spp", type=int, default=0,
+                        help="also run the default with [render] edge_spp = N (0: not)")
     args = parser.parse_args()
     cases = QUICK if args.quick else CASES
     if args.scenes is not None:
@@ -174,7 +207,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for name, starts in cases:
             for k, start in enumerate(starts[:1] if args.first else starts):
-                rows.append(bench_case(name, start, seconds, Path(tmp), warm=k == 0))
+                rows.append(bench_case(name, start, seconds, Path(tmp), warm=k == 0,
+                                       edge_spp=args.edge_spp))
                 _write_rows(path, rows[-1:])
     print(f"\n{table(rows)}\n\nwall time {time.perf_counter() - tick:.0f} s\nwritten to {path}")
 

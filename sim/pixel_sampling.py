@@ -33,6 +33,15 @@ fastest pixel needs (:mod:`sim.sampling`), every pixel keeps its own time line:
   sample at ``t_e``, so the block's events are final when it ends: they leave sorted by time, one
   block at a time, in memory bounded by one block.
 
+- Edges (``edges``, ``[render] edge_spp``): point sub-samples alias where an edge of the
+  geometry or of a shadow crosses a pixel (textures are filtered over each sub-sample's
+  stratum, :mod:`sim.shader`; edges are not): as the edge jitters across a sub-sample, the
+  pixel's value jumps by a quarter of the edge's contrast at 4 samples, over the threshold
+  both ways, where the pixel's true, area-integrated value would hardly move. The pixels whose
+  sub-samples, or theirs and a neighbour's, see different surfaces or lights, or normals more
+  than 18 degrees apart (:func:`geometric_edges`) at either end of a block are rendered with
+  ``edge_spp`` sub-samples throughout the block.
+
 Exactness: the emulator sees every pixel's luminance at the pixel's own sample times, so its
 interpolation error per interval is bounded by the change ``lam C`` the check enforces (except
 in the steps and ``at_max_rate`` intervals, which are counted), the same guarantee as frame
@@ -43,8 +52,9 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import partial
 from typing import Protocol
 
 import cv2
@@ -70,11 +80,15 @@ from sim.noise import (
 )
 from sim.sampling import SPLIT, SamplingParams, _point_flow, _twist, contrast_scale
 
-__all__ = ["MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
+__all__ = ["EDGE_COS", "MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
            "PixelSource", "pixel_blocks", "rate_map"]
 
 MARGIN = 0.5
 """The prediction aims at MARGIN * lam * C (frame sampling: 0.75)."""
+EDGE_COS = 0.95
+"""Two neighbouring sub-samples on one surface whose normals are more than arccos(0.95) = 18
+degrees apart straddle a crease (a box's edge): :func:`geometric_edges`. A sphere or a
+height field seen at 240x180 turns its normal by a few degrees a pixel."""
 MAX_DILATION = 64
 """Largest radius (pixels) over which the predicted rate is spread within a block; faster image
 motion is left to the check (it then costs bisection renders, never accuracy)."""
@@ -101,6 +115,14 @@ class PixelSource(Protocol):
     def camera_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The camera's (v, w) in the camera frame, m/s and rad/s."""
 
+    def geometry(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """What every sub-sample sees at ``t`` (:meth:`sim.shader.EventShader.geometry`):
+        key (H n, W n) uint32 and normal (H n, W n, 3); needed with ``edges`` only."""
+
+    def fine_luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """As :meth:`luminance`, with more sub-samples per pixel (the pixels an edge
+        crosses); needed with ``edges`` only."""
+
 
 @dataclass
 class PixelSamplingStats:
@@ -126,6 +148,9 @@ class PixelSamplingStats:
         a kink); they are split further all the same (see the module docstring).
     at_max_rate : int
         Intervals still breaking the bound at the maximum rate.
+    edge_samples : int
+        Renders of single pixels with ``source.fine_luminance`` (``edges``): those of the
+        pixel samples that an edge's pixels took, and their re-renders at block boundaries.
     """
 
     pixel_samples: int = 0
@@ -136,6 +161,7 @@ class PixelSamplingStats:
     intervals: int = 0
     steps: int = 0
     at_max_rate: int = 0
+    edge_samples: int = 0
 
 
 @dataclass(frozen=True)
@@ -874,7 +900,8 @@ def _intra_kernel(rate, log_b, log_e, observed, scale, seconds, per_sample,
 def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t1: float,
                  contrast: float, log_eps: float, params: SamplingParams | None = None,
                  stats: PixelSamplingStats | None = None,
-                 after: tuple[float, np.ndarray] | None = None) -> Iterator[PixelBlock]:
+                 after: tuple[float, np.ndarray] | None = None,
+                 edges: bool = False) -> Iterator[PixelBlock]:
     """Sample every pixel at its own times from t0 to t1 and emulate its events, block by block.
 
     Parameters
@@ -901,6 +928,13 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         with the emulator's state as it was after that block. The blocks that
         follow are exactly those an uninterrupted run gives (renders are deterministic in
         time).
+    edges : bool
+        Render the pixels that an edge crosses with ``source.fine_luminance`` (more
+        sub-samples): at a block boundary, those :func:`geometric_edges` finds in
+        ``source.geometry`` there; inside a block, those it finds at either end. A pixel's
+        value at a boundary depends on that time only, so a pixel changes from one
+        renderer to the other at a boundary where no edge crosses it, where both agree up to
+        the texture filter's bound.
 
     Yields
     ------
@@ -926,6 +960,21 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     def log_of(luminance: np.ndarray) -> np.ndarray:
         return np.log(np.asarray(luminance, dtype=np.float64) + log_eps)
 
+    def boundary(sub: np.ndarray, t_ns: int,
+                 counted: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """A block boundary's pixel values, with the pixels an edge crosses there (``edges``)
+        rendered by ``source.fine_luminance``, and those pixels (flat; None without edges)."""
+        lum = pixel_means(sub, shape)
+        if not edges:
+            return lum, None
+        fine = geometric_edges(*source.geometry(float(seconds(t_ns))), shape).reshape(-1)
+        index = np.flatnonzero(fine)
+        if len(index):
+            lum.reshape(-1)[index] = source.fine_luminance(
+                index, np.full(len(index), float(seconds(t_ns))))
+            stats.edge_samples += len(index) if counted else 0
+        return lum, fine
+
     if after is None:
         t_b = t0_ns
         sub_b = source.subsamples(t0)
@@ -933,7 +982,7 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     else:                     # the block end's sub-samples again (deterministic; not counted)
         t_b = int(round(after[0] * 1e9))
         sub_b = source.subsamples(float(seconds(t_b)))
-    lum_b = pixel_means(sub_b, shape)
+    lum_b, fine_b = boundary(sub_b, t_b, counted=after is None)
     log_b = log_of(lum_b)
     if after is None:
         emulator.start(log_b, t0, lum_b)
@@ -946,8 +995,9 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         length = t_e - t_b
         sub_e = source.subsamples(float(seconds(t_e)))
         stats.full_renders += 1
-        lum_e = pixel_means(sub_e, shape)
+        lum_e, fine_e = boundary(sub_e, t_e)
         log_e = log_of(lum_e)
+        shade = partial(_shade, source, stats, None if fine_e is None else fine_b | fine_e)
         depth = source.depth(float(seconds(t_b)))
         stats.depth_renders += 1
         twists = [source.camera_velocity(float(seconds(t_b))),
@@ -960,20 +1010,75 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
             inner, t_b, length, log_b.reshape(-1), lum_b.reshape(-1), log_e.reshape(-1),
             lum_e.reshape(-1), float(t0), float(t1))
         if len(mid_pix):
-            values = np.asarray(source.luminance(mid_pix, mid_s))
+            values = shade(mid_pix, mid_s)
             logs = np.empty(len(values))                # log(float64(value) + log_eps):
             _plus(values, log_eps, logs)                # NumPy's log, in place
             np.log(logs, out=logs)
             _fill_middle(inner, values, logs, levels, lums)         # (values: float32)
             stats.pixel_samples += len(mid_pix)
-        pix, times, levels, lums = _refine(source, pix, times, levels, lums, bound, scale,
+        pix, times, levels, lums = _refine(shade, pix, times, levels, lums, bound, scale,
                                            dt_min_ns, log_eps, stats, seconds)
         stats.intervals += len(pix) - n_pixels
         observed = _observed_rates(pix, times, levels, bound, scale)
         events = emulator.advance_samples(pix, times, levels, lums, t_e, lum_e)
         stats.blocks += 1
-        t_b, sub_b, lum_b, log_b = t_e, sub_e, lum_e, log_e
+        t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, log_e, fine_e
         yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
+
+
+def _shade(source: PixelSource, stats: PixelSamplingStats, fine: np.ndarray | None,
+           pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Luminance (N,) of pixels at their times (the sources' dtype, float32 for
+    :class:`sim.shader.EventShader`), those marked in ``fine`` (flat bool; None: none) by
+    ``source.fine_luminance``."""
+    if fine is None or not (sel := fine[pixels]).any():
+        return np.asarray(source.luminance(pixels, times))
+    coarse = np.asarray(source.luminance(pixels[~sel], times[~sel]))
+    fine_values = np.asarray(source.fine_luminance(pixels[sel], times[sel]))
+    out = np.empty(len(pixels), dtype=np.result_type(coarse, fine_values))
+    out[~sel], out[sel] = coarse, fine_values
+    stats.edge_samples += int(np.count_nonzero(sel))
+    return out
+
+
+def geometric_edges(key: np.ndarray, normal: np.ndarray, shape: tuple[int, int],
+                    cos_angle: float = EDGE_COS) -> np.ndarray:
+    """Pixels that an edge of the geometry or of a shadow crosses: where two neighbouring
+    sub-samples see different surfaces, different lights, or normals apart by more than
+    ``arccos(cos_angle)``.
+
+    Parameters
+    ----------
+    key : (H n, W n) uint32 ndarray
+        What each sub-sample sees (:meth:`sim.shader.EventShader.geometry`): 0 for a miss,
+        else its shape and which lights reach it.
+    normal : (H n, W n, 3) float32 ndarray
+        Its geometric normal (unit, world frame).
+    shape : (int, int)
+        ``(H, W)``, pixels.
+    cos_angle : float
+        Neighbours on one surface whose normals' dot product is below it are a crease.
+
+    Returns
+    -------
+    (H, W) bool ndarray
+        Pixels holding either sub-sample of such a pair (horizontal and vertical neighbours on
+        the sub-sample grid, across pixel borders too): an edge that runs between two
+        sub-samples marks both their pixels.
+    """
+    height, width = shape
+    n = key.shape[0] // height
+    big = np.zeros(key.shape, dtype=bool)
+    for axis in (0, 1):
+        a = [slice(None)] * 2
+        b = [slice(None)] * 2
+        a[axis], b[axis] = slice(1, None), slice(None, -1)
+        a, b = tuple(a), tuple(b)
+        differ = key[a] != key[b]
+        differ |= (key[a] != 0) & (np.einsum("ijk,ijk->ij", normal[a], normal[b]) < cos_angle)
+        big[a] |= differ
+        big[b] |= differ
+    return big.reshape(height, n, width, n).any(axis=(1, 3))
 
 
 def _scaled(change: np.ndarray, pix: np.ndarray, scale: np.ndarray | None) -> np.ndarray:
@@ -990,13 +1095,15 @@ def _observed_rates(pix: np.ndarray, times: np.ndarray, levels: np.ndarray, boun
                            np.empty(0) if scale is None else scale, int(pix[-1]) + 1)
 
 
-def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.ndarray,
-            lums: np.ndarray, bound: float, scale: np.ndarray | None, dt_min_ns: int,
-            log_eps: float, stats: PixelSamplingStats, seconds) -> tuple[np.ndarray, ...]:
+def _refine(shade: Callable[[np.ndarray, np.ndarray], np.ndarray], pix: np.ndarray,
+            times: np.ndarray, levels: np.ndarray, lums: np.ndarray, bound: float,
+            scale: np.ndarray | None, dt_min_ns: int, log_eps: float,
+            stats: PixelSamplingStats, seconds) -> tuple[np.ndarray, ...]:
     """Split every interval of a pixel that breaks the bound (``lam`` of its own threshold:
     ``bound`` on the change scaled by ``scale``) at its midpoint, level by level (one launch
-    per level, only the intervals still breaking it); then merge the midpoints into the
-    samples, which stay sorted by pixel and time."""
+    per level, only the intervals still breaking it; ``shade(pixels, times)`` renders the
+    midpoints); then merge the midpoints into the samples, which stay sorted by pixel and
+    time."""
     index = _breaking_intervals(pix, levels, bound, np.empty(0) if scale is None else scale)
     # The intervals still to split: pixel, start time and level, end time and level, and the
     # sample the original interval starts at (each of its midpoints goes in after it).
@@ -1010,7 +1117,7 @@ def _refine(source: PixelSource, pix: np.ndarray, times: np.ndarray, levels: np.
         if not len(p):
             break
         mt = (ta + tb) // 2
-        my = np.asarray(source.luminance(p, seconds(mt)), np.float64)
+        my = np.asarray(shade(p, seconds(mt)), np.float64)
         ml = np.log(my + log_eps)
         stats.pixel_samples += len(p)
         stats.midpoint_samples += len(p)

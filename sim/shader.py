@@ -24,6 +24,10 @@ sub-samples still sample is geometry (an object's edge, a shadow's edge) and whe
 texture comes from (which object, which face); see :class:`sim.textures.TextureFilter` for
 the filters' bounds.
 
+:meth:`EventShader.geometry` traces the same sub-samples for what they see rather than their
+light (the hit surface, which lights reach it, its normal): the per-pixel sampler's
+``edge_spp`` finds there the pixels that an edge crosses (:mod:`sim.pixel_sampling`).
+
 Sub-pixel positions are a fixed stratified jittered pattern per pixel (``sqrt(spp) x sqrt(spp)``
 strata, jitter from ``numpy.random.default_rng(renderer.seed)``), the same at every time: the
 same pose gives bit-identical values, and a pixel's value is a continuous function of the pose.
@@ -50,6 +54,7 @@ from __future__ import annotations
 import gc
 import math
 from collections import OrderedDict
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -363,6 +368,7 @@ class EventShader:
         freeze = (lambda f: f) if renderer.scene.is_dynamic else dr.freeze
         self._trace = freeze(trace)
         self._trace_subsamples = freeze(trace_one)
+        self._trace_geometry = freeze(_geometry)
 
     # ----------------------------------------------------------------------------------------
     @property
@@ -494,10 +500,57 @@ class EventShader:
         # One thread per sub-sample: "pixels" index the sub-sample directions, spp = 1.
         values = self._all_at(t, self.shape[0] * self.shape[1] * self.spp,
                               self._trace_subsamples, MAX_RAYS_PER_LAUNCH)
+        return self._on_grid(values)
+
+    def _on_grid(self, values: np.ndarray) -> np.ndarray:
+        """(H W spp, ...) per-sub-sample values, pixel by pixel, laid out on the sub-sample grid
+        (H n, W n, ...) as :meth:`subsamples` describes."""
         n = math.isqrt(self.spp)
         height, width = self.shape
-        return (values.reshape(height, width, n, n).transpose(0, 2, 1, 3)
-                .reshape(height * n, width * n))
+        values = values.reshape(height, width, n, n, *values.shape[1:])
+        return values.swapaxes(1, 2).reshape(height * n, width * n, *values.shape[4:])
+
+    def geometry(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """What every sub-sample sees at time ``t``: its surface, lights and normal.
+
+        Parameters
+        ----------
+        t : float, seconds
+            Within ``[t0, t1]``; objects that move are moved to ``t``.
+
+        Returns
+        -------
+        key : (H n, W n) uint32 ndarray
+            On the sub-sample grid (:meth:`subsamples`): 0 where the ray misses, else the hit
+            shape (low 16 bits) and which lights reach the hit (bit ``16 + i``: light ``i``
+            of the first 15).
+        normal : (H n, W n, 3) float32 ndarray
+            The hit's geometric normal, world frame (0 for a miss).
+        """
+        times = self._check_times(np.array([t], dtype=np.float64))
+        if self.renderer.scene.is_dynamic:
+            self.renderer.set_time(float(times[0]))
+        count = self.shape[0] * self.shape[1] * self.spp
+        node, fraction = self._poses.locate(times)
+        mi, dr = self._mi, self._dr
+        first = int(node[0])
+        table = self._table(first, first + 1)
+        keys = np.empty(count, dtype=np.uint32)
+        normals = np.empty((count, 3), dtype=np.float32)
+        for start in range(0, count, MAX_RAYS_PER_LAUNCH):
+            size = min(MAX_RAYS_PER_LAUNCH, count - start)
+            index = mi.UInt32(_aligned(np.arange(start, start + size), np.uint32))
+            nodes = dr.zeros(mi.UInt32, size)
+            fractions = dr.full(mi.Float, float(fraction[0]), size)
+            zeros = dr.zeros(mi.Float, size)
+            dr.make_opaque(index, nodes, fractions, zeros)
+            with _no_cyclic_gc():
+                key, normal = self._trace_geometry(self.renderer.mitsuba_scene,
+                                                   self._directions, index, nodes, fractions,
+                                                   table, zeros)
+                keys[start:start + size] = np.asarray(key)
+                normals[start:start + size] = np.asarray(normal).T
+        return self._on_grid(keys), self._on_grid(normals)
 
     # ----------------------------------------------------------------------------------------
     def _all_at(self, t: float, count: int, trace=None,
@@ -576,18 +629,24 @@ class EventShader:
         fractions = mi.Float(_aligned(fraction, np.float32))
         zeros = dr.zeros(mi.Float, len(pixels))
         dr.make_opaque(index, nodes, fractions, zeros)   # sizes change per call, the kernel not
-        # No cyclic garbage collection while the frozen function records or replays: Python's
-        # collector, run at a random moment inside it, freed Dr.Jit variables of an earlier
-        # scene (a test suite's, or reproduce's previous window) and Dr.Jit aborted the process.
-        collecting = gc.isenabled()
-        gc.disable()
-        try:
+        with _no_cyclic_gc():
             total = trace(self.renderer.mitsuba_scene, self._directions, self._jitter, index,
                           nodes, fractions, table, zeros, self._filtering)
             return np.asarray(total, dtype=np.float32)[:count]
-        finally:
-            if collecting:
-                gc.enable()
+
+
+@contextmanager
+def _no_cyclic_gc():
+    """No cyclic garbage collection while a frozen function records or replays: Python's
+    collector, run at a random moment inside it, freed Dr.Jit variables of an earlier scene (a
+    test suite's, or reproduce's previous window) and Dr.Jit aborted the process."""
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if collecting:
+            gc.enable()
 
 
 def _pose_groups(node: np.ndarray):
@@ -664,14 +723,7 @@ def _trace(scene, directions, jitter, pixels, nodes, fractions, table, zeros, fi
     import drjit as dr
     import mitsuba as mi
 
-    # Row r of node k: entries 12 k + 4 r .. 12 k + 4 r + 3 of the table, one packet each.
-    rows = []
-    for r in range(3):
-        a = dr.gather(mi.Vector4f, table, nodes * 3 + r)
-        b = dr.gather(mi.Vector4f, table, nodes * 3 + (3 + r))
-        rows.append(a + fractions * (b - a))
-    rotation = mi.Matrix3f(*(rows[r][c] for r in range(3) for c in range(3)))
-    origin = mi.Point3f(rows[0][3], rows[1][3], rows[2][3])
+    rotation, origin = _pose(table, nodes, fractions)
     first = pixels * spp
     if filtering is not None:
         scale = 1.0 / math.isqrt(spp) if footprint is None else footprint
@@ -698,3 +750,53 @@ def _trace(scene, directions, jitter, pixels, nodes, fractions, table, zeros, fi
 
     _, total = dr.while_loop((mi.UInt32(0), zeros), lambda k, total: k < spp, body)
     return total * (1.0 / spp)
+
+
+def _pose(table, nodes, fractions):
+    """Each sample's ``R`` (mi.Matrix3f) and camera centre (mi.Point3f), interpolated entry by
+    entry between its interval's two nodes of the pose table, in float32."""
+    import drjit as dr
+    import mitsuba as mi
+
+    # Row r of node k: entries 12 k + 4 r .. 12 k + 4 r + 3 of the table, one packet each.
+    rows = []
+    for r in range(3):
+        a = dr.gather(mi.Vector4f, table, nodes * 3 + r)
+        b = dr.gather(mi.Vector4f, table, nodes * 3 + (3 + r))
+        rows.append(a + fractions * (b - a))
+    rotation = mi.Matrix3f(*(rows[r][c] for r in range(3) for c in range(3)))
+    origin = mi.Point3f(rows[0][3], rows[1][3], rows[2][3])
+    return rotation, origin
+
+
+def _geometry(scene, directions, pixels, nodes, fractions, table, zeros):
+    """What each sub-sample sees, for telling a geometric edge from a smooth change.
+
+    Parameters as :func:`_trace`'s, ``pixels`` indexing sub-samples (one thread each).
+
+    Returns
+    -------
+    key : mi.UInt32, (N,)
+        0 for a miss; else the hit shape's index + 1 in the low 16 bits and, in bit 16 + i,
+        whether light ``i`` (of the first 15) reaches the hit (its shadow ray is free).
+    normal : mi.Vector3f, (N,)
+        The hit's geometric normal, world frame (0 for a miss).
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    rotation, origin = _pose(table, nodes, fractions)
+    local = dr.gather(mi.Vector3f, directions, pixels)
+    valid = local.z > 0.0
+    ray = mi.Ray3f(origin, dr.normalize(rotation @ local))
+    si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True, active=valid)
+    hit = valid & si.is_valid()
+    key = dr.select(hit, (dr.reinterpret_array(mi.UInt32, si.shape) & 0xFFFF) + 1, 0)
+    centre = mi.Point2f(0.5, 0.5)                # delta lights ignore their sample
+    for i, emitter in enumerate(scene.emitters()[:15]):
+        ds, _ = emitter.sample_direction(si, centre, hit)
+        lit = hit & (ds.pdf != 0.0)
+        lit = dr.select(scene.ray_test(si.spawn_ray_to(ds.p), lit), False, lit)
+        key = key | dr.select(lit, mi.UInt32(1 << (16 + i)), 0)
+    normal = dr.select(hit, si.n, mi.Vector3f(0.0))
+    return key, normal + zeros

@@ -14,9 +14,11 @@ from sim.camera import Camera
 from sim.events import EventEmulator, EventParams
 from sim.noise import NoiseParams, cutoff_frequency, noise_preset
 from sim.pixel_sampling import (
+    EDGE_COS,
     MAX_DILATION,
     PixelEventEmulator,
     PixelSamplingStats,
+    geometric_edges,
     pixel_blocks,
     rate_map,
 )
@@ -256,3 +258,110 @@ def test_a_pixel_with_a_low_threshold_is_sampled_at_lam_of_its_own_threshold(mon
     assert np.all(own_lam <= 0.5 + 1e-12)                       # every pixel, its own bound
     # Held to the nominal C it breaks its own bound (up to 0.1 / C_p = 0.87 allowed).
     assert nominal_lam[low] > 0.6
+
+
+def _flat_grid(height: int, width: int, n: int = 2):
+    """Sub-sample keys and normals of one lit plane facing the camera, (H n, W n)."""
+    key = np.full((height * n, width * n), 1 | (1 << 16), dtype=np.uint32)
+    normal = np.zeros((height * n, width * n, 3), dtype=np.float32)
+    normal[..., 1] = -1.0
+    return key, normal
+
+
+def test_geometric_edges_mark_the_pixels_of_both_sub_samples_of_a_pair():
+    key, normal = _flat_grid(4, 6)
+    assert not geometric_edges(key, normal, (4, 6)).any()
+    key[:, 7:] = 2 | (1 << 16)             # another shape from sub-sample column 7: pixel 3's
+    edges = geometric_edges(key, normal, (4, 6))
+    np.testing.assert_array_equal(edges, np.repeat([[0, 0, 0, 1, 0, 0]], 4, axis=0) > 0)
+    key[:, 7:] = 1 | (1 << 16)
+    key[:, 6:] = 2 | (1 << 16)             # between pixels 2 and 3: both
+    edges = geometric_edges(key, normal, (4, 6))
+    np.testing.assert_array_equal(edges, np.repeat([[0, 0, 1, 1, 0, 0]], 4, axis=0) > 0)
+
+
+def test_geometric_edges_see_shadows_and_creases_not_curvature_or_the_sky():
+    key, normal = _flat_grid(4, 6)
+    key[6:, :] = 1                         # a shadow's edge (no light) between rows 2 and 3
+    np.testing.assert_array_equal(geometric_edges(key, normal, (4, 6)).any(axis=1),
+                                  [False, False, True, True])
+    key, normal = _flat_grid(4, 6)
+    turn = math.acos(EDGE_COS) * 1.1       # a crease a little sharper than the threshold
+    normal[:, 6:] = [math.sin(turn), -math.cos(turn), 0.0]
+    np.testing.assert_array_equal(geometric_edges(key, normal, (4, 6)).any(axis=0),
+                                  [False, False, True, True, False, False])
+    key, normal = _flat_grid(4, 6)         # a cylinder turning 0.9 EDGE's angle per sub-sample
+    angle = np.arange(12) * math.acos(EDGE_COS) * 0.9
+    normal[..., 0], normal[..., 1] = np.sin(angle), -np.cos(angle)
+    assert not geometric_edges(key, normal, (4, 6)).any()
+    key[:] = 0                             # nothing hit: normals are not looked at
+    normal = np.random.default_rng(0).normal(size=normal.shape).astype(np.float32)
+    assert not geometric_edges(key, normal, (4, 6)).any()
+
+
+class EdgedRamp(Ramp):
+    """The ramp, with a geometric edge between pixel columns ``column - 1`` and ``column`` in
+    every sub-sample grid, and a fine renderer that differs from the coarse one by ``gain``
+    (1: the same values)."""
+
+    def __init__(self, column: int, gain: float = 1.0, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.column, self.gain = column, gain
+        self.fine_calls: list[np.ndarray] = []
+        self.geometry_calls = 0
+
+    def geometry(self, t):
+        height, width = self.camera.height, self.camera.width
+        key, normal = _flat_grid(height, width, 1)
+        key[:, self.column:] = 2
+        self.geometry_calls += 1
+        return key, normal
+
+    def fine_luminance(self, pixels, times):
+        self.fine_calls.append(np.asarray(pixels))
+        return (np.exp(self.level(np.asarray(pixels), np.asarray(times, np.float64)))
+                - EPS) * self.gain
+
+
+def _run_edged(source, **kwargs):
+    cam = source.camera
+    emulator = PixelEventEmulator((cam.height, cam.width), EventParams())
+    stats = PixelSamplingStats()
+    blocks = list(pixel_blocks(source, emulator, 0.0, 0.06, C, EPS, SamplingParams(), stats,
+                               **kwargs))
+    return blocks, stats
+
+
+def test_edge_pixels_go_to_the_fine_renderer_and_nothing_else_changes():
+    plain, plain_stats = _run_edged(Ramp())
+    source = EdgedRamp(column=7)
+    edged, stats = _run_edged(source, edges=True)
+    for want, got in zip(plain, edged, strict=True):        # same values: same events
+        np.testing.assert_array_equal(got.events, want.events)
+    fine = np.concatenate(source.fine_calls)
+    assert set(np.unique(fine % 16)) == {6, 7}              # the two columns at the edge
+    assert stats.edge_samples == len(fine) > 0
+    assert source.geometry_calls == plain_stats.full_renders == 7     # each block boundary
+    assert stats.pixel_samples == plain_stats.pixel_samples
+    # Without ``edges`` the geometry is never asked for.
+    source = EdgedRamp(column=7)
+    _run_edged(source)
+    assert source.geometry_calls == 0 and not source.fine_calls
+
+
+def test_an_edge_pixel_takes_the_fine_value_at_boundaries_and_inside_blocks():
+    """A fine renderer 10 % brighter: the edge columns' block-end values are its values, and
+    their events are those of a ramp 10 % brighter (the same crossings of ref + k C, as the
+    emulator starts from the fine value), the other columns' are unchanged."""
+    plain, _ = _run_edged(Ramp())
+    edged, _ = _run_edged(EdgedRamp(column=7, gain=1.1), edges=True)
+    for want, got in zip(plain, edged, strict=True):
+        columns = np.arange(16)
+        edge = (columns == 6) | (columns == 7)
+        np.testing.assert_array_equal(got.luminance[:, ~edge], want.luminance[:, ~edge])
+        np.testing.assert_allclose(got.luminance[:, edge], want.luminance[:, edge] * 1.1,
+                                   rtol=1e-6)
+    want, got = (np.concatenate([b.events for b in run]) for run in (plain, edged))
+    at_edge = np.isin(got["x"], [6, 7]), np.isin(want["x"], [6, 7])
+    np.testing.assert_array_equal(got[~at_edge[0]], want[~at_edge[1]])
+    assert np.count_nonzero(at_edge[0]) == np.count_nonzero(at_edge[1]) > 0

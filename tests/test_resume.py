@@ -7,7 +7,7 @@ import importlib
 import json
 import os
 import signal
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -187,10 +187,15 @@ def test_an_interrupted_run_resumes_to_the_uninterrupted_files(full, tmp_path, m
     _assert_same_sequence(reference.out, out)
 
 
-def test_an_interrupted_per_pixel_run_resumes_to_the_uninterrupted_files(tmp_path, monkeypatch):
+@pytest.mark.parametrize("edge_spp", [0, 16])
+def test_an_interrupted_per_pixel_run_resumes_to_the_uninterrupted_files(tmp_path, monkeypatch,
+                                                                          edge_spp):
     """The per-pixel sampler, realistic sensor: stopped after some blocks, resumed from its
-    last checkpoint (a block end), and equal byte for byte to one run and to a second one."""
+    last checkpoint (a block end), and equal byte for byte to one run and to a second one;
+    with the strips' edges at 16 samples per pixel too (``edge_spp``: which pixels a block
+    renders fine depends on its boundaries' times only)."""
     scene = parse_scene(TEXT)
+    scene = replace(scene, render=replace(scene.render, edge_spp=edge_spp))
     events = EventParams.preset("realistic", seed=scene.seed)
 
     def run(out, resume=False):
@@ -200,6 +205,8 @@ def test_an_interrupted_per_pixel_run_resumes_to_the_uninterrupted_files(tmp_pat
     whole = run(tmp_path / "whole")
     run(tmp_path / "again")
     assert whole.sampler == "pixel" and whole.n_events > 5000
+    record = json.loads((tmp_path / "whole" / "sequence.json").read_text())["events"]
+    assert record["edge_spp"] == edge_spp and (record["edge_samples"] > 0) == (edge_spp > 0)
     _assert_same_sequence(tmp_path / "whole", tmp_path / "again")          # deterministic
     out = tmp_path / "cut"
     with interrupted_pixel_blocks(monkeypatch, 7, every=3) as seen, \

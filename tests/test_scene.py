@@ -84,6 +84,11 @@ def test_other_sections_are_checked(tmp_path):
     assert "[[lights]][0]" in _error(
         scene_text(BOX).replace("illuminance_lux = 400.0", "power = 1.0"), tmp_path)
     assert "[render].spp" in _error(scene_text(BOX, extra="[render]\nspp = 10\n"), tmp_path)
+    for bad in ("edge_spp = 4", "edge_spp = 12", "edge_spp = -16"):     # event_spp is 4
+        message = _error(scene_text(BOX, extra=f"[render]\n{bad}\n"), tmp_path)
+        assert "[render].edge_spp" in message and "\n" not in message.strip(), message
+    assert parse_scene(scene_text(BOX, extra="[render]\nedge_spp = 16\n")).render.edge_spp == 16
+    assert parse_scene(scene_text(BOX)).render.edge_spp == 0
     assert "texture.name" in _error(scene_text(BOX.replace(
         'size = [1.0, 1.0, 1.0]', 'size = [1.0, 1.0, 1.0]\nmaterial = { texture = { type = '
         '"skimage", name = "mona_lisa" } }')), tmp_path)

@@ -42,11 +42,17 @@ class RenderParams:
     event_spp : int
         Samples per pixel of the renders that drive the event camera (a perfect square; there
         are hundreds to thousands of them per second). Default 4.
+    edge_spp : int
+        Samples per pixel of the event camera's renders of the pixels that an edge of the
+        geometry or of a shadow crosses (per-pixel sampler only; a perfect square above
+        ``event_spp``), or 0 (default): every pixel at ``event_spp``. See
+        :mod:`sim.pixel_sampling`.
     """
 
     spp: int = 16
     pose_rate: float = 1000.0
     event_spp: int = 4
+    edge_spp: int = 0
 
 
 @dataclass(frozen=True)

@@ -84,15 +84,18 @@ class _EventCamera:
     turn too, :func:`sim.render.register_integrator`).
     """
 
-    def __init__(self, renderer: Renderer, spp: int, start: float, end: float):
+    def __init__(self, renderer: Renderer, spp: int, start: float, end: float,
+                 edge_spp: int = 0):
         self._renderer, self._spp = renderer, spp
         self.scene, self.camera = renderer.scene, renderer.camera
         self.depth = RecentDepth(renderer.depth)     # shared by the sampler and per-event depth
-        self.shader = None
+        self.shader = self.fine_shader = None
         if renderer.variant != "scalar_rgb":
             from sim.shader import EventShader
 
             self.shader = EventShader(renderer, spp, t0=start, t1=end)
+            if edge_spp > spp:
+                self.fine_shader = EventShader(renderer, edge_spp, t0=start, t1=end)
 
     def luminance(self, t: float) -> np.ndarray:
         if self.shader is not None:
@@ -131,6 +134,7 @@ class _ShaderSource:
         self._camera = camera
         self.camera = camera.camera
         self.seconds = 0.0
+        self.refines_edges = camera.fine_shader is not None
 
     def _timed(self, function, *args):
         tick = time.perf_counter()
@@ -144,6 +148,12 @@ class _ShaderSource:
 
     def subsamples(self, t: float) -> np.ndarray:
         return self._timed(self._camera.shader.subsamples, t)
+
+    def geometry(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self._timed(self._camera.shader.geometry, t)
+
+    def fine_luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
+        return self._timed(self._camera.fine_shader.luminance, pixels, times)
 
     def depth(self, t: float) -> np.ndarray:
         return self._timed(self._camera.depth, t)
@@ -248,6 +258,7 @@ def _event_info(params: EventParams, formats: tuple[str, ...], sampling: Samplin
         "noise": asdict(params.noise),
         "sampling": asdict(sampling),
         "event_spp": scene.render.event_spp,
+        "edge_spp": scene.render.edge_spp,
     }
 
 
@@ -393,7 +404,8 @@ class _PixelSampler:
               stats: PixelSamplingStats) -> Iterator[_Step]:
         """Sample every pixel over ``[start, end]`` with its events, one step a block."""
         for block in pixel_blocks(self._source, emulator, start, end, contrast, params.log_eps,
-                                  sampling, stats, after=self._after):
+                                  sampling, stats, after=self._after,
+                                  edges=self._source.refines_edges):
             yield _Step(block.t, block.events, Sample(block.t, block.luminance, block.log, 0.0,
                                                       True),
                         extra={"observed_rates": block.observed},
@@ -414,6 +426,7 @@ class _PixelSampler:
             "renders": stats.full_renders,
             "full_renders": stats.full_renders,
             "pixel_samples": stats.pixel_samples,
+            "edge_samples": stats.edge_samples,
             "midpoint_samples": stats.midpoint_samples,
             "depth_renders": stats.depth_renders,
             "blocks": stats.blocks,
@@ -460,7 +473,8 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
     emulator = kind.emulator_type((cam.height, cam.width), params)
     stats, count, on, positions, saved = _restore_events(checkpoint, emulator, kind.stats_type)
     contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
-    event_camera = _EventCamera(renderer, scene.render.event_spp, start, end)
+    event_camera = _EventCamera(renderer, scene.render.event_spp, start, end,
+                                scene.render.edge_spp)
     source = kind(event_camera)
     resumed_at = source.resume(saved)
     # Per-event labels' object ids: each event's own ray (a static scene, a JIT variant), else
