@@ -4,6 +4,9 @@ SHELL := /bin/bash
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
+# pytest-xdist workers of `make test`: the development machine's 2 cores (each worker loads
+# Mitsuba and Dr.Jit, about 1 GB; `make test TEST_WORKERS=0` runs in one process).
+TEST_WORKERS ?= 2
 DEMO_SCENE ?= complex_sphere
 DEMO_OUT ?= runs/demo
 DEMO_T0 ?= 1.0
@@ -44,7 +47,7 @@ demo: setup
 	$(BIN)/evfuse run $(DEMO_SCENE) --t0 $(DEMO_T0) --t1 $(DEMO_T1) --out $(DEMO_OUT) --overwrite
 
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS)
 
 bench: setup
 	$(BIN)/python -m benchmarks.bench_render
