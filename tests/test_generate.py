@@ -95,13 +95,16 @@ def test_a_local_cluster_writes_the_bytes_of_in_process_runs(reference, tmp_path
 
 def _stop_when_checkpointed(out: Path, job_id: str, stop) -> threading.Thread:
     """A thread that waits for the job's first checkpoint and then calls ``stop(pid)`` with the
-    process that runs it (read from runs.log)."""
+    process that runs it (read from runs.log). It waits up to 290 s, under the callers' 300-s
+    limit: a fresh clone's first run compiles numba's and Dr.Jit's kernels, beside a second
+    pytest-xdist worker (120 s was once too short, and the job ran to its end)."""
     def watch():
         checkpoint = out / "jobs" / f"{job_id}.partial" / ".checkpoint" / "checkpoint.json"
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + 290
         while time.monotonic() < deadline:
-            if checkpoint.is_file():
-                starts = [r for r in _runs(out) if r[:2] == ["start", job_id]]
+            starts = [r for r in _runs(out) if r[:2] == ["start", job_id]] \
+                if checkpoint.is_file() and (out / "runs.log").is_file() else []
+            if starts:
                 stop(int(starts[-1][2].split("=")[1]))
                 return
             time.sleep(0.01)
