@@ -365,3 +365,30 @@ def test_geometry_sees_the_analytic_box_wall_and_shadow_on_every_sub_sample():
     seen = normal[clear & (on_box | on_wall)]
     np.testing.assert_allclose(seen, np.broadcast_to([0.0, -1.0, 0.0], seen.shape), atol=1e-6)
     assert np.all(normal[clear & ~on_box & ~on_wall] == 0.0)
+
+
+def test_the_pixels_geometry_marks_are_those_whose_point_samples_miss_the_pixel_s_value():
+    """The same box, wall and shadow: against the pixels' converged values (256 sub-samples),
+    every pixel whose 4-sample value is off by more than 2 % of the lit wall's is marked by
+    :func:`sim.pixel_sampling.geometric_edges`, no unmarked pixel is off by more than float
+    rounding (flat colours: only edges make a pixel's sub-samples differ), and on the marked
+    pixels 16 sub-samples (``edge_spp``) are at most half as far off as 4, on average."""
+    from sim.pixel_sampling import geometric_edges
+
+    camera = ("[camera]\nwidth = 64\nheight = 48\nfx = 60.0\nfy = 45.0\ncx = 30.3\ncy = 22.7\n"
+              f"distortion = {list(LENS)}\n")
+    light = ('[[lights]]\ntype = "directional"\ndirection = [0.3, 1.0, -0.2]\n'
+             "illuminance_lux = 400.0\n")
+    renderer = Renderer(parse_scene(scene_text(BOX_BEFORE_WALL, camera=camera, lights=light)),
+                        spp=4)
+    frames = {spp: EventShader(renderer, spp, t0=0.0, t1=0.5).frame(0.25)
+              for spp in (4, 16, 256)}
+    marked = geometric_edges(*EventShader(renderer, 4, t0=0.0, t1=0.5).geometry(0.25),
+                             frames[4].shape)
+    scale = frames[256].max()               # the shadow is black: errors relative to the wall
+    error = {spp: np.abs(frames[spp] - frames[256]) / scale for spp in (4, 16)}
+    off = error[4] > 0.02
+    assert off.sum() > 50 and marked.mean() < 0.25
+    assert np.all(marked[off])
+    assert error[4][~marked].max() < 1e-5
+    assert error[16][marked].mean() < 0.5 * error[4][marked].mean()
