@@ -227,3 +227,21 @@ def test_a_window_outside_the_scene_is_refused_before_rendering(tiny_run, tmp_pa
     assert code == 2 and len(err) == 1, err
     assert "[100.0, 101.0] s is outside the scene slider_close" in err[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def test_edge_spp_with_the_frame_sampler_is_said_not_silently_dropped(tmp_path, capsys):
+    """``[render] edge_spp`` is the per-pixel sampler's: the frame sampler records 0 and says
+    once on stderr that it rendered every pixel at event_spp."""
+    frames = FRAMES.replace("[render]\nspp = 4\n", "[render]\nspp = 4\nedge_spp = 16\n")
+    scene = parse_scene(scene_text(OBJECTS, trajectory=MOVING, duration=0.06, extra=frames))
+    simulate(scene, tmp_path / "frame", progress=False, sampler="frame", motion_truth=False,
+             event_formats=("h5",))
+    record = json.loads((tmp_path / "frame" / "sequence.json").read_text())["events"]
+    assert record["edge_spp"] == 0
+    assert "edge_spp = 16 applies to the per-pixel sampler only" in record["edge_spp_warning"]
+    assert capsys.readouterr().err.count("edge_spp = 16 applies") == 1
+    simulate(scene, tmp_path / "pixel", progress=False, sampler="pixel", motion_truth=False,
+             event_formats=("h5",))
+    record = json.loads((tmp_path / "pixel" / "sequence.json").read_text())["events"]
+    assert record["edge_spp"] == 16 and record["edge_spp_warning"] is None
+    assert "edge_spp" not in capsys.readouterr().err

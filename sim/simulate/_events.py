@@ -258,7 +258,6 @@ def _event_info(params: EventParams, formats: tuple[str, ...], sampling: Samplin
         "noise": asdict(params.noise),
         "sampling": asdict(sampling),
         "event_spp": scene.render.event_spp,
-        "edge_spp": scene.render.edge_spp,
     }
 
 
@@ -473,8 +472,10 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
     emulator = kind.emulator_type((cam.height, cam.width), params)
     stats, count, on, positions, saved = _restore_events(checkpoint, emulator, kind.stats_type)
     contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
-    event_camera = _EventCamera(renderer, scene.render.event_spp, start, end,
-                                scene.render.edge_spp)
+    # Edges at more sub-samples are the per-pixel sampler's (sim.pixel_sampling); the frame
+    # sampler renders every pixel at event_spp, and says so where the scene asked for them.
+    edge_spp = scene.render.edge_spp if sampler == "pixel" else 0
+    event_camera = _EventCamera(renderer, scene.render.event_spp, start, end, edge_spp)
     source = kind(event_camera)
     resumed_at = source.resume(saved)
     # Per-event labels' object ids: each event's own ray (a static scene, a JIT variant), else
@@ -521,6 +522,10 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
             bar.set_postfix_str(f"{count:,} events, {source.progress(stats, why)}",
                                 refresh=False)
             bar.update(0)
+    ignored = (f"[render] edge_spp = {scene.render.edge_spp} applies to the per-pixel sampler "
+               f"only: the frame sampler rendered every pixel at event_spp = "
+               f"{scene.render.event_spp}") if scene.render.edge_spp and not edge_spp else None
     return {**_event_info(params, formats, sampling, scene, count, on, event_depth, own_rays),
             **source.record(stats, sampling, contrast, why),
+            "edge_spp": edge_spp, "edge_spp_warning": ignored,
             "emulator_kernel": emulator.kernel}

@@ -244,9 +244,10 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                                           event_formats, checkpoint, progress, timings,
                                           sampler, why, event_depth=motion_truth)
             checkpoint.set_events_done(event_info)
-        if with_events and event_info.get("sampling_warning"):
-            print(f"simulate {scene.name}: warning: {event_info['sampling_warning']}",
-                  file=sys.stderr, flush=True)
+        for key in ("sampling_warning", "edge_spp_warning"):
+            if with_events and event_info.get(key):
+                print(f"simulate {scene.name}: warning: {event_info[key]}", file=sys.stderr,
+                      flush=True)
         write_sequence_json(tmp / "sequence.json", _sequence_record(
             scene, renderer, start, duration, times, gain, exposures, flow_record, motion_truth,
             event_info if with_events else None, rig_record, imu_record, timings))
