@@ -81,7 +81,7 @@ from sim.noise import (
 from sim.sampling import SPLIT, SamplingParams, _point_flow, _twist, contrast_scale
 
 __all__ = ["EDGE_COS", "MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
-           "PixelSource", "pixel_blocks", "rate_map"]
+           "PixelSource", "geometric_edges", "pixel_blocks", "rate_map"]
 
 MARGIN = 0.5
 """The prediction aims at MARGIN * lam * C (frame sampling: 0.75)."""
@@ -173,7 +173,8 @@ class PixelBlock:
     t : float, seconds
         The block's end (every pixel has a sample there).
     luminance : (H, W) float32 ndarray
-        The frame rendered at ``t``.
+        The frame rendered at ``t`` (the pixels an edge crosses there by
+        ``source.fine_luminance``, with ``edges``).
     log : (H, W) float64 ndarray
         ``log(luminance + log_eps)``.
     events : (N,) EVENT_DTYPE ndarray
