@@ -305,6 +305,10 @@ material = { color = 0.08 }
 """
 BOX_LOW, BOX_HIGH = np.array([-0.1, 0.9, -0.13]), np.array([0.2, 1.1, 0.17])
 SIDE_LIGHT = np.array([0.3, 1.0, -0.2])            # the direction the light travels
+SIDE_LIGHT_TOML = ('[[lights]]\ntype = "directional"\ndirection = [0.3, 1.0, -0.2]\n'
+                   "illuminance_lux = 400.0\n")
+LENS_CAMERA = ("[camera]\nwidth = 64\nheight = 48\nfx = 60.0\nfy = 45.0\ncx = 30.3\ncy = 22.7\n"
+               f"distortion = {list(LENS)}\n")
 
 
 def _slab(origin: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -321,11 +325,7 @@ def test_geometry_sees_the_analytic_box_wall_and_shadow_on_every_sub_sample():
     shadow on the wall, by a ray-box test from the wall's hit) and its normal, against
     ray-plane and ray-box intersections in float64 of the sub-samples' own rays. Rays within
     1e-4 of a box face's border are left out (float32 in the kernel)."""
-    camera = ("[camera]\nwidth = 64\nheight = 48\nfx = 60.0\nfy = 45.0\ncx = 30.3\ncy = 22.7\n"
-              f"distortion = {list(LENS)}\n")
-    light = ('[[lights]]\ntype = "directional"\ndirection = [0.3, 1.0, -0.2]\n'
-             "illuminance_lux = 400.0\n")
-    scene = parse_scene(scene_text(BOX_BEFORE_WALL, camera=camera, lights=light))
+    scene = parse_scene(scene_text(BOX_BEFORE_WALL, camera=LENS_CAMERA, lights=SIDE_LIGHT_TOML))
     renderer = Renderer(scene, spp=4)
     shader = EventShader(renderer, 4, t0=0.0, t1=0.5)
     key, normal = shader.geometry(0.25)
@@ -375,12 +375,8 @@ def test_the_pixels_geometry_marks_are_those_whose_point_samples_miss_the_pixel_
     pixels 16 sub-samples (``edge_spp``) are at most half as far off as 4, on average."""
     from sim.pixel_sampling import geometric_edges
 
-    camera = ("[camera]\nwidth = 64\nheight = 48\nfx = 60.0\nfy = 45.0\ncx = 30.3\ncy = 22.7\n"
-              f"distortion = {list(LENS)}\n")
-    light = ('[[lights]]\ntype = "directional"\ndirection = [0.3, 1.0, -0.2]\n'
-             "illuminance_lux = 400.0\n")
-    renderer = Renderer(parse_scene(scene_text(BOX_BEFORE_WALL, camera=camera, lights=light)),
-                        spp=4)
+    renderer = Renderer(parse_scene(scene_text(BOX_BEFORE_WALL, camera=LENS_CAMERA,
+                                               lights=SIDE_LIGHT_TOML)), spp=4)
     frames = {spp: EventShader(renderer, spp, t0=0.0, t1=0.5).frame(0.25)
               for spp in (4, 16, 256)}
     marked = geometric_edges(*EventShader(renderer, 4, t0=0.0, t1=0.5).geometry(0.25),
