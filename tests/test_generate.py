@@ -93,11 +93,16 @@ def test_a_local_cluster_writes_the_bytes_of_in_process_runs(reference, tmp_path
     assert (out / "sweep.toml").read_bytes() == TINY.read_bytes()
 
 
+def _default_sigint() -> None:
+    """In a child before exec: SIGINT handled by default and not blocked."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def _stop_when_checkpointed(out: Path, job_id: str, stop) -> threading.Thread:
     """A thread that waits for the job's first checkpoint and then calls ``stop(pid)`` with the
-    process that runs it (read from runs.log). It waits up to 290 s, under the callers' 300-s
-    limit: a fresh clone's first run compiles numba's and Dr.Jit's kernels, beside a second
-    pytest-xdist worker (120 s was once too short, and the job ran to its end)."""
+    process that runs it (read from runs.log), waiting up to 290 s (under the callers' 300-s
+    limit) for the checkpoint and for the job's start line."""
     def watch():
         checkpoint = out / "jobs" / f"{job_id}.partial" / ".checkpoint" / "checkpoint.json"
         deadline = time.monotonic() + 290
@@ -154,8 +159,13 @@ def test_an_interrupted_generate_resumes_to_the_same_dataset(reference, tmp_path
     command = [sys.executable, "-m", "fusion.cli", "generate", str(sweep), "--out", str(out),
                "--workers", "0", "--quiet"]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    # SIGINT at its default and unblocked in the child, whatever the test process has: an
+    # ignored or blocked SIGINT is handed down through exec (ignored, Python installs no
+    # KeyboardInterrupt handler). In a fresh clone's CI on two pytest-xdist workers, after
+    # other tests, the child twice ran on to its end (exit 0); which test left SIGINT so in
+    # the worker was not traced.
     process = subprocess.Popen(command, cwd=tmp_path, env=env, stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)
+                               stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
     watcher = _stop_when_checkpointed(out, long_id,
                                       lambda pid: os.kill(process.pid, signal.SIGINT))
     _, err = process.communicate(timeout=300)
