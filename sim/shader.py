@@ -527,29 +527,22 @@ class EventShader:
         normal : (H n, W n, 3) float32 ndarray
             The hit's geometric normal, world frame (0 for a miss).
         """
-        times = self._check_times(np.array([t], dtype=np.float64))
-        if self.renderer.scene.is_dynamic:
-            self.renderer.set_time(float(times[0]))
         count = self.shape[0] * self.shape[1] * self.spp
-        node, fraction = self._poses.locate(times)
-        mi, dr = self._mi, self._dr
+        node, fraction = self._at(t, count)
         first = int(node[0])
         table = self._table(first, first + 1)
         keys = np.empty(count, dtype=np.uint32)
         normals = np.empty((count, 3), dtype=np.float32)
         for start in range(0, count, MAX_RAYS_PER_LAUNCH):
-            size = min(MAX_RAYS_PER_LAUNCH, count - start)
-            index = mi.UInt32(_aligned(np.arange(start, start + size), np.uint32))
-            nodes = dr.zeros(mi.UInt32, size)
-            fractions = dr.full(mi.Float, float(fraction[0]), size)
-            zeros = dr.zeros(mi.Float, size)
-            dr.make_opaque(index, nodes, fractions, zeros)
+            stop = min(start + MAX_RAYS_PER_LAUNCH, count)
+            index, nodes, fractions, _ = self._kernel_inputs(
+                np.arange(start, stop), node[start:stop], fraction[start:stop], first)
             with _no_cyclic_gc():
                 key, normal = self._trace_geometry(self.renderer.mitsuba_scene,
                                                    self._directions, index, nodes, fractions,
-                                                   table, zeros)
-                keys[start:start + size] = np.asarray(key)
-                normals[start:start + size] = np.asarray(normal).T
+                                                   table)
+                keys[start:stop] = np.asarray(key)[:stop - start]
+                normals[start:stop] = np.asarray(normal).T[:stop - start]
         return self._on_grid(keys), self._on_grid(normals)
 
     # ----------------------------------------------------------------------------------------
@@ -558,11 +551,18 @@ class EventShader:
         """Samples ``0 .. count - 1`` (pixels, or sub-samples with their own ``trace``) all at
         time ``t``, with the interval and fraction :meth:`luminance` computes for a sample at
         ``t``; objects that move are moved to ``t`` first."""
+        node, fraction = self._at(t, count)
+        return self._shade(np.arange(count), node, fraction, trace, samples_per_launch)
+
+    def _at(self, t: float, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """The pose grid interval and fraction (each (count,), read-only) of ``count`` samples
+        all at time ``t``, as :meth:`luminance` computes them; objects that move are moved to
+        ``t`` first."""
         times = self._check_times(np.array([t], dtype=np.float64))
         if self.renderer.scene.is_dynamic:
             self.renderer.set_time(float(times[0]))
-        node, fraction = (np.broadcast_to(a, count) for a in self._poses.locate(times))
-        return self._shade(np.arange(count), node, fraction, trace, samples_per_launch)
+        node, fraction = self._poses.locate(times)
+        return np.broadcast_to(node, count), np.broadcast_to(fraction, count)
 
     def _check_times(self, times: np.ndarray) -> np.ndarray:
         times = np.asarray(times, dtype=np.float64)
@@ -616,6 +616,18 @@ class EventShader:
 
     def _launch(self, pixels: np.ndarray, node: np.ndarray, fraction: np.ndarray, first: int,
                 table, trace) -> np.ndarray:
+        index, nodes, fractions, zeros = self._kernel_inputs(pixels, node, fraction, first)
+        with _no_cyclic_gc():
+            total = trace(self.renderer.mitsuba_scene, self._directions, self._jitter, index,
+                          nodes, fractions, table, zeros, self._filtering)
+            return np.asarray(total, dtype=np.float32)[:len(pixels)]
+
+    def _kernel_inputs(self, pixels: np.ndarray, node: np.ndarray, fraction: np.ndarray,
+                       first: int) -> tuple:
+        """One launch's device arrays: sample indices (mi.UInt32), their intervals relative to
+        the pose table's node ``first`` (mi.UInt32), fractions (mi.Float) and zeros (mi.Float),
+        padded to :data:`MIN_LAUNCH` samples (with copies of the last: the caller drops their
+        results beyond ``len(pixels)``)."""
         mi, dr = self._mi, self._dr
         count = len(pixels)
         if 0 < count < MIN_LAUNCH:                  # a small launch, padded (MIN_LAUNCH)
@@ -629,10 +641,7 @@ class EventShader:
         fractions = mi.Float(_aligned(fraction, np.float32))
         zeros = dr.zeros(mi.Float, len(pixels))
         dr.make_opaque(index, nodes, fractions, zeros)   # sizes change per call, the kernel not
-        with _no_cyclic_gc():
-            total = trace(self.renderer.mitsuba_scene, self._directions, self._jitter, index,
-                          nodes, fractions, table, zeros, self._filtering)
-            return np.asarray(total, dtype=np.float32)[:count]
+        return index, nodes, fractions, zeros
 
 
 @contextmanager
@@ -769,7 +778,7 @@ def _pose(table, nodes, fractions):
     return rotation, origin
 
 
-def _geometry(scene, directions, pixels, nodes, fractions, table, zeros):
+def _geometry(scene, directions, pixels, nodes, fractions, table):
     """What each sub-sample sees, for telling a geometric edge from a smooth change.
 
     Parameters as :func:`_trace`'s, ``pixels`` indexing sub-samples (one thread each).
@@ -799,4 +808,4 @@ def _geometry(scene, directions, pixels, nodes, fractions, table, zeros):
         lit = dr.select(scene.ray_test(si.spawn_ray_to(ds.p), lit), False, lit)
         key = key | dr.select(lit, mi.UInt32(1 << (16 + i)), 0)
     normal = dr.select(hit, si.n, mi.Vector3f(0.0))
-    return key, normal + zeros
+    return key, normal
