@@ -155,6 +155,16 @@ def _verdict(ok: bool) -> str:
     return "PASS" if ok else "FAIL"
 
 
+def _line(label: str, run: dict, a: dict, ok: dict, frames: str) -> str:
+    """One printed line: a run's events against the reference, its goals and its cost."""
+    return (f"{label}  {run['sampler']:<7} "
+            f"{a['count']:7,} {a['reference_count']:10,}  {100 * a['count_error']:+6.1f} % "
+            f"{_verdict(ok['count'])}  {100 * a['worst_block_error']:5.1f} % "
+            f"({a['worst_block_events']:5,}, {a['blocks']:3}) "
+            f"{_verdict(ok['blocks'])}  {frames}  {run['pixel_samples']:13,}  "
+            f"{run['event_render_s']:14.2f}")
+
+
 def table(rows: list[dict]) -> str:
     """The printed table (one line a row; the goals in the header)."""
     lines = [f"goals: events within {100 * COUNT_GOAL:.0f} %, every block with >= 100 events "
@@ -164,26 +174,16 @@ def table(rows: list[dict]) -> str:
              "scene                t (s)  sampler  events  reference  count        "
              "worst block (events, blocks)   frames PSNR     pixel samples  event render s"]
     for row in rows:
-        a, d, ok = row["agreement"], row["default"], row["pass"]
+        ok = row["pass"]
         frames = (f"{row['frame_psnr_db']:5.1f} dB {_verdict(ok['frames'])}"
                   if row["frame_psnr_db"] is not None else "   -         ")
-        lines.append(
-            f"{row['scene']:<20} {row['window_s'][0]:5.1f}  {d['sampler']:<7} "
-            f"{a['count']:7,} {a['reference_count']:10,}  {100 * a['count_error']:+6.1f} % "
-            f"{_verdict(ok['count'])}  {100 * a['worst_block_error']:5.1f} % "
-            f"({a['worst_block_events']:5,}, {a['blocks']:3}) "
-            f"{_verdict(ok['blocks'])}  {frames}  {d['pixel_samples']:13,}  "
-            f"{d['event_render_s']:14.2f}")
+        lines.append(_line(f"{row['scene']:<20} {row['window_s'][0]:5.1f}", row["default"],
+                           row["agreement"], ok, frames))
         if "edges" in row:
-            e, a, ok = row["edges"], row["edges"]["agreement"], row["edges"]["pass"]
-            lines.append(
-                f"  edge_spp {e['edge_spp']:<3} {'':>8}  {e['run']['sampler']:<7} "
-                f"{a['count']:7,} {a['reference_count']:10,}  {100 * a['count_error']:+6.1f} % "
-                f"{_verdict(ok['count'])}  {100 * a['worst_block_error']:5.1f} % "
-                f"({a['worst_block_events']:5,}, {a['blocks']:3}) "
-                f"{_verdict(ok['blocks'])}  {'':13}  {e['run']['pixel_samples']:13,}  "
-                f"{e['run']['event_render_s']:14.2f}  (edge samples "
-                f"{e['run']['edge_samples']:,})")
+            e = row["edges"]
+            lines.append(_line(f"  edge_spp {e['edge_spp']:<3} {'':>8}", e["run"],
+                               e["agreement"], e["pass"], f"{'':13}")
+                         + f"  (edge samples {e['run']['edge_samples']:,})")
     return "\n".join(lines)
 
 
