@@ -32,8 +32,8 @@ about 20 minutes per 0.05-s window, 9.4 minutes for 0.02 s, so the full run woul
 an hour).
 ``--scenes`` picks scenes, ``--first`` only their first time, ``--window`` sets the seconds.
 ``--edge-spp N`` also runs each default with ``[render] edge_spp = N`` (the pixels an edge
-crosses rendered at N samples per pixel, :mod:`sim.pixel_sampling`), after the default, and
-prints its row below the default's (its frames are the default's).
+crosses rendered at N samples per pixel, :mod:`sim.pixel_sampling`; either sampler), after the
+default, and prints its row below the default's (its frames are the default's).
 Results are printed and written to ``benchmarks/results/convergence.json``
 (``convergence_quick.json`` for ``--quick``), row by row (a row replaces an earlier run's of
 the same scene and window).

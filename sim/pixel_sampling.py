@@ -81,7 +81,7 @@ from sim.noise import (
 from sim.sampling import SPLIT, SamplingParams, _point_flow, _twist, contrast_scale
 
 __all__ = ["EDGE_COS", "MAX_DILATION", "PixelBlock", "PixelEventEmulator", "PixelSamplingStats",
-           "PixelSource", "geometric_edges", "pixel_blocks", "rate_map"]
+           "PixelSource", "geometric_edges", "pixel_blocks", "rate_map", "refine_edges"]
 
 MARGIN = 0.5
 """The prediction aims at MARGIN * lam * C (frame sampling: 0.75)."""
@@ -968,12 +968,10 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         lum = pixel_means(sub, shape)
         if not edges:
             return lum, None
-        fine = geometric_edges(*source.geometry(float(seconds(t_ns))), shape).reshape(-1)
-        index = np.flatnonzero(fine)
-        if len(index):
-            lum.reshape(-1)[index] = source.fine_luminance(
-                index, np.full(len(index), float(seconds(t_ns))))
-            stats.edge_samples += len(index) if counted else 0
+        index = refine_edges(lum, float(seconds(t_ns)), source.geometry, source.fine_luminance)
+        stats.edge_samples += len(index) if counted else 0
+        fine = np.zeros(lum.size, dtype=bool)
+        fine[index] = True
         return lum, fine
 
     if after is None:
@@ -1066,6 +1064,12 @@ def geometric_edges(key: np.ndarray, normal: np.ndarray, shape: tuple[int, int],
         Pixels holding either sub-sample of such a pair (horizontal and vertical neighbours on
         the sub-sample grid, across pixel borders too): an edge that runs between two
         sub-samples marks both their pixels.
+
+    Notes
+    -----
+    What no pair of sub-samples straddles is not seen: a corner or a feature narrower than
+    the sub-sample spacing that clips a pixel between its sub-samples, and an edge between an
+    image-border pixel's outermost sub-samples and the image's border (no neighbour there).
     """
     height, width = shape
     n = key.shape[0] // height
@@ -1080,6 +1084,34 @@ def geometric_edges(key: np.ndarray, normal: np.ndarray, shape: tuple[int, int],
         big[a] |= differ
         big[b] |= differ
     return big.reshape(height, n, width, n).any(axis=(1, 3))
+
+
+def refine_edges(frame: np.ndarray, t: float,
+                 geometry: Callable[[float], tuple[np.ndarray, np.ndarray]],
+                 fine_luminance: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
+    """Render again, in place, the pixels of a frame that an edge crosses at its time.
+
+    Parameters
+    ----------
+    frame : (H, W) float32 ndarray
+        Linear luminance at ``t``; its marked pixels are overwritten.
+    t : float, seconds
+        The frame's time.
+    geometry : callable
+        ``geometry(t)`` -> ``(key, normal)`` of every sub-sample
+        (:meth:`sim.shader.EventShader.geometry`).
+    fine_luminance : callable
+        ``fine_luminance(pixels, times)`` -> (N,) luminance at more sub-samples.
+
+    Returns
+    -------
+    (M,) int ndarray
+        The flat indices of the pixels rendered again (:func:`geometric_edges`).
+    """
+    marked = np.flatnonzero(geometric_edges(*geometry(t), frame.shape))
+    if len(marked):
+        frame.reshape(-1)[marked] = fine_luminance(marked, np.full(len(marked), float(t)))
+    return marked
 
 
 def _scaled(change: np.ndarray, pix: np.ndarray, scale: np.ndarray | None) -> np.ndarray:

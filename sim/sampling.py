@@ -156,7 +156,8 @@ class SamplingStats:
     :attr:`Sample.subdivided`; the name is kept: checkpoints store these fields by name, and
     ``sequence.json`` records it as ``midpoint_renders``), ``steps`` the intervals whose only
     violations were sub-pixel-sample steps, ``at_max_rate`` the samples that still broke the
-    bound at the maximum rate.
+    bound at the maximum rate, ``edge_samples`` the pixels of those renders that an edge
+    crosses, rendered again at ``[render] edge_spp`` sub-samples (0 without).
     """
 
     renders: int = 0
@@ -164,6 +165,7 @@ class SamplingStats:
     refined: int = 0
     steps: int = 0
     at_max_rate: int = 0
+    edge_samples: int = 0
 
 
 def max_rate_warning(at_max_rate: int, intervals: int, max_rate: float, bound: float,

@@ -25,8 +25,9 @@ texture comes from (which object, which face); see :class:`sim.textures.TextureF
 the filters' bounds.
 
 :meth:`EventShader.geometry` traces the same sub-samples for what they see rather than their
-light (the hit surface, which lights reach it, its normal): the per-pixel sampler's
-``edge_spp`` finds there the pixels that an edge crosses (:mod:`sim.pixel_sampling`).
+light (the hit surface, which lights reach it, its normal): ``[render] edge_spp`` finds there
+the pixels that an edge crosses (:mod:`sim.pixel_sampling`), at the per-pixel sampler's block
+boundaries and in each of the frame sampler's frames.
 
 Sub-pixel positions are a fixed stratified jittered pattern per pixel (``sqrt(spp) x sqrt(spp)``
 strata, jitter from ``numpy.random.default_rng(renderer.seed)``), the same at every time: the

@@ -126,6 +126,30 @@ size = [6.0, 6.0]
 texture_scale = [6.0, 6.0]
 texture = { type = "shapes", resolution = 256, count = 30, min_size = 10, max_size = 40 }
 """
+# A dark box before a bright wall, lit from the side (its shadow on the wall), seen through a
+# strongly distorting lens with fx != fy: geometric edges (tests of edge_spp).
+BOX_BEFORE_WALL = """
+[[objects]]
+name = "wall"
+type = "rectangle"
+center = [0.0, 2.0, 0.0]
+size = [4.0, 4.0]
+normal = [0.0, -1.0, 0.0]
+up = [0.0, 0.0, 1.0]
+material = { color = 0.8 }
+[[objects]]
+name = "box"
+type = "box"
+center = [0.05, 1.0, 0.02]
+size = [0.3, 0.2, 0.3]
+material = { color = 0.08 }
+"""
+LENS = (-0.3, 0.08, 0.001, -0.002, 0.0)          # strong barrel distortion, as a DAVIS240C's
+SIDE_LIGHT_TOML = ('[[lights]]\ntype = "directional"\ndirection = [0.3, 1.0, -0.2]\n'
+                   "illuminance_lux = 400.0\n")
+LENS_CAMERA = ("[camera]\nwidth = 64\nheight = 48\nfx = 60.0\nfy = 45.0\ncx = 30.3\ncy = 22.7\n"
+               f"distortion = {list(LENS)}\n")
+
 FAST = ('[trajectory]\ntype = "linear"\nposition = [-0.15, 0.0, 0.0]\n'
         "velocity = [1.0, 0.0, 0.0]\nlook_at = [-0.15, 1.0, 0.0]\n")
 

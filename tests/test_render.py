@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from contextlib import contextmanager
 
 import numpy as np
@@ -353,17 +354,22 @@ def test_scalar_fallback_loads_a_mesh_file(tmp_path):
 
 def test_scalar_fallback_simulates_a_moving_height_field(tmp_path):
     """scalar_rgb builds a height field's mesh and moves it (its buffers are not ``mi.Float``
-    there, which refused an array): a short window simulates, with events, as on llvm."""
+    there, which refused an array): a short window simulates, with events, as on llvm.
+    ``[render] edge_spp`` needs the JIT variants' shader: recorded as 0, with why."""
     text = scene_text(MESHES[:MESHES.index("[[objects]]\nname = \"knot\"")].replace(
         "resolution = [400, 300]", "resolution = [40, 30]\n"
         'motion = { type = "linear", velocity = [0.0, 0.0, 0.5] }'),
         camera=SMALL_CAMERA, trajectory='[trajectory]\ntype = "linear"\n'
-        "position = [0.0, 0.0, 0.0]\nvelocity = [0.5, 0.0, 0.0]\nlook_at = [0.0, 1.0, 0.0]\n")
+        "position = [0.0, 0.0, 0.0]\nvelocity = [0.5, 0.0, 0.0]\nlook_at = [0.0, 1.0, 0.0]\n",
+        extra="[render]\nedge_spp = 16\n")
     out = tmp_path / "seq"
     _run_scalar(tmp_path, text, f"r = sim.simulate(scene, {str(out)!r}, duration=0.02, spp=1,"
                 " progress=False, event_formats=('h5',)); assert r.variant == 'scalar_rgb';"
                 " assert r.n_events > 0, r")
     assert (out / "events.h5").is_file()
+    record = json.loads((out / "sequence.json").read_text())["events"]
+    assert record["edge_spp"] == 0 and record["edge_samples"] == 0
+    assert "edge_spp = 16 needs a JIT variant's shader" in record["edge_spp_warning"]
 
 
 def test_scalar_fallback_sums_every_light_as_the_jit_variants(tmp_path):

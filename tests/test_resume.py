@@ -221,6 +221,47 @@ def test_an_interrupted_per_pixel_run_resumes_to_the_uninterrupted_files(tmp_pat
     _assert_same_sequence(tmp_path / "whole", out)
 
 
+def test_an_interrupted_frame_sampler_run_with_edges_resumes_to_the_same_files(tmp_path,
+                                                                              monkeypatch):
+    """The frame sampler with the strips' edges at 16 samples per pixel (``edge_spp``: which
+    pixels of a frame are rendered fine depends on its time only), stopped in the events after
+    80 samples and resumed from its last checkpoint: byte for byte the uninterrupted run,
+    its count of edge renders included. (A third of the strips' pixels are edges: 0.02 s of
+    them renders 2.5 times as many frames as without, at 3 times the cost each.)"""
+    scene = parse_scene(TEXT)
+    scene = replace(scene, render=replace(scene.render, edge_spp=16))
+    events = EventParams.preset("realistic", seed=scene.seed)
+
+    def run(out, resume=False):
+        return simulate(scene, out, progress=False, events=events, resume=resume,
+                        sampler="frame", motion_truth=False, duration=0.02)
+
+    whole = run(tmp_path / "whole")
+    record = json.loads((tmp_path / "whole" / "sequence.json").read_text())["events"]
+    assert record["edge_spp"] == 16 and record["edge_samples"] > 1000
+    monkeypatch.setattr(checkpoints, "CHECKPOINT_SAMPLES", 1)   # at every boundary allowed
+    seen = []
+
+    def interrupting(*args, **kwargs):
+        for sample in _REAL_SAMPLES(*args, **kwargs):
+            if len(seen) > 80 and not seen[-1].tail_pending:
+                raise KeyboardInterrupt
+            seen.append(sample)
+            yield sample
+
+    monkeypatch.setattr(event_driver, "adaptive_samples", interrupting)
+    out = tmp_path / "cut"
+    with pytest.raises(KeyboardInterrupt):
+        run(out)
+    with np.load(tmp_path / "cut.partial" / ".checkpoint" / "events.npz") as saved:
+        state = json.loads(str(saved["state"]))
+    assert 0 < state["stats"]["edge_samples"] < record["edge_samples"]
+    monkeypatch.setattr(event_driver, "adaptive_samples", _REAL_SAMPLES)
+    result = run(out, resume=True)
+    assert result.n_events == whole.n_events
+    _assert_same_sequence(tmp_path / "whole", out)
+
+
 def test_a_resume_after_the_event_stage_only_writes_the_indexes(full, tmp_path, monkeypatch):
     reference, _ = full
     out = tmp_path / "seq"

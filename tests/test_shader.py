@@ -15,9 +15,15 @@ from sim.scene import load_scene, parse_scene
 from sim.se3 import make_pose, so3_exp
 from sim.shader import EventShader, require_jit_variant
 from sim.trajectory import SampledTrajectory
-from tests.conftest import FAST, WALL, scene_text
-
-LENS = (-0.3, 0.08, 0.001, -0.002, 0.0)          # strong barrel distortion, as a DAVIS240C's
+from tests.conftest import (
+    BOX_BEFORE_WALL,
+    FAST,
+    LENS,
+    LENS_CAMERA,
+    SIDE_LIGHT_TOML,
+    WALL,
+    scene_text,
+)
 
 SLIDING_BOX = """
 [[objects]]
@@ -287,28 +293,8 @@ def test_a_pixel_is_the_mean_of_its_subsamples_bit_for_bit(boxes):
         np.testing.assert_array_equal(pixel_means(shader.subsamples(t), shape), shader.frame(t))
 
 
-BOX_BEFORE_WALL = """
-[[objects]]
-name = "wall"
-type = "rectangle"
-center = [0.0, 2.0, 0.0]
-size = [4.0, 4.0]
-normal = [0.0, -1.0, 0.0]
-up = [0.0, 0.0, 1.0]
-material = { color = 0.8 }
-[[objects]]
-name = "box"
-type = "box"
-center = [0.05, 1.0, 0.02]
-size = [0.3, 0.2, 0.3]
-material = { color = 0.08 }
-"""
 BOX_LOW, BOX_HIGH = np.array([-0.1, 0.9, -0.13]), np.array([0.2, 1.1, 0.17])
 SIDE_LIGHT = np.array([0.3, 1.0, -0.2])            # the direction the light travels
-SIDE_LIGHT_TOML = ('[[lights]]\ntype = "directional"\ndirection = [0.3, 1.0, -0.2]\n'
-                   "illuminance_lux = 400.0\n")
-LENS_CAMERA = ("[camera]\nwidth = 64\nheight = 48\nfx = 60.0\nfy = 45.0\ncx = 30.3\ncy = 22.7\n"
-               f"distortion = {list(LENS)}\n")
 
 
 def _slab(origin: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

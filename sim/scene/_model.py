@@ -44,8 +44,8 @@ class RenderParams:
         are hundreds to thousands of them per second). Default 4.
     edge_spp : int
         Samples per pixel of the event camera's renders of the pixels that an edge of the
-        geometry or of a shadow crosses (per-pixel sampler only; a perfect square above
-        ``event_spp``), or 0 (default): every pixel at ``event_spp``. See
+        geometry or of a shadow crosses (either sampler, a JIT variant; a perfect square
+        above ``event_spp``), or 0 (default): every pixel at ``event_spp``. See
         :mod:`sim.pixel_sampling`.
     """
 

@@ -35,7 +35,12 @@ from sim.event_depth import (
 from sim.event_labels import LABELS_TXT_NAME, TextEventLabelWriter, event_labels_record
 from sim.eventio import H5EventWriter, TextEventWriter
 from sim.events import EventEmulator, EventParams
-from sim.pixel_sampling import PixelEventEmulator, PixelSamplingStats, pixel_blocks
+from sim.pixel_sampling import (
+    PixelEventEmulator,
+    PixelSamplingStats,
+    pixel_blocks,
+    refine_edges,
+)
 from sim.progress import progress as progress_stage
 from sim.render import Renderer
 from sim.sampling import (
@@ -81,7 +86,10 @@ class _EventCamera:
     On a JIT variant the event camera is shaded by :class:`sim.shader.EventShader` (every light
     in turn, a fixed sub-pixel pattern), whichever sampler drives it, so that the two samplers
     see the same luminance; on ``scalar_rgb`` by the frames' ``evfuse_direct`` (every light in
-    turn too, :func:`sim.render.register_integrator`).
+    turn too, :func:`sim.render.register_integrator`). With ``edge_spp`` (a JIT variant only) a
+    second shader renders the pixels that an edge crosses at ``edge_spp`` sub-samples
+    (:func:`sim.pixel_sampling.geometric_edges`): the per-pixel sampler asks for them itself,
+    a whole frame (:meth:`luminance`) has them refined at its own time.
     """
 
     def __init__(self, renderer: Renderer, spp: int, start: float, end: float,
@@ -90,6 +98,7 @@ class _EventCamera:
         self.scene, self.camera = renderer.scene, renderer.camera
         self.depth = RecentDepth(renderer.depth)     # shared by the sampler and per-event depth
         self.shader = self.fine_shader = None
+        self.edge_samples = 0                         # pixels refined by luminance(), so far
         if renderer.variant != "scalar_rgb":
             from sim.shader import EventShader
 
@@ -98,9 +107,16 @@ class _EventCamera:
                 self.fine_shader = EventShader(renderer, edge_spp, t0=start, t1=end)
 
     def luminance(self, t: float) -> np.ndarray:
-        if self.shader is not None:
-            return self.shader.frame(t)
-        return self._renderer.luminance(t, spp=self._spp)
+        """The whole frame at ``t``, (H, W) float32, linear; the pixels an edge crosses at
+        ``t`` from the fine shader where there is one. A pixel's value depends on ``t`` only
+        (which renderer took it too), so a resumed run renders the same frames."""
+        if self.shader is None:
+            return self._renderer.luminance(t, spp=self._spp)
+        frame = self.shader.frame(t)
+        if self.fine_shader is not None:
+            self.edge_samples += len(refine_edges(frame, t, self.shader.geometry,
+                                                  self.fine_shader.luminance))
+        return frame
 
 
 class _TimedCamera:
@@ -111,6 +127,11 @@ class _TimedCamera:
         self._camera = camera
         self.scene, self.camera, self.shader = camera.scene, camera.camera, camera.shader
         self.seconds = 0.0
+
+    @property
+    def edge_samples(self) -> int:
+        """Pixels the fine shader refined in :meth:`luminance`'s frames, so far."""
+        return self._camera.edge_samples
 
     def luminance(self, t: float) -> np.ndarray:
         tick = time.perf_counter()
@@ -331,8 +352,10 @@ class _FrameSampler:
               params: EventParams, sampling: SamplingParams, stats: SamplingStats
               ) -> Iterator[_Step]:
         """Render frames over ``[start, end]`` and emulate their events, one step a frame."""
+        refined = stats.edge_samples - self._camera.edge_samples   # a resumed run's, before
         for sample in adaptive_samples(self._camera, start, end, contrast, params.log_eps,
                                        sampling, stats, after=self._after):
+            stats.edge_samples = refined + self._camera.edge_samples
             if emulator.time_ns is None:
                 emulator.start(sample.log, sample.t, sample.luminance)
                 chunk, causes = None, None
@@ -354,6 +377,7 @@ class _FrameSampler:
             "renders": stats.renders,
             "full_renders": stats.renders,
             "pixel_samples": 0,
+            "edge_samples": stats.edge_samples,
             "samples": stats.accepted,
             "midpoint_renders": stats.refined,
             "step_intervals": stats.steps,
@@ -472,9 +496,8 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
     emulator = kind.emulator_type((cam.height, cam.width), params)
     stats, count, on, positions, saved = _restore_events(checkpoint, emulator, kind.stats_type)
     contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
-    # Edges at more sub-samples are the per-pixel sampler's (sim.pixel_sampling); the frame
-    # sampler renders every pixel at event_spp, and says so where the scene asked for them.
-    edge_spp = scene.render.edge_spp if sampler == "pixel" else 0
+    # Edges at more sub-samples need the shader (a JIT variant); scalar_rgb says so.
+    edge_spp = scene.render.edge_spp if renderer.variant != "scalar_rgb" else 0
     event_camera = _EventCamera(renderer, scene.render.event_spp, start, end, edge_spp)
     source = kind(event_camera)
     resumed_at = source.resume(saved)
@@ -522,9 +545,10 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
             bar.set_postfix_str(f"{count:,} events, {source.progress(stats, why)}",
                                 refresh=False)
             bar.update(0)
-    ignored = (f"[render] edge_spp = {scene.render.edge_spp} applies to the per-pixel sampler "
-               f"only: the frame sampler rendered every pixel at event_spp = "
-               f"{scene.render.event_spp}") if scene.render.edge_spp and not edge_spp else None
+    ignored = (f"[render] edge_spp = {scene.render.edge_spp} needs a JIT variant's shader "
+               f"(llvm_ad_rgb or cuda_ad_rgb): {renderer.variant} rendered every pixel at "
+               f"event_spp = {scene.render.event_spp}"
+               ) if scene.render.edge_spp and not edge_spp else None
     return {**_event_info(params, formats, sampling, scene, count, on, event_depth, own_rays),
             **source.record(stats, sampling, contrast, why),
             "edge_spp": edge_spp, "edge_spp_warning": ignored,
