@@ -59,3 +59,23 @@ def test_the_worst_block_counts_only_blocks_with_100_reference_events():
     assert agreement.blocks == 1
     assert agreement.worst_block == (0, 0) and agreement.worst_block_events == 150
     assert agreement.worst_block_error == pytest.approx(0.1)
+
+
+def test_the_gpu_check_script_runs_its_chosen_steps_and_summarises_them(tmp_path):
+    """``benchmarks/gpu_check.sh`` (for a lent GPU machine) with no steps: it says what it ran
+    on and writes an empty summary; with an unknown step it says so (one line) and goes on."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "STEPS": "9", "PYTHON": sys.executable}
+    done = subprocess.run(["bash", str(root / "benchmarks" / "gpu_check.sh")], cwd=root,
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.strip().splitlines()[-1] == "unknown step 9"
+    env_lines = (tmp_path / "out" / "env.txt").read_text().splitlines()
+    assert env_lines[-1].startswith("mitsuba ")
+    summary = (tmp_path / "out" / "summary.txt").read_text().splitlines()
+    assert summary[0].split()[:2] == ["run", "variant"] and len(summary) == 1
