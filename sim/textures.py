@@ -287,15 +287,19 @@ class TextureFilter:
     footprint is more than twice as long as wide, a row of 4 along its longer side; each tap
     filters its cell at the level of detail whose trilinear filter has the variance of a box
     of the cell's longer side (:func:`box_matched_lod`), clamped to the pyramid. The analytic
-    checkerboard's lookup is exact for a box: Mitsuba's square wave (``frac(u) > 1/2``)
-    integrated over the axis-aligned bounding box of the footprint, along u and v separately,
-    and the two masks combined as independent (exact for a box: the box is a product of its u
-    and v extents).
+    checkerboard's lookup tiles the footprint in the same cells and is exact for each cell's
+    box: Mitsuba's square wave (``frac(u) > 1/2``) integrated over the axis-aligned bounding
+    box of the cell, along u and v separately, and the two masks combined as independent
+    (exact for a box: the box is a product of its u and v extents).
 
-    Bounds (what a filtered sample approximates). The checkerboard's value is the exact mean over
-    the footprint's bounding box: exact where the footprint is axis-aligned in (u, v) (a surface
-    seen square on, its texture axes along the image axes), otherwise a box up to
-    ``|du_dx| + |du_dy|`` wide where the parallelogram is narrower. A bitmap's value is the sum
+    Bounds (what a filtered sample approximates). The checkerboard's value is the mean of the
+    exact means over its cells' bounding boxes: exact where the footprint is axis-aligned in
+    (u, v) (a surface seen square on, its texture axes along the image axes), otherwise each
+    cell's box is up to ``|du_dx| + |du_dy|`` of the cell wide where the cell is narrower; a
+    long footprint across the squares (a sphere's rim) is widened by a quarter of its length,
+    not all of it. On a fine checkerboard receding to the horizon at 30 degrees to the image's
+    axes, 4 sub-samples so filtered are 1.9 % from 1,024 point samples, mean per pixel (one
+    bounding box: 6.3 %; ``tests/test_texture_filtering.py``). A bitmap's value is the sum
     of the taps' trilinear filters: the footprint's box in mean and variance along both of its
     sides (where it is at most 4 times longer than wide; longer ones are blurred along their
     shorter side to a quarter of the longer), smoother than the box's edges (a tap is a tent
@@ -525,11 +529,29 @@ def filtered_reflectance(arrays, si, active, shift=None):
     dvdx, dvdy = a_v * scales[1] * partials[2], a_v * scales[1] * partials[3]
 
     checker = textured & (kind == CHECKERBOARD)
-    pu = _square_wave_mean(u_f, 0.5 * (dr.abs(dudx) + dr.abs(dudy)))
-    pv = _square_wave_mean(v_f, 0.5 * (dr.abs(dvdx) + dr.abs(dvdy)))
-    same = pu * pv + (1.0 - pu) * (1.0 - pv)
     color0 = dr.gather(mi.Float, arrays["colors"], record * 2, checker)
     color1 = dr.gather(mi.Float, arrays["colors"], record * 2 + 1, checker)
+    # The footprint's parallelogram tiled in TAPS cells as the bitmaps' (below): each cell's
+    # bounding box exactly, so that a long footprint that runs diagonally across the squares
+    # (a sphere's grazing rim) is not widened to the box around all of it.
+    c_side_x = dr.sqrt(dr.square(dudx) + dr.square(dvdx))
+    c_side_y = dr.sqrt(dr.square(dudy) + dr.square(dvdy))
+    c_along_x = c_side_x >= c_side_y
+    c_row = dr.maximum(c_side_x, c_side_y) > 2.0 * dr.minimum(c_side_x, c_side_y)
+    c_long_u, c_long_v = dr.select(c_along_x, dudx, dudy), dr.select(c_along_x, dvdx, dvdy)
+    c_short_u, c_short_v = dr.select(c_along_x, dudy, dudx), dr.select(c_along_x, dvdy, dvdx)
+    long_share = dr.select(c_row, 0.25, 0.5)                 # of the long side, per cell
+    short_share = dr.select(c_row, 1.0, 0.5)
+    half_u = 0.5 * (long_share * dr.abs(c_long_u) + short_share * dr.abs(c_short_u))
+    half_v = 0.5 * (long_share * dr.abs(c_long_v) + short_share * dr.abs(c_short_v))
+    same = mi.Float(0.0)
+    for tap in range(ANISOTROPY_TAPS):
+        along = dr.select(c_row, (tap + 0.5) / 4.0 - 0.5, (tap % 2 + 0.5) / 2.0 - 0.5)
+        across = dr.select(c_row, 0.0, (tap // 2 + 0.5) / 2.0 - 0.5)
+        pu = _square_wave_mean(u_f + along * c_long_u + across * c_short_u, half_u)
+        pv = _square_wave_mean(v_f + along * c_long_v + across * c_short_v, half_v)
+        same += pu * pv + (1.0 - pu) * (1.0 - pv)
+    same *= 1.0 / ANISOTROPY_TAPS
     checker_value = color0 * same + color1 * (1.0 - same)
     point_same = (u - dr.floor(u) > 0.5) == (v - dr.floor(v) > 0.5)
     checker_point = dr.select(point_same, color0, color1)
