@@ -136,6 +136,22 @@ ABOVE = ('[[lights]]\ntype = "directional"\ndirection = [0.0, 0.5, -1.0]\n'
          "illuminance_lux = 400.0\n")
 
 
+def _floor_errors(floor: str) -> dict[str, np.ndarray]:
+    """Relative errors of a floor's pixels below the horizon's row, against 1,024 point
+    sub-samples with filtering off: the filtered 4-sample event camera (``filtered``), 4 point
+    sub-samples (``point``) and the frames (``frames``)."""
+    scene = parse_scene(scene_text(floor, camera=CAMERA, lights=ABOVE, duration=0.3))
+    point = Renderer(scene, texture_filter=False)
+    reference = EventShader(point, 1024, t0=0.0, t1=0.3).frame(0.1)
+    filtered = Renderer(scene)
+    images = {"filtered": EventShader(filtered, 4, t0=0.0, t1=0.3).frame(0.1),
+              "point": EventShader(point, 4, t0=0.0, t1=0.3).frame(0.1),
+              "frames": filtered.luminance(0.1)}
+    rows = np.flatnonzero(reference.min(axis=1) > 0)[2:]          # below the horizon's row
+    return {name: np.abs(image - reference)[rows] / reference[rows]
+            for name, image in images.items()}
+
+
 def test_filtered_bitmaps_approach_the_converged_point_render():
     """The floor to the horizon (sub-sample footprints from 2 x 4 to hundreds of texels): the
     filtered 4-sample event camera against 1,024 point sub-samples with filtering off, the
@@ -147,16 +163,7 @@ def test_filtered_bitmaps_approach_the_converged_point_render():
     stratified sampler, each filtered over its own footprint, not centred on its stratum):
     1.0 %. The horizon's row (half floor, half nothing: a geometric edge, which filtering does
     not touch) is left out."""
-    scene = parse_scene(scene_text(FLOOR, camera=CAMERA, lights=ABOVE, duration=0.3))
-    point = Renderer(scene, texture_filter=False)
-    reference = EventShader(point, 1024, t0=0.0, t1=0.3).frame(0.1)
-    filtered = Renderer(scene)
-    images = {"filtered": EventShader(filtered, 4, t0=0.0, t1=0.3).frame(0.1),
-              "point": EventShader(point, 4, t0=0.0, t1=0.3).frame(0.1),
-              "frames": filtered.luminance(0.1)}
-    rows = np.flatnonzero(reference.min(axis=1) > 0)[2:]          # below the horizon's row
-    error = {name: float(np.mean(np.abs(image - reference)[rows] / reference[rows]))
-             for name, image in images.items()}
+    error = {name: float(np.mean(e)) for name, e in _floor_errors(FLOOR).items()}
     assert error["filtered"] < 0.01, error
     assert error["filtered"] < 0.2 * error["point"], error
     assert error["frames"] < 0.015, error
@@ -183,17 +190,7 @@ def test_a_diagonal_checkerboard_approaches_the_converged_point_render():
     greyed them (dynamic_6dof's ball, at its rim: 30-40 % off 256 sub-samples). Against 1,024
     point sub-samples: measured 1.9 % mean error (6.3 % with one bounding box; 99th
     percentile 13 % against 58 %), 20 % for 4 point samples; the frames 4.4 % (5.3 %)."""
-    scene = parse_scene(scene_text(DIAGONAL_CHECKER_FLOOR, camera=CAMERA, lights=ABOVE,
-                                   duration=0.3))
-    point = Renderer(scene, texture_filter=False)
-    reference = EventShader(point, 1024, t0=0.0, t1=0.3).frame(0.1)
-    filtered = Renderer(scene)
-    images = {"filtered": EventShader(filtered, 4, t0=0.0, t1=0.3).frame(0.1),
-              "point": EventShader(point, 4, t0=0.0, t1=0.3).frame(0.1),
-              "frames": filtered.luminance(0.1)}
-    rows = np.flatnonzero(reference.min(axis=1) > 0)[2:]          # below the horizon's row
-    error = {name: np.abs(image - reference)[rows] / reference[rows]
-             for name, image in images.items()}
+    error = _floor_errors(DIAGONAL_CHECKER_FLOOR)
     assert error["filtered"].mean() < 0.03, error["filtered"].mean()
     assert np.percentile(error["filtered"], 99) < 0.25
     assert error["filtered"].mean() < 0.15 * error["point"].mean()
