@@ -225,16 +225,17 @@ def test_an_interrupted_frame_sampler_run_with_edges_resumes_to_the_same_files(t
                                                                               monkeypatch):
     """The frame sampler with the strips' edges at 16 samples per pixel (``edge_spp``: which
     pixels of a frame are rendered fine depends on its time only), stopped in the events after
-    80 samples and resumed from its last checkpoint: byte for byte the uninterrupted run,
-    its count of edge renders included. (A third of the strips' pixels are edges: 0.02 s of
-    them renders 2.5 times as many frames as without, at 3 times the cost each.)"""
+    50 samples and resumed from its last checkpoint: byte for byte the uninterrupted run,
+    its count of edge renders included. (A third of the strips' pixels are edges: the frame
+    sampler renders 2.5 times as many frames as without, at 3 times the cost each, so 0.012 s
+    of them.)"""
     scene = parse_scene(TEXT)
     scene = replace(scene, render=replace(scene.render, edge_spp=16))
     events = EventParams.preset("realistic", seed=scene.seed)
 
     def run(out, resume=False):
         return simulate(scene, out, progress=False, events=events, resume=resume,
-                        sampler="frame", motion_truth=False, duration=0.02)
+                        sampler="frame", motion_truth=False, duration=0.012)
 
     whole = run(tmp_path / "whole")
     record = json.loads((tmp_path / "whole" / "sequence.json").read_text())["events"]
@@ -244,7 +245,7 @@ def test_an_interrupted_frame_sampler_run_with_edges_resumes_to_the_same_files(t
 
     def interrupting(*args, **kwargs):
         for sample in _REAL_SAMPLES(*args, **kwargs):
-            if len(seen) > 80 and not seen[-1].tail_pending:
+            if len(seen) > 50 and not seen[-1].tail_pending:
                 raise KeyboardInterrupt
             seen.append(sample)
             yield sample
