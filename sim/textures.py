@@ -534,22 +534,15 @@ def filtered_reflectance(arrays, si, active, shift=None):
     # The footprint's parallelogram tiled in TAPS cells as the bitmaps' (below): each cell's
     # bounding box exactly, so that a long footprint that runs diagonally across the squares
     # (a sphere's grazing rim) is not widened to the box around all of it.
-    c_side_x = dr.sqrt(dr.square(dudx) + dr.square(dvdx))
-    c_side_y = dr.sqrt(dr.square(dudy) + dr.square(dvdy))
-    c_along_x = c_side_x >= c_side_y
-    c_row = dr.maximum(c_side_x, c_side_y) > 2.0 * dr.minimum(c_side_x, c_side_y)
-    c_long_u, c_long_v = dr.select(c_along_x, dudx, dudy), dr.select(c_along_x, dvdx, dvdy)
-    c_short_u, c_short_v = dr.select(c_along_x, dudy, dudx), dr.select(c_along_x, dvdy, dvdx)
+    c_row, _, _, (c_long_u, c_long_v), (c_short_u, c_short_v) = _cells(
+        dudx, dudy, dvdx, dvdy, 1.0, 1.0)
     long_share = dr.select(c_row, 0.25, 0.5)                 # of the long side, per cell
     short_share = dr.select(c_row, 1.0, 0.5)
     half_u = 0.5 * (long_share * dr.abs(c_long_u) + short_share * dr.abs(c_short_u))
     half_v = 0.5 * (long_share * dr.abs(c_long_v) + short_share * dr.abs(c_short_v))
     same = mi.Float(0.0)
-    for tap in range(ANISOTROPY_TAPS):
-        along = dr.select(c_row, (tap + 0.5) / 4.0 - 0.5, (tap % 2 + 0.5) / 2.0 - 0.5)
-        across = dr.select(c_row, 0.0, (tap // 2 + 0.5) / 2.0 - 0.5)
-        pu = _square_wave_mean(u_f + along * c_long_u + across * c_short_u, half_u)
-        pv = _square_wave_mean(v_f + along * c_long_v + across * c_short_v, half_v)
+    for tu, tv in _tap_centres(u_f, v_f, c_row, (c_long_u, c_long_v), (c_short_u, c_short_v)):
+        pu, pv = _square_wave_mean(tu, half_u), _square_wave_mean(tv, half_v)
         same += pu * pv + (1.0 - pu) * (1.0 - pv)
     same *= 1.0 / ANISOTROPY_TAPS
     checker_value = color0 * same + color1 * (1.0 - same)
@@ -560,36 +553,54 @@ def filtered_reflectance(arrays, si, active, shift=None):
     level_row = record * (3 * MAX_MIP_LEVELS)
     width = mi.Float(dr.gather(mi.UInt32, arrays["levels"], level_row + 1, bitmap))
     height = mi.Float(dr.gather(mi.UInt32, arrays["levels"], level_row + 2, bitmap))
-    side_x = dr.sqrt(dr.square(dudx * width) + dr.square(dvdx * height))   # texels
-    side_y = dr.sqrt(dr.square(dudy * width) + dr.square(dvdy * height))
-    along_x = side_x >= side_y
-    major = dr.maximum(side_x, side_y)
-    minor = dr.minimum(side_x, side_y)
     # TAPS trilinear taps tile the footprint's parallelogram: a 2 x 2 grid, or a row of 4
     # along its longer side where that is more than twice the shorter; each tap filters its
     # own cell (a box of the cell's longer side, variance-matched: box_matched_lod).
-    row = major > 2.0 * minor
+    row, major, minor, long, short = _cells(dudx, dudy, dvdx, dvdy, width, height)
     cell = dr.select(row, dr.maximum(major / 4.0, minor), 0.5 * major)
     count = dr.gather(mi.UInt32, arrays["counts"], record, bitmap)
     lod = dr.clip(box_matched_lod(cell), 0.0, mi.Float(count - 1))
     fine = dr.minimum(mi.UInt32(dr.floor(lod)), count - 1)
     coarse = dr.minimum(fine + 1, count - 1)
     weight = lod - mi.Float(fine)
-    long_u, long_v = dr.select(along_x, dudx, dudy), dr.select(along_x, dvdx, dvdy)
-    short_u, short_v = dr.select(along_x, dudy, dudx), dr.select(along_x, dvdy, dvdx)
     fine, coarse = (_level(arrays, level_row, level, bitmap) for level in (fine, coarse))
     bitmap_point = _bilinear(arrays, _level(arrays, level_row, 0, bitmap), u, v, bitmap)
     bitmap_value = mi.Float(0.0)
-    for tap in range(ANISOTROPY_TAPS):
-        along = dr.select(row, (tap + 0.5) / 4.0 - 0.5, (tap % 2 + 0.5) / 2.0 - 0.5)
-        across = dr.select(row, 0.0, (tap // 2 + 0.5) / 2.0 - 0.5)
-        tu = u_f + along * long_u + across * short_u
-        tv = v_f + along * long_v + across * short_v
+    for tu, tv in _tap_centres(u_f, v_f, row, long, short):
         bitmap_value += dr.lerp(_bilinear(arrays, fine, tu, tv, bitmap),
                                 _bilinear(arrays, coarse, tu, tv, bitmap), weight)
     bitmap_value *= 1.0 / ANISOTROPY_TAPS
     return (dr.select(checker, checker_value, bitmap_value),
             dr.select(checker, checker_point, bitmap_point), textured)
+
+
+def _cells(dudx, dudy, dvdx, dvdy, width, height):
+    """How :data:`ANISOTROPY_TAPS` cells tile a footprint (its sides ``(dudx, dvdx)`` and
+    ``(dudy, dvdy)``, measured in units ``1 / width`` along u and ``1 / height`` along v): a row
+    of 4 along its longer side where that is more than twice the shorter, else a 2 x 2 grid.
+
+    Returns ``row`` (mi.Bool), the longer and shorter sides' lengths (mi.Float, in those units)
+    and the longer and shorter sides as (u, v) pairs."""
+    import drjit as dr
+
+    side_x = dr.sqrt(dr.square(dudx * width) + dr.square(dvdx * height))
+    side_y = dr.sqrt(dr.square(dudy * width) + dr.square(dvdy * height))
+    along_x = side_x >= side_y
+    major = dr.maximum(side_x, side_y)
+    minor = dr.minimum(side_x, side_y)
+    long = (dr.select(along_x, dudx, dudy), dr.select(along_x, dvdx, dvdy))
+    short = (dr.select(along_x, dudy, dudx), dr.select(along_x, dvdy, dvdx))
+    return major > 2.0 * minor, major, minor, long, short
+
+
+def _tap_centres(u, v, row, long, short):
+    """The (u, v) centres of the :func:`_cells` of a footprint centred at ``(u, v)``."""
+    import drjit as dr
+
+    for tap in range(ANISOTROPY_TAPS):
+        along = dr.select(row, (tap + 0.5) / 4.0 - 0.5, (tap % 2 + 0.5) / 2.0 - 0.5)
+        across = dr.select(row, 0.0, (tap // 2 + 0.5) / 2.0 - 0.5)
+        yield (u + along * long[0] + across * short[0], v + along * long[1] + across * short[1])
 
 
 def filtered_scale(arrays, si, bsdf, active, shift=None):
