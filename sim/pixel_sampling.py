@@ -968,10 +968,8 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         lum = pixel_means(sub, shape)
         if not edges:
             return lum, None
-        index = refine_edges(lum, float(seconds(t_ns)), source.geometry, source.fine_luminance)
-        stats.edge_samples += len(index) if counted else 0
-        fine = np.zeros(lum.size, dtype=bool)
-        fine[index] = True
+        fine = refine_edges(lum, float(seconds(t_ns)), source.geometry, source.fine_luminance)
+        stats.edge_samples += int(np.count_nonzero(fine)) if counted else 0
         return lum, fine
 
     if after is None:
@@ -1105,12 +1103,13 @@ def refine_edges(frame: np.ndarray, t: float,
 
     Returns
     -------
-    (M,) int ndarray
-        The flat indices of the pixels rendered again (:func:`geometric_edges`).
+    (H W,) bool ndarray
+        The pixels rendered again, flat (:func:`geometric_edges`).
     """
-    marked = np.flatnonzero(geometric_edges(*geometry(t), frame.shape))
-    if len(marked):
-        frame.reshape(-1)[marked] = fine_luminance(marked, np.full(len(marked), float(t)))
+    marked = geometric_edges(*geometry(t), frame.shape).reshape(-1)
+    index = np.flatnonzero(marked)
+    if len(index):
+        frame.reshape(-1)[index] = fine_luminance(index, np.full(len(index), float(t)))
     return marked
 
 

@@ -114,8 +114,8 @@ class _EventCamera:
             return self._renderer.luminance(t, spp=self._spp)
         frame = self.shader.frame(t)
         if self.fine_shader is not None:
-            self.edge_samples += len(refine_edges(frame, t, self.shader.geometry,
-                                                  self.fine_shader.luminance))
+            self.edge_samples += int(np.count_nonzero(refine_edges(
+                frame, t, self.shader.geometry, self.fine_shader.luminance)))
         return frame
 
 
