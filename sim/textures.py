@@ -534,14 +534,13 @@ def filtered_reflectance(arrays, si, active, shift=None):
     # The footprint's parallelogram tiled in TAPS cells as the bitmaps' (below): each cell's
     # bounding box exactly, so that a long footprint that runs diagonally across the squares
     # (a sphere's grazing rim) is not widened to the box around all of it.
-    c_row, _, _, (c_long_u, c_long_v), (c_short_u, c_short_v) = _cells(
-        dudx, dudy, dvdx, dvdy, 1.0, 1.0)
+    c_row, _, _, c_long, c_short = _cells(dudx, dudy, dvdx, dvdy, 1.0, 1.0)
     long_share = dr.select(c_row, 0.25, 0.5)                 # of the long side, per cell
     short_share = dr.select(c_row, 1.0, 0.5)
-    half_u = 0.5 * (long_share * dr.abs(c_long_u) + short_share * dr.abs(c_short_u))
-    half_v = 0.5 * (long_share * dr.abs(c_long_v) + short_share * dr.abs(c_short_v))
+    half_u = 0.5 * (long_share * dr.abs(c_long[0]) + short_share * dr.abs(c_short[0]))
+    half_v = 0.5 * (long_share * dr.abs(c_long[1]) + short_share * dr.abs(c_short[1]))
     same = mi.Float(0.0)
-    for tu, tv in _tap_centres(u_f, v_f, c_row, (c_long_u, c_long_v), (c_short_u, c_short_v)):
+    for tu, tv in _tap_centres(u_f, v_f, c_row, c_long, c_short):
         pu, pv = _square_wave_mean(tu, half_u), _square_wave_mean(tv, half_v)
         same += pu * pv + (1.0 - pu) * (1.0 - pv)
     same *= 1.0 / ANISOTROPY_TAPS
