@@ -34,6 +34,10 @@ an hour).
 ``--edge-spp N`` also runs each default with ``[render] edge_spp = N`` (the pixels an edge
 crosses rendered at N samples per pixel, :mod:`sim.pixel_sampling`; either sampler), after the
 default, and prints its row below the default's (its frames are the default's).
+``--floor`` renders each reference a second time with another render seed (``[render] seed``:
+other sub-sample positions, the same scene) and prints that second reference against the
+first on its own line: the yardstick's own spread, below which no run can be told from the
+reference (its frames PSNR too).
 Results are printed and written to ``benchmarks/results/convergence.json``
 (``convergence_quick.json`` for ``--quick``), row by row (a row replaces an earlier run's of
 the same scene and window).
@@ -100,10 +104,13 @@ def psnr(reference: np.ndarray, image: np.ndarray, peak: float = 255.0) -> float
     return float("inf") if mse == 0 else float(10.0 * np.log10(peak ** 2 / mse))
 
 
-def _with_spp(scene, spp: int | None, gain: float | None):
-    """The scene with the ideal frame sensor at ``gain``, and ``spp`` for events and frames."""
+def _with_spp(scene, spp: int | None, gain: float | None, render_seed: int | None = None):
+    """The scene with the ideal frame sensor at ``gain``, ``spp`` for events and frames, and
+    ``render_seed`` (``[render] seed``) when given."""
     frames = replace(scene.frames.with_sensor("ideal"), gain=gain)
     render = scene.render if spp is None else replace(scene.render, spp=spp, event_spp=spp)
+    if render_seed is not None:
+        render = replace(render, seed=render_seed)
     return replace(scene, frames=frames, render=render)
 
 
@@ -119,9 +126,10 @@ def _versus(reference_folder: Path, folder: Path, shape: tuple[int, int],
 
 
 def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool,
-               edge_spp: int = 0) -> dict:
+               edge_spp: int = 0, floor: bool = False) -> dict:
     """One scene and window: the default against the reference (see the module docstring),
-    and with ``edge_spp`` (> 0) the default with ``[render] edge_spp`` set too."""
+    with ``edge_spp`` (> 0) the default with ``[render] edge_spp`` set too, and with ``floor``
+    a second reference at another render seed against the first."""
     scene = load_scene(resolve_scene(name))
     shape = (scene.camera.height, scene.camera.width)
     tick = time.perf_counter()
@@ -146,6 +154,16 @@ def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool
         agreement, passed = _versus(folder / "reference", folder / "edges", shape, psnrs)
         row["edges"] = {"edge_spp": edge_spp, "run": run, "agreement": agreement,
                         "pass": passed}
+    if floor:
+        seed = (scene.render.seed if scene.render.seed is not None else scene.seed) + 1
+        run = _run(_with_spp(scene, REFERENCE_SPP, reference["gain"], seed),
+                   folder / "reference_seed", start, seconds)
+        spread = [psnr(r, d) for r, d in zip(_frames(folder / "reference"),
+                                             _frames(folder / "reference_seed"), strict=True)]
+        agreement, passed = _versus(folder / "reference", folder / "reference_seed", shape,
+                                    spread)
+        row["floor"] = {"render_seed": seed, "run": run, "agreement": agreement,
+                        "frame_psnr_db": min(spread) if spread else None, "pass": passed}
     row["wall_s"] = time.perf_counter() - tick
     print(f"{name} {start:g} s: {row['wall_s']:.0f} s", flush=True)
     return row
@@ -174,17 +192,26 @@ def table(rows: list[dict]) -> str:
              "scene                t (s)  sampler  events  reference  count        "
              "worst block (events, blocks)   frames PSNR     pixel samples  event render s"]
     for row in rows:
-        ok = row["pass"]
-        frames = (f"{row['frame_psnr_db']:5.1f} dB {_verdict(ok['frames'])}"
-                  if row["frame_psnr_db"] is not None else "   -         ")
         lines.append(_line(f"{row['scene']:<20} {row['window_s'][0]:5.1f}", row["default"],
-                           row["agreement"], ok, frames))
+                           row["agreement"], row["pass"], _frames_cell(row)))
         if "edges" in row:
             e = row["edges"]
             lines.append(_line(f"  edge_spp {e['edge_spp']:<3} {'':>8}", e["run"],
                                e["agreement"], e["pass"], f"{'':13}")
                          + f"  (edge samples {e['run']['edge_samples']:,})")
+        if "floor" in row:
+            f = row["floor"]
+            lines.append(_line(f"  reference, seed {f['render_seed']:<3}", f["run"],
+                               f["agreement"], f["pass"], _frames_cell(f))
+                         + "  (against the first reference: its floor)")
     return "\n".join(lines)
+
+
+def _frames_cell(row: dict) -> str:
+    """The frames' PSNR column of a row (``frame_psnr_db`` and ``pass``)."""
+    if row["frame_psnr_db"] is None:
+        return "   -         "
+    return f"{row['frame_psnr_db']:5.1f} dB {_verdict(row['pass']['frames'])}"
 
 
 def main() -> None:
@@ -197,6 +224,8 @@ def main() -> None:
     parser.add_argument("--first", action="store_true", help="only each scene's first time")
     parser.add_argument("--edge-spp", type=int, default=0,
                         help="also run the default with [render] edge_spp = N (0: not)")
+    parser.add_argument("--floor", action="store_true",
+                        help="also render each reference at another render seed: its spread")
     args = parser.parse_args()
     cases = QUICK if args.quick else CASES
     if args.scenes is not None:
@@ -208,7 +237,7 @@ def main() -> None:
         for name, starts in cases:
             for k, start in enumerate(starts[:1] if args.first else starts):
                 rows.append(bench_case(name, start, seconds, Path(tmp), warm=k == 0,
-                                       edge_spp=args.edge_spp))
+                                       edge_spp=args.edge_spp, floor=args.floor))
                 _write_rows(path, rows[-1:])
     print(f"\n{table(rows)}\n\nwall time {time.perf_counter() - tick:.0f} s\nwritten to {path}")
 

@@ -425,7 +425,9 @@ class Renderer:
     spp : int, optional
         Samples per pixel (a perfect square), default the scene's ``render.spp``.
     seed : int, optional
-        Seed of the sampler, default the scene's seed. Fixed for every render.
+        Seed of the renders' sampling patterns (the frames' sampler, the event camera's
+        sub-sample jitter: :class:`sim.shader.EventShader`), fixed for every render; default
+        the scene's ``[render] seed``, else its ``seed``. Textures keep the scene's seed.
     variant : str, optional
         Mitsuba variant (see :func:`sim.variant.use_variant`).
     rows : bool
@@ -464,7 +466,9 @@ class Renderer:
         self.spp = int(spp if spp is not None else scene.render.spp)
         if self.spp < 1 or math.isqrt(self.spp) ** 2 != self.spp:
             raise ValueError(f"spp must be a perfect square >= 1, got {self.spp}")
-        self.seed = int(seed if seed is not None else scene.seed)
+        if seed is None:
+            seed = scene.render.seed if scene.render.seed is not None else scene.seed
+        self.seed = int(seed)
         cam = self.camera
         k1, k2, p1, p2, k3 = cam.distortion
         jit = self.variant != "scalar_rgb"

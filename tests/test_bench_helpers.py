@@ -4,10 +4,12 @@ the scene they run and the figure they compute."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from benchmarks.bench_convergence import psnr
+from benchmarks.bench_convergence import _with_spp, psnr
 from benchmarks.bench_sampling import cost_cases, scene_file_at
 from scenes import builtin_scenes, resolve_scene
 from sim.scene import load_scene
@@ -37,6 +39,15 @@ def test_psnr_of_a_uniform_one_level_error_is_48_db():
     reference = np.full((4, 5), 100.0)
     assert psnr(reference, reference + 1.0) == pytest.approx(20 * np.log10(255.0))
     assert psnr(reference, reference) == float("inf")
+
+
+def test_the_floor_s_reference_differs_from_the_reference_by_its_render_seed_alone():
+    scene = load_scene(resolve_scene("boxes_6dof"))
+    reference = _with_spp(scene, 256, 0.5)
+    floor = _with_spp(scene, 256, 0.5, render_seed=scene.seed + 1)
+    assert floor.render.seed == scene.seed + 1 and reference.render.seed is None
+    assert floor.seed == reference.seed                  # textures drawn from the same seed
+    assert replace(floor, render=reference.render) == reference
 
 
 def test_the_worst_block_counts_only_blocks_with_100_reference_events():

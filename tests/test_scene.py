@@ -89,6 +89,11 @@ def test_other_sections_are_checked(tmp_path):
         assert "[render].edge_spp" in message and "\n" not in message.strip(), message
     assert parse_scene(scene_text(BOX, extra="[render]\nedge_spp = 16\n")).render.edge_spp == 16
     assert parse_scene(scene_text(BOX)).render.edge_spp == 0
+    for bad in ("seed = -1", "seed = 2.0", 'seed = "7"'):
+        message = _error(scene_text(BOX, extra=f"[render]\n{bad}\n"), tmp_path)
+        assert "[render].seed" in message and "\n" not in message.strip(), message
+    assert parse_scene(scene_text(BOX, extra="[render]\nseed = 3\n")).render.seed == 3
+    assert parse_scene(scene_text(BOX)).render.seed is None
     assert "texture.name" in _error(scene_text(BOX.replace(
         'size = [1.0, 1.0, 1.0]', 'size = [1.0, 1.0, 1.0]\nmaterial = { texture = { type = '
         '"skimage", name = "mona_lisa" } }')), tmp_path)

@@ -374,3 +374,22 @@ def test_the_pixels_geometry_marks_are_those_whose_point_samples_miss_the_pixel_
     assert np.all(marked[off])
     assert error[4][~marked].max() < 1e-5
     assert error[16][marked].mean() < 0.5 * error[4][marked].mean()
+
+
+def test_the_render_seed_draws_other_sub_samples_of_the_same_scene():
+    """``[render] seed`` moves the event camera's sub-samples and the frames' sampler, not the
+    scene: another render seed changes pixels by sampling noise only, another scene seed
+    redraws the wall's random shapes (and an explicit ``Renderer(seed=)`` wins over both)."""
+    scene = parse_scene(scene_text(WALL))
+    other_render = replace(scene, render=replace(scene.render, seed=scene.seed + 1))
+    other_scene = replace(scene, seed=scene.seed + 1)
+    renderers = [Renderer(s, spp=4) for s in (scene, other_render, other_scene)]
+    assert [r.seed for r in renderers] == [scene.seed, scene.seed + 1, scene.seed + 1]
+    assert Renderer(other_render, spp=4, seed=11).seed == 11
+    events = [EventShader(r, 4, t0=0.0, t1=0.5).frame(0.25) for r in renderers]
+    frames = [r.luminance(0.25) for r in renderers]
+    for values in (events, frames):
+        sampling = np.abs(values[1] - values[0]).mean()
+        redrawn = np.abs(values[2] - values[0]).mean()
+        assert sampling > 0.0                                  # other sub-samples
+        assert sampling < 0.3 * redrawn, (sampling, redrawn)   # of the same wall

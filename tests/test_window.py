@@ -4,6 +4,7 @@ and resume policy and its cache key (the simulator replaced by a recorder: no re
 from __future__ import annotations
 
 import importlib
+from dataclasses import replace
 
 import pytest
 
@@ -54,10 +55,24 @@ def test_each_parameter_and_the_scene_files_have_a_folder_of_their_own(scene, tm
     folders = {cached_window(scene, cache, "s", 0.0, 0.5),
                cached_window(scene, cache, "s", 0.0, 0.5, spp=4),
                cached_window(scene, cache, "s", 0.0, 0.5, sampling=SamplingParams(lam=0.25)),
-               cached_window(scene, cache, "s", 0.0, 0.5, sampler="frame")}
+               cached_window(scene, cache, "s", 0.0, 0.5, sampler="frame"),
+               cached_window(replace(scene, render=replace(scene.render, seed=9)), cache, "s",
+                             0.0, 0.5)}
     scene.source.write_text(scene.text + "\n# edited\n")              # the file, not the text
     folders.add(cached_window(scene, cache, "s", 0.0, 0.5))
-    assert len(folders) == len(calls) == 5
+    assert len(folders) == len(calls) == 6
+
+
+def test_a_scene_without_a_render_seed_keeps_the_key_it_had_before_the_key_existed(scene):
+    """Caches and checkpoints made before ``[render] seed`` existed still match: the render
+    parameters enter the key without it when it is not set (the scene's seed is in already)."""
+    from sim.simulate._checkpoint import _identity
+
+    def render(s):
+        return _identity(s, 0.0, 0.5, None, None, SamplingParams(), ("h5",))["scene"]["render"]
+
+    assert "seed" not in render(scene)
+    assert render(replace(scene, render=replace(scene.render, seed=9)))["seed"] == 9
 
 
 def test_resume_continues_a_checkpoint_and_only_then(scene, tmp_path, calls):

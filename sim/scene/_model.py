@@ -47,12 +47,19 @@ class RenderParams:
         geometry or of a shadow crosses (either sampler, a JIT variant; a perfect square
         above ``event_spp``), or 0 (default): every pixel at ``event_spp``. See
         :mod:`sim.pixel_sampling`.
+    seed : int or None
+        Seed of the renders' sampling patterns: the event camera's sub-sample jitter
+        (:func:`sim.shader.subsample_jitter`) and the frames' sampler. None (default): the
+        scene's ``seed``. Textures and noise keep the scene's seed, so that two seeds render
+        the same scene with other samples: the spread of a result over seeds is its sampling
+        noise.
     """
 
     spp: int = 16
     pose_rate: float = 1000.0
     event_spp: int = 4
     edge_spp: int = 0
+    seed: int | None = None
 
 
 @dataclass(frozen=True)

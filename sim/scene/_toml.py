@@ -431,7 +431,7 @@ def _parse_frame_sensor(ctx: _Ctx, raw: Any, key: str) -> str | FrameSensor:
 def _parse_render(ctx: _Ctx, raw: Any) -> RenderParams:
     key = "[render]"
     table = ctx.table(raw, key)
-    ctx.keys(table, key, set(), {"spp", "pose_rate", "event_spp", "edge_spp"})
+    ctx.keys(table, key, set(), {"spp", "pose_rate", "event_spp", "edge_spp", "seed"})
     counts = {}
     for name, default in (("spp", 16), ("event_spp", 4)):
         value = _get(ctx, table, key, name, lambda c, v, k: _integer(c, v, k, minimum=1), default)
@@ -446,8 +446,9 @@ def _parse_render(ctx: _Ctx, raw: Any) -> RenderParams:
     if edge_spp and (math.isqrt(edge_spp) ** 2 != edge_spp or edge_spp <= counts["event_spp"]):
         raise ctx.fail(f"{key}.edge_spp", f"expected 0 (off) or a perfect square above "
                                           f"event_spp = {counts['event_spp']}, got {edge_spp}")
+    seed = _get(ctx, table, key, "seed", lambda c, v, k: _integer(c, v, k, minimum=0), None)
     return RenderParams(spp=counts["spp"], pose_rate=pose_rate, event_spp=counts["event_spp"],
-                        edge_spp=edge_spp)
+                        edge_spp=edge_spp, seed=seed)
 
 
 def _orientation(ctx: _Ctx, table: Mapping[str, Any], key: str, position: np.ndarray):

@@ -49,10 +49,13 @@ def _identity(scene: Scene, start: float, duration: float, spp: int | None,
     The scene enters by its TOML text (hashed) and the parsed parts a caller may replace;
     files the text refers to (image textures, meshes) are not read.
     """
+    render = asdict(scene.render)
+    if render["seed"] is None:        # the scene's seed (below): caches made before the key match
+        del render["seed"]
     identity = {
         "scene_toml_sha256": hashlib.sha256(scene.text.encode("utf-8")).hexdigest(),
         "scene": {"duration": scene.duration, "camera": asdict(scene.camera),
-                  "frames": asdict(scene.frames), "render": asdict(scene.render),
+                  "frames": asdict(scene.frames), "render": render,
                   "rig": scene.rig.as_dict(), "imu": scene.imu.as_dict(),
                   "up": list(scene.up)},
         "seed": scene.seed,
