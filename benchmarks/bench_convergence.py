@@ -114,6 +114,11 @@ def _with_spp(scene, spp: int | None, gain: float | None, render_seed: int | Non
     return replace(scene, frames=frames, render=render)
 
 
+def _frame_psnrs(reference_folder: Path, folder: Path) -> list[float]:
+    """PSNR of each frame of a run against the same frame of the reference, dB."""
+    return [psnr(r, d) for r, d in zip(_frames(reference_folder), _frames(folder), strict=True)]
+
+
 def _versus(reference_folder: Path, folder: Path, shape: tuple[int, int],
             psnrs: list[float]) -> tuple[dict, dict]:
     """Agreement of a run's events with the reference's, and the goals met."""
@@ -138,8 +143,7 @@ def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool
     if warm:                                                  # trace and compile once
         _run(default_scene, folder / "warm", start, 0.01)
     default = _run(default_scene, folder / "default", start, seconds)
-    psnrs = [psnr(r, d) for r, d in zip(_frames(folder / "reference"),
-                                        _frames(folder / "default"), strict=True)]
+    psnrs = _frame_psnrs(folder / "reference", folder / "default")
     agreement, passed = _versus(folder / "reference", folder / "default", shape, psnrs)
     row = {"scene": name, "window_s": [start, start + seconds],
            "event_spp": scene.render.event_spp, "spp": scene.render.spp,
@@ -155,11 +159,10 @@ def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool
         row["edges"] = {"edge_spp": edge_spp, "run": run, "agreement": agreement,
                         "pass": passed}
     if floor:
-        seed = (scene.render.seed if scene.render.seed is not None else scene.seed) + 1
+        seed = scene.render_seed + 1
         run = _run(_with_spp(scene, REFERENCE_SPP, reference["gain"], seed),
                    folder / "reference_seed", start, seconds)
-        spread = [psnr(r, d) for r, d in zip(_frames(folder / "reference"),
-                                             _frames(folder / "reference_seed"), strict=True)]
+        spread = _frame_psnrs(folder / "reference", folder / "reference_seed")
         agreement, passed = _versus(folder / "reference", folder / "reference_seed", shape,
                                     spread)
         row["floor"] = {"render_seed": seed, "run": run, "agreement": agreement,

@@ -466,9 +466,7 @@ class Renderer:
         self.spp = int(spp if spp is not None else scene.render.spp)
         if self.spp < 1 or math.isqrt(self.spp) ** 2 != self.spp:
             raise ValueError(f"spp must be a perfect square >= 1, got {self.spp}")
-        if seed is None:
-            seed = scene.render.seed if scene.render.seed is not None else scene.seed
-        self.seed = int(seed)
+        self.seed = int(seed if seed is not None else scene.render_seed)
         cam = self.camera
         k1, k2, p1, p2, k3 = cam.distortion
         jit = self.variant != "scalar_rgb"

@@ -289,6 +289,12 @@ class Scene:
         return self.source.parent if self.source is not None else Path.cwd()
 
     @property
+    def render_seed(self) -> int:
+        """Seed of the renders' sampling patterns: ``[render] seed``, else the scene's
+        ``seed`` (:attr:`RenderParams.seed`)."""
+        return self.render.seed if self.render.seed is not None else self.seed
+
+    @property
     def is_dynamic(self) -> bool:
         """True when some object moves on its own."""
         return any(obj.motion is not None for obj in self.objects)
