@@ -1,5 +1,6 @@
 # evfuse: `make demo` sets up and runs the whole pipeline (simulate, map, fill, score) on the
-# default scene; `make test` sets up and runs the tests.
+# default scene; `make test` sets up and runs the tests; `make docs` builds the documentation
+# site into site/ (strict: a warning is an error).
 SHELL := /bin/bash
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
@@ -12,7 +13,7 @@ DEMO_OUT ?= runs/demo
 DEMO_T0 ?= 1.0
 DEMO_T1 ?= 3.0
 
-.PHONY: setup llvm demo test bench lint clean
+.PHONY: setup llvm demo test docs bench lint clean
 
 setup: $(VENV)/.installed llvm
 
@@ -21,6 +22,11 @@ $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'
+	@touch $@
+
+# The documentation's tools (MkDocs-Material, mkdocstrings, matplotlib for the benchmark plots).
+$(VENV)/.installed-docs: $(VENV)/.installed pyproject.toml
+	$(BIN)/python -m pip install --quiet -e '.[test,docs]'
 	@touch $@
 
 # Mitsuba's llvm_ad_rgb variant needs LLVM >= 16 (Dr.Jit 1.5). Debian/Ubuntu ship libllvm19.
@@ -49,6 +55,15 @@ demo: setup
 test: setup
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS)
 
+# The benchmark page and the changelog page are generated into docs/generated/ (ignored) from
+# benchmarks/results/*.json and CHANGELOG.md, then MkDocs builds the site strictly.
+DOCS_OUT ?= site
+docs: $(VENV)/.installed-docs
+	$(BIN)/python -m benchmarks.report --out docs/generated
+	cp CHANGELOG.md docs/generated/changelog.md
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir $(DOCS_OUT)
+	@echo "documentation written to $(DOCS_OUT)/index.html"
+
 bench: setup
 	$(BIN)/python -m benchmarks.bench_render
 	$(BIN)/python -m benchmarks.bench_shader
@@ -63,4 +78,4 @@ lint: setup
 	$(BIN)/ruff check .
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache .ruff_cache *.egg-info
+	rm -rf $(VENV) runs site docs/generated .pytest_cache .ruff_cache *.egg-info

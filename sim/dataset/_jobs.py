@@ -297,9 +297,6 @@ def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
     variant : str, optional
         Mitsuba variant (default: simulate's).
 
-    One simulation runs at a time in a process (the others wait): Mitsuba's and Dr.Jit's
-    state is process-wide, so parallel jobs need worker processes, not threads.
-
     Returns
     -------
     dict
@@ -310,6 +307,11 @@ def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
     ------
     Exception
         Whatever simulate raised (logged to ``runs.log`` first).
+
+    Notes
+    -----
+    One simulation runs at a time in a process (the others wait): Mitsuba's and Dr.Jit's
+    state is process-wide, so parallel jobs need worker processes, not threads.
     """
     from sim.dataset._manifest import job_record
     from sim.output import partial_dir
