@@ -10,19 +10,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+from fusion.fill.records import DenseParams, DenseResult
 from fusion.fill.segmentation import SegmentationParams, segment_regions
 from fusion.io import dense_cloud
 from fusion.map.dsi_range import oracle_header
 from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
 from sim._atomic import write_bytes_atomically
-
-if TYPE_CHECKING:
-    from fusion.fill.dense import DenseParams, DenseResult
 
 __all__ = ["FARTHER_COLOUR", "NEARER_COLOUR", "Caption", "DepthScale", "Legend", "Swatches",
            "add_header", "depth_colours", "depth_legend", "depth_scale", "error_legend",

@@ -13,14 +13,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fusion.fill.records import DenseResult
 from sim.sequence import json_text
-
-if TYPE_CHECKING:
-    from fusion.fill.dense import DenseResult
 
 __all__ = ["dense_cloud", "read_mesh_ply", "read_ply", "to_json", "write_mesh_ply", "write_ply"]
 

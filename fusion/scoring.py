@@ -21,15 +21,12 @@ import json
 import math
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
+from fusion.fill.records import FillInputs
 from sim.sequence import load_sequence
-
-if TYPE_CHECKING:
-    from fusion.fill.dense import FillInputs
 
 __all__ = ["DELTAS", "ERROR_NO_SURFACE", "ERROR_NO_VALUE", "MOTION_REGIONS", "MOTION_STEP_S",
            "PRECISIONS", "dense_errors", "depth_errors", "discontinuity_band", "error_image",

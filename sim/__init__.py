@@ -35,6 +35,8 @@ from sim.scene import (
     room_scene,
     tabletop_scene,
 )
+from sim.scene.procedural import use_exact_depth_check as _use_exact_depth_check
+from sim.scene_check import exact_depth_check as _exact_depth_check
 from sim.sequence import FileIndex, FrameCameraFiles, Sequence, load_sequence
 from sim.shader import EventShader
 from sim.simulate import SimulationResult, simulate
@@ -114,3 +116,7 @@ __all__ = [
 # Old module paths (before the moves of issue 22), kept importable: see sim._moved.
 _alias_modules(sys.modules[__name__], {"sim.rig": "sim.capture_errors",
                                      "sim.sensor": "sim.mitsuba_sensor"})
+
+# The procedural scenes' exact-depth check renders (sim.render), which the scene model may not
+# import: it is handed down here, where both are imported (see sim.scene.procedural).
+_use_exact_depth_check(_exact_depth_check)

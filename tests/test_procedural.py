@@ -274,6 +274,45 @@ def test_the_trajectory_check_refuses_views_outside_the_range(tabletops):
     assert near is not None and "nearer than 1.0 m" in near
 
 
+def test_the_exact_depth_step_is_handed_down_from_above(tabletops, monkeypatch):
+    """The scene model does not import the renderer (tests/test_import_graph.py): sim hands it
+    the rendering step (sim.scene_check), which trajectory_check runs last, with its views,
+    size and variant; without one, it says so."""
+    import sim.scene.procedural as procedural
+    from sim.scene_check import exact_depth_check
+
+    assert procedural._exact_depth_check is exact_depth_check
+    scene = parse_scene(tabletops[4])
+    names = tuple(obj.name for obj in _placed(scene))
+    calls = []
+    monkeypatch.setattr(procedural, "_exact_depth_check",
+                        lambda drawn, **given: calls.append((drawn, given)) or "planted")
+    assert trajectory_check(scene, names, views=3, size=(8, 6), variant="x") == "planted"
+    assert calls == [(scene, {"views": 3, "size": (8, 6), "variant": "x"})]
+    far = trajectory_check(dataclasses.replace(scene, depth_range=(0.25, 2.0)), names)
+    assert "beyond 2.0 m" in far and len(calls) == 1          # the bounds refuse first
+    monkeypatch.setattr(procedural, "_exact_depth_check", None)
+    with pytest.raises(RuntimeError, match="no exact-depth check for procedural scenes"):
+        trajectory_check(scene, names)
+
+
+def test_the_exact_depth_check_renders_the_depth(tabletops):
+    """sim.scene_check.exact_depth_check on its own: the scene as drawn passes; the camera at
+    least 0.8 m (camera_distance) from the objects it looks at cannot see all within 0.5 m;
+    without a floor, a ray looking down leaves the room."""
+    from sim.scene_check import exact_depth_check
+
+    scene = parse_scene(tabletops[4])
+    assert exact_depth_check(scene, views=2, size=(8, 6)) is None
+    close = exact_depth_check(dataclasses.replace(scene, depth_range=(0.25, 0.5)), views=2,
+                              size=(8, 6))
+    assert close.startswith("exact depth [") and close.endswith("outside [0.25, 0.5]")
+    floorless = tuple(dataclasses.replace(obj, params={**obj.params, "size": np.full(2, 0.01)})
+                      if obj.name == "floor" else obj for obj in scene.objects)
+    assert (exact_depth_check(dataclasses.replace(scene, objects=floorless), views=2, size=(8, 6))
+            == "a ray at t = 0.000 s leaves the room (no surface)")
+
+
 def test_builtin_meshes_in_a_scene_file(tmp_path):
     """``path = "builtin:NAME"`` needs no file beside the scene; an unknown name is refused
     naming the key and the built-in names."""

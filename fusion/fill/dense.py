@@ -30,9 +30,11 @@ recorded in ``fill.json`` (``method_params``); the paper's methods take their we
 length (``sigma``, ``scale``) that way too.
 
 Here: the fill stage (:func:`fill_map`, :func:`fill_inputs`, :func:`fill_frame`,
-:func:`densify`, :func:`write_fill`). The projection is :mod:`fusion.fill.projection`, the
-scores :mod:`fusion.scoring` (:func:`fusion.scoring.dense_errors`), Figure 2
-:mod:`fusion.figures` (:func:`fusion.figures.fill_figure`) and the point cloud :mod:`fusion.io`.
+:func:`densify`, :func:`write_fill`). Its records (:class:`DenseParams`, :class:`FillInputs`,
+:class:`DenseResult`) are :mod:`fusion.fill.records`, the projection is
+:mod:`fusion.fill.projection`, the scores :mod:`fusion.scoring`
+(:func:`fusion.scoring.dense_errors`), Figure 2 :mod:`fusion.figures`
+(:func:`fusion.figures.fill_figure`) and the point cloud :mod:`fusion.io`.
 """
 
 from __future__ import annotations
@@ -41,28 +43,21 @@ import json
 import os
 import time
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from fusion.figures import fill_error_figure, fill_figure
-from fusion.fill.filling import (
-    FillParams,
-    RegionStats,
-    SelectionParams,
-    fill_regions,
-    filling_score,
-    select_regions,
-)
+from fusion.fill.filling import RegionStats, fill_regions, filling_score, select_regions
 from fusion.fill.projection import (
     ROLLING_ITERATIONS,
     frame_record,
     project_map,
     project_map_rolling,
 )
-from fusion.fill.segmentation import SegmentationParams, segment_regions
+from fusion.fill.records import DenseParams, DenseResult, FillInputs
+from fusion.fill.segmentation import segment_regions
 from fusion.io import dense_cloud, to_json, write_ply
 from fusion.methods._registry import ResolvedMethod, check_params, get_method
 from fusion.scoring import dense_errors, errors_by_motion, frame_motion_regions
@@ -71,90 +66,12 @@ from sim.exr import read_depth, write_depth, write_exr_channels
 from sim.output import atomic_output_dir
 from sim.sequence import load_sequence
 from sim.trajectory import read_trajectory
-from sim.validation import integer
 
 # project_map, project_map_rolling (fusion.fill.projection), dense_errors and
-# frame_motion_regions (fusion.scoring) are also importable from here, where they were.
+# frame_motion_regions (fusion.scoring) are also importable from here, where they were; so are
+# the stage's records, DenseParams, DenseResult and FillInputs (fusion.fill.records).
 __all__ = ["DenseParams", "DenseResult", "FillInputs", "densify", "fill_frame", "fill_inputs",
            "fill_map", "resolve_method", "write_fill"]
-
-
-@dataclass(frozen=True)
-class DenseParams:
-    """Parameters of ``evfuse fill`` (each stage's defaults are the paper's).
-
-    Attributes
-    ----------
-    segmentation : SegmentationParams
-        Region growing threshold (3 gray levels) and smallest region.
-    selection : SelectionParams
-        Ring width (3 px), ring ratio (30 %), inside ratio (5 %).
-    fill : FillParams
-        Weighting (inverse distance; Gaussian sigma 5, exponential).
-    band : int, pixels
-        Width of the band around true depth discontinuities scored apart (default 3).
-    """
-
-    segmentation: SegmentationParams = field(default_factory=SegmentationParams)
-    selection: SelectionParams = field(default_factory=SelectionParams)
-    fill: FillParams = field(default_factory=FillParams)
-    band: int = 3
-
-    def __post_init__(self) -> None:
-        integer("band", self.band, 0)
-
-    def as_dict(self) -> dict:
-        """The parameters as plain JSON-ready values."""
-        return {"segmentation": asdict(self.segmentation), "selection": asdict(self.selection),
-                "fill": asdict(self.fill), "band": self.band}
-
-
-@dataclass
-class DenseResult:
-    """A filled map in the pixels of a standard frame.
-
-    Attributes
-    ----------
-    frame : (H, W) uint8 ndarray, the standard frame
-    sparse : (H, W) float32 ndarray, metres, the event image (projected map points), 0 = none
-    labels : (H, W) int32 ndarray, regions 1..K, 0 = too small; all 0 for a method that does
-        not segment the frame (any but the paper's)
-    regions : RegionStats or None
-        None for a method that does not segment the frame.
-    dense : (H, W) float32 ndarray, metres, map points and filled pixels, 0 = none (for a
-        method other than the paper's, whatever it returned)
-    camera : Camera, the frame's camera (with its distortion)
-    T_world_frame : (4, 4) ndarray or None
-    truth : (H, W) float32 ndarray or None, exact depth of the frame
-    info : dict, method, method_origin, N1, N1_in_frame, N2, Res, beta, beta_counts,
-        segmentation, regions, regions_filled, timings, frame, and ``errors`` with a truth
-    method : str
-        The filling method's name (``paper-idw``, ``nearest``, ``module:function``...).
-    confidence : (H, W) float32 ndarray in [0, 1], or None
-        The method's confidence in each pixel, where it returns one.
-    """
-
-    frame: np.ndarray
-    sparse: np.ndarray
-    labels: np.ndarray
-    regions: RegionStats | None
-    dense: np.ndarray
-    camera: Camera
-    T_world_frame: np.ndarray | None
-    truth: np.ndarray | None
-    info: dict
-    method: str = "paper-idw"
-    confidence: np.ndarray | None = None
-
-    @property
-    def n1_in_frame(self) -> int:
-        """Map points that land in the frame (non-zero pixels of the event image)."""
-        return int(np.count_nonzero(self.sparse))
-
-    @property
-    def n2(self) -> int:
-        """Map points in the frame plus filled pixels (non-zero pixels of the dense map)."""
-        return int(np.count_nonzero(self.dense))
 
 
 def resolve_method(method: str | ResolvedMethod | None, params: DenseParams | None = None,
@@ -334,32 +251,6 @@ def fill_frame(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                 for name, depth in (("map", sparse), ("filled", filled), ("all", dense))}
     return DenseResult(np.asarray(frame), sparse, labels, regions, dense, camera,
                        T_world_frame, truth, document, fill_method.name, confidence)
-
-
-@dataclass(frozen=True)
-class FillInputs:
-    """What filling a map needs: the standard frame nearest the map's reference view, the map
-    projected into it, and the frame's pose and exact depth (see :func:`fill_inputs`).
-
-    Attributes
-    ----------
-    frame : (H, W) uint8 ndarray
-    sparse : (H, W) float32 ndarray, metres, the projected map points, 0 = none
-    camera : Camera, the frame's
-    T_world_frame : (4, 4) ndarray
-    truth : (H, W) float32 ndarray or None, the frame's exact depth (simulated sequences)
-    info : dict, the entries :func:`fill_map` writes into ``fill.json`` (map, sequence, frame,
-        times, pose, oracle, depth_range_from)
-    n1 : int, the map's points before projection
-    """
-
-    frame: np.ndarray
-    sparse: np.ndarray
-    camera: Camera
-    T_world_frame: np.ndarray
-    truth: np.ndarray | None
-    info: dict
-    n1: int
 
 
 def fill_map(map_folder: str | Path, params: DenseParams | None = None,

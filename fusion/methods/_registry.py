@@ -6,12 +6,13 @@
 :mod:`fusion.methods._labels`. Everything here is re-exported by :mod:`fusion.methods`, which is
 the public path.
 
-It imports no method module, so the modules that define methods (:mod:`fusion.methods.classic`,
-:mod:`fusion.methods.paper`, :mod:`fusion.methods.baselines`, :mod:`fusion.methods.surface_fit`,
-:mod:`fusion.methods.mesh`) and the code that runs them (:mod:`fusion.fill.dense`) import it
-without an import loop; a method module registers on import, and :mod:`fusion.methods` imports
-them all, so that the built-ins are registered once ``fusion.methods`` (or ``fusion``) is
-imported.
+It imports no method module and not the fill stage (the stage's parameters come from
+:mod:`fusion.fill.records`, below it), so the modules that define methods
+(:mod:`fusion.methods.classic`, :mod:`fusion.methods.paper`, :mod:`fusion.methods.baselines`,
+:mod:`fusion.methods.surface_fit`, :mod:`fusion.methods.mesh`) and the code that runs them
+(:mod:`fusion.fill.dense`) import it without an import loop; a method module registers on
+import, and :mod:`fusion.methods` imports them all, so that the built-ins are registered once
+``fusion.methods`` (or ``fusion``) is imported.
 """
 
 from __future__ import annotations
@@ -28,18 +29,15 @@ from collections.abc import Callable, Mapping
 from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from importlib import metadata
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fusion.fill.filling import RegionStats
+from fusion.fill.records import DenseParams
 from fusion.methods._errors import MethodError
 from fusion.methods._labels import format_value, label_parts, method_label
 from sim.camera import Camera
 from sim.validation import ParameterError
-
-if TYPE_CHECKING:                     # types only: fusion.fill.dense imports this module
-    from fusion.fill.dense import DenseParams
-    from fusion.fill.filling import RegionStats
 
 __all__ = ["ENTRY_POINT_GROUP", "FillMethod", "Filled", "MethodError", "MethodVariant", "NoParams",
            "ResolvedMethod",

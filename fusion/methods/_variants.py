@@ -11,11 +11,8 @@ command line names by its flags (``--method``, ``--param``, ``--threshold``...).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
-# The module, not its names: fusion.fill.dense imports the registry, which runs this package's
-# __init__, which imports this module while fusion.fill.dense is still being imported.
-from fusion.fill import dense as fill_stage
+from fusion.fill.records import DenseParams
 from fusion.methods._errors import MethodError
 from fusion.methods._labels import method_label, parse_value
 from fusion.methods._registry import (
@@ -28,9 +25,6 @@ from fusion.methods._registry import (
     parse_label,
 )
 from sim.validation import ParameterError
-
-if TYPE_CHECKING:
-    from fusion.fill.dense import DenseParams
 
 __all__ = ["fill_request", "method_variants", "parse_param"]
 
@@ -178,6 +172,5 @@ def fill_request(method: str | None, params: Sequence[str] = (), *,
     """
     spec = method or f"paper-{weighting or 'idw'}"
     [(found, settings)] = _checked_methods([spec], params, single=True)
-    stages = found.requested_stages(stages or fill_stage.DenseParams(), weighting, settings,
-                                    spec)
+    stages = found.requested_stages(stages or DenseParams(), weighting, settings, spec)
     return ResolvedMethod(found, settings, stages)

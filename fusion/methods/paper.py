@@ -13,7 +13,6 @@ paper's method is here: the fill stage only calls the method it was given.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,13 +20,11 @@ import numpy as np
 # __init__, which imports this module while fusion.fill.dense is still being imported.
 from fusion.fill import dense as fill_stage
 from fusion.fill.filling import FillParams
+from fusion.fill.records import DenseParams
 from fusion.methods._labels import method_label
 from fusion.methods._registry import Filled, FillMethod, NoParams, add_built_in
 from sim.camera import Camera
 from sim.validation import ParameterError
-
-if TYPE_CHECKING:
-    from fusion.fill.dense import DenseParams
 
 __all__ = ["PaperExponentialParams", "PaperGaussianParams", "PaperMethod"]
 
@@ -94,7 +91,7 @@ class PaperMethod(FillMethod):
             ``params.fill.weighting`` that is not this method's.
         """
         if params is None:
-            params = fill_stage.DenseParams(fill=FillParams(self.weighting))
+            params = DenseParams(fill=FillParams(self.weighting))
         elif params.fill.weighting != self.weighting:
             raise ValueError(f"filling method {self.name} uses {self.weighting} weights but "
                              f"params.fill.weighting is {params.fill.weighting!r}: expected the "
@@ -133,7 +130,7 @@ def _paper_function(weighting: str, params_class: type):
     the dense depth of the three stages with their defaults and this weighting."""
     def method(frame, sparse, camera, params):
         fill = FillParams(weighting, **asdict(params_class(**params)))
-        return fill_stage.densify(frame, sparse, fill_stage.DenseParams(fill=fill))[2]
+        return fill_stage.densify(frame, sparse, DenseParams(fill=fill))[2]
 
     method.__doc__ = f"The paper's method with {weighting} weights."
     return method

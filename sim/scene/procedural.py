@@ -26,6 +26,11 @@ ranges give the same text, byte for byte), within the ranges of :class:`Tabletop
   :func:`trajectory_check`), else drawn again (at most ``max_redraws`` times in all, then a
   :class:`~sim.validation.ParameterError` naming the ranges to widen).
 
+The check's last step renders the exact depth of a few views. This module is part of the scene
+model, which the renderer reads, so it does not import the renderer: that step is
+:func:`sim.scene_check.exact_depth_check`, above both, which :mod:`sim` hands down here once
+(:func:`use_exact_depth_check`) before anything can draw.
+
 The text starts with a comment naming the family, the seed and :data:`GENERATOR_VERSION`; a
 change of the generator that changes any drawn text raises the version.
 """
@@ -34,20 +39,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 
 import numpy as np
 
-from sim.render import Renderer
 from sim.scene._meshes import BUILTIN_MESHES, builtin_mesh_path, heightfield_mesh, obj_vertices
-from sim.scene._model import Material, Scene
+from sim.scene._model import Scene
 from sim.scene._toml import parse_scene
 from sim.textures import SKIMAGE_IMAGES
 from sim.validation import ParameterError, check_parameter, integer, non_negative, positive
 
-__all__ = ["GAP_M", "GENERATOR_VERSION", "OBJECT_KINDS", "PROCEDURAL_FAMILIES", "RoomRanges",
-           "SceneRanges", "TabletopRanges", "procedural_scene", "room_scene", "tabletop_scene",
-           "trajectory_check"]
+__all__ = ["GAP_M", "GENERATOR_VERSION", "OBJECT_KINDS", "PROCEDURAL_FAMILIES", "ExactDepthCheck",
+           "RoomRanges", "SceneRanges", "TabletopRanges", "procedural_scene", "room_scene",
+           "tabletop_scene", "trajectory_check", "use_exact_depth_check"]
 
 GENERATOR_VERSION = 1
 """Version of the drawing rules: the same seed, ranges and version give the same text."""
@@ -58,6 +62,29 @@ OBJECT_KINDS = ("box", "sphere", "cylinder", "heightfield", "mesh")
 _PLACEMENT_TRIES = 200          # positions tried for one object before the layout is redrawn
 _WALL_OVERLAP_M = 0.05          # walls reach this far past the room's edges: no crack between
 _IMAGE_MARGIN = 0.05            # fraction of the image size kept clear around object centres
+
+ExactDepthCheck = Callable[..., str | None]
+"""The exact-depth step of :func:`trajectory_check`: ``check(scene, *, views, size, variant)``
+returns why the rendered exact depth is refused, or None
+(:func:`sim.scene_check.exact_depth_check`)."""
+_exact_depth_check: ExactDepthCheck | None = None
+"""The check :func:`use_exact_depth_check` was given (by :mod:`sim`, on import)."""
+
+
+def use_exact_depth_check(check: ExactDepthCheck) -> None:
+    """Set the exact-depth step of :func:`trajectory_check` (and so of every draw).
+
+    :mod:`sim` calls it once on import with :func:`sim.scene_check.exact_depth_check`, which
+    renders: the scene model may not import the renderer, so the check is handed down from
+    above. Importing this module imports :mod:`sim` first, so the check is set before any draw.
+
+    Parameters
+    ----------
+    check : callable
+        ``check(scene, *, views, size, variant) -> str | None`` (:data:`ExactDepthCheck`).
+    """
+    global _exact_depth_check
+    _exact_depth_check = check
 
 
 @dataclass(frozen=True)
@@ -506,8 +533,9 @@ def trajectory_check(scene: Scene, placed_names: tuple[str, ...], *, views: int 
        within ``far`` of the camera (every ray ends on the closed room): none above ``far``;
     3. the exact depth rendered by :class:`sim.render.Renderer` at ``size`` pixels at
        ``views`` times evenly over the duration has a surface at every pixel and lies inside
-       ``[near, far]`` (the exact-depth check; 2. implies it, so a failure here is a surface
-       the bounds missed).
+       ``[near, far]`` (the exact-depth check, :func:`sim.scene_check.exact_depth_check`,
+       handed down by :func:`use_exact_depth_check`; 2. implies it, so a failure here is a
+       surface the bounds missed).
 
     Parameters
     ----------
@@ -527,6 +555,12 @@ def trajectory_check(scene: Scene, placed_names: tuple[str, ...], *, views: int 
     -------
     str or None
         One line saying what failed first, or None.
+
+    Raises
+    ------
+    RuntimeError
+        No exact-depth check was handed down (:func:`use_exact_depth_check`; :mod:`sim` does on
+        import).
     """
     near, far = scene.depth_range
     times = np.linspace(0.0, scene.duration, max(int(50 * scene.duration), 2) + 1)
@@ -560,17 +594,10 @@ def trajectory_check(scene: Scene, placed_names: tuple[str, ...], *, views: int 
     farthest = float(np.linalg.norm(corners[None] - positions[:, None], axis=2).max())
     if farthest > far:
         return f"the room's far corner is {farthest:.3f} m from the camera, beyond {far} m"
-    small = replace(scene, camera=cam.with_resolution(*size),
-                    objects=tuple(replace(obj, material=Material()) for obj in scene.objects))
-    renderer = Renderer(small, spp=1, variant=variant, texture_filter=False)
-    for t in np.linspace(0.0, scene.duration, views):
-        depth = renderer.depth(float(t))
-        if not (depth > 0).all():
-            return f"a ray at t = {t:.3f} s leaves the room (no surface)"
-        if depth.min() < near or depth.max() > far:
-            return (f"exact depth [{depth.min():.3f}, {depth.max():.3f}] m at t = {t:.3f} s "
-                    f"outside [{near}, {far}]")
-    return None
+    if _exact_depth_check is None:
+        raise RuntimeError("no exact-depth check for procedural scenes: expected "
+                           "sim.scene_check.exact_depth_check, handed down by importing sim")
+    return _exact_depth_check(scene, views=views, size=size, variant=variant)
 
 
 def _scene_text(family: str, seed: int, ranges: SceneRanges, variant: str | None) -> str:
