@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim._summary import summary_repr
 from sim.camera import Camera
 from sim.se3 import hat
 from sim.trajectory import Trajectory
@@ -74,6 +75,8 @@ class FrameCamera:
     T_event_frame: np.ndarray
     shutter: str = "global"
     readout_s: float = 0.0
+
+    __repr__ = summary_repr
 
     def __post_init__(self) -> None:
         T = np.array(self.T_event_frame, dtype=np.float64)

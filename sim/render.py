@@ -32,6 +32,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from sim._summary import summary_repr
 from sim.scene._meshes import heightfield_mesh, vertex_normals
 from sim.scene._model import Light, Scene, SceneObject
 from sim.variant import use_variant
@@ -54,6 +55,8 @@ class RenderResult:
 
     luminance: np.ndarray
     depth: np.ndarray
+
+    __repr__ = summary_repr
 
 
 def _key(index: int, name: str) -> str:

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
+from sim._summary import summary_repr
 from sim.textfile import text_lines
 
 if TYPE_CHECKING:
@@ -392,6 +393,8 @@ class FileIndex:
     times: np.ndarray
     paths: tuple[Path, ...]
 
+    __repr__ = summary_repr
+
     def at(self, t: float, tolerance: float = EXACT_TIME_S) -> Path | None:
         """The file at time ``t`` (the nearest within ``tolerance``, the earlier on a tie), or
         None when there is none that close (e.g. no forward flow at the last frame)."""
@@ -443,6 +446,8 @@ class FrameCameraFiles:
     backward_flow: FileIndex | None = None
     motion_field: FileIndex | None = None
     object_masks: FileIndex | None = None
+
+    __repr__ = summary_repr
 
     def row_times(self, t_frame: float) -> np.ndarray:
         """Each row's exposure time of the frame at ``t_frame``.
@@ -554,6 +559,8 @@ class Sequence:
     frame_camera: FrameCameraFiles | None = None
     events_depth_txt: Path | None = None
     events_labels_txt: Path | None = None
+
+    __repr__ = summary_repr
 
     def read_velocity(self) -> np.ndarray | None:
         """``velocity.txt`` as (N, 7) float64 ``t vx vy vz wx wy wz`` (s, m/s, rad/s, camera

@@ -32,6 +32,7 @@ from scipy import sparse
 from scipy.interpolate import BSpline
 from scipy.sparse.linalg import spsolve
 
+from sim._summary import summary_repr
 from sim.se3 import (
     interpolate_pose,
     invert_pose,
@@ -342,6 +343,8 @@ class HandheldTrajectory(Trajectory):
     phases: np.ndarray
     chirp: float = 0.0
 
+    __repr__ = summary_repr
+
     def __post_init__(self) -> None:
         rotation = _rotations(self.rotation, "rotation")
         if rotation.shape != (3, 3):
@@ -508,6 +511,8 @@ class SplineTrajectory(_TimedTrajectory):
 
     times: np.ndarray
     poses: np.ndarray
+
+    __repr__ = summary_repr
 
     def __post_init__(self) -> None:
         times, poses = self._store_samples()
@@ -688,6 +693,8 @@ class SampledTrajectory(_TimedTrajectory):
 
     times: np.ndarray
     poses: np.ndarray
+
+    __repr__ = summary_repr
 
     def __post_init__(self) -> None:
         times, poses = self._store_samples()

@@ -54,6 +54,7 @@ import numba
 import numpy as np
 
 from fusion.fill.segmentation import region_contours
+from sim._summary import summary_repr
 from sim.validation import integer
 
 __all__ = ["WEIGHTINGS", "FillParams", "RegionStats", "SelectionParams", "Weighting",
@@ -286,6 +287,9 @@ class RegionStats:
         Band half-width the counts were made with; :func:`fill_regions` interpolates from the
         map points of the same band and of the region.
     """
+
+    __repr__ = summary_repr
+    _summary_counts = ("n_regions",)
 
     area: np.ndarray
     contour: np.ndarray

@@ -19,6 +19,7 @@ import numpy as np
 
 from fusion.fill.filling import FillParams, RegionStats, SelectionParams
 from fusion.fill.segmentation import SegmentationParams
+from sim._summary import summary_repr
 from sim.camera import Camera
 from sim.validation import integer
 
@@ -80,6 +81,9 @@ class DenseResult:
         The method's confidence in each pixel, where it returns one.
     """
 
+    __repr__ = summary_repr
+    _summary_counts = ("n1_in_frame", "n2")
+
     frame: np.ndarray
     sparse: np.ndarray
     labels: np.ndarray
@@ -121,6 +125,8 @@ class FillInputs:
         (map, sequence, frame, times, pose, oracle, depth_range_from)
     n1 : int, the map's points before projection
     """
+
+    __repr__ = summary_repr
 
     frame: np.ndarray
     sparse: np.ndarray

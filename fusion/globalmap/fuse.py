@@ -51,6 +51,7 @@ import numpy as np
 
 from fusion.fill.projection import nearest_per_pixel
 from fusion.globalmap.views import DepthView, to_camera
+from sim._summary import summary_repr
 from sim.camera import Camera
 from sim.validation import ParameterError, check_parameter, integer, positive
 
@@ -119,6 +120,8 @@ class FusedCloud:
     support: np.ndarray
     view: np.ndarray
     voxel_size: float
+
+    __repr__ = summary_repr
 
 
 def _check_views(views: list[DepthView]) -> list[DepthView]:

@@ -40,6 +40,7 @@ import numba
 import numpy as np
 
 from fusion.globalmap.views import DepthView
+from sim._summary import summary_repr
 from sim.validation import ParameterError, check_parameter, integer, positive
 
 __all__ = [
@@ -94,6 +95,8 @@ class Mesh:
 
     vertices: np.ndarray
     faces: np.ndarray
+
+    __repr__ = summary_repr
 
     def __post_init__(self) -> None:
         self.vertices = np.asarray(self.vertices, dtype=np.float64).reshape(-1, 3)

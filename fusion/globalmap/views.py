@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fusion.fill.projection import map_points_world
+from sim._summary import summary_repr
 from sim.camera import Camera
 
 __all__ = ["DepthView", "to_camera", "to_world"]
@@ -74,6 +75,8 @@ class DepthView:
     T_world_cam: np.ndarray
     t: float = 0.0
     name: str = ""
+
+    __repr__ = summary_repr
 
     def __post_init__(self) -> None:
         depth = np.asarray(self.depth, dtype=np.float32)

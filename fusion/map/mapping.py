@@ -36,6 +36,7 @@ from fusion.map.emvs import (
     semidense_depth,
 )
 from fusion.scoring import depth_errors, errors_by_motion, motion_regions, recorded_scene
+from sim._summary import summary_repr
 from sim.camera import Camera
 from sim.eventio import check_time_units, event_time_span, iter_event_chunks, read_window
 from sim.exr import read_depth, write_depth, write_exr_channels
@@ -122,6 +123,9 @@ class MapResult:
     T_world_ref: np.ndarray
     info: dict
     sequence: Sequence
+
+    __repr__ = summary_repr
+    _summary_counts = ("n1",)
 
     @property
     def n1(self) -> int:

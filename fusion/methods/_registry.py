@@ -36,6 +36,7 @@ from fusion.fill.filling import RegionStats
 from fusion.fill.records import DenseParams
 from fusion.methods._errors import MethodError
 from fusion.methods._labels import format_value, label_parts, method_label
+from sim._summary import summary_repr
 from sim.camera import Camera
 from sim.validation import ParameterError
 
@@ -169,6 +170,8 @@ class Filled:
     regions : RegionStats or None, None for a method that does not segment the frame
     timings : dict, seconds per step
     """
+
+    __repr__ = summary_repr
 
     dense: np.ndarray
     confidence: np.ndarray | None

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from sim._atomic import write_bytes_atomically
+from sim._summary import summary_repr
 from sim.dataset._loader import Dataset, open_dataset
 from sim.eventio import EVENT_DTYPE
 from sim.output import MARKER, OutputError
@@ -108,6 +109,9 @@ class DatasetSummary:
     failed: tuple[tuple[str, str], ...]
     pending: tuple[str, ...]
     mismatches: tuple[str, ...]
+
+    __repr__ = summary_repr
+    _summary_counts = ("frames", "events")
 
     @property
     def events(self) -> int:

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim._summary import summary_repr
 from sim.camera import Camera
 from sim.dataset._manifest import MANIFEST_CSV, read_manifest
 from sim.eventio import EVENT_DTYPE, line_offsets, read_text_span, read_window, text_offsets
@@ -96,6 +97,8 @@ class EventWindow:
     depth_flag: np.ndarray | None = None
     cause: np.ndarray | None = None
     object_id: np.ndarray | None = None
+
+    __repr__ = summary_repr
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,6 +161,8 @@ class Sample:
     camera: Camera
     event_camera: Camera
     T_event_frame: np.ndarray
+
+    __repr__ = summary_repr
 
     @property
     def events(self) -> np.ndarray:

@@ -24,6 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from sim._summary import summary_repr
 from sim.dataset._jobs import JOBS_FOLDER, RUNS_LOG, Job, job_inputs, run_job
 from sim.dataset._manifest import job_record, read_manifest, write_manifest
 from sim.dataset._sweep import Sweep, load_sweep
@@ -63,6 +64,8 @@ class GenerateResult:
     failed: int
     wall_s: float
     cluster: str
+
+    __repr__ = summary_repr
 
 
 def default_cluster_size() -> tuple[int, int]:

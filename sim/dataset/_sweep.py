@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim._summary import summary_repr
 from sim.dataset._jobs import PARAMETERS, Job, check_parameter
 
 __all__ = ["DRAWS", "Sweep", "SweepError", "draw_parameters",
@@ -77,6 +78,8 @@ class Sweep:
     description: str
     jobs: tuple[Job, ...]
     parameters: tuple[str, ...]
+
+    __repr__ = summary_repr
 
 
 def load_sweep(path: str | Path) -> Sweep:

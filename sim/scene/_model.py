@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from sim._summary import summary_repr
 from sim.camera import Camera
 from sim.capture_errors import RigParams
 from sim.frame_camera import FrameCamera
@@ -105,6 +106,8 @@ class ObjectMotion:
     frequency: float = 0.0
     phase: float = 0.0
 
+    __repr__ = summary_repr
+
     def offset(self, t: float) -> np.ndarray:
         """Rigid displacement at time ``t``: (4,4) transform applied about the object centre."""
         if self.kind == "linear":
@@ -156,6 +159,8 @@ class SceneObject:
     params: Mapping[str, Any]
     material: Material
     motion: ObjectMotion | None = None
+
+    __repr__ = summary_repr
 
     def pose(self, t: float = 0.0) -> np.ndarray:
         """Object-to-world rigid transform (4,4) at time ``t`` (without the shape's scaling)."""
@@ -222,6 +227,8 @@ class Light:
     cutoff_angle: float = 20.0
     beam_width: float = 15.0
 
+    __repr__ = summary_repr
+
 
 @dataclass(frozen=True)
 class Scene:
@@ -282,6 +289,8 @@ class Scene:
     up: tuple[float, float, float] = (0.0, 0.0, 1.0)
     imu: ImuParams = field(default_factory=ImuParams)
     frame_camera: FrameCamera | None = None
+
+    __repr__ = summary_repr
 
     @property
     def base_dir(self) -> Path:

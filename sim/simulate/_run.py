@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim._summary import summary_repr
 from sim.camera import write_calib
 from sim.capture_errors import (
     EXACT_CALIB,
@@ -80,6 +81,8 @@ class SimulationResult:
     event_renders: int = 0
     event_pixel_samples: int = 0
     sampler: str | None = None
+
+    __repr__ = summary_repr
 
 
 def scene_files(scene: Scene) -> list[Path]:
