@@ -34,6 +34,10 @@ an hour).
 ``--edge-spp N`` also runs each default with ``[render] edge_spp = N`` (the pixels an edge
 crosses rendered at N samples per pixel, :mod:`sim.pixel_sampling`; either sampler), after the
 default, and prints its row below the default's (its frames are the default's).
+``--event-spp 1,16,64`` also runs each default with ``[render] event_spp`` at each of those
+values (perfect squares below :data:`REFERENCE_SPP`; frames unchanged), after the default, each
+against the same reference: events against the event camera's samples per pixel (the scene's
+own value is the default's run, not run twice).
 ``--floor`` renders each reference a second time with another render seed (``[render] seed``:
 other sub-sample positions, the same scene) and prints that second reference against the
 first on its own line: the yardstick's own spread, below which no run can be told from the
@@ -47,6 +51,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import tempfile
 import time
 from dataclasses import replace
@@ -119,22 +124,28 @@ def _frame_psnrs(reference_folder: Path, folder: Path) -> list[float]:
     return [psnr(r, d) for r, d in zip(_frames(reference_folder), _frames(folder), strict=True)]
 
 
+def _goals(agreement: dict) -> dict:
+    """The event goals an agreement (``EventAgreement.as_dict()``) meets: count and blocks."""
+    return {"count": bool(abs(agreement["count_error"]) <= COUNT_GOAL),
+            "blocks": bool(agreement["worst_block_error"] <= BLOCK_GOAL)}
+
+
 def _versus(reference_folder: Path, folder: Path, shape: tuple[int, int],
             psnrs: list[float]) -> tuple[dict, dict]:
     """Agreement of a run's events with the reference's, and the goals met."""
     agreement = event_agreement(read_events(reference_folder / "events.h5"),
-                                read_events(folder / "events.h5"), shape)
-    return agreement.as_dict(), {
-        "count": bool(abs(agreement.count_error) <= COUNT_GOAL),
-        "blocks": bool(agreement.worst_block_error <= BLOCK_GOAL),
-        "frames": bool(psnrs) and bool(min(psnrs) >= PSNR_GOAL)}
+                                read_events(folder / "events.h5"), shape).as_dict()
+    return agreement, {**_goals(agreement),
+                       "frames": bool(psnrs) and bool(min(psnrs) >= PSNR_GOAL)}
 
 
 def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool,
-               edge_spp: int = 0, floor: bool = False) -> dict:
+               edge_spp: int = 0, floor: bool = False, event_spps: tuple[int, ...] = ()
+               ) -> dict:
     """One scene and window: the default against the reference (see the module docstring),
-    with ``edge_spp`` (> 0) the default with ``[render] edge_spp`` set too, and with ``floor``
-    a second reference at another render seed against the first."""
+    with ``edge_spp`` (> 0) the default with ``[render] edge_spp`` set too, with ``floor``
+    a second reference at another render seed against the first, and with ``event_spps`` the
+    default at each of those ``[render] event_spp`` (row ``event_spp_sweep``)."""
     scene = load_scene(resolve_scene(name))
     shape = (scene.camera.height, scene.camera.width)
     tick = time.perf_counter()
@@ -158,6 +169,9 @@ def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool
         agreement, passed = _versus(folder / "reference", folder / "edges", shape, psnrs)
         row["edges"] = {"edge_spp": edge_spp, "run": run, "agreement": agreement,
                         "pass": passed}
+    if event_spps:
+        row["event_spp_sweep"] = _event_spp_sweep(default_scene, event_spps, default, row,
+                                                  folder, start, seconds, shape, warm)
     if floor:
         seed = scene.render_seed + 1
         run = _run(_with_spp(scene, REFERENCE_SPP, reference["gain"], seed),
@@ -170,6 +184,44 @@ def bench_case(name: str, start: float, seconds: float, folder: Path, warm: bool
     row["wall_s"] = time.perf_counter() - tick
     print(f"{name} {start:g} s: {row['wall_s']:.0f} s", flush=True)
     return row
+
+
+def _event_spp_sweep(default_scene, event_spps: tuple[int, ...], default: dict, row: dict,
+                     folder: Path, start: float, seconds: float, shape: tuple[int, int],
+                     warm: bool) -> list[dict]:
+    """The default at each ``[render] event_spp`` of ``event_spps`` against the reference: one
+    entry each (``event_spp``, ``run``, ``agreement``; the scene's own value is the default's
+    run)."""
+    sweep = []
+    for spp in event_spps:
+        if spp == default_scene.render.event_spp:
+            sweep.append({"event_spp": spp, "run": default, "agreement": row["agreement"],
+                          "pass": _goals(row["agreement"]), "is_default": True})
+            continue
+        scene = replace(default_scene, render=replace(default_scene.render, event_spp=spp))
+        if warm:
+            _run(scene, folder / "warm", start, 0.01)
+        run = _run(scene, folder / f"event_spp_{spp}", start, seconds)
+        agreement = event_agreement(read_events(folder / "reference" / "events.h5"),
+                                    read_events(folder / f"event_spp_{spp}" / "events.h5"),
+                                    shape).as_dict()
+        sweep.append({"event_spp": spp, "run": run, "agreement": agreement,
+                      "pass": _goals(agreement), "is_default": False})
+    return sweep
+
+
+def event_spp_values(text: str) -> tuple[int, ...]:
+    """``--event-spp``'s values: comma-separated perfect squares below :data:`REFERENCE_SPP`,
+    ascending."""
+    try:
+        values = sorted({int(v) for v in text.split(",") if v.strip()})
+    except ValueError:
+        raise ValueError(f"--event-spp: expected comma-separated integers, got {text!r}") from None
+    bad = [v for v in values if v < 1 or v >= REFERENCE_SPP or math.isqrt(v) ** 2 != v]
+    if bad or not values:
+        raise ValueError(f"--event-spp: expected perfect squares from 1 to below the reference's "
+                         f"{REFERENCE_SPP}, got {text!r}")
+    return tuple(values)
 
 
 def _verdict(ok: bool) -> str:
@@ -202,6 +254,10 @@ def table(rows: list[dict]) -> str:
             lines.append(_line(f"  edge_spp {e['edge_spp']:<3} {'':>8}", e["run"],
                                e["agreement"], e["pass"], f"{'':13}")
                          + f"  (edge samples {e['run']['edge_samples']:,})")
+        for entry in row.get("event_spp_sweep", []):
+            if not entry["is_default"]:
+                lines.append(_line(f"  event_spp {entry['event_spp']:<3}{'':>7}", entry["run"],
+                                   entry["agreement"], entry["pass"], f"{'':13}"))
         if "floor" in row:
             f = row["floor"]
             lines.append(_line(f"  reference, seed {f['render_seed']:<3}", f["run"],
@@ -227,9 +283,17 @@ def main() -> None:
     parser.add_argument("--first", action="store_true", help="only each scene's first time")
     parser.add_argument("--edge-spp", type=int, default=0,
                         help="also run the default with [render] edge_spp = N (0: not)")
+    parser.add_argument("--event-spp", default=None,
+                        help="also run the default at each of these [render] event_spp "
+                             "(comma-separated perfect squares below the reference's, e.g. "
+                             "1,4,16,64)")
     parser.add_argument("--floor", action="store_true",
                         help="also render each reference at another render seed: its spread")
     args = parser.parse_args()
+    try:
+        event_spps = () if args.event_spp is None else event_spp_values(args.event_spp)
+    except ValueError as error:
+        parser.error(str(error))
     cases = QUICK if args.quick else CASES
     if args.scenes is not None:
         cases = [c for c in CASES if c[0] in args.scenes.split(",")]
@@ -240,7 +304,8 @@ def main() -> None:
         for name, starts in cases:
             for k, start in enumerate(starts[:1] if args.first else starts):
                 rows.append(bench_case(name, start, seconds, Path(tmp), warm=k == 0,
-                                       edge_spp=args.edge_spp, floor=args.floor))
+                                       edge_spp=args.edge_spp, floor=args.floor,
+                                       event_spps=event_spps))
                 _write_rows(path, rows[-1:])
     print(f"\n{table(rows)}\n\nwall time {time.perf_counter() - tick:.0f} s\nwritten to {path}")
 

@@ -26,7 +26,8 @@ simulated second (a whole frame counts H W), whole-frame renders, events, and th
 the event camera (rendering, emulation, writing); and the agreement of each with the reference
 (:func:`benchmarks.agreement.event_agreement`: count error, worst 16x16 block with >= 100
 events, median and 95th percentile of the matched events' time differences). Each sampler first
-simulates a 0.01 s window once (kernel tracing and compilation are not counted).
+simulates a :data:`WARM_S` window once (kernel tracing and compilation are not counted; a
+shorter window holds no frame, which ``simulate`` refuses).
 
 Run: ``PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_sampling.py [--quick]`` (on 2 shared
 cores, ``llvm_ad_rgb``: ``--quick`` about 6 minutes; the full cost table about two hours, an
@@ -209,7 +210,7 @@ def bench(cases, reference: bool, folder: Path) -> list[dict]:
         shape = (scene.camera.height, scene.camera.width)
         if (name, resolution) not in warmed:                 # trace and compile once
             for sampler in ("pixel", "frame"):
-                _run(scene, folder / "warm", start, 0.01, sampler, 0.5)
+                _run(scene, folder / "warm", start, WARM_S, sampler, 0.5)
             warmed.add((name, resolution))
         tick = time.perf_counter()
         pixel = _run(scene, folder / "pixel", start, seconds, "pixel", 0.5)

@@ -9,7 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from benchmarks.bench_convergence import _with_spp, psnr
+from benchmarks.bench_convergence import _with_spp, event_spp_values, psnr
 from benchmarks.bench_sampling import cost_cases, scene_file_at
 from scenes import builtin_scenes, resolve_scene
 from sim.scene import load_scene
@@ -48,6 +48,14 @@ def test_the_floor_s_reference_differs_from_the_reference_by_its_render_seed_alo
     assert floor.render.seed == scene.seed + 1 and reference.render.seed is None
     assert floor.seed == reference.seed                  # textures drawn from the same seed
     assert replace(floor, render=reference.render) == reference
+
+
+def test_the_event_spp_sweep_takes_perfect_squares_below_the_reference_s_256():
+    """The stratified sampler takes n x n sub-samples, and the reference is 256."""
+    assert event_spp_values("64,1,16,4,16") == (1, 4, 16, 64)
+    for text in ("8", "256", "0", "", "four"):
+        with pytest.raises(ValueError, match="--event-spp: expected"):
+            event_spp_values(text)
 
 
 def test_the_worst_block_counts_only_blocks_with_100_reference_events():
