@@ -25,7 +25,8 @@ __all__ = ["FARTHER_COLOUR", "NEARER_COLOUR", "Caption", "DepthScale", "Legend",
            "add_header", "depth_colours", "depth_legend", "depth_scale", "error_legend",
            "error_panel", "error_panels", "event_legend", "fill_error_figure", "fill_figure",
            "fill_figure_panels", "grid_scale", "highlight_pixels", "label_colours", "panel_grid",
-           "point_cloud_view", "point_radius", "spread_pixels", "write_image"]
+           "point_cloud_view", "point_radius", "spread_pixels", "write_event_frame",
+           "write_image"]
 
 _NO_VALUE = (40, 40, 40)
 """Colour of pixels without a depth (dark grey, so that black texture stays readable)."""
@@ -821,3 +822,25 @@ def fill_error_figure(result: DenseResult) -> np.ndarray:
     image, legend = error_panel(result.dense, result.truth)
     return panel_grid([image], ["|error| of the dense map (map points and filled)"], columns=1,
                       legends=[legend])
+
+
+def write_event_frame(path: str | Path, frame: np.ndarray, title: str) -> Path:
+    """Write an event frame as a titled figure with the polarity legend (``evfuse events
+    --out``).
+
+    Parameters
+    ----------
+    path : str or Path
+        PNG to write (atomically, :func:`write_image`).
+    frame : (H, W, 3) uint8 ndarray, RGB
+        The event frame (:func:`sim.statistics.event_frame`).
+    title : str
+        Written above the frame.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    return write_image(path, panel_grid([cv2.cvtColor(frame, cv2.COLOR_RGB2BGR)], [title],
+                                        columns=1, legends=[event_legend()]))

@@ -1,6 +1,7 @@
-"""The command-line modules use the public API only (issue 22): every project name that
-``sim/cli.py`` or ``fusion/cli.py`` imports is in the ``__all__`` of the public module it comes
-from, and no private module (a path part with a leading underscore) is imported.
+"""The command-line modules use the public API only (issue 22): every project name that a
+command-line module of ``sim`` or ``fusion`` imports (``cli.py``, ``cli_*.py``: the command line
+split by command group, issue 35) is in the ``__all__`` of the public module it comes from, and no
+private module (a path part with a leading underscore) is imported.
 
 The imports are read from the source with :mod:`ast` (at any depth: the command handlers import
 inside functions); each named module is then imported to read its ``__all__``.
@@ -15,7 +16,12 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-CLI_MODULES = ("sim/cli.py", "fusion/cli.py")
+CLI_MODULES = tuple(sorted(
+    path.relative_to(ROOT).as_posix() for package in ("sim", "fusion")
+    for path in (ROOT / package).rglob("*.py")
+    if any(part == "cli" or part.startswith("cli_")
+           for part in path.relative_to(ROOT / package).with_suffix("").parts)))
+"""Every command-line module: named ``cli`` or ``cli_*``, or inside such a package."""
 PROJECT = ("sim", "fusion", "scenes")
 
 
@@ -56,6 +62,12 @@ def test_the_checker_sees_private_imports():
     assert _private_imports(source) == ["sim.validation: _number",
                                         "sim._atomic (a private module)",
                                         "fusion.cli: _parser"]
+
+
+def test_every_command_line_module_is_checked():
+    """The modules found include the entry point and each command group's module."""
+    assert {"sim/cli.py", "fusion/cli.py", "fusion/cli_mapping.py", "fusion/cli_experiments.py",
+            "fusion/cli_options.py"} <= set(CLI_MODULES)
 
 
 @pytest.mark.parametrize("path", CLI_MODULES)

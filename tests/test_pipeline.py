@@ -132,13 +132,12 @@ def test_report_records_the_window_asked_for_and_used(tiny_run):
     assert mapped["window_s"] == report["window_s"] and mapped["window_clipped"] is False
 
 
-def test_the_printed_summary_gives_each_error_with_its_coverage(tiny_run, capsys):
-    from fusion.cli import _print_report
+def test_the_printed_summary_gives_each_error_with_its_coverage(tiny_run):
+    from fusion.summaries import run_summary
 
     _, out = tiny_run
     report = json.loads((out / "report.json").read_text())
-    _print_report(report, out)
-    printed = capsys.readouterr().out
+    printed = run_summary(report, out)
     for label, key in (("event map", "map"), ("map in the frame", "map_in_frame"),
                        ("filled pixels", "filled"), ("dense map", "all")):
         e = report["errors_summary"][key]
