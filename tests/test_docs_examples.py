@@ -268,7 +268,7 @@ def test_commands_without_prompts_are_every_line_but_comments(tmp_path):
 
 def test_an_illustrative_command_with_a_flag_evfuse_lacks_fails(tmp_path):
     text = ("<!-- illustrative: slow -->\n```console\n"
-            "$ evfuse simulate slider_close --duration 0.5 --no-such-flag 3\n```\n")
+            "$ evfuse simulate slider_close --duration 0.5 --out sc --no-such-flag 3\n```\n")
     (block,) = examples(tmp_path / "p.md", text)
     with pytest.raises(AssertionError, match="refuses the illustrative command"):
         check_illustrative(block)
