@@ -36,28 +36,31 @@ def test_importing_the_packages_does_not_load_mitsuba():
     assert out.strip() == "False False"
 
 
-def _readme_python_block(marker: str) -> str:
+def _guide_python_block(guide: str, marker: str) -> str:
     import re
     from pathlib import Path
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    blocks = [b for b in re.findall(r"```python\n(.*?)```", readme, flags=re.S) if marker in b]
-    assert len(blocks) == 1, f"README: expected one Python example with {marker!r}"
+    page = (Path(__file__).resolve().parents[1] / "docs" / "guides" / guide).read_text()
+    blocks = [b for b in re.findall(r"```python\n(.*?)```", page, flags=re.S) if marker in b]
+    assert len(blocks) == 1, f"{guide}: expected one Python example with {marker!r}"
     return blocks[0]
 
 
-def test_the_readme_file_io_example_runs_on_a_sequence(plane_sequence, tmp_path, monkeypatch):
+def test_the_file_formats_guide_s_io_example_gives_the_analytic_values(plane_sequence, tmp_path,
+                                                                        monkeypatch):
+    """The guide runs its example on its own simulation (tests/test_docs_examples.py); here the
+    same code runs on a wall at a known distance, so its values are checked, not only run."""
     import numpy as np
 
-    code = _readme_python_block("read_depth(")
-    assert code.count('"runs/sc"') == 1
-    for name in ("read_depth", "write_depth", "read_trajectory", "read_events", "read_window"):
+    code = _guide_python_block("file-formats.md", "depth_copy.exr")
+    for name in ("read_depth", "write_depth", "read_trajectory", "read_window"):
         assert name in sim.__all__ and f"{name}(" in code, name
     assert ".pose(t)" in code and ".camera_velocity(t)" in code
     monkeypatch.chdir(tmp_path)
+    (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "sc").symlink_to(plane_sequence, target_is_directory=True)
     scope: dict = {}
-    exec(compile(code.replace('"runs/sc"', repr(str(plane_sequence))), "README.md", "exec"),
-         scope)
+    exec(compile(code, "file-formats.md", "exec"), scope)
     # plane_sequence: a 64x48 camera at x = -0.15 + 1.0 t m looking along +y (OpenCV x = world
     # x) at a fronto-parallel wall 1 m away that fills the view.
     depth, t = scope["depth"], scope["t"]
@@ -67,10 +70,11 @@ def test_the_readme_file_io_example_runs_on_a_sequence(plane_sequence, tmp_path,
     np.testing.assert_allclose(scope["T_world_camera"][:3, 3], [-0.15 + t, 0.0, 0.0], atol=1e-9)
     np.testing.assert_allclose(scope["v"], [1.0, 0.0, 0.0], atol=1e-9)
     np.testing.assert_allclose(scope["w"], 0.0, atol=1e-9)
-    window, events = scope["window"], scope["events"]
+    window = scope["window"]
     t_ns = round(t * 1e9)
     assert len(window) > 0 and np.all(np.diff(window["t"]) >= 0)
     assert window["t"].min() >= t_ns - 5_000_000 and window["t"].max() < t_ns + 5_000_000
+    events = sim.read_events(plane_sequence / "events.txt")
     inside = events[(events["t"] >= t_ns - 5_000_000) & (events["t"] < t_ns + 5_000_000)]
     assert np.array_equal(window, inside)                  # .h5 window == .txt file, same events
     assert set(np.unique(events["p"])) <= {-1, 1}
