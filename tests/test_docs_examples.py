@@ -162,7 +162,7 @@ def check_illustrative(example: Example) -> None:
     if not example.illustrative.strip():
         raise AssertionError(f"{example.where}: 'illustrative:' needs a reason")
     if example.language == "python":
-        compile(example.code, example.where, "exec")
+        compile(example.code, example.where, "exec", dont_inherit=True)
         return
     from fusion.cli import build_parser
 
@@ -209,7 +209,7 @@ def run_page(path: Path, folder: Path) -> list[tuple[str, float]]:
             if example.illustrative is not None:
                 check_illustrative(example)
             elif example.language == "python":
-                exec(compile(example.code, example.where, "exec"), namespace)  # noqa: S102
+                exec(compile(example.code, example.where, "exec", dont_inherit=True), namespace)
             else:
                 for command in commands(example):
                     done = subprocess.run(["bash", "-c", command], cwd=work, env=env,
@@ -284,6 +284,16 @@ def test_an_illustrative_marker_needs_a_reason_and_python_must_compile(tmp_path)
                          "<!-- illustrative: slow -->\n```python\nx = (1\n```\n")
     with pytest.raises(SyntaxError):
         check_illustrative(broken)
+
+
+def test_a_page_s_dataclass_runs_as_in_a_script(tmp_path):
+    """The harness's own ``from __future__ import annotations`` does not leak into the pages'
+    code (a dataclass there would then see string annotations it cannot resolve)."""
+    page = tmp_path / "page.md"
+    page.write_text("```python\nfrom dataclasses import dataclass\n\n@dataclass\nclass P:\n"
+                    "    x: int = 1\n\nassert P.__annotations__['x'] is int\n```\n",
+                    encoding="utf-8")
+    assert len(run_page(page, tmp_path)) == 1
 
 
 def test_a_failing_example_names_its_page_and_line(tmp_path):
