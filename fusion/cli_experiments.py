@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from fusion.cli_options import KEEP_BOUNDARY_HELP, VARIANT_FLAG_NAMES
+from fusion.cli_options import KEEP_BOUNDARY_HELP, VARIANT_FLAG_NAMES, add_subcommand
 from sim.cli import NON_NEGATIVE, OVERWRITE_HELP, POSITIVE, count_type
 
 __all__ = ["COMMANDS", "add_command"]
@@ -239,7 +239,5 @@ def add_command(subparsers, name: str) -> None:
     ValueError
         An unknown name.
     """
-    builders = {"methods": _add_methods, "bench": _add_bench, "reproduce": _add_reproduce}
-    if name not in builders:
-        raise ValueError(f"add_command: {name!r} is not one of {', '.join(COMMANDS)}")
-    builders[name](subparsers)
+    add_subcommand(dict(zip(COMMANDS, (_add_methods, _add_bench, _add_reproduce), strict=True)),
+                   subparsers, name)

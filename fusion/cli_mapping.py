@@ -16,6 +16,7 @@ from fusion.cli_options import (
     add_dense_options,
     add_global_options,
     add_map_options,
+    add_subcommand,
 )
 from sim.cli import FINITE, OVERWRITE_HELP, count_type
 from sim.validation import depth_metres
@@ -338,8 +339,5 @@ def add_command(subparsers, name: str) -> None:
     ValueError
         An unknown name.
     """
-    builders = {"map": _add_map, "map-global": _add_map_global, "fill": _add_fill,
-                "run": _add_run, "show": _add_show}
-    if name not in builders:
-        raise ValueError(f"add_command: {name!r} is not one of {', '.join(COMMANDS)}")
-    builders[name](subparsers)
+    add_subcommand(dict(zip(COMMANDS, (_add_map, _add_map_global, _add_fill, _add_run,
+                                       _add_show), strict=True)), subparsers, name)

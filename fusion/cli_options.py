@@ -11,7 +11,7 @@ import argparse
 from sim.cli import FINITE, NON_NEGATIVE, POSITIVE, count_type
 
 __all__ = ["GLOBAL_FLAG_NAMES", "KEEP_BOUNDARY_HELP", "MAP_FLAG_NAMES", "VARIANT_FLAG_NAMES",
-           "add_dense_options", "add_global_options", "add_map_options"]
+           "add_dense_options", "add_global_options", "add_map_options", "add_subcommand"]
 
 VARIANT_FLAG_NAMES = {"variant": "--variant"}
 """Every command's name of a forced Mitsuba variant (see :func:`fusion.cli.main`); a command's own
@@ -163,3 +163,24 @@ def add_global_options(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(global_flags=tuple((action.option_strings[0], action.dest)
                                            for action in actions))
 
+
+def add_subcommand(builders: dict, subparsers, name: str) -> None:
+    """Add the subcommand ``name`` with its builder, for a command group's ``add_command``.
+
+    Parameters
+    ----------
+    builders : dict
+        The group's subcommands, in its help order: name -> ``builder(subparsers)``.
+    subparsers : argparse subparsers action
+        What ``ArgumentParser.add_subparsers`` returned; the subcommand is added last.
+    name : str
+        One of the group's subcommands.
+
+    Raises
+    ------
+    ValueError
+        An unknown name.
+    """
+    if name not in builders:
+        raise ValueError(f"add_command: {name!r} is not one of {', '.join(builders)}")
+    builders[name](subparsers)
