@@ -24,6 +24,7 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
+from benchmarks.bench_convergence import BLOCK_GOAL, COUNT_GOAL
 from benchmarks.record import PROVENANCE, file_hash
 
 __all__ = ["SECTIONS", "Section", "main", "write_report"]
@@ -194,10 +195,6 @@ def _hbars(ax, labels: list[str], series: dict[str, list[float]], xlabel: str,
 
 
 # ------------------------------------------------------------- simulate_cost.json (cost table)
-
-COUNT_GOAL, BLOCK_GOAL = 0.03, 0.05
-"""``bench_convergence.py``'s event goals (|count error|, worst block error), drawn on its plot.
-Kept here so that the page builds without importing the benchmark (Mitsuba)."""
 
 COST_STAGES = ("setup", "frames", "event render", "emulate", "event write", "per-event depth",
                "motion truth", "other")

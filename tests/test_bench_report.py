@@ -151,14 +151,6 @@ def test_the_command_line_takes_the_results_folder(results, tmp_path, capsys):
     assert "expected a folder of JSON files" in capsys.readouterr().err
 
 
-def test_the_goals_drawn_are_the_convergence_benchmark_s_own():
-    """The page draws the goals without importing the benchmark (and Mitsuba): the same values."""
-    from benchmarks import bench_convergence, report
-
-    assert (report.COUNT_GOAL, report.BLOCK_GOAL) == (bench_convergence.COUNT_GOAL,
-                                                      bench_convergence.BLOCK_GOAL)
-
-
 def test_the_record_names_the_command_and_the_hash_of_each_file_it_changed(tmp_path):
     """``benchmarks.record`` runs the command, then records the files it wrote (and only
     those), which the page then shows as recorded."""
