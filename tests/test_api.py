@@ -37,11 +37,12 @@ def test_importing_the_packages_does_not_load_mitsuba():
 
 
 def _guide_python_block(guide: str, marker: str) -> str:
-    import re
-    from pathlib import Path
+    """The one Python example of ``docs/guides/GUIDE`` that holds ``marker``, read by the docs'
+    own harness (tests/test_docs_examples.py)."""
+    from tests.test_docs_examples import ROOT, examples
 
-    page = (Path(__file__).resolve().parents[1] / "docs" / "guides" / guide).read_text()
-    blocks = [b for b in re.findall(r"```python\n(.*?)```", page, flags=re.S) if marker in b]
+    blocks = [e.code for e in examples(ROOT / "docs" / "guides" / guide)
+              if e.language == "python" and marker in e.code]
     assert len(blocks) == 1, f"{guide}: expected one Python example with {marker!r}"
     return blocks[0]
 
