@@ -126,6 +126,15 @@ def _interval_levels(y0, a, b, x, filtered: bool):
     return (dr.select(turns, f_turn, 1.0), dr.select(off, b, y_turn), dr.select(off, b, y1))
 
 
+def _drifted_inputs(a, b, x, drift, filtered: bool):
+    """:func:`sim.noise.drifted_inputs`; ``filtered`` False: every ``x`` is ``inf``."""
+    if not filtered:
+        return a, b + drift
+    off = x == math.inf
+    lead = drift / x
+    return dr.select(off, a, a + lead), dr.select(off, b + drift, b + drift + lead)
+
+
 def _threshold_crossings(level, ref, c_on, c_off):
     """:func:`sim.events.threshold_crossings`: ``(count, signed step, polarity)``, the count a
     float64 holding a whole number."""
@@ -211,7 +220,9 @@ def _write(m, out, n, last, p, level, lb, x, ta, dt, pieces, refractory: int, fi
     those of the level's first monotonic piece, then those of its second; return the lane's
     next slot and last event. ``pieces`` holds, per piece, ``(count, step, polarity,
     reference before it, f_lo, y_lo, f_hi, y_hi, count and polarity against the leak-free
-    reference)``: a crossing beyond that count, or of the other polarity, is the leak's."""
+    reference)``: a crossing beyond that count, or of the other polarity, is the leak's.
+    ``level`` is the filter's output and input at the interval's start and ``lb`` the input at
+    its end, all with the leak drift added (:func:`_drifted_inputs`)."""
     out_t, out_pix, out_p, out_cause, keep = out
     lf, la = level
     first, second = pieces
@@ -250,11 +261,13 @@ def _second_piece(m, f_turn, y1, r, c_on, c_off, filtered: bool):
 
 @dr.syntax
 def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered: bool,
-            leaky: bool, tolerance_ns: float):
+            leaky: bool, given: bool, tolerance_ns: float):
     """One lane per run of a pixel's samples: its crossings counted (``out`` None; returns
-    the counts) or written from the run's slot on (returns the run's state at its end)."""
+    the counts) or written from the run's slot on (returns the run's state at its end).
+    ``leaky``: the leak drift of each interval is drawn from ``normals``; ``given``: that of
+    each run's first interval is the run's ``drift`` instead (the frame emulator's)."""
     t, L, cutoff, normals = samples
-    p, first, end, k, r, lf, la, last, c_on, c_off, rate, free, n = runs
+    p, first, end, k, r, lf, la, last, c_on, c_off, rate, drift, n = runs
     # Copies: the loop updates its state in place, and ``runs`` serves both launches.
     k, r, lf, la, last, n = (type(v)(v) for v in (k, r, lf, la, last, n))
     ta = dr.gather(m.Int64, t, first)
@@ -264,31 +277,46 @@ def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered
         lb = dr.gather(m.Float64, L, j)
         dt = tb - ta
         x = _lowpass_exponent(m, cutoff, j, dt) if filtered else m.Float64(math.inf)
-        # The interval's leak-free reference: the reference before its drift (before the
-        # kernel's for the first interval: ``free``).
-        rf = dr.select(j == first + 1, free, r)
-        if leaky:
-            jitter = 1.0 - leak_jitter * dr.gather(m.Float64, normals, k)
-            jitter = dr.select(jitter < 0.0, 0.0, jitter)
-            r += -((m.Float64(dt) * 1e-9) * rate * jitter * c_on)
-        f_turn, y_turn, lf_new = _interval_levels(lf, la, lb, x, filtered)
-        # The level's monotonic pieces: up to the turn, then (if it turns) to the end.
+        # The leak drifts the reference down by d over the interval, linearly: the crossings
+        # are the level plus the drift so far against the interval's first reference r (its
+        # leak-free reference too), on the input _drifted_inputs gives.
+        rf = m.Float64(r)
+        d = m.Float64(0.0)
+        a, b = la, lb
+        if leaky or given:
+            if leaky:
+                jitter = 1.0 - leak_jitter * dr.gather(m.Float64, normals, k)
+                jitter = dr.select(jitter < 0.0, 0.0, jitter)
+                d = (m.Float64(dt) * 1e-9) * rate * jitter * c_on
+            if given:
+                d = dr.select(j == first + 1, drift, d)
+            a, b = _drifted_inputs(la, lb, x, d, filtered)
+        f_turn, y_turn, y_end = _interval_levels(lf, a, b, x, filtered)
+        lf_new = y_end
+        if leaky or given:
+            lf_new = _interval_levels(lf, la, lb, x, filtered)[2]
+        # The monotonic pieces of the level plus drift: up to the turn, then (if it turns) to
+        # the end.
         count, c, sign = _threshold_crossings(y_turn, r, c_on, c_off)
         r_turn = r + count * c
-        count_2, c_2, sign_2 = _second_piece(m, f_turn, lf_new, r_turn, c_on, c_off, filtered)
-        free_count, free_c, free_sign = _threshold_crossings(y_turn, rf, c_on, c_off)
-        free_count_2, _, free_sign_2 = _second_piece(m, f_turn, lf_new, rf + free_count * free_c,
-                                                    c_on, c_off, filtered)
+        count_2, c_2, sign_2 = _second_piece(m, f_turn, y_end, r_turn, c_on, c_off, filtered)
+        free_count, free_c, free_sign = _threshold_crossings(y_turn - d * f_turn, rf, c_on,
+                                                             c_off)
+        free_count_2, _, free_sign_2 = _second_piece(m, f_turn, y_end - d * 1.0,
+                                                    rf + free_count * free_c, c_on, c_off,
+                                                    filtered)
         if out is None:
             n += m.UInt32(count + count_2)
         else:
-            n, last = _write(m, out, n, last, p, (lf, la), lb, x, ta, m.Float64(dt),
+            n, last = _write(m, out, n, last, p, (lf, a), b, x, ta, m.Float64(dt),
                              ((count, c, sign, r, 0.0, lf, f_turn, y_turn, free_count,
                                free_sign),
-                              (count_2, c_2, sign_2, r_turn, f_turn, y_turn, 1.0, lf_new,
+                              (count_2, c_2, sign_2, r_turn, f_turn, y_turn, 1.0, y_end,
                                free_count_2, free_sign_2)),
                              refractory, filtered, tolerance_ns)
         r = r_turn + count_2 * c_2
+        if leaky or given:
+            r = r - d
         lf, la, ta = lf_new, lb, tb
         j += 1
         k += 1
@@ -355,7 +383,7 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
                  ref: np.ndarray, level: np.ndarray, raw: np.ndarray, last_t: np.ndarray,
                  c_on: np.ndarray, c_off: np.ndarray, leak: tuple[np.ndarray, float],
                  normals: np.ndarray, refractory: int, tolerance_ns: float,
-                 device: str = "llvm", leak_free: np.ndarray | None = None
+                 device: str = "llvm", drift: np.ndarray | None = None
                  ) -> tuple[np.ndarray, ...]:
     """The threshold crossings of a block of per-pixel samples, on Dr.Jit's ``device``.
 
@@ -388,12 +416,13 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
         (:data:`sim.events.CROSSING_TOLERANCE_NS`, passed in: :mod:`sim.events` imports this
         module).
     device : {"llvm", "cuda"}
-    leak_free : (P,) float64 ndarray, optional
-        Each pixel's reference before the first interval's leak drift, where the caller
-        drifted ``ref`` before (the frame emulator); default ``ref`` (the drift, if any, is
-        the kernel's). A crossing beyond the count against the leak-free reference of its
-        interval, on its piece, is the leak's (:data:`sim.noise.CAUSE_LEAK`), the others the
-        signal's (:mod:`sim.noise`'s rule).
+    drift : (P,) float64 ndarray, optional
+        Each pixel's leak drift over its first interval (log units, >= 0), where the caller
+        drew it (the frame emulator); default: the kernel's, from ``leak`` and ``normals``
+        (none without leak). The reference drifts linearly within an interval and each
+        crossing is timed where the level meets it (:func:`sim.noise.drifted_inputs`); a
+        crossing beyond the count of the level alone, on its piece, is the leak's
+        (:data:`sim.noise.CAUSE_LEAK`), the others the signal's (:mod:`sim.noise`'s rule).
 
     Returns
     -------
@@ -411,11 +440,11 @@ def pixel_events(pix: np.ndarray, t: np.ndarray, L: np.ndarray, cutoff: np.ndarr
     # numba kernel's by up to 3 ulp) and folds ``a * 0`` to 0.
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         return _pixel_events(pix, t, L, cutoff, ref, level, raw, last_t, c_on, c_off, leak,
-                             normals, refractory, tolerance_ns, device, leak_free)
+                             normals, refractory, tolerance_ns, device, drift)
 
 
 def _pixel_events(pix, t, L, cutoff, ref, level, raw, last_t, c_on, c_off, leak, normals,
-                  refractory, tolerance_ns, device, leak_free):
+                  refractory, tolerance_ns, device, drift):
     """:func:`pixel_events`' body, under strict IEEE arithmetic."""
     m = _backend(device)
     if len(pix) == 0:
@@ -439,9 +468,10 @@ def _pixel_events(pix, t, L, cutoff, ref, level, raw, last_t, c_on, c_off, leak,
             on(m.UInt32, first_normal), on(m.Float64, ref[p]), on(m.Float64, level[p]),
             on(m.Float64, raw[p]), on(m.Int64, last_t[p]), on(m.Float64, c_on[p]),
             on(m.Float64, c_off[p]), on(m.Float64, leak_rates[p] if leaky else np.zeros(len(p))),
-            on(m.Float64, (ref if leak_free is None else leak_free)[p]),
+            on(m.Float64, np.zeros(len(p)) if drift is None else drift[p]),
             dr.zeros(m.UInt32, len(p))]
-    flags = (float(leak_jitter), int(refractory), filtered, leaky, float(tolerance_ns))
+    flags = (float(leak_jitter), int(refractory), filtered, leaky, drift is not None,
+             float(tolerance_ns))
     # The counting launch leaves every run at its end (only ``last_t`` waits for the writing).
     counts, r, lf, la, _ = _kernel(m, samples, runs, None, *flags)
     dr.eval(counts, r, lf, la)

@@ -27,7 +27,8 @@ Choices (documented here because they change the events):
 - Noise (see :mod:`sim.noise`): photoreceptor low-pass filter on L with a cutoff that falls in
   the dark (solved exactly for the linear ramp between samples, with the logarithmic mean of
   the cutoffs at the interval's two ends), leak (each pixel's reference
-  drifts down at its own fixed rate, giving ON events), background activity and hot pixels
+  drifts down at its own fixed rate, linearly within an interval, giving ON events stamped
+  where the drifting reference meets the level), background activity and hot pixels
   (Poisson events in [t0, t1) merged into the stream). Unlike v2e, a background event does not
   reset the pixel's reference.
 
@@ -54,6 +55,7 @@ from sim.noise import (
     NoiseParams,
     background_events,
     cutoff_frequency,
+    drifted_inputs,
     hot_pixel_events,
     hot_pixel_mask,
     leak_drift,
@@ -231,11 +233,14 @@ def interval_count(r, c_on, c_off, y0, a, b, x):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, parallel=True)
-def _count_rows(L0, raw0, raw1, x, ref, c_on, c_off, L1):  # pragma: no cover - compiled
+def _count_rows(L0, raw0, raw1, x, ref, c_on, c_off, drift, L1):  # pragma: no cover - compiled
     """Events per row; -1 for a row holding a non-finite level. Writes each pixel's level at
-    the end of the interval (filtered when ``x`` is finite) into ``L1``."""
+    the end of the interval (filtered when ``x`` is finite) into ``L1``. ``drift`` is each
+    pixel's leak drift over the interval ((H, W), >= 0; empty without leak): the crossings are
+    those of the level against the reference as it drifts (:func:`sim.noise.drifted_inputs`)."""
     height, width = raw1.shape
     counts = np.zeros(height, dtype=np.int64)
+    leaky = drift.size > 0
     for y in numba.prange(height):
         n = 0
         for i in range(width):
@@ -243,8 +248,14 @@ def _count_rows(L0, raw0, raw1, x, ref, c_on, c_off, L1):  # pragma: no cover - 
             if not math.isfinite(v):
                 n = -1
                 break
-            m, L1[y, i] = interval_count(ref[y, i], c_on[y, i], c_off[y, i], L0[y, i],
-                                         raw0[y, i], v, x[y, i])
+            if leaky:
+                a, b = drifted_inputs(raw0[y, i], v, x[y, i], drift[y, i])
+                m, _ = interval_count(ref[y, i], c_on[y, i], c_off[y, i], L0[y, i], a, b,
+                                      x[y, i])
+                L1[y, i] = interval_levels(L0[y, i], raw0[y, i], v, x[y, i])[2]
+            else:
+                m, L1[y, i] = interval_count(ref[y, i], c_on[y, i], c_off[y, i], L0[y, i],
+                                             raw0[y, i], v, x[y, i])
             n += m
         counts[y] = n
     return counts
@@ -252,20 +263,25 @@ def _count_rows(L0, raw0, raw1, x, ref, c_on, c_off, L1):  # pragma: no cover - 
 
 @numba.njit(cache=True, parallel=True)
 def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, refractory,
-                leak_free, out_t, out_x, out_y, out_p, out_cause,
+                drift, out_t, out_x, out_y, out_p, out_cause,
                 keep):  # pragma: no cover - compiled
-    """Write the crossings :func:`_count_rows` counted, each with its cause: ``leak_free`` is
-    the references before the interval's leak drift ((H, W), or empty without leak); a
-    crossing beyond the count against it on its piece is :data:`~sim.noise.CAUSE_LEAK`, the
+    """Write the crossings :func:`_count_rows` counted, each with its cause, and leave each
+    reference where the interval ends it (its leak ``drift`` included). The crossings are
+    those of the level plus the drift so far against the reference the interval started with
+    (:func:`sim.noise.drifted_inputs`); on each monotonic piece of that sum, a crossing beyond
+    the count of the level alone (the leak-free count) is :data:`~sim.noise.CAUSE_LEAK`, the
     others :data:`~sim.noise.CAUSE_SIGNAL`."""
     height, width = raw1.shape
-    leaky = leak_free.size > 0
+    leaky = drift.size > 0
     for y in numba.prange(height):
         k = offsets[y]
         for i in range(width):
             r = ref[y, i]
-            rf = leak_free[y, i] if leaky else r
+            rf = r
+            d = drift[y, i] if leaky else 0.0
             y0, a, b, xi = L0[y, i], raw0[y, i], raw1[y, i], x[y, i]
+            if leaky:
+                a, b = drifted_inputs(a, b, xi, d)
             f_turn, y_turn, y1 = interval_levels(y0, a, b, xi)
             last = last_t[y, i]
             # The level's monotonic pieces: up to the turn, then (if it turns) to the end.
@@ -274,7 +290,8 @@ def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, re
                 n, c, sign = threshold_crossings(y_hi, r, c_on[y, i], c_off[y, i])
                 nf, cf, sf = n, c, sign
                 if leaky:
-                    nf, cf, sf = threshold_crossings(y_hi, rf, c_on[y, i], c_off[y, i])
+                    nf, cf, sf = threshold_crossings(y_hi - d * f_hi, rf, c_on[y, i],
+                                                     c_off[y, i])
                 for j in range(1, n + 1):
                     t = filtered_crossing_time(r + j * c, y0, a, b, xi, f_lo, y_lo, f_hi, y_hi,
                                                t0, dt)
@@ -295,7 +312,7 @@ def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, re
                     break
                 f_lo, y_lo, f_hi, y_hi = f_hi, y_hi, 1.0, y1
             last_t[y, i] = last
-            ref[y, i] = r
+            ref[y, i] = r - d if leaky else r
 
 
 def clocked(method):
@@ -526,17 +543,16 @@ class EventEmulator:
             x = lowpass_exponent(dt_ns * 1e-9, self._cutoff, cutoff)
         else:
             x = np.full(self.shape, np.inf)
-        leak_free = np.zeros((0, 0))
+        drift = np.zeros((0, 0))
         if noise.leak_rate > 0:
-            leak_free = self.ref.copy()
-            self.ref += leak_drift(dt_ns * 1e-9, self.c_on, self.leak_rates, noise, self._rng)
+            drift = -leak_drift(dt_ns * 1e-9, self.c_on, self.leak_rates, noise, self._rng)
         raw = L1
         if self.kernel == "drjit":
             events, causes, L1 = self._drjit_crossings(
-                raw, cutoff if noise.cutoff_hz > 0 else None, self._t, dt_ns, leak_free)
+                raw, cutoff if noise.cutoff_hz > 0 else None, self._t, dt_ns, drift)
         else:
             events, causes, L1 = self._crossings(self._L, self._raw, raw, x, self._t, dt_ns,
-                                                 leak_free)
+                                                 drift)
         events = self._with_noise(events, causes, self._t, t1_ns, Y)
         self._L, self._raw, self._cutoff, self._t = L1, raw, cutoff, t1_ns
         return events
@@ -568,14 +584,14 @@ class EventEmulator:
         self.last_causes = self.last_causes.astype(np.uint8, copy=False)
         return events
 
-    def _crossings(self, L0, raw0, raw1, x, t0_ns: int, dt_ns: int, leak_free: np.ndarray
+    def _crossings(self, L0, raw0, raw1, x, t0_ns: int, dt_ns: int, drift: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The interval's threshold crossings (sorted events), their causes (uint8, signal or
-        leak: ``leak_free`` is the references (H, W) before the interval's leak drift, or
-        empty without leak) and each pixel's level at its end (H, W): ``raw1`` itself without
-        the filter (``x`` all inf)."""
+        leak: ``drift`` is each pixel's leak drift over the interval (H, W), >= 0, or empty
+        without leak) and each pixel's level at its end (H, W): ``raw1`` itself without the
+        filter (``x`` all inf)."""
         L1 = np.empty(self.shape)
-        counts = _count_rows(L0, raw0, raw1, x, self.ref, self.c_on, self.c_off, L1)
+        counts = _count_rows(L0, raw0, raw1, x, self.ref, self.c_on, self.c_off, drift, L1)
         if np.any(counts < 0):
             raise ValueError("L1 has non-finite values; expected log intensities")
         total = int(counts.sum())
@@ -589,7 +605,7 @@ class EventEmulator:
         cause = np.empty(total, np.uint8)
         refractory = int(round(self.params.noise.refractory_period * 1e9))
         _write_rows(L0, raw0, raw1, x, self.ref, self.c_on, self.c_off, self._last_t, offsets,
-                    t0_ns, float(dt_ns), refractory, leak_free, t, xs, y, p, cause, keep)
+                    t0_ns, float(dt_ns), refractory, drift, t, xs, y, p, cause, keep)
         # Time order, ties in pixel order: sort on (t - t0) * pixels + pixel index. The key is
         # unique unless one pixel fires twice in the same nanosecond, so the fast (unstable)
         # sort gives the stable order; it fits int64 for intervals up to ~9e18 / (H W) ns.
@@ -603,12 +619,12 @@ class EventEmulator:
         return events, cause[order], L1
 
     def _drjit_crossings(self, raw1: np.ndarray, cutoff1: np.ndarray | None, t0_ns: int,
-                         dt_ns: int, leak_free: np.ndarray
+                         dt_ns: int, drift: np.ndarray
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`_crossings` on Dr.Jit's device: the interval as a block of per-pixel samples,
-        two a pixel (:func:`sim._drjit_events.pixel_events`, the leak already moved into
-        ``ref``, ``leak_free`` the references before it or empty); ``cutoff1`` each pixel's
-        cutoff at the interval's end (None: no filter)."""
+        two a pixel (:func:`sim._drjit_events.pixel_events`, given each pixel's leak
+        ``drift`` over it, or empty); ``cutoff1`` each pixel's cutoff at the interval's end
+        (None: no filter)."""
         from sim._drjit_events import pixel_events
 
         if not np.all(np.isfinite(raw1)):
@@ -627,7 +643,7 @@ class EventEmulator:
             np.stack(ends, axis=1).reshape(-1), cutoff, self.ref.reshape(-1), level, raw,
             self._last_t.reshape(-1), self.c_on.reshape(-1), self.c_off.reshape(-1),
             (np.zeros(0), 0.0), np.zeros(0), refractory, CROSSING_TOLERANCE_NS,
-            device=self._device, leak_free=leak_free.reshape(-1) if leak_free.size else None)
+            device=self._device, drift=drift.reshape(-1) if drift.size else None)
         # The order of _crossings: time, ties in pixel order.
         order = np.argsort((t - t0_ns) * n + pix)
         if refractory > 0:

@@ -36,12 +36,16 @@ Photoreceptor low-pass (:func:`cutoff_frequency`, :func:`lowpass_exponent`, :fun
     level is found on that solution (:func:`ramp_turn`, :func:`ramp_crossing`; used by
     :mod:`sim.events`).
 
-Leak events (:func:`leak_rate_map`, :func:`leak_drift`)
+Leak events (:func:`leak_rate_map`, :func:`leak_drift`, :func:`drifted_inputs`)
     Junction leakage in the reset switch moves each pixel's reference *down* by
     ``rate * C_on`` per second, so a static pixel fires ON events at ``rate``. The per-pixel
     rate is log-normal, ``leak_rate * 10 ** (leak_rate_cov_decades * N(0, 1))`` (fixed), and
     each step's drift is scaled by ``1 - leak_jitter * N(0, 1)`` (temporal jitter, floored at
-    0 so the reference never moves up). As v2e's ``subtract_leak_current``.
+    0 so the reference never moves up). As v2e's ``subtract_leak_current``. Unlike v2e, which
+    moves the reference once per frame, the drift is continuous: linear within each interval
+    between two samples, and a leak event is stamped at the moment the drifting reference
+    meets the (filtered) level, solved as the signal's crossings are (:func:`drifted_inputs`),
+    not at the interval's start or end.
 
 Background activity / shot noise (:func:`shot_noise_rate_map`, :func:`background_events`)
     A Poisson process per pixel, half ON and half OFF as in v2e's ``generate_shot_noise``
@@ -74,12 +78,13 @@ Causes (each event's label, :mod:`sim.event_labels`)
     :data:`CAUSE_SIGNAL` a threshold crossing of the signal; :data:`CAUSE_SHOT` a
     background-activity event (:func:`background_events`); :data:`CAUSE_LEAK` a crossing that
     the interval's leak drift added (the emulators' rule: between two samples of a pixel, its
-    crossings are counted twice on each monotonic piece of its level, against its reference
-    as it is (leak drift of the interval included) and against the *leak-free* reference
-    (the same without this interval's drift); the crossings beyond the leak-free count, the
-    last ones of the piece, are leak, the others signal); :data:`CAUSE_HOT_PIXEL` an event of
-    a hot pixel (:func:`hot_pixel_events`). A leak event is always ON (the drift lowers the
-    reference); without leak (``leak_rate`` 0) no event is one.
+    crossings are counted twice on each monotonic piece of its level plus the drift so far,
+    against the reference the interval started with: once for that sum (the events emitted)
+    and once for the level alone at the piece's end (the *leak-free* count); the crossings
+    beyond the leak-free count, the last ones of the piece, are leak, the others signal);
+    :data:`CAUSE_HOT_PIXEL` an event of a hot pixel (:func:`hot_pixel_events`). A leak
+    event is always ON (the drift lowers the reference); without leak (``leak_rate`` 0) no
+    event is one.
 """
 
 from __future__ import annotations
@@ -104,6 +109,7 @@ __all__ = [
     "NoiseParams",
     "background_events",
     "cutoff_frequency",
+    "drifted_inputs",
     "hot_pixel_events",
     "hot_pixel_mask",
     "leak_drift",
@@ -482,6 +488,28 @@ def ramp_turn(y0, a, b, x):  # pragma: no cover - compiled
         return 1.0
     f = math.log1p(lead / slope) / x
     return f if 0.0 < f < 1.0 else 1.0
+
+
+@numba.njit(cache=True, inline="always")
+def drifted_inputs(a, b, x, drift):  # pragma: no cover - compiled
+    """The input ramp whose response is the level *plus* a drift linear over the interval.
+
+    The leak moves a pixel's reference down by ``drift`` (log units, >= 0) linearly over the
+    interval, so the pixel fires when its level *minus* the moving reference crosses a
+    threshold: the level plus ``drift * f`` against the reference the interval started with.
+    That sum is itself the filter's response (:func:`ramp_response`, same ``y0`` and ``x``)
+    to the input ramp from ``a + drift / x`` to ``b + drift + drift / x``: with ``tau``
+    the filter's time constant, ``tau d(y + D f)/dt = (u + D f + D / x) - (y + D f)``. Without
+    the filter (``x = inf``) it is the line from ``a`` to ``b + drift``. So the crossings of
+    the drifting reference are solved in continuous time by the same code as the signal's
+    (:func:`ramp_turn`, :func:`ramp_crossing`). ``drift / x`` is ``rate C_on / (2 pi f)``
+    whatever the interval's length, so it stays small. ``drift = 0`` returns ``a, b``
+    exactly.
+    """
+    if x == math.inf:
+        return a, b + drift
+    lead = drift / x
+    return a + lead, b + drift + lead
 
 
 @numba.njit(cache=True)

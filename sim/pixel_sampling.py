@@ -77,6 +77,7 @@ from sim.noise import (
     CAUSE_SIGNAL,
     _cutoff,
     _lowpass_exponent,
+    drifted_inputs,
 )
 from sim.sampling import SPLIT, SamplingParams, _point_flow, _twist, contrast_scale
 
@@ -450,11 +451,13 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
 
     One pass: the first ``len(out_t)`` crossings are written (time solved once, ``keep``
     False for those the refractory period drops, and each one's cause in ``out_cause``:
-    :data:`~sim.noise.CAUSE_LEAK` beyond the count against the leak-free reference of the
-    interval, the reference less its drift, on its piece; else
-    :data:`~sim.noise.CAUSE_SIGNAL`, the rule of :mod:`sim.noise`), the rest only counted (no
-    time solved). A return above ``len(out_t)`` means the outputs were too short: restore the
-    state and call again with outputs that long (:meth:`PixelEventEmulator._numba_crossings`).
+    :data:`~sim.noise.CAUSE_LEAK` beyond the count of the level alone, without the leak drift,
+    on its piece; else :data:`~sim.noise.CAUSE_SIGNAL`, the rule of :mod:`sim.noise`), the
+    rest only counted (no time solved). The leak drifts each reference linearly within an
+    interval, and a crossing is timed where the level meets the drifting reference
+    (:func:`sim.noise.drifted_inputs`). A return above ``len(out_t)`` means the outputs were
+    too short: restore the state and call again with outputs that long
+    (:meth:`PixelEventEmulator._numba_crossings`).
 
     ``exponent[j - 1]`` is the interval from sample ``j - 1`` to ``j`` in time constants of
     the low-pass (:func:`sim.noise.lowpass_exponent`; ``inf``: no filter); ``leak`` is (rate
@@ -484,21 +487,27 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
             dt = tb - ta
             x = exponent[j - 1]
             rf = r                                  # the interval's leak-free reference
+            # The leak drifts the reference down by d over the interval, linearly: the
+            # crossings are the level plus the drift so far against r (drifted_inputs).
+            d, a, b = 0.0, la, lb
             if leak_rates.size:
                 jitter = 1.0 - leak_jitter * normals[k]
                 if jitter < 0.0:
                     jitter = 0.0
-                r += -((dt * 1e-9) * leak_rates[p] * jitter * c_on[p])
-            f_turn, y_turn, lf_new = interval_levels(lf, la, lb, x)
-            # The level's monotonic pieces: up to the turn, then (if it turns) to the end.
+                d = (dt * 1e-9) * leak_rates[p] * jitter * c_on[p]
+                a, b = drifted_inputs(la, lb, x, d)
+            f_turn, y_turn, y_end = interval_levels(lf, a, b, x)
+            lf_new = interval_levels(lf, la, lb, x)[2] if leak_rates.size else y_end
+            # The monotonic pieces of the level plus drift: up to the turn, then (if it turns)
+            # to the end.
             f_lo, y_lo, f_hi, y_hi = 0.0, lf, f_turn, y_turn
             while True:
                 count, c, sign = threshold_crossings(y_hi, r, c_on[p], c_off[p])
-                nf, cf, sf = threshold_crossings(y_hi, rf, c_on[p], c_off[p])
+                nf, cf, sf = threshold_crossings(y_hi - d * f_hi, rf, c_on[p], c_off[p])
                 rf += nf * cf
                 if n + count <= capacity:
                     for i in range(1, count + 1):
-                        te = filtered_crossing_time(r + i * c, lf, la, lb, x, f_lo, y_lo, f_hi,
+                        te = filtered_crossing_time(r + i * c, lf, a, b, x, f_lo, y_lo, f_hi,
                                                     y_hi, ta, float(dt))
                         out_t[n] = te
                         out_pix[n] = p
@@ -515,7 +524,8 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
                 r += count * c
                 if f_hi >= 1.0:
                     break
-                f_lo, y_lo, f_hi, y_hi = f_hi, y_hi, 1.0, lf_new
+                f_lo, y_lo, f_hi, y_hi = f_hi, y_hi, 1.0, y_end
+            r -= d
             lf, la, ta = lf_new, lb, tb
             j += 1
             k += 1

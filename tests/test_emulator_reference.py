@@ -33,6 +33,7 @@ from sim.events import (
 )
 from sim.noise import (
     _cutoff,
+    drifted_inputs,
     lowpass_exponent,
     noise_preset,
 )
@@ -69,26 +70,30 @@ def reference_block(emulator: PixelEventEmulator, pixels, times_ns, levels, lumi
             continue
         ta, tb, la, lb, x = int(times_ns[j - 1]), int(times_ns[j]), raw[p], levels[j], \
             exponent[j - 1]
+        # The leak moves the reference down by d, linearly over the interval: the crossings
+        # are those of the level plus the drift so far (drifted_inputs) against ref[p].
+        d, a, b = 0.0, la, lb
         if normals is not None:
             jitter = max(1.0 - noise.leak_jitter * normals[k], 0.0)
-            ref[p] += -(((tb - ta) * 1e-9) * emulator.leak_rates.reshape(-1)[p] * jitter
-                        * c_on[p])
+            d = ((tb - ta) * 1e-9) * emulator.leak_rates.reshape(-1)[p] * jitter * c_on[p]
+            a, b = drifted_inputs(la, lb, x, d)
         k += 1
         y0 = level[p]
-        f_turn, y_turn, y1 = interval_levels(y0, la, lb, x)
-        pieces = [(0.0, y0, f_turn, y_turn)] + ([(f_turn, y_turn, 1.0, y1)] if f_turn < 1.0
+        f_turn, y_turn, y_end = interval_levels(y0, a, b, x)
+        pieces = [(0.0, y0, f_turn, y_turn)] + ([(f_turn, y_turn, 1.0, y_end)] if f_turn < 1.0
                                                  else [])
         for f_lo, y_lo, f_hi, y_hi in pieces:
             n, c, sign = threshold_crossings(y_hi, ref[p], c_on[p], c_off[p])
             for i in range(1, n + 1):
-                t = int(filtered_crossing_time(ref[p] + i * c, y0, la, lb, x, f_lo, y_lo, f_hi,
+                t = int(filtered_crossing_time(ref[p] + i * c, y0, a, b, x, f_lo, y_lo, f_hi,
                                                y_hi, ta, float(tb - ta)))
                 if refractory > 0 and t - last_t[p] < refractory:
                     continue
                 last_t[p] = t
                 found.append((t, p, sign))
             ref[p] += n * c
-        level[p], raw[p] = y1, lb
+        ref[p] -= d
+        level[p], raw[p] = interval_levels(y0, la, lb, x)[2], lb
     found.sort(key=lambda e: (e[0], e[1]))
     events = np.empty(len(found), EVENT_DTYPE)
     for e, (t, p, sign) in zip(events, found, strict=True):

@@ -19,6 +19,7 @@ from sim.noise import (
     NoiseParams,
     background_events,
     cutoff_frequency,
+    drifted_inputs,
     hot_pixel_events,
     hot_pixel_mask,
     leak_drift,
@@ -326,6 +327,22 @@ def test_ramp_response_is_the_exact_solution_of_the_filter(x):
     assert ramp_response(1.0, half, 0.5, 1.0, x / 2) == pytest.approx(
         ramp_response(1.0, 0.1, 0.0, 1.0, x), abs=1e-12)
     assert ramp_response(0.3, 5.0, 0.0, 1.0, math.inf) == 0.3       # no filter: the input
+
+
+@pytest.mark.parametrize("x", [1e-3, 0.3, 1.2566, 12.566, 300.0, math.inf])
+def test_drifted_inputs_add_the_drift_to_the_filters_output(x):
+    """The response to the drifted input is the level plus ``drift * f`` (the textbook ramp
+    response, not the code's own), and no drift changes nothing, bit for bit."""
+    for y0, a, b in [(0.0, 0.0, 1.0), (0.4, 0.0, 1.0), (-0.2, 0.3, -0.5), (1.0, 1.0, 1.0)]:
+        if x == math.inf:
+            y0 = a                               # unfiltered, the level is the input
+        for drift in (0.0, 1e-4, 0.07, 0.6):
+            a2, b2 = drifted_inputs(a, b, x, drift)
+            for f in (0.0, 0.1, 0.5, 0.9, 1.0):
+                level = a + (b - a) * f if x == math.inf else _ramp_reference(f, y0, a, b, x)
+                assert ramp_response(f, y0, a2, b2, x) == pytest.approx(
+                    level + drift * f, rel=1e-9, abs=1e-9)
+        assert drifted_inputs(a, b, x, 0.0) == (a, b)
 
 
 def test_ramp_turn_finds_where_the_output_stops_falling():
