@@ -79,7 +79,7 @@ def test_a_local_cluster_writes_the_bytes_of_in_process_runs(reference, tmp_path
     rows = read_manifest(out)
     assert [r["job_id"] for r in rows] == [j.job_id for j in load_sweep(TINY).jobs]
     assert all(set(CONTRACT) <= set(r) for r in rows)
-    assert {r["status"] for r in rows} == {"done"} and {r["attempts"] for r in rows} == {"1"}
+    assert {r["status"] for r in rows} == {"done"} and {r["attempts"] for r in rows} == {1}
     assert [r["output_hash"] for r in rows] == [r["output_hash"] for r in
                                                 read_manifest(reference / "tiny")]
     for row in rows:
@@ -148,7 +148,7 @@ def test_a_killed_workers_job_runs_again_from_its_checkpoint(reference, tmp_path
     runs = [r for r in _runs(out) if r[1] == long_id]
     assert [r[0] for r in runs] == ["start", "start", "done"]
     assert runs[-1][-1] == "resumed=True" and runs[-1][2] != f"pid={killed[0]}"
-    assert read_manifest(out)[1]["attempts"] == "2"
+    assert read_manifest(out)[1]["attempts"] == 2
 
 
 def test_an_interrupted_generate_resumes_to_the_same_dataset(reference, tmp_path):
@@ -201,11 +201,61 @@ def test_a_job_that_cannot_render_is_recorded_and_the_others_complete(reference,
     result = generate(sweep, out, workers=1, retries=1, **QUIET)
     assert (result.ran, result.failed) == (1, 1)
     good, bad = read_manifest(out)
-    assert good["status"] == "done" and good["error"] == ""
+    assert good["status"] == "done" and good["error"] is None
     assert good["output_hash"] == read_manifest(reference / "tiny")[0]["output_hash"]
-    assert bad["status"] == "failed" and bad["attempts"] == "2"         # tried, retried once
+    assert bad["status"] == "failed" and bad["attempts"] == 2         # tried, retried once
     assert "lump.obj" in bad["error"] and "\n" not in bad["error"]
-    assert bad["output_hash"] == "" and not (out / bad["path"]).exists()
+    assert bad["output_hash"] is None and not (out / bad["path"]).exists()
+    # The failed row keeps the schema's types in the Parquet copy too.
+    assert _parquet_schema(out) == _parquet_schema(reference / "tiny", out)
+
+
+def _parquet_schema(folder: Path, like: Path | None = None) -> dict[str, str]:
+    """Column -> Arrow type of ``manifest.parquet`` (the columns of ``like``'s, if given)."""
+    pq = pytest.importorskip("pyarrow.parquet")
+    schema = pq.read_schema(folder / "manifest.parquet")
+    names = pq.read_schema((like or folder) / "manifest.parquet").names
+    return {name: str(schema.field(name).type) for name in names if name in schema.names}
+
+
+def test_the_manifest_keeps_its_types_through_resume(reference, tmp_path):
+    """``--resume`` reloads the finished jobs' rows from ``manifest.csv``: the Parquet copy
+    keeps the schema of a fresh run (numbers stay int64 and float64, an all-empty ``error``
+    column stays a string column), the CSV its bytes, and the rows their types."""
+    import shutil
+
+    out = tmp_path / "tiny"
+    shutil.copytree(reference / "tiny", out)
+    fresh_csv = (out / "manifest.csv").read_bytes()
+    fresh = _parquet_schema(out)
+    result = generate(TINY, out, workers=0, resume=True, **QUIET)
+    assert (result.ran, result.skipped) == (0, 4)
+    assert (out / "manifest.csv").read_bytes() == fresh_csv
+    assert _parquet_schema(out) == fresh
+    assert {k: fresh[k] for k in ("seed", "attempts", "events", "frames", "renders",
+                                  "pixel_samples", "duration_s", "wall_s", "error",
+                                  "contrast")} == {
+        "seed": "int64", "attempts": "int64", "events": "int64", "frames": "int64",
+        "renders": "int64", "pixel_samples": "int64", "duration_s": "double",
+        "wall_s": "double", "error": "string", "contrast": "double"}
+    pq = pytest.importorskip("pyarrow.parquet")
+    assert pq.read_table(out / "manifest.parquet").to_pylist() == read_manifest(out)
+    row = read_manifest(out)[0]
+    assert isinstance(row["events"], int) and isinstance(row["wall_s"], float)
+    assert row["error"] is None
+
+
+def test_a_manifest_cell_not_of_its_columns_type_is_refused(reference, tmp_path):
+    import shutil
+
+    out = tmp_path / "tiny"
+    shutil.copytree(reference / "tiny", out)
+    rows = read_manifest(out)
+    text = (out / "manifest.csv").read_text()
+    (out / "manifest.csv").write_text(text.replace(f",{rows[2]['events']},", ",many,", 1))
+    with pytest.raises(ParameterError, match=r"manifest.csv:4: events 'many'; expected an "
+                                             r"integer"):
+        read_manifest(out)
 
 
 def test_a_worker_with_two_threads_runs_its_jobs_one_at_a_time(reference, tmp_path):
@@ -215,7 +265,7 @@ def test_a_worker_with_two_threads_runs_its_jobs_one_at_a_time(reference, tmp_pa
     result = generate(TINY, out, workers=1, threads=2, retries=0, **QUIET)
     assert result.failed == 0
     assert _tree(out) == _tree(reference / "tiny")
-    assert {r["attempts"] for r in read_manifest(out)} == {"1"}
+    assert {r["attempts"] for r in read_manifest(out)} == {1}
 
 
 def test_dry_run_lists_every_job_with_a_probed_cost_and_writes_nothing(tmp_path, capsys):

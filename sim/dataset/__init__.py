@@ -32,13 +32,20 @@ from sim.dataset._loader import (
     Sample,
     open_dataset,
 )
-from sim.dataset._manifest import output_hash, read_manifest, write_manifest
+from sim.dataset._manifest import (
+    COLUMN_TYPES,
+    column_types,
+    output_hash,
+    read_manifest,
+    write_manifest,
+)
 from sim.dataset._run import GenerateResult, default_cluster_size, estimate_jobs, generate
 from sim.dataset._sweep import Sweep, SweepError, load_sweep, parse_sweep
 
 __all__ = [
     # generate (sweeps, jobs, Dask, manifest)
-    "PARAMETERS", "GenerateResult", "Job", "Sweep", "SweepError", "default_cluster_size",
+    "COLUMN_TYPES", "PARAMETERS", "GenerateResult", "Job", "Sweep", "SweepError",
+    "column_types", "default_cluster_size",
     "estimate_jobs", "generate", "job_inputs", "load_sweep", "output_hash", "parse_sweep",
     "read_manifest", "run_job", "write_manifest",
     # loader and card (evfuse dataset)

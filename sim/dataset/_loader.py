@@ -194,14 +194,15 @@ class Dataset:
     sequences : tuple of sim.Sequence
         Their sequence folders (:func:`sim.load_sequence`), in the same order.
     manifest : tuple of dict
-        Their manifest rows (every column, as text).
+        Their manifest rows, every column typed as :func:`sim.dataset.read_manifest` gives it
+        (int, float or str; None where empty).
     failed : tuple of (str, str)
         ``(job_id, error)`` of each failed job (skipped).
     pending : tuple of str
         The jobs not run yet (skipped).
     """
 
-    def __init__(self, folder: Path, time_unit: str, rows: list[dict[str, str]]) -> None:
+    def __init__(self, folder: Path, time_unit: str, rows: list[dict]) -> None:
         self.folder = folder
         self.time_unit = time_unit
         done = [row for row in rows if row["status"] == "done"]

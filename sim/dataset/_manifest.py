@@ -1,7 +1,12 @@
 """The dataset's manifest: one row per job (``DIR/manifest.csv``, and ``DIR/manifest.parquet``
 when pyarrow is importable), each job folder's counts (:func:`job_record`) and its output hash
 (:func:`output_hash`). Both files are rewritten atomically whenever a job finishes, so that a
-killed ``generate`` leaves a true manifest."""
+killed ``generate`` leaves a true manifest.
+
+One schema (:data:`COLUMN_TYPES`, :func:`column_types`) types both files and the rows
+:func:`read_manifest` returns: the writer turns every row into the CSV's text first and types
+the Parquet columns from that text, as the reader types what it reads, so a manifest keeps its
+types however its rows were made (a fresh run, ``--resume``, ``--retries``, failed jobs)."""
 
 from __future__ import annotations
 
@@ -16,8 +21,9 @@ from sim._atomic import partial_path, write_bytes_atomically
 from sim.output import MARKER
 from sim.validation import ParameterError
 
-__all__ = ["MANIFEST_CSV", "MANIFEST_PARQUET", "SOFTWARE_COLUMNS", "job_record",
-           "manifest_columns", "output_hash", "read_manifest", "write_manifest"]
+__all__ = ["COLUMN_TYPES", "MANIFEST_CSV", "MANIFEST_PARQUET", "SOFTWARE_COLUMNS",
+           "column_types", "job_record", "manifest_columns", "output_hash", "read_manifest",
+           "write_manifest"]
 
 MANIFEST_CSV = "manifest.csv"
 MANIFEST_PARQUET = "manifest.parquet"
@@ -30,6 +36,18 @@ _COUNTS = ("events", "frames", "renders", "pixel_samples", "duration_s", "wall_s
            "output_hash")
 SOFTWARE_COLUMNS = ("evfuse_version", "mitsuba_version", "drjit_version", "numpy_version")
 """The manifest's software columns (from each job's ``sequence.json``)."""
+
+COLUMN_TYPES: dict[str, type] = {
+    "job_id": str, "path": str, "status": str, "error": str, "scene": str, "seed": int,
+    "attempts": int, "events": int, "frames": int, "renders": int, "pixel_samples": int,
+    "duration_s": float, "wall_s": float, "output_hash": str,
+    **{name: str for name in SOFTWARE_COLUMNS},
+}
+"""The type of each fixed column of the manifest: ``int`` (Parquet int64), ``float`` (float64)
+or ``str`` (string). An empty cell is None (null) in any column. A sweep parameter's column is
+typed by :func:`column_types` from its cells."""
+
+_ARROW = {int: "int64", float: "float64", str: "string"}
 
 
 def output_hash(folder: str | Path) -> str:
@@ -101,6 +119,63 @@ def manifest_columns(parameters: list[str]) -> list[str]:
     return [*_HEAD, *sorted(parameters), *_COUNTS, *SOFTWARE_COLUMNS]
 
 
+def _text(value) -> str:
+    """A cell as the CSV holds it: empty for None, else ``str`` (which round-trips floats)."""
+    return "" if value is None else str(value)
+
+
+def _parses(text: str, kind: type) -> bool:
+    try:
+        kind(text)
+    except ValueError:
+        return False
+    return True
+
+
+def column_types(columns: list[str], rows: list[dict[str, str]]) -> dict[str, type]:
+    """The type of each manifest column: :data:`COLUMN_TYPES` for the fixed ones; for a sweep
+    parameter's, ``int`` when each non-empty cell is an integer, else ``float`` when each is a
+    number, else ``str`` (from the cells' text, so that the writer and the reader agree).
+
+    Parameters
+    ----------
+    columns : list of str
+    rows : list of dict
+        The rows as the CSV's text (``""`` for an empty cell).
+    """
+    types = {}
+    for column in columns:
+        if column in COLUMN_TYPES:
+            types[column] = COLUMN_TYPES[column]
+            continue
+        cells = [row.get(column, "") for row in rows]
+        cells = [cell for cell in cells if cell != ""]
+        types[column] = next((kind for kind in (int, float)
+                              if cells and all(_parses(cell, kind) for cell in cells)), str)
+    return types
+
+
+def _typed(rows: list[dict[str, str]], types: dict[str, type], path: Path) -> list[dict]:
+    """The text rows with each cell of its column's type (None where empty); a cell of a fixed
+    column that is not of its type is refused, naming the file, its line and the column."""
+    typed = []
+    for number, row in enumerate(rows, 2):
+        out = {}
+        for column, kind in types.items():
+            cell = row.get(column, "")
+            if cell is None or cell == "":
+                out[column] = None
+                continue
+            try:
+                out[column] = kind(cell)
+            except ValueError:
+                expected = "an integer" if kind is int else "a number"
+                raise ParameterError(f"{ParameterError.literal(path)}:{number}: {column} "
+                                     f"{cell!r}; expected {expected}") from None
+        typed.append(out)
+    return typed
+
+
 def write_manifest(folder: str | Path, rows: list[dict], parameters: list[str]) -> Path:
     """Write ``manifest.csv`` (and ``manifest.parquet`` when pyarrow is importable)
     atomically: each file is written beside and renamed into place.
@@ -110,7 +185,8 @@ def write_manifest(folder: str | Path, rows: list[dict], parameters: list[str]) 
     folder : str or Path
         The dataset folder.
     rows : list of dict
-        One per job (missing columns are empty).
+        One per job (missing columns are empty): values of any type whose ``str`` is the
+        cell, e.g. the rows :func:`read_manifest` returns.
     parameters : list of str
         The sweep's parameter names (one column each).
 
@@ -121,11 +197,11 @@ def write_manifest(folder: str | Path, rows: list[dict], parameters: list[str]) 
     """
     folder = Path(folder)
     columns = manifest_columns(parameters)
+    cells = [{k: _text(row.get(k)) for k in columns} for row in rows]
     text = io.StringIO()
-    writer = csv.DictWriter(text, columns, extrasaction="ignore", lineterminator="\n")
+    writer = csv.DictWriter(text, columns, lineterminator="\n")
     writer.writeheader()
-    for row in rows:
-        writer.writerow({k: ("" if row.get(k) is None else row[k]) for k in columns})
+    writer.writerows(cells)
     path = folder / MANIFEST_CSV
     write_bytes_atomically(path, text.getvalue().encode())
     try:
@@ -133,33 +209,28 @@ def write_manifest(folder: str | Path, rows: list[dict], parameters: list[str]) 
         import pyarrow.parquet as pq
     except ImportError:
         return path
-    table = pa.table({k: _column(pa, [row.get(k) for row in rows]) for k in columns})
+    types = column_types(columns, cells)
+    typed = _typed(cells, types, path)
+    schema = pa.schema([(k, getattr(pa, _ARROW[types[k]])()) for k in columns])
+    table = pa.Table.from_pylist(typed, schema=schema)
     target = folder / MANIFEST_PARQUET
     pq.write_table(table, partial_path(target))
     os.replace(partial_path(target), target)
     return path
 
 
-def _column(pa, values: list) -> object:
-    """A manifest column as Parquet stores it: its values' own type (empty cells null), text
-    where they mix types."""
-    values = [None if v is None or v == "" else v for v in values]
-    try:
-        return pa.array(values)
-    except (pa.ArrowInvalid, pa.ArrowTypeError):
-        return pa.array([None if v is None else str(v) for v in values])
-
-
 def read_manifest(folder: str | Path) -> list[dict]:
-    """The rows of ``DIR/manifest.csv`` (values as text; empty cells ``""``), checked: the
-    folder exists, it holds a manifest with the columns ``job_id``, ``path`` and ``status``,
-    and each status is one of :data:`STATUSES`. The one reader of the manifest (``generate
+    """The rows of ``DIR/manifest.csv``, typed (:func:`column_types`: ``int``, ``float`` or
+    ``str``; None for an empty cell), checked: the folder exists, it holds a manifest with the
+    columns ``job_id``, ``path`` and ``status``, each status is one of :data:`STATUSES` and
+    each fixed column's cells are of its type. The one reader of the manifest (``generate
     --resume``, :func:`sim.open_dataset`, ``evfuse dataset``).
 
     Raises
     ------
     ParameterError
-        Not a folder, no manifest, a missing column or an unknown status (naming the line).
+        Not a folder, no manifest, a missing column, an unknown status or a cell not of its
+        column's type (naming the line).
     """
     folder = Path(folder)
     path = folder / MANIFEST_CSV
@@ -175,9 +246,13 @@ def read_manifest(folder: str | Path) -> list[dict]:
         if missing:
             raise ParameterError(f"{ParameterError.literal(path)}: no column "
                                  f"{', '.join(missing)}; expected job_id, path, status, ...")
+        columns = list(reader.fieldnames)
         rows = list(reader)
     for number, row in enumerate(rows, 2):
         if row["status"] not in STATUSES:
             raise ParameterError(f"{ParameterError.literal(path)}:{number}: status "
                                  f"{row['status']!r}; expected done, failed or pending")
-    return rows
+        if None in row or None in row.values():
+            raise ParameterError(f"{ParameterError.literal(path)}:{number}: not "
+                                 f"{len(columns)} cells, one per column of its header")
+    return _typed(rows, column_types(columns, rows), path)
