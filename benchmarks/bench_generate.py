@@ -32,6 +32,14 @@ core of this machine, and a file system that keeps up.
 Run: ``python -m benchmarks.bench_generate [--quick]`` (on the shared 2-core machine: about
 4 minutes, ``--quick`` about 2). Written to ``benchmarks/results/generate.json``. Timings only;
 nothing is asserted (the hashes are compared and reported).
+
+**The estimates** (``--estimates``): ``--dry-run``'s estimate of each job
+(:func:`sim.dataset.estimate_jobs`) against the job's measured wall seconds (``manifest.csv``'s
+``wall_s``), on 4 procedural tabletop seeds of ``sweeps/tabletop.toml`` (240x180, 2 s, its
+drawn contrast, lambda and noise). Each is its own process, as a user runs them: the dry run,
+then ``generate --workers 0``. Written to ``benchmarks/results/generate_estimates.json``: each
+job's estimate, its terms, the measured seconds and the relative error, and whether every error
+is within :data:`sim.dataset.ESTIMATE_ERROR` (the bound ``--dry-run`` states). About 3 minutes.
 """
 
 from __future__ import annotations
@@ -141,10 +149,72 @@ def projection(job_s: float, overhead_s: float, start_s: float,
             for w in workers]
 
 
+ESTIMATE_SEEDS = 4
+"""Tabletop seeds (0, 1, ...) whose estimates ``--estimates`` checks."""
+
+
+def estimates_sweep() -> str:
+    """``sweeps/tabletop.toml`` cut to :data:`ESTIMATE_SEEDS` seeds at 240x180."""
+    text = (ROOT / "sweeps" / "tabletop.toml").read_text()
+    text = text.replace("seeds = { first = 0, count = 200 }",
+                        f"seeds = {{ first = 0, count = {ESTIMATE_SEEDS} }}")
+    text = text.replace('sensor = ["240x180", "346x260"]', 'sensor = "240x180"')
+    assert f"count = {ESTIMATE_SEEDS}" in text and 'sensor = "240x180"' in text
+    return text
+
+
+def check_estimates() -> dict:
+    """``--dry-run``'s estimates against the jobs' measured wall seconds (module docstring)."""
+    from sim.dataset import ESTIMATE_ERROR
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    with tempfile.TemporaryDirectory(prefix="bench-estimates-") as tmp:
+        sweep = Path(tmp) / "tabletop4.toml"
+        sweep.write_text(estimates_sweep())
+        dump = Path(tmp) / "estimates.json"
+        code = ("import json, sys; from sim.dataset import estimate_jobs, load_sweep; "
+                "rows = estimate_jobs(load_sweep(sys.argv[1])); "
+                "json.dump(rows, open(sys.argv[2], 'w'))")
+        clock = time.perf_counter()
+        subprocess.run([sys.executable, "-c", code, str(sweep), str(dump)], env=env,
+                       check=True, capture_output=True, text=True)
+        dry_run_s = time.perf_counter() - clock
+        estimated = {row["job_id"]: row for row in json.loads(dump.read_text())}
+        run = run_generate(sweep, Path(tmp) / "out", ["--workers", "0"])
+    jobs = []
+    for row in run["rows"]:
+        estimate = estimated[row["job_id"]]
+        jobs.append({"job_id": row["job_id"], "seed": row["seed"], "noise": row.get("noise"),
+                     "lam": row.get("lam"), "events": row["events"],
+                     "estimate_s": estimate["estimate_s"], "probed": estimate["probed"],
+                     "parts": estimate["parts"], "spread_s": estimate["spread_s"],
+                     "measured_s": row["wall_s"],
+                     "error": estimate["estimate_s"] / row["wall_s"] - 1})
+        j = jobs[-1]
+        print(f"{j['job_id']:<26} estimate {j['estimate_s']:6.1f} s "
+              f"({'probed' if j['probed'] else 'mean of probed seeds'}), measured "
+              f"{j['measured_s']:6.1f} s: {100 * j['error']:+.1f} %", flush=True)
+    worst = max(abs(j["error"]) for j in jobs)
+    print(f"dry run {dry_run_s:.1f} s; largest error {100 * worst:.1f} % (bound "
+          f"{100 * ESTIMATE_ERROR:.0f} %: {'held' if worst <= ESTIMATE_ERROR else 'BROKEN'})")
+    result = {"sweep": "sweeps/tabletop.toml, seeds 0-3, 240x180, 2 s", "dry_run_s": dry_run_s,
+              "generate_wall_s": run["wall_s"], "jobs": jobs, "largest_error": worst,
+              "bound": ESTIMATE_ERROR, "within_bound": worst <= ESTIMATE_ERROR,
+              "machine": "shared 2-core machine; llvm_ad_rgb"}
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "generate_estimates.json").write_text(json.dumps(result, indent=2))
+    print(f"written to {RESULTS / 'generate_estimates.json'}")
+    return result
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="64x48, 0.05 s jobs")
+    parser.add_argument("--estimates", action="store_true",
+                        help="only check --dry-run's estimates against real tabletop jobs")
     args = parser.parse_args(argv)
+    if args.estimates:
+        return check_estimates()
     from sim.dataset import default_cluster_size, parse_sweep
 
     cores = default_cluster_size()[0]

@@ -713,6 +713,38 @@ def _generate_plots(data: dict) -> list[Plot]:
     return [Plot("generate", "evfuse generate throughput per configuration", figure)]
 
 
+# --------------------------------------------------------------------- generate_estimates.json
+
+def _estimate_tables(data: dict) -> list[tuple[str, Table]]:
+    header = ["job", "noise", "lambda", "events", "estimate s", "how", "frames s", "events s",
+              "setup s", "measured s", "error"]
+    body = []
+    for j in data["jobs"]:
+        parts = j["parts"] or {}
+        body.append([j["job_id"], str(j.get("noise")), _num(j.get("lam"), 2),
+                     _num(j.get("events"), 0), _num(j["estimate_s"], 1),
+                     "probed" if j["probed"] else "mean of probed seeds",
+                     _num(parts.get("frames"), 1), _num(parts.get("events"), 1),
+                     _num(sum(parts.get(k, 0.0) for k in ("draw", "setup", "compile")), 1),
+                     _num(j["measured_s"], 1), f"{100 * j['error']:+.1f} %"])
+    verdict = "held" if data["within_bound"] else "broken"
+    return [(f"{data['sweep']}; dry run {_num(data['dry_run_s'], 1)} s. Largest error "
+             f"{100 * data['largest_error']:.1f} % against the stated bound "
+             f"{100 * data['bound']:.0f} % ({verdict}).", (header, body))]
+
+
+# ----------------------------------------------------------------------------- noise_time.json
+
+def _noise_time_tables(data: dict) -> list[tuple[str, Table]]:
+    header = ["cause", "events", "distinct times", "on the 10-ms grid", "at t = 0"]
+    body = [[r["cause"], _num(r["events"], 0), _num(r["distinct_times"], 0),
+             _num(r["on_grid"], 0), _num(r["at_zero"], 0)] for r in data["causes"]]
+    ks = data["first_leak_ks"]
+    return [(f"{data['scene']}. First leak time of {ks['pixels']} pixels against the model's "
+             f"uniform law: KS D = {ks['D']:.4f}, p = {ks['p']:.3f}. Goal: {data['goal']} "
+             f"({'met' if data['goal_met'] else 'not met'}).", (header, body))]
+
+
 # ------------------------------------------------------------------------------------ sections
 
 SECTIONS: tuple[Section, ...] = (
@@ -778,6 +810,15 @@ SECTIONS: tuple[Section, ...] = (
             "A 12-job sweep through `evfuse generate`, serially and on local Dask clusters of "
             "several worker/thread splits, as a user runs it.",
             "python -m benchmarks.bench_generate --quick", _generate_tables, _generate_plots),
+    Section("noise_time.json", "When noise events fire",
+            "A static scene with the realistic noise preset: leak, shot and hot-pixel events "
+            "against the 10-ms render grid.",
+            "python -m benchmarks.bench_noise_time", _noise_time_tables, lambda data: []),
+    Section("generate_estimates.json", "Dataset generation: how good --dry-run's estimates are",
+            "`evfuse generate --dry-run`'s estimate of each job against its measured wall "
+            "seconds, on procedural tabletops, each command its own process.",
+            "python -m benchmarks.bench_generate --estimates", _estimate_tables,
+            lambda data: []),
 )
 """The benchmarks the page shows, in its order."""
 

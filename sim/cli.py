@@ -242,27 +242,14 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
 
 def _cmd_generate(args: argparse.Namespace) -> int:
-    from sim.dataset import estimate_jobs, generate, load_sweep
+    from sim.dataset import estimate_jobs, estimate_report, generate, load_sweep
 
     sweep = load_sweep(args.sweep)
     if args.out is None and not args.dry_run:
         raise ValueError("--out DIR: the dataset folder to write is required (unless "
                          "--dry-run)")
     if args.dry_run:
-        rows = estimate_jobs(sweep, variant=args.variant)
-        width = max(len(row["job_id"]) for row in rows)
-        print(f"{len(rows)} jobs of sweep {sweep.name} ({sweep.source}); cost from a probe of "
-              "each distinct scene (its setup, compilation included, plus its seconds per "
-              "simulated second):")
-        for row in rows:
-            params = ", ".join(f"{k}={v}" for k, v in row["params"].items())
-            cost = (f"~{row['estimate_s']:.1f} s" if row["estimate_s"] is not None
-                    else f"probe failed: {row['probe_error']}")
-            print(f"  {row['job_id']:<{width}}  {cost:>10}  {params}")
-        known = [row["estimate_s"] for row in rows if row["estimate_s"] is not None]
-        simulated = sum(row["duration_s"] or 0 for row in rows)
-        print(f"total: ~{sum(known):.0f} s of one worker for {simulated:g} simulated s "
-              f"({len(rows) - len(known)} jobs not estimated); nothing written")
+        print(estimate_report(sweep, estimate_jobs(sweep, variant=args.variant)))
         return 0
     result = generate(sweep, args.out, scheduler=args.scheduler, workers=args.workers,
                       threads=args.threads, resume=args.resume, overwrite=args.overwrite,

@@ -282,6 +282,45 @@ def test_dry_run_lists_every_job_with_a_probed_cost_and_writes_nothing(tmp_path,
     assert "--out DIR" in capsys.readouterr().err
 
 
+def test_dry_run_probes_a_few_seeds_of_a_procedural_scene_and_gives_the_others_their_spread():
+    """Five tabletop seeds: three probed (spread over the seeds, each its own estimate from
+    three warm windows, frames counted per frame), the other two the mean of those, with
+    their spread; the report says which is which and states the measured error bound."""
+    from sim.dataset import ESTIMATE_ERROR, estimate_jobs, estimate_report, parse_sweep
+
+    sweep = parse_sweep('seeds = [0, 1, 2, 3, 4]\n[[scenes]]\nprocedural = "tabletop"\n'
+                        '[grid]\nsensor = "48x36"\nt1 = 0.3\ncontrast = 0.25\n')
+    rows = estimate_jobs(sweep, probe_seconds=0.05)
+    assert [row["probed"] for row in rows] == [True, False, True, False, True]
+    probed = [row for row in rows if row["probed"]]
+    assert len({round(row["estimate_s"], 6) for row in probed}) == 3     # each seed its own
+    for row in rows:
+        parts = row["parts"]
+        assert row["estimate_s"] == pytest.approx(sum(parts.values()))
+        assert row["duration_s"] == pytest.approx(0.3) and parts["frames"] > 0
+        assert parts["events"] > 0 and parts["setup"] > 0 and parts["draw"] > 0
+    for row in rows[1::2]:
+        low, high = row["spread_s"]
+        costs = [p["estimate_s"] for p in probed]
+        assert low == pytest.approx(min(costs)) and high == pytest.approx(max(costs))
+        assert row["estimate_s"] == pytest.approx(sum(costs) / 3)
+    text = estimate_report(sweep, rows)
+    assert text.count("mean of probed seeds") == 2 and f"within {ESTIMATE_ERROR:.0%}" in text
+
+
+def test_the_stated_estimate_error_is_the_benchmarks():
+    """``--dry-run`` states :data:`sim.dataset.ESTIMATE_ERROR`; the committed result of
+    ``benchmarks/bench_generate.py --estimates`` checked that bound on real jobs."""
+    from sim.dataset import ESTIMATE_ERROR
+
+    result = json.loads((ROOT / "benchmarks" / "results" / "generate_estimates.json")
+                        .read_text())
+    assert result["bound"] == ESTIMATE_ERROR and result["within_bound"]
+    errors = [abs(job["error"]) for job in result["jobs"]]
+    assert len(errors) >= 4 and max(errors) == pytest.approx(result["largest_error"])
+    assert max(errors) <= ESTIMATE_ERROR
+
+
 def test_a_procedural_scene_is_drawn_from_the_seed_and_its_scene_file_resimulates_it(
         tmp_path):
     """``procedural = "tabletop"`` draws the job's scene from its seed

@@ -11,7 +11,9 @@ Modules (private; everything public is re-exported here):
 - ``_jobs``: one job (:class:`Job`, its stable ``job_id``), the parameters a sweep may set
   (:data:`PARAMETERS`) and one job simulated in this process (:func:`run_job`).
 - ``_run``: :func:`generate` (the jobs on a Dask ``LocalCluster``, an existing scheduler or in
-  process; resumable) and :func:`estimate_jobs` (``--dry-run``'s cost from a probe).
+  process; resumable).
+- ``_estimate``: :func:`estimate_jobs` (``--dry-run``'s cost of each job, from warm probes at
+  three places of its window, a few seeds of a generated scene).
 - ``_manifest``: ``manifest.csv`` / ``.parquet`` (:func:`write_manifest`,
   :func:`read_manifest`) and a job folder's :func:`output_hash`.
 - ``_loader``: :func:`open_dataset` (:class:`Dataset`: per standard frame a :class:`Sample`, the
@@ -22,6 +24,7 @@ Modules (private; everything public is re-exported here):
 """
 
 from sim.dataset._card import CARD, DatasetSummary, dataset_summary, write_card
+from sim.dataset._estimate import ESTIMATE_ERROR, estimate_jobs, estimate_report
 from sim.dataset._jobs import PARAMETERS, Job, job_inputs, run_job
 from sim.dataset._loader import (
     DATASET_EVENT_DTYPE,
@@ -39,15 +42,15 @@ from sim.dataset._manifest import (
     read_manifest,
     write_manifest,
 )
-from sim.dataset._run import GenerateResult, default_cluster_size, estimate_jobs, generate
+from sim.dataset._run import GenerateResult, default_cluster_size, generate
 from sim.dataset._sweep import Sweep, SweepError, load_sweep, parse_sweep
 
 __all__ = [
     # generate (sweeps, jobs, Dask, manifest)
-    "COLUMN_TYPES", "PARAMETERS", "GenerateResult", "Job", "Sweep", "SweepError",
-    "column_types", "default_cluster_size",
-    "estimate_jobs", "generate", "job_inputs", "load_sweep", "output_hash", "parse_sweep",
-    "read_manifest", "run_job", "write_manifest",
+    "COLUMN_TYPES", "ESTIMATE_ERROR", "PARAMETERS", "GenerateResult", "Job", "Sweep",
+    "SweepError", "column_types", "default_cluster_size", "estimate_jobs", "estimate_report",
+    "generate", "job_inputs", "load_sweep", "output_hash", "parse_sweep", "read_manifest",
+    "run_job", "write_manifest",
     # loader and card (evfuse dataset)
     "CARD",
     "DATASET_EVENT_DTYPE",

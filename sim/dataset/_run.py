@@ -1,5 +1,5 @@
 """``evfuse generate``: a sweep's jobs run on Dask distributed into a dataset folder
-(:func:`generate`), and their estimated cost (:func:`estimate_jobs`).
+(:func:`generate`).
 
 Each job is one :func:`sim.simulate.simulate` in a worker (:func:`sim.dataset.run_job`: the
 library call; a worker keeps its interpreter, imports and compiled kernels between jobs). By
@@ -18,25 +18,22 @@ from __future__ import annotations
 import os
 import shutil
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from sim._summary import summary_repr
-from sim.dataset._jobs import JOBS_FOLDER, RUNS_LOG, Job, job_inputs, run_job
+from sim.dataset._jobs import JOBS_FOLDER, RUNS_LOG, Job, run_job
 from sim.dataset._manifest import job_record, read_manifest, write_manifest
 from sim.dataset._sweep import Sweep, load_sweep
 from sim.output import MARKER, OutputError, check_output_dir, write_marker
 from sim.validation import ParameterError
 
-__all__ = ["SWEEP_COPY", "GenerateResult", "default_cluster_size", "estimate_jobs", "generate"]
+__all__ = ["SWEEP_COPY", "GenerateResult", "default_cluster_size", "generate"]
 
 SWEEP_COPY = "sweep.toml"
 """``DIR/sweep.toml``: a byte copy of the sweep file, which ``resume`` compares."""
-PROBE_SECONDS = 0.05
-"""Longest simulated window of :func:`estimate_jobs`' probe of a scene, s."""
 
 
 @dataclass(frozen=True)
@@ -383,54 +380,3 @@ class _Progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
-
-
-def estimate_jobs(sweep: Sweep, variant: str | None = None,
-                  probe_seconds: float = PROBE_SECONDS) -> list[dict]:
-    """Each job's estimated cost, from a short probe simulation per distinct scene.
-
-    The first job of each distinct scene and sensor size is simulated over
-    ``min(its window, probe_seconds)`` into a temporary folder; a job's estimate is the probe's
-    setup seconds plus its other seconds per simulated second times the job's window. Scenes
-    whose cost per second changes along the trajectory are estimated from its start; the
-    first probe includes the kernels' compilation (once per worker in a real run).
-
-    Parameters
-    ----------
-    sweep : Sweep
-    variant : str, optional
-    probe_seconds : float, s
-
-    Returns
-    -------
-    list of dict
-        One per job: ``job_id``, ``scene``, ``seed``, ``params``, ``duration_s``,
-        ``estimate_s`` (None where the probe failed) and ``probe_error``.
-    """
-    from sim.simulate import simulate
-
-    probes: dict[str, tuple[float, float] | str] = {}
-    out = []
-    with tempfile.TemporaryDirectory(prefix="evfuse-probe-") as tmp:
-        for job in sweep.jobs:
-            key = repr((job.identity["scene"], job.params.get("sensor"),
-                        job.params.get("sampler")))
-            duration = None
-            try:
-                scene, kwargs = job_inputs(job)
-                duration = kwargs["duration"]
-                if key not in probes:
-                    probe = dict(kwargs, duration=min(duration, probe_seconds))
-                    result = simulate(scene, Path(tmp) / f"probe{len(probes)}", variant=variant,
-                                      progress=False, **probe)
-                    setup = result.timings["setup"]
-                    probes[key] = (setup, (result.timings["total"] - setup) / probe["duration"])
-            except (ValueError, OSError, RuntimeError) as error:
-                probes.setdefault(key, _one_line(error))
-            probe = probes.get(key)
-            estimate = None if not isinstance(probe, tuple) or duration is None else \
-                probe[0] + probe[1] * duration
-            out.append({"job_id": job.job_id, "scene": job.label, "seed": job.seed,
-                        "params": job.params, "duration_s": duration, "estimate_s": estimate,
-                        "probe_error": probe if isinstance(probe, str) else ""})
-    return out
