@@ -325,11 +325,13 @@ def test_a_procedural_scene_is_drawn_from_the_seed_and_its_scene_file_resimulate
         tmp_path):
     """``procedural = "tabletop"`` draws the job's scene from its seed
     (:func:`sim.scene.procedural.tabletop_scene`); the job folder's ``scene.toml``, simulated
-    again alone with the job's parameters, gives the same events and frames."""
+    again alone with the job's parameters, gives the same events and frames (the DAVIS240C's
+    APS, its exposure chosen by auto-exposure up to the file's ``max_exposure``)."""
     from sim.scene import parse_scene
     from sim.scene.procedural import tabletop_scene
 
-    grid = '[grid]\nsensor = "48x36"\nt1 = 0.05\ncontrast = 0.25\n'
+    grid = ('[grid]\nsensor = "48x36"\nt1 = 0.05\ncontrast = 0.25\n'
+            'frame_sensor = "davis240c_aps"\n')
     sweep = tmp_path / "procedural.toml"
     sweep.write_text(f'seeds = [3]\n[[scenes]]\nprocedural = "tabletop"\n{grid}')
     result = generate(sweep, tmp_path / "drawn", workers=0, **QUIET)
@@ -350,6 +352,9 @@ def test_a_procedural_scene_is_drawn_from_the_seed_and_its_scene_file_resimulate
         sorted(p.name for p in (folder / "images").iterdir())
     for image in (folder / "images").iterdir():
         assert (other / "images" / image.name).read_bytes() == image.read_bytes()
+    frames = json.loads((folder / "sequence.json").read_text())["frames"]
+    assert frames["max_exposure"] == 0.04 and len(frames["exposures_s"]) == frames["count"] >= 1
+    assert frames == json.loads((other / "sequence.json").read_text())["frames"]
 
 
 def test_the_dataset_card_reads_a_generated_dataset(reference, tmp_path):

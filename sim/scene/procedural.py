@@ -18,8 +18,12 @@ ranges give the same text, byte for byte), within the ranges of :class:`Tabletop
   axis, a height field's half diagonal) are at least :data:`GAP_M` apart;
 - random textures from :mod:`sim.textures` (scikit-image's images, smooth noise, random
   shapes, checkerboards) with random repeat counts;
-- point lights under the ceiling, the first above the objects, their intensities (cd)
-  drawn in the stated range;
+- point lights under the ceiling: the first (the key) above the objects, its intensity (cd) set
+  by the illuminance it gives at the objects' centre, drawn in ``illuminance_lux`` (lux, indoor
+  lighting); the others (fills) a drawn fraction of the key's intensity;
+- ``[frames] max_exposure`` = :data:`MAX_EXPOSURE_S` (40 ms, the built-in scenes'): a realistic
+  frame sensor's auto-exposure (the one a dataset job picks with ``frame_sensor``) exposes the
+  frames as a camera would in that light (the file's own sensor is ``ideal``);
 - a hand-held (sums of sines about a mean pose) or an orbit (a keyframe spline on a circle
   about the objects) trajectory looking at the objects, accepted only when it keeps the
   objects in view and the whole view inside the declared ``depth_range`` (see
@@ -49,12 +53,15 @@ from sim.scene._toml import parse_scene
 from sim.textures import SKIMAGE_IMAGES
 from sim.validation import ParameterError, check_parameter, integer, non_negative, positive
 
-__all__ = ["GAP_M", "GENERATOR_VERSION", "OBJECT_KINDS", "PROCEDURAL_FAMILIES", "ExactDepthCheck",
-           "RoomRanges", "SceneRanges", "TabletopRanges", "procedural_scene", "room_scene",
-           "tabletop_scene", "trajectory_check", "use_exact_depth_check"]
+__all__ = ["GAP_M", "GENERATOR_VERSION", "MAX_EXPOSURE_S", "OBJECT_KINDS", "PROCEDURAL_FAMILIES",
+           "ExactDepthCheck", "RoomRanges", "SceneRanges", "TabletopRanges", "procedural_scene",
+           "room_scene", "tabletop_scene", "trajectory_check", "use_exact_depth_check"]
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 """Version of the drawing rules: the same seed, ranges and version give the same text."""
+MAX_EXPOSURE_S = 0.04
+"""``[frames] max_exposure`` of every drawn scene, seconds: the built-in scenes' (the 24-Hz frame
+period less 1.7 ms)."""
 GAP_M = 0.005
 """Least gap between two placed objects' footprint discs, metres."""
 OBJECT_KINDS = ("box", "sphere", "cylinder", "heightfield", "mesh")
@@ -104,9 +111,17 @@ class SceneRanges:
     lights : (int, int)
         Number of point lights under the ceiling (the first above the objects; a closed room
         leaves no way in for a directional light).
-    intensity_cd : (float, float), candela
-        Each light's intensity (a light of ``I`` cd at ``d`` m gives ``I / d^2`` lux on a
-        surface facing it: the defaults give about 40-500 lux on the objects, office light).
+    illuminance_lux : (float, float), lux
+        Illuminance the first (key) light alone gives at the objects' centre on a surface facing
+        up, unoccluded; its intensity follows from it (``I = E d^3 / h``, ``d`` its distance to
+        that point and ``h`` its height above it). The defaults span indoor lighting from a
+        corridor's or a living room's (200 lux) to a bright workplace's (1,000 lux; offices
+        300-500). At the floor, with auto-exposure up to 40 ms (``[frames] max_exposure``), the
+        DAVIS240C's APS frames of seeds 0-99 of both families had mean greys of 55-103 / 255
+        (``benchmarks/bench_procedural_exposure.py --illuminance 200 --seeds 100 --size
+        120x90 --end 0.5``).
+    fill_fraction : (float, float)
+        Each other (fill) light's intensity as a fraction of the key light's.
     texture_scale : (float, float)
         How many times an object's texture repeats along u and along v.
     trajectories : tuple of {"handheld", "orbit"}
@@ -142,7 +157,8 @@ class SceneRanges:
     room_depth: tuple[float, float] = (3.0, 3.6)
     room_height: tuple[float, float] = (2.4, 2.8)
     lights: tuple[int, int] = (1, 3)
-    intensity_cd: tuple[float, float] = (100.0, 800.0)
+    illuminance_lux: tuple[float, float] = (200.0, 1000.0)
+    fill_fraction: tuple[float, float] = (0.2, 1.0)
     texture_scale: tuple[float, float] = (1.0, 4.0)
     trajectories: tuple[str, ...] = ("handheld", "orbit")
     camera_distance: tuple[float, float] = (0.8, 1.3)
@@ -177,6 +193,9 @@ class SceneRanges:
         if self.camera_elevation[1] >= 90:
             raise ParameterError(f"{{camera_elevation}} {list(self.camera_elevation)}: expected "
                                  "degrees below 90", camera_elevation="camera_elevation")
+        if self.illuminance_lux[0] <= 0:
+            raise ParameterError(f"{{illuminance_lux}} {list(self.illuminance_lux)}: expected "
+                                 "lux above 0", illuminance_lux="illuminance_lux")
         if not self.depth_range[0] < self.depth_range[1]:
             raise ParameterError(f"{{depth_range}} {list(self.depth_range)}: expected near < far",
                                  depth_range="depth_range")
@@ -215,7 +234,6 @@ class RoomRanges(SceneRanges):
     room_width: tuple[float, float] = (4.5, 6.0)
     room_depth: tuple[float, float] = (4.5, 6.0)
     room_height: tuple[float, float] = (2.5, 3.0)
-    intensity_cd: tuple[float, float] = (300.0, 3000.0)
     camera_distance: tuple[float, float] = (2.0, 3.0)
     camera_elevation: tuple[float, float] = (25.0, 45.0)
     handheld_translation: tuple[float, float] = (0.02, 0.08)
@@ -418,16 +436,29 @@ def _room(rng: np.random.Generator, width: float, depth: float, height: float) -
     return "\n".join(out)
 
 
+def _key_intensity(illuminance: float, position: np.ndarray, target: np.ndarray) -> float:
+    """Intensity (cd) of a point light at ``position`` (3,) that gives ``illuminance`` (lux) at
+    ``target`` (3,) on a surface facing up: ``E = I cos(theta) / d^2 = I h / d^3``, ``h`` the
+    light's height above the target and ``d`` its distance (inverse-square law, unoccluded)."""
+    offset = np.asarray(position, float) - np.asarray(target, float)
+    distance = float(np.linalg.norm(offset))
+    return illuminance * distance ** 3 / float(offset[2])
+
+
 def _lights(rng: np.random.Generator, ranges: SceneRanges, width: float, depth: float,
             height: float, target: np.ndarray, highest: float) -> str | None:
     """Point lights under the ceiling and at least 0.2 m above ``highest`` (the objects' top):
-    the first within 0.5 m (x, y) of ``target``, the others anywhere in the room (0.3 m from
-    the walls); None when the objects leave no room under the ceiling."""
+    the first (the key) within 0.5 m (x, y) of ``target``, its intensity giving an illuminance
+    drawn in ``ranges.illuminance_lux`` there (:func:`_key_intensity`); the others (fills)
+    anywhere in the room (0.3 m from the walls), each a fraction of the key's intensity drawn in
+    ``ranges.fill_fraction``. Each light's ``intensity_cd`` is commented with its drawn value.
+    None when the objects leave no room under the ceiling."""
     low = max(0.6 * height, highest + 0.2)
     if low > height - 0.1:
         return None
     count = int(rng.integers(ranges.lights[0], ranges.lights[1] + 1))
     out = []
+    key = 0.0
     for i in range(count):
         if i == 0:
             x = _draw(rng, (target[0] - 0.5, target[0] + 0.5))
@@ -436,8 +467,16 @@ def _lights(rng: np.random.Generator, ranges: SceneRanges, width: float, depth: 
             x = _draw(rng, (-width / 2 + 0.3, width / 2 - 0.3))
             y = _draw(rng, (-depth / 2 + 0.3, depth / 2 - 0.3))
         position = [_r(x), _r(y), _r(_draw(rng, (low, height - 0.1)))]
+        if i == 0:
+            lux = _draw(rng, ranges.illuminance_lux)
+            key = _r(_key_intensity(lux, np.array(position), target))
+            intensity, note = key, f"key light: {lux:.0f} lux on the objects' centre"
+        else:
+            fraction = _draw(rng, ranges.fill_fraction)
+            intensity = _r(fraction * key)
+            note = f"fill light: {fraction:.3f} of the key's intensity"
         out.append(f'[[lights]]\ntype = "point"\nposition = {_vec(position)}\n'
-                   f"intensity_cd = {_f(_r(_draw(rng, ranges.intensity_cd)))}\n")
+                   f"intensity_cd = {_f(intensity)}   # {note}\n")
     return "\n".join(out)
 
 
@@ -485,7 +524,8 @@ def _text(family: str, seed: int, ranges: SceneRanges, kind: str, parts: list[st
             f"depth_range = {_vec([near, far])}   # declared; every view's exact depth is "
             f"inside it\nseed = {seed}\n\n"
             '[camera]\npreset = "davis240c"\n\n'
-            "[frames]\nrate = 24.0\nexposure = 0.005\n\n")
+            f"[frames]\nrate = 24.0\nexposure = 0.005\nmax_exposure = {MAX_EXPOSURE_S}   # the "
+            "longest a sensor's auto-exposure may choose (indoor light: 15-40 ms)\n\n")
     return head + "\n".join(parts)
 
 
