@@ -119,8 +119,11 @@ def test_a_jobs_parameters_reach_the_scene_and_simulates_objects():
 
 
 def test_a_parameter_the_scene_refuses_is_said_when_the_job_is_built():
-    # slider_close's frames expose up to 40 ms: 20 Hz is fine (above), 50 Hz is not
-    job = parse_sweep(BASE + "frame_rate = 50.0\n").jobs[0]
+    # slider_close's auto-exposure goes up to 40 ms: at 50 Hz its ceiling is the frame period,
+    # as a camera's; its 5-ms exposure at 250 Hz (a 4-ms period) is refused.
+    scene, _ = job_inputs(parse_sweep(BASE + "frame_rate = 50.0\n").jobs[0])
+    assert scene.frames.max_exposure == pytest.approx(0.02) and scene.frames.exposure == 0.005
+    job = parse_sweep(BASE + "frame_rate = 250.0\n").jobs[0]
     with pytest.raises(ValueError, match="frame period"):
         job_inputs(job)
 

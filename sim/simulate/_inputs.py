@@ -58,7 +58,9 @@ def simulate_inputs(scene: Scene, *, start: float = 0.0, duration: float | None 
     frame_sensor : str, optional
         The standard camera's sensor preset (:func:`sim.frames.with_frame_sensor`).
     frame_rate : float, Hz, optional
-        The standard camera's frame rate (the scene's ``[frames] rate``).
+        The standard camera's frame rate (the scene's ``[frames] rate``). An auto-exposure
+        ceiling (``max_exposure``) longer than the new frame period is lowered to it, as a
+        camera's is; a fixed ``exposure`` longer than it is refused.
     rig : str, optional
         Capture-error preset (:meth:`sim.capture_errors.RigParams.from_preset`; default: the
         scene's ``[rig]``).
@@ -94,7 +96,11 @@ def simulate_inputs(scene: Scene, *, start: float = 0.0, duration: float | None 
     if sensor is not None:
         scene = replace(scene, camera=scene.camera.with_resolution(*sensor))
     if frame_rate is not None:
-        scene = replace(scene, frames=replace(scene.frames, rate=frame_rate))
+        ceiling = scene.frames.max_exposure
+        if ceiling is not None and frame_rate > 0 and ceiling > 1.0 / frame_rate:
+            ceiling = 1.0 / frame_rate
+        scene = replace(scene, frames=replace(scene.frames, rate=frame_rate,
+                                              max_exposure=ceiling))
     if frame_sensor is not None:
         scene = with_frame_sensor(scene, frame_sensor)
     if speed is not None:
