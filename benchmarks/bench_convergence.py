@@ -1,18 +1,22 @@
 """Convergence of the defaults: events and frames against a 256-samples-per-pixel reference.
 
 A pixel integrates the light over its area; the event camera takes ``[render] event_spp`` point
-samples per pixel (4 by default) and the frames ``[render] spp`` (16). Per scene and window this
-simulates, in one process, the scene as it is (the defaults) and its reference, the same scene
-with ``event_spp`` = ``spp`` = 256 (:data:`REFERENCE_SPP`) and nothing else changed, and
-reports:
+samples per pixel (4 by default) and the frames ``[render] spp`` (16) where an edge crosses the
+pixel during the exposure and ``flat_spp`` (4) elsewhere (:mod:`sim.frame_shader`; whole-frame
+renders at ``spp`` for dynamic_6dof). Per scene and window this simulates, in one process, the
+scene as it is (the defaults) and its reference, the same scene with ``event_spp`` = ``spp`` =
+``flat_spp`` = 256 (:data:`REFERENCE_SPP`) and nothing else changed, and reports:
 
 - events: the default's count error and worst 16x16 block (blocks with >= 100 reference
   events) against the reference (:func:`benchmarks.agreement.event_agreement`);
 - frames: the PSNR of the default's 8-bit frames against the reference's (the worst frame of
   the window). The frames come from the ``ideal`` sensor (no noise, which would dominate) at
-  one gain, the reference's automatic gain, so they differ by their renders alone;
+  one gain, the reference's automatic gain, so they differ by their renders alone. The
+  reference renders every pixel at 256 samples, at exposure times sized for 256 (the image
+  moves 1/16 pixel between two: :func:`sim.frame_shader.exposure_times`);
 - cost: the default's pixel samples (a whole-frame render counts H W) and event-render seconds
-  (``sequence.json``'s ``timings_s``), after a 0.01-s run that traces and compiles the kernels.
+  (``sequence.json``'s ``timings_s``), after a 0.01-s run that traces and compiles the kernels;
+  in the results, the frames' too (``frame_render_s``, ``frame_pixel_samples``).
 
 Goals (issue 23), printed PASS/FAIL beside each row: event count within 3 %
 (:data:`COUNT_GOAL`), every block with >= 100 events within 5 % (:data:`BLOCK_GOAL`), frames at
@@ -79,6 +83,9 @@ CASES = [("boxes_6dof", (3.5, 30.0)), ("poster_6dof", (2.0, 40.0)),
 """(scene, start times in s) of the full run: the paper's window start, and a later time."""
 QUICK = [("boxes_6dof", (3.5,)), ("garden_wall", (1.0,))]
 """The ``--quick`` subset."""
+FRAME_RENDER = ("frame_motion", "frame_edges", "render")
+"""``timings_s`` keys of the frames' renders (``frame_render_s``; their pixel samples:
+``frame_cost.pixel_samples``)."""
 
 
 def _run(scene, folder: Path, start: float, seconds: float) -> dict:
@@ -89,6 +96,8 @@ def _run(scene, folder: Path, start: float, seconds: float) -> dict:
             "pixel_samples": event_pixel_samples(scene, record["events"]),
             "edge_samples": record["events"].get("edge_samples", 0),
             "event_render_s": result.timings["event_render"],
+            "frame_render_s": sum(result.timings[k] for k in FRAME_RENDER),
+            "frame_pixel_samples": record["frame_cost"]["pixel_samples"],
             "gain": record["frames"]["gain_used"]}
 
 
@@ -110,10 +119,12 @@ def psnr(reference: np.ndarray, image: np.ndarray, peak: float = 255.0) -> float
 
 
 def _with_spp(scene, spp: int | None, gain: float | None, render_seed: int | None = None):
-    """The scene with the ideal frame sensor at ``gain``, ``spp`` for events and frames, and
-    ``render_seed`` (``[render] seed``) when given."""
+    """The scene with the ideal frame sensor at ``gain``, ``spp`` for events and frames (every
+    frame pixel: ``spp`` and ``flat_spp``), and ``render_seed`` (``[render] seed``) when
+    given."""
     frames = replace(scene.frames.with_sensor("ideal"), gain=gain)
-    render = scene.render if spp is None else replace(scene.render, spp=spp, event_spp=spp)
+    render = scene.render if spp is None else replace(scene.render, spp=spp, event_spp=spp,
+                                                      flat_spp=spp)
     if render_seed is not None:
         render = replace(render, seed=render_seed)
     return replace(scene, frames=frames, render=render)

@@ -73,7 +73,9 @@ QUICK_COST = [("slider_close", "240x180"), ("boxes_6dof", "240x180"), ("garden_w
 """(scene, size) of ``--quick``'s cost rows."""
 WARM_S = 0.045
 """Seconds of the warm-up run (the shortest that holds one frame at a 0.04-s exposure)."""
-STAGES = {"setup": ("setup",), "frames": ("render", "depth", "write"),
+STAGES = {"setup": ("setup",),
+          "frames": ("frame_setup", "depth", "exposure_control", "frame_motion", "frame_edges",
+                     "render", "frame_sensor", "write"),
           "event render": ("event_render",), "emulate": ("emulate",),
           "event write": ("event_write", "checkpoint"), "per-event depth": ("event_depth",),
           "motion truth": ("imu", "flow")}

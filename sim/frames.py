@@ -1,8 +1,10 @@
 """The standard (APS) camera: frame timing, motion-blur sampling and the 8-bit response.
 
-A frame integrates the scene's linear luminance over its exposure (approximated by averaging
-``exposure_samples`` renders, see :func:`exposure_sample_times`) and turns it into an 8-bit
-gray value through its sensor (``FrameParams.sensor``):
+A frame integrates the scene's linear luminance over its exposure (approximated by the mean of
+renders at the centres of equal parts of it, see :func:`exposure_sample_times`: as many as the
+image motion needs where frames are rendered pixel by pixel, :mod:`sim.frame_shader`, else
+``exposure_samples``) and turns it into an 8-bit gray value through its sensor
+(``FrameParams.sensor``):
 
 * ``ideal`` (the default): :func:`luminance_to_frame`, no noise of any kind::
 
@@ -31,8 +33,9 @@ import numpy as np
 from sim.frame_sensor import FRAME_SENSORS, FrameSensor
 from sim.validation import ParameterError, positive
 
-__all__ = ["FRAME_SENSOR_NAMES", "FrameParams", "auto_gain", "check_frame_sensor",
-           "exposure_sample_times", "frame_times", "luminance_to_frame", "with_frame_sensor"]
+__all__ = ["FRAME_SENSOR_NAMES", "WHOLE_FRAME_EXPOSURE_SAMPLES", "FrameParams", "auto_gain",
+           "check_frame_sensor", "exposure_sample_times", "frame_times", "luminance_to_frame",
+           "with_frame_sensor"]
 
 AUTO_GAIN_PERCENTILE = 99.0
 """Percentile of the luminance that :func:`auto_gain` maps to ``AUTO_GAIN_LEVEL``."""
@@ -46,6 +49,9 @@ FRAME_SENSOR_NAMES = (IDEAL, *FRAME_SENSORS)
 """Every frame-sensor preset: ``ideal`` and the realistic ones of :mod:`sim.frame_sensor`."""
 IDEAL_GAMMA = 2.2
 """The ideal camera's display gamma; a realistic sensor's output is linear (gamma 1)."""
+WHOLE_FRAME_EXPOSURE_SAMPLES = 4
+"""Renders a whole-frame exposure averages when ``exposure_samples`` is not given (frames of a
+scene with moving objects, of a rolling shutter, or on ``scalar_rgb``)."""
 
 
 @dataclass(frozen=True)
@@ -63,8 +69,11 @@ class FrameParams:
         The longest exposure a sensor's auto-exposure may choose, > 0 and at most ``1 / rate``;
         None (default): ``exposure``. Not used by the ``ideal`` camera or a sensor without
         auto-exposure (see :attr:`longest_exposure`).
-    exposure_samples : int
-        Renders averaged over the exposure (motion blur), >= 1.
+    exposure_samples : int or None
+        Times averaged over the exposure (motion blur), >= 1: the centres of as many equal
+        parts of it. None (default): sized from the image motion during each exposure where
+        frames are rendered pixel by pixel (:func:`sim.frame_shader.exposure_times`), else
+        :data:`WHOLE_FRAME_EXPOSURE_SAMPLES`.
     gamma : float or None
         Output gamma: the 8-bit value is ``255 * x ** (1 / gamma)`` of the normalised signal x.
         None (default): the sensor's own, :data:`IDEAL_GAMMA` = 2.2 for ``ideal`` and 1 (linear
@@ -81,7 +90,7 @@ class FrameParams:
 
     rate: float = 24.0
     exposure: float = 0.005
-    exposure_samples: int = 4
+    exposure_samples: int | None = None
     gamma: float | None = None
     gain: float | None = None
     sensor: str | FrameSensor = IDEAL
@@ -100,10 +109,12 @@ class FrameParams:
                 raise ValueError(f"FrameParams.max_exposure must be at most the frame period "
                                  f"1/rate = {1.0 / self.rate} s, got {self.max_exposure} s")
         samples = self.exposure_samples
-        if isinstance(samples, bool) or not isinstance(samples, int | np.integer) or samples < 1:
-            raise ValueError(f"FrameParams.exposure_samples must be an integer >= 1, "
-                             f"got {samples!r}")
-        set_(self, "exposure_samples", int(samples))
+        if samples is not None:
+            if (isinstance(samples, bool) or not isinstance(samples, int | np.integer)
+                    or samples < 1):
+                raise ValueError(f"FrameParams.exposure_samples must be an integer >= 1 or "
+                                 f"None (sized from the motion), got {samples!r}")
+            set_(self, "exposure_samples", int(samples))
         if self.gamma is not None:
             set_(self, "gamma", positive("FrameParams.gamma", self.gamma))
         if self.gain is not None:
@@ -194,11 +205,11 @@ def frame_times(duration: float, params: FrameParams) -> np.ndarray:
 
 
 def exposure_sample_times(t_mid: float, params: FrameParams,
-                          exposure: float | None = None) -> np.ndarray:
+                          exposure: float | None = None, count: int | None = None) -> np.ndarray:
     """Render times whose average approximates one frame's exposure.
 
-    The exposure ``[t_mid - exposure/2, t_mid + exposure/2]`` is cut into ``exposure_samples``
-    equal sub-intervals and each is represented by its centre (midpoint rule), so a single
+    The exposure ``[t_mid - exposure/2, t_mid + exposure/2]`` is cut into ``count`` equal
+    sub-intervals and each is represented by its centre (midpoint rule), so a single
     sample is ``t_mid`` itself and no sample lies on the exposure's ends.
 
     Parameters
@@ -209,10 +220,13 @@ def exposure_sample_times(t_mid: float, params: FrameParams,
     exposure : float or None, seconds
         This frame's exposure (auto-exposure), at most :attr:`FrameParams.longest_exposure`;
         default that longest exposure (``params.exposure`` without auto-exposure).
+    count : int or None
+        Sub-intervals, >= 1; default ``params.exposure_samples``, else
+        :data:`WHOLE_FRAME_EXPOSURE_SAMPLES`.
 
     Returns
     -------
-    (exposure_samples,) float64 ndarray, seconds
+    (count,) float64 ndarray, seconds
         Increasing times, symmetric about ``t_mid``.
     """
     t_mid = float(t_mid)
@@ -223,7 +237,7 @@ def exposure_sample_times(t_mid: float, params: FrameParams,
     if exposure > longest * (1 + _TIME_TOLERANCE):
         raise ValueError(f"exposure {exposure} s is longer than the frame's longest exposure "
                          f"{longest} s")
-    n = params.exposure_samples
+    n = count or params.exposure_samples or WHOLE_FRAME_EXPOSURE_SAMPLES
     offsets = (np.arange(n, dtype=np.float64) + 0.5) / n - 0.5
     return t_mid + exposure * offsets
 

@@ -265,15 +265,22 @@ def to_uv_affine(spec: Mapping[str, Any], scale: tuple[float, float], *,
     (a_u, b_u, a_v, b_v) : tuple of float
         For a bitmap, texture coordinates in repeats (1 = the whole image); for the
         checkerboard, in periods of two squares (Mitsuba's checkerboard has one period on [0, 1)).
+
+    Notes
+    -----
+    ``to_uv`` is ``scale @ flip @ squares``: the squares' factor is applied first, then the
+    flip ``v -> 1 - v``, then the repeats, so a flipped checkerboard's offset is ``scale_v``
+    (not ``scale_v squares_v / 2``; the two agree only where their difference is a whole
+    number of periods, such as 8 squares at 1 repeat).
     """
     a_u, a_v = float(scale[0]), float(scale[1])
-    b_v = 0.0
+    b_v = a_v if flip_v else 0.0
     if flip_v:
-        a_v, b_v = -a_v, a_v
+        a_v = -a_v
     if spec["type"] == "checkerboard":
         squares = spec.get("squares", [8, 8])
         a_u *= squares[0] / 2
-        a_v, b_v = a_v * squares[1] / 2, b_v * squares[1] / 2
+        a_v *= squares[1] / 2
     return a_u, 0.0, a_v, b_v
 
 

@@ -6,7 +6,8 @@ sequence folder as an ECD folder of the EVENT camera, with the frame camera besi
 
 - ``frame_camera/images.txt`` + ``images/``: the frame camera's frames, rendered from
   ``T_world_frame(t) = T_world_event(t) @ T_event_frame`` with the same frame model as a single
-  sensor's (:func:`sim.simulate._frames._simulate_frames`: exposure samples, sensor, noise);
+  sensor's (:func:`sim.simulate._frames._simulate_frames`: exposure, sensor, noise; a global
+  shutter's frames of a static scene pixel by pixel, :mod:`sim.frame_shader`);
 - ``frame_camera/depthmaps.txt`` + ``depth/``: its exact z-depth at the same times;
 - ``frame_camera/calib.txt`` and ``frame_camera/T_event_frame.txt`` (exact: the rig's
   imperfections, :mod:`sim.capture_errors`, apply to the event camera's files only);
@@ -16,10 +17,10 @@ sequence folder as an ECD folder of the EVENT camera, with the frame camera besi
 Rolling shutter: row ``r`` of a frame is exposed around its own time
 ``t_r = t_mid + (r / (H - 1) - 0.5) readout_s`` (:func:`sim.frame_camera.row_times`). Each
 render gives every row its own exact pose ``T_world_frame(t_r + offset)`` (the sensor's
-per-row poses, :class:`sim.render.Renderer` ``rows=True``), one render per exposure sample as a
-global shutter; the depth map casts each row's rays from its own pose at ``t_r``. Nothing is
-banded or interpolated: the only approximation is the exposure's, as for a global shutter
-(``exposure_samples`` renders averaged).
+per-row poses, :class:`sim.render.Renderer` ``rows=True``), whole frames, one per exposure
+sample; the depth map casts each row's rays from its own pose at ``t_r``. Nothing is banded or
+interpolated: the only approximation is the exposure's (``exposure_samples`` renders averaged,
+4 if not given).
 """
 
 from __future__ import annotations

@@ -30,7 +30,7 @@ from scenes import builtin_scenes
 from sim.frame_sensor import AE_TARGET, sensor_frame
 from sim.render import Renderer
 from sim.scene import load_scene
-from sim.simulate._frames import _exposure, _fixed_pattern, _frame_exposure
+from sim.simulate._frames import _Exposures, _fixed_pattern, _frame_exposure
 from sim.two_camera import frame_camera_scene
 
 MEAN_GREY = (255 * AE_TARGET / 2, 255 * min(2 * AE_TARGET, 1.0))
@@ -68,10 +68,11 @@ def realistic_frame_greys(scene, times: list[float], rig: bool = False
     scene = dataclasses.replace(scene, camera=camera, frames=frames)
     renderer = Renderer(scene)                        # the frames' own spp, as simulate
     pattern = _fixed_pattern(scene)
+    expose = _Exposures(scene, renderer, np.asarray(times, dtype=np.float64))
     means, exposures = [], []
     for t in times:
-        exposure = _frame_exposure(scene, renderer, t, pattern, None, None)
-        luminance = _exposure(renderer, t, frames, exposure)
+        exposure = _frame_exposure(scene, expose, t, pattern, None, None)
+        luminance, _ = expose(t, exposure, renderer.depth(t))
         frame = sensor_frame(luminance, exposure, frames.sensor, pattern, frames.output_gamma,
                              np.random.default_rng(0))
         means.append(round(float(frame.mean()), 1))

@@ -223,7 +223,7 @@ def test_a_run_interrupted_in_its_simulation_resumes_from_the_checkpoint(tmp_pat
                                                                           monkeypatch, capsys):
     import importlib
 
-    from sim.render import Renderer
+    from sim.frame_shader import FrameShader
     from tests.test_resume import _assert_same_sequence
 
     simulate_module = importlib.import_module("sim.simulate")
@@ -232,13 +232,13 @@ def test_a_run_interrupted_in_its_simulation_resumes_from_the_checkpoint(tmp_pat
     scene.write_text(scene_text(WALL, trajectory=FAST, duration=0.2, extra=extra))
     argv = ["run", str(scene), "--spp", "1", *MAP]
     assert run_cli([*argv, "--out", str(tmp_path / "whole")]) == 0
-    real_luminance, renders, resumed = Renderer.luminance, [], []
+    real_exposure, renders, resumed = FrameShader.exposure, [], []   # a static scene's frames
 
-    def third_frame_interrupts(renderer, *args, **kwargs):
+    def third_frame_interrupts(shader, *args, **kwargs):
         renders.append(1)
         if len(renders) == 3:
             raise KeyboardInterrupt
-        return real_luminance(renderer, *args, **kwargs)
+        return real_exposure(shader, *args, **kwargs)
 
     real_simulate = simulate_module.simulate
 
@@ -246,7 +246,7 @@ def test_a_run_interrupted_in_its_simulation_resumes_from_the_checkpoint(tmp_pat
         resumed.append(kwargs.get("resume"))
         return real_simulate(*args, **kwargs)
 
-    monkeypatch.setattr(Renderer, "luminance", third_frame_interrupts)
+    monkeypatch.setattr(FrameShader, "exposure", third_frame_interrupts)
     monkeypatch.setattr(simulate_module, "simulate", recorded)
     out = tmp_path / "run"
     assert run_cli([*argv, "--out", str(out)]) == 130

@@ -22,7 +22,7 @@ NOISELESS_LINEAR = FrameParams(gamma=1.0)
 
 def test_defaults_are_a_noiseless_davis_like_camera():
     params = FrameParams()
-    assert (params.rate, params.exposure, params.exposure_samples) == (24.0, 0.005, 4)
+    assert (params.rate, params.exposure, params.exposure_samples) == (24.0, 0.005, None)
     assert (params.gamma, params.gain, params.sensor) == (None, None, "ideal")
     assert params.ideal and params.output_gamma == 2.2
 
@@ -49,7 +49,8 @@ def test_a_sensor_name_becomes_its_preset_and_its_gamma_is_linear():
     ({"rate": "24"}, r"FrameParams\.rate must be a number, got '24'"),
     ({"exposure": -0.001}, r"FrameParams\.exposure must be a finite number > 0"),
     ({"rate": 24.0, "exposure": 0.05}, r"exposure must be at most the frame period"),
-    ({"exposure_samples": 0}, r"FrameParams\.exposure_samples must be an integer >= 1, got 0"),
+    ({"exposure_samples": 0}, r"FrameParams\.exposure_samples must be an integer >= 1 or None "
+                              r"\(sized from the motion\), got 0"),
     ({"exposure_samples": 2.5}, r"exposure_samples must be an integer"),
     ({"exposure_samples": True}, r"exposure_samples must be an integer"),
     ({"gamma": 0.0}, r"FrameParams\.gamma must be a finite number > 0"),
@@ -112,6 +113,10 @@ def test_exposure_samples_are_sub_interval_centres():
                                [0.9985, 0.9995, 1.0005, 1.0015], atol=1e-15)
     one = exposure_sample_times(0.25, FrameParams(exposure_samples=1))
     assert one.tolist() == [0.25]
+    # not given: a whole frame's 4 (WHOLE_FRAME_EXPOSURE_SAMPLES); count overrides either
+    assert len(exposure_sample_times(1.0, FrameParams(exposure=0.004))) == 4
+    np.testing.assert_allclose(exposure_sample_times(1.0, params, count=2), [0.999, 1.001],
+                               atol=1e-15)
 
 
 # --- gain and response -----------------------------------------------------------------------

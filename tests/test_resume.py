@@ -17,6 +17,7 @@ from fusion.cli import main
 from sim.camera import Camera
 from sim.eventio import H5EventWriter, TextEventWriter, make_events, read_events
 from sim.events import EventEmulator, EventParams
+from sim.frame_shader import FrameShader
 from sim.render import Renderer
 from sim.sampling import SamplingStats, adaptive_samples
 from sim.scene import parse_scene
@@ -57,7 +58,9 @@ EVENTS = EventParams.preset("realistic", seed=3)
 
 
 class _Renders:
-    """Count the renders of frames (Renderer.luminance) and of the event camera's whole frames
+    """Count the renders of frames (Renderer.luminance; this static scene's frames are rendered
+    pixel by pixel: FrameShader.still, auto-exposure's look, one render, and
+    FrameShader.exposure, one per exposure time) and of the event camera's whole frames
     (EventShader.frame), and raise KeyboardInterrupt at render number ``stop``."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch, stop: int | None = None) -> None:
@@ -73,16 +76,31 @@ class _Renders:
             self.frames += 1
             return _REAL_LUMINANCE(renderer, t, pose, spp)
 
+        def still(shader, t):
+            check()
+            self.frames += 1
+            return _REAL_STILL(shader, t)
+
+        def exposure(shader, t, exposure, depth, times=None):
+            check()
+            luminance, cost = _REAL_EXPOSURE(shader, t, exposure, depth, times)
+            self.frames += cost.times
+            return luminance, cost
+
         def event_frame(shader, t):
             check()
             self.events += 1
             return _REAL_EVENT_FRAME(shader, t)
 
         monkeypatch.setattr(Renderer, "luminance", frame)
+        monkeypatch.setattr(FrameShader, "still", still)
+        monkeypatch.setattr(FrameShader, "exposure", exposure)
         monkeypatch.setattr(EventShader, "frame", event_frame)
 
 
 _REAL_LUMINANCE = Renderer.luminance
+_REAL_STILL = FrameShader.still
+_REAL_EXPOSURE = FrameShader.exposure
 _REAL_EVENT_FRAME = EventShader.frame
 _REAL_SAMPLES = event_driver.adaptive_samples
 
@@ -334,13 +352,18 @@ def test_cli_sigterm_is_an_interruption_that_resumes_to_the_same_files(tmp_path,
     assert main([*args, str(tmp_path / "whole")]) == 0
     calls = []
 
-    def terminated_at_the_third_render(renderer, t, pose=None, spp=None):
-        calls.append(t)
-        if len(calls) == 3:
-            os.kill(os.getpid(), signal.SIGTERM)      # as `kill PID` or a scheduler would
-        return _REAL_LUMINANCE(renderer, t, pose, spp)
+    def terminated_at_the_third_render(real):
+        def render(shader, t, *args):
+            calls.append(t)
+            if len(calls) == 3:
+                os.kill(os.getpid(), signal.SIGTERM)  # as `kill PID` or a scheduler would
+            return real(shader, t, *args)
+        return render
 
-    monkeypatch.setattr(Renderer, "luminance", terminated_at_the_third_render)
+    # The frames' renders: auto-exposure's look at frame 0, then frame 0's and 1's exposures.
+    monkeypatch.setattr(FrameShader, "still", terminated_at_the_third_render(_REAL_STILL))
+    monkeypatch.setattr(FrameShader, "exposure",
+                        terminated_at_the_third_render(_REAL_EXPOSURE))
     before = signal.getsignal(signal.SIGTERM)
     out = tmp_path / "cut"
     capsys.readouterr()
@@ -364,7 +387,7 @@ def test_an_interruption_inside_the_renderer_is_still_an_interruption(tmp_path, 
     signum = getattr(signal, signal_name)
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
 
-    def render_op_with_a_signal(renderer, t, pose=None, spp=None):
+    def render_op_with_a_signal(shader, t):
         try:
             os.kill(os.getpid(), signum)
             raise AssertionError("the signal handler did not raise")
@@ -372,7 +395,7 @@ def test_an_interruption_inside_the_renderer_is_still_an_interruption(tmp_path, 
             raise RuntimeError("drjit.custom(<mitsuba.python.util._RenderOp>): error while "
                                "performing a custom differentiable operation.") from exc
 
-    monkeypatch.setattr(Renderer, "luminance", render_op_with_a_signal)
+    monkeypatch.setattr(FrameShader, "still", render_op_with_a_signal)   # frame 0's first
     try:
         code = main(["simulate", str(scene_file), "--duration", "0.06", "--quiet", "--out",
                      str(tmp_path / "cut")])

@@ -264,6 +264,35 @@ def test_the_tables_point_lookup_is_mitsubas():
                                rtol=1e-5, atol=1e-6)
 
 
+@pytest.mark.parametrize("shape", ["rectangle", "cylinder"])
+def test_a_flipped_checkerboard_s_point_lookup_is_mitsubas(shape):
+    """Shapes whose v is flipped (rectangle, cylinder) with a checkerboard whose squares and
+    repeats do not make the flip's offset a whole number of periods: tabletop_0's north wall,
+    3 x 10 squares repeated 2.6747 x 1.9329 times. Main's table put the flip's offset after the
+    squares' factor (1.9329 x 5 instead of Mitsuba's 1.9329, 0.73 of a period apart): its
+    point lookup was the other colour on 6,787 of 172,800 sub-samples of tabletop_0's frame at
+    4 samples per pixel, each then scaled by 0.85 / 0.05 or its inverse (frames 34 dB from the
+    converged render there)."""
+    import mitsuba as mi
+
+    from sim.textures import filtered_reflectance
+
+    params = ('size = [1.6, 1.2]\nnormal = [0.0, -1.0, 0.0]\nup = [0.0, 0.0, 1.0]'
+              if shape == "rectangle" else 'radius = 0.5\nheight = 1.5\ncaps = false')
+    obj = (f'[[objects]]\nname = "wall"\ntype = "{shape}"\ncenter = [0.0, 1.2, 0.0]\n{params}\n'
+           'material = { texture = { type = "checkerboard", squares = [3, 10] }, '
+           "texture_scale = [2.6747, 1.9329] }\n")
+    scene = parse_scene(scene_text(obj, camera=CAMERA, trajectory=STILL, duration=0.3))
+    renderer = Renderer(scene)
+    si, hit = _centre_hits(renderer, scene.trajectory.pose(0.0))
+    _, point, textured = filtered_reflectance(renderer.texture_filter.arrays, si, hit)
+    textured = np.array(textured)
+    mitsuba = np.array(mi.luminance(si.bsdf().eval_diffuse_reflectance(si, hit)))
+    assert textured.mean() > 0.5
+    assert set(np.round(mitsuba[textured].astype(float), 2)) == {0.05, 0.85}   # both seen
+    np.testing.assert_allclose(np.array(point)[textured], mitsuba[textured], rtol=1e-5)
+
+
 def test_a_footprint_that_crosses_a_face_s_edge_is_clipped_to_the_face():
     """A 2 x 2 checkerboard tile seen square on, every hit given a footprint 0.4 of the tile
     wide (uv partials set by hand): the filtered value is the checkerboard's exact mean over the

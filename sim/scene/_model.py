@@ -37,7 +37,14 @@ class RenderParams:
     Attributes
     ----------
     spp : int
-        Samples per pixel (a perfect square: the sampler is stratified). Default 16.
+        Samples per pixel of the frames (a perfect square: the sampler is stratified): of every
+        pixel of a whole-frame render, and, where frames are rendered pixel by pixel
+        (:mod:`sim.frame_shader`: static scenes on a JIT variant), of the pixels that an edge
+        of the geometry or of a shadow crosses during the exposure. Default 16.
+    flat_spp : int
+        Samples per pixel of the frames' other pixels where frames are rendered pixel by
+        pixel (a perfect square; at most ``spp``, which replaces it where it is larger).
+        Default 4.
     pose_rate : float
         Rate of the written ``groundtruth.txt``, Hz (>= 200). Default 1000.
     event_spp : int
@@ -61,6 +68,7 @@ class RenderParams:
     event_spp: int = 4
     edge_spp: int = 0
     seed: int | None = None
+    flat_spp: int = 4
 
 
 @dataclass(frozen=True)

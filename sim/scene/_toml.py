@@ -431,9 +431,10 @@ def _parse_frame_sensor(ctx: _Ctx, raw: Any, key: str) -> str | FrameSensor:
 def _parse_render(ctx: _Ctx, raw: Any) -> RenderParams:
     key = "[render]"
     table = ctx.table(raw, key)
-    ctx.keys(table, key, set(), {"spp", "pose_rate", "event_spp", "edge_spp", "seed"})
+    ctx.keys(table, key, set(), {"spp", "flat_spp", "pose_rate", "event_spp", "edge_spp",
+                                 "seed"})
     counts = {}
-    for name, default in (("spp", 16), ("event_spp", 4)):
+    for name, default in (("spp", 16), ("flat_spp", 4), ("event_spp", 4)):
         value = _get(ctx, table, key, name, lambda c, v, k: _integer(c, v, k, minimum=1), default)
         if math.isqrt(value) ** 2 != value:
             raise ctx.fail(f"{key}.{name}",
@@ -448,7 +449,7 @@ def _parse_render(ctx: _Ctx, raw: Any) -> RenderParams:
                                           f"event_spp = {counts['event_spp']}, got {edge_spp}")
     seed = _get(ctx, table, key, "seed", lambda c, v, k: _integer(c, v, k, minimum=0), None)
     return RenderParams(spp=counts["spp"], pose_rate=pose_rate, event_spp=counts["event_spp"],
-                        edge_spp=edge_spp, seed=seed)
+                        edge_spp=edge_spp, seed=seed, flat_spp=counts["flat_spp"])
 
 
 def _orientation(ctx: _Ctx, table: Mapping[str, Any], key: str, position: np.ndarray):

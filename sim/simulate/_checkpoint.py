@@ -98,7 +98,8 @@ class _Checkpoint:
 
     ``checkpoint.json`` holds ``format``, the run's ``identity`` (see :func:`_identity`) and
     its SHA-256 ``fingerprint``, the frames' ``gain`` once known (saved before the first frame
-    is written) and the event stage's ``events`` summary once it is done. ``events.npz`` holds
+    is written), each frame's ``exposures`` and ``frame_costs`` (saved before it is written)
+    and the event stage's ``events`` summary once it is done. ``events.npz`` holds
     the event stage's last saved state: the arrays ``sample_luminance``, ``sample_log`` (the
     sampler's last sample; with the per-pixel sampler, the frame at the end of the last block),
     ``observed_rates`` (per-pixel sampler only: each pixel's observed rate in that block, which
@@ -178,6 +179,26 @@ class _Checkpoint:
 
     def set_exposures(self, exposures: list[float]) -> None:
         self.data["exposures"] = [float(e) for e in exposures]
+        self._save()
+
+    @property
+    def frame_costs(self) -> dict[int, dict]:
+        """What each frame rendered so far cost (:class:`sim.frame_shader.ExposureCost`'s
+        record), by frame index."""
+        return {int(k): v for k, v in self.data.get("frame_costs", {}).items()}
+
+    @property
+    def frame_stage(self) -> dict | None:
+        """How the frames are rendered (:meth:`sim.simulate._frames._Exposures.record`)."""
+        return self.data.get("frame_stage")
+
+    def set_frame_stage(self, stage: dict) -> None:
+        if self.data.get("frame_stage") != stage:
+            self.data["frame_stage"] = stage
+            self._save()
+
+    def set_frame_cost(self, index: int, cost: dict) -> None:
+        self.data.setdefault("frame_costs", {})[str(int(index))] = cost
         self._save()
 
     @property

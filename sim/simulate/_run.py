@@ -40,7 +40,7 @@ from sim.simulate._checkpoint import (
     _versions,
 )
 from sim.simulate._events import _choose_sampler, _simulate_events
-from sim.simulate._frames import _frames_record, _simulate_frames
+from sim.simulate._frames import _frames_record, _simulate_frames, frame_cost_record
 from sim.trajectory import sample_times, write_trajectory
 from sim.two_camera import simulate_frame_camera
 from sim.validation import ParameterError
@@ -57,7 +57,8 @@ class SimulationResult:
     n_frames : int
         Number of standard-camera frames (and depth maps).
     n_renders : int
-        Number of luminance renders (frames x exposure samples).
+        Exposure times rendered, all frames together (``frame_cost.exposure_times`` of
+        ``sequence.json``: a whole-frame render each, or one pass of the frame shader).
     n_events : int or None
         Number of events written (None when events were not simulated).
     event_renders : int
@@ -223,7 +224,9 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         _check_resumable(out, overwrite, identity, inputs)
     else:
         check_output_dir(out, overwrite, inputs)
-    timings = {"setup": 0.0, "render": 0.0, "depth": 0.0, "write": 0.0, "event_render": 0.0,
+    timings = {"setup": 0.0, "frame_setup": 0.0, "depth": 0.0, "exposure_control": 0.0,
+               "frame_motion": 0.0, "frame_edges": 0.0, "render": 0.0, "frame_sensor": 0.0,
+               "write": 0.0, "event_render": 0.0,
                "emulate": 0.0, "emulate_compile": 0.0, "event_sample": 0.0, "event_write": 0.0,
                "event_depth": 0.0, "checkpoint": 0.0}
     clock = time.perf_counter()
@@ -251,12 +254,15 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
             if with_events and event_info.get(key):
                 print(f"simulate {scene.name}: warning: {event_info[key]}", file=sys.stderr,
                       flush=True)
+        frame_camera = scene.frame_camera.camera if scene.frame_camera else scene.camera
+        frame_cost = frame_cost_record(checkpoint.frame_stage, checkpoint.frame_costs,
+                                       frame_camera, scene.frames.auto_exposure)
         write_sequence_json(tmp / "sequence.json", _sequence_record(
             scene, renderer, start, duration, times, gain, exposures, flow_record, motion_truth,
-            event_info if with_events else None, rig_record, imu_record, timings))
+            event_info if with_events else None, rig_record, imu_record, frame_cost, timings))
         checkpoint.remove()
     timings["total"] = time.perf_counter() - clock
-    n_renders = len(times) * scene.frames.exposure_samples
+    n_renders = frame_cost["exposure_times"]
     if not with_events:
         return SimulationResult(out, len(times), n_renders, renderer.variant, timings)
     return SimulationResult(out, len(times), n_renders, renderer.variant, timings,
@@ -352,7 +358,8 @@ def _write_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.ndar
 def _sequence_record(scene: Scene, renderer: Renderer, start: float, duration: float,
                      times: np.ndarray, gain: float | None, exposures: list[float],
                      flow_record: dict | None, motion_truth: bool, event_info: dict | None,
-                     rig_record: dict, imu_record: dict | None, timings: dict) -> dict:
+                     rig_record: dict, imu_record: dict | None, frame_cost: dict,
+                     timings: dict) -> dict:
     """The content of ``sequence.json`` (``event_info`` None: no events simulated)."""
     cam, params = scene.camera, scene.frames
     end = start + duration
@@ -369,8 +376,8 @@ def _sequence_record(scene: Scene, renderer: Renderer, start: float, duration: f
         "frames": _frames_record(params, gain, exposures, len(times)),
         "render": {"spp": renderer.spp, "sampler_seed": renderer.seed,
                    "variant": renderer.variant, "integrator": "direct",
-                   "pose_rate": scene.render.pose_rate, "renders": len(times)
-                   * params.exposure_samples},
+                   "pose_rate": scene.render.pose_rate,
+                   "renders": frame_cost["exposure_times"]},
         "depth": {"kind": "z", "units": "m", "at": "pixel centres, frame mid-exposure times"},
         **(flow_record if motion_truth else {"flow": None, "motion_field": None,
                                              "object_masks": None}),
@@ -382,6 +389,7 @@ def _sequence_record(scene: Scene, renderer: Renderer, start: float, duration: f
         "imu": imu_record,
         **({"frame_camera": scene.frame_camera.as_record()} if scene.frame_camera else {}),
         "software": _versions(),
+        "frame_cost": frame_cost,
         "timings_s": {k: round(v, 3) for k, v in timings.items()},
     }
 
