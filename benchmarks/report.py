@@ -717,7 +717,8 @@ def _generate_plots(data: dict) -> list[Plot]:
 
 def _estimate_tables(data: dict) -> list[tuple[str, Table]]:
     header = ["job", "noise", "lambda", "events", "estimate s", "how", "frames s", "events s",
-              "setup s", "measured s", "error"]
+              "setup s", "measured s", "error", "from the others' mean", "frame render s",
+              "event render s"]
     body = []
     for j in data["jobs"]:
         parts = j["parts"] or {}
@@ -726,11 +727,18 @@ def _estimate_tables(data: dict) -> list[tuple[str, Table]]:
                      "probed" if j["probed"] else "mean of probed seeds",
                      _num(parts.get("frames"), 1), _num(parts.get("events"), 1),
                      _num(sum(parts.get(k, 0.0) for k in ("draw", "setup", "compile")), 1),
-                     _num(j["measured_s"], 1), f"{100 * j['error']:+.1f} %"])
+                     _num(j["measured_s"], 1), f"{100 * j['error']:+.1f} %",
+                     f"{100 * j['mean_of_others_error']:+.0f} %"
+                     if "mean_of_others_error" in j else "",
+                     _num(j.get("frame_render_s"), 2), _num(j.get("event_render_s"), 2)])
     verdict = "held" if data["within_bound"] else "broken"
-    return [(f"{data['sweep']}; dry run {_num(data['dry_run_s'], 1)} s. Largest error "
-             f"{100 * data['largest_error']:.1f} % against the stated bound "
-             f"{100 * data['bound']:.0f} % ({verdict}).", (header, body))]
+    total = data.get("total_error")
+    total = f"; the sweep's total {100 * total:+.1f} %" if total is not None else ""
+    return [(f"{data['sweep']}; dry run {_num(data['dry_run_s'], 1)} s. Largest error of a "
+             f"probed job {100 * data['largest_error']:.1f} %{total}, against the stated bound "
+             f"{100 * data['bound']:.0f} % ({verdict}). Frame render (motion, edges and "
+             "shading of the frames) at most the event render on every job: "
+             f"{_num(data.get('frame_render_under_event_render'))}.", (header, body))]
 
 
 # ----------------------------------------------------------------------------- noise_time.json

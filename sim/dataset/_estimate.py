@@ -7,8 +7,9 @@ second, each measured on the job's own scene, sensor and parameters::
 
 - ``draw``: drawing a family or procedural scene (:func:`~sim.dataset._jobs.scene_text`),
   timed when the probe draws it;
-- ``setup``: loading the scene into Mitsuba, and the rest of a simulation that is neither
-  frames nor events (the IMU, writing ``sequence.json``), from the warm probes;
+- ``setup``: loading the scene into Mitsuba, setting the frames up (the auto-exposure's first
+  look included), and the rest of a simulation that is neither frames nor events (the IMU,
+  writing ``sequence.json``), from the warm probes;
 - ``compile``: what the first probe of a scene cost beyond the warm probes' model of it
   (tracing and compiling its kernels, which a worker does once per scene structure);
 - ``per_frame``: the frame stage (renders, depth, optical flow, writing) per frame, from the
@@ -18,10 +19,13 @@ second, each measured on the job's own scene, sensor and parameters::
   labels) per simulated second, and ``hash_s`` the manifest's output hash per simulated second,
   from the warm probes.
 
-Each probed job is simulated over three windows of ``probe_seconds``: at the start of its
-window (cold: it compiles), in the middle and at the end (warm), so that a trajectory whose
-cost changes along the way is seen at three places. A built-in scene or scene file is probed
-once per distinct scene, sensor and sampler (its first job); a family or procedural scene,
+Each probed job is simulated over five windows of ``probe_seconds`` (:data:`WINDOWS`): at the
+start of its window (cold: it compiles), then warm at the start again, a third and two thirds
+of the way and at the end, so that a trajectory whose cost changes along the way is seen at four
+places. The costs per frame and per simulated second are the warm windows' medians: a window
+is short (one or two frames), so one slow step in it would otherwise count as if paid all
+along. A built-in scene or scene file is probed once per distinct scene, sensor and sampler (its
+first job); a family or procedural scene,
 whose every seed is another scene, at :data:`PROBE_SEEDS` seeds spread over the sweep's seeds,
 and its other seeds get the mean of those probes, with their spread printed.
 
@@ -44,14 +48,21 @@ __all__ = ["ESTIMATE_ERROR", "PROBE_SECONDS", "PROBE_SEEDS", "estimate_jobs", "e
 
 PROBE_SECONDS = 0.05
 """Length of each probe window, simulated s."""
-PROBE_SEEDS = 3
+PROBE_SEEDS = 4
 """Seeds of each family or procedural scene (and sensor) that are probed."""
+WINDOWS = (0.0, 0.0, 1 / 3, 2 / 3, 1.0)
+"""Where a probe's windows start, as fractions of its job's window less one probe window: the
+first is cold (it compiles the scene's kernels), the others warm, the first of them the same
+window again (their difference is the compilation)."""
 ESTIMATE_ERROR = 0.30
-"""Largest relative error of an estimate against the measured job (``wall_s``) that
+"""Largest relative error of a probed job's estimate against the measured job (``wall_s``) that
 ``benchmarks/bench_generate.py --estimates`` allows; its result
-(``benchmarks/results/generate_estimates.json``) holds the errors measured."""
+(``benchmarks/results/generate_estimates.json``) holds the errors measured, and those of the
+mean a seed that is not probed gets (each seed against the mean of the others)."""
 
-_FRAME_STAGE = ("render", "depth", "write", "flow")
+_FRAME_STAGE = ("depth", "frame_motion", "frame_edges", "render", "frame_sensor", "write", "flow")
+"""``timings_s``' keys that are paid per frame (``frame_setup`` and ``exposure_control``, the
+auto-exposure's first look, are paid once a simulation)."""
 _EVENT_STAGE = ("event_render", "emulate", "emulate_compile", "event_sample", "event_write",
                 "event_depth", "checkpoint")
 
@@ -64,8 +75,9 @@ def _stages(timings: dict) -> tuple[float, float, float]:
 
 
 def _probe(job: Job, variant: str | None, folder: Path, probe_seconds: float) -> dict:
-    """The cost model of one job, from three windows of its own simulation."""
+    """The cost model of one job, from :data:`WINDOWS` windows of its own simulation."""
     from sim.dataset._manifest import output_hash
+    from sim.frames import frame_times
     from sim.simulate import simulate
 
     tick = time.perf_counter()
@@ -74,31 +86,28 @@ def _probe(job: Job, variant: str | None, folder: Path, probe_seconds: float) ->
     draw = time.perf_counter() - tick if text is not None else 0.0
     start, duration = kwargs["start"], kwargs["duration"]
     window = min(duration, probe_seconds)
-    # The start (cold), then the middle and the end (warm); a job no longer than a window
-    # repeats it warm.
-    starts = [start, start + (duration - window) / 2, start + duration - window]
     runs = []
-    for k, at in enumerate(starts):
+    for k, fraction in enumerate(WINDOWS):
         out = folder / f"window{k}"
         result = simulate(scene, out, variant=variant, progress=False,
-                          **dict(kwargs, start=at, duration=window))
+                          **dict(kwargs, start=start + fraction * (duration - window),
+                                 duration=window))
         tick = time.perf_counter()
         output_hash(out)
-        runs.append((result, time.perf_counter() - tick))
-    warm = runs[1:]
-    frames = sum(result.n_frames for result, _ in warm)
-    stages = np.array([_stages(result.timings) for result, _ in warm])
-    per_frame = stages[:, 0].sum() / frames if frames else 0.0
-    per_second = (stages[:, 1].sum() + sum(h for _, h in warm)) / (window * len(warm))
-    setup = float(np.mean([result.timings["setup"] + other for (result, _), other in
-                           zip(warm, stages[:, 2], strict=True)]))
-    cold, _ = runs[0]
-    predicted = setup + cold.n_frames * per_frame + window * per_second
-    compile_s = max(0.0, cold.timings["total"] + runs[0][1] - predicted)
-    from sim.frames import frame_times
-
-    return {"job_id": job.job_id, "draw": draw, "setup": setup, "compile": compile_s,
-            "per_frame": per_frame, "per_second": per_second,
+        frames, events, other = _stages(result.timings)
+        runs.append({"frames": result.n_frames, "frame_s": frames,
+                     "event_s": events + time.perf_counter() - tick,
+                     "setup_s": result.timings["setup"] + other,
+                     "total_s": result.timings["total"] + time.perf_counter() - tick})
+    cold, warm = runs[0], runs[1:]
+    # Medians of the warm windows: a window is short, so one slow step in it (a kernel compiled
+    # for a new exposure count, a lazily loaded kernel) would weigh as if it were paid all along.
+    per_frame = [r["frame_s"] / r["frames"] for r in warm if r["frames"]]
+    return {"job_id": job.job_id, "draw": draw,
+            "setup": float(np.median([r["setup_s"] for r in warm])),
+            "compile": max(0.0, cold["total_s"] - warm[0]["total_s"]),
+            "per_frame": float(np.median(per_frame)) if per_frame else 0.0,
+            "per_second": float(np.median([r["event_s"] for r in warm])) / window,
             "frames": len(frame_times(duration, scene.frames)), "duration": duration}
 
 
@@ -124,7 +133,7 @@ def estimate_jobs(sweep, variant: str | None = None, probe_seconds: float = PROB
     sweep : Sweep
     variant : str, optional
     probe_seconds : float, s
-        Length of each of a probe's three windows.
+        Length of each of a probe's windows.
     probe_seeds : int
         Seeds probed per family or procedural scene and sensor.
 
@@ -219,6 +228,10 @@ def _parts(model: dict, frames: int, duration: float) -> dict:
             "frames": frames * model["per_frame"], "events": duration * model["per_second"]}
 
 
+def _seconds(value: float) -> str:
+    return f"{value:.1f}" if value >= 1 else f"{value:.2f}"
+
+
 def estimate_report(sweep, rows: list[dict]) -> str:
     """``--dry-run``'s text: one line per job of :func:`estimate_jobs`' ``rows`` (its
     estimate, how it was made, its parameters) and the total.
@@ -231,11 +244,11 @@ def estimate_report(sweep, rows: list[dict]) -> str:
     """
     width = max(len(row["job_id"]) for row in rows)
     lines = [f"{len(rows)} jobs of sweep {sweep.name} ({sweep.source}): each job's wall seconds "
-             f"in one worker, from warm probes of {PROBE_SECONDS:g} s at the start, middle and "
-             f"end of its window (frames counted per frame; a generated scene at "
-             f"{PROBE_SEEDS} of its seeds, its other seeds their mean); estimates are within "
-             f"{ESTIMATE_ERROR:.0%} of measured jobs (benchmarks/bench_generate.py "
-             "--estimates):"]
+             f"in one worker, from warm probes of {PROBE_SECONDS:g} s at four places of its window "
+             f"(frames counted per frame); a probed job's estimate is within "
+             f"{ESTIMATE_ERROR:.0%} of the measured job (benchmarks/bench_generate.py "
+             f"--estimates); a generated scene is probed at {PROBE_SEEDS} of its seeds, and its "
+             "other seeds get their mean and their spread:"]
     for row in rows:
         params = ", ".join(f"{k}={v}" for k, v in row["params"].items())
         if row["estimate_s"] is None:
@@ -243,8 +256,9 @@ def estimate_report(sweep, rows: list[dict]) -> str:
                          f"{params}")
             continue
         parts = row["parts"]
-        how = (f"frames {parts['frames']:.1f} + events {parts['events']:.1f} + setup "
-               f"{parts['draw'] + parts['setup'] + parts['compile']:.1f}")
+        once = parts["draw"] + parts["setup"] + parts["compile"]
+        how = (f"frames {_seconds(parts['frames'])} + events {_seconds(parts['events'])} + "
+               f"setup {_seconds(once)}")
         if row["spread_s"] is not None:
             low, high = row["spread_s"]
             how = f"mean of probed seeds, {low:.1f}-{high:.1f} s"
