@@ -461,8 +461,10 @@ def _add_generate(sub) -> None:
                           help="one line per finished job on stdout, no progress bar")
     generate.set_defaults(run=_cmd_generate,
                           flag_names={"gpu": "--gpu-per-job", "variant": "--variant"},
-                          interrupted="finished jobs are kept; continue with the same command "
-                                      "plus --resume")
+                          interrupted="finished jobs are kept (with --overwrite, in DIR.partial; "
+                                      "the old DIR is untouched until the new one is "
+                                      "complete); continue with the same command plus "
+                                      "--resume")
 
 
 def add_command(subparsers, name: str, *,

@@ -7,6 +7,14 @@
 * An output is never an input, inside one or around one (:func:`check_not_input`, real paths).
 * A run stopped part-way resumes from its ``.partial`` (:func:`resumable_partial`) when it asks
   for what it asked before (:func:`resume_differences`).
+* One writer per output: a writer claims ``<out>.partial`` atomically (:data:`CLAIM`: its pid,
+  host, command and start time); a second writer is refused, naming the first, until the first's
+  process is gone (a stale claim, which ``resume`` takes over).
+* What the final rename needs is checked first: ``out`` is no mount point, neither the current
+  folder nor one of its ancestors, and its parent is writable.
+* Only a ``.partial`` evfuse marked is evfuse's to delete or resume; the marker of a complete
+  output lists the files evfuse wrote (``files``), and ``overwrite`` refuses a folder holding
+  others.
 
 Refusals are :class:`OutputError` (a :class:`sim.validation.ParameterError`), worded in the
 library's parameters, which the command line renames to its flags. Single files are written
@@ -17,7 +25,12 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import shutil
+import socket
+import sys
+import threading
+import time
 import uuid
 from collections.abc import Iterator
 from collections.abc import Sequence as SequenceABC
@@ -27,9 +40,11 @@ from pathlib import Path
 from sim._atomic import PARTIAL_SUFFIX  # re-exported: the suffix of all that is unfinished
 from sim.validation import ParameterError
 
-__all__ = ["MARKER", "PARTIAL_SUFFIX", "OutputError", "atomic_output_dir", "check_not_input",
-           "check_output_dir", "check_output_file", "evfuse_version", "partial_dir",
-           "resumable_partial", "resume_differences", "write_marker"]
+__all__ = ["CLAIM", "MARKER", "PARTIAL_SUFFIX", "OutputError", "add_written_files",
+           "atomic_output_dir",
+           "check_not_input", "check_output_dir", "check_output_file", "claim_folder",
+           "evfuse_version", "list_written_files", "partial_dir", "release_claim",
+           "resumable_partial", "resume_differences", "swap_in", "write_marker"]
 
 _literal = ParameterError.literal
 
@@ -37,6 +52,15 @@ MARKER = ".evfuse"
 """The file evfuse writes into every output folder it creates (JSON: ``written_by``,
 ``command``, ``version``, ``inputs``): ``overwrite`` replaces only a folder that has
 it, so that it never deletes a folder evfuse did not write."""
+
+
+CLAIM = ".evfuse-claim"
+"""The file a writer creates in the folder it is writing (``<out>.partial``, or a dataset folder
+``generate`` fills in place) before any work: JSON with ``pid``, ``host``, ``command`` (the
+writer), ``argv`` (its command line), ``started`` (UTC) and ``token`` (which of a process's
+claims). A second writer of the same output is refused while the claim's process runs;
+a claim whose process is gone (same host, no such pid) is stale. Removed once the output is
+complete; never listed in the marker's ``files``."""
 
 
 class OutputError(ParameterError):
@@ -51,11 +75,204 @@ def _is_nonempty_dir(path: Path) -> bool:
 
 
 def _holds_nothing(folder: Path) -> bool:
-    """True if ``folder`` holds no file but :data:`MARKER` (empty folders aside)."""
+    """True if ``folder`` holds no file but :data:`MARKER` and :data:`CLAIM` (empty folders
+    aside)."""
     for _, _, files in os.walk(folder):
-        if any(name != MARKER for name in files):
+        if any(name not in (MARKER, CLAIM) for name in files):
             return False
     return True
+
+
+def _written_files(folder: Path) -> list[str]:
+    """Every file (and link) under ``folder``, relative, ``/``-separated and sorted, but its own
+    :data:`MARKER` and :data:`CLAIM`."""
+    found = []
+    for root, dirs, files in os.walk(folder):
+        here = Path(root).relative_to(folder)
+        names = list(files) + [d for d in dirs if (Path(root) / d).is_symlink()]
+        for name in names:
+            relative = (here / name).as_posix()
+            if relative not in (MARKER, CLAIM):
+                found.append(relative)
+    return sorted(found)
+
+
+_HELD = threading.local()
+"""``tokens``: the claims this thread holds (two writers in two threads of one process are two
+writers; one thread writes one output at a time)."""
+
+
+def _held() -> set[str]:
+    if not hasattr(_HELD, "tokens"):
+        _HELD.tokens = set()
+    return _HELD.tokens
+
+
+def _own(claim: dict | None) -> bool:
+    return claim is not None and claim.get("token") in _held()
+
+
+def _claim_alive(claim: dict) -> bool | None:
+    """Whether a claim's process still runs: True / False on this host, None on another (it
+    cannot be told from here)."""
+    if claim.get("host") != socket.gethostname():
+        return None
+    try:
+        pid = int(claim["pid"])
+    except (KeyError, TypeError, ValueError):
+        return False
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _read_claim(folder: Path) -> dict | None:
+    """The claim in ``folder``, or None if it has none (an unreadable claim counts as a dead
+    process's: its writer died while writing it)."""
+    path = folder / CLAIM
+    if not path.is_file() or path.is_symlink():
+        return None
+    try:
+        claim = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return claim if isinstance(claim, dict) else {}
+
+
+def _describe_claim(claim: dict) -> str:
+    argv = str(claim.get("argv", ""))
+    argv = argv if len(argv) <= 160 else argv[:157] + "..."
+    return (f"{claim.get('command') or 'an evfuse command'} (pid {claim.get('pid', '?')} on "
+            f"{claim.get('host', '?')}, started {claim.get('started', '?')}"
+            f"{': ' + argv if argv else ''})")
+
+
+def _check_claim(folder: Path, out: Path) -> None:
+    """Raise :class:`OutputError` if another writer's claim in ``folder`` is alive, or cannot be
+    told (another host)."""
+    claim = _read_claim(folder)
+    if claim is None or _own(claim):
+        return
+    alive = _claim_alive(claim)
+    if alive is False:
+        return
+    if alive:
+        message = (f"output folder {out} is being written by {_describe_claim(claim)}; "
+                   "one writer per output")
+        raise OutputError(f"{_literal(message)}: wait for it to finish, or choose another "
+                          "{out}", out="output folder")
+    message = (f"output folder {out} is claimed by {_describe_claim(claim)}, on another host "
+               f"where evfuse cannot tell whether it still runs")
+    raise OutputError(f"{_literal(message)}: if it does not, delete {_literal(folder / CLAIM)} "
+                      "yourself; else choose another {out}", out="output folder")
+
+
+def _claim_document(command: str) -> dict:
+    return {"pid": os.getpid(), "host": socket.gethostname(), "command": command,
+            "argv": shlex.join(sys.argv)[:500],
+            "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "token": uuid.uuid4().hex}
+
+
+def claim_folder(folder: str | Path, out: str | Path, command: str = "") -> Path:
+    """Claim the existing ``folder`` (``<out>.partial``, or a folder written in place) for this
+    process: create :data:`CLAIM` in it atomically (``O_EXCL``), taking over a stale claim.
+
+    Raises
+    ------
+    OutputError
+        Another writer's claim is alive (:func:`_check_claim`), or it won the race for a stale
+        one.
+    """
+    folder = Path(folder)
+    _check_claim(folder, Path(out))
+    path = folder / CLAIM
+    claim = _read_claim(folder)
+    if _own(claim):
+        return path
+    if claim is not None:                       # stale: move it aside, then claim afresh
+        aside = folder / f"{CLAIM}.stale-{uuid.uuid4().hex[:12]}"
+        try:
+            os.rename(path, aside)
+            os.unlink(aside)
+        except FileNotFoundError:
+            pass
+    try:
+        handle = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    except FileExistsError:
+        _check_claim(folder, Path(out))
+        message = f"output folder {out} was claimed by another writer at the same moment"
+        raise OutputError(f"{_literal(message)}: one writer per output; choose another {{out}}",
+                          out="output folder") from None
+    document = _claim_document(command)
+    with os.fdopen(handle, "w") as stream:
+        stream.write(json.dumps(document, indent=1) + "\n")
+    _held().add(document["token"])
+    return path
+
+
+def release_claim(folder: str | Path) -> None:
+    """Remove this process's :data:`CLAIM` from ``folder`` (another's is left)."""
+    claim = _read_claim(Path(folder))
+    if _own(claim):
+        (Path(folder) / CLAIM).unlink(missing_ok=True)
+        _held().discard(claim["token"])
+
+
+def _check_swap(out: Path) -> None:
+    """Raise :class:`OutputError` if the final rename of ``<out>.partial`` to ``out`` could not
+    happen: ``out`` a mount point, the current folder or one of its ancestors; its parent (the
+    nearest existing one) not writable."""
+    real = _real(out)
+    if out.is_dir() and not out.is_symlink() and (os.path.ismount(out) or
+                                                   real.parent.exists() and
+                                                   os.stat(real).st_dev !=
+                                                   os.stat(real.parent).st_dev):
+        message = (f"output folder {out} is a mount point; a finished output is renamed into "
+                   "place, which cannot replace a mount point")
+        raise OutputError(f"{_literal(message)}: choose a folder inside it as {{out}}",
+                          out="output folder")
+    try:
+        here = Path(os.getcwd()).resolve()
+    except OSError:
+        here = None
+    if here is not None and (here == real or real in here.parents):
+        what = "is the current folder" if here == real else "contains the current folder"
+        message = (f"output folder {out} ({real}) {what}; a finished output is renamed into "
+                   "place, which cannot replace the folder a command runs in")
+        raise OutputError(f"{_literal(message)}: choose another {{out}}, or run from elsewhere",
+                          out="output folder")
+    parent = real.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not os.access(parent, os.W_OK | os.X_OK):
+        message = f"cannot write into {parent}, the folder that would hold output {out}"
+        raise OutputError(f"{_literal(message)}: choose another {{out}}", out="output folder")
+
+
+def _check_partial(partial: Path, out: Path) -> None:
+    """Raise :class:`OutputError` unless ``<out>.partial`` is absent, an empty folder, or
+    evfuse's (it holds :data:`MARKER` or :data:`CLAIM`), and no live writer claims it."""
+    if not partial.exists() and not partial.is_symlink():
+        return
+    if partial.is_symlink() or not partial.is_dir():
+        message = (f"{partial}, the name evfuse writes output {out} under until it is complete, "
+                   "is a file or a link evfuse did not write, so evfuse does not delete it")
+        raise OutputError(f"{_literal(message)}: choose another {{out}}, or move it yourself",
+                          out="output folder")
+    if not _is_nonempty_dir(partial):
+        return
+    marked = any((partial / name).is_file() and not (partial / name).is_symlink()
+                 for name in (MARKER, CLAIM))
+    if not marked:
+        _check_marked(partial, out, True)
+    _check_claim(partial, out)
 
 
 def _real(path: str | Path) -> Path:
@@ -117,6 +334,27 @@ def _check_marked(folder: Path, out: Path, overwrite: bool) -> None:
                    "evfuse does not replace it")
         raise OutputError(f"{_literal(message)}: choose another {{out}}, or delete it yourself",
                           out="output folder")
+    if folder == out:
+        _check_unlisted(out)
+
+
+def _check_unlisted(out: Path) -> None:
+    """Raise :class:`OutputError` if the complete ``out`` holds files its marker's ``files`` do
+    not list (a user's additions, which ``overwrite`` would delete). A marker without ``files``
+    (written before evfuse listed them, or by a writer still at work) is accepted as before."""
+    try:
+        listed = json.loads((out / MARKER).read_text()).get("files")
+    except (OSError, ValueError, AttributeError):
+        listed = None
+    if not isinstance(listed, list):
+        return
+    extra = sorted(set(_written_files(out)) - {str(name) for name in listed})
+    if extra:
+        shown = ", ".join(extra[:5]) + (f" and {len(extra) - 5} more" if len(extra) > 5 else "")
+        message = (f"output folder {out} holds {len(extra)} file{'s' * (len(extra) > 1)} evfuse "
+                   f"did not write ({shown}), which replacing it would delete")
+        raise OutputError(f"{_literal(message)}: move them out first, or choose another {{out}}",
+                          out="output folder")
 
 
 def check_output_dir(out: str | Path, overwrite: bool = False,
@@ -127,16 +365,24 @@ def check_output_dir(out: str | Path, overwrite: bool = False,
     Refused: ``out`` that is, contains or lies inside one of ``inputs`` (real paths,
     :func:`check_not_input`); an existing file or link; an existing non-empty folder without
     ``overwrite``, or without evfuse's :data:`MARKER` file (a folder evfuse did not write is
-    never replaced); a non-empty ``<out>.partial`` without the marker (it would be deleted).
+    never replaced), or holding files its marker does not list; a ``<out>.partial`` that is a
+    file, a link, or a non-empty folder without evfuse's marker or claim (it would be deleted);
+    an output another live writer claims (:data:`CLAIM`, in ``<out>.partial`` or ``out``); an
+    ``out`` the final rename could not replace (a mount point, the current folder or an
+    ancestor of it, a parent not writable).
     """
     out = Path(out)
+    if out.name in ("", ".", ".."):              # `.`, `..`: named by where they lead
+        out = Path(os.path.abspath(out))
     if not out.name:
         raise OutputError(f"output path {_literal(repr(str(out)))} has no folder name")
     check_not_input(out, inputs, "output folder")
     partial = partial_dir(out)
     check_not_input(partial, inputs, "output folder (its unfinished copy)")
-    if partial.is_dir() and not partial.is_symlink() and _is_nonempty_dir(partial):
-        _check_marked(partial, out, True)
+    _check_swap(out)
+    _check_partial(partial, out)
+    if out.is_dir() and not out.is_symlink():
+        _check_claim(out, out)
     if not out.exists() and not out.is_symlink():
         return
     if not out.is_dir() or out.is_symlink():
@@ -256,17 +502,45 @@ def _marker_path(path: str | Path, folder: str | Path) -> str:
 
 
 def write_marker(folder: str | Path, command: str = "",
-                 inputs: SequenceABC[str | Path] = ()) -> Path:
+                 inputs: SequenceABC[str | Path] = (), files: bool = False) -> Path:
     """Write evfuse's :data:`MARKER` into ``folder``: JSON with ``written_by`` ("evfuse"),
-    ``command`` (which writer), ``version`` (evfuse's) and ``inputs`` (their real paths; one
-    inside the same unfinished output, relative to ``folder``). No
+    ``command`` (which writer), ``version`` (evfuse's), ``inputs`` (their real paths; one
+    inside the same unfinished output, relative to ``folder``) and, with ``files`` (once the
+    output is complete), ``files``: every file now in ``folder`` (relative paths, sorted; the
+    marker and :data:`CLAIM` aside), which ``overwrite`` compares with what the folder holds. No
     time (the file's own is there): the same command writes the same bytes, so that a resumed
     or repeated simulation stays identical to an uninterrupted one."""
     path = Path(folder) / MARKER
     document = {"written_by": "evfuse", "command": command, "version": evfuse_version(),
                 "inputs": [_marker_path(p, folder) for p in inputs if p is not None]}
+    if files:
+        document["files"] = _written_files(Path(folder))
     path.write_text(json.dumps(document, indent=1) + "\n")
     return path
+
+
+def list_written_files(folder: str | Path) -> Path:
+    """Add ``files`` (:func:`write_marker`) to the marker already in the complete ``folder``,
+    keeping what it says."""
+    path = Path(folder) / MARKER
+    document = json.loads(path.read_text())
+    document["files"] = _written_files(Path(folder))
+    path.write_text(json.dumps(document, indent=1) + "\n")
+    return path
+
+
+def add_written_files(folder: str | Path, names: SequenceABC[str]) -> None:
+    """Add ``names`` (relative paths) to the ``files`` of the marker in the complete ``folder``,
+    for a command that writes into an output evfuse completed (``evfuse dataset``'s card); a
+    marker without ``files`` is left as it is."""
+    path = Path(folder) / MARKER
+    try:
+        document = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return
+    if isinstance(document, dict) and isinstance(document.get("files"), list):
+        document["files"] = sorted(set(document["files"]) | set(names))
+        path.write_text(json.dumps(document, indent=1) + "\n")
 
 
 def partial_dir(out: str | Path) -> Path:
@@ -324,20 +598,59 @@ def atomic_output_dir(out: str | Path, overwrite: bool = False, *,
     out = Path(out)
     check_output_dir(out, overwrite, inputs)
     out.parent.mkdir(parents=True, exist_ok=True)
-    partial = partial_dir(out)
-    if partial.is_symlink() or partial.is_file():
-        partial.unlink()
-    elif partial.exists() and not resume:
-        shutil.rmtree(partial)
-    partial.mkdir(exist_ok=resume)
+    partial = _claim_partial(out, resume, command)
     try:
         write_marker(partial, command, inputs)
         yield partial
     except BaseException:
         if not keep_failed or _holds_nothing(partial):
             shutil.rmtree(partial, ignore_errors=True)
+        else:
+            release_claim(partial)
         raise
-    check_output_dir(out, overwrite, inputs)
+    try:
+        check_output_dir(out, overwrite, inputs)
+        write_marker(partial, command, inputs, files=True)
+    except BaseException:
+        if keep_failed:
+            release_claim(partial)
+        else:
+            shutil.rmtree(partial, ignore_errors=True)
+        raise
+    swap_in(partial, out)
+
+
+def _claim_partial(out: Path, resume: bool, command: str) -> Path:
+    """Create (or, with ``resume``, take over) ``<out>.partial`` holding this process's
+    :data:`CLAIM`: a fresh one is made under a unique name with its claim inside, then renamed to
+    ``<out>.partial`` (atomic: of two writers, one rename fails). An earlier run's marked,
+    unclaimed (or stale) ``.partial`` is removed first, unless ``resume``."""
+    partial = partial_dir(out)
+    if partial.is_dir() and not partial.is_symlink() and _is_nonempty_dir(partial):
+        if resume:
+            claim_folder(partial, out, command)
+            return partial
+        _check_claim(partial, out)              # stale, or none: evfuse's, to start afresh
+        shutil.rmtree(partial)
+    fresh = out.with_name(f"{out.name}{PARTIAL_SUFFIX}.new-{uuid.uuid4().hex[:12]}")
+    fresh.mkdir()
+    try:
+        claim_folder(fresh, out, command)
+        os.rename(fresh, partial)               # replaces an empty folder only
+    except OSError:
+        shutil.rmtree(fresh, ignore_errors=True)
+        if partial.is_dir():
+            _check_claim(partial, out)
+        message = f"output folder {out} was claimed by another writer at the same moment"
+        raise OutputError(f"{_literal(message)}: one writer per output; choose another {{out}}",
+                          out="output folder") from None
+    return partial
+
+
+def swap_in(partial: Path, out: Path) -> None:
+    """Rename the complete ``partial`` to ``out`` (an existing ``out`` renamed aside first and
+    deleted after, so that ``out`` is the old or the new folder at every moment), then drop
+    this thread's claim (:func:`claim_folder`)."""
     old = None
     if out.exists():
         old = out.with_name(f"{out.name}.old-{uuid.uuid4().hex[:12]}")
@@ -347,6 +660,8 @@ def atomic_output_dir(out: str | Path, overwrite: bool = False, *,
     except BaseException:
         if old is not None:
             old.rename(out)
+        release_claim(partial)
         raise
+    release_claim(out)
     if old is not None:
         shutil.rmtree(old)

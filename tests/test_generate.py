@@ -392,3 +392,40 @@ def test_the_output_hash_is_independent_of_where_evfuse_is_installed(reference, 
     record["seed"] = record["seed"] + 1
     (moved / "sequence.json").write_text(json.dumps(record))
     assert output_hash(moved) != output_hash(job)
+
+
+def test_an_interrupted_overwrite_leaves_the_old_dataset_and_resumes(reference, tmp_path,
+                                                                     monkeypatch):
+    """Issue 39 (1): the new dataset is built in <out>.partial and swapped in when complete."""
+    import shutil
+
+    import sim.dataset._run as run_module
+    from sim.output import CLAIM, MARKER
+
+    out = shutil.copytree(reference / "tiny", tmp_path / "D")
+    before = {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*")
+              if p.is_file()}
+    sweep = tmp_path / "long.toml"
+    sweep.write_text(LONG)
+    real_run_job, calls = run_module.run_job, []
+
+    def second_job_interrupted(*args, **kwargs):
+        calls.append(args)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return real_run_job(*args, **kwargs)
+
+    monkeypatch.setattr(run_module, "run_job", second_job_interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        generate(sweep, out, workers=0, overwrite=True, **QUIET)
+    after = {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*")
+             if p.is_file()}
+    assert after == before                                   # the old dataset, untouched
+    partial = tmp_path / "D.partial"
+    assert (partial / "sweep.toml").read_text() == LONG and not (partial / CLAIM).exists()
+    monkeypatch.setattr(run_module, "run_job", real_run_job)
+    result = generate(sweep, out, workers=0, overwrite=True, resume=True, **QUIET)
+    assert (result.ran, result.skipped, result.failed) == (1, 1, 0)
+    assert _tree(out) == _tree(reference / "long") and not partial.exists()
+    assert (out / "sweep.toml").read_text() == LONG and not (out / CLAIM).exists()
+    assert "manifest.csv" in json.loads((out / MARKER).read_text())["files"]

@@ -27,7 +27,7 @@ from sim._atomic import write_bytes_atomically
 from sim._summary import summary_repr
 from sim.dataset._loader import Dataset, open_dataset
 from sim.eventio import EVENT_DTYPE
-from sim.output import MARKER, OutputError
+from sim.output import MARKER, OutputError, add_written_files
 
 __all__ = ["CARD", "CARD_FOLDER", "CONTACT_SHEET", "CONTACT_SHEET_ROWS", "DatasetSummary",
            "SequenceSummary", "dataset_summary", "write_card"]
@@ -419,4 +419,5 @@ def write_card(folder: str | Path) -> DatasetSummary:
             raise ValueError(f"{folder / CARD_FOLDER / CONTACT_SHEET}: cannot encode the PNG")
         write_bytes_atomically(folder / CARD_FOLDER / CONTACT_SHEET, png.tobytes())
     write_bytes_atomically(folder / CARD, _card_text(summary, shown).encode("utf-8"))
+    add_written_files(folder, [CARD] + [f"{CARD_FOLDER}/{CONTACT_SHEET}"] * bool(shown))
     return summary

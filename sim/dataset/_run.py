@@ -27,7 +27,17 @@ from sim._summary import summary_repr
 from sim.dataset._jobs import JOBS_FOLDER, RUNS_LOG, Job, run_job
 from sim.dataset._manifest import job_record, read_manifest, write_manifest
 from sim.dataset._sweep import Sweep, load_sweep
-from sim.output import MARKER, OutputError, check_output_dir, write_marker
+from sim.output import (
+    MARKER,
+    OutputError,
+    check_output_dir,
+    claim_folder,
+    list_written_files,
+    partial_dir,
+    release_claim,
+    swap_in,
+    write_marker,
+)
 from sim.validation import ParameterError
 
 __all__ = ["SWEEP_COPY", "GenerateResult", "default_cluster_size", "generate"]
@@ -83,28 +93,55 @@ def _one_line(error: BaseException) -> str:
     return (text[0] if text else type(error).__name__)[:400]
 
 
-def _prepare(sweep: Sweep, out: Path, resume: bool, overwrite: bool) -> None:
-    """Create (or check, with ``resume``) the dataset folder, its marker and sweep copy."""
+def _prepare(sweep: Sweep, out: Path, resume: bool, overwrite: bool) -> Path:
+    """Create (or check, with ``resume``) the dataset folder, its marker and sweep copy, and
+    claim it for this process (:func:`sim.output.claim_folder`); return the folder to fill.
+
+    A new dataset is filled in place (``out``); one that replaces a complete ``out``
+    (``overwrite``) is built in ``<out>.partial`` beside it, and swapped in by :func:`_finish`
+    only when all its jobs have run, so that an interrupted overwrite leaves the old dataset
+    untouched (``resume`` continues ``<out>.partial`` when there is one)."""
     inputs = [sweep.source] if not sweep.source.startswith("<") else []
     inputs += [job.scene["path"] for job in sweep.jobs if "path" in job.scene]
+    partial = partial_dir(out)
     if resume:
-        if not (out / MARKER).is_file() or not (out / SWEEP_COPY).is_file():
+        started = partial if (partial / SWEEP_COPY).is_file() else out
+        if started == partial:
+            check_output_dir(out, overwrite, inputs)
+        if not (started / MARKER).is_file() or not (started / SWEEP_COPY).is_file():
             raise OutputError(f"{{resume}}: {ParameterError.literal(out)} is not a dataset "
                               "folder evfuse generate started (no .evfuse marker or "
                               f"{SWEEP_COPY}); drop {{resume}} to start it", resume="resume")
-        if (out / SWEEP_COPY).read_bytes() != sweep.text.encode():
+        if (started / SWEEP_COPY).read_bytes() != sweep.text.encode():
             raise OutputError(f"{{resume}}: {ParameterError.literal(out)} was generated from "
-                              f"another sweep ({out / SWEEP_COPY} differs from "
+                              f"another sweep ({started / SWEEP_COPY} differs from "
                               f"{ParameterError.literal(sweep.source)}); resume with the same "
                               "sweep file, or use {overwrite}", resume="resume",
                               overwrite="overwrite")
-        return
+        claim_folder(started, out, "evfuse generate")
+        return started
     check_output_dir(out, overwrite, inputs)
-    if out.exists() and any(out.iterdir()):
-        shutil.rmtree(out)                 # overwrite: a folder evfuse wrote (it is marked)
-    out.mkdir(parents=True, exist_ok=True)
-    write_marker(out, "evfuse generate", inputs)
-    (out / SWEEP_COPY).write_bytes(sweep.text.encode())
+    if out.exists() and any(out.iterdir()):     # overwrite: build beside it, swap in when done
+        if partial.exists():
+            shutil.rmtree(partial)              # evfuse's, unclaimed (check_output_dir)
+        work = partial
+    else:
+        work = out
+    work.mkdir(parents=True, exist_ok=True)
+    claim_folder(work, out, "evfuse generate")
+    write_marker(work, "evfuse generate", inputs)
+    (work / SWEEP_COPY).write_bytes(sweep.text.encode())
+    return work
+
+
+def _finish(work: Path, out: Path) -> None:
+    """List the files of the complete dataset ``work`` in its marker, swap it in for ``out``
+    if it was built beside it, and release the claim."""
+    list_written_files(work)
+    if work == out:
+        release_claim(out)
+    else:
+        swap_in(work, out)
 
 
 def _attempts(out: Path) -> dict[str, int]:
@@ -201,7 +238,9 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
         complete jobs are kept, interrupted ones resume from their checkpoint, failed ones are
         tried again.
     overwrite : bool
-        Replace ``out`` if evfuse wrote it (its marker), at the start.
+        Replace ``out`` if evfuse wrote it (its marker, listing every file it holds): the new
+        dataset is built in ``<out>.partial`` and swapped in once all its jobs have run; the
+        old one stays untouched until then (``resume`` continues an interrupted one).
     retries : int
         Times a job that raises is tried again (Dask's ``retries``) before it is recorded as
         failed.
@@ -243,60 +282,65 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
                              "the cluster's workers are its own (start them with `dask worker "
                              "ADDRESS --nworkers N --nthreads 1`)", workers="workers",
                              threads="threads", scheduler="scheduler")
-    _prepare(sweep, out, resume, overwrite)
-    params = list(sweep.parameters)
-    done = {row["job_id"]: row for row in (read_manifest(out) if resume and
-                                           (out / "manifest.csv").is_file() else [])}
-    rows: dict[str, dict] = {}
-    todo: list[Job] = []
-    for job in sweep.jobs:
-        folder = out / JOBS_FOLDER / job.job_id
-        old = done.get(job.job_id, {})
-        if folder.is_dir() and old.get("status") == "done":
-            rows[job.job_id] = {**old, **_row(job, "done")}
-        elif folder.is_dir() and not job.generated:
-            rows[job.job_id] = {**_row(job, "done", job_record(folder)),
-                                "attempts": _attempts(out).get(job.job_id, 0)}
-        else:
-            rows[job.job_id] = _row(job, "pending")
-            todo.append(job)
-    write_manifest(out, list(rows.values()), params)
-    progress = _Progress(len(sweep.jobs), len(sweep.jobs) - len(todo), report)
-
-    counts = {"ran": 0, "skipped": len(sweep.jobs) - len(todo), "failed": 0}
-
-    def finish(job: Job, record: dict | None, error: str = "") -> None:
-        counts["failed" if record is None else "ran" if record["ran"] else "skipped"] += 1
-        attempts = _attempts(out).get(job.job_id, 0)
-        status = "failed" if record is None else "done"
-        rows[job.job_id] = {**_row(job, status, record, error), "attempts": attempts}
-        write_manifest(out, list(rows.values()), params)
-        progress.finished(job, record, error)
-
-    clock = time.perf_counter()
-    if workers == 0 or not todo:
-        cluster_name = "in-process"
-        for job in todo:
-            progress.running(1)
-            try:
-                record = run_job(job, out, variant)
-            except Exception as error:
-                finish(job, None, _one_line(error))
+    work = _prepare(sweep, out, resume, overwrite)
+    try:
+        params = list(sweep.parameters)
+        done = {row["job_id"]: row for row in (read_manifest(work) if resume and
+                                               (work / "manifest.csv").is_file() else [])}
+        rows: dict[str, dict] = {}
+        todo: list[Job] = []
+        for job in sweep.jobs:
+            folder = work / JOBS_FOLDER / job.job_id
+            old = done.get(job.job_id, {})
+            if folder.is_dir() and old.get("status") == "done":
+                rows[job.job_id] = {**old, **_row(job, "done")}
+            elif folder.is_dir() and not job.generated:
+                rows[job.job_id] = {**_row(job, "done", job_record(folder)),
+                                    "attempts": _attempts(work).get(job.job_id, 0)}
             else:
-                finish(job, record)
-    else:
-        client, cluster, cluster_name = _client(scheduler, workers, threads, gpu)
-        link = client.dashboard_link if cluster is None or _has_bokeh() else None
-        progress.say(f"generate: {len(todo)} jobs on {cluster_name}; dashboard: "
-                     f"{link or 'none (install bokeh for it)'}")
-        try:
-            _run_on(client, todo, out, variant, retries, gpu, finish, progress)
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
-    wall = time.perf_counter() - clock
-    progress.close()
+                rows[job.job_id] = _row(job, "pending")
+                todo.append(job)
+        write_manifest(work, list(rows.values()), params)
+        progress = _Progress(len(sweep.jobs), len(sweep.jobs) - len(todo), report)
+
+        counts = {"ran": 0, "skipped": len(sweep.jobs) - len(todo), "failed": 0}
+
+        def finish(job: Job, record: dict | None, error: str = "") -> None:
+            counts["failed" if record is None else "ran" if record["ran"] else "skipped"] += 1
+            attempts = _attempts(work).get(job.job_id, 0)
+            status = "failed" if record is None else "done"
+            rows[job.job_id] = {**_row(job, status, record, error), "attempts": attempts}
+            write_manifest(work, list(rows.values()), params)
+            progress.finished(job, record, error)
+
+        clock = time.perf_counter()
+        if workers == 0 or not todo:
+            cluster_name = "in-process"
+            for job in todo:
+                progress.running(1)
+                try:
+                    record = run_job(job, work, variant)
+                except Exception as error:
+                    finish(job, None, _one_line(error))
+                else:
+                    finish(job, record)
+        else:
+            client, cluster, cluster_name = _client(scheduler, workers, threads, gpu)
+            link = client.dashboard_link if cluster is None or _has_bokeh() else None
+            progress.say(f"generate: {len(todo)} jobs on {cluster_name}; dashboard: "
+                         f"{link or 'none (install bokeh for it)'}")
+            try:
+                _run_on(client, todo, work, variant, retries, gpu, finish, progress)
+            finally:
+                client.close()
+                if cluster is not None:
+                    cluster.close()
+        wall = time.perf_counter() - clock
+        progress.close()
+    except BaseException:
+        release_claim(work)
+        raise
+    _finish(work, out)
     return GenerateResult(out, list(rows.values()), counts["ran"], counts["skipped"],
                           counts["failed"], wall, cluster_name)
 
