@@ -45,7 +45,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         run_bench,
     )
     from fusion.methods import MethodVariant, available_methods, method_variants, split_labels
-    from sim.output import check_output_dir
+    from sim.output import check_cache_dir, check_output_dir
     from sim.scene.families import KNOBS, write_family
 
     given = split_labels(",".join(args.method or []))
@@ -62,8 +62,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     params = BenchParams(noise=args.noise, outliers=args.outliers,
                          keep_boundary_planes=args.keep_boundary_planes)
     cache = bench_cache(args.out, args.cache)
-    check_output_dir(args.out, args.overwrite, bench_sources([] if args.family else scenes,
-                                                             cache))
+    sources = bench_sources([] if args.family else scenes, cache)
+    check_output_dir(args.out, args.overwrite, sources)
+    check_cache_dir(cache, sources[1:])
+    for variant in methods:                     # refused before a family's files are written
+        MethodVariant.of(variant).checked()
     given_knobs = {k: getattr(args, k) for k in KNOBS if getattr(args, k) is not None}
     if args.family:
         values = {}

@@ -41,9 +41,9 @@ from sim._atomic import PARTIAL_SUFFIX  # re-exported: the suffix of all that is
 from sim.validation import ParameterError
 
 __all__ = ["CLAIM", "MARKER", "PARTIAL_SUFFIX", "OutputError", "add_written_files",
-           "atomic_output_dir",
-           "check_not_input", "check_output_dir", "check_output_file", "claim_folder",
-           "evfuse_version", "list_written_files", "partial_dir", "release_claim",
+           "atomic_output_dir", "check_cache_dir", "check_not_input", "check_output_dir",
+           "check_output_file", "claim_folder", "close_cache_dir", "evfuse_version",
+           "list_written_files", "open_cache_dir", "partial_dir", "release_claim",
            "resumable_partial", "resume_differences", "swap_in", "write_marker"]
 
 _literal = ParameterError.literal
@@ -466,6 +466,40 @@ def check_output_file(out: str | Path, inputs: SequenceABC[str | Path] = (),
         raise OutputError(f"output file {_literal(out)} is an existing folder; expected a file "
                           "path")
 
+
+
+def check_cache_dir(cache: str | Path, inputs: SequenceABC[str | Path] = (),
+                    parameter: str = "cache") -> None:
+    """Raise :class:`OutputError` if the cache folder ``cache`` (a folder a command fills and
+    reads again) would be written into, over or around one of ``inputs``
+    (:func:`check_not_input`), or is an existing file or link; call it before any work, and
+    create the cache with :func:`open_cache_dir` only once everything is validated."""
+    check_not_input(cache, inputs, "cache folder", parameter)
+    cache = Path(cache)
+    if cache.is_symlink() or cache.exists() and not cache.is_dir():
+        raise OutputError(f"cache folder {_literal(cache)} exists and is not a folder (a file "
+                          f"or a link); choose another {{{parameter}}}",
+                          **{parameter: "cache folder"})
+
+
+def open_cache_dir(cache: str | Path, command: str = "") -> bool:
+    """Create the cache folder ``cache`` (checked by :func:`check_cache_dir`) with evfuse's
+    :data:`MARKER` if it has none; return whether this call created it (so that a command
+    refused later removes it again, :func:`close_cache_dir`)."""
+    cache = Path(cache)
+    created = not cache.exists()
+    cache.mkdir(parents=True, exist_ok=True)
+    if not (cache / MARKER).exists():
+        write_marker(cache, command)
+    return created
+
+
+def close_cache_dir(cache: str | Path, created: bool) -> None:
+    """After a failed command: remove the cache folder it ``created`` if nothing but the marker
+    was written into it."""
+    cache = Path(cache)
+    if created and cache.is_dir() and _holds_nothing(cache):
+        shutil.rmtree(cache, ignore_errors=True)
 
 
 def evfuse_version() -> str:

@@ -217,3 +217,36 @@ def test_a_marker_without_a_file_list_is_replaced_as_before(tmp_path):
     (out / "anything.txt").write_text("x")
     _write(out, overwrite=True)
     assert not (out / "anything.txt").exists()
+
+
+# --- 8. bench's cache folder ---------------------------------------------------------------------
+
+def test_bench_refuses_a_cache_inside_an_input_map_folder(tmp_path, capsys):
+    from tests.conftest import tree_hashes
+
+    mine = tmp_path / "mymap"
+    mine.mkdir()
+    (mine / "map.json").write_text(json.dumps({"sequence": "../seq"}))
+    before = tree_hashes(mine)
+    code = run_cli(["bench", "--scenes", str(mine), "--cache", str(mine / "cache"), "--out",
+                    str(tmp_path / "B"), "--quiet"])
+    _one_line(capsys, code, "cache folder", "lies inside the input", "--cache")
+    assert tree_hashes(mine) == before and sorted(p.name for p in mine.iterdir()) == ["map.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mymap"]
+
+
+def test_a_bench_cache_is_marked_and_a_refused_bench_leaves_none(tmp_path):
+    from fusion.experiments.bench import bench
+
+    cache = tmp_path / "B-cache"
+    with pytest.raises(ValueError):
+        bench(["nearest"], [str(tmp_path / "nomap")], ["oracle"], cache, progress=False)
+    (tmp_path / "nomap").mkdir()
+    (tmp_path / "nomap" / "map.json").write_text("{}")          # accepted, then refused
+    with pytest.raises(Exception):                                # noqa: B017 (any refusal)
+        bench(["nearest"], [str(tmp_path / "nomap")], ["oracle"], cache, progress=False)
+    assert not cache.exists()
+    (cache / "kept").mkdir(parents=True)
+    with pytest.raises(Exception):                                # noqa: B017
+        bench(["nearest"], [str(tmp_path / "nomap")], ["oracle"], cache, progress=False)
+    assert json.loads((cache / MARKER).read_text())["command"] == "evfuse bench (cache)"

@@ -47,7 +47,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from sim.output import atomic_output_dir, check_output_dir
+from sim.output import (
+    atomic_output_dir,
+    check_cache_dir,
+    check_output_dir,
+    close_cache_dir,
+    open_cache_dir,
+)
 from sim.validation import ParameterError, integer
 
 __all__ = ["CSV_COLUMNS", "CURVE_SHARES", "INPUTS", "SCENE_GROUPS", "BenchParams", "bench",
@@ -327,7 +333,6 @@ def bench(methods: list, scenes: list[str], inputs: list[str] = INPUTS,
         dict) and, under ``"_dense"``, the dense depth (for the figures).
     """
     from fusion.methods import MethodVariant
-    from sim.progress import progress as progress_stage
 
     params = params or BenchParams()
     unknown = [name for name in inputs if name not in INPUTS]
@@ -339,7 +344,20 @@ def bench(methods: list, scenes: list[str], inputs: list[str] = INPUTS,
                     .values())
     names = _scene_names(scenes)
     cache = Path(cache)
-    cache.mkdir(parents=True, exist_ok=True)
+    check_cache_dir(cache, bench_sources(scenes, cache)[1:])
+    created = open_cache_dir(cache, "evfuse bench (cache)")
+    try:
+        return _bench(variants, names, inputs, cache, params, progress)
+    except BaseException:
+        close_cache_dir(cache, created)
+        raise
+
+
+def _bench(variants: list, names: list[str], inputs: list[str], cache: Path,
+           params: BenchParams, progress: bool) -> list[dict]:
+    """:func:`bench` once its arguments are checked and its cache made."""
+    from sim.progress import progress as progress_stage
+
     rows: list[dict] = []
     bar = progress_stage(total=len(names) * len(inputs) * len(variants), desc="bench",
                          unit="fill", noun="fills", enabled=progress)
