@@ -173,9 +173,18 @@ def _check_claim(folder: Path, out: Path) -> None:
                       "yourself; else choose another {out}", out="output folder")
 
 
+def _command_line() -> str:
+    """This process's command line, ``evfuse ...`` for evfuse's own (the script or ``python -m
+    fusion.cli``)."""
+    argv = list(sys.argv) or [""]
+    if Path(argv[0]).name in ("evfuse", "cli.py", "__main__.py"):
+        argv[0] = "evfuse"
+    return shlex.join(argv)
+
+
 def _claim_document(command: str) -> dict:
     return {"pid": os.getpid(), "host": socket.gethostname(), "command": command,
-            "argv": shlex.join(sys.argv)[:500],
+            "argv": _command_line()[:500],
             "started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "token": uuid.uuid4().hex}
 
