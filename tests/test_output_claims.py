@@ -250,3 +250,18 @@ def test_a_bench_cache_is_marked_and_a_refused_bench_leaves_none(tmp_path):
     with pytest.raises(Exception):                                # noqa: B017
         bench(["nearest"], [str(tmp_path / "nomap")], ["oracle"], cache, progress=False)
     assert json.loads((cache / MARKER).read_text())["command"] == "evfuse bench (cache)"
+
+
+def test_a_second_generate_into_a_dataset_being_filled_is_refused(tmp_path, live_pid):
+    from sim.dataset import generate
+    from tests.test_generate import TINY
+
+    out = tmp_path / "D"
+    out.mkdir()
+    write_marker(out, "evfuse generate")
+    (out / "sweep.toml").write_bytes(TINY.read_bytes())
+    _claim(out, live_pid)
+    for kwargs in ({"resume": True}, {"overwrite": True}):
+        with pytest.raises(OutputError, match=f"being written by evfuse simulate .pid {live_pid}"):
+            generate(TINY, out, workers=0, report=lambda line: None, **kwargs)
+    assert sorted(p.name for p in out.iterdir()) == sorted([CLAIM, MARKER, "sweep.toml"])
