@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sim.exr import write_depth
-from sim.output import MARKER, atomic_output_dir
+from sim.output import CLAIM, MARKER, atomic_output_dir
 from sim.sequence import (
     frame_name,
     load_sequence,
@@ -30,7 +30,7 @@ def test_success_renames_partial_into_place(tmp_path):
     out = tmp_path / "deep" / "er" / "seq"                # parents are created
     with atomic_output_dir(out) as tmp:
         assert tmp == tmp_path / "deep" / "er" / "seq.partial"
-        assert tmp.is_dir() and sorted(p.name for p in tmp.iterdir()) == [MARKER]
+        assert tmp.is_dir() and sorted(p.name for p in tmp.iterdir()) == [MARKER, CLAIM]
         assert not out.exists()                           # nothing visible while writing
         (tmp / "a.txt").write_text("new")
     assert (out / "a.txt").read_text() == "new"
@@ -123,7 +123,7 @@ def test_a_stale_partial_folder_is_cleared_first(tmp_path):
         raise KeyboardInterrupt
     assert (stale / "junk.txt").is_file()
     with atomic_output_dir(tmp_path / "seq") as tmp:
-        assert tmp == stale and sorted(p.name for p in tmp.iterdir()) == [MARKER]
+        assert tmp == stale and sorted(p.name for p in tmp.iterdir()) == [MARKER, CLAIM]
         (tmp / "a.txt").write_text("a")
     assert sorted(p.name for p in (tmp_path / "seq").iterdir()) == [MARKER, "a.txt"]
 
