@@ -18,7 +18,7 @@ from fusion.cli_options import (
     add_map_options,
     add_subcommand,
 )
-from sim.cli import FINITE, OVERWRITE_HELP, count_type
+from sim.cli import FINITE, OVERWRITE_HELP, SEED, count_type
 from sim.validation import depth_metres
 
 __all__ = ["COMMANDS", "add_command"]
@@ -288,7 +288,7 @@ def _add_run(sub) -> None:
     run.add_argument("--out", required=True, help="run folder to write")
     add_map_options(run)
     run.add_argument("--spp", type=count_type(1), default=None, help="samples per pixel (scenes)")
-    run.add_argument("--seed", type=count_type(0), default=None, help="simulation seed (scenes)")
+    run.add_argument("--seed", type=SEED, default=None, help="simulation seed (scenes)")
     add_dense_options(run)
     run.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     run.add_argument("--resume", action="store_true",

@@ -19,7 +19,7 @@ from typing import NoReturn
 
 import numpy as np
 
-from sim.validation import finite, non_negative, positive
+from sim.validation import MAX_SEED, finite, non_negative, positive
 
 __all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "POSITIVE", "OneLineParser",
            "add_command", "count_type", "number_type"]
@@ -65,12 +65,13 @@ def number_type(check: Callable[[str, object], float], what: str) -> Callable[[s
     return parse
 
 
-def count_type(minimum: int) -> Callable[[str], int]:
-    """An argparse ``type=``: the text as an integer >= ``minimum``.
+def count_type(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An argparse ``type=``: the text as an integer >= ``minimum`` (and <= ``maximum``).
 
     Parameters
     ----------
     minimum : int
+    maximum : int, optional
 
     Returns
     -------
@@ -82,11 +83,18 @@ def count_type(minimum: int) -> Callable[[str], int]:
             value = int(text)
         except ValueError:
             value = None
-        if value is None or value < minimum:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
+        if value is None or value < minimum or (maximum is not None and value > maximum):
+            expected = (f"an integer >= {minimum}" if maximum is None
+                        else f"an integer in {minimum}..{maximum}")
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
         return value
-    parse.__name__ = f"integer >= {minimum}"
+    parse.__name__ = (f"integer >= {minimum}" if maximum is None
+                      else f"integer in {minimum}..{maximum}")
     return parse
+
+
+SEED = count_type(0, MAX_SEED)
+"""``type=`` of a ``--seed`` flag: 0..2**32 - 1 (:data:`sim.validation.MAX_SEED`)."""
 
 
 FINITE = number_type(finite, "a finite number")
@@ -306,7 +314,7 @@ def _add_simulate(sub) -> None:
                           help="seconds to simulate (default: the scene's duration)")
     simulate.add_argument("--start", type=FINITE, default=0.0,
                           help="time of the scene's trajectory to start at, s (default 0)")
-    simulate.add_argument("--seed", type=count_type(0), default=None,
+    simulate.add_argument("--seed", type=SEED, default=None,
                           help="seed of every random draw (default: the scene's seed)")
     simulate.add_argument("--spp", type=count_type(1), default=None,
                           help="samples per pixel, a perfect square (default: the scene's)")
