@@ -21,8 +21,8 @@ import numpy as np
 
 from sim.validation import MAX_SEED, finite, non_negative, positive
 
-__all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "POSITIVE", "OneLineParser",
-           "add_command", "count_type", "number_type"]
+__all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "PNG_OVERWRITE_HELP",
+           "POSITIVE", "SEED", "OneLineParser", "add_command", "count_type", "number_type"]
 
 COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "generate", "dataset")
 """The subcommands this module builds (:func:`add_command`)."""
@@ -30,6 +30,9 @@ COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "generate", "data
 OVERWRITE_HELP = ("replace OUT if it is a folder evfuse wrote (it holds evfuse's .evfuse marker), "
                   "once the new one is complete; any other folder is never replaced")
 """The help of every command's ``--overwrite`` that replaces a folder."""
+PNG_OVERWRITE_HELP = ("replace OUT if it is a PNG evfuse wrote (its 'Software: evfuse' text "
+                      "chunk); any other file is never replaced")
+"""The help of ``--overwrite`` where OUT is one PNG (``events --out``, ``show --out``)."""
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -158,6 +161,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_events(args: argparse.Namespace) -> int:
+    from sim.image_out import check_png_output
     from sim.output import check_output_file
     from sim.statistics import (
         compare_stats,
@@ -174,6 +178,9 @@ def _cmd_events(args: argparse.Namespace) -> int:
         raise ValueError("--out is the event frame of --stats: add --stats")
     if args.out is not None:                     # never into a recording it reads
         check_output_file(args.out, [folder, args.compare])
+        check_png_output(args.out, args.overwrite)
+    elif args.overwrite:
+        raise ValueError("--overwrite replaces the --out PNG: add --out")
     sequence, path, events = read_recording(folder)
     if not args.stats:
         print(f"{path}: {len(events)} events (add --stats for statistics)")
@@ -379,6 +386,7 @@ def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) ->
     events.add_argument("--out", default=None,
                         help="with --stats: the event-frame PNG to write (default none; never "
                              "inside SEQUENCE or OTHER, which are only read)")
+    events.add_argument("--overwrite", action="store_true", help=PNG_OVERWRITE_HELP)
     events.add_argument("--compare", default=None, metavar="OTHER",
                         help="with --stats: another sequence folder (a twin and its recording), "
                              "printed side by side with the ratio OTHER / SEQUENCE")

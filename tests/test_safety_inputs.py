@@ -78,3 +78,86 @@ def test_a_scene_file_seed_beyond_32_bits_is_refused_naming_the_key(extra, key, 
         parse_scene(text, "wall.toml")
     assert "0..4294967295" in str(info.value) and key in str(info.value), str(info.value)
     assert "\n" not in str(info.value)
+
+
+# --- 5. a single PNG output: only .png, an existing file only with --overwrite, only evfuse's -----
+
+USER_PNG = b"\x89PNG\r\n\x1a\n my own picture"
+
+
+def _events(sequence, out, *flags):
+    return run_cli(["events", str(sequence), "--stats", "--out", str(out), *flags])
+
+
+def test_events_out_refuses_a_user_s_file_with_or_without_overwrite(plane_sequence, tmp_path,
+                                                                       capsys):
+    out = tmp_path / "mine.png"
+    out.write_bytes(USER_PNG)
+    line = _one_line(capsys, _events(plane_sequence, out), "events")
+    assert line == f"output file {out} exists; choose another --out, or add --overwrite to " \
+                   "replace it"
+    line = _one_line(capsys, _events(plane_sequence, out, "--overwrite"), "events")
+    assert "was not written by evfuse" in line and "--overwrite" in line, line
+    assert out.read_bytes() == USER_PNG
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.png"]
+
+
+def test_events_out_replaces_its_own_png_only_with_overwrite(plane_sequence, tmp_path, capsys):
+    from sim.image_out import is_evfuse_png
+
+    out = tmp_path / "frame.png"
+    assert _events(plane_sequence, out) == 0
+    assert is_evfuse_png(out)
+    capsys.readouterr()
+    assert _events(plane_sequence, out) == 2
+    assert _events(plane_sequence, out, "--overwrite") == 0
+    assert is_evfuse_png(out) and sorted(p.name for p in tmp_path.iterdir()) == ["frame.png"]
+
+
+@pytest.mark.parametrize("name", ["frame.txt", "frame", "frame.jpg"])
+def test_events_out_must_be_a_png_before_any_work(name, plane_sequence, tmp_path, capsys,
+                                                  monkeypatch):
+    import sim.statistics
+
+    monkeypatch.setattr(sim.statistics, "read_recording", _no_work)
+    out = tmp_path / name
+    line = _one_line(capsys, _events(plane_sequence, out), "events")
+    assert line == f"--out {out}: expected a file name ending in .png (the image is written as PNG)"
+    assert list(tmp_path.iterdir()) == []
+
+
+def _no_work(*args, **kwargs):
+    raise AssertionError("the work started before the refusal")
+
+
+def test_show_out_refuses_a_user_s_file_and_a_non_png_before_any_work(tmp_path, capsys,
+                                                                       monkeypatch):
+    import fusion.pipeline
+
+    monkeypatch.setattr(fusion.pipeline, "run_sources", lambda folder: [folder])
+    monkeypatch.setattr(fusion.pipeline, "draw_overview", _no_work)
+    run = tmp_path / "run"
+    run.mkdir()
+    out = tmp_path / "mine.png"
+    out.write_bytes(USER_PNG)
+    for flags in ([], ["--overwrite"]):
+        assert run_cli(["show", str(run), "--out", str(out), *flags]) == 2
+        assert "exists" in capsys.readouterr().err
+    assert out.read_bytes() == USER_PNG
+    line = _one_line(capsys, run_cli(["show", str(run), "--out", str(tmp_path / "o.txt")]),
+                     "show")
+    assert "expected a file name ending in .png" in line
+
+
+def test_a_marked_png_is_still_a_png_that_opencv_reads():
+    import cv2
+    import numpy as np
+
+    from sim.image_out import PNG_SOFTWARE, mark_png
+
+    image = np.arange(48, dtype=np.uint8).reshape(6, 8)
+    ok, encoded = cv2.imencode(".png", image)
+    marked = mark_png(encoded.tobytes())
+    assert PNG_SOFTWARE in marked
+    decoded = cv2.imdecode(np.frombuffer(marked, np.uint8), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(decoded, image)
