@@ -161,3 +161,33 @@ def test_a_marked_png_is_still_a_png_that_opencv_reads():
     assert PNG_SOFTWARE in marked
     decoded = cv2.imdecode(np.frombuffer(marked, np.uint8), cv2.IMREAD_UNCHANGED)
     np.testing.assert_array_equal(decoded, image)
+
+
+# --- 10. minor: a hand-written card, a twin simulate would refuse -------------------------------
+
+def test_dataset_never_replaces_a_hand_written_card(small_dataset, tmp_path, capsys):
+    import shutil
+
+    from sim.dataset import CARD
+
+    folder = shutil.copytree(small_dataset, tmp_path / "tiny")
+    (folder / CARD).write_text("# My notes\n\nkeep me\n")
+    line = _one_line(capsys, run_cli(["dataset", str(folder)]), "dataset")
+    assert line.startswith(f"{folder / CARD} was not written by evfuse dataset"), line
+    assert (folder / CARD).read_text() == "# My notes\n\nkeep me\n"
+    assert not (folder / "card").exists()
+    (folder / CARD).unlink()
+    assert run_cli(["dataset", str(folder)], inputs=[]) == 0   # its own card: replaced
+    assert run_cli(["dataset", str(folder)], inputs=[]) == 0
+    assert (folder / CARD).read_text().startswith("<!-- written by evfuse dataset")
+
+
+def test_twin_refuses_an_illuminance_simulate_would_refuse(tmp_path, capsys):
+    from sim.scene import MAX_ILLUMINANCE_LUX
+
+    out = tmp_path / "t"
+    line = _one_line(capsys, run_cli(["twin", str(tmp_path / "rec"), "--depth", "0.5",
+                                      "--illuminance", "1e308", "--out", str(out)]), "twin")
+    assert line == (f"--illuminance 1e+308 lux is brighter than the {MAX_ILLUMINANCE_LUX:,.0f} "
+                    "lux a scene may declare (direct sunlight is about 100,000 lux)")
+    assert list(tmp_path.iterdir()) == []
