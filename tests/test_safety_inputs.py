@@ -191,3 +191,36 @@ def test_twin_refuses_an_illuminance_simulate_would_refuse(tmp_path, capsys):
     assert line == (f"--illuminance 1e+308 lux is brighter than the {MAX_ILLUMINANCE_LUX:,.0f} "
                     "lux a scene may declare (direct sunlight is about 100,000 lux)")
     assert list(tmp_path.iterdir()) == []
+
+
+# --- 10. a byte-order mark: dropped where lines are read, named where TOML refuses it ------------
+
+BOM = b"\xef\xbb\xbf"
+
+
+def test_a_bom_before_a_trajectory_s_first_line_is_dropped(tmp_path):
+    from sim.trajectory import read_trajectory
+
+    path = tmp_path / "gt.txt"
+    path.write_bytes(BOM + b"0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n")
+    assert read_trajectory(path).t_end == 1.0
+
+
+@pytest.mark.parametrize("command", ["simulate", "generate"])
+def test_a_bom_before_a_toml_file_is_named_not_shown(command, tmp_path, capsys):
+    path = tmp_path / "file.toml"
+    path.write_bytes(BOM + SWEEP.format(seeds="[1]").encode())
+    line = _one_line(capsys, run_cli([command, str(path), "--out", str(tmp_path / "o")]),
+                     command)
+    assert "\ufeff" not in line and "byte-order mark, U+FEFF" in line, line
+
+
+def test_a_bom_before_a_dataset_manifest_is_dropped(small_dataset, tmp_path):
+    import shutil
+
+    from sim.dataset import dataset_summary
+
+    folder = shutil.copytree(small_dataset, tmp_path / "tiny")
+    manifest = folder / "manifest.csv"
+    manifest.write_bytes(BOM + manifest.read_bytes())
+    assert len(dataset_summary(folder).sequences) == 2

@@ -40,6 +40,7 @@ import numpy as np
 
 from sim._summary import summary_repr
 from sim.dataset._jobs import PARAMETERS, Job, check_parameter
+from sim.textfile import bom_hint
 from sim.validation import MAX_SEED
 
 __all__ = ["DRAWS", "Sweep", "SweepError", "draw_parameters",
@@ -127,7 +128,7 @@ def parse_sweep(text: str, source: str | Path = "<sweep>") -> Sweep:
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
-        raise SweepError(f"{source}: not valid TOML: {error}") from None
+        raise SweepError(f"{source}: not valid TOML: {error}{bom_hint(text)}") from None
     for key in raw:
         if key not in _TOP:
             raise fail(key, f"unknown key; expected {', '.join(_TOP)}")

@@ -33,6 +33,7 @@ from sim.scene._model import (
     SceneObject,
 )
 from sim.se3 import look_at, make_pose, quat_to_rot, rotation_from_euler
+from sim.textfile import bom_hint
 from sim.trajectory import (
     HandheldTrajectory,
     LinearTrajectory,
@@ -815,7 +816,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{source}: not valid TOML: {exc}") from None
+        raise SceneError(f"{source}: not valid TOML: {exc}{bom_hint(text)}") from None
     top_required = {"duration", "trajectory", "objects"}
     top_optional = {"name", "description", "seed", "frames", "render", "lights", "depth_range",
                     "rig", "up", "imu", "camera", "event_camera", "frame_camera"}
@@ -895,7 +896,7 @@ def declared_depth_range(text: str, source: str | Path = "<scene>") -> tuple[flo
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{source}: not valid TOML: {exc}") from None
+        raise SceneError(f"{source}: not valid TOML: {exc}{bom_hint(text)}") from None
     return _declared_depth_range(_Ctx(str(source)), raw)
 
 
