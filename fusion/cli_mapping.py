@@ -18,7 +18,7 @@ from fusion.cli_options import (
     add_map_options,
     add_subcommand,
 )
-from sim.cli import FINITE, OVERWRITE_HELP, count_type
+from sim.cli import FINITE, OVERWRITE_HELP, PNG_OVERWRITE_HELP, SEED, count_type
 from sim.validation import depth_metres
 
 __all__ = ["COMMANDS", "add_command"]
@@ -203,10 +203,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_show(args: argparse.Namespace) -> int:
     from fusion.figures import write_image
     from fusion.pipeline import draw_overview, run_sources
+    from sim.image_out import check_png_output
     from sim.output import check_output_file
 
     out = Path(args.out)
     check_output_file(out, run_sources(args.run_folder))   # the run folder is only read
+    check_png_output(out, args.overwrite)
     image = draw_overview(args.run_folder)
     write_image(out, image)
     print(f"written to {out}")
@@ -288,7 +290,7 @@ def _add_run(sub) -> None:
     run.add_argument("--out", required=True, help="run folder to write")
     add_map_options(run)
     run.add_argument("--spp", type=count_type(1), default=None, help="samples per pixel (scenes)")
-    run.add_argument("--seed", type=count_type(0), default=None, help="simulation seed (scenes)")
+    run.add_argument("--seed", type=SEED, default=None, help="simulation seed (scenes)")
     add_dense_options(run)
     run.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     run.add_argument("--resume", action="store_true",
@@ -320,6 +322,7 @@ def _add_show(sub) -> None:
     show.add_argument("run_folder", metavar="RUN", help="folder written by evfuse run")
     show.add_argument("--out", required=True,
                       help="PNG to write (outside RUN: the run folder is only read)")
+    show.add_argument("--overwrite", action="store_true", help=PNG_OVERWRITE_HELP)
     show.set_defaults(run=_cmd_show)
 
 

@@ -20,6 +20,7 @@ from fusion.io import dense_cloud
 from fusion.map.dsi_range import oracle_header
 from fusion.scoring import ERROR_NO_SURFACE, ERROR_NO_VALUE, error_image
 from sim._atomic import write_bytes_atomically
+from sim.image_out import mark_png
 
 __all__ = ["FARTHER_COLOUR", "NEARER_COLOUR", "Caption", "DepthScale", "Legend", "Swatches",
            "add_header", "depth_colours", "depth_legend", "depth_scale", "error_legend",
@@ -738,7 +739,8 @@ def add_header(image: np.ndarray, lines: list[str], colour: tuple[int, int, int]
 
 def write_image(path: str | Path, image: np.ndarray) -> Path:
     """Write an image atomically (:func:`sim._atomic.write_bytes_atomically`: to
-    ``<name>.partial`` beside it, then renamed).
+    ``<name>.partial`` beside it, then renamed); a PNG carries the text chunk
+    ``Software: evfuse`` (:func:`sim.image_out.mark_png`).
 
     Parameters
     ----------
@@ -754,7 +756,10 @@ def write_image(path: str | Path, image: np.ndarray) -> Path:
     ok, encoded = cv2.imencode(path.suffix, image)       # the bytes cv2.imwrite would write
     if not ok:
         raise OSError(f"cannot write {path}")
-    write_bytes_atomically(path, encoded.tobytes())
+    data = encoded.tobytes()
+    if path.suffix.lower() == ".png":                    # says evfuse wrote it (--overwrite)
+        data = mark_png(data)
+    write_bytes_atomically(path, data)
     return path
 
 

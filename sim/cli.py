@@ -19,10 +19,10 @@ from typing import NoReturn
 
 import numpy as np
 
-from sim.validation import finite, non_negative, positive
+from sim.validation import MAX_SEED, finite, non_negative, positive
 
-__all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "POSITIVE", "OneLineParser",
-           "add_command", "count_type", "number_type"]
+__all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "PNG_OVERWRITE_HELP",
+           "POSITIVE", "SEED", "OneLineParser", "add_command", "count_type", "number_type"]
 
 COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "generate", "dataset")
 """The subcommands this module builds (:func:`add_command`)."""
@@ -30,6 +30,9 @@ COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "generate", "data
 OVERWRITE_HELP = ("replace OUT if it is a folder evfuse wrote (it holds evfuse's .evfuse marker), "
                   "once the new one is complete; any other folder is never replaced")
 """The help of every command's ``--overwrite`` that replaces a folder."""
+PNG_OVERWRITE_HELP = ("replace OUT if it is a PNG evfuse wrote (its 'Software: evfuse' text "
+                      "chunk); any other file is never replaced")
+"""The help of ``--overwrite`` where OUT is one PNG (``events --out``, ``show --out``)."""
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -65,12 +68,13 @@ def number_type(check: Callable[[str, object], float], what: str) -> Callable[[s
     return parse
 
 
-def count_type(minimum: int) -> Callable[[str], int]:
-    """An argparse ``type=``: the text as an integer >= ``minimum``.
+def count_type(minimum: int, maximum: int | None = None) -> Callable[[str], int]:
+    """An argparse ``type=``: the text as an integer >= ``minimum`` (and <= ``maximum``).
 
     Parameters
     ----------
     minimum : int
+    maximum : int, optional
 
     Returns
     -------
@@ -82,11 +86,18 @@ def count_type(minimum: int) -> Callable[[str], int]:
             value = int(text)
         except ValueError:
             value = None
-        if value is None or value < minimum:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
+        if value is None or value < minimum or (maximum is not None and value > maximum):
+            expected = (f"an integer >= {minimum}" if maximum is None
+                        else f"an integer in {minimum}..{maximum}")
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
         return value
-    parse.__name__ = f"integer >= {minimum}"
+    parse.__name__ = (f"integer >= {minimum}" if maximum is None
+                      else f"integer in {minimum}..{maximum}")
     return parse
+
+
+SEED = count_type(0, MAX_SEED)
+"""``type=`` of a ``--seed`` flag: 0..2**32 - 1 (:data:`sim.validation.MAX_SEED`)."""
 
 
 FINITE = number_type(finite, "a finite number")
@@ -150,6 +161,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_events(args: argparse.Namespace) -> int:
+    from sim.image_out import check_png_output
     from sim.output import check_output_file
     from sim.statistics import (
         compare_stats,
@@ -166,6 +178,9 @@ def _cmd_events(args: argparse.Namespace) -> int:
         raise ValueError("--out is the event frame of --stats: add --stats")
     if args.out is not None:                     # never into a recording it reads
         check_output_file(args.out, [folder, args.compare])
+        check_png_output(args.out, args.overwrite)
+    elif args.overwrite:
+        raise ValueError("--overwrite replaces the --out PNG: add --out")
     sequence, path, events = read_recording(folder)
     if not args.stats:
         print(f"{path}: {len(events)} events (add --stats for statistics)")
@@ -306,7 +321,7 @@ def _add_simulate(sub) -> None:
                           help="seconds to simulate (default: the scene's duration)")
     simulate.add_argument("--start", type=FINITE, default=0.0,
                           help="time of the scene's trajectory to start at, s (default 0)")
-    simulate.add_argument("--seed", type=count_type(0), default=None,
+    simulate.add_argument("--seed", type=SEED, default=None,
                           help="seed of every random draw (default: the scene's seed)")
     simulate.add_argument("--spp", type=count_type(1), default=None,
                           help="samples per pixel, a perfect square (default: the scene's)")
@@ -371,6 +386,7 @@ def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) ->
     events.add_argument("--out", default=None,
                         help="with --stats: the event-frame PNG to write (default none; never "
                              "inside SEQUENCE or OTHER, which are only read)")
+    events.add_argument("--overwrite", action="store_true", help=PNG_OVERWRITE_HELP)
     events.add_argument("--compare", default=None, metavar="OTHER",
                         help="with --stats: another sequence folder (a twin and its recording), "
                              "printed side by side with the ratio OTHER / SEQUENCE")

@@ -6,14 +6,39 @@ import math
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-__all__ = ["numeric_rows", "parse_floats", "text_lines"]
+__all__ = ["BOM", "bom_hint", "numeric_rows", "parse_floats", "text_lines"]
+
+BOM = "\ufeff"
+"""The byte-order mark some editors put at the start of a UTF-8 file (bytes EF BB BF): invisible
+in a message, so it is dropped where a line is read (:func:`text_lines`) and named where a
+parser refuses it (:func:`bom_hint`)."""
+
+
+def bom_hint(text: str) -> str:
+    """What to add to a parse error of ``text``: a note if it starts with a byte-order mark
+    (which TOML does not allow), else nothing.
+
+    Parameters
+    ----------
+    text : str
+        The whole file, decoded.
+
+    Returns
+    -------
+    str
+        ``" (the file starts with a byte-order mark, U+FEFF: save it as UTF-8 without one)"``
+        or ``""``.
+    """
+    return (" (the file starts with a byte-order mark, U+FEFF: save it as UTF-8 without one)"
+            if text.startswith(BOM) else "")
 
 
 def text_lines(path: str | Path) -> Iterator[tuple[int, str]]:
     """The lines of a UTF-8 text file, numbered from 1, without their line ends.
 
     Lines end at ``\\n`` (a ``\\r`` before it is dropped), as in the event files' reader, and
-    each line is decoded on its own, so that bytes that are not UTF-8 are named by their line.
+    each line is decoded on its own, so that bytes that are not UTF-8 are named by their line. A
+    byte-order mark at the start of the file (:data:`BOM`) is dropped.
 
     Parameters
     ----------
@@ -39,6 +64,8 @@ def text_lines(path: str | Path) -> Iterator[tuple[int, str]]:
             except UnicodeDecodeError as exc:
                 raise ValueError(f"{path}:{lineno}: not UTF-8 text (byte 0x{raw[exc.start]:02x} "
                                  f"at column {exc.start + 1}); expected a text file") from None
+            if lineno == 1:
+                line = line.removeprefix(BOM)        # an editor's mark, not a character
             yield lineno, line.rstrip("\r\n")
 
 

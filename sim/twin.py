@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from sim.output import atomic_output_dir, check_output_dir
+from sim.scene import MAX_ILLUMINANCE_LUX
 from sim.sequence import load_sequence
 from sim.statistics import frame_noise
 from sim.textures import linear_to_srgb
@@ -100,6 +101,10 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     depth = check_parameter(depth_metres, "depth", check_parameter(positive, "depth", depth))
     frame_gamma = check_parameter(positive, "frame_gamma", frame_gamma)
     illuminance = check_parameter(positive, "illuminance", illuminance)
+    if illuminance > MAX_ILLUMINANCE_LUX:                 # the bound simulate reads it with
+        raise ParameterError(f"{{illuminance}} {illuminance:g} lux is brighter than the "
+                             f"{MAX_ILLUMINANCE_LUX:,.0f} lux a scene may declare (direct "
+                             "sunlight is about 100,000 lux)", illuminance="illuminance")
     check_output_dir(out, overwrite, [recording])
     sequence = load_sequence(recording)
     if sequence.groundtruth_path is None or not len(sequence.image_paths):

@@ -13,14 +13,19 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-__all__ = ["PLAUSIBLE_DEPTH_M", "ParameterError", "bounded", "check_parameter", "depth_metres",
-           "finite", "integer", "non_negative", "positive"]
+__all__ = ["MAX_SEED", "PLAUSIBLE_DEPTH_M", "ParameterError", "bounded", "check_parameter",
+           "depth_metres", "finite", "integer", "non_negative", "positive", "seed"]
 
 PLAUSIBLE_DEPTH_M = 100.0
 """Largest depth accepted where a depth is given (a scene's ``depth_range``, ``--min-depth`` /
 ``--max-depth``, a twin's poster depth), metres: beyond it the value is taken for millimetres
 (the ECD's 0.47-2.4 m written 470-2400) and refused. Event-based mapping over a window's
 baseline (centimetres to metres) resolves no depth out there anyway."""
+
+MAX_SEED = 2**32 - 1
+"""Largest seed accepted anywhere (``--seed``, a scene file's ``seed`` and ``[render] seed``, a
+sweep's ``seeds``): Mitsuba's ``render(seed=...)`` takes an unsigned 32-bit integer (2**32 raises
+a TypeError from ``sample_tea_32``); numpy's ``default_rng`` takes any integer >= 0."""
 
 
 class ParameterError(ValueError):
@@ -129,6 +134,14 @@ def integer(name: str, value: object, minimum: int) -> int:
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
     if not (math.isfinite(value) and float(value).is_integer() and value >= minimum):
         raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def seed(name: str, value: object) -> int:
+    """``value`` as a seed, an int in 0..:data:`MAX_SEED`, or a ValueError naming ``name``."""
+    if (isinstance(value, bool) or not isinstance(value, int | np.integer)
+            or not 0 <= value <= MAX_SEED):
+        raise ValueError(f"{name} must be an integer in 0..{MAX_SEED} (2**32 - 1), got {value!r}")
     return int(value)
 
 

@@ -307,7 +307,7 @@ def test_a_negative_seed_is_blamed_on_the_flag_not_the_scene_file(command, tmp_p
     with pytest.raises(SystemExit) as stop:
         run_cli([command, "slider_close", "--out", str(tmp_path / "o"), "--seed", "-1"])
     assert _line(capsys, stop.value.code, command) == (
-        "argument --seed: expected an integer >= 0, got '-1'")
+        "argument --seed: expected an integer in 0..4294967295, got '-1'")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -317,7 +317,7 @@ def test_a_negative_seed_argument_is_not_blamed_on_the_file():
     with pytest.raises(SceneError) as info:
         parse_scene(scene_text(WALL), "wall.toml", seed=-1)
     assert str(info.value) == ("seed -1 (given to replace the seed of wall.toml): expected an "
-                               "integer >= 0")
+                               "integer in 0..4294967295 (2**32 - 1)")
 
 
 @pytest.mark.parametrize("value, message", [

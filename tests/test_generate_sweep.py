@@ -27,7 +27,7 @@ t1 = 0.05
 
 @pytest.mark.parametrize("text, where, what", [
     ("colour = 1\n" + BASE, "colour", "unknown key"),
-    (BASE.replace("seeds = [1, 2]", "seeds = [1, -2]"), "seeds[1]", "integer >= 0"),
+    (BASE.replace("seeds = [1, 2]", "seeds = [1, -2]"), "seeds[1]", "integer in 0.."),
     (BASE.replace("seeds = [1, 2]\n", ""), "seeds", "expected a list"),
     (BASE.replace('name = "slider_close"', 'name = "nowhere"'), "scenes[0].name",
      "not a built-in scene"),

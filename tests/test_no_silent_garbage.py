@@ -149,7 +149,8 @@ def test_every_numeric_flag_refuses_a_non_finite_value(value, capsys):
 
 @pytest.mark.parametrize("command, flag, value, expected", [
     ("map", "--planes", "1", "an integer >= 2"),
-    ("simulate", "--seed", "-1", "an integer >= 0"),
+    ("simulate", "--seed", "-1", "an integer in 0..4294967295"),
+    ("simulate", "--seed", "4294967296", "an integer in 0..4294967295"),
     ("simulate", "--duration", "0", "a finite number > 0"),
     ("fill", "--sigma", "-2", "a finite number > 0"),
     ("twin", "--depth", "-0.5", "a finite number > 0"),

@@ -342,9 +342,27 @@ def _histogram(name: str, values: list[float], spec: str, bins: int = 8) -> list
     return lines
 
 
+CARD_MARK = ("<!-- written by evfuse dataset, which replaces it on each run; keep your own notes "
+             "in another file -->")
+"""The first line of every card evfuse writes: ``evfuse dataset`` replaces only a card that
+starts with it (or with the heading of a card written before the mark existed)."""
+
+
+def _is_evfuse_card(path: Path, folder: Path) -> bool:
+    """True if ``path`` is a card ``evfuse dataset`` wrote (:data:`CARD_MARK`, or the opening
+    lines of an unmarked card of evfuse 0.2)."""
+    try:
+        with path.open("r", encoding="utf-8", errors="replace") as handle:
+            head = handle.read(4096)
+    except OSError:
+        return False
+    return head.startswith(CARD_MARK) or head.startswith(
+        f"# Dataset card: {folder.name}\n\nWritten by `evfuse dataset` ")
+
+
 def _card_text(summary: DatasetSummary, shown: int) -> str:
     seqs = summary.sequences
-    lines = [f"# Dataset card: {summary.folder.name}", "",
+    lines = [CARD_MARK, f"# Dataset card: {summary.folder.name}", "",
              "Written by `evfuse dataset` from the sequence folders (every figure measured on "
              "the files) and `manifest.csv`.", "", "## Summary", "", "```",
              summary.text().rstrip("\n"), "```", "", "## Sequences", "",
@@ -402,13 +420,20 @@ def write_card(folder: str | Path) -> DatasetSummary:
     ------
     sim.validation.ParameterError
         As :func:`sim.open_dataset`, or a folder without evfuse's marker (the card is evfuse's
-        output inside a folder evfuse wrote; it writes nowhere else).
+        output inside a folder evfuse wrote; it writes nowhere else), or a ``card.md`` there
+        that evfuse did not write (no :data:`CARD_MARK`): never replaced.
     """
     folder = Path(folder)
     dataset = open_dataset(folder, time_unit="ns", report=False)
     if not (folder / MARKER).is_file():
         raise OutputError(f"{OutputError.literal(folder)} has no {MARKER} marker: evfuse did not "
                           "write it, so the card is not written into it")
+    card = folder / CARD
+    if (card.exists() or card.is_symlink()) and (card.is_symlink()
+                                                 or not _is_evfuse_card(card, folder)):
+        raise OutputError(f"{OutputError.literal(card)} was not written by evfuse dataset (its "
+                          "first line is not evfuse's mark), so it is not replaced: move it "
+                          "aside, or pass --no-card")
     summary = dataset_summary(folder, dataset)
     shown = min(sum(1 for k in range(len(dataset.sequences)) if len(dataset.samples_of(k))),
                 CONTACT_SHEET_ROWS)

@@ -54,7 +54,14 @@ def _sensor(name: str, value: object) -> str:
     match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", str(value))
     if not isinstance(value, str) or match is None or min(map(int, match.groups())) < 1:
         raise ValueError(f"{name} must be WIDTHxHEIGHT in pixels (e.g. '48x36'), got {value!r}")
-    return f"{int(match.group(1))}x{int(match.group(2))}"
+    from sim.simulate.memory import check_simulation_memory
+
+    width, height = int(match.group(1)), int(match.group(2))
+    try:                                 # at 1 sample per pixel: a lower bound, known up front
+        check_simulation_memory(width, height, 1, at_least=True)
+    except ValueError as exc:
+        raise ValueError(str(exc)) from None
+    return f"{width}x{height}"
 
 
 def _spp(name: str, value: object) -> int:

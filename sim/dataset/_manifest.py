@@ -240,7 +240,7 @@ def read_manifest(folder: str | Path) -> list[dict]:
     if not path.is_file():
         raise ParameterError(f"{ParameterError.literal(folder)} has no {MANIFEST_CSV}: not a "
                              "dataset folder (evfuse generate writes one)")
-    with path.open(newline="", encoding="utf-8") as handle:
+    with path.open(newline="", encoding="utf-8-sig") as handle:     # a BOM (an editor's) dropped
         reader = csv.DictReader(handle)
         missing = [c for c in ("job_id", "path", "status") if c not in (reader.fieldnames or ())]
         if missing:

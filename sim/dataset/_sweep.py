@@ -40,6 +40,8 @@ import numpy as np
 
 from sim._summary import summary_repr
 from sim.dataset._jobs import PARAMETERS, Job, check_parameter
+from sim.textfile import bom_hint
+from sim.validation import MAX_SEED
 
 __all__ = ["DRAWS", "Sweep", "SweepError", "draw_parameters",
            "load_sweep", "parse_sweep"]
@@ -126,7 +128,7 @@ def parse_sweep(text: str, source: str | Path = "<sweep>") -> Sweep:
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
-        raise SweepError(f"{source}: not valid TOML: {error}") from None
+        raise SweepError(f"{source}: not valid TOML: {error}{bom_hint(text)}") from None
     for key in raw:
         if key not in _TOP:
             raise fail(key, f"unknown key; expected {', '.join(_TOP)}")
@@ -170,13 +172,17 @@ def _seeds(value: object, fail) -> list[int]:
         if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0
                    for v in (first, count)) or count < 1:
             raise fail("seeds", f"expected integers first >= 0 and count >= 1, got {value!r}")
+        if first + count - 1 > MAX_SEED:
+            raise fail("seeds", f"expected seeds in 0..{MAX_SEED} (2**32 - 1), got first = "
+                                f"{first}, count = {count} (last seed {first + count - 1})")
         return list(range(first, first + count))
     if not isinstance(value, list) or not value:
         raise fail("seeds", f"expected a list of seeds or {{ first = N, count = M }}, got "
                             f"{value!r}")
     for i, seed in enumerate(value):
-        if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
-            raise fail(f"seeds[{i}]", f"expected an integer >= 0, got {seed!r}")
+        if not isinstance(seed, int) or isinstance(seed, bool) or not 0 <= seed <= MAX_SEED:
+            raise fail(f"seeds[{i}]", f"expected an integer in 0..{MAX_SEED} (2**32 - 1), got "
+                                      f"{seed!r}")
     if len(set(value)) != len(value):
         raise fail("seeds", "a seed is listed twice")
     return list(value)

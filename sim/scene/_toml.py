@@ -33,6 +33,7 @@ from sim.scene._model import (
     SceneObject,
 )
 from sim.se3 import look_at, make_pose, quat_to_rot, rotation_from_euler
+from sim.textfile import bom_hint
 from sim.trajectory import (
     HandheldTrajectory,
     LinearTrajectory,
@@ -40,7 +41,7 @@ from sim.trajectory import (
     Trajectory,
     read_trajectory,
 )
-from sim.validation import depth_metres, finite, integer, non_negative
+from sim.validation import MAX_SEED, depth_metres, finite, integer, non_negative
 
 __all__ = ["MAX_ILLUMINANCE_LUX", "MAX_INTENSITY_CD", "MAX_NEAREST_SURFACE_M",
            "MAX_OBJECT_SIZE_M", "declared_depth_range", "load_scene", "parse_scene"]
@@ -125,6 +126,14 @@ def _integer(ctx: _Ctx, value: Any, key: str, *, minimum: int | None = None) -> 
         _checked(ctx, lambda k, v: integer(k, v, minimum), value, key,
                  f"expected an integer >= {minimum}, got {value}")
     return int(value)
+
+
+def _seed(ctx: _Ctx, value: Any, key: str) -> int:
+    """A seed: a TOML integer in 0..:data:`sim.validation.MAX_SEED` (Mitsuba's 32-bit seed)."""
+    value = _integer(ctx, value, key)
+    if not 0 <= value <= MAX_SEED:
+        raise ctx.fail(key, f"expected an integer in 0..{MAX_SEED} (2**32 - 1), got {value}")
+    return value
 
 
 def _string(ctx: _Ctx, value: Any, key: str, choices: tuple[str, ...] | None = None) -> str:
@@ -447,7 +456,7 @@ def _parse_render(ctx: _Ctx, raw: Any) -> RenderParams:
     if edge_spp and (math.isqrt(edge_spp) ** 2 != edge_spp or edge_spp <= counts["event_spp"]):
         raise ctx.fail(f"{key}.edge_spp", f"expected 0 (off) or a perfect square above "
                                           f"event_spp = {counts['event_spp']}, got {edge_spp}")
-    seed = _get(ctx, table, key, "seed", lambda c, v, k: _integer(c, v, k, minimum=0), None)
+    seed = _get(ctx, table, key, "seed", _seed, None)
     return RenderParams(spp=counts["spp"], pose_rate=pose_rate, event_spp=counts["event_spp"],
                         edge_spp=edge_spp, seed=seed, flat_spp=counts["flat_spp"])
 
@@ -807,7 +816,7 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{source}: not valid TOML: {exc}") from None
+        raise SceneError(f"{source}: not valid TOML: {exc}{bom_hint(text)}") from None
     top_required = {"duration", "trajectory", "objects"}
     top_optional = {"name", "description", "seed", "frames", "render", "lights", "depth_range",
                     "rig", "up", "imu", "camera", "event_camera", "frame_camera"}
@@ -815,10 +824,11 @@ def parse_scene(text: str, source: str | Path = "<scene>", *, seed: int | None =
     name = _get(ctx, raw, "", "name", _string, source_path.stem if source_path else "scene")
     description = _get(ctx, raw, "", "description", _string, "")
     duration = _number(ctx, raw["duration"], "duration", positive=True)
-    file_seed = _get(ctx, raw, "", "seed", lambda c, v, k: _integer(c, v, k, minimum=0), 0)
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
+    file_seed = _get(ctx, raw, "", "seed", _seed, 0)
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)
+                             or not 0 <= seed <= MAX_SEED):
         raise SceneError(f"seed {seed!r} (given to replace the seed of {source}): expected an "
-                         "integer >= 0")
+                         f"integer in 0..{MAX_SEED} (2**32 - 1)")
     seed = file_seed if seed is None else seed
     depth_range = _declared_depth_range(ctx, raw)
     camera, frame_camera = _parse_cameras(ctx, raw)
@@ -886,7 +896,7 @@ def declared_depth_range(text: str, source: str | Path = "<scene>") -> tuple[flo
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{source}: not valid TOML: {exc}") from None
+        raise SceneError(f"{source}: not valid TOML: {exc}{bom_hint(text)}") from None
     return _declared_depth_range(_Ctx(str(source)), raw)
 
 

@@ -113,6 +113,20 @@ def scene_files(scene: Scene) -> list[Path]:
     return files
 
 
+def _check_memory(scene: Scene, spp: int | None, with_events: bool) -> None:
+    """Refuse, before any work, a simulation whose renders cannot fit this machine's memory
+    (:func:`sim.simulate.memory.check_simulation_memory`): the largest camera at the most
+    samples per pixel of any pass."""
+    from sim.simulate.memory import check_simulation_memory
+
+    render = scene.render
+    samples = max(spp if spp is not None else render.spp, render.flat_spp,
+                  *((render.event_spp, render.edge_spp) if with_events else ()))
+    cameras = [scene.camera] + ([scene.frame_camera.camera] if scene.frame_camera else [])
+    largest = max(cameras, key=lambda c: c.width * c.height)
+    check_simulation_memory(largest.width, largest.height, samples)
+
+
 def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
              start: float = 0.0, spp: int | None = None, variant: str | None = None,
              overwrite: bool = False,
@@ -220,6 +234,7 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                          event_formats, sampler)
     identity["motion_truth"] = bool(motion_truth)
     inputs = scene_files(scene)
+    _check_memory(scene, spp, with_events)
     if resume:                                        # refuse before loading the renderer
         _check_resumable(out, overwrite, identity, inputs)
     else:
