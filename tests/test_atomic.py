@@ -62,7 +62,8 @@ def test_flow_exr_writer_leaves_no_temporary_file_when_writing_fails(tmp_path, m
 def test_figures_write_image_goes_through_the_one_policy_with_the_same_bytes(tmp_path,
                                                                             monkeypatch):
     """``write_image`` had its own style (``.<stem>.partial<ext>``, no fsync): it now writes
-    ``<name>.partial``, syncs it, and writes the bytes ``cv2.imwrite`` writes."""
+    ``<name>.partial``, syncs it, and writes the bytes ``cv2.imwrite`` writes with evfuse's
+    ``Software`` chunk after the header (:func:`sim.image_out.mark_png`)."""
     import os
 
     import cv2
@@ -83,5 +84,8 @@ def test_figures_write_image_goes_through_the_one_policy_with_the_same_bytes(tmp
     target = tmp_path / "figure.png"
     write_image(target, image)
     assert synced == [str(tmp_path / ("figure.png" + PARTIAL_SUFFIX))]
-    assert target.read_bytes() == reference.read_bytes()
+    from sim.image_out import is_evfuse_png, mark_png
+
+    assert target.read_bytes() == mark_png(reference.read_bytes())
+    assert is_evfuse_png(target) and not is_evfuse_png(reference)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["figure.png", "reference.png"]
