@@ -51,6 +51,11 @@ def _window_poses(trajectory, t0: float, t1: float) -> np.ndarray:
     return trajectory.pose(times)
 
 
+_MAX_POSTER_PIXELS = 2**28
+"""The largest poster (pixels, one byte each): a depth so small that the camera's motion over the
+window is thousands of views wide is refused before the padding is allocated."""
+
+
 def write_twin(recording: str | Path, out: str | Path, depth: float,
                window: tuple[float, float] | None = None, illuminance: float = 400.0,
                frame_sensor: str = "davis240c_aps", frame_gamma: float = 1.0,
@@ -138,8 +143,16 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     first = np.linalg.inv(poses[0])
     centres = (first @ poses)[:, :3, 3]
     shift = np.abs(centres[:, :2]).max(axis=0) * 1.1 + 1e-3
-    pad_x = int(math.ceil(shift[0] / width_m * camera.width))
-    pad_y = int(math.ceil(shift[1] / height_m * camera.height))
+    pad = (shift[0] / width_m * camera.width, shift[1] / height_m * camera.height)
+    pixels = (camera.width + 2 * pad[0]) * (camera.height + 2 * pad[1])
+    if not pixels <= _MAX_POSTER_PIXELS:
+        raise ParameterError(
+            f"{{depth}} {depth:g} m: the camera moves {float(shift.max()):.3g} m over the window, "
+            f"{max(pad[0] / camera.width, pad[1] / camera.height):.3g} times the view's width "
+            f"at that depth: the poster would need {pixels:.3g} pixels (at most "
+            f"{_MAX_POSTER_PIXELS:.3g}); expected the depth of the scene in metres",
+            depth="depth")
+    pad_x, pad_y = (int(math.ceil(p)) for p in pad)
     poster = cv2.copyMakeBorder(undistorted, pad_y, pad_y, pad_x, pad_x, cv2.BORDER_REFLECT)
     size = (width_m * poster.shape[1] / camera.width, height_m * poster.shape[0] / camera.height)
     centre_cam = np.array([left + size[0] / 2 - pad_x * width_m / camera.width,

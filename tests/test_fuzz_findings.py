@@ -313,3 +313,44 @@ def test_scene_up_at_a_huge_scale_stays_a_unit_vector():
 
     scene = parse_scene(scene_text(WALL, extra="up = [1e308, 0.0, 1e308]"), "huge.toml")
     np.testing.assert_allclose(scene.up, [2**-0.5, 0.0, 2**-0.5])
+
+
+def test_depth_exr_with_a_damaged_header_names_the_file(tmp_path):
+    """One byte zeroed in the header (issue 39's fuzzing): OpenEXR's ValueError "Invalid part
+    index '0': file has 0 parts." came out alone, without the file's name."""
+    from sim.exr import read_depth, write_depth
+
+    path = tmp_path / "depth.exr"
+    write_depth(path, np.ones((12, 16), np.float32))
+    data = bytearray(path.read_bytes())
+    data[47] = 0
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError) as exc_info:
+        read_depth(path)
+    assert one_line(exc_info).startswith(f"cannot read EXR file {path}: ")
+
+
+def test_sweep_lam_outside_its_range_is_refused_naming_the_key():
+    """``[grid] lam = 1e308`` (issue 39's fuzzing): the sweep only checked that lam is finite,
+    so generate started and every job failed in SamplingParams (exit 1, the error in the
+    manifest) instead of a refusal before any work."""
+    from sim.dataset import parse_sweep
+
+    text = 'seeds = [1]\n[[scenes]]\nname = "slider_close"\n[grid]\nlam = 1e308\n'
+    with pytest.raises(ValueError) as exc_info:
+        parse_sweep(text, "s.toml")
+    assert one_line(exc_info) == "s.toml: grid.lam: lam must be in (0, 1], got 1e+308"
+    assert parse_sweep(text.replace("1e308", "1.0"), "s.toml").jobs[0].params == {"lam": 1.0}
+
+
+def test_twin_depth_so_small_that_the_poster_overflows_is_refused():
+    """``evfuse twin --depth 9.5e-148`` (issue 39's fuzzing): the poster's padding, the camera's
+    motion in views of that depth, overflowed OpenCV's int (exit 1, "unexpected error")."""
+    from sim.twin import write_twin
+    from sim.validation import ParameterError
+    from tests.fuzz_targets import tiny_inputs
+
+    with pytest.raises(ParameterError) as exc_info:
+        write_twin(tiny_inputs()["sequence"], "/nonexistent-out-twin", 9.5e-148)
+    assert one_line(exc_info).startswith("depth 9.5e-148 m: the camera moves 0.331 m over the "
+                                         "window")
