@@ -965,6 +965,16 @@ _GENERATE_EDGES = {"seeds": ([4294967296], [2**63 - 1], {"first": 4294967295, "c
 """Edge values of the keys that size a job (item 6: seeds past uint32; item 7: sizes)."""
 
 
+def _set_edge(draw: Any, table: dict) -> None:
+    """Set one key that sizes a sweep's jobs (seeds, or a [grid] value) to an edge value."""
+    key = draw(st.sampled_from(sorted(_GENERATE_EDGES)))
+    value = draw(st.sampled_from(_GENERATE_EDGES[key]))
+    if key == "seeds":
+        table["seeds"] = value
+    else:
+        table["grid"][key] = value
+
+
 @st.composite
 def sweep_tables(draw: Any) -> str:
     """A sweep document: the valid base with one to three leaves replaced (by TOML values or
@@ -974,12 +984,7 @@ def sweep_tables(draw: Any) -> str:
         return draw(mutated(BASE_SWEEP.encode())).decode("utf-8", "replace")
     table = tomllib.loads(BASE_SWEEP)
     if draw(st.integers(0, 2)) == 0:                  # the keys that size a job, at their edges
-        key = draw(st.sampled_from(sorted(_GENERATE_EDGES)))
-        value = draw(st.sampled_from(_GENERATE_EDGES[key]))
-        if key == "seeds":
-            table["seeds"] = value
-        else:
-            table["grid"][key] = value
+        _set_edge(draw, table)
     for _ in range(draw(st.integers(0, 3))):
         path = draw(st.sampled_from(_paths(table)))
         parent = table
@@ -1076,12 +1081,7 @@ def _generate_case(draw: Any) -> tuple[str, list[tuple[str, str]]]:
     two of generate's flags with values."""
     table = tomllib.loads(GENERATE_SWEEP)
     if draw(st.booleans()):
-        key = draw(st.sampled_from(sorted(_GENERATE_EDGES)))
-        value = draw(st.sampled_from(_GENERATE_EDGES[key]))
-        if key == "seeds":
-            table["seeds"] = value
-        else:
-            table["grid"][key] = value
+        _set_edge(draw, table)
     pairs = []
     for _ in range(draw(st.integers(0, 2))):
         flag = draw(st.sampled_from(GENERATE_FLAGS))
