@@ -41,7 +41,13 @@ from sim.output import atomic_output_dir, check_output_dir
 from sim.sequence import load_sequence
 from sim.statistics import frame_noise
 from sim.textures import linear_to_srgb
-from sim.validation import ParameterError, check_parameter, depth_metres, positive
+from sim.validation import (
+    PLAUSIBLE_DEPTH_M,
+    ParameterError,
+    check_parameter,
+    depth_metres,
+    positive,
+)
 
 __all__ = ["write_twin"]
 
@@ -143,8 +149,9 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     first = np.linalg.inv(poses[0])
     centres = (first @ poses)[:, :3, 3]
     shift = np.abs(centres[:, :2]).max(axis=0) * 1.1 + 1e-3
-    pad = (shift[0] / width_m * camera.width, shift[1] / height_m * camera.height)
-    pixels = (camera.width + 2 * pad[0]) * (camera.height + 2 * pad[1])
+    with np.errstate(over="ignore", divide="ignore"):     # a tiny depth: inf, refused below
+        pad = (shift[0] / width_m * camera.width, shift[1] / height_m * camera.height)
+        pixels = (camera.width + 2 * pad[0]) * (camera.height + 2 * pad[1])
     if not pixels <= _MAX_POSTER_PIXELS:
         raise ParameterError(
             f"{{depth}} {depth:g} m: the camera moves {float(shift.max()):.3g} m over the window, "
@@ -189,7 +196,7 @@ name = "{name}"
 description = "Twin of {recording.resolve().name}: its camera and poses, poster at {depth} m"
 # the recording's {t0:.6f}-{t1:.6f} s; twin time = recording time - {t0:.6f}
 duration = {duration:.9f}
-depth_range = [{depth / 2:.6g}, {depth * 2:.6g}]
+depth_range = [{depth / 2:.6g}, {min(depth * 2, PLAUSIBLE_DEPTH_M):.6g}]
 seed = 1
 
 [camera]

@@ -14,6 +14,7 @@ derandomized); ``benchmarks/fuzz.py`` runs them for many thousands of cases.
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import hashlib
 import io
@@ -968,7 +969,7 @@ _GENERATE_EDGES = {"seeds": ([4294967296], [2**63 - 1], {"first": 4294967295, "c
 def _set_edge(draw: Any, table: dict) -> None:
     """Set one key that sizes a sweep's jobs (seeds, or a [grid] value) to an edge value."""
     key = draw(st.sampled_from(sorted(_GENERATE_EDGES)))
-    value = draw(st.sampled_from(_GENERATE_EDGES[key]))
+    value = copy.deepcopy(draw(st.sampled_from(_GENERATE_EDGES[key])))   # later edits change it
     if key == "seeds":
         table["seeds"] = value
     else:
@@ -995,12 +996,12 @@ def sweep_tables(draw: Any) -> str:
         if kind == "replace":
             parent[path[-1]] = draw(toml_values())
         elif kind == "edge":
-            parent[path[-1]] = draw(st.sampled_from(_SWEEP_VALUES))
+            parent[path[-1]] = copy.deepcopy(draw(st.sampled_from(_SWEEP_VALUES)))
         elif kind == "delete":
             del parent[path[-1]]
         elif isinstance(parent, dict):
             parent[draw(st.sampled_from(["unknown", "Seeds", "sensor", "noise", "spp"]))] = \
-                draw(st.one_of(toml_values(), st.sampled_from(_SWEEP_VALUES)))
+                copy.deepcopy(draw(st.one_of(toml_values(), st.sampled_from(_SWEEP_VALUES))))
     return toml_document_nested(table)
 
 
