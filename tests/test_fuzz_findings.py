@@ -410,3 +410,15 @@ def test_bench_noise_out_of_range_is_refused_by_its_flag():
     assert status == 2
     assert err.strip() == ("evfuse bench: error: --noise 1 --outliers 0.05: expected --noise in "
                            "[0, 1) and --outliers in [0, 1]")
+
+
+@pytest.mark.parametrize("steps", [float("nan"), float("inf")])
+def test_staircase_steps_not_finite_is_refused_naming_the_knob(steps):
+    """``bench --family staircase --steps nan`` (issue 39's long fuzz run): the default step
+    depth was computed from round(steps) before the knob was checked (ValueError "cannot
+    convert float NaN to integer", OverflowError for inf)."""
+    from sim.scene.families import family_variants
+
+    with pytest.raises(ValueError) as exc_info:
+        family_variants("staircase", {"steps": [steps]})
+    assert one_line(exc_info) == f"steps {steps}: expected 1 to 12 for the staircase family"
