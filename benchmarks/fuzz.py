@@ -7,7 +7,9 @@ failures Hypothesis found (one per exception type and place, each shrunk to a mi
 shown below the table). Written to ``benchmarks/results/fuzz.json``. Never fails a build: the
 exit status is 1 when a failure was found, else 0.
 
-Run: ``.venv/bin/python benchmarks/fuzz.py [--examples 5000] [--seed 21] [--only h5]``.
+Run: ``.venv/bin/python benchmarks/fuzz.py [--examples 5000] [--reaching-examples 500]
+[--seed 21] [--only h5]``; the targets that run a simulation per accepted case
+(``tests.fuzz_targets.REACHING``) take ``--reaching-examples``.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ sys.path.insert(0, str(ROOT))                   # tests.fuzz_targets, from a che
 
 from hypothesis import HealthCheck, given, seed, settings  # noqa: E402
 
-from tests.fuzz_targets import TARGETS  # noqa: E402
+from tests.fuzz_targets import REACHING, TARGETS  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -67,6 +69,9 @@ def _describe(exc: BaseException) -> str:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--examples", type=int, default=5000, help="cases per target")
+    parser.add_argument("--reaching-examples", type=int, default=None,
+                        help="cases per target that runs a simulation per accepted case "
+                             "(tests.fuzz_targets.REACHING; default: --examples)")
     parser.add_argument("--seed", type=int, default=21, help="Hypothesis seed")
     parser.add_argument("--only", default=None, help="only targets whose name contains this")
     parser.add_argument("--out", default=str(RESULTS / "fuzz.json"), help="JSON to write")
@@ -74,7 +79,11 @@ def main() -> int:
     names = [n for n in TARGETS if args.only is None or args.only in n]
     rows = []
     for name in names:
-        row = run_target(name, args.examples, args.seed)
+        examples = args.examples
+        if name in REACHING and args.reaching_examples is not None:
+            examples = args.reaching_examples
+        row = run_target(name, examples, args.seed)
+        row["examples"] = examples
         rows.append(row)
         print(f"{name:<50} {row['cases']:>8} cases  {len(row['failures']):>2} failures  "
               f"{row['seconds']:>7.1f} s", flush=True)
@@ -87,7 +96,9 @@ def main() -> int:
             print(f"\n{row['target']}: {failure}")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"examples_per_target": args.examples, "seed": args.seed,
+    out.write_text(json.dumps({"examples_per_target": args.examples,
+                               "examples_per_reaching_target": args.reaching_examples,
+                               "seed": args.seed,
                                "targets": rows}, indent=2) + "\n")
     print(f"\nwritten to {out}")
     return 1 if any(row["failures"] for row in rows) else 0

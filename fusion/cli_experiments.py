@@ -59,6 +59,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     # Everything refusable is refused before the cache (and a family's files in it) is made.
     if not inputs or not set(inputs) <= set(INPUTS):
         raise ValueError(f"--input {args.input}: expected among {', '.join(INPUTS)}")
+    if not (args.noise < 1 and args.outliers <= 1):        # the flags' own bounds, >= 0 there
+        raise ValueError(f"--noise {args.noise:g} --outliers {args.outliers:g}: expected "
+                         "--noise in [0, 1) and --outliers in [0, 1]")
     params = BenchParams(noise=args.noise, outliers=args.outliers,
                          keep_boundary_planes=args.keep_boundary_planes)
     cache = bench_cache(args.out, args.cache)

@@ -130,8 +130,9 @@ def read_exr_channels(path: str | Path) -> dict[str, np.ndarray]:
                 if pixels.dtype == np.float16:
                     pixels = pixels.astype(np.float32)
                 result[name] = pixels
-    except RuntimeError as exc:
-        raise ValueError(f"cannot read EXR file {path}: {exc}") from None
+    except (RuntimeError, ValueError) as exc:     # OpenEXR: "Invalid part index '0': ..."
+        reason = " ".join(str(exc).split())
+        raise ValueError(f"cannot read EXR file {path}: {reason}") from None
     return result
 
 

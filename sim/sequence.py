@@ -810,7 +810,14 @@ def load_sequence(folder: str | Path) -> Sequence:
     def optional(name: str) -> Path | None:
         return folder / name if (folder / name).is_file() else None
 
-    names = ((metadata or {}).get("object_masks") or {}).get("objects")
+    masks = (metadata or {}).get("object_masks") or {}
+    if not isinstance(masks, dict):
+        raise ValueError(f"{folder / 'sequence.json'}: object_masks is {masks!r}; expected an "
+                         "object with the key objects")
+    names = masks.get("objects")
+    if names is not None and not isinstance(names, list):
+        raise ValueError(f"{folder / 'sequence.json'}: object_masks.objects is {names!r}; "
+                         "expected a list of object names")
     frame_camera = None
     if (folder / FRAME_CAMERA_FOLDER).is_dir():
         frame_camera = _load_frame_camera(folder / FRAME_CAMERA_FOLDER, metadata)

@@ -42,7 +42,13 @@ from sim.scene import MAX_ILLUMINANCE_LUX
 from sim.sequence import load_sequence
 from sim.statistics import frame_noise
 from sim.textures import linear_to_srgb
-from sim.validation import ParameterError, check_parameter, depth_metres, positive
+from sim.validation import (
+    PLAUSIBLE_DEPTH_M,
+    ParameterError,
+    check_parameter,
+    depth_metres,
+    positive,
+)
 
 __all__ = ["write_twin"]
 
@@ -50,6 +56,11 @@ __all__ = ["write_twin"]
 def _window_poses(trajectory, t0: float, t1: float) -> np.ndarray:
     times = np.linspace(t0, t1, 64)
     return trajectory.pose(times)
+
+
+_MAX_POSTER_PIXELS = 2**28
+"""The largest poster (pixels, one byte each): a depth so small that the camera's motion over the
+window is thousands of views wide is refused before the padding is allocated."""
 
 
 def write_twin(recording: str | Path, out: str | Path, depth: float,
@@ -143,8 +154,17 @@ def write_twin(recording: str | Path, out: str | Path, depth: float,
     first = np.linalg.inv(poses[0])
     centres = (first @ poses)[:, :3, 3]
     shift = np.abs(centres[:, :2]).max(axis=0) * 1.1 + 1e-3
-    pad_x = int(math.ceil(shift[0] / width_m * camera.width))
-    pad_y = int(math.ceil(shift[1] / height_m * camera.height))
+    with np.errstate(over="ignore", divide="ignore"):     # a tiny depth: inf, refused below
+        pad = (shift[0] / width_m * camera.width, shift[1] / height_m * camera.height)
+        pixels = (camera.width + 2 * pad[0]) * (camera.height + 2 * pad[1])
+    if not pixels <= _MAX_POSTER_PIXELS:
+        raise ParameterError(
+            f"{{depth}} {depth:g} m: the camera moves {float(shift.max()):.3g} m over the window, "
+            f"{max(pad[0] / camera.width, pad[1] / camera.height):.3g} times the view's width "
+            f"at that depth: the poster would need {pixels:.3g} pixels (at most "
+            f"{_MAX_POSTER_PIXELS:.3g}); expected the depth of the scene in metres",
+            depth="depth")
+    pad_x, pad_y = (int(math.ceil(p)) for p in pad)
     poster = cv2.copyMakeBorder(undistorted, pad_y, pad_y, pad_x, pad_x, cv2.BORDER_REFLECT)
     size = (width_m * poster.shape[1] / camera.width, height_m * poster.shape[0] / camera.height)
     centre_cam = np.array([left + size[0] / 2 - pad_x * width_m / camera.width,
@@ -181,7 +201,7 @@ name = "{name}"
 description = "Twin of {recording.resolve().name}: its camera and poses, poster at {depth} m"
 # the recording's {t0:.6f}-{t1:.6f} s; twin time = recording time - {t0:.6f}
 duration = {duration:.9f}
-depth_range = [{depth / 2:.6g}, {depth * 2:.6g}]
+depth_range = [{depth / 2:.6g}, {min(depth * 2, PLAUSIBLE_DEPTH_M):.6g}]
 seed = 1
 
 [camera]

@@ -14,11 +14,13 @@ derandomized); ``benchmarks/fuzz.py`` runs them for many thousands of cases.
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
 import hashlib
 import io
 import json
 import math
+import os
 import re
 import tempfile
 import tomllib
@@ -668,8 +670,6 @@ NUMERIC_FLAGS = {
             "--median", "--ref-time"),
     "fill": ("--threshold", "--min-region", "--ring", "--min-ring-ratio", "--max-inside-ratio",
              "--sigma", "--scale"),
-    "simulate": ("--duration", "--start", "--seed", "--spp", "--contrast", "--lambda",
-                 "--min-rate", "--max-rate"),
 }
 _NON_FINITE = re.compile(r"^[+-]?(nan|inf|infinity)$", re.IGNORECASE)
 
@@ -755,54 +755,672 @@ _EXPENSIVE = {"--planes": 1000, "--kernel": 1001}
 
 
 def check_flag(case: tuple[str, str, str]) -> None:
-    """``evfuse CMD INPUT --out OUT FLAG VALUE``. map and fill run on a tiny real recording and
-    its map (:func:`tiny_inputs`) to the end; simulate parses its scene and stops at an existing
-    non-empty ``--out``. Exit 0 with finite figures (stdout and the JSON written), or exit 2
-    with one ``evfuse CMD: error:`` line (after argparse's usage lines, for a value it cannot
-    convert) and nothing left behind; a non-finite value must be refused by its flag's name.
-    The inputs never change."""
+    """``evfuse CMD INPUT --out OUT FLAG VALUE`` for map and fill, which run on a tiny real
+    recording and its map (:func:`tiny_inputs`) to the end (simulate's flags:
+    :func:`check_simulate_flags`). Exit 0 with finite figures (stdout and the JSON written), or
+    exit 2 with one ``evfuse CMD: error:`` line (after argparse's usage lines, for a value it
+    cannot convert) and nothing left behind; a non-finite value must be refused by its flag's
+    name. The inputs never change."""
     command, flag, value = case
     tiny = tiny_inputs()
     with scratch() as folder:
         out = folder / "out"
-        if command == "simulate":
-            scene = folder / "tiny.toml"
-            scene.write_text(scene_text(WALL, duration=0.1))
-            out.mkdir()
-            (out / "keep.txt").write_text("mine")
-            argv = ["simulate", str(scene), "--out", str(out), flag, value, "--quiet"]
-            inputs: tuple[Path, ...] = (scene, out)
-        else:
-            source = tiny["sequence"] if command == "map" else tiny["map"]
-            try:
-                if flag in _EXPENSIVE and abs(float(value)) > _EXPENSIVE[flag]:
-                    source = folder / "nosuch"
-            except ValueError:
-                pass
-            argv = [command, str(source), "--out", str(out), flag, value]
-            argv += ["--quiet"] if command == "map" else []
-            inputs = (tiny["sequence"], tiny["map"])
-        before = file_hashes(*inputs)
-        status, stdout, stderr = run_cli(argv)
-        assert file_hashes(*inputs) == before, "the input was modified"
-        lines = [line for line in stderr.splitlines() if line.strip()]
-        errors = [line for line in lines if not line.startswith(("usage:", " "))]
-        assert status in (0, 2), f"exit {status}: {stderr!r}"
-        if status == 2:
-            assert len(errors) == 1, f"not one error line: {lines!r}"
-            assert errors[0].startswith(f"evfuse {command}: error:"), errors[0]
-            if is_non_finite(value):
-                assert flag in errors[0], f"{flag} {value} refused without naming it: {errors[0]}"
-            if command != "simulate":
-                assert not out.exists(), "a refused command left its --out folder"
-        else:
+        source = tiny["sequence"] if command == "map" else tiny["map"]
+        try:
+            if flag in _EXPENSIVE and abs(float(value)) > _EXPENSIVE[flag]:
+                source = folder / "nosuch"
+        except ValueError:
+            pass
+        argv = [command, str(source), "--out", str(out), flag, value]
+        argv += ["--quiet"] if command == "map" else []
+        check_cli(argv, folder, out, (tiny["sequence"], tiny["map"]), ((flag, value),),
+                  complete=_json_finite)
+
+
+# --- the command line's contract, for any command ----------------------------------------------
+
+def _cli_error_lines(stderr: str) -> list[str]:
+    """The lines of standard error that are not argparse's usage lines nor a progress bar."""
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    return [line for line in lines if not line.startswith(("usage:", " "))
+            and not line.startswith("evfuse: rendering with")]
+
+
+def _partials(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if ".partial" in p.name)
+
+
+def _json_finite(out: Path) -> None:
+    for path in (out.glob("*.json") if out.is_dir() else ()):
+        _strict_json(path)
+
+
+def check_cli(argv: list[str], folder: Path, out: Path, inputs: tuple[Path, ...],
+              flags: tuple[tuple[str, str], ...] = (),
+              complete: Callable[[Path], None] | None = None,
+              allowed: tuple[str, ...] = ()) -> tuple[Any, str, str]:
+    """Run ``evfuse ARGV`` in this process and check the command line's contract.
+
+    Exit 0 with a complete output (``complete(out)``, when given) and no non-finite figure on
+    standard output; or exit 2 with exactly one ``evfuse CMD: error:`` line on standard error
+    (after argparse's usage lines, for a value it cannot convert) that names the flag of a
+    non-finite value (one of the case's flags, when it has several), and no ``out`` left
+    behind. Never another status (a traceback, or
+    ``unexpected error``); never a ``.partial`` left anywhere in ``folder``; never a new entry of
+    ``folder`` other than ``out`` and ``allowed``; the files of ``inputs`` never change.
+
+    Returns
+    -------
+    (status, stdout, stderr)
+    """
+    command = argv[0]
+    before_entries = {p.name for p in folder.iterdir()}
+    before = file_hashes(*[p for p in inputs if p.exists()])
+    status, stdout, stderr = run_cli(argv)
+    assert file_hashes(*[p for p in inputs if p.exists()]) == before, "the input was modified"
+    errors = _cli_error_lines(stderr)
+    assert status in (0, 2), f"exit {status}: {stderr.strip()[-600:]!r}"
+    if status == 2:
+        assert len(errors) == 1, f"not one error line: {errors!r}"
+        assert errors[0].startswith(f"evfuse {command}: error:"), errors[0]
+        non_finite_flags = [flag for flag, value in flags if is_non_finite(value)]
+        if len(non_finite_flags) == len(flags) == 1:
+            assert flags[0][0] in errors[0], \
+                f"{flags[0][0]} {flags[0][1]} refused without naming it: {errors[0]}"
+        elif non_finite_flags:                   # some flag of the case is to be named
+            assert any(flag in errors[0] for flag, _ in flags), \
+                f"{flags} refused without naming any: {errors[0]}"
+        assert not out.exists(), f"a refused command left {out.name}"
+    else:
+        for flag, value in flags:
             assert not is_non_finite(value), f"exit 0 with {flag} {value}"
-            assert not re.search(r"\b(nan|inf)\b", stdout, re.IGNORECASE), \
-                f"exit 0 with a non-finite figure: {stdout!r}"
-            for path in out.glob("*.json"):
-                _strict_json(path)
-        leftovers = sorted(p.name for p in folder.iterdir() if p.name not in ("tiny.toml", "out"))
-        assert not leftovers, f"left behind: {leftovers}"
+        assert not re.search(r"\b(nan|inf)\b", stdout, re.IGNORECASE), \
+            f"exit 0 with a non-finite figure: {stdout!r}"
+        if complete is not None:
+            complete(out)
+    partials = _partials(folder)
+    assert not partials, f"exit {status} left {partials}"
+    new = sorted({p.name for p in folder.iterdir()} - before_entries - {out.name, *allowed})
+    assert not new, f"exit {status} left behind: {new}"
+    return status, stdout, stderr
+
+
+# --- evfuse simulate: values that reach the simulation ------------------------------------------
+
+TINY_CAMERA = "[camera]\nwidth = 16\nheight = 12\nfx = 15.0\nfy = 11.0\ncx = 7.5\ncy = 5.5\n"
+TINY_SCENE = scene_text(WALL, camera=TINY_CAMERA, duration=0.02,
+                        extra="[frames]\nrate = 200.0\nexposure = 0.001\n")
+"""A 16x12 sensor over 0.02 s with frames at 200 Hz: a simulation of a tenth of a second, so
+that a flag's value that passes validation reaches the work (events, frames, depth)."""
+
+SIMULATE_FLAGS = ("--duration", "--start", "--seed", "--spp", "--contrast", "--lambda",
+                  "--min-rate", "--max-rate")
+SIMULATE_WORDS = {"--sampler": ("pixel", "frame", "x", ""),
+                  "--noise": ("ideal", "realistic", "x"),
+                  "--frame-sensor": ("ideal", "davis240c_aps", "machine_vision", "nosuch"),
+                  "--event-format": ("txt", "h5", "txt,h5", "x", ""),
+                  "--rig": ("perfect", "mocap", "lab", "x")}
+_SIMULATE_VALUES = ("4294967295", "4294967296", "18446744073709551616", "2147483648", "-1",
+                    "100000000", "1000000", "65536", "1e-12", "0.001", "0.01", "0.015")
+
+
+@st.composite
+def _simulate_case(draw: Any) -> list[tuple[str, str]]:
+    """One to three of simulate's flags, each with a value: numbers (ordinary, huge, tiny,
+    non-finite, the seed's and spp's edges) or a choice's words."""
+    pairs = []
+    for _ in range(draw(st.integers(1, 3))):
+        flag = draw(st.sampled_from([*SIMULATE_FLAGS, *SIMULATE_FLAGS, *SIMULATE_WORDS]))
+        if flag in SIMULATE_WORDS:
+            value = draw(st.sampled_from(SIMULATE_WORDS[flag]))
+        else:
+            value = draw(st.one_of(number_text(), st.sampled_from(_SIMULATE_VALUES)))
+        pairs.append((flag, value))
+    return pairs
+
+
+SIMULATE_CASES = _simulate_case()
+
+
+def _complete_sequence(out: Path) -> None:
+    """A finished sequence folder: its marker, ``sequence.json`` (strict JSON, finite) and
+    every file its indexes list."""
+    from sim.output import MARKER
+    from sim.sequence import load_sequence
+
+    assert out.is_dir(), "exit 0 without the --out folder"
+    assert (out / MARKER).is_file(), "exit 0 without the folder's marker"
+    _strict_json(out / "sequence.json")
+    load_sequence(out)
+
+
+def _runs_long(flag: str, value: str) -> bool:
+    """Values for which the tiny simulation runs long by design (render rates past 100 kHz, a
+    few thousand renders of 65,536 samples per pixel): such a case stops at a missing scene
+    instead. A value that cannot fit this machine's memory (spp 10^8 and more) still reaches
+    the simulation: it must be refused before any work (issue 39, item 7)."""
+    try:
+        number = float(value)
+    except ValueError:
+        return False
+    if flag in ("--min-rate", "--max-rate"):
+        return number > 1e5
+    return flag == "--spp" and 256 < number < 1e8
+
+
+def check_simulate_flags(pairs: list[tuple[str, str]]) -> None:
+    """``evfuse simulate TINY --out FRESH FLAG VALUE ...`` with a fresh ``--out`` for every case
+    and a tiny scene (:data:`TINY_SCENE`, ``--spp 1`` unless the case sets it), so that values
+    that pass validation reach the simulation: :func:`check_cli`'s contract, and a complete
+    sequence folder on success."""
+    with scratch() as folder:
+        scene = folder / "tiny.toml"
+        scene.write_text(TINY_SCENE)
+        out = folder / "out"
+        argv = ["simulate", str(scene), "--out", str(out), "--quiet"]
+        if not any(flag == "--spp" for flag, _ in pairs):
+            argv += ["--spp", "1"]
+        for flag, value in pairs:
+            argv += [flag, value]
+        if any(_runs_long(flag, value) for flag, value in pairs):
+            argv[1] = str(folder / "nosuch.toml")
+        check_cli(argv, folder, out, (scene,), tuple(pairs), complete=_complete_sequence)
+
+
+# --- sweep files (sim.dataset.parse_sweep) ------------------------------------------------------
+
+BASE_SWEEP = """name = "fuzz"
+description = "the fuzz's sweep"
+seeds = [1, 2]
+
+[[scenes]]
+file = "tiny.toml"
+
+[[scenes]]
+family = "sphere"
+radius = 0.3
+
+[grid]
+sensor = "16x12"
+t0 = 0.0
+t1 = 0.01
+spp = 1
+
+[draw]
+contrast = { uniform = [0.15, 0.3] }
+"""
+"""A valid sweep of 4 jobs (a scene file beside it, and a bench family's member)."""
+
+_SWEEP_VALUES = (4294967295, 4294967296, 2**63 - 1, -1, 0, "100000x100000", "16x12", "0x12",
+                 "65536x65536", "1x1", "48x36 ", 100000000, 4, 9, 1e308, float("nan"),
+                 {"first": 4294967295, "count": 2}, {"first": 0, "count": 10**9},
+                 {"uniform": [0.1, 1e308]}, {"integer": [0, 2**63 - 1]}, {"choice": []},
+                 "slider_close", "nosuch", "tabletop")
+
+
+_GENERATE_EDGES = {"seeds": ([4294967296], [2**63 - 1], {"first": 4294967295, "count": 2}),
+                   "sensor": ("100000x100000", "1000000x1000000", "1x1", "8x6"),
+                   "spp": (100000000, 4, 2**62), "t1": (1e-9, 0.005, 1e308),
+                   "contrast": (1e-300, 1e308, 0.3), "max_rate": (1e308, 1e-9),
+                   "lam": (1e-300, 1e308, -1.0)}
+"""Edge values of the keys that size a job (item 6: seeds past uint32; item 7: sizes)."""
+
+
+def _set_edge(draw: Any, table: dict) -> None:
+    """Set one key that sizes a sweep's jobs (seeds, or a [grid] value) to an edge value."""
+    key = draw(st.sampled_from(sorted(_GENERATE_EDGES)))
+    value = copy.deepcopy(draw(st.sampled_from(_GENERATE_EDGES[key])))   # later edits change it
+    if key == "seeds":
+        table["seeds"] = value
+    else:
+        table["grid"][key] = value
+
+
+@st.composite
+def sweep_tables(draw: Any) -> str:
+    """A sweep document: the valid base with one to three leaves replaced (by TOML values or
+    the sweep's edges: huge seeds, sensors, spp), removed or joined by an unknown key; or the
+    base's text mutated (truncated, bytes overwritten, lines dropped, ...)."""
+    if draw(st.integers(0, 3)) == 0:
+        return draw(mutated(BASE_SWEEP.encode())).decode("utf-8", "replace")
+    table = tomllib.loads(BASE_SWEEP)
+    if draw(st.integers(0, 2)) == 0:                  # the keys that size a job, at their edges
+        _set_edge(draw, table)
+    for _ in range(draw(st.integers(0, 3))):
+        path = draw(st.sampled_from(_paths(table)))
+        parent = table
+        for step in path[:-1]:
+            parent = parent[step]
+        kind = draw(st.sampled_from(["replace", "replace", "edge", "edge", "delete",
+                                     "unknown"]))
+        if kind == "replace":
+            parent[path[-1]] = draw(toml_values())
+        elif kind == "edge":
+            parent[path[-1]] = copy.deepcopy(draw(st.sampled_from(_SWEEP_VALUES)))
+        elif kind == "delete":
+            del parent[path[-1]]
+        elif isinstance(parent, dict):
+            parent[draw(st.sampled_from(["unknown", "Seeds", "sensor", "noise", "spp"]))] = \
+                copy.deepcopy(draw(st.one_of(toml_values(), st.sampled_from(_SWEEP_VALUES))))
+    return toml_document_nested(table)
+
+
+def toml_document_nested(table: dict) -> str:
+    """``table`` as a TOML document: values and inline tables at the top, then its tables and
+    arrays of tables (one level deep, as a sweep's)."""
+    head = {k: v for k, v in table.items()
+            if not isinstance(v, dict) and not (isinstance(v, list) and v
+                                                and all(isinstance(i, dict) for i in v))}
+    text = toml_document(head)
+    for key, value in table.items():
+        if key in head:
+            continue
+        if isinstance(value, dict):
+            text += f"\n[{toml_key(key)}]\n" + toml_document(value)
+        else:
+            for item in value:
+                text += f"\n[[{toml_key(key)}]]\n" + toml_document(item)
+    return text
+
+
+SWEEP_FILE_CASES = sweep_tables()
+
+_PHYSICAL_MEMORY = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+_SEED_LIMIT = 2**32
+"""Mitsuba's sampler seed is a uint32: a larger seed cannot reach the renders."""
+
+
+def check_job_sizes(jobs: Any) -> None:
+    """Every job of an accepted sweep can run: its seed fits the renders' uint32 seed, and one
+    float32 value per pixel (per sample, with spp) fits this machine's memory (a lower bound on
+    what a job needs: a refusal is due long before)."""
+    for job in jobs:
+        assert 0 <= job.seed < _SEED_LIMIT, f"a job with seed {job.seed} accepted"
+        sensor = job.params.get("sensor")
+        if sensor:
+            width, height = (int(v) for v in sensor.split("x"))
+            need = width * height * 4 * int(job.params.get("spp", 1))
+            assert need <= _PHYSICAL_MEMORY, \
+                f"a job of sensor {sensor} (spp {job.params.get('spp', 1)}) accepted: " \
+                f"{need / 2**30:.1f} GiB for one value per sample"
+        assert_finite(job.params)
+
+
+def check_sweep_file(text: str) -> None:
+    """A sweep file (beside a tiny scene file) through :func:`sim.dataset.load_sweep`: one line
+    naming the file, or jobs that can run (:func:`check_job_sizes`)."""
+    from sim.dataset import load_sweep
+
+    with scratch() as folder:
+        (folder / "tiny.toml").write_text(TINY_SCENE)
+        path = folder / "sweep.toml"
+        path.write_text(text, encoding="utf-8")
+        sweep = refused_or_result(lambda: load_sweep(path), (folder,), (str(path),))
+        if sweep is not None:
+            assert sweep.jobs, "a sweep of no jobs accepted"
+            check_job_sizes(sweep.jobs)
+
+
+# --- evfuse generate: flags and sweeps that reach the jobs --------------------------------------
+
+GENERATE_SWEEP = """seeds = [1]
+
+[[scenes]]
+file = "tiny.toml"
+
+[grid]
+sensor = "16x12"
+t1 = 0.01
+spp = 1
+"""
+"""One job of the tiny scene: a tenth of a second."""
+
+GENERATE_FLAGS = ("--workers", "--threads", "--retries", "--gpu-per-job")
+@st.composite
+def _generate_case(draw: Any) -> tuple[str, list[tuple[str, str]]]:
+    """A one-job sweep with at most one edge value (a seed, a sensor, spp, ...), and zero to
+    two of generate's flags with values."""
+    table = tomllib.loads(GENERATE_SWEEP)
+    if draw(st.booleans()):
+        _set_edge(draw, table)
+    pairs = []
+    for _ in range(draw(st.integers(0, 2))):
+        flag = draw(st.sampled_from(GENERATE_FLAGS))
+        pairs.append((flag, draw(st.one_of(number_text(), st.sampled_from(
+            ["0", "1", "2", "-1", "0.5", "1e308"])))))
+    return toml_document_nested(table), pairs
+
+
+GENERATE_CASES = _generate_case()
+
+
+def _complete_dataset(out: Path) -> None:
+    from sim.dataset import open_dataset
+    from sim.output import MARKER
+
+    assert (out / MARKER).is_file(), "exit 0 without the dataset's marker"
+    dataset = open_dataset(out)
+    assert len(dataset) >= 1
+
+
+def check_generate(case: tuple[str, list[tuple[str, str]]]) -> None:
+    """``evfuse generate SWEEP --out FRESH --workers 0 FLAG VALUE ...``: the one job runs in this
+    process (``--workers 0``, unless the case sets it: a positive number would start a Dask
+    cluster, so such a case stops at a missing sweep instead). :func:`check_cli`'s contract,
+    and a complete dataset on success."""
+    text, pairs = case
+    with scratch() as folder:
+        (folder / "tiny.toml").write_text(TINY_SCENE)
+        sweep = folder / "sweep.toml"
+        sweep.write_text(text)
+        out = folder / "out"
+        workers = dict(pairs).get("--workers")
+        try:
+            if workers is not None and float(workers) > 0:
+                sweep = folder / "nosuch.toml"
+        except ValueError:
+            pass
+        argv = ["generate", str(sweep), "--out", str(out), "--quiet"]
+        argv += [] if workers is not None else ["--workers", "0"]
+        for flag, value in pairs:
+            argv += [flag, value]
+        check_cli(argv, folder, out, (folder / "tiny.toml", folder / "sweep.toml"),
+                  tuple(pairs), complete=_complete_dataset)
+
+
+# --- evfuse twin ------------------------------------------------------------------------------
+
+@st.composite
+def _twin_case(draw: Any) -> list[tuple[str, str]]:
+    pairs = [("--depth", draw(st.one_of(number_text(), st.sampled_from(["2.0", "0.5"]))))]
+    for _ in range(draw(st.integers(0, 3))):
+        flag = draw(st.sampled_from(["--window", "--illuminance", "--frame-gamma",
+                                     "--frame-sensor"]))
+        if flag == "--window":
+            value = draw(st.one_of(
+                st.tuples(number_text(), number_text()).map(",".join),
+                st.sampled_from(["0.1,0.9", "0,1", "0.5,0.5", "0.9,0.1", "0.1", "a,b",
+                                 "0.1,0.9,1", "-1,2", "0,1e308"])))
+        elif flag == "--frame-sensor":
+            value = draw(st.sampled_from(["ideal", "davis240c_aps", "machine_vision", "x"]))
+        else:
+            value = draw(number_text())
+        pairs.append((flag, value))
+    return pairs
+
+
+TWIN_CASES = _twin_case()
+
+
+def _complete_twin(out: Path) -> None:
+    """A twin's folder: a scene that ``evfuse simulate`` accepts (it parses, and every figure
+    is finite)."""
+    from sim.scene import load_scene
+
+    scenes = sorted(out.glob("*.toml"))
+    assert scenes, "exit 0 without a scene"
+    for scene in scenes:
+        try:
+            parsed = load_scene(scene)
+        except ValueError as exc:
+            raise AssertionError(f"exit 0 with a scene that simulate refuses: {exc}") from None
+        assert_finite(parsed)
+
+
+def check_twin(pairs: list[tuple[str, str]]) -> None:
+    """``evfuse twin TINY_RECORDING --depth D --out FRESH FLAG VALUE ...``."""
+    tiny = tiny_inputs()
+    with scratch() as folder:
+        out = folder / "out"
+        argv = ["twin", str(tiny["sequence"]), "--out", str(out)]
+        for flag, value in pairs:
+            argv += [flag, value]
+        check_cli(argv, folder, out, (tiny["sequence"],), tuple(pairs), complete=_complete_twin)
+
+
+# --- evfuse convert ----------------------------------------------------------------------------
+
+@st.composite
+def _convert_case(draw: Any) -> tuple[str, str, str | None]:
+    source = draw(st.sampled_from(["events.txt", "events.h5"]))
+    destination = draw(st.sampled_from(["out.h5", "out.txt", "out.png", "out", "out.H5",
+                                        "out.txt.h5"]))
+    sensor = draw(st.one_of(st.none(), st.sampled_from(
+        ["64x48", "16x12", "0x0", "100000x100000", "65535x65535", "65536x1", "-1x5", "x",
+         "64X48", " 64x48", "1e3x2", "nan x nan", "4294967296x1"]),
+        st.tuples(number_text(), number_text()).map("x".join)))
+    return source, destination, sensor
+
+
+CONVERT_CASES = _convert_case()
+
+
+def _complete_events(out: Path) -> None:
+    from sim.eventio import read_events
+
+    assert out.is_file(), "exit 0 without DST"
+    check_event_array(read_events(out, WIDTH, HEIGHT) if out.suffix == ".txt"
+                      else read_events(out))
+
+
+def check_convert(case: tuple[str, str, str | None]) -> None:
+    """``evfuse convert SRC DST [--sensor WxH]`` from the tiny recording's events (text, or
+    HDF5 made once from them) to a fresh DST."""
+    source_name, destination, sensor = case
+    tiny = tiny_inputs()
+    if "h5" not in tiny:
+        status, _, err = run_cli(["convert", str(tiny["sequence"] / "events.txt"),
+                                  str(tiny["sequence"].parent / "events.h5"),
+                                  "--sensor", f"{WIDTH}x{HEIGHT}"])
+        assert status == 0, err
+        tiny["h5"] = tiny["sequence"].parent / "events.h5"
+    source = tiny["sequence"] / "events.txt" if source_name == "events.txt" else tiny["h5"]
+    with scratch() as folder:
+        out = folder / destination
+        argv = ["convert", str(source), str(out)]
+        argv += [] if sensor is None else ["--sensor", sensor]
+        check_cli(argv, folder, out, (source,), complete=_complete_events)
+
+
+# --- evfuse bench: flags up to the run -----------------------------------------------------------
+
+_BENCH_RUNS: list[dict] = []
+
+
+def _stub_run_bench(methods: Any, scenes: Any, inputs: Any, out: Any, **kwargs: Any) -> list:
+    """Stands for ``run_bench`` (a real run of one family member takes 30-60 s here): records
+    what reached it, and writes nothing."""
+    _BENCH_RUNS.append({"methods": methods, "scenes": scenes, "inputs": inputs, **kwargs})
+    return []
+
+
+@st.composite
+def _bench_case(draw: Any) -> list[tuple[str, str]]:
+    from sim.scene.families import FAMILIES, KNOBS
+
+    family = draw(st.sampled_from([*sorted(FAMILIES), "nosuch", ""]))
+    pairs = [("--family", family)]
+    for _ in range(draw(st.integers(0, 3))):
+        flag = draw(st.sampled_from([*(f"--{k.replace('_', '-')}" for k in KNOBS), "--noise",
+                                     "--outliers", "--input"]))
+        if flag == "--input":
+            value = draw(st.sampled_from(["oracle", "emvs", "oracle,emvs", "x", "", ","]))
+        elif flag in ("--noise", "--outliers"):
+            value = draw(number_text())
+        else:
+            value = draw(st.one_of(number_text(), st.lists(number_text(), min_size=1,
+                                                           max_size=3).map(",".join)))
+        pairs.append((flag, value))
+    return pairs
+
+
+BENCH_CASES = _bench_case()
+
+
+def check_bench(pairs: list[tuple[str, str]]) -> None:
+    """``evfuse bench --family F --KNOB V,... --out FRESH`` with ``run_bench`` replaced by a
+    stub (:func:`_stub_run_bench`): the flags' parsing and checking, the family's scenes
+    written into the cache, and the contract up to the run. A case that reaches the run must
+    have made scenes that parse with finite figures."""
+    from unittest import mock
+
+    from sim.scene import load_scene
+
+    with scratch() as folder:
+        out = folder / "out"
+        argv = ["bench", "--out", str(out), "--quiet"]
+        for flag, value in pairs:
+            argv += [flag, value]
+        _BENCH_RUNS.clear()
+        with mock.patch("fusion.experiments.bench.run_bench", _stub_run_bench):
+            status, _, _ = check_cli(argv, folder, out, (), tuple(pairs),
+                                     allowed=("out-cache",))
+        if status == 2:
+            cache = folder / "out-cache"
+            assert not cache.exists() or any(cache.rglob("*")), \
+                "a refused bench left an empty cache folder"
+        for run in _BENCH_RUNS:
+            for scene in run["scenes"]:
+                if Path(scene).suffix == ".toml":           # a family's member, not a name
+                    assert_finite(load_scene(scene))
+
+
+# --- sequence.json ------------------------------------------------------------------------------
+
+_SIMULATED: dict[str, Path] = {}
+
+
+def tiny_simulated() -> Path:
+    """A sequence folder simulated from :data:`TINY_SCENE` (made once per process)."""
+    if "out" not in _SIMULATED:
+        import atexit
+        import shutil
+
+        root = Path(tempfile.mkdtemp(prefix="evfuse-fuzz-simulated-"))
+        atexit.register(shutil.rmtree, root, ignore_errors=True)
+        (root / "tiny.toml").write_text(TINY_SCENE)
+        status, _, err = run_cli(["simulate", str(root / "tiny.toml"), "--out",
+                                  str(root / "seq"), "--quiet", "--spp", "1"])
+        assert status == 0, err
+        _SIMULATED["out"] = root / "seq"
+    return _SIMULATED["out"]
+
+
+@st.composite
+def _sequence_json_case(draw: Any) -> bytes:
+    base = (tiny_simulated() / "sequence.json").read_bytes()
+    kind = draw(st.integers(0, 3))
+    if kind == 0:
+        return draw(mutated(base))
+    table = json.loads(base)
+    for _ in range(draw(st.integers(1, 3))):
+        paths = _paths(table)
+        if not paths:
+            break
+        path = draw(st.sampled_from(paths))
+        parent = table
+        for step in path[:-1]:
+            parent = parent[step]
+        if draw(st.integers(0, 4)) == 0 and isinstance(parent, dict):
+            del parent[path[-1]]
+        else:
+            parent[path[-1]] = draw(st.one_of(toml_values(), st.sampled_from(
+                [None, [], {}, "", 0, -1, 10**30, 1e308, 4294967296, "16x12"])))
+    return json.dumps(table, allow_nan=True).encode()
+
+
+SEQUENCE_JSON_CASES = _sequence_json_case()
+
+
+def check_sequence_json(data: bytes) -> None:
+    """A mutated ``sequence.json`` of a simulated sequence, through
+    :func:`sim.sequence.read_sequence_json` and :func:`sim.sequence.load_sequence` (the folder's
+    other files intact): one line naming the file or folder, or finite figures."""
+    import shutil
+
+    from sim.sequence import load_sequence, read_sequence_json
+
+    with scratch() as folder:
+        sequence = folder / "seq"
+        shutil.copytree(tiny_simulated(), sequence)
+        path = write_case(sequence, "sequence.json", data)
+        names = (str(path), str(sequence))
+        metadata = refused_or_result(lambda: read_sequence_json(path), (path,), names)
+        if metadata is not None:
+            assert non_finite(metadata) is None
+        loaded = refused_or_result(lambda: load_sequence(sequence), (sequence,), names)
+        if loaded is not None:
+            assert_finite(loaded)
+
+
+# --- depth EXR (sim.exr.read_depth) -------------------------------------------------------------
+
+@st.composite
+def _exr_case(draw: Any) -> dict:
+    """An EXR written with odd channels (names, dtypes, shapes, values), or a valid depth map's
+    bytes truncated or overwritten."""
+    if draw(st.booleans()):
+        return {"bytes": True, "truncate": draw(st.booleans()), "at": draw(st.integers(0, 10**6)),
+                "junk": draw(st.binary(min_size=1, max_size=64))}
+    names = draw(st.lists(st.sampled_from(["Z", "Z", "R", "G", "depth", "z", "Z.Z"]),
+                          min_size=0, max_size=3, unique=True))
+    return {"bytes": False, "names": names,
+            "dtype": draw(st.sampled_from(["f4", "f4", "f2", "u4"])),
+            "shape": draw(st.sampled_from([(12, 16), (1, 1), (1, 300), (300, 1), (12, 16)])),
+            "values": draw(st.lists(st.floats(allow_nan=True, allow_infinity=True,
+                                              width=32), min_size=1, max_size=4)),
+            "uniform": draw(st.sampled_from([0.0, 1.0, 2.5, 65504.0, 1e38]))}
+
+
+EXR_CASES = _exr_case()
+
+
+def _write_exr_case(path: Path, case: dict) -> None:
+    import OpenEXR
+
+    if case["bytes"]:
+        depth = sorted((tiny_simulated() / "depth").glob("*.exr"))[0]
+        data = bytearray(depth.read_bytes())
+        at = case["at"] % max(len(data), 1)
+        if case["truncate"]:
+            data = data[:at]
+        else:
+            data[at:at + len(case["junk"])] = case["junk"]
+        path.write_bytes(bytes(data))
+        return
+    height, width = case["shape"]
+    channels = {}
+    for name in case["names"]:
+        values = np.full((height, width), case["uniform"], np.float64)
+        flat = values.reshape(-1)
+        count = min(len(case["values"]), flat.size)
+        flat[:count] = case["values"][:count]
+        with np.errstate(invalid="ignore", over="ignore"):
+            if case["dtype"] == "u4":
+                array = np.nan_to_num(np.abs(values), posinf=0.0).clip(0, 2**32 - 1)
+                array = array.astype(np.uint32)
+            else:
+                array = values.astype(case["dtype"])
+        channels[name] = np.ascontiguousarray(array)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if not channels:
+        channels = {"R": np.zeros((height, width), np.float32)}
+    with OpenEXR.File(header, channels) as exr:
+        exr.write(str(path))
+
+
+def check_depth_exr(case: dict) -> None:
+    """A depth EXR with odd channels or damaged bytes through :func:`sim.exr.read_depth`: one
+    line naming the file, or an (H, W) float32 map of finite depths >= 0."""
+    from sim.exr import read_depth
+
+    with scratch() as folder:
+        path = folder / "depth.exr"
+        _write_exr_case(path, case)
+        depth = refused_or_result(lambda: read_depth(path), (path,), (str(path),))
+        if depth is not None:
+            assert depth.ndim == 2 and depth.dtype == np.float32
+            assert np.isfinite(depth).all() and (depth >= 0).all()
 
 
 # --- the table of targets ------------------------------------------------------------------------
@@ -816,10 +1434,23 @@ TARGETS: dict[str, tuple[st.SearchStrategy, Callable[[Any], None]]] = {
     "events.h5 (sim.eventio readers)": (H5_CASES, check_events_h5),
     "method parameters (--method/--param)": (PARAM_CASES, check_params),
     "sweep parameters (bench --family knobs)": (SWEEP_CASES, check_sweep),
-    "numeric flags (evfuse map/fill/simulate)": (FLAG_CASES, check_flag),
+    "numeric flags (evfuse map/fill)": (FLAG_CASES, check_flag),
     "numeric flags, finite values only": (
         FLAG_CASES.filter(lambda case: not is_non_finite(case[2])), check_flag),
+    "sweep files (sim.dataset.load_sweep)": (SWEEP_FILE_CASES, check_sweep_file),
+    "sequence.json (read_sequence_json, load_sequence)": (SEQUENCE_JSON_CASES,
+                                                          check_sequence_json),
+    "depth EXR (sim.exr.read_depth)": (EXR_CASES, check_depth_exr),
+    "evfuse convert (SRC DST --sensor)": (CONVERT_CASES, check_convert),
+    "evfuse twin flags": (TWIN_CASES, check_twin),
+    "evfuse bench flags (up to the run)": (BENCH_CASES, check_bench),
+    "evfuse simulate flags (fresh --out, runs)": (SIMULATE_CASES, check_simulate_flags),
+    "evfuse generate flags and sweeps (runs)": (GENERATE_CASES, check_generate),
 }
+
+REACHING = ("evfuse simulate flags (fresh --out, runs)", "evfuse generate flags and sweeps (runs)")
+"""The targets whose accepted cases run a simulation (a tenth of a second to a few seconds
+each): the suite runs them for fewer cases, and benchmarks/fuzz.py for ``--reaching-examples``."""
 """Every fuzz target: its name, the strategy of its cases and the property a case must keep. The
 last one is for the long run (benchmarks/fuzz.py): Hypothesis stops a target at its first
 failure, and this one goes on past the non-finite values to the finite ones."""

@@ -6,6 +6,8 @@ the property-based search that found them.
 
 from __future__ import annotations
 
+import json
+
 import h5py
 import numpy as np
 import pytest
@@ -313,3 +315,110 @@ def test_scene_up_at_a_huge_scale_stays_a_unit_vector():
 
     scene = parse_scene(scene_text(WALL, extra="up = [1e308, 0.0, 1e308]"), "huge.toml")
     np.testing.assert_allclose(scene.up, [2**-0.5, 0.0, 2**-0.5])
+
+
+def test_depth_exr_with_a_damaged_header_names_the_file(tmp_path):
+    """One byte zeroed in the header (issue 39's fuzzing): OpenEXR's ValueError "Invalid part
+    index '0': file has 0 parts." came out alone, without the file's name."""
+    from sim.exr import read_depth, write_depth
+
+    path = tmp_path / "depth.exr"
+    write_depth(path, np.ones((12, 16), np.float32))
+    data = bytearray(path.read_bytes())
+    data[47] = 0
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError) as exc_info:
+        read_depth(path)
+    assert one_line(exc_info).startswith(f"cannot read EXR file {path}: ")
+
+
+def test_sweep_lam_outside_its_range_is_refused_naming_the_key():
+    """``[grid] lam = 1e308`` (issue 39's fuzzing): the sweep only checked that lam is finite,
+    so generate started and every job failed in SamplingParams (exit 1, the error in the
+    manifest) instead of a refusal before any work."""
+    from sim.dataset import parse_sweep
+
+    text = 'seeds = [1]\n[[scenes]]\nname = "slider_close"\n[grid]\nlam = 1e308\n'
+    with pytest.raises(ValueError) as exc_info:
+        parse_sweep(text, "s.toml")
+    assert one_line(exc_info) == "s.toml: grid.lam: lam must be in (0, 1], got 1e+308"
+    assert parse_sweep(text.replace("1e308", "1.0"), "s.toml").jobs[0].params == {"lam": 1.0}
+
+
+def test_twin_depth_so_small_that_the_poster_overflows_is_refused():
+    """``evfuse twin --depth 9.5e-148`` (issue 39's fuzzing): the poster's padding, the camera's
+    motion in views of that depth, overflowed OpenCV's int (exit 1, "unexpected error")."""
+    from sim.twin import write_twin
+    from sim.validation import ParameterError
+    from tests.fuzz_targets import tiny_inputs
+
+    with pytest.raises(ParameterError) as exc_info:
+        write_twin(tiny_inputs()["sequence"], "/nonexistent-out-twin", 9.5e-148)
+    assert one_line(exc_info).startswith("depth 9.5e-148 m: the camera moves 0.331 m over the "
+                                         "window")
+
+
+def test_sweep_max_rate_below_the_default_min_rate_is_refused_before_any_job():
+    """``[grid] max_rate = 1e-9`` (issue 39's long fuzz run): each parameter was checked alone,
+    so generate ran and every job failed in SamplingParams (min_rate 100 > max_rate)."""
+    from sim.dataset import parse_sweep
+
+    text = 'seeds = [1]\n[[scenes]]\nname = "slider_close"\n[grid]\nmax_rate = 1e-9\n'
+    with pytest.raises(ValueError) as exc_info:
+        parse_sweep(text, "s.toml")
+    assert one_line(exc_info) == ("s.toml: grid: a job with max_rate = 1e-09: SamplingParams "
+                                  "needs 0 < min_rate <= max_rate, got 100.0 and 1e-09")
+
+
+@pytest.mark.parametrize("masks", ["3", '{"objects": 7}'])
+def test_sequence_json_object_masks_of_the_wrong_type_names_the_file(tmp_path, masks):
+    """``"object_masks": 3`` in sequence.json (issue 39's long fuzz run): load_sequence died
+    with AttributeError ('int' object has no attribute 'get')."""
+    import shutil
+
+    from sim.sequence import load_sequence
+    from tests.fuzz_targets import tiny_simulated
+
+    folder = tmp_path / "seq"
+    shutil.copytree(tiny_simulated(), folder)
+    metadata = json.loads((folder / "sequence.json").read_text())
+    metadata["object_masks"] = json.loads(masks)
+    (folder / "sequence.json").write_text(json.dumps(metadata))
+    with pytest.raises(ValueError) as exc_info:
+        load_sequence(folder)
+    assert one_line(exc_info).startswith(f"{folder / 'sequence.json'}: object_masks")
+
+
+def test_twin_far_poster_writes_a_scene_that_simulate_accepts(tmp_path):
+    """``evfuse twin --depth 51`` (issue 39's long fuzz run): the scene's depth_range went to
+    [25.5, 102] and simulate refused it (depths above 100 m)."""
+    from sim.scene import load_scene
+    from sim.twin import write_twin
+    from tests.fuzz_targets import tiny_inputs
+
+    write_twin(tiny_inputs()["sequence"], tmp_path / "twin", 51.0)
+    load_scene(tmp_path / "twin" / "scene.toml")
+
+
+def test_bench_noise_out_of_range_is_refused_by_its_flag():
+    """``evfuse bench --noise 1.0`` (issue 39's long fuzz run): the refusal spoke of BenchParams'
+    "noise", no flag."""
+    from tests.fuzz_targets import run_cli
+
+    status, _, err = run_cli(["bench", "--family", "sphere", "--noise", "1.0", "--out",
+                              "/nonexistent-bench-out"])
+    assert status == 2
+    assert err.strip() == ("evfuse bench: error: --noise 1 --outliers 0.05: expected --noise in "
+                           "[0, 1) and --outliers in [0, 1]")
+
+
+@pytest.mark.parametrize("steps", [float("nan"), float("inf")])
+def test_staircase_steps_not_finite_is_refused_naming_the_knob(steps):
+    """``bench --family staircase --steps nan`` (issue 39's long fuzz run): the default step
+    depth was computed from round(steps) before the knob was checked (ValueError "cannot
+    convert float NaN to integer", OverflowError for inf)."""
+    from sim.scene.families import family_variants
+
+    with pytest.raises(ValueError) as exc_info:
+        family_variants("staircase", {"steps": [steps]})
+    assert one_line(exc_info) == f"steps {steps}: expected 1 to 12 for the staircase family"

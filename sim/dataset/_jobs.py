@@ -71,6 +71,14 @@ def _spp(name: str, value: object) -> int:
     return spp
 
 
+def _fraction(name: str, value: object) -> float:
+    """A number in (0, 1] (what :class:`~sim.sampling.SamplingParams` takes as ``lam``)."""
+    fraction = finite(name, value)
+    if not 0 < fraction <= 1:
+        raise ValueError(f"{name} must be in (0, 1], got {value!r}")
+    return fraction
+
+
 def _flag(name: str, value: object) -> bool:
     if not isinstance(value, bool):
         raise ValueError(f"{name} must be true or false, got {value!r}")
@@ -93,7 +101,7 @@ PARAMETERS: dict[str, tuple[str, Callable[[str, object], object] | None]] = {
     "contrast": ("contrast thresholds C+ = C- (log intensity; default 0.2)", positive),
     "noise": ("event-camera noise preset (sim.noise.NOISE_PRESETS; default ideal)", None),
     "lam": ("adaptive sampling: largest change of L between renders, as a fraction of C "
-            "(SamplingParams.lam; default 0.5)", finite),
+            "(SamplingParams.lam, in (0, 1]; default 0.5)", _fraction),
     "min_rate": ("lowest event-camera render rate, Hz (default 100)", positive),
     "max_rate": ("highest event-camera render rate, Hz (default 20000)", positive),
     "sampler": ("pixel or frame (default: simulate's choice)", _choice("pixel", "frame")),

@@ -153,6 +153,7 @@ def parse_sweep(text: str, source: str | Path = "<sweep>") -> Sweep:
                 params = {**dict(zip(grid, combo, strict=True)),
                           **draw_parameters(draws, seed)}
                 jobs.append(Job(scene, seed, dict(sorted(params.items()))))
+    _check_sampling(jobs, fail)
     seen: dict[str, Job] = {}
     for job in jobs:
         if job.job_id in seen:
@@ -161,6 +162,23 @@ def parse_sweep(text: str, source: str | Path = "<sweep>") -> Sweep:
         seen[job.job_id] = job
     return Sweep(source, text, name, description, tuple(jobs),
                  tuple(sorted({*grid, *draws})))
+
+
+def _check_sampling(jobs: list[Job], fail) -> None:
+    """Every job's lam, min_rate and max_rate together, as simulate takes them
+    (:class:`~sim.sampling.SamplingParams`: min_rate <= max_rate), before any job runs."""
+    from sim.sampling import SamplingParams
+
+    keys = ("lam", "min_rate", "max_rate")
+    for combo in {tuple(job.params.get(k) for k in keys) for job in jobs}:
+        given = {k: v for k, v in zip(keys, combo, strict=True) if v is not None}
+        if not given:
+            continue
+        try:
+            SamplingParams(**given)
+        except ValueError as error:
+            where = ", ".join(f"{k} = {v!r}" for k, v in given.items())
+            raise fail("grid", f"a job with {where}: {error}") from None
 
 
 def _seeds(value: object, fail) -> list[int]:

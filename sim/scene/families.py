@@ -137,9 +137,11 @@ def family_scene(family: str, **knobs: float) -> str:
     ValueError
         An unknown family or knob, or a value outside the knob's range (one line naming it).
     """
-    if family == "staircase" and "step_depth" not in knobs:
+    given_steps = knobs.get("steps", FAMILIES["staircase"]["steps"][0])
+    if family == "staircase" and "step_depth" not in knobs and math.isfinite(given_steps):
         # By default the steps share 0.8 m (at most 0.2 m each): any count fits before the wall.
-        steps = round(float(knobs.get("steps", FAMILIES["staircase"]["steps"][0])))
+        # (A NaN or infinite count is left to _checked, which names the knob.)
+        steps = round(given_steps)
         knobs = {**knobs, "step_depth": math.floor(1e4 * min(0.2, 0.8 / max(steps - 1, 1))) / 1e4}
     k = _checked(family, knobs)
     textured = k.pop("texture") >= 0.5
