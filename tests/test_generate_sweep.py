@@ -176,3 +176,23 @@ def test_generate_refuses_local_sizes_with_a_scheduler_in_its_flags(tmp_path, ca
         main(["generate", sweep, "--out", str(out), "--gpu-per-job", "0"])
     assert stopped.value.code == 2 and "--gpu-per-job" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_a_sweep_spp_that_cannot_fit_memory_is_refused_before_any_job():
+    """A sweep's ``spp`` is checked with each job's sensor (its ``sensor`` value, else its
+    scene's camera) when the file is read, not left to fail every job (issue 39: 7)."""
+    with pytest.raises(SweepError, match=r"grid: a job of slider_close at 240x180 with spp = "
+                                         r"1000000: .* needs at least about .* GiB"):
+        parse_sweep('seeds = [1]\n[[scenes]]\nname = "slider_close"\n[grid]\nspp = 1000000\n')
+    with pytest.raises(SweepError, match=r"at 16x12 with spp = 100000000"):
+        parse_sweep('seeds = [1]\n[[scenes]]\nname = "slider_close"\n[grid]\nsensor = "16x12"\n'
+                    'spp = 100000000\n')
+    assert len(parse_sweep('seeds = [1]\n[[scenes]]\nname = "slider_close"\n[grid]\n'
+                           'spp = 16\n').jobs) == 1
+
+
+def test_a_sweep_window_too_short_for_one_frame_is_refused_before_any_job():
+    """Found by the generate fuzz target: ``t1 = 1e-09`` failed every job at run time."""
+    with pytest.raises(SweepError, match=r"grid: a job of slider_close simulates 1e-09 s, too "
+                                         r"short for one frame at 24 Hz"):
+        parse_sweep('seeds = [1]\n[[scenes]]\nname = "slider_close"\n[grid]\nt1 = 1e-09\n')

@@ -154,6 +154,8 @@ def parse_sweep(text: str, source: str | Path = "<sweep>") -> Sweep:
                           **draw_parameters(draws, seed)}
                 jobs.append(Job(scene, seed, dict(sorted(params.items()))))
     _check_sampling(jobs, fail)
+    _check_memory(jobs, fail)
+    _check_windows(jobs, fail)
     seen: dict[str, Job] = {}
     for job in jobs:
         if job.job_id in seen:
@@ -179,6 +181,76 @@ def _check_sampling(jobs: list[Job], fail) -> None:
         except ValueError as error:
             where = ", ".join(f"{k} = {v!r}" for k, v in given.items())
             raise fail("grid", f"a job with {where}: {error}") from None
+
+
+GENERATED_SENSOR = (240, 180)
+"""Sensor of a family or procedural scene (their camera is the DAVIS240C preset), px."""
+
+
+def _check_memory(jobs: list[Job], fail) -> None:
+    """Every job's sensor and samples per pixel against this machine's memory
+    (:func:`sim.simulate.memory.check_simulation_memory`), before any job runs. A job's sensor is
+    its ``sensor`` value, else its scene's camera (a family's or procedural scene's: the
+    DAVIS240C); its samples per pixel its ``spp`` value (jobs without one are checked by their
+    ``sensor`` alone, when the sweep file is read)."""
+    from sim.simulate.memory import check_simulation_memory
+
+    seen = set()
+    for job in jobs:
+        if "spp" not in job.params:
+            continue
+        key = (repr(job.identity["scene"]), job.params.get("sensor"), job.params["spp"])
+        if key in seen:
+            continue
+        seen.add(key)
+        if "sensor" in job.params:
+            width, height = (int(v) for v in str(job.params["sensor"]).split("x"))
+        elif job.generated:
+            width, height = GENERATED_SENSOR
+        else:
+            from sim.dataset._jobs import job_scene
+
+            try:
+                camera = job_scene(job).camera
+            except (ValueError, OSError):
+                continue                          # the job's own run says why it cannot load
+            width, height = camera.width, camera.height
+        try:
+            check_simulation_memory(width, height, int(job.params["spp"]), at_least=True)
+        except ValueError as error:
+            raise fail("grid", f"a job of {job.label} at {width}x{height} with spp = "
+                               f"{job.params['spp']}: {error}") from None
+
+
+def _check_windows(jobs: list[Job], fail) -> None:
+    """Every job's window holds at least one frame, before any job runs: checked on each
+    distinct scene and window of the jobs whose scene is a file, a built-in or a family (a
+    procedural scene is drawn, with renders, only when its job runs)."""
+    from sim.dataset._jobs import job_inputs
+    from sim.frames import frame_times
+
+    keys = ("t0", "t1", "frame_rate", "speed")
+    seen = set()
+    for job in jobs:
+        if "procedural" in job.scene:
+            continue
+        key = (repr(job.identity["scene"]), tuple(job.params.get(k) for k in keys))
+        if key in seen:
+            continue
+        seen.add(key)
+        try:
+            scene, kwargs = job_inputs(job)
+        except (ValueError, OSError):
+            continue                              # refused by the job's own check, named there
+        try:
+            frames = len(frame_times(kwargs["duration"], scene.frames))
+        except (OverflowError, ValueError, MemoryError):
+            raise fail("grid", f"a job of {job.label} simulates {kwargs['duration']:g} s: "
+                               "more frames than this machine can hold") from None
+        if frames == 0:
+            raise fail("grid", f"a job of {job.label} simulates {kwargs['duration']:g} s, too "
+                               f"short for one frame at {scene.frames.rate:g} Hz with a "
+                               f"{scene.frames.longest_exposure:g} s exposure")
 
 
 def _seeds(value: object, fail) -> list[int]:
