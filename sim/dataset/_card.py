@@ -350,7 +350,7 @@ starts with it (or with the heading of a card written before the mark existed)."
 
 def _is_evfuse_card(path: Path, folder: Path) -> bool:
     """True if ``path`` is a card ``evfuse dataset`` wrote (:data:`CARD_MARK`, or the opening
-    lines of an unmarked card of evfuse 0.2)."""
+    lines of an unmarked card of evfuse 0.1.0)."""
     try:
         with path.open("r", encoding="utf-8", errors="replace") as handle:
             head = handle.read(4096)
