@@ -196,3 +196,9 @@ def test_a_sweep_window_too_short_for_one_frame_is_refused_before_any_job():
     with pytest.raises(SweepError, match=r"grid: a job of slider_close simulates 1e-09 s, too "
                                          r"short for one frame at 24 Hz"):
         parse_sweep('seeds = [1]\n[[scenes]]\nname = "slider_close"\n[grid]\nt1 = 1e-09\n')
+
+
+def test_a_family_knob_of_an_empty_list_is_refused_not_a_sweep_of_no_jobs():
+    """Found by the long fuzz run: ``radius = []`` made a sweep of no jobs, accepted."""
+    with pytest.raises(SweepError, match=r"scenes\[0\]\.radius: an empty list \(no scene\)"):
+        parse_sweep('seeds = [1]\n[[scenes]]\nfamily = "sphere"\nradius = []\n')

@@ -314,6 +314,10 @@ def _scenes(value: object, base: Path, fail) -> list[dict]:
             if name not in FAMILIES:
                 raise fail(f"{key}.family", f"{name!r}: expected one of {', '.join(FAMILIES)}")
             lists = {k: v if isinstance(v, list) else [v] for k, v in rest.items()}
+            for k, values in lists.items():
+                if not values:
+                    raise fail(f"{key}.{k}", "an empty list (no scene); expected a number or a "
+                                             "list of one or more")
             for combo in itertools.product(*lists.values()):
                 knobs = dict(zip(lists, combo, strict=True))
                 for k, v in knobs.items():
