@@ -154,8 +154,7 @@ def parse_sweep(text: str, source: str | Path = "<sweep>") -> Sweep:
                           **draw_parameters(draws, seed)}
                 jobs.append(Job(scene, seed, dict(sorted(params.items()))))
     _check_sampling(jobs, fail)
-    _check_memory(jobs, fail)
-    _check_windows(jobs, fail)
+    _check_jobs(jobs, fail)
     seen: dict[str, Job] = {}
     for job in jobs:
         if job.job_id in seen:
@@ -186,62 +185,56 @@ def _check_sampling(jobs: list[Job], fail) -> None:
 GENERATED_SENSOR = (240, 180)
 """Sensor of a family or procedural scene (their camera is the DAVIS240C preset), px."""
 
+_WINDOW_KEYS = ("t0", "t1", "frame_rate", "speed", "sensor", "spp")
+"""The parameters that decide a job's window, frames, sensor and samples per pixel."""
 
-def _check_memory(jobs: list[Job], fail) -> None:
-    """Every job's sensor and samples per pixel against this machine's memory
-    (:func:`sim.simulate.memory.check_simulation_memory`), before any job runs. A job's sensor is
-    its ``sensor`` value, else its scene's camera (a family's or procedural scene's: the
-    DAVIS240C); its samples per pixel its ``spp`` value (jobs without one are checked by their
-    ``sensor`` alone, when the sweep file is read)."""
+
+def _check_jobs(jobs: list[Job], fail) -> None:
+    """What every job of a kind would fail on, before any job runs, each distinct scene and
+    window loaded once (:func:`~sim.dataset._jobs.job_inputs`; a procedural scene is drawn,
+    with renders, only when its job runs, so it is not loaded here):
+
+    - its ``spp`` against this machine's memory
+      (:func:`sim.simulate.memory.check_simulation_memory`) with its sensor: its scene's camera
+      at the job's ``sensor``, else the ``sensor`` value or a generated scene's DAVIS240C
+      (jobs without an ``spp`` value are checked by their ``sensor`` alone, when the sweep
+      file is read);
+    - its window holds at least one frame, and no more than can be counted.
+    """
+    from sim.dataset._jobs import job_inputs
+    from sim.frames import frame_times
     from sim.simulate.memory import check_simulation_memory
 
     seen = set()
     for job in jobs:
-        if "spp" not in job.params:
-            continue
-        key = (repr(job.identity["scene"]), job.params.get("sensor"), job.params["spp"])
+        key = (repr(job.identity["scene"]), tuple(job.params.get(k) for k in _WINDOW_KEYS))
         if key in seen:
             continue
         seen.add(key)
-        if "sensor" in job.params:
-            width, height = (int(v) for v in str(job.params["sensor"]).split("x"))
-        elif job.generated:
-            width, height = GENERATED_SENSOR
-        else:
-            from sim.dataset._jobs import job_scene
-
+        scene = kwargs = None
+        if "procedural" not in job.scene:
             try:
-                camera = job_scene(job).camera
+                scene, kwargs = job_inputs(job)
             except (ValueError, OSError):
-                continue                          # the job's own run says why it cannot load
-            width, height = camera.width, camera.height
-        try:
-            check_simulation_memory(width, height, int(job.params["spp"]), at_least=True)
-        except ValueError as error:
-            raise fail("grid", f"a job of {job.label} at {width}x{height} with spp = "
-                               f"{job.params['spp']}: {error}") from None
-
-
-def _check_windows(jobs: list[Job], fail) -> None:
-    """Every job's window holds at least one frame, before any job runs: checked on each
-    distinct scene and window of the jobs whose scene is a file, a built-in or a family (a
-    procedural scene is drawn, with renders, only when its job runs)."""
-    from sim.dataset._jobs import job_inputs
-    from sim.frames import frame_times
-
-    keys = ("t0", "t1", "frame_rate", "speed")
-    seen = set()
-    for job in jobs:
-        if "procedural" in job.scene:
+                pass                              # refused by the job's own check, named there
+        if "spp" in job.params:
+            if scene is not None:
+                width, height = scene.camera.width, scene.camera.height
+            elif "sensor" in job.params:
+                width, height = (int(v) for v in str(job.params["sensor"]).split("x"))
+            elif job.generated:
+                width, height = GENERATED_SENSOR
+            else:
+                width = height = None             # a scene that cannot load: its job says why
+            if width is not None:
+                try:
+                    check_simulation_memory(width, height, int(job.params["spp"]),
+                                            at_least=True)
+                except ValueError as error:
+                    raise fail("grid", f"a job of {job.label} at {width}x{height} with spp = "
+                                       f"{job.params['spp']}: {error}") from None
+        if scene is None:
             continue
-        key = (repr(job.identity["scene"]), tuple(job.params.get(k) for k in keys))
-        if key in seen:
-            continue
-        seen.add(key)
-        try:
-            scene, kwargs = job_inputs(job)
-        except (ValueError, OSError):
-            continue                              # refused by the job's own check, named there
         try:
             frames = len(frame_times(kwargs["duration"], scene.frames))
         except (OverflowError, ValueError, MemoryError):
