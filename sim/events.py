@@ -68,6 +68,7 @@ from sim.noise import (
     ramp_turn,
     threshold_map,
 )
+from sim.profile import stage as profile_stage
 from sim.radiometry import DVS_DARK_LUMINANCE, DVS_RESPONSIVITY, photocurrent
 from sim.validation import integer, positive
 
@@ -316,13 +317,15 @@ def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, re
 
 
 def clocked(method):
-    """Add the wall time of each call of an emulator's ``method`` to its ``seconds``."""
+    """Add the wall time of each call of an emulator's ``method`` to its ``seconds`` (and, in a
+    profiled run, its Dr.Jit kernels to the stage ``profile_stage``: :func:`sim.profile.stage`)."""
 
     @functools.wraps(method)
     def timed(self, *args, **kwargs):
         tick = time.perf_counter()
         try:
-            return method(self, *args, **kwargs)
+            with profile_stage(self.profile_stage):
+                return method(self, *args, **kwargs)
         finally:
             self.seconds += time.perf_counter() - tick
 
@@ -397,6 +400,7 @@ class EventEmulator:
         self._t: int | None = None
         self._last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, dtype=np.int64)
         self.seconds = 0.0
+        self.profile_stage = "emulate"        # timings_s's stage of its kernels (sim.profile)
         self.last_causes = np.zeros(0, np.uint8)
 
     def warm_up(self) -> float:
@@ -405,6 +409,7 @@ class EventEmulator:
         does not pay for it; this emulator's state is untouched. Returns the seconds it took."""
         tick = time.perf_counter()
         spare = type(self)((1, 2), self.params, self.kernel)
+        spare.profile_stage = "emulate_compile"
         spare.start(np.zeros((1, 2)), 0.0)
         spare.advance(np.array([[0.0, 1.0]]), 1e-3)
         return time.perf_counter() - tick

@@ -235,7 +235,7 @@ def _sequence_folder(source: str | Path) -> Path:
 def run_global(scene: str | Path, out: str | Path, t0: float | None = None,
                t1: float | None = None, params: GlobalParams | None = None,
                spp: int | None = None, seed: int | None = None, overwrite: bool = False,
-               progress: bool = True) -> dict:
+               progress: bool = True, profile: bool = False) -> dict:
     """Simulate a scene's window into ``out/sequence`` (as ``evfuse run`` does), then map it
     globally into ``out`` (:func:`map_global`).
 
@@ -251,6 +251,8 @@ def run_global(scene: str | Path, out: str | Path, t0: float | None = None,
     spp, seed : int or None
         Samples per pixel and seed of the simulation (default: the scene's).
     overwrite, progress : bool
+    profile : bool
+        The simulation also writes ``sequence/profile.json`` (:mod:`sim.profile`).
 
     Returns
     -------
@@ -283,7 +285,7 @@ def run_global(scene: str | Path, out: str | Path, t0: float | None = None,
                            command="evfuse run --global") as tmp:
         folder, t0, t1 = _simulate_window(loaded, tmp / "sequence",
                                           RunParams(t0=t0, t1=t1, spp=spp, seed=seed),
-                                          progress, timings)
+                                          progress, timings, profile=profile)
         return _map_global(folder, tmp, replace(params, t0=t0, t1=t1), progress, timings)
 
 

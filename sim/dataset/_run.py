@@ -216,7 +216,7 @@ def _has_bokeh() -> bool:
 def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | None = None,
              workers: int | None = None, threads: int | None = None, resume: bool = False,
              overwrite: bool = False, retries: int = 1, variant: str | None = None,
-             gpu: float | None = None,
+             gpu: float | None = None, profile: bool = False,
              report: Callable[[str], None] | None = None) -> GenerateResult:
     """Run a sweep's jobs into a dataset folder.
 
@@ -251,6 +251,8 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
         a remote cluster's workers must declare it (``dask worker --resources GPU=1``), a local
         cluster's workers each declare ``GPU = 1`` (the one GPU they share; a share <= 1).
         None: none asked.
+    profile : bool
+        Each job's sequence folder also gets ``profile.json`` (:mod:`sim.profile`).
     report : callable, optional
         Called with each progress line (default: stderr; a tqdm bar on a terminal).
 
@@ -319,7 +321,7 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
             for job in todo:
                 progress.running(1)
                 try:
-                    record = run_job(job, work, variant)
+                    record = run_job(job, work, variant, profile)
                 except Exception as error:
                     finish(job, None, _one_line(error))
                 else:
@@ -330,7 +332,7 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
             progress.say(f"generate: {len(todo)} jobs on {cluster_name}; dashboard: "
                          f"{link or 'none (install bokeh for it)'}")
             try:
-                _run_on(client, todo, work, variant, retries, gpu, finish, progress)
+                _run_on(client, todo, work, variant, retries, gpu, finish, progress, profile)
             finally:
                 client.close()
                 if cluster is not None:
@@ -346,15 +348,16 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
 
 
 def _run_on(client, todo: list[Job], out: Path, variant: str | None, retries: int,
-            gpu: float | None, finish, progress: _Progress) -> None:
+            gpu: float | None, finish, progress: _Progress, profile: bool = False) -> None:
     """Submit the jobs to a Dask client and record each as it finishes."""
     from distributed import as_completed
 
     resources = {"GPU": gpu} if gpu else None
     futures = {}
     for job in todo:
-        future = client.submit(run_job, job, str(out), variant, key=f"evfuse-{job.job_id}",
-                               retries=retries, pure=False, resources=resources)
+        future = client.submit(run_job, job, str(out), variant, profile,
+                               key=f"evfuse-{job.job_id}", retries=retries, pure=False,
+                               resources=resources)
         futures[future] = job
     for future in as_completed(futures):
         job = futures[future]
