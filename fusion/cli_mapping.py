@@ -129,8 +129,9 @@ def _refuse_for_global(args: argparse.Namespace) -> None:
     """Refuse, in one line, the map flags a global map cannot honour."""
     refused = [flag for flag, on in (("--resume", getattr(args, "resume", False)),
                                      ("--views", (getattr(args, "views", 1) or 1) > 1),
-                                     ("--clip-window", args.clip_window),
-                                     ("--depth-range oracle", args.depth_range == "oracle"))
+                                     ("--clip-window", getattr(args, "clip_window", False)),
+                                     ("--depth-range oracle",
+                                      getattr(args, "depth_range", "auto") == "oracle"))
                if on]
     if refused:
         raise ValueError(f"{', '.join(refused)} cannot be used with a global map (its key "
@@ -268,7 +269,7 @@ def _add_map_global(sub) -> None:
                     "global_error.ply, global.png.")
     map_global.add_argument("sequence", help="sequence folder (simulated or ECD)")
     map_global.add_argument("--out", required=True, help="folder to write")
-    add_map_options(map_global)
+    add_map_options(map_global, global_map=True)
     add_global_options(map_global)
     add_dense_options(map_global)
     map_global.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
