@@ -45,6 +45,8 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
+from numba.core import types
+from numba.extending import overload
 
 from sim.eventio import EVENT_DTYPE
 from sim.noise import (
@@ -338,19 +340,33 @@ def _all_finite(values):  # pragma: no cover - compiled
 @numba.njit(cache=True)
 def _count_rows_linear(L1, ref, c_on, c_off):  # pragma: no cover - compiled
     """:func:`_count_rows` without filter or leak, on finite levels: events per row of the
-    interval ending at ``L1`` (H, W)."""
+    interval ending at ``L1`` (H, W); thresholds as in :func:`_linear_chunks`."""
     height, width = L1.shape
     counts = np.zeros(height, dtype=np.int64)
     for y in range(height):
         n = 0
         for i in range(width):
-            n += threshold_crossings(L1[y, i], ref[y, i], c_on[y, i], c_off[y, i])[0]
+            n += threshold_crossings(L1[y, i], ref[y, i], _at(c_on, y, i), _at(c_off, y, i))[0]
         counts[y] = n
     return counts
 
 
 _CHUNKS = 16
 """Chunks of rows of :func:`_linear_chunks` (fewer on a sensor of fewer rows)."""
+
+
+def _at(values, y, i):
+    """A threshold at pixel ``(y, i)`` in a compiled kernel: ``values[y, i]`` of a map, or
+    ``values`` itself when it is one number for every pixel (a uniform sensor's), which keeps
+    the maps out of the kernel's memory traffic."""
+    return values if np.ndim(values) == 0 else values[y, i]
+
+
+@overload(_at, inline="always")
+def _at_compiled(values, y, i):
+    if isinstance(values, types.Float):
+        return lambda values, y, i: values
+    return lambda values, y, i: values[y, i]
 
 
 @numba.njit(cache=True, parallel=True)
@@ -360,29 +376,34 @@ def _linear_chunks(L0, L1, ref, c_on, c_off, last_t, t0, dt, refractory, lo, hi,
     from ``L0`` to ``L1`` (:func:`crossing_time`), chunk by chunk of rows.
 
     Chunk ``c`` holds rows ``lo[c]`` to ``hi[c]`` (excluded) and writes its events, in pixel
-    order, from ``start[c]`` up to ``end[c]`` of the outputs; a row is counted first and
-    written only if it fits, and the chunk stops at the first row that does not. It leaves
-    the next free slot in ``filled[c]`` and the first row not written in ``reached[c]``
-    (``hi[c]`` when done). ``keep`` (written only when ``refractory`` > 0) is False for
-    an event the refractory period drops. Moves the written rows' references and last kept
-    times; the rows not written are untouched.
+    order, from ``start[c]`` up to ``end[c]`` of the outputs; a row is counted first (each
+    pixel's count kept) and written only if it fits, and the chunk stops at the first row
+    that does not. It leaves the next free slot in ``filled[c]`` and the first row not
+    written in ``reached[c]`` (``hi[c]`` when done). ``c_on`` and ``c_off`` are (H, W) maps
+    or one number each (:func:`_at`). ``keep`` (written only when ``refractory`` > 0) is
+    False for an event the refractory period drops. Moves the written rows' references and
+    last kept times; the rows not written are untouched.
     """
     width = L1.shape[1]
     for c in numba.prange(len(lo)):
+        counts = np.empty(width, np.int64)
         k = start[c]
         y = lo[c]
         while y < hi[c]:
             n = 0
             for i in range(width):
-                n += threshold_crossings(L1[y, i], ref[y, i], c_on[y, i], c_off[y, i])[0]
+                m = threshold_crossings(L1[y, i], ref[y, i], _at(c_on, y, i),
+                                        _at(c_off, y, i))[0]
+                counts[i] = m
+                n += m
             if k + n > end[c]:
                 break
-            for i in range(width):
+            for i in range(width if n > 0 else 0):
+                if counts[i] == 0:
+                    continue
                 r = ref[y, i]
                 b = L1[y, i]
-                m, step, sign = threshold_crossings(b, r, c_on[y, i], c_off[y, i])
-                if m == 0:
-                    continue
+                m, step, sign = threshold_crossings(b, r, _at(c_on, y, i), _at(c_off, y, i))
                 a = L0[y, i]
                 last = last_t[y, i]
                 for j in range(1, m + 1):
@@ -422,81 +443,74 @@ def _kept(keep, first, stop):  # pragma: no cover - compiled
 
 
 _SMALL_BUCKET = 32
-"""Largest bucket of :func:`_time_sorted` sorted by insertion; a larger one is merge-sorted."""
+"""Largest bucket of :func:`_time_sorted` left to the insertion sort; a larger one is
+merge-sorted first."""
 
 
 @numba.njit(cache=True)
 def _time_sorted(t, xs, ys, p, cause, keep, first, stop, t0, dt, width, pixels, out,
                  out_cause):  # pragma: no cover - compiled
     """Write the kept events into ``out`` (EVENT_DTYPE) in time order, ties in pixel order,
-    with their causes into ``out_cause`` (unless ``cause`` is empty); returns their number.
+    with their causes into ``out_cause`` (unless ``cause`` is empty).
 
     The input is the events from ``first[s]`` to ``stop[s]`` of each segment ``s``, with times
     in ``[t0, t0 + dt]``; ``keep`` is empty when every event is kept; ``out`` has room for the
     kept events exactly (:func:`_kept`); ``width`` and ``pixels`` are the sensor's. A bucket
     sort on the key ``(t - t0) * pixels + pixel`` (unique but for one pixel's events in the
     same nanosecond, which keep their input order): as many buckets as events over the
-    interval's times, then each bucket sorted stably (insertion, or a merge sort above
-    :data:`_SMALL_BUCKET` events).
+    interval's times, then a stable insertion sort, which moves events within their bucket
+    only (a bucket of more than :data:`_SMALL_BUCKET` events is merge-sorted first).
     """
-    labelled = cause.size > 0
-    filtered = keep.size > 0
     kept = len(out)
     if kept == 0:
-        return 0
+        return
     scale = kept / (dt + 1.0)
-    fill = np.zeros(kept + 1, dtype=np.int64)
+    bound = np.zeros(kept + 1, dtype=np.int64)       # bucket b: bound[b] to bound[b + 1]
+    bucket = np.empty(len(t), dtype=np.int32)
     for s in range(len(first)):
         for k in range(first[s], stop[s]):
-            if not filtered or keep[k]:
-                fill[min(int((t[k] - t0) * scale), kept - 1) + 1] += 1
-    for b in range(kept):
-        fill[b + 1] += fill[b]
-    start = fill.copy()
-    key = np.empty(kept, dtype=np.int64)
-    for s in range(len(first)):
-        for k in range(first[s], stop[s]):
-            if not filtered or keep[k]:
+            if keep.size == 0 or keep[k]:
                 b = min(int((t[k] - t0) * scale), kept - 1)
-                m = fill[b]
-                fill[b] = m + 1
-                key[m] = (t[k] - t0) * pixels + np.int64(ys[k]) * width + xs[k]
-                out[m].t = t[k]
-                out[m].x = xs[k]
-                out[m].y = ys[k]
-                out[m].p = p[k]
-                if labelled:
-                    out_cause[m] = cause[k]
+                bucket[k] = b
+                bound[b + 1] += 1
     for b in range(kept):
-        lo, hi = start[b], start[b + 1]
-        if hi - lo > _SMALL_BUCKET:
+        bound[b + 1] += bound[b]
+    fill = bound[:-1].copy()
+    key = np.empty(kept, dtype=np.int64)
+    source = np.empty(kept, dtype=np.int64)
+    for s in range(len(first)):
+        for k in range(first[s], stop[s]):
+            if keep.size == 0 or keep[k]:
+                m = fill[bucket[k]]
+                fill[bucket[k]] = m + 1
+                key[m] = (t[k] - t0) * pixels + np.int64(ys[k]) * width + xs[k]
+                source[m] = k
+    for b in range(kept):
+        if bound[b + 1] - bound[b] > _SMALL_BUCKET:
+            lo, hi = bound[b], bound[b + 1]
             order = np.argsort(key[lo:hi], kind="mergesort")
-            events = out[lo:hi].copy()
-            causes = out_cause[lo:hi].copy() if labelled else out_cause
-            for j in range(hi - lo):
-                out[lo + j] = events[order[j]]
-                if labelled:
-                    out_cause[lo + j] = causes[order[j]]
+            key[lo:hi] = key[lo:hi][order]
+            source[lo:hi] = source[lo:hi][order]
+    for m in range(1, kept):
+        km = key[m]
+        if key[m - 1] <= km:
             continue
-        for m in range(lo + 1, hi):
-            km = key[m]
-            if key[m - 1] <= km:
-                continue
-            e = out[m]
-            em = (e.t, e.x, e.y, e.p)
-            cm = out_cause[m] if labelled else 0
-            q = m
-            while q > lo and key[q - 1] > km:
-                key[q] = key[q - 1]
-                out[q] = out[q - 1]
-                if labelled:
-                    out_cause[q] = out_cause[q - 1]
-                q -= 1
-            key[q] = km
-            out[q].t, out[q].x, out[q].y, out[q].p = em
-            if labelled:
-                out_cause[q] = cm
-    return kept
+        sm = source[m]
+        q = m
+        while q > 0 and key[q - 1] > km:             # never past the bucket's start
+            key[q] = key[q - 1]
+            source[q] = source[q - 1]
+            q -= 1
+        key[q] = km
+        source[q] = sm
+    for m in range(kept):
+        k = source[m]
+        out[m].t = t[k]
+        out[m].x = xs[k]
+        out[m].y = ys[k]
+        out[m].p = p[k]
+        if cause.size > 0:
+            out_cause[m] = cause[k]
 
 
 def _sensor_maps(shape: tuple[int, int], params: EventParams, rng: np.random.Generator
@@ -603,10 +617,15 @@ class EventEmulator:
         self._cutoff: np.ndarray | None = None
         self._t: int | None = None
         self._last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, dtype=np.int64)
+        # Exact thresholds are one number each: the kernels take them so (_at).
+        self._thresholds = ((max(self.params.contrast_on, THRESHOLD_FLOOR),
+                             max(self.params.contrast_off, THRESHOLD_FLOOR))
+                            if self.params.noise.threshold_sigma == 0 else (self.c_on, self.c_off))
         bounds = np.linspace(0, self.shape[0], min(self.shape[0], _CHUNKS) + 1).astype(np.int64)
         self._chunk_rows = (bounds[:-1], bounds[1:])      # of _linear_crossings
         self._chunk_events: np.ndarray | None = None      # each chunk's events last interval
         self._work: tuple[np.ndarray, ...] | None = None  # its buffers
+        self._allocate = None           # where the sorted crossings go (_EventStack.reserve)
         self.seconds = 0.0
         self.last_causes = np.zeros(0, np.uint8)
 
@@ -836,7 +855,7 @@ class EventEmulator:
                     t0_ns, float(dt_ns), refractory, drift, t, xs, y, p, cause, keep)
         events, causes = _sort_events(t, xs, y, p, cause, keep if refractory > 0 else keep[:0],
                                       np.zeros(1, np.int64), np.array([total], np.int64), t0_ns,
-                                      dt_ns, self.shape)
+                                      dt_ns, self.shape, self._allocate)
         return events, causes, L1
 
     def _linear_crossings(self, L1, t0_ns: int, dt_ns: int
@@ -853,7 +872,7 @@ class EventEmulator:
             raise ValueError("L1 has non-finite values; expected log intensities")
         lo, hi = self._chunk_rows
         if self._chunk_events is None:
-            room = np.add.reduceat(_count_rows_linear(L1, self.ref, self.c_on, self.c_off), lo)
+            room = np.add.reduceat(_count_rows_linear(L1, self.ref, *self._thresholds), lo)
         else:
             room = self._chunk_events + self._chunk_events // 4 + 256
         buffers = self._buffers(int(room.sum()))
@@ -862,7 +881,7 @@ class EventEmulator:
         if np.any(reached < hi):                     # too little room: the rest, exactly
             todo = np.flatnonzero(reached < hi)
             per_row = np.concatenate(([0], np.cumsum(
-                _count_rows_linear(L1, self.ref, self.c_on, self.c_off))))
+                _count_rows_linear(L1, self.ref, *self._thresholds))))
             room = per_row[hi[todo]] - per_row[reached[todo]]
             more = tuple(np.empty(int(room.sum()), a.dtype) for a in buffers)
             first2, stop2, _ = self._linear_pass(L1, t0_ns, dt_ns, reached[todo], hi[todo],
@@ -876,7 +895,7 @@ class EventEmulator:
         if self.params.noise.refractory_period <= 0:
             keep = keep[:0]
         events, _ = _sort_events(t, xs, y, p, np.zeros(0, np.uint8), keep, first, stop, t0_ns,
-                                 dt_ns, self.shape)
+                                 dt_ns, self.shape, self._allocate)
         return events, np.full(len(events), CAUSE_SIGNAL, np.uint8), L1
 
     def _linear_pass(self, L1, t0_ns, dt_ns, lo, hi, room, buffers
@@ -888,7 +907,7 @@ class EventEmulator:
         first = stop - room
         filled, reached = np.empty_like(first), np.empty_like(first)
         refractory = int(round(self.params.noise.refractory_period * 1e9))
-        _linear_chunks(self._L, L1, self.ref, self.c_on, self.c_off, self._last_t, t0_ns,
+        _linear_chunks(self._L, L1, self.ref, *self._thresholds, self._last_t, t0_ns,
                        float(dt_ns), refractory, lo, hi, first, stop, *buffers, filled, reached)
         return first, filled, reached
 
@@ -938,12 +957,13 @@ class EventEmulator:
 
 
 def _sort_events(t, xs, y, p, cause, keep, first, stop, t0_ns: int, dt_ns: int,
-                 shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+                 shape: tuple[int, int], allocate=None) -> tuple[np.ndarray, np.ndarray]:
     """The kept crossings (``keep`` empty: all) of the segments ``first[s]`` to ``stop[s]``
     as events in time order, ties in pixel order (sensor ``shape``), and their causes (empty
-    when ``cause`` is): :func:`_time_sorted`."""
+    when ``cause`` is): :func:`_time_sorted`. ``allocate(n)`` gives the events' array
+    (default a new one; :class:`_EventStack`)."""
     kept = _kept(keep, first, stop)
-    events = np.empty(kept, EVENT_DTYPE)
+    events = np.empty(kept, EVENT_DTYPE) if allocate is None else allocate(kept)
     causes = np.empty(kept if cause.size else 0, np.uint8)
     _time_sorted(t, xs, y, p, cause, keep, first, stop, t0_ns, float(dt_ns), shape[1],
                  shape[0] * shape[1], events, causes)
@@ -986,9 +1006,55 @@ def emulate_events(log_frames: np.ndarray, times: np.ndarray,
     log_frames, times = _check_stack(log_frames, times)
     emulator = EventEmulator(log_frames.shape[1:], params)
     emulator.start(log_frames[0], times[0])
-    chunks = [emulator.advance(frame, t) for frame, t in zip(log_frames[1:], times[1:],
-                                                              strict=True)]
-    return np.concatenate(chunks) if chunks else np.empty(0, EVENT_DTYPE)
+    stack = _EventStack(len(times) - 1)
+    emulator._allocate = stack.reserve
+    for frame, t in zip(log_frames[1:], times[1:], strict=True):
+        stack.append(emulator.advance(frame, t))
+    return stack.events()
+
+
+class _EventStack:
+    """The events of successive intervals in one growing array, each interval's sorted
+    crossings written straight into it (:meth:`reserve`, the emulator's ``_allocate``):
+    no array per interval and no concatenation.
+
+    Parameters
+    ----------
+    intervals : int
+        How many intervals will be appended: the array grows to the events so far plus, for
+        each interval left, as many as the last one had, and a quarter more.
+    """
+
+    def __init__(self, intervals: int):
+        self._array = np.empty(0, EVENT_DTYPE)
+        self._size = 0
+        self._left = intervals
+        self._reserved: np.ndarray | None = None
+
+    def reserve(self, count: int) -> np.ndarray:
+        """Room for ``count`` events after those appended, (count,) EVENT_DTYPE."""
+        need = self._size + count
+        if need > len(self._array):
+            grown = np.empty(max(need + count * (self._left - 1), 3 * len(self._array) // 2)
+                             * 5 // 4, EVENT_DTYPE)
+            grown[:self._size] = self._array[:self._size]
+            self._array = grown
+        self._reserved = self._array[self._size:need]
+        return self._reserved
+
+    def append(self, events: np.ndarray) -> None:
+        """Append an interval's events (a copy unless they are the room just reserved)."""
+        if events is not self._reserved:
+            self.reserve(len(events))[:] = events
+        self._size += len(events)
+        self._left -= 1
+        self._reserved = None
+
+    def events(self) -> np.ndarray:
+        """(N,) EVENT_DTYPE: every event appended, in order; a copy only where the array has
+        more than a quarter of room left."""
+        events = self._array[:self._size]
+        return events.copy() if 4 * self._size < 3 * len(self._array) else events
 
 
 def emulate_events_reference(log_frames: np.ndarray, times: np.ndarray,
