@@ -326,15 +326,17 @@ def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, re
 # has room (:meth:`EventEmulator._linear_crossings`).
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def _all_finite(values):  # pragma: no cover - compiled
-    """Whether every element of the C-contiguous ``values`` is finite (``v - v`` is 0 for a
-    finite ``v``, NaN for an infinite or NaN one)."""
-    flat = values.reshape(-1)
-    total = 0.0
-    for k in numba.prange(flat.size):
-        total += flat[k] - flat[k]
-    return total == 0.0
+    """Whether every element of the C-contiguous float64 ``values`` is finite: no element
+    has the exponent bits all set (infinities and NaNs), tested on the integers so that the
+    loop vectorises."""
+    bits = values.reshape(-1).view(np.uint64)
+    exponent = np.uint64(0x7FF0000000000000)
+    bad = np.uint64(0)
+    for k in range(bits.size):
+        bad |= np.uint64((bits[k] & exponent) == exponent)
+    return bad == 0
 
 
 @numba.njit(cache=True)

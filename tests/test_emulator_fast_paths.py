@@ -25,6 +25,7 @@ from sim.eventio import EVENT_DTYPE
 from sim.events import (
     EventEmulator,
     EventParams,
+    _all_finite,
     _count_rows,
     _EventStack,
     _sensor_maps,
@@ -217,3 +218,12 @@ def test_deferred_draws_are_made_before_the_generator_is_used():
     assert np.array_equal(uniform.c_on, eager.c_on) and np.array_equal(uniform.c_off, eager.c_off)
     assert not uniform.hot_mask.any() and not uniform.leak_rates.any()
     assert not EventEmulator((30, 40), EventParams.preset("realistic"))._draws_pending
+
+
+@pytest.mark.parametrize("value, finite", [(np.inf, False), (-np.inf, False), (np.nan, False),
+                                           (np.finfo(float).max, True), (-5e-324, True),
+                                           (0.0, True)])
+def test_all_finite_tells_infinities_and_nans_from_every_finite_number(value, finite):
+    levels = np.random.default_rng(0).normal(size=(7, 9))
+    levels[6, 8] = value
+    assert _all_finite(levels) is finite
