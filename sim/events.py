@@ -158,8 +158,10 @@ def log_intensity(luminance: np.ndarray, eps: float = DVS_DARK_LUMINANCE) -> np.
 
 
 # ------------------------------------------------------------------------------------------------
-# Compiled kernels. The interval is processed in two parallel passes over rows: count the events
-# of every row, then (after a prefix sum gives each row its slot) write them.
+# Compiled kernels. With the low-pass or the leak on, the interval is processed in two parallel
+# passes over rows: count the events of every row, then (after a prefix sum gives each row its
+# slot) write them. Without either, one fused pass over chunks of rows (_linear_chunks). Either
+# way the events are then put in time order by a bucket sort (_time_sorted).
 # ------------------------------------------------------------------------------------------------
 
 
