@@ -1039,8 +1039,8 @@ class _EventStack:
         """Room for ``count`` events after those appended, (count,) EVENT_DTYPE."""
         need = self._size + count
         if need > len(self._array):
-            grown = np.empty(max(need + count * (self._left - 1), 3 * len(self._array) // 2)
-                             * 5 // 4, EVENT_DTYPE)
+            grown = np.empty(max(need + count * max(self._left - 1, 0),
+                                 3 * len(self._array) // 2) * 5 // 4, EVENT_DTYPE)
             grown[:self._size] = self._array[:self._size]
             self._array = grown
         self._reserved = self._array[self._size:need]

@@ -167,6 +167,10 @@ def test_the_event_stack_grows_and_copies_what_it_did_not_reserve():
     third["t"] = np.arange(8, 48)
     stack.append(third)
     assert np.array_equal(stack.events()["t"], np.arange(1, 48))
+    fourth = stack.reserve(100)                       # one interval more than announced
+    fourth["t"] = np.arange(48, 148)
+    stack.append(fourth)
+    assert np.array_equal(stack.events()["t"], np.arange(1, 148))
 
 
 def test_time_sorted_is_a_stable_sort_on_time_then_pixel():
