@@ -723,7 +723,10 @@ class EventEmulator:
             self._last_t = arrays["last_t"]
 
     def _check(self, L: np.ndarray, name: str, finite: bool = True) -> np.ndarray:
-        L = np.ascontiguousarray(L, dtype=np.float64)
+        """``L`` as the emulator's own float64 array (always a copy: the emulator keeps the
+        last sample as its state, so a caller may reuse its frame buffer), shape and
+        finiteness checked."""
+        L = np.array(L, dtype=np.float64, order="C")
         if L.shape != self.shape:
             raise ValueError(f"{name} must have shape {self.shape}, got {L.shape}")
         if finite and not np.all(np.isfinite(L)):

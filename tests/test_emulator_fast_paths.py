@@ -231,3 +231,26 @@ def test_all_finite_tells_infinities_and_nans_from_every_finite_number(value, fi
     levels = np.random.default_rng(0).normal(size=(7, 9))
     levels[6, 8] = value
     assert _all_finite(levels) is finite
+
+
+@pytest.mark.parametrize("name", ["ideal", "realistic"])
+def test_a_reused_frame_buffer_gives_the_events_of_fresh_frames(name):
+    """The emulator keeps its own copy of the last sample: a caller that renders every frame
+    into one buffer (and overwrites it after each call) gets the events of fresh arrays."""
+    shape = (12, 17)
+    frames = _texture(shape, 8, seed=4)
+    times = np.arange(8) * 2e-3
+    params = EventParams(noise=CONFIGS[name], seed=5)
+    fresh = _run(EventEmulator(shape, params, kernel="numba"), frames, times)
+    emulator = EventEmulator(shape, params, kernel="numba")
+    buffer = np.empty(shape)
+    events = []
+    for k, (frame, t) in enumerate(zip(frames, times, strict=True)):
+        buffer[...] = frame
+        if k == 0:
+            emulator.start(buffer, t)
+        else:
+            events.append(emulator.advance(buffer, t))
+        buffer[...] = -1e3                  # the caller reuses its buffer
+    assert len(fresh[0]) > 20
+    assert np.array_equal(np.concatenate(events), fresh[0])
