@@ -222,7 +222,7 @@ for _fmt in (
                 "_txt_info", time_unit="seconds"),
     EventFormat("h5", (".h5", ".hdf5"), "DSEC HDF5", "sim.eventio._read", "_h5_writer",
                 "_h5_chunks", "_h5_info"),
-    EventFormat("aedat4", (".aedat4",), "AEDAT4", "sim.eventio._aedat4", "Aedat4EventWriter",
+    EventFormat("aedat4", (".aedat4",), "AEDAT4", "sim.eventio._aedat4", "aedat4_writer",
                 "iter_aedat4_chunks", "aedat4_info", extra="formats"),
     EventFormat("evt3", (".raw",), "Prophesee RAW EVT 3.0", "sim.eventio._raw", "evt3_writer",
                 "iter_raw_chunks", "raw_info", selector={"evt": 3}),
