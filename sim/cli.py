@@ -139,6 +139,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         min_rate=args.min_rate, max_rate=args.max_rate, sampler=args.sampler, spp=args.spp,
         frame_sensor=args.frame_sensor, rig=args.rig, motion_truth=not args.no_motion_truth)
     formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
+    formats += tuple(name for name in args.format or () if name not in formats)
     result = simulate(scene, args.out, variant=args.variant, overwrite=args.overwrite,
                       progress=not args.quiet, with_events=not args.no_events,
                       event_formats=formats, resume=args.resume, **inputs)
@@ -251,7 +252,8 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     check_output_file(args.dst, read, parameter="dst")
     if Path(args.dst).exists() and not args.overwrite:
         raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
-    convert_events(args.src, args.dst, width=width, height=height)
+    convert_events(args.src, args.dst, width=width, height=height,
+                   dst_selectors={"evt": args.evt})
     print(f"converted {args.src} to {args.dst}")
     return 0
 
@@ -353,6 +355,11 @@ def _add_simulate(sub) -> None:
                           help="event files to write, comma-separated: h5 (with per-event "
                                "depth, events/depth), txt, depth-txt (events_depth.txt: t x y p "
                                "depth flag) (default h5,txt)")
+    simulate.add_argument("--format", action="append", default=None, metavar="FMT",
+                          choices=("aedat4", "evt3", "evt2"),
+                          help="also write the events as events.<suffix> in this format: "
+                               "aedat4, evt3 or evt2 (Prophesee RAW events.raw); repeatable; "
+                               "converted exactly from events.h5 at the end of the event stage")
     simulate.add_argument("--no-events", action="store_true",
                           help="render frames and depth only")
     simulate.add_argument("--no-motion-truth", action="store_true",
@@ -423,11 +430,15 @@ def _add_twin(sub) -> None:
 
 
 def _add_convert(sub) -> None:
-    convert = sub.add_parser("convert", help="convert events between ECD text and HDF5",
-                             description="Convert events.txt (ECD) <-> events.h5 (DSEC layout), "
-                                         "streaming. The format follows the file suffix.")
-    convert.add_argument("src", help="events.txt or events.h5")
-    convert.add_argument("dst", help="events.h5 or events.txt")
+    convert = sub.add_parser("convert", help="convert events between file formats",
+                             description="Convert events between ECD text (.txt), the DSEC "
+                                         "layout (.h5), AEDAT4 (.aedat4) and Prophesee RAW "
+                                         "(.raw, EVT 3.0 or --evt 2), streaming. The format "
+                                         "follows the file suffix (a RAW source: its header).")
+    convert.add_argument("src", help="the event file to read (.txt, .h5, .aedat4, .raw)")
+    convert.add_argument("dst", help="the event file to write (.txt, .h5, .aedat4, .raw)")
+    convert.add_argument("--evt", type=int, choices=(2, 3), default=None,
+                         help="RAW encoding of a .raw DST: 3 (EVT 3.0, default) or 2 (EVT 2.0)")
     convert.add_argument("--overwrite", action="store_true", help="replace an existing DST")
     convert.add_argument("--sensor", default=None,
                          help="sensor size WxH for HDF5 output (default: from the sequence "
