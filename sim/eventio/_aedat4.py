@@ -232,3 +232,46 @@ def read_aedat4_imu(path: Path) -> np.ndarray:
                                * STANDARD_GRAVITY),
                              *np.radians([s.gyroscopeX, s.gyroscopeY, s.gyroscopeZ])))
     return np.array(rows, float).reshape(-1, 7)
+
+
+def write_sequence_aedat4(folder: Path, dst: Path, events: Iterator[np.ndarray],
+                          sensor_size: tuple[int, int],
+                          frames: list[tuple[int, Path]], imu: np.ndarray | None) -> int:
+    """Write a whole sequence as one AEDAT4 file: its events, frames and IMU samples.
+
+    Parameters
+    ----------
+    folder : Path
+        The sequence folder (named in messages).
+    dst : Path
+        The ``.aedat4`` file (written atomically).
+    events : iterator of EVENT_DTYPE chunks
+        The sequence's events, time-ordered.
+    sensor_size : (int, int)
+        ``(width, height)``.
+    frames : list of (int, Path)
+        Frame times (ns) and their 8-bit grayscale image files.
+    imu : (N, 7) float ndarray or None
+        ``imu.txt`` rows: ``t[s] ax ay az gx gy gz`` (m/s^2, rad/s).
+
+    Returns
+    -------
+    int
+        Events written.
+    """
+    import cv2
+
+    writer = Aedat4EventWriter(dst, sensor_size=sensor_size, frames=bool(frames),
+                               imu=imu is not None and len(imu) > 0)
+    with writer:
+        for t_ns, image_path in frames:
+            image = cv2.imread(str(image_path), cv2.IMREAD_GRAYSCALE)
+            if image is None:
+                raise ValueError(f"{folder}: cannot read frame {image_path}; expected an 8-bit "
+                                 "image")
+            writer.write_frame(t_ns, image)
+        for row in (() if imu is None else imu):
+            writer.write_imu(round(float(row[0]) * 1e9), row[1:4], row[4:7])
+        for chunk in events:
+            writer.write(chunk)
+    return writer.count
