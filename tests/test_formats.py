@@ -284,3 +284,101 @@ def test_simulate_format_writes_aedat4_and_raw_beside_events_h5(tmp_path):
     assert np.array_equal(read_events(out / "events.raw"), floored)
     with pytest.raises(ValueError, match="would write one file twice"):
         simulate(scene, tmp_path / "two", progress=False, event_formats=("h5", "evt3", "evt2"))
+
+
+# --- recordings given as one file --------------------------------------------------------------
+
+def _small_sequence(folder):
+    """A sequence folder of events, three frames and IMU samples (no poses)."""
+    import cv2
+
+    from sim.sequence import frame_name, write_index
+
+    folder.mkdir()
+    (folder / "calib.txt").write_text("200 200 32 24 0 0 0 0 0\n")
+    rng = np.random.default_rng(5)
+    names = [frame_name(i, "png") for i in range(3)]
+    (folder / "images").mkdir()
+    frames = [rng.integers(0, 256, (48, 64), np.uint8) for _ in names]
+    for name, image in zip(names, frames, strict=True):
+        cv2.imwrite(str(folder / name), image)
+    write_index(folder / "images.txt", np.array([0.01, 0.02, 0.03]), names)
+    imu = np.column_stack([np.arange(1, 6) * 0.005, rng.normal(0, 9, (5, 3)),
+                           rng.normal(0, 1, (5, 3))])
+    np.savetxt(folder / "imu.txt", imu, fmt="%.9f")
+    n = 500
+    events = make_events(np.sort(rng.integers(0, 40_000, n)) * 1000, rng.integers(0, 64, n),
+                         rng.integers(0, 48, n), rng.choice([-1, 1], n))
+    with format_named("h5").open_writer(folder / "events.h5", sensor_size=(64, 48)) as writer:
+        writer.write(events)
+    return events, frames, imu
+
+
+def test_a_sequence_as_one_aedat4_unpacks_to_its_events_frames_and_imu(tmp_path, monkeypatch):
+    pytest.importorskip("dv_processing")
+    from sim.recording import recording_folder
+    from sim.sequence import load_sequence
+
+    monkeypatch.setenv("EVFUSE_CACHE", str(tmp_path / "cache"))
+    events, frames, imu = _small_sequence(tmp_path / "seq")
+    assert run_cli(["convert", str(tmp_path / "seq"), str(tmp_path / "seq.aedat4")]) == 0
+    folder = recording_folder(tmp_path / "seq.aedat4", calib=tmp_path / "seq" / "calib.txt")
+    assert folder.is_relative_to(tmp_path / "cache")            # never beside the input
+    sequence = load_sequence(folder)
+    assert (sequence.camera.width, sequence.camera.height) == (64, 48)
+    assert np.array_equal(read_events(sequence.events_h5), events)
+    assert np.allclose(sequence.image_times, [0.01, 0.02, 0.03], rtol=0, atol=1e-9)
+    import cv2
+
+    for path, image in zip(sequence.image_paths, frames, strict=True):
+        assert np.array_equal(cv2.imread(str(path), cv2.IMREAD_GRAYSCALE), image)
+    back = sequence.read_imu()
+    assert np.array_equal(back[:, 0], imu[:, 0])
+    # DV stores IMU as float32 g and deg/s: agreement to float32's relative precision
+    assert np.allclose(back[:, 1:], imu[:, 1:], rtol=2e-7, atol=1e-6)
+    assert recording_folder(tmp_path / "seq.aedat4",
+                            calib=tmp_path / "seq" / "calib.txt") == folder     # cached
+
+
+def test_a_raw_recording_without_calib_is_refused_in_one_line(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("EVFUSE_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "e.raw"
+    _write("evt3", path, _events(n=100))
+    assert run_cli(["events", str(path), "--stats"], [path]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "e.raw: a Prophesee RAW EVT 3.0 file holds no intrinsics; expected --calib" in err
+    assert not list((tmp_path / "cache" / "recordings").iterdir())       # nothing left
+    (tmp_path / "seq").mkdir()
+    assert run_cli(["events", str(tmp_path / "seq"), "--calib", str(path)], [path]) == 2
+    assert "is a sequence folder" in capsys.readouterr().err
+
+
+def test_the_ecd_prefix_maps_identically_from_text_aedat4_and_raw(ecd_slider, tmp_path,
+                                                                   monkeypatch):
+    from sim.exr import read_depth
+
+    monkeypatch.setenv("EVFUSE_CACHE", str(tmp_path / "cache"))
+    calib, poses = str(ecd_slider / "calib.txt"), str(ecd_slider / "groundtruth.txt")
+    assert run_cli(["convert", str(ecd_slider), str(tmp_path / "s.aedat4")], [ecd_slider]) == 0
+    assert run_cli(["convert", str(ecd_slider / "events.txt"), str(tmp_path / "s.raw"),
+                    "--sensor", "240x180"], [ecd_slider]) == 0
+    assert run_cli(["map", str(ecd_slider), "--out", str(tmp_path / "txt"), "--quiet"],
+                   [ecd_slider]) == 0
+    assert run_cli(["map", str(tmp_path / "s.aedat4"), "--calib", calib, "--poses", poses,
+                    "--out", str(tmp_path / "aedat4"), "--quiet"], [ecd_slider]) == 0
+    # RAW holds no frames: the reference view is put at the frame the others snap to
+    t_ref = json_value(tmp_path / "txt" / "map.json", "t_ref")
+    assert run_cli(["map", str(tmp_path / "s.raw"), "--calib", calib, "--poses", poses,
+                    "--ref-time", repr(t_ref), "--out", str(tmp_path / "raw"), "--quiet"],
+                   [ecd_slider]) == 0
+    maps = [read_depth(tmp_path / name / "semidense_depth.exr") for name in ("txt", "aedat4",
+                                                                              "raw")]
+    assert (maps[0] > 0).sum() > 1000
+    assert np.array_equal(maps[0], maps[1]) and np.array_equal(maps[0], maps[2])
+
+
+def json_value(path, key):
+    import json
+
+    return json.loads(path.read_text())[key]
