@@ -282,8 +282,9 @@ def _cmd_convert(args: argparse.Namespace) -> int:
         check_output_file(args.dst, [args.src], parameter="dst")
         if Path(args.dst).exists() and not args.overwrite:
             raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
-        count = write_sequence_file(args.src, args.dst)
-        print(f"converted sequence {args.src} ({count} events, frames, IMU) to {args.dst}")
+        events, frames, imu = write_sequence_file(args.src, args.dst)
+        print(f"converted sequence {args.src} ({events} events, {frames} frames, {imu} IMU "
+              f"samples) to {args.dst}")
         return 0
     width = height = None
     if args.sensor:

@@ -168,7 +168,7 @@ def _unpack_aedat4(src: Path, folder: Path) -> None:
 register_unpacker("aedat4", _unpack_aedat4)
 
 
-def write_sequence_file(folder: str | Path, dst: str | Path) -> int:
+def write_sequence_file(folder: str | Path, dst: str | Path) -> tuple[int, int, int]:
     """Write a sequence folder as one AEDAT4 file: events, frames and IMU (``imu.txt``).
 
     Parameters
@@ -181,8 +181,8 @@ def write_sequence_file(folder: str | Path, dst: str | Path) -> int:
 
     Returns
     -------
-    int
-        Events written.
+    (int, int, int)
+        Events, frames and IMU samples written.
 
     Raises
     ------

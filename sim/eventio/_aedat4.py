@@ -236,7 +236,8 @@ def read_aedat4_imu(path: Path) -> np.ndarray:
 
 def write_sequence_aedat4(folder: Path, dst: Path, events: Iterator[np.ndarray],
                           sensor_size: tuple[int, int],
-                          frames: list[tuple[int, Path]], imu: np.ndarray | None) -> int:
+                          frames: list[tuple[int, Path]], imu: np.ndarray | None
+                          ) -> tuple[int, int, int]:
     """Write a whole sequence as one AEDAT4 file: its events, frames and IMU samples.
 
     Parameters
@@ -256,8 +257,8 @@ def write_sequence_aedat4(folder: Path, dst: Path, events: Iterator[np.ndarray],
 
     Returns
     -------
-    int
-        Events written.
+    (int, int, int)
+        Events, frames and IMU samples written.
     """
     import cv2
 
@@ -274,4 +275,4 @@ def write_sequence_aedat4(folder: Path, dst: Path, events: Iterator[np.ndarray],
             writer.write_imu(round(float(row[0]) * 1e9), row[1:4], row[4:7])
         for chunk in events:
             writer.write(chunk)
-    return writer.count
+    return writer.count, len(frames), 0 if imu is None else len(imu)

@@ -328,7 +328,7 @@ def _read_header(path: Path, handle) -> tuple[int, int | None, int | None, int, 
     return evt, width, height, offset, int(t0)
 
 
-def iter_raw_chunks(path: Path, *, chunk_events: int, words: int = 1 << 20,
+def iter_raw_chunks(path: Path, *, chunk_events: int, words: int = 1 << 18,
                     **options) -> Iterator[np.ndarray]:
     """The events of a RAW file (EVT 3.0 or 2.0, as its header says), in file order.
 
