@@ -13,7 +13,8 @@ that its peak resident memory, ``ru_maxrss``, is its own):
 - the libraries on the same events: faery (EVT 3.0, EVT 2.0: write from an in-memory array,
   read to an array), evlib (read EVT 3.0, EVT 2.0, HDF5 of its own layout is not ours: not
   timed), expelliarmus (read EVT 3.0, EVT 2.0), dv-processing (AEDAT4: write through its Python
-  ``EventStore.push_back``, the only way in from NumPy, and read with ``getNextEventBatch``).
+  ``EventStore.push_back``, the only way in from NumPy, and read with ``getNextEventBatch``,
+  each packet converted to a NumPy array as a Python user does).
   A library's process holds the whole array (it takes or gives one), so its RSS is not bounded.
 
 Each figure is events per second (millions) and the process's peak RSS (``VmHWM``, MiB,
@@ -131,7 +132,7 @@ elif tool == "dv-processing":
         start = time.perf_counter()
         recording = dv.io.MonoCameraRecording(str(path))
         while (batch := recording.getNextEventBatch()) is not None:
-            count += batch.size()
+            count += batch.numpy().size          # to arrays, as evfuse and the others give
 seconds = time.perf_counter() - start
 # VmHWM: this process's own peak (ru_maxrss would carry the parent's over fork and exec)
 hwm = next(line for line in open("/proc/self/status") if line.startswith("VmHWM"))

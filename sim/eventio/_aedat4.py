@@ -176,17 +176,25 @@ def iter_aedat4_chunks(path: Path, *, chunk_events: int, **options) -> Iterator[
         raise ValueError(f"{path}: no event stream (streams: "
                          f"{', '.join(recording.getStreamNames()) or 'none'}); expected one "
                          "named 'events'")
-    while True:
-        batch = recording.getNextEventBatch()
-        if batch is None:
-            return
+    buffer = np.empty(chunk_events, EVENT_DTYPE)   # dv-processing's packets (10,000 events),
+    held = 0                                       # gathered into chunks
+    while (batch := recording.getNextEventBatch()) is not None:
         array = batch.numpy()
-        events = np.empty(array.size, EVENT_DTYPE)
-        events["t"] = array["timestamp"].astype(np.int64) * 1000
-        events["x"], events["y"] = array["x"], array["y"]
-        events["p"] = np.where(array["polarity"] > 0, 1, -1)
-        for begin in range(0, events.size, chunk_events):
-            yield events[begin:begin + chunk_events]
+        start = 0
+        while start < array.size:
+            take = min(array.size - start, chunk_events - held)
+            part, source = buffer[held:held + take], array[start:start + take]
+            np.multiply(source["timestamp"], 1000, out=part["t"])
+            part["x"], part["y"] = source["x"], source["y"]
+            np.multiply(source["polarity"], 2, out=part["p"])
+            part["p"] -= 1                                  # 0/1 -> -1/+1
+            held += take
+            start += take
+            if held == chunk_events:
+                yield buffer
+                buffer, held = np.empty(chunk_events, EVENT_DTYPE), 0
+    if held:
+        yield buffer[:held]
 
 
 def aedat4_info(path: Path) -> dict:

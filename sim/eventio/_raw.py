@@ -114,8 +114,8 @@ def _encode_evt2(t_us, x, y, p, out, state):
 
 @numba.njit(cache=True)
 def _decode_evt3(words, state, t_out, x_out, y_out, p_out):
-    """Events of EVT 3.0 words. ``state`` = [loops (us), time high, time low, y, base x, pol,
-    seen time high (0/1)] is updated. Returns the number of events written."""
+    """Events of EVT 3.0 words (times in ns). ``state`` = [loops (us), time high, time low, y,
+    base x, pol, seen time high (0/1)] is updated. Returns the number of events written."""
     n = 0
     loops, high, low, cur_y, base_x, pol, seen = (state[0], state[1], state[2], state[3],
                                                   state[4], state[5], state[6])
@@ -133,7 +133,7 @@ def _decode_evt3(words, state, t_out, x_out, y_out, p_out):
         elif kind == 0x0:
             cur_y = w & 0x7FF
         elif kind == 0x2:
-            t_out[n] = loops + (high << 12) + low
+            t_out[n] = (loops + (high << 12) + low) * 1000
             x_out[n] = w & 0x7FF
             y_out[n] = cur_y
             p_out[n] = 1 if (w >> 11) & 1 else -1
@@ -146,7 +146,7 @@ def _decode_evt3(words, state, t_out, x_out, y_out, p_out):
             mask = w & ((1 << bits) - 1)
             for b in range(bits):
                 if (mask >> b) & 1:
-                    t_out[n] = loops + (high << 12) + low
+                    t_out[n] = (loops + (high << 12) + low) * 1000
                     x_out[n] = base_x + b
                     y_out[n] = cur_y
                     p_out[n] = pol
@@ -171,7 +171,7 @@ def _decode_evt2(words, state, t_out, x_out, y_out, p_out):
                 loops += np.int64(1) << 34
             high = h
         elif kind == 0x0 or kind == 0x1:
-            t_out[n] = loops + (max(high, 0) << 6) + ((w >> 22) & 0x3F)
+            t_out[n] = (loops + (max(high, 0) << 6) + ((w >> 22) & 0x3F)) * 1000
             x_out[n] = (w >> 11) & 0x7FF
             y_out[n] = w & 0x7FF
             p_out[n] = 1 if kind == 0x1 else -1
@@ -361,15 +361,9 @@ def iter_raw_chunks(path: Path, *, chunk_events: int, words: int = 1 << 18,
             data = np.frombuffer(handle.read(words * word.itemsize), word)
             if not data.size:
                 return
-            n_max = data.size * per_word
-            t = np.empty(n_max, np.int64)
-            x = np.empty(n_max, np.uint16)
-            y = np.empty(n_max, np.uint16)
-            p = np.empty(n_max, np.int8)
-            n = decode(data, state, t, x, y, p)
-            events = np.empty(n, EVENT_DTYPE)
-            events["t"] = t[:n] * 1000
-            events["x"], events["y"], events["p"] = x[:n], y[:n], p[:n]
+            buffer = np.empty(data.size * per_word, EVENT_DTYPE)    # decoded in place
+            n = decode(data, state, buffer["t"], buffer["x"], buffer["y"], buffer["p"])
+            events = buffer[:n]
             for begin in range(0, n, chunk_events):
                 yield events[begin:begin + chunk_events]
 
