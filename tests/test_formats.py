@@ -382,3 +382,20 @@ def json_value(path, key):
     import json
 
     return json.loads(path.read_text())[key]
+
+
+@pytest.mark.parametrize("name", ["evt3", "evt2"])
+def test_a_raw_writer_resumes_from_its_checkpoint(tmp_path, name):
+    events = _events(n=6_000)
+    path = tmp_path / FILES[name]
+    writer = format_named(name).open_writer(path, sensor_size=(W, H))
+    writer.write(events[:2_000])
+    state = writer.checkpoint()
+    writer.write(events[2_000:3_000])                  # lost with the interruption
+    with pytest.raises(RuntimeError):
+        with writer:
+            raise RuntimeError("interrupted")
+    assert not path.exists() and writer.partial.exists()
+    with format_named(name).open_writer(path, sensor_size=(W, H), resume=state) as again:
+        again.write(events[2_000:])
+    assert np.array_equal(read_events(path), events)
