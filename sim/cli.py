@@ -22,7 +22,8 @@ import numpy as np
 from sim.validation import MAX_SEED, finite, non_negative, positive
 
 __all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "PNG_OVERWRITE_HELP",
-           "POSITIVE", "SEED", "OneLineParser", "add_command", "count_type", "number_type"]
+           "POSITIVE", "RECORDING_HELP", "SEED", "OneLineParser", "add_command",
+           "add_recording_options", "count_type", "number_type", "open_recording"]
 
 COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "generate", "dataset")
 """The subcommands this module builds (:func:`add_command`)."""

@@ -47,11 +47,13 @@ def cache_root() -> Path:
 
 
 def is_recording_file(path: str | Path) -> bool:
-    """Whether ``path`` is a file of a registered event format (not a folder, not a scene)."""
+    """Whether ``path`` is a recording given as one file: a file of a registered event format
+    other than ECD text and the DSEC layout (those are a sequence folder's events, and a command
+    given one says to give its folder)."""
     from sim.eventio._formats import event_formats
 
     path = Path(path)
-    suffixes = {s for f in event_formats() for s in f.suffixes} - {".txt"}
+    suffixes = {s for f in event_formats() if f.name not in ("txt", "h5") for s in f.suffixes}
     return path.is_file() and path.suffix.lower() in suffixes
 
 

@@ -58,8 +58,9 @@ def convert_events(src: str | Path, dst: str | Path, width: int | None = None,
             options["t_offset_us"] = info["t_offset_us"]
     if (width is None or height is None) and dst_fmt.name != "txt":
         literal = ParameterError.literal
-        raise ParameterError(f"converting {literal(src)} to {literal(dst)}: {dst_fmt.title} "
-                             "needs the sensor size; expected width and height ({sensor})",
+        what = "an events.h5" if dst_fmt.name == "h5" else f"a {dst_fmt.title} file"
+        raise ParameterError(f"converting {literal(src)} to {literal(dst)}: {what} needs the "
+                             "sensor size; expected width and height ({sensor})",
                              sensor="pass width= and height=")
     sensor = None if width is None or height is None else (int(width), int(height))
     writer = dst_fmt.open_writer(dst, sensor_size=sensor, **options)
