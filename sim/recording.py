@@ -9,7 +9,8 @@ the key hashes the file's absolute path, size and modification time and the cont
 calibration and pose files given. The folder has the ECD layout (CONVENTIONS.md): ``calib.txt``
 (the ``calib`` given: a RAW or AEDAT4 file holds no intrinsics), ``events.h5`` (the events,
 exact: the file's microseconds), ``images.txt`` and ``images/`` (the file's frames, if any),
-``imu.txt`` (its IMU samples, if any) and ``groundtruth.txt`` (the ``poses`` given, if any). It
+``imu.txt`` (its IMU samples, if any) and ``groundtruth.txt`` (the ``poses`` given, else the
+file's pose stream, if any). It
 is written as ``<key>.partial`` and renamed when complete, so an interrupted unpacking is never
 read.
 
@@ -146,10 +147,11 @@ def recording_folder(path: str | Path, *, calib: str | Path | None = None,
 
 
 def _unpack_aedat4(src: Path, folder: Path) -> None:
-    """An AEDAT4 file's frames (``images/``, ``images.txt``) and IMU (``imu.txt``)."""
+    """An AEDAT4 file's frames (``images/``, ``images.txt``), IMU (``imu.txt``) and poses
+    (``groundtruth.txt``)."""
     import cv2
 
-    from sim.eventio._aedat4 import read_aedat4_frames, read_aedat4_imu
+    from sim.eventio._aedat4 import read_aedat4_frames, read_aedat4_imu, read_aedat4_poses
     from sim.sequence import frame_name, write_index
 
     times, names = [], []
@@ -165,13 +167,17 @@ def _unpack_aedat4(src: Path, folder: Path) -> None:
     imu = read_aedat4_imu(src)
     if len(imu):
         np.savetxt(folder / "imu.txt", imu, fmt="%.9f")
+    poses = read_aedat4_poses(src)          # replaced by the poses given, if any
+    if len(poses):
+        np.savetxt(folder / "groundtruth.txt", poses, fmt=["%.6f"] + ["%.9g"] * 7)
 
 
 register_unpacker("aedat4", _unpack_aedat4)
 
 
 def write_sequence_file(folder: str | Path, dst: str | Path) -> tuple[int, int, int]:
-    """Write a sequence folder as one AEDAT4 file: events, frames and IMU (``imu.txt``).
+    """Write a sequence folder as one AEDAT4 file: events, frames, IMU (``imu.txt``) and poses
+    (``groundtruth.txt``, a pose stream of float32 values).
 
     Parameters
     ----------
@@ -207,6 +213,8 @@ def write_sequence_file(folder: str | Path, dst: str | Path) -> tuple[int, int, 
     frames = [(round(float(t) * 1e9), p) for t, p in zip(sequence.image_times,
                                                          sequence.image_paths, strict=True)]
     imu = sequence.read_imu()
+    poses = (None if sequence.groundtruth_path is None
+             else np.loadtxt(sequence.groundtruth_path, comments="#", ndmin=2))
     events = iter_event_chunks(source, 1 << 20, width=camera.width, height=camera.height)
     return write_sequence_aedat4(Path(folder), dst, events, (camera.width, camera.height),
-                                 frames, imu)
+                                 frames, imu, poses)

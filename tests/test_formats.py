@@ -306,6 +306,8 @@ def _small_sequence(folder):
     imu = np.column_stack([np.arange(1, 6) * 0.005, rng.normal(0, 9, (5, 3)),
                            rng.normal(0, 1, (5, 3))])
     np.savetxt(folder / "imu.txt", imu, fmt="%.9f")
+    (folder / "groundtruth.txt").write_text("0.0100005 0.1 -0.2 0.3 0 0 0.6 0.8\n"
+                                            "0.0300009 0.2 -0.1 0.35 0 0.6 0 0.8\n")
     n = 500
     events = make_events(np.sort(rng.integers(0, 40_000, n)) * 1000, rng.integers(0, 64, n),
                          rng.integers(0, 48, n), rng.choice([-1, 1], n))
@@ -314,7 +316,7 @@ def _small_sequence(folder):
     return events, frames, imu
 
 
-def test_a_sequence_as_one_aedat4_unpacks_to_its_events_frames_and_imu(tmp_path, monkeypatch):
+def test_a_sequence_as_one_aedat4_unpacks_to_its_events_frames_imu_and_poses(tmp_path, monkeypatch):
     pytest.importorskip("dv_processing")
     from sim.recording import recording_folder
     from sim.sequence import load_sequence
@@ -336,6 +338,11 @@ def test_a_sequence_as_one_aedat4_unpacks_to_its_events_frames_and_imu(tmp_path,
     assert np.array_equal(back[:, 0], imu[:, 0])
     # DV stores IMU as float32 g and deg/s: agreement to float32's relative precision
     assert np.allclose(back[:, 1:], imu[:, 1:], rtol=2e-7, atol=1e-6)
+    # poses: DV's pose stream holds float32 and whole microseconds (floored)
+    poses = np.loadtxt(sequence.groundtruth_path, ndmin=2)
+    assert poses[:, 0].tolist() == [0.010000, 0.030000]
+    assert np.allclose(poses[:, 1:], [[0.1, -0.2, 0.3, 0, 0, 0.6, 0.8],
+                                      [0.2, -0.1, 0.35, 0, 0.6, 0, 0.8]], rtol=1e-7, atol=1e-8)
     assert recording_folder(tmp_path / "seq.aedat4",
                             calib=tmp_path / "seq" / "calib.txt") == folder     # cached
 

@@ -33,7 +33,7 @@ except ImportError as error:          # the registry names the extra (sim.eventi
     raise ImportError(str(error), name="dv-processing") from None
 
 __all__ = ["STANDARD_GRAVITY", "Aedat4EventWriter", "aedat4_info", "iter_aedat4_chunks",
-           "read_aedat4_frames", "read_aedat4_imu"]
+           "read_aedat4_frames", "read_aedat4_imu", "read_aedat4_poses"]
 
 STANDARD_GRAVITY = 9.80665
 """m/s^2 per g, DV's unit of acceleration."""
@@ -67,9 +67,9 @@ class Aedat4EventWriter(_StreamingWriter):
         :meth:`close`.
     sensor_size : (int, int)
         ``(width, height)`` in pixels (the event stream's resolution).
-    frames, imu : bool
-        Whether the file gets a frame stream and an IMU stream (DV's DAVIS layout) besides the
-        events.
+    frames, imu, poses : bool
+        Whether the file gets a frame stream, an IMU stream (DV's DAVIS layout) and a pose
+        stream besides the events.
 
     Raises
     ------
@@ -81,7 +81,8 @@ class Aedat4EventWriter(_StreamingWriter):
     _format = "aedat4"
 
     def __init__(self, path: str | Path, *, sensor_size: tuple[int, int] | None,
-                 frames: bool = False, imu: bool = False, resume: dict | None = None) -> None:
+                 frames: bool = False, imu: bool = False, poses: bool = False,
+                 resume: dict | None = None) -> None:
         self._begin(path)
         if resume is not None:
             raise ValueError(f"{self.path}: AEDAT4 files cannot be resumed; expected a fresh "
@@ -98,6 +99,8 @@ class Aedat4EventWriter(_StreamingWriter):
             config.addFrameStream((width, height))
         if imu:
             config.addImuStream()
+        if poses:
+            config.addPoseStream()
         # dv-processing refuses a name not ending in .aedat4: the unfinished file is
         # <name>.partial/<name>, a folder of the one suffix of everything unfinished
         if self.partial.is_dir():
@@ -132,6 +135,13 @@ class Aedat4EventWriter(_StreamingWriter):
         a = np.asarray(accel, float) / STANDARD_GRAVITY
         g = np.degrees(np.asarray(gyro, float))
         self._writer.writeImu(dv.IMU(int(t_ns) // 1000, 0.0, *a, *g, 0.0, 0.0, 0.0))
+
+    def write_pose(self, t_ns: int, position: np.ndarray, quaternion: np.ndarray) -> None:
+        """Add a pose T_world_camera: ``position`` (3,) m, ``quaternion`` (4,) ``qx qy qz qw``
+        (scalar last, as ``groundtruth.txt``), at ``t_ns`` (ns). DV stores float32."""
+        qx, qy, qz, qw = (float(v) for v in quaternion)
+        self._writer.writePose(dv.Pose(int(t_ns) // 1000, tuple(float(v) for v in position),
+                                       (qw, qx, qy, qz), "world", "camera"))
 
     def _sync(self) -> dict:
         raise ValueError(f"{self.path}: AEDAT4 files cannot be checkpointed (dv-processing "
@@ -227,6 +237,18 @@ def read_aedat4_frames(path: Path) -> Iterator[tuple[int, np.ndarray]]:
         yield int(frame.timestamp) * 1000, image
 
 
+def read_aedat4_poses(path: Path) -> np.ndarray:
+    """The poses of an AEDAT4 file: ``(K, 8) float64``, ``t[s] px py pz qx qy qz qw`` (the
+    layout of ``groundtruth.txt``), empty when it has none."""
+    recording = _open(path)
+    rows = []
+    if "poses" in recording.getStreamNames():
+        while (pose := recording.getNextPose()) is not None:
+            qw, qx, qy, qz = pose.rotation
+            rows.append((pose.timestamp * 1e-6, *pose.translation, qx, qy, qz, qw))
+    return np.array(rows, float).reshape(-1, 8)
+
+
 def read_aedat4_imu(path: Path) -> np.ndarray:
     """The IMU samples of an AEDAT4 file: ``(N, 7) float64``, ``t[s] ax ay az gx gy gz``
     (m/s^2, rad/s; the layout of ``imu.txt``), empty when it has none."""
@@ -244,8 +266,8 @@ def read_aedat4_imu(path: Path) -> np.ndarray:
 
 def write_sequence_aedat4(folder: Path, dst: Path, events: Iterator[np.ndarray],
                           sensor_size: tuple[int, int],
-                          frames: list[tuple[int, Path]], imu: np.ndarray | None
-                          ) -> tuple[int, int, int]:
+                          frames: list[tuple[int, Path]], imu: np.ndarray | None,
+                          poses: np.ndarray | None = None) -> tuple[int, int, int]:
     """Write a whole sequence as one AEDAT4 file: its events, frames and IMU samples.
 
     Parameters
@@ -262,6 +284,8 @@ def write_sequence_aedat4(folder: Path, dst: Path, events: Iterator[np.ndarray],
         Frame times (ns) and their 8-bit grayscale image files.
     imu : (N, 7) float ndarray or None
         ``imu.txt`` rows: ``t[s] ax ay az gx gy gz`` (m/s^2, rad/s).
+    poses : (K, 8) float ndarray or None
+        ``groundtruth.txt`` rows: ``t[s] px py pz qx qy qz qw`` (T_world_camera).
 
     Returns
     -------
@@ -271,7 +295,8 @@ def write_sequence_aedat4(folder: Path, dst: Path, events: Iterator[np.ndarray],
     import cv2
 
     writer = Aedat4EventWriter(dst, sensor_size=sensor_size, frames=bool(frames),
-                               imu=imu is not None and len(imu) > 0)
+                               imu=imu is not None and len(imu) > 0,
+                               poses=poses is not None and len(poses) > 0)
     with writer:
         for t_ns, image_path in frames:
             image = cv2.imread(str(image_path), cv2.IMREAD_GRAYSCALE)
@@ -281,6 +306,8 @@ def write_sequence_aedat4(folder: Path, dst: Path, events: Iterator[np.ndarray],
             writer.write_frame(t_ns, image)
         for row in (() if imu is None else imu):
             writer.write_imu(round(float(row[0]) * 1e9), row[1:4], row[4:7])
+        for row in (() if poses is None else poses):
+            writer.write_pose(round(float(row[0]) * 1e9), row[1:4], row[4:8])
         for chunk in events:
             writer.write(chunk)
     return writer.count, len(frames), 0 if imu is None else len(imu)
