@@ -406,3 +406,28 @@ def test_a_raw_writer_resumes_from_its_checkpoint(tmp_path, name):
     with format_named(name).open_writer(path, sensor_size=(W, H), resume=state) as again:
         again.write(events[2_000:])
     assert np.array_equal(read_events(path), events)
+
+
+def test_events_stats_reads_an_aedat4_recording_and_leaves_its_folder_untouched(tmp_path,
+                                                                                monkeypatch,
+                                                                                capsys):
+    pytest.importorskip("dv_processing")
+    monkeypatch.setenv("EVFUSE_CACHE", str(tmp_path / "cache"))
+    events, _, _ = _small_sequence(tmp_path / "seq")
+    recording = tmp_path / "rec" / "seq.aedat4"
+    recording.parent.mkdir()
+    assert run_cli(["convert", str(tmp_path / "seq"), str(recording)]) == 0
+    capsys.readouterr()
+    assert run_cli(["events", str(recording), "--stats", "--calib",
+                    str(tmp_path / "seq" / "calib.txt")], [recording.parent]) == 0
+    out = capsys.readouterr().out
+    assert "(64x48)" in out and f"count                    {events.size}" in out
+    assert sorted(p.name for p in recording.parent.iterdir()) == ["seq.aedat4"]
+
+
+def test_simulate_takes_format_more_than_once():
+    from fusion.cli import build_parser
+
+    args = build_parser().parse_args(["simulate", "slider_close", "--out", "x", "--format",
+                                      "aedat4", "--format", "evt2"])
+    assert args.format == ["aedat4", "evt2"]
