@@ -212,6 +212,12 @@ def _cmd_events(args: argparse.Namespace) -> int:
     )
 
     open_recording(args, "sequence")
+    if args.compare is not None:
+        from sim.recording import is_recording_file, recording_folder
+
+        if is_recording_file(args.compare):          # the same camera's calibration
+            args.compare = str(recording_folder(args.compare, calib=args.recording_calib,
+                                                poses=args.recording_poses))
     folder = Path(args.sequence)
     if args.compare is not None and not args.stats:
         raise ValueError("--compare compares statistics: add --stats")
@@ -448,7 +454,8 @@ def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) ->
     events.add_argument("--overwrite", action="store_true", help=PNG_OVERWRITE_HELP)
     events.add_argument("--compare", default=None, metavar="OTHER",
                         help="with --stats: another sequence folder (a twin and its recording), "
-                             "printed side by side with the ratio OTHER / SEQUENCE")
+                             "or one event file read with the same --calib, printed side by "
+                             "side with the ratio OTHER / SEQUENCE")
     add_recording_options(events)
     events.set_defaults(run=_cmd_events, event_figure=event_figure)
 

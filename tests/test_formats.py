@@ -423,6 +423,13 @@ def test_events_stats_reads_an_aedat4_recording_and_leaves_its_folder_untouched(
     out = capsys.readouterr().out
     assert "(64x48)" in out and f"count                    {events.size}" in out
     assert sorted(p.name for p in recording.parent.iterdir()) == ["seq.aedat4"]
+    raw = tmp_path / "rec" / "seq.raw"
+    assert run_cli(["convert", str(tmp_path / "seq" / "events.h5"), str(raw)]) == 0
+    capsys.readouterr()
+    assert run_cli(["events", str(recording), "--stats", "--calib",
+                    str(tmp_path / "seq" / "calib.txt"), "--compare", str(raw)],
+                   [recording.parent]) == 0
+    assert "B / A" in capsys.readouterr().out
 
 
 def test_simulate_takes_format_more_than_once():
