@@ -22,7 +22,8 @@ import numpy as np
 from sim.validation import MAX_SEED, finite, non_negative, positive
 
 __all__ = ["COMMANDS", "FINITE", "NON_NEGATIVE", "OVERWRITE_HELP", "PNG_OVERWRITE_HELP",
-           "POSITIVE", "SEED", "OneLineParser", "add_command", "count_type", "number_type"]
+           "POSITIVE", "RECORDING_HELP", "SEED", "OneLineParser", "add_command",
+           "add_recording_options", "count_type", "number_type", "open_recording"]
 
 COMMANDS = ("scenes", "simulate", "events", "twin", "convert", "generate", "dataset")
 """The subcommands this module builds (:func:`add_command`)."""
@@ -108,6 +109,44 @@ NON_NEGATIVE = number_type(non_negative, "a finite number >= 0")
 """``type=`` of a flag that takes a finite number >= 0."""
 
 
+RECORDING_HELP = (" (or one event file: .aedat4 with its frames and IMU, .raw; with --calib "
+                  "and --poses)")
+"""What a recording argument's help adds: it may be one event file (:mod:`sim.recording`)."""
+
+
+def add_recording_options(parser: argparse.ArgumentParser) -> None:
+    """``--calib`` and ``--poses`` of a command that reads a recording given as one file."""
+    parser.add_argument("--recording-calib", "--calib", dest="recording_calib", default=None,
+                        metavar="CALIB",
+                        help="calib.txt (fx fy cx cy k1 k2 p1 p2 k3) of a recording given as "
+                             "one event file (.raw, .aedat4 hold no intrinsics)")
+    parser.add_argument("--poses", dest="recording_poses", default=None, metavar="POSES",
+                        help="groundtruth.txt (t px py pz qx qy qz qw) of a recording given as "
+                             "one event file")
+
+
+def open_recording(args: argparse.Namespace, attr: str) -> None:
+    """Replace ``args.<attr>``, a recording given as one event file, by the sequence folder it
+    is unpacked into (:func:`sim.recording.recording_folder`, a cache outside the input); a
+    folder or a scene is left as it is."""
+    from sim.recording import is_recording_file, recording_folder
+    from sim.validation import ParameterError
+
+    given = getattr(args, attr)
+    calib, poses = args.recording_calib, args.recording_poses
+    if not is_recording_file(given):
+        if (calib or poses) and Path(given).is_dir():
+            raise ValueError(f"{given} is a sequence folder, which has its own calib.txt and "
+                             "groundtruth.txt; --calib and --poses go with a recording given "
+                             "as one event file")
+        return
+    try:
+        setattr(args, attr, str(recording_folder(given, calib=calib, poses=poses)))
+    except ParameterError as error:
+        raise ValueError(error.rephrase({"calib": "--calib CALIB", "poses": "--poses"})) \
+            from None
+
+
 def _cmd_scenes(args: argparse.Namespace) -> int:
     from scenes import describe_scenes
 
@@ -139,6 +178,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         min_rate=args.min_rate, max_rate=args.max_rate, sampler=args.sampler, spp=args.spp,
         frame_sensor=args.frame_sensor, rig=args.rig, motion_truth=not args.no_motion_truth)
     formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
+    formats += tuple(name for name in args.format or () if name not in formats)
     result = simulate(scene, args.out, variant=args.variant, overwrite=args.overwrite,
                       progress=not args.quiet, with_events=not args.no_events,
                       event_formats=formats, resume=args.resume, profile=args.profile, **inputs)
@@ -176,6 +216,13 @@ def _cmd_events(args: argparse.Namespace) -> int:
         recording_stats,
     )
 
+    open_recording(args, "sequence")
+    if args.compare is not None:
+        from sim.recording import is_recording_file, recording_folder
+
+        if is_recording_file(args.compare):          # the same camera's calibration
+            args.compare = str(recording_folder(args.compare, calib=args.recording_calib,
+                                                poses=args.recording_poses))
     folder = Path(args.sequence)
     if args.compare is not None and not args.stats:
         raise ValueError("--compare compares statistics: add --stats")
@@ -219,6 +266,7 @@ def _cmd_events(args: argparse.Namespace) -> int:
 def _cmd_twin(args: argparse.Namespace) -> int:
     from sim.twin import write_twin
 
+    open_recording(args, "recording")
     window = None
     if args.window is not None:
         try:
@@ -240,6 +288,16 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     from sim.output import check_output_file
     from sim.sequence import load_sequence
 
+    if Path(args.src).is_dir():                 # a whole sequence as one file
+        from sim.recording import write_sequence_file
+
+        check_output_file(args.dst, [args.src], parameter="dst")
+        if Path(args.dst).exists() and not args.overwrite:
+            raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
+        events, frames, imu = write_sequence_file(args.src, args.dst)
+        print(f"converted sequence {args.src} ({events} events, {frames} frames, {imu} IMU "
+              f"samples) to {args.dst}")
+        return 0
     width = height = None
     if args.sensor:
         try:
@@ -256,7 +314,8 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     check_output_file(args.dst, read, parameter="dst")
     if Path(args.dst).exists() and not args.overwrite:
         raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
-    convert_events(args.src, args.dst, width=width, height=height)
+    convert_events(args.src, args.dst, width=width, height=height,
+                   dst_selectors={"evt": args.evt})
     print(f"converted {args.src} to {args.dst}")
     return 0
 
@@ -363,6 +422,11 @@ def _add_simulate(sub) -> None:
                           help="event files to write, comma-separated: h5 (with per-event "
                                "depth, events/depth), txt, depth-txt (events_depth.txt: t x y p "
                                "depth flag) (default h5,txt)")
+    simulate.add_argument("--format", action="append", default=None, metavar="FMT",
+                          choices=("aedat4", "evt3", "evt2"),
+                          help="also write the events as events.<suffix> in this format: "
+                               "aedat4, evt3 or evt2 (Prophesee RAW events.raw); repeatable; "
+                               "converted exactly from events.h5 at the end of the event stage")
     simulate.add_argument("--no-events", action="store_true",
                           help="render frames and depth only")
     simulate.add_argument("--no-motion-truth", action="store_true",
@@ -392,7 +456,8 @@ def _add_simulate(sub) -> None:
 
 def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) -> None:
     events = sub.add_parser("events", help="statistics and an event frame of a sequence's events")
-    events.add_argument("sequence", help="sequence folder with events.h5 or events.txt")
+    events.add_argument("sequence", help="sequence folder with events.h5 or events.txt"
+                                         + RECORDING_HELP)
     events.add_argument("--stats", action="store_true",
                         help="print count, rate, ON/OFF balance (and draw the event frame into "
                              "--out)")
@@ -405,7 +470,9 @@ def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) ->
     events.add_argument("--overwrite", action="store_true", help=PNG_OVERWRITE_HELP)
     events.add_argument("--compare", default=None, metavar="OTHER",
                         help="with --stats: another sequence folder (a twin and its recording), "
-                             "printed side by side with the ratio OTHER / SEQUENCE")
+                             "or one event file read with the same --calib, printed side by "
+                             "side with the ratio OTHER / SEQUENCE")
+    add_recording_options(events)
     events.set_defaults(run=_cmd_events, event_figure=event_figure)
 
 
@@ -417,7 +484,8 @@ def _add_twin(sub) -> None:
                     "frame at the window's start, undistorted): the recording's camera, "
                     "trajectory and frame rate, and a poster like its view at --depth.")
     twin.add_argument("recording", help="an Event-Camera Dataset folder (calib.txt, "
-                                        "groundtruth.txt, images.txt)")
+                                        "groundtruth.txt, images.txt)" + RECORDING_HELP)
+    add_recording_options(twin)
     twin.add_argument("--depth", type=POSITIVE, required=True,
                       help="the poster's depth, m, in the camera at the window's start (e.g. "
                            "the median depth that `evfuse map` prints for the recording and "
@@ -439,11 +507,17 @@ def _add_twin(sub) -> None:
 
 
 def _add_convert(sub) -> None:
-    convert = sub.add_parser("convert", help="convert events between ECD text and HDF5",
-                             description="Convert events.txt (ECD) <-> events.h5 (DSEC layout), "
-                                         "streaming. The format follows the file suffix.")
-    convert.add_argument("src", help="events.txt or events.h5")
-    convert.add_argument("dst", help="events.h5 or events.txt")
+    convert = sub.add_parser("convert", help="convert events between file formats",
+                             description="Convert events between ECD text (.txt), the DSEC "
+                                         "layout (.h5), AEDAT4 (.aedat4) and Prophesee RAW "
+                                         "(.raw, EVT 3.0 or --evt 2), streaming. The format "
+                                         "follows the file suffix (a RAW source: its header).")
+    convert.add_argument("src", help="the event file to read (.txt, .h5, .aedat4, .raw), or a "
+                                     "sequence folder to write as one .aedat4 (events, frames, "
+                                     "IMU)")
+    convert.add_argument("dst", help="the event file to write (.txt, .h5, .aedat4, .raw)")
+    convert.add_argument("--evt", type=int, choices=(2, 3), default=None,
+                         help="RAW encoding of a .raw DST: 3 (EVT 3.0, default) or 2 (EVT 2.0)")
     convert.add_argument("--overwrite", action="store_true", help="replace an existing DST")
     convert.add_argument("--sensor", default=None,
                          help="sensor size WxH for HDF5 output (default: from the sequence "
