@@ -1,5 +1,6 @@
-"""The two event file formats, told apart by suffix: ECD text (``.txt``) and the DSEC HDF5 layout
-(``.h5``, ``.hdf5``)."""
+"""The event file formats, told apart by suffix: ECD text (``.txt``), the DSEC HDF5 layout
+(``.h5``, ``.hdf5``) and ROS bags (``.bag`` ROS 1; ``.mcap``, ``.db3`` or a folder holding
+``metadata.yaml`` ROS 2; :mod:`sim.eventio._rosbag`)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 
 _TEXT_SUFFIXES = (".txt",)
 _H5_SUFFIXES = (".h5", ".hdf5")
+_BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
 
 def _kind(path: Path) -> str:
@@ -15,5 +17,7 @@ def _kind(path: Path) -> str:
         return "txt"
     if suffix in _H5_SUFFIXES:
         return "h5"
-    raise ValueError(f"{path}: unknown event file type {suffix!r}; expected .txt (ECD text) or "
-                     ".h5 (DSEC HDF5)")
+    if suffix in _BAG_SUFFIXES or (path.is_dir() and (path / "metadata.yaml").is_file()):
+        return "bag"
+    raise ValueError(f"{path}: unknown event file type {suffix!r}; expected .txt (ECD text), "
+                     ".h5 (DSEC HDF5), .bag (ROS 1) or .mcap / a ROS 2 bag folder")

@@ -32,6 +32,8 @@ def event_time_span(path: str | Path, width: int | None = None,
         The file holds no events, or as :func:`iter_event_chunks`.
     """
     path = Path(path)
+    if _kind(path) == "bag":
+        return _bag_time_span(path, width, height)
     if _kind(path) == "h5" and path.is_file():
         source = _H5Source(path)
         try:
@@ -58,6 +60,17 @@ def _text_time_span(path: str, size: int, mtime_ns: int, width: int | None,
     if first is None:
         raise ValueError(f"{path}: the file holds no events")
     return int(first) * 1e-9, int(last) * 1e-9
+
+def _bag_time_span(path: Path, width: int | None, height: int | None) -> tuple[float, float]:
+    """:func:`event_time_span` of a bag: one streaming pass over its event messages."""
+    first = last = None
+    for chunk in iter_event_chunks(path, 10**6, width=width, height=height):
+        first = chunk["t"][0] if first is None else first
+        last = chunk["t"][-1]
+    if first is None:
+        raise ValueError(f"{path}: the bag holds no events")
+    return int(first) * 1e-9, int(last) * 1e-9
+
 
 def _check_window(t0_ns: int | None, t1_ns: int | None) -> None:
     for name, value in (("t0_ns", t0_ns), ("t1_ns", t1_ns)):
@@ -109,13 +122,15 @@ def _iter_txt(path: Path, chunk_events: int, t0_ns: int | None, t1_ns: int | Non
 
 def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | None = None,
                       t1_ns: int | None = None, *, width: int | None = None,
-                      height: int | None = None) -> Iterator[np.ndarray]:
+                      height: int | None = None, topic: str | None = None,
+                      ros: int | None = None) -> Iterator[np.ndarray]:
     """Stream the events of a file in chunks, never holding the whole file.
 
     Parameters
     ----------
     path : str or Path
-        ``.txt`` (ECD text) or ``.h5``/``.hdf5`` (DSEC layout).
+        ``.txt`` (ECD text), ``.h5``/``.hdf5`` (DSEC layout) or a ROS bag (``.bag``, a ROS 2
+        bag folder or ``.mcap``; :func:`sim.eventio._rosbag.iter_bag_chunks`).
     chunk_events : int
         Most events per chunk.
     t0_ns, t1_ns : int, optional
@@ -124,6 +139,10 @@ def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | 
         ``t1_ns``.
     width, height : int, optional
         Sensor size; events outside it are an error.
+    topic : str, optional
+        A bag's event topic (default: its one ``dvs_msgs/EventArray`` topic); bags only.
+    ros : {1, 2}, optional
+        A bag's ROS version where its name cannot say; bags only.
 
     Yields
     ------
@@ -144,6 +163,15 @@ def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | 
         raise ValueError(f"chunk_events must be a positive integer, got {chunk_events!r}")
     _check_window(t0_ns, t1_ns)
     _check_size(width, height, str(path))
+    if kind == "bag":
+        from sim.eventio._rosbag import iter_bag_chunks
+
+        yield from iter_bag_chunks(path, chunk_events, t0_ns, t1_ns, width=width, height=height,
+                                   topic=topic, ros=ros)
+        return
+    if topic is not None or ros is not None:
+        raise ValueError(f"{path}: topic and ros apply to ROS bags only; expected a .bag, "
+                         ".mcap or ROS 2 bag folder")
     if not path.is_file():
         raise ValueError(f"event file {path} does not exist")
     iterate = _iter_h5 if kind == "h5" else _iter_txt
