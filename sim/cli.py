@@ -232,9 +232,12 @@ def _cmd_twin(args: argparse.Namespace) -> int:
 
 def _cmd_convert(args: argparse.Namespace) -> int:
     from sim.eventio import convert_events
-    from sim.output import check_output_file
+    from sim.output import check_not_input, check_output_file
     from sim.sequence import load_sequence
 
+    src, dst = Path(args.src), Path(args.dst)
+    if src.is_dir() and (src / "calib.txt").is_file():
+        return _convert_sequence(args)
     width = height = None
     if args.sensor:
         try:
@@ -242,17 +245,47 @@ def _cmd_convert(args: argparse.Namespace) -> int:
         except ValueError:
             raise ValueError(f"--sensor must look like 240x180, got {args.sensor!r}") from None
     else:
-        folder = Path(args.src).resolve().parent
+        folder = src.resolve().parent
         if (folder / "images.txt").is_file() or (folder / "sequence.json").is_file():
             camera = load_sequence(folder).camera
             width, height = camera.width, camera.height
-    read = [args.src] + [Path(args.src).resolve().parent / name for name in
+    read = [args.src] + [src.resolve().parent / name for name in
                          ("calib.txt", "images.txt", "sequence.json")]       # for its size
-    check_output_file(args.dst, read, parameter="dst")
-    if Path(args.dst).exists() and not args.overwrite:
+    _check_bag_output(dst, read, check_not_input, check_output_file)
+    if dst.exists() and not args.overwrite:
         raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
-    convert_events(args.src, args.dst, width=width, height=height)
+    convert_events(args.src, args.dst, width=width, height=height, topic=args.topic,
+                   ros=args.ros)
     print(f"converted {args.src} to {args.dst}")
+    return 0
+
+
+def _check_bag_output(dst: Path, read: list, check_not_input, check_output_file) -> None:
+    """A ROS 2 bag is a folder: an existing one may be replaced (--overwrite), any other folder
+    may not; every other output is one file."""
+    if dst.is_dir():
+        check_not_input(dst, read, "output bag", "dst")
+        if not (dst / "metadata.yaml").is_file():
+            raise ValueError(f"{dst} is an existing folder that is not a ROS 2 bag; expected "
+                             "a new path or a bag to replace")
+    else:
+        check_output_file(dst, read, parameter="dst")
+
+
+def _convert_sequence(args: argparse.Namespace) -> int:
+    """``evfuse convert SEQUENCE_FOLDER out.bag``: the whole sequence as one bag."""
+    from sim.output import check_not_input, check_output_file
+    from sim.sequence_bag import write_sequence_bag
+
+    src, dst = Path(args.src), Path(args.dst)
+    if args.sensor:
+        raise ValueError("--sensor applies to an event file; a sequence folder gives its size")
+    _check_bag_output(dst, [src], check_not_input, check_output_file)
+    if dst.exists() and not args.overwrite:
+        raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
+    counts = write_sequence_bag(src, dst, ros=args.ros, events_topic=args.topic)
+    print(f"converted {args.src} to {args.dst}: " + ", ".join(f"{topic} {count}" for topic,
+                                                              count in counts.items()))
     return 0
 
 
@@ -423,11 +456,21 @@ def _add_twin(sub) -> None:
 
 
 def _add_convert(sub) -> None:
-    convert = sub.add_parser("convert", help="convert events between ECD text and HDF5",
-                             description="Convert events.txt (ECD) <-> events.h5 (DSEC layout), "
-                                         "streaming. The format follows the file suffix.")
-    convert.add_argument("src", help="events.txt or events.h5")
-    convert.add_argument("dst", help="events.h5 or events.txt")
+    convert = sub.add_parser("convert", help="convert events between ECD text, HDF5 and ROS bags",
+                             description="Convert events between events.txt (ECD), events.h5 "
+                                         "(DSEC layout) and ROS bags (.bag ROS 1; .mcap or a "
+                                         "folder ROS 2), streaming; the format follows the "
+                                         "suffix. A sequence folder as SRC writes the whole "
+                                         "sequence (events, frames, depth, camera info, poses, "
+                                         "IMU, flow) as one bag.")
+    convert.add_argument("src", help="events.txt, events.h5, a bag, or a sequence folder")
+    convert.add_argument("dst", help="events.h5, events.txt, out.bag, out.mcap or a ROS 2 "
+                                     "bag folder (with --ros 2)")
+    convert.add_argument("--ros", type=int, choices=(1, 2), default=None,
+                         help="ROS version of a bag whose name cannot say (a folder name)")
+    convert.add_argument("--topic", default=None,
+                         help="event topic to read from a bag SRC or write to a bag DST "
+                              "(default: the bag's one dvs_msgs/EventArray topic; /dvs/events)")
     convert.add_argument("--overwrite", action="store_true", help="replace an existing DST")
     convert.add_argument("--sensor", default=None,
                          help="sensor size WxH for HDF5 output (default: from the sequence "
