@@ -435,11 +435,11 @@ class RosEventWriter(_StreamingWriter):
         self._last_t = int(events["t"][-1])
         pending = np.concatenate([self._pending, events]) if self._pending.size else events
         starts = _message_slices(pending["t"], self._slice_ns, self._max_events)
-        # the last slice may go on in the next chunk; a full one cannot
+        # the last message may go on in the next chunk: held back (at most max_events), so
+        # that the messages do not depend on how the stream was cut into chunks
         last = int(starts[-1])
-        if pending.size - last >= self._max_events:
-            last = pending.size
-        self._emit(pending[:last], starts[starts < last])
+        if last:
+            self._emit(pending[:last], starts[:-1])
         self._pending = pending[last:].copy()
 
     def _emit(self, events: np.ndarray, starts: np.ndarray) -> None:
