@@ -135,6 +135,7 @@ def test_what_rosbags_writes_evfuse_reads_exactly(tmp_path, ros):
     info = bag_info(path)
     assert (info["width"], info["height"], info["topic"], info["messages"]) == (W, H,
                                                                                 "/cam/events", 7)
+    assert (info["t_first_ns"], info["t_last_ns"]) == (events["t"][0], events["t"][-1])
 
 
 def test_round_trips_through_every_other_format(tmp_path):

@@ -20,7 +20,6 @@ from sim.exr import write_depth, write_exr_channels  # noqa: E402
 from sim.sequence_bag import BagRecording, exact_ns, write_sequence_bag  # noqa: E402
 from tests.conftest import run_cli  # noqa: E402
 
-ECD = Path("/work/shared/data/ecd_slider_depth_first50k")
 NS = 1_000_000_000
 W, H = 32, 24
 
@@ -172,10 +171,9 @@ def test_a_rig_gives_two_namespaces_and_the_extrinsic_on_tf_static(tmp_path):
     assert recording.camera_info_topic == "/dvs/camera_info"      # the events' namespace
 
 
-@pytest.mark.skipif(not ECD.is_dir(), reason="the shared ECD recording is not here")
 @pytest.mark.parametrize("name", ["ecd.bag", "ecd"])
-def test_the_ecd_prefix_read_back_from_a_bag_is_the_same_recording(tmp_path, name):
-    write_sequence_bag(ECD, tmp_path / name, ros=2 if name == "ecd" else None)
+def test_the_ecd_prefix_read_back_from_a_bag_is_the_same_recording(tmp_path, name, ecd_slider):
+    write_sequence_bag(ecd_slider, tmp_path / name, ros=2 if name == "ecd" else None)
     recording = BagRecording(tmp_path / name)
     assert recording.topics == {"/dvs/events": "dvs_msgs/msg/EventArray",
                                 "/dvs/image_raw": "sensor_msgs/msg/Image",
@@ -184,18 +182,18 @@ def test_the_ecd_prefix_read_back_from_a_bag_is_the_same_recording(tmp_path, nam
                                 "/tf": "tf2_msgs/msg/TFMessage"}
     assert recording.imu_topic is None
     np.testing.assert_array_equal(np.concatenate(list(recording.iter_events(7_000))),
-                                  read_events(ECD / "events.txt"))
-    assert recording.camera() == read_calib(ECD / "calib.txt", 240, 180)
-    rows = [line.split() for line in (ECD / "images.txt").read_text().splitlines()]
+                                  read_events(ecd_slider / "events.txt"))
+    assert recording.camera() == read_calib(ecd_slider / "calib.txt", 240, 180)
+    rows = [line.split() for line in (ecd_slider / "images.txt").read_text().splitlines()]
     frames = list(recording.frames())
     assert [t for t, _ in frames] == [exact_ns(r[0], "") for r in rows]
     for (_, frame), row in zip(frames[::20], rows[::20], strict=True):
-        np.testing.assert_array_equal(frame, cv2.imread(str(ECD / row[1]),
+        np.testing.assert_array_equal(frame, cv2.imread(str(ecd_slider / row[1]),
                                                         cv2.IMREAD_GRAYSCALE))
     times, poses = recording.poses()
-    text = np.loadtxt(ECD / "groundtruth.txt")
+    text = np.loadtxt(ecd_slider / "groundtruth.txt")
     assert times.tolist() == [exact_ns(line.split()[0], "") for line in
-                              (ECD / "groundtruth.txt").read_text().splitlines()]
+                              (ecd_slider / "groundtruth.txt").read_text().splitlines()]
     np.testing.assert_array_equal(poses, text[:, 1:])
 
 

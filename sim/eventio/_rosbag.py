@@ -608,7 +608,7 @@ def iter_bag_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | No
 
 
 def bag_info(path: str | Path, *, topic: str | None = None, ros: int | None = None) -> dict:
-    """What a bag says cheaply about its events: its first event message only.
+    """What a bag says cheaply about its events: its first and last messages only.
 
     Returns
     -------
@@ -629,6 +629,12 @@ def bag_info(path: str | Path, *, topic: str | None = None, ros: int | None = No
             info.update(width=width, height=height,
                         t_first_ns=int(events["t"][0]) if events.size else None)
             break
+        info["t_last_ns"] = None
+        if info["messages"]:                # the bag's last message, if it is an event message
+            for _, _, data in reader.messages(connections=connections,
+                                              start=int(reader.end_time) - 1):
+                events, _, _ = decode_event_array(data, ros, f"{path}: last event message")
+                info["t_last_ns"] = int(events["t"][-1]) if events.size else None
         info["bag_span_ns"] = (int(reader.start_time), int(reader.end_time))
         return info
     finally:
