@@ -323,3 +323,24 @@ def test_without_rosbags_one_line_names_the_extra(tmp_path, monkeypatch):
     with pytest.raises(ImportError, match=r"^ROS bags need the rosbags library; install it with "
                                           r"pip install 'evfuse\[formats\]'$"):
         RosEventWriter(tmp_path / "x.bag", W, H)
+
+
+def test_convert_bad_bag_input_is_one_line_and_writes_nothing(tmp_path, capsys):
+    from tests.conftest import run_cli
+
+    _message_bag(tmp_path / "e.bag", [_events(10)])
+    (tmp_path / "cut.bag").write_bytes((tmp_path / "e.bag").read_bytes()[:100])
+    cases = [(["e.bag", "o.txt", "--topic", "/nope"], "e.bag: no topic '/nope'"),
+             (["cut.bag", "o.txt"], "cut.bag: not a readable ROS 1 bag"),
+             (["e.bag", "o.h5x"], "unknown event file type '.h5x'"),
+             (["e.bag", "o.bag", "--ros", "2"], "a .bag is a ROS 1 bag, not ROS 2"),
+             (["e.bag", "plain"], "a new folder needs the ROS version given")]
+    for argv, expected in cases:
+        code = run_cli(["convert", *(str(tmp_path / a) if not a.startswith("-") and a not in
+                                     ("/nope", "2") else a for a in argv)])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(err) == 1 and expected in err[0], (argv, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut.bag", "e.bag"]
+    assert run_cli(["convert", str(tmp_path / "e.bag"), str(tmp_path / "o.mcap")]) == 0
+    np.testing.assert_array_equal(read_events(tmp_path / "o.mcap"), read_events(tmp_path /
+                                                                                "e.bag"))

@@ -225,3 +225,20 @@ def test_convert_of_a_sequence_folder_writes_the_bag_and_refuses_an_existing_one
     assert run_cli(["convert", str(tmp_path / "s"), str(tmp_path / "out"), "--ros", "2",
                     "--overwrite"]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "s"]
+
+
+def test_a_ros1_bag_declares_the_md5sums_of_the_ros_packages(tmp_path):
+    """ROS 1 players refuse a message whose md5sum differs from their package's; these are
+    the md5sums in rpg_dvs_ros's generated dvs_msgs headers and in ROS Noetic's packages."""
+    from rosbags.rosbag1 import Reader
+
+    _simulated(tmp_path / "s")
+    write_sequence_bag(tmp_path / "s", tmp_path / "s.bag")
+    with Reader(tmp_path / "s.bag") as reader:
+        digests = {c.msgtype: c.digest for c in reader.connections}
+    assert digests["dvs_msgs/msg/EventArray"] == "5e8beee5a6c107e504c2e78903c224b8"
+    assert digests["sensor_msgs/msg/Image"] == "060021388200f6f0f447d0fcd9c64743"
+    assert digests["sensor_msgs/msg/CameraInfo"] == "c9a58c1b0b154e0e6da7578cb991d214"
+    assert digests["geometry_msgs/msg/PoseStamped"] == "d3812c3cbc69362b77dc0b19b345f8f5"
+    assert digests["sensor_msgs/msg/Imu"] == "6a62c6daae103f4ff57a132d6f95cec2"
+    assert digests["tf2_msgs/msg/TFMessage"] == "94810edda583a504dfda3829e70d7eec"

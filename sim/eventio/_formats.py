@@ -20,4 +20,5 @@ def _kind(path: Path) -> str:
     if suffix in _BAG_SUFFIXES or (path.is_dir() and (path / "metadata.yaml").is_file()):
         return "bag"
     raise ValueError(f"{path}: unknown event file type {suffix!r}; expected .txt (ECD text), "
-                     ".h5 (DSEC HDF5), .bag (ROS 1) or .mcap / a ROS 2 bag folder")
+                     ".h5 (DSEC HDF5), .bag (ROS 1), or .mcap or a ROS 2 bag folder (a new "
+                     "folder needs the ROS version given)")
