@@ -238,6 +238,8 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     src, dst = Path(args.src), Path(args.dst)
     if src.is_dir() and (src / "calib.txt").is_file():
         return _convert_sequence(args)
+    if _is_bag(src) and dst.suffix == "" and args.ros is None:
+        return _convert_bag_to_folder(args)
     width = height = None
     if args.sensor:
         try:
@@ -270,6 +272,25 @@ def _check_bag_output(dst: Path, read: list, check_not_input, check_output_file)
                              "a new path or a bag to replace")
     else:
         check_output_file(dst, read, parameter="dst")
+
+
+def _is_bag(path: Path) -> bool:
+    return path.suffix.lower() in (".bag", ".mcap", ".db3") or (
+        path.is_dir() and (path / "metadata.yaml").is_file())
+
+
+def _convert_bag_to_folder(args: argparse.Namespace) -> int:
+    """``evfuse convert in.bag FOLDER``: the bag's recording as an ECD sequence folder."""
+    from sim.sequence_bag import BagRecording, write_recording_folder
+
+    if args.sensor:
+        raise ValueError("--sensor applies to an event file; a bag's camera info gives its size")
+    recording = BagRecording(args.src, events_topic=args.topic)
+    write_recording_folder(recording, args.dst, overwrite=args.overwrite)
+    print(f"converted {args.src} to the sequence folder {args.dst} (events from "
+          f"{recording.events_topic}, frames from {recording.image_topic}, camera from "
+          f"{recording.camera_info_topic}, poses from {recording.pose_topic})")
+    return 0
 
 
 def _convert_sequence(args: argparse.Namespace) -> int:
@@ -465,7 +486,8 @@ def _add_convert(sub) -> None:
                                          "IMU, flow) as one bag.")
     convert.add_argument("src", help="events.txt, events.h5, a bag, or a sequence folder")
     convert.add_argument("dst", help="events.h5, events.txt, out.bag, out.mcap or a ROS 2 "
-                                     "bag folder (with --ros 2)")
+                                     "bag folder (with --ros 2); from a bag, a folder name "
+                                     "without --ros writes an ECD sequence folder")
     convert.add_argument("--ros", type=int, choices=(1, 2), default=None,
                          help="ROS version of a bag whose name cannot say (a folder name)")
     convert.add_argument("--topic", default=None,

@@ -57,7 +57,7 @@ from sim.eventio._rosbag import (
 )
 from sim.textfile import numeric_rows, text_lines
 
-__all__ = ["BagRecording", "NAMESPACES", "write_sequence_bag"]
+__all__ = ["BagRecording", "NAMESPACES", "exact_ns", "write_recording_folder", "write_sequence_bag"]
 
 NAMESPACES = ("/dvs", "/frame_camera")
 """The event camera's and a rig's frame camera's topic namespaces."""
@@ -586,3 +586,75 @@ class BagRecording:
 
 def _header_ns(header: Any) -> int:
     return int(header.stamp.sec) * _NS + int(header.stamp.nanosec)
+
+
+def _seconds(t_ns: int) -> str:
+    """Whole nanoseconds as seconds with 9 decimals, by integer arithmetic (exact)."""
+    sign = "-" if t_ns < 0 else ""
+    whole, fraction = divmod(abs(int(t_ns)), _NS)
+    return f"{sign}{whole}.{fraction:09d}"
+
+
+def write_recording_folder(recording: BagRecording, out: str | Path, *,
+                           overwrite: bool = False) -> Path:
+    """Write a bag's recording as an ECD sequence folder, which every command reads.
+
+    Parameters
+    ----------
+    recording : BagRecording
+        The bag and its topics.
+    out : str or Path
+        The folder to write (atomically, :func:`sim.output.atomic_output_dir`): ``calib.txt``
+        from the camera info, ``images.txt`` + ``images/`` from the frames, ``groundtruth.txt``
+        from the poses, ``imu.txt`` from the IMU (when the bag has one) and ``events.h5``
+        (the events, exact to the nanosecond); every time written with 9 decimals from the
+        integer nanoseconds, every value with ``repr`` (exact).
+    overwrite : bool
+        Replace a folder evfuse wrote.
+
+    Returns
+    -------
+    Path
+        ``out``.
+
+    Raises
+    ------
+    ValueError
+        The bag has no camera info or no frames (the sequence folder needs both), or as the
+        readers.
+    """
+    from sim.camera import write_calib
+    from sim.eventio import H5EventWriter
+    from sim.output import atomic_output_dir
+    from sim.sequence import frame_name
+
+    camera = recording.camera()
+    if recording.image_topic is None:
+        raise ValueError(f"{recording.path}: no sensor_msgs/Image topic with frames; a sequence "
+                         "folder needs images.txt with its frames")
+    with atomic_output_dir(out, overwrite, inputs=[recording.path],
+                           command="sim.sequence_bag.write_recording_folder") as folder:
+        write_calib(folder / "calib.txt", camera)
+        (folder / "images").mkdir()
+        lines = []
+        for k, (t_ns, frame) in enumerate(recording.frames()):
+            name = frame_name(k, "png")
+            if not cv2.imwrite(str(folder / name), frame):
+                raise ValueError(f"cannot write {folder / name}")
+            lines.append(f"{_seconds(t_ns)} {name}\n")
+        (folder / "images.txt").write_text("".join(lines))
+        times, poses = recording.poses()
+        if times.size:
+            (folder / "groundtruth.txt").write_text("".join(
+                f"{_seconds(t)} " + " ".join(repr(float(v)) for v in row) + "\n"
+                for t, row in zip(times.tolist(), poses, strict=True)))
+        times, imu = recording.imu()
+        if times.size:
+            (folder / "imu.txt").write_text("".join(
+                f"{_seconds(t)} " + " ".join(repr(float(v)) for v in row) + "\n"
+                for t, row in zip(times.tolist(), imu, strict=True)))
+        with H5EventWriter(folder / "events.h5", camera.width, camera.height) as writer:
+            for chunk in recording.iter_events(1 << 20, width=camera.width,
+                                               height=camera.height):
+                writer.write(chunk)
+    return Path(out)

@@ -242,3 +242,28 @@ def test_a_ros1_bag_declares_the_md5sums_of_the_ros_packages(tmp_path):
     assert digests["geometry_msgs/msg/PoseStamped"] == "d3812c3cbc69362b77dc0b19b345f8f5"
     assert digests["sensor_msgs/msg/Imu"] == "6a62c6daae103f4ff57a132d6f95cec2"
     assert digests["tf2_msgs/msg/TFMessage"] == "94810edda583a504dfda3829e70d7eec"
+
+
+def test_the_ecd_prefix_maps_identically_from_text_a_ros1_bag_and_a_ros2_bag(tmp_path,
+                                                                            ecd_slider, capsys):
+    """ECD folder -> bag -> ``evfuse convert BAG FOLDER`` -> ``evfuse map``: the same map
+    points, bit for bit, as mapping the ECD folder itself."""
+    from sim.exr import read_depth
+
+    depth_range = ["--min-depth", "0.47", "--max-depth", "2.4", "--quiet"]
+    assert run_cli(["map", str(ecd_slider), "--out", str(tmp_path / "map-txt"),
+                    *depth_range]) == 0
+    reference = read_depth(tmp_path / "map-txt" / "semidense_depth.exr")
+    for bag in ("ecd.bag", "ecd.mcap"):
+        assert run_cli(["convert", str(ecd_slider), str(tmp_path / bag)]) == 0
+        folder = tmp_path / f"folder_{bag.replace('.', '_')}"
+        assert run_cli(["convert", str(tmp_path / bag), str(folder)]) == 0
+        assert (folder / "images.txt").read_text() == (ecd_slider / "images.txt").read_text()
+        np.testing.assert_array_equal(read_events(folder / "events.h5"),
+                                      read_events(ecd_slider / "events.txt"))
+        assert run_cli(["map", str(folder), "--out", str(tmp_path / f"map-{bag}"),
+                        *depth_range]) == 0
+        depth = read_depth(tmp_path / f"map-{bag}" / "semidense_depth.exr")
+        assert (depth > 0).sum() > 1000
+        np.testing.assert_array_equal(depth, reference)
+    capsys.readouterr()
