@@ -545,7 +545,7 @@ class BagRecording:
                           fy=float(k[4]), cx=float(k[2]), cy=float(k[5]),
                           distortion=tuple(coeffs + [0.0] * (5 - len(coeffs))))
         raise ValueError(f"{self.path}: no sensor_msgs/CameraInfo topic; expected the camera's "
-                         "intrinsics in the bag (or give them as calib.txt)")
+                         "intrinsics and distortion in the bag")
 
     def frames(self) -> Iterator[tuple[int, np.ndarray]]:
         """``(t ns, (H, W) uint8)`` of the image topic, one at a time (mono8, or rgb8 / bgr8

@@ -334,7 +334,9 @@ def test_convert_bad_bag_input_is_one_line_and_writes_nothing(tmp_path, capsys):
              (["cut.bag", "o.txt"], "cut.bag: not a readable ROS 1 bag"),
              (["e.bag", "o.h5x"], "unknown event file type '.h5x'"),
              (["e.bag", "o.bag", "--ros", "2"], "a .bag is a ROS 1 bag, not ROS 2"),
-             (["e.bag", "plain"], "a new folder needs the ROS version given")]
+             (["e.bag", "plain"], "e.bag: no sensor_msgs/CameraInfo topic; expected the "
+                                   "camera's intrinsics"),
+             (["e.bag", "plain.x"], "a new folder needs the ROS version given")]
     for argv, expected in cases:
         code = run_cli(["convert", *(str(tmp_path / a) if not a.startswith("-") and a not in
                                      ("/nope", "2") else a for a in argv)])

@@ -474,16 +474,9 @@ class RosEventWriter(_StreamingWriter):
         if self._own_bag:
             self.bag.abort()
 
-    def close(self) -> None:
-        """Write the last message and move the bag to its final name."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._finish()
-        except BaseException:
-            self._abort()
-            raise
+    def _publish(self) -> None:
+        """Nothing: :meth:`BagFile.close` (in :meth:`_finish`) gave the bag its name, or the
+        whole-sequence writer that owns the bag will."""
 
 
 def open_bag(path: str | Path, ros: int | None = None) -> Any:
