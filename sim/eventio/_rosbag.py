@@ -569,8 +569,9 @@ def iter_bag_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | No
         held = 0
         index = 0
         t_prev = None
-        start = None if t0_ns is None else max(0, int(t0_ns))
-        for k, (_, _, data) in enumerate(reader.messages(connections=connections, start=start)):
+        # every message from the first: a bag's time need not be its messages' last event's
+        # (a recorder stamps the arrival), and the time order is checked from the start
+        for k, (_, _, data) in enumerate(reader.messages(connections=connections)):
             events, w, h = decode_event_array(data, ros, f"{path}: event message {k}")
             error = _first_error(events, width if width is not None else w,
                                  height if height is not None else h, t_prev)
