@@ -753,6 +753,21 @@ def _noise_time_tables(data: dict) -> list[tuple[str, Table]]:
              f"({'met' if data['goal_met'] else 'not met'}).", (header, body))]
 
 
+# -------------------------------------------------------------------------------- formats.json
+
+def _formats_tables(data: dict) -> list[tuple[str, Table]]:
+    header = ["format", "direction", "tool", "Mev/s", "peak RSS MiB",
+              "evfuse time / fastest library"]
+    body = [[r["format"], r["direction"], r["tool"], _num(r["mev_per_s"]),
+             _num(r["peak_rss_mib"], 0),
+             "" if r.get("evfuse_over_fastest_library") is None
+             else _num(r["evfuse_over_fastest_library"])] for r in data["rows"]]
+    return [(f"{_num(data['events'], 0)} events, {data['sensor'][0]}x{data['sensor'][1]}, "
+             f"{data['span_s']:g} s; best of {data['repeat']} runs, each in its own process "
+             "(peak RSS of that process, interpreter and libraries included; a library's "
+             "process holds the whole array).", (header, body))]
+
+
 # -------------------------------------------------------------------- procedural_exposure.json
 
 def _procedural_exposure_tables(data: dict) -> list[tuple[str, Table]]:
@@ -839,6 +854,11 @@ SECTIONS: tuple[Section, ...] = (
             "A static scene with the realistic noise preset: leak, shot and hot-pixel events "
             "against the 10-ms render grid.",
             "python -m benchmarks.bench_noise_time", _noise_time_tables, lambda data: []),
+    Section("formats.json", "Event file formats",
+            "Write and read speed of evfuse's AEDAT4 and Prophesee RAW codecs beside faery, "
+            "evlib, expelliarmus and dv-processing on the same events, and the peak memory of "
+            "a streamed conversion from events.h5.",
+            "python -m benchmarks.bench_formats", _formats_tables, lambda data: []),
     Section("generate_estimates.json", "Dataset generation: how good --dry-run's estimates are",
             "`evfuse generate --dry-run`'s estimate of each job against its measured wall "
             "seconds, on procedural tabletops, each command its own process.",

@@ -18,7 +18,16 @@ from fusion.cli_options import (
     add_map_options,
     add_subcommand,
 )
-from sim.cli import FINITE, OVERWRITE_HELP, PNG_OVERWRITE_HELP, SEED, count_type
+from sim.cli import (
+    FINITE,
+    OVERWRITE_HELP,
+    PNG_OVERWRITE_HELP,
+    RECORDING_HELP,
+    SEED,
+    add_recording_options,
+    count_type,
+    open_recording,
+)
 from sim.validation import depth_metres
 
 __all__ = ["COMMANDS", "add_command"]
@@ -42,6 +51,7 @@ def _cmd_map(args: argparse.Namespace) -> int:
     from sim.output import check_output_dir
 
     _check_depth_flags(args)
+    open_recording(args, "sequence")
     check_output_dir(args.out, args.overwrite, [args.sequence])   # fail before the long work
     result, params = map_window(
         args.sequence, args.out, args.t0, args.t1, ref_time=args.ref_time,
@@ -145,6 +155,7 @@ def _cmd_map_global(args: argparse.Namespace) -> int:
 
     _refuse_for_global(args)
     _check_depth_flags(args)
+    open_recording(args, "sequence")
     params = replace(_global_params(args, _fill_method(args)), t0=args.t0, t1=args.t1)
     document = map_global(args.sequence, args.out, params, overwrite=args.overwrite,
                           progress=not args.quiet)
@@ -170,6 +181,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from fusion.pipeline import RunParams, is_sequence_folder, run_pipeline
     from fusion.summaries import run_summary
 
+    open_recording(args, "source")
     if args.global_map:
         return _cmd_run_global(args)
     given = [flag for flag, name in args.global_flags if getattr(args, name) is not None]
@@ -223,7 +235,8 @@ def _add_map(sub) -> None:
                     "at a reference view; writes semidense_depth.exr, confidence.exr, mask.png, "
                     "overlay.png, map.ply and map.json (with errors against the exact depth for "
                     "simulated sequences).")
-    mapping.add_argument("sequence", help="sequence folder (simulated or ECD)")
+    mapping.add_argument("sequence", help="sequence folder (simulated or ECD)" + RECORDING_HELP)
+    add_recording_options(mapping)
     mapping.add_argument("--out", required=True, help="folder to write the map into")
     mapping.add_argument("--ref-time", type=FINITE, default=None,
                          help="reference view time, s (default: the standard frame nearest the "
@@ -246,7 +259,9 @@ def _add_map_global(sub) -> None:
                     "(mesh.ply), scored against the exact surface (simulated sequences) or "
                     "checked by the views' agreement (real recordings): global.json, "
                     "global_error.ply, global.png.")
-    map_global.add_argument("sequence", help="sequence folder (simulated or ECD)")
+    map_global.add_argument("sequence",
+                            help="sequence folder (simulated or ECD)" + RECORDING_HELP)
+    add_recording_options(map_global)
     map_global.add_argument("--out", required=True, help="folder to write")
     add_map_options(map_global)
     add_global_options(map_global)
@@ -286,7 +301,8 @@ def _add_run(sub) -> None:
         description="SOURCE is a built-in scene, a scene .toml file (simulated over the window "
                     "into OUT/sequence) or a sequence folder (simulated or a real ECD "
                     "recording). Writes map/, fill/, overview.png and report.json into OUT.")
-    run.add_argument("source", help="scene name, scene file or sequence folder")
+    run.add_argument("source", help="scene name, scene file or sequence folder" + RECORDING_HELP)
+    add_recording_options(run)
     run.add_argument("--out", required=True, help="run folder to write")
     add_map_options(run)
     run.add_argument("--spp", type=count_type(1), default=None, help="samples per pixel (scenes)")

@@ -108,6 +108,44 @@ NON_NEGATIVE = number_type(non_negative, "a finite number >= 0")
 """``type=`` of a flag that takes a finite number >= 0."""
 
 
+RECORDING_HELP = (" (or one event file: .aedat4 with its frames and IMU, .raw; with --calib "
+                  "and --poses)")
+"""What a recording argument's help adds: it may be one event file (:mod:`sim.recording`)."""
+
+
+def add_recording_options(parser: argparse.ArgumentParser) -> None:
+    """``--calib`` and ``--poses`` of a command that reads a recording given as one file."""
+    parser.add_argument("--recording-calib", "--calib", dest="recording_calib", default=None,
+                        metavar="CALIB",
+                        help="calib.txt (fx fy cx cy k1 k2 p1 p2 k3) of a recording given as "
+                             "one event file (.raw, .aedat4 hold no intrinsics)")
+    parser.add_argument("--poses", dest="recording_poses", default=None, metavar="POSES",
+                        help="groundtruth.txt (t px py pz qx qy qz qw) of a recording given as "
+                             "one event file")
+
+
+def open_recording(args: argparse.Namespace, attr: str) -> None:
+    """Replace ``args.<attr>``, a recording given as one event file, by the sequence folder it
+    is unpacked into (:func:`sim.recording.recording_folder`, a cache outside the input); a
+    folder or a scene is left as it is."""
+    from sim.recording import is_recording_file, recording_folder
+    from sim.validation import ParameterError
+
+    given = getattr(args, attr)
+    calib, poses = args.recording_calib, args.recording_poses
+    if not is_recording_file(given):
+        if (calib or poses) and Path(given).is_dir():
+            raise ValueError(f"{given} is a sequence folder, which has its own calib.txt and "
+                             "groundtruth.txt; --calib and --poses go with a recording given "
+                             "as one event file")
+        return
+    try:
+        setattr(args, attr, str(recording_folder(given, calib=calib, poses=poses)))
+    except ParameterError as error:
+        raise ValueError(error.rephrase({"calib": "--calib CALIB", "poses": "--poses"})) \
+            from None
+
+
 def _cmd_scenes(args: argparse.Namespace) -> int:
     from scenes import describe_scenes
 
@@ -139,6 +177,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         min_rate=args.min_rate, max_rate=args.max_rate, sampler=args.sampler, spp=args.spp,
         frame_sensor=args.frame_sensor, rig=args.rig, motion_truth=not args.no_motion_truth)
     formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
+    formats += tuple(name for name in args.format or () if name not in formats)
     result = simulate(scene, args.out, variant=args.variant, overwrite=args.overwrite,
                       progress=not args.quiet, with_events=not args.no_events,
                       event_formats=formats, resume=args.resume, **inputs)
@@ -171,6 +210,7 @@ def _cmd_events(args: argparse.Namespace) -> int:
         recording_stats,
     )
 
+    open_recording(args, "sequence")
     folder = Path(args.sequence)
     if args.compare is not None and not args.stats:
         raise ValueError("--compare compares statistics: add --stats")
@@ -214,6 +254,7 @@ def _cmd_events(args: argparse.Namespace) -> int:
 def _cmd_twin(args: argparse.Namespace) -> int:
     from sim.twin import write_twin
 
+    open_recording(args, "recording")
     window = None
     if args.window is not None:
         try:
@@ -236,8 +277,18 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     from sim.sequence import load_sequence
 
     src, dst = Path(args.src), Path(args.dst)
-    if src.is_dir() and (src / "calib.txt").is_file():
-        return _convert_sequence(args)
+    if src.is_dir() and not _is_bag(src):               # a whole sequence as one file
+        if _is_bag(dst) or dst.suffix == "" or args.ros is not None:
+            return _convert_sequence(args)
+        from sim.recording import write_sequence_file
+
+        check_output_file(args.dst, [args.src], parameter="dst")
+        if Path(args.dst).exists() and not args.overwrite:
+            raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
+        events, frames, imu = write_sequence_file(args.src, args.dst)
+        print(f"converted sequence {args.src} ({events} events, {frames} frames, {imu} IMU "
+              f"samples) to {args.dst}")
+        return 0
     if _is_bag(src) and dst.suffix == "" and args.ros is None:
         return _convert_bag_to_folder(args)
     width = height = None
@@ -256,8 +307,11 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     _check_bag_output(dst, read, check_not_input, check_output_file)
     if dst.exists() and not args.overwrite:
         raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
-    convert_events(args.src, args.dst, width=width, height=height, topic=args.topic,
-                   ros=args.ros)
+    topic = {"topic": args.topic} if args.topic is not None else None
+    convert_events(args.src, args.dst, width=width, height=height,
+                   dst_selectors={"evt": args.evt, "ros": args.ros},
+                   src_options=topic if _is_bag(src) else None,
+                   dst_options=topic if _is_bag(dst) or args.ros is not None else None)
     print(f"converted {args.src} to {args.dst}")
     return 0
 
@@ -275,8 +329,9 @@ def _check_bag_output(dst: Path, read: list, check_not_input, check_output_file)
 
 
 def _is_bag(path: Path) -> bool:
-    return path.suffix.lower() in (".bag", ".mcap", ".db3") or (
-        path.is_dir() and (path / "metadata.yaml").is_file())
+    from sim.eventio._formats import is_bag_folder
+
+    return path.suffix.lower() in (".bag", ".mcap", ".db3") or is_bag_folder(path)
 
 
 def _convert_bag_to_folder(args: argparse.Namespace) -> int:
@@ -407,6 +462,11 @@ def _add_simulate(sub) -> None:
                           help="event files to write, comma-separated: h5 (with per-event "
                                "depth, events/depth), txt, depth-txt (events_depth.txt: t x y p "
                                "depth flag) (default h5,txt)")
+    simulate.add_argument("--format", action="append", default=None, metavar="FMT",
+                          choices=("aedat4", "evt3", "evt2"),
+                          help="also write the events as events.<suffix> in this format: "
+                               "aedat4, evt3 or evt2 (Prophesee RAW events.raw); repeatable; "
+                               "converted exactly from events.h5 at the end of the event stage")
     simulate.add_argument("--no-events", action="store_true",
                           help="render frames and depth only")
     simulate.add_argument("--no-motion-truth", action="store_true",
@@ -430,7 +490,8 @@ def _add_simulate(sub) -> None:
 
 def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) -> None:
     events = sub.add_parser("events", help="statistics and an event frame of a sequence's events")
-    events.add_argument("sequence", help="sequence folder with events.h5 or events.txt")
+    events.add_argument("sequence", help="sequence folder with events.h5 or events.txt"
+                                         + RECORDING_HELP)
     events.add_argument("--stats", action="store_true",
                         help="print count, rate, ON/OFF balance (and draw the event frame into "
                              "--out)")
@@ -444,6 +505,7 @@ def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) ->
     events.add_argument("--compare", default=None, metavar="OTHER",
                         help="with --stats: another sequence folder (a twin and its recording), "
                              "printed side by side with the ratio OTHER / SEQUENCE")
+    add_recording_options(events)
     events.set_defaults(run=_cmd_events, event_figure=event_figure)
 
 
@@ -455,7 +517,8 @@ def _add_twin(sub) -> None:
                     "frame at the window's start, undistorted): the recording's camera, "
                     "trajectory and frame rate, and a poster like its view at --depth.")
     twin.add_argument("recording", help="an Event-Camera Dataset folder (calib.txt, "
-                                        "groundtruth.txt, images.txt)")
+                                        "groundtruth.txt, images.txt)" + RECORDING_HELP)
+    add_recording_options(twin)
     twin.add_argument("--depth", type=POSITIVE, required=True,
                       help="the poster's depth, m, in the camera at the window's start (e.g. "
                            "the median depth that `evfuse map` prints for the recording and "
@@ -477,19 +540,26 @@ def _add_twin(sub) -> None:
 
 
 def _add_convert(sub) -> None:
-    convert = sub.add_parser("convert", help="convert events between ECD text, HDF5 and ROS bags",
-                             description="Convert events between events.txt (ECD), events.h5 "
-                                         "(DSEC layout) and ROS bags (.bag ROS 1; .mcap or a "
-                                         "folder ROS 2), streaming; the format follows the "
-                                         "suffix. A sequence folder as SRC writes the whole "
-                                         "sequence (events, frames, depth, camera info, poses, "
-                                         "IMU, flow) as one bag.")
-    convert.add_argument("src", help="events.txt, events.h5, a bag, or a sequence folder")
-    convert.add_argument("dst", help="events.h5, events.txt, out.bag, out.mcap or a ROS 2 "
-                                     "bag folder (with --ros 2); from a bag, a folder name "
-                                     "without --ros writes an ECD sequence folder")
+    convert = sub.add_parser("convert", help="convert events between file formats",
+                             description="Convert events between ECD text (.txt), the DSEC "
+                                         "layout (.h5), AEDAT4 (.aedat4), Prophesee RAW "
+                                         "(.raw, EVT 3.0 or --evt 2) and ROS bags (.bag ROS 1; "
+                                         ".mcap or a folder with --ros 2 ROS 2), streaming. The "
+                                         "format follows the file suffix (a RAW source: its "
+                                         "header). A sequence folder as SRC is written whole "
+                                         "as one .aedat4 (events, frames, IMU) or one bag "
+                                         "(events, frames, depth, camera info, poses, IMU, "
+                                         "flow); a bag as SRC and a folder name as DST writes "
+                                         "an ECD sequence folder.")
+    convert.add_argument("src", help="the event file to read (.txt, .h5, .aedat4, .raw, .bag, "
+                                     ".mcap, a ROS 2 bag folder), or a sequence folder")
+    convert.add_argument("dst", help="the event file to write (.txt, .h5, .aedat4, .raw, .bag, "
+                                     ".mcap, a ROS 2 bag folder with --ros 2), or, from a bag, "
+                                     "a sequence folder (a name without suffix, no --ros)")
+    convert.add_argument("--evt", type=int, choices=(2, 3), default=None,
+                         help="RAW encoding of a .raw DST: 3 (EVT 3.0, default) or 2 (EVT 2.0)")
     convert.add_argument("--ros", type=int, choices=(1, 2), default=None,
-                         help="ROS version of a bag whose name cannot say (a folder name)")
+                         help="ROS version of a bag DST whose name cannot say (a folder name)")
     convert.add_argument("--topic", default=None,
                          help="event topic to read from a bag SRC or write to a bag DST "
                               "(default: the bag's one dvs_msgs/EventArray topic; /dvs/events)")

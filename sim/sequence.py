@@ -679,6 +679,13 @@ def _size_from_metadata(path: Path, metadata: dict, key: str = "camera"
     return width, height
 
 
+def _size_from_events(path: Path) -> tuple[int, int] | None:
+    """The sensor size an ``events.h5`` states (its ``width``/``height``), or None."""
+    from sim.eventio._read import _h5_info
+
+    return _h5_info(path)["sensor_size"]
+
+
 def _size_from_frame(path: Path) -> tuple[int, int]:
     frame = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if frame is None:
@@ -777,7 +784,8 @@ def load_sequence(folder: str | Path) -> Sequence:
     ValueError
         The folder, ``calib.txt`` or ``images.txt`` is missing; an index or JSON file is
         malformed or lists a missing file; or the sensor size cannot be found (no
-        ``sequence.json`` with ``camera.width/height`` and no frame to read it from).
+        ``sequence.json`` with ``camera.width/height``, no frame to read it from and no
+        ``events.h5`` that states it).
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -794,6 +802,8 @@ def load_sequence(folder: str | Path) -> Sequence:
     if (folder / "sequence.json").is_file():
         metadata = read_sequence_json(folder / "sequence.json")
         size = _size_from_metadata(folder / "sequence.json", metadata)
+    if size is None and not image_paths and (folder / "events.h5").is_file():
+        size = _size_from_events(folder / "events.h5")    # a recording of events alone
     if size is None:
         if not image_paths:
             raise ValueError(f"{folder / 'images.txt'} lists no frames and there is no "

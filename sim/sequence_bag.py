@@ -57,7 +57,8 @@ from sim.eventio._rosbag import (
 )
 from sim.textfile import numeric_rows, text_lines
 
-__all__ = ["BagRecording", "NAMESPACES", "exact_ns", "write_recording_folder", "write_sequence_bag"]
+__all__ = ["BagRecording", "NAMESPACES", "exact_ns", "unpack_bag", "write_recording_folder",
+           "write_sequence_bag"]
 
 NAMESPACES = ("/dvs", "/frame_camera")
 """The event camera's and a rig's frame camera's topic namespaces."""
@@ -595,6 +596,34 @@ def _seconds(t_ns: int) -> str:
     return f"{sign}{whole}.{fraction:09d}"
 
 
+def unpack_bag(recording: BagRecording, folder: Path) -> None:
+    """Write what a bag holds besides its events into a sequence folder being written:
+    ``calib.txt`` (from the camera info, when the bag has one), ``images.txt`` + ``images/``
+    (its frames), ``groundtruth.txt`` (its poses) and ``imu.txt`` (its IMU), each only where
+    the bag has the topic; every time with 9 decimals from the integer nanoseconds, every value
+    with ``repr`` (exact)."""
+    from sim.camera import write_calib
+    from sim.sequence import frame_name
+
+    if recording.camera_info_topic is not None:
+        write_calib(folder / "calib.txt", recording.camera())
+    lines = []
+    for k, (t_ns, frame) in enumerate(recording.frames()):
+        name = frame_name(k, "png")
+        (folder / "images").mkdir(exist_ok=True)
+        if not cv2.imwrite(str(folder / name), frame):
+            raise ValueError(f"cannot write {folder / name}")
+        lines.append(f"{_seconds(t_ns)} {name}\n")
+    if lines:
+        (folder / "images.txt").write_text("".join(lines))
+    for name, (times, rows) in (("groundtruth.txt", recording.poses()),
+                                ("imu.txt", recording.imu())):
+        if times.size:
+            (folder / name).write_text("".join(
+                f"{_seconds(t)} " + " ".join(repr(float(v)) for v in row) + "\n"
+                for t, row in zip(times.tolist(), rows, strict=True)))
+
+
 def write_recording_folder(recording: BagRecording, out: str | Path, *,
                            overwrite: bool = False) -> Path:
     """Write a bag's recording as an ECD sequence folder, which every command reads.
@@ -623,10 +652,8 @@ def write_recording_folder(recording: BagRecording, out: str | Path, *,
         The bag has no camera info or no frames (the sequence folder needs both), or as the
         readers.
     """
-    from sim.camera import write_calib
     from sim.eventio import H5EventWriter
     from sim.output import atomic_output_dir
-    from sim.sequence import frame_name
 
     camera = recording.camera()
     if recording.image_topic is None:
@@ -634,25 +661,7 @@ def write_recording_folder(recording: BagRecording, out: str | Path, *,
                          "folder needs images.txt with its frames")
     with atomic_output_dir(out, overwrite, inputs=[recording.path],
                            command="sim.sequence_bag.write_recording_folder") as folder:
-        write_calib(folder / "calib.txt", camera)
-        (folder / "images").mkdir()
-        lines = []
-        for k, (t_ns, frame) in enumerate(recording.frames()):
-            name = frame_name(k, "png")
-            if not cv2.imwrite(str(folder / name), frame):
-                raise ValueError(f"cannot write {folder / name}")
-            lines.append(f"{_seconds(t_ns)} {name}\n")
-        (folder / "images.txt").write_text("".join(lines))
-        times, poses = recording.poses()
-        if times.size:
-            (folder / "groundtruth.txt").write_text("".join(
-                f"{_seconds(t)} " + " ".join(repr(float(v)) for v in row) + "\n"
-                for t, row in zip(times.tolist(), poses, strict=True)))
-        times, imu = recording.imu()
-        if times.size:
-            (folder / "imu.txt").write_text("".join(
-                f"{_seconds(t)} " + " ".join(repr(float(v)) for v in row) + "\n"
-                for t, row in zip(times.tolist(), imu, strict=True)))
+        unpack_bag(recording, folder)
         with H5EventWriter(folder / "events.h5", camera.width, camera.height) as writer:
             for chunk in recording.iter_events(1 << 20, width=camera.width,
                                                height=camera.height):

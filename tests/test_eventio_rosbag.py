@@ -154,7 +154,7 @@ def test_h5_to_bag_takes_the_sensor_size_and_bag_to_h5_the_bags(tmp_path):
     events = _events(1_000, seed=6)
     with H5EventWriter(tmp_path / "a.h5", W, H) as writer:
         writer.write(events)
-    convert_events(tmp_path / "a.h5", tmp_path / "b", ros=2)
+    convert_events(tmp_path / "a.h5", tmp_path / "b", dst_selectors={"ros": 2})
     assert bag_info(tmp_path / "b")["width"] == W
     convert_events(tmp_path / "b", tmp_path / "c.h5")
     np.testing.assert_array_equal(read_events(tmp_path / "c.h5"), events)
@@ -240,9 +240,10 @@ def test_a_bag_without_events_and_a_topic_not_there_are_named(tmp_path):
     _message_bag(tmp_path / "e.bag", [_events(10)])
     with pytest.raises(ValueError, match=r"e\.bag: no topic '/other'; expected one of "
                                          r"\['/dvs/events'\]"):
-        list(iter_event_chunks(tmp_path / "e.bag", topic="/other"))
-    with pytest.raises(ValueError, match="topic and ros apply to ROS bags only"):
-        list(iter_event_chunks(tmp_path / "x.txt", topic="/dvs/events"))
+        list(iter_event_chunks(tmp_path / "e.bag", options={"topic": "/other"}))
+    (tmp_path / "x.txt").write_text("0.1 1 1 1\n")
+    with pytest.raises(ValueError, match=r"x\.txt: topic do\(es\) not apply to a txt file"):
+        list(iter_event_chunks(tmp_path / "x.txt", options={"topic": "/dvs/events"}))
 
 
 def test_two_event_topics_need_one_named(tmp_path):
@@ -306,8 +307,8 @@ def test_a_failed_conversion_to_a_bag_leaves_nothing(tmp_path):
     (tmp_path / "bad.txt").write_text("0.1 1 1 1\n0.05 2 2 0\n")
     for dst in ("out.bag", "out.mcap", "out2"):
         with pytest.raises(ValueError, match=r"bad\.txt:2: .*before"):
-            convert_events(tmp_path / "bad.txt", tmp_path / dst, W, H, ros=2 if dst == "out2"
-                           else None)
+            convert_events(tmp_path / "bad.txt", tmp_path / dst, W, H,
+                           dst_selectors={"ros": 2 if dst == "out2" else None})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.txt"]
 
 
@@ -333,10 +334,10 @@ def test_convert_bad_bag_input_is_one_line_and_writes_nothing(tmp_path, capsys):
     cases = [(["e.bag", "o.txt", "--topic", "/nope"], "e.bag: no topic '/nope'"),
              (["cut.bag", "o.txt"], "cut.bag: not a readable ROS 1 bag"),
              (["e.bag", "o.h5x"], "unknown event file type '.h5x'"),
-             (["e.bag", "o.bag", "--ros", "2"], "a .bag is a ROS 1 bag, not ROS 2"),
+             (["e.bag", "o.bag", "--ros", "2"], "o.bag: ros=2 is not a .bag format"),
              (["e.bag", "plain"], "e.bag: no sensor_msgs/CameraInfo topic; expected the "
                                    "camera's intrinsics"),
-             (["e.bag", "plain.x"], "a new folder needs the ROS version given")]
+             (["e.bag", "plain.x"], "unknown event file type '.x'; expected")]
     for argv, expected in cases:
         code = run_cli(["convert", *(str(tmp_path / a) if not a.startswith("-") and a not in
                                      ("/nope", "2") else a for a in argv)])

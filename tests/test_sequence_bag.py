@@ -244,11 +244,14 @@ def test_a_ros1_bag_declares_the_md5sums_of_the_ros_packages(tmp_path):
     assert digests["tf2_msgs/msg/TFMessage"] == "94810edda583a504dfda3829e70d7eec"
 
 
-def test_the_ecd_prefix_maps_identically_from_text_a_ros1_bag_and_a_ros2_bag(tmp_path,
-                                                                            ecd_slider, capsys):
-    """ECD folder -> bag -> ``evfuse convert BAG FOLDER`` -> ``evfuse map``: the same map
-    points, bit for bit, as mapping the ECD folder itself."""
+def test_the_ecd_prefix_maps_identically_from_text_a_ros1_bag_and_a_ros2_bag(
+        tmp_path, ecd_slider, capsys, monkeypatch):
+    """ECD folder -> bag -> ``evfuse map BAG`` (unpacked into the cache) and -> ``evfuse convert
+    BAG FOLDER`` -> ``evfuse map``: the same map points, bit for bit, as mapping the ECD folder
+    itself."""
     from sim.exr import read_depth
+
+    monkeypatch.setenv("EVFUSE_CACHE", str(tmp_path / "cache"))
 
     depth_range = ["--min-depth", "0.47", "--max-depth", "2.4", "--quiet"]
     assert run_cli(["map", str(ecd_slider), "--out", str(tmp_path / "map-txt"),
@@ -266,4 +269,8 @@ def test_the_ecd_prefix_maps_identically_from_text_a_ros1_bag_and_a_ros2_bag(tmp
         depth = read_depth(tmp_path / f"map-{bag}" / "semidense_depth.exr")
         assert (depth > 0).sum() > 1000
         np.testing.assert_array_equal(depth, reference)
+        assert run_cli(["map", str(tmp_path / bag), "--out", str(tmp_path / f"direct-{bag}"),
+                        *depth_range]) == 0                      # the bag as one recording
+        np.testing.assert_array_equal(
+            read_depth(tmp_path / f"direct-{bag}" / "semidense_depth.exr"), reference)
     capsys.readouterr()

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from sim.eventio._events import EVENT_DTYPE, _check_size, _first_error
-from sim.eventio._formats import _kind
-from sim.eventio._hdf5 import _H5Source
-from sim.eventio._text import _iter_text_blocks, _line_blocks, _parse_block
+from sim.eventio._formats import EventFormat, _kind, format_for, is_bag_folder
+from sim.eventio._hdf5 import H5EventWriter, _H5Source
+from sim.eventio._text import TextEventWriter, _iter_text_blocks, _line_blocks, _parse_block
 
 __all__ = ["event_time_span", "iter_event_chunks", "line_offsets", "read_byte_span", "read_events",
            "read_text_span", "read_window", "text_offsets"]
@@ -32,8 +32,6 @@ def event_time_span(path: str | Path, width: int | None = None,
         The file holds no events, or as :func:`iter_event_chunks`.
     """
     path = Path(path)
-    if _kind(path) == "bag":
-        return _bag_time_span(path, width, height)
     if _kind(path) == "h5" and path.is_file():
         source = _H5Source(path)
         try:
@@ -60,17 +58,6 @@ def _text_time_span(path: str, size: int, mtime_ns: int, width: int | None,
     if first is None:
         raise ValueError(f"{path}: the file holds no events")
     return int(first) * 1e-9, int(last) * 1e-9
-
-def _bag_time_span(path: Path, width: int | None, height: int | None) -> tuple[float, float]:
-    """:func:`event_time_span` of a bag: one streaming pass over its event messages."""
-    first = last = None
-    for chunk in iter_event_chunks(path, 10**6, width=width, height=height):
-        first = chunk["t"][0] if first is None else first
-        last = chunk["t"][-1]
-    if first is None:
-        raise ValueError(f"{path}: the bag holds no events")
-    return int(first) * 1e-9, int(last) * 1e-9
-
 
 def _check_window(t0_ns: int | None, t1_ns: int | None) -> None:
     for name, value in (("t0_ns", t0_ns), ("t1_ns", t1_ns)):
@@ -122,15 +109,14 @@ def _iter_txt(path: Path, chunk_events: int, t0_ns: int | None, t1_ns: int | Non
 
 def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | None = None,
                       t1_ns: int | None = None, *, width: int | None = None,
-                      height: int | None = None, topic: str | None = None,
-                      ros: int | None = None) -> Iterator[np.ndarray]:
+                      height: int | None = None, selectors: dict | None = None,
+                      options: dict | None = None) -> Iterator[np.ndarray]:
     """Stream the events of a file in chunks, never holding the whole file.
 
     Parameters
     ----------
     path : str or Path
-        ``.txt`` (ECD text), ``.h5``/``.hdf5`` (DSEC layout) or a ROS bag (``.bag``, a ROS 2
-        bag folder or ``.mcap``; :func:`sim.eventio._rosbag.iter_bag_chunks`).
+        ``.txt`` (ECD text) or ``.h5``/``.hdf5`` (DSEC layout).
     chunk_events : int
         Most events per chunk.
     t0_ns, t1_ns : int, optional
@@ -139,10 +125,11 @@ def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | 
         ``t1_ns``.
     width, height : int, optional
         Sensor size; events outside it are an error.
-    topic : str, optional
-        A bag's event topic (default: its one ``dvs_msgs/EventArray`` topic); bags only.
-    ros : {1, 2}, optional
-        A bag's ROS version where its name cannot say; bags only.
+    selectors : dict, optional
+        Which format of a suffix that holds more than one (``{"evt": 2}``; see
+        :func:`sim.eventio._formats.format_for`).
+    options : dict, optional
+        What the format's reader takes besides the file (a bag's ``{"topic": "/dvs/events"}``).
 
     Yields
     ------
@@ -158,24 +145,87 @@ def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | 
         missing datasets or bad values (``"{path}: event {i}: ..."``).
     """
     path = Path(path)
-    kind = _kind(path)
+    kind = format_for(path, **(selectors or {})).name
     if isinstance(chunk_events, bool) or not isinstance(chunk_events, int) or chunk_events < 1:
         raise ValueError(f"chunk_events must be a positive integer, got {chunk_events!r}")
     _check_window(t0_ns, t1_ns)
     _check_size(width, height, str(path))
-    if kind == "bag":
-        from sim.eventio._rosbag import iter_bag_chunks
-
-        yield from iter_bag_chunks(path, chunk_events, t0_ns, t1_ns, width=width, height=height,
-                                   topic=topic, ros=ros)
-        return
-    if topic is not None or ros is not None:
-        raise ValueError(f"{path}: topic and ros apply to ROS bags only; expected a .bag, "
-                         ".mcap or ROS 2 bag folder")
-    if not path.is_file():
+    if not (path.is_file() or is_bag_folder(path)):
         raise ValueError(f"event file {path} does not exist")
-    iterate = _iter_h5 if kind == "h5" else _iter_txt
-    yield from iterate(path, chunk_events, t0_ns, t1_ns, width, height)
+    if kind in ("h5", "txt"):
+        if options:
+            raise ValueError(f"{path}: {', '.join(options)} do(es) not apply to a {kind} file")
+        iterate = _iter_h5 if kind == "h5" else _iter_txt
+        yield from iterate(path, chunk_events, t0_ns, t1_ns, width, height)
+        return
+    yield from _checked_chunks(path, format_for(path, **(selectors or {})), chunk_events, t0_ns,
+                               t1_ns, width, height, options or {})
+
+
+def _checked_chunks(path: Path, fmt: EventFormat, chunk_events: int, t0_ns: int | None,
+                    t1_ns: int | None, width: int | None, height: int | None,
+                    options: dict) -> Iterator[np.ndarray]:
+    """A registered codec's chunks, checked (time order across chunks, the sensor) and cut to a
+    window: a time out of order is reported with the file and its event index, never sorted."""
+    t_prev = None
+    count = 0
+    for events in fmt.iter_chunks(path, chunk_events=chunk_events, **options):
+        error = _first_error(events, width, height, t_prev)
+        if error is not None:
+            raise ValueError(f"{path}: event {count + error[0]}: {error[1]}")
+        count += events.size
+        if not events.size:
+            continue
+        t_prev = int(events["t"][-1])
+        lo = 0 if t0_ns is None else int(np.searchsorted(events["t"], t0_ns, side="left"))
+        hi = (events.size if t1_ns is None
+              else int(np.searchsorted(events["t"], t1_ns, side="left")))
+        if hi > lo:
+            yield events[lo:hi]
+        if hi < events.size:
+            return
+
+
+def _txt_writer(path: Path, *, sensor_size: tuple[int, int] | None = None,
+                **options) -> TextEventWriter:
+    """The registry's writer of ECD text (the sensor size is not stored)."""
+    return TextEventWriter(path, **options)
+
+
+def _h5_writer(path: Path, *, sensor_size: tuple[int, int] | None,
+               **options) -> H5EventWriter:
+    """The registry's writer of the DSEC HDF5 layout (it needs the sensor size)."""
+    if sensor_size is None:
+        raise ValueError(f"{path}: an events.h5 needs the sensor size; expected (width, height)")
+    return H5EventWriter(path, int(sensor_size[0]), int(sensor_size[1]), **options)
+
+
+def _txt_chunks(path: Path, *, chunk_events: int, **options) -> Iterator[np.ndarray]:
+    return _iter_txt(path, chunk_events, None, None, options.get("width"), options.get("height"))
+
+
+def _h5_chunks(path: Path, *, chunk_events: int, **options) -> Iterator[np.ndarray]:
+    return _iter_h5(path, chunk_events, None, None, options.get("width"), options.get("height"))
+
+
+def _txt_info(path: Path) -> dict:
+    first, last = event_time_span(path)
+    return {"format": "txt", "sensor_size": None, "t_first_ns": round(first * 1e9),
+            "t_last_ns": round(last * 1e9), "count": None}
+
+
+def _h5_info(path: Path) -> dict:
+    source = _H5Source(path)
+    try:
+        size = source.size
+        first = int(source.read(0, 1)["t"][0]) if size else None
+        last = int(source.read(size - 1, size)["t"][0]) if size else None
+        sensor = (None if source.width is None or source.height is None
+                  else (int(source.width), int(source.height)))
+        return {"format": "h5", "sensor_size": sensor, "t_first_ns": first, "t_last_ns": last,
+                "count": size, "t_offset_us": source.t_offset_us}
+    finally:
+        source.close()
 
 
 def _concatenate(chunks: Iterator[np.ndarray]) -> np.ndarray:

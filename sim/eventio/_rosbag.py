@@ -633,3 +633,43 @@ def bag_info(path: str | Path, *, topic: str | None = None, ros: int | None = No
         return info
     finally:
         reader.close()
+
+
+# --- the format registry's codec interface (sim.eventio._formats) ----------------------------
+
+def ros1_writer(path: Path, *, sensor_size: tuple[int, int] | None,
+                **options: Any) -> RosEventWriter:
+    """The registry's writer of a ROS 1 bag (:func:`ros_writer`)."""
+    return ros_writer(path, sensor_size=sensor_size, ros=1, **options)
+
+
+def ros2_writer(path: Path, *, sensor_size: tuple[int, int] | None,
+                **options: Any) -> RosEventWriter:
+    """The registry's writer of a ROS 2 bag (:func:`ros_writer`): a folder, or ``.mcap``."""
+    return ros_writer(path, sensor_size=sensor_size, ros=2, **options)
+
+
+def ros_writer(path: Path, *, sensor_size: tuple[int, int] | None, ros: int | None = None,
+               topic: str | None = None, **options: Any) -> RosEventWriter:
+    """A writer of a ROS 1 or ROS 2 bag (:class:`RosEventWriter`; it needs the sensor size,
+    which every EventArray carries)."""
+    if sensor_size is None:
+        raise ValueError(f"{path}: a bag's EventArray needs the sensor size; expected "
+                         "(width, height)")
+    return RosEventWriter(path, int(sensor_size[0]), int(sensor_size[1]), ros=ros,
+                          topic=topic or EVENTS_TOPIC, **options)
+
+
+def iter_ros_chunks(path: Path, *, chunk_events: int, topic: str | None = None,
+                    ros: int | None = None, **options: Any) -> Iterator[np.ndarray]:
+    """The registry's reader: :func:`iter_bag_chunks` (the caller checks the time order and the
+    sensor across chunks; the messages' own sensor size is checked here)."""
+    return iter_bag_chunks(path, chunk_events, topic=topic, ros=ros)
+
+
+def ros_info(path: Path, *, topic: str | None = None, ros: int | None = None) -> dict:
+    """The registry's cheap look at a bag (:func:`bag_info`, with the registry's keys:
+    ``sensor_size``, ``t_first_ns``, ``t_last_ns`` and ``count``, None: not cheap)."""
+    info = bag_info(path, topic=topic, ros=ros)
+    sensor = None if info["width"] is None else (info["width"], info["height"])
+    return {**info, "sensor_size": sensor, "count": None}

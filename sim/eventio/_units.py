@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.eventio._formats import _kind
+from sim.eventio._formats import format_for
 
 __all__ = ["UNIT_OVERLAP", "UNIT_SLACK", "check_time_units"]
 
@@ -68,7 +68,7 @@ def check_time_units(path: str | Path, first_s: float, last_s: float, t_start: f
 
     if inside(first_s, last_s) >= UNIT_OVERLAP:
         return
-    stored = "microseconds" if _kind(path) == "h5" else "seconds"
+    stored = format_for(path).time_unit
     ratio = (last_s - first_s) / max(t_end - t_start, 1e-9)      # events' span / poses'
     for unit, size in _UNITS.items():
         factor = size / _UNITS[stored]
@@ -76,9 +76,9 @@ def check_time_units(path: str | Path, first_s: float, last_s: float, t_start: f
             continue
         if not (ratio > UNIT_SLACK if factor < 1 else ratio < 1 / UNIT_SLACK):
             continue
-        field = "events/t looks" if stored == "microseconds" else "the times look"
-        layout = "DSEC layout stores microseconds" if stored == "microseconds" else \
-            "ECD text stores seconds"
+        fmt = format_for(path)
+        field = "events/t looks" if fmt.name == "h5" else "the times look"
+        layout = ("DSEC layout" if fmt.name == "h5" else fmt.title) + f" stores {stored}"
         raise ValueError(f"{path}: {field} like {unit} (events at {first_s:.4g}-"
                          f"{last_s:.4g} s against {t_start:.4g}-{t_end:.4g} s of poses); "
                          f"{layout}")

@@ -163,9 +163,11 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         Adaptive sampling of the renders that drive the event camera.
     with_events : bool
         Simulate the event camera (default True).
-    event_formats : tuple of {"h5", "txt", "depth-txt"}
+    event_formats : tuple of {"h5", "txt", "depth-txt", "aedat4", "evt3", "evt2", ...}
         Files to write the events to (``events.h5``, ``events.txt``, ``events_depth.txt``:
-        the events with their depth, :mod:`sim.event_depth`); ``events.h5`` holds the
+        the events with their depth, :mod:`sim.event_depth`; any other registered format,
+        :mod:`sim.eventio._formats`, as ``events.<suffix>``, converted from ``events.h5``,
+        which it needs, at the end of the event stage); ``events.h5`` holds the
         per-event depth too (``events/depth``, ``events/depth_flag``). With the motion truth,
         each event's labels (cause, object id; :mod:`sim.event_labels`) are in ``events.h5``
         (``events/cause``, ``events/object_id``) and, with a text format, ``events_labels.txt``.
@@ -265,6 +267,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
                                           event_formats, checkpoint, progress, timings,
                                           sampler, why, event_depth=motion_truth)
             checkpoint.set_events_done(event_info)
+        if with_events:
+            _write_other_formats(tmp, scene, event_formats)
         for key in ("sampling_warning", "edge_spp_warning"):
             if with_events and event_info.get(key):
                 print(f"simulate {scene.name}: warning: {event_info[key]}", file=sys.stderr,
@@ -319,12 +323,45 @@ def _check_offsets(scene: Scene, start: float) -> None:
                 "{start} or use a positive offset)", start="start")
 
 
+def _other_formats(formats: tuple[str, ...]) -> list[str]:
+    """The registered event formats (:mod:`sim.eventio._formats`) besides the three written
+    while simulating: AEDAT4, Prophesee RAW, ..."""
+    return [name for name in formats if name not in ("h5", "txt", DEPTH_TXT)]
+
+
+def _write_other_formats(folder: Path, scene: Scene, formats: tuple[str, ...]) -> None:
+    """Write ``events.<suffix>`` of each other format from the finished ``events.h5`` (exact,
+    streamed), inside the unfinished output folder: an interrupted run leaves no such file."""
+    from sim.eventio import convert_events
+    from sim.eventio._formats import format_named
+
+    camera = scene.camera
+    for name in _other_formats(formats):
+        fmt = format_named(name)
+        dst = folder / f"events{fmt.suffixes[0]}"
+        if not dst.is_file():                           # written by a resumed run already
+            convert_events(folder / "events.h5", dst, camera.width, camera.height,
+                           dst_selectors=fmt.selector)
+
+
 def _check_events(scene: Scene, with_events: bool, formats: tuple[str, ...], motion_truth: bool,
                   sampler: str | None) -> None:
     """Refuse event formats, or a sampler, that this run cannot have."""
-    unknown = set(formats) - {"h5", "txt", DEPTH_TXT}
+    from sim.eventio._formats import event_formats, format_named
+
+    known = {"h5", "txt", DEPTH_TXT} | {f.name for f in event_formats()}
+    unknown = set(formats) - known
     if with_events and (unknown or not formats):
-        raise ValueError(f"event formats must be among h5, txt, {DEPTH_TXT}; got {formats}")
+        raise ValueError(f"event formats must be among {', '.join(sorted(known))}; got "
+                         f"{formats}")
+    suffixes = [format_named(name).suffixes[0] for name in _other_formats(formats)]
+    if with_events and len(set(suffixes)) < len(suffixes):
+        raise ValueError(f"event formats {', '.join(_other_formats(formats))} would write one "
+                         "file twice (events.raw); expected one format a suffix")
+    if with_events and _other_formats(formats) and "h5" not in formats:
+        raise ValueError(f"event formats {', '.join(_other_formats(formats))} are written from "
+                         "events.h5 at the end of the event stage; expected h5 among the "
+                         f"formats, got {formats}")
     if not motion_truth and DEPTH_TXT in formats:
         raise ValueError(f"event format {DEPTH_TXT} holds each event's depth, which is motion "
                          "ground truth: drop it or keep the motion truth")
