@@ -599,16 +599,21 @@ def _seconds(t_ns: int) -> str:
 def unpack_bag(recording: BagRecording, folder: Path) -> None:
     """Write what a bag holds besides its events into a sequence folder being written:
     ``calib.txt`` (from the camera info, when the bag has one), ``images.txt`` + ``images/``
-    (its frames), ``groundtruth.txt`` (its poses) and ``imu.txt`` (its IMU), each only where
-    the bag has the topic; every time with 9 decimals from the integer nanoseconds, every value
-    with ``repr`` (exact)."""
+    (its frames, when they are in the event topic's namespace: a rig's frame camera's are not
+    the event camera's), ``groundtruth.txt`` (its poses) and ``imu.txt`` (its IMU), each only
+    where the bag has the topic; every time with 9 decimals from the integer nanoseconds, every
+    value with ``repr`` (exact)."""
     from sim.camera import write_calib
     from sim.sequence import frame_name
 
     if recording.camera_info_topic is not None:
         write_calib(folder / "calib.txt", recording.camera())
     lines = []
-    for k, (t_ns, frame) in enumerate(recording.frames()):
+    frames = recording.frames()
+    if recording.image_topic is not None and (recording.image_topic.rsplit("/", 1)[0]
+                                              != recording.events_topic.rsplit("/", 1)[0]):
+        frames = iter(())   # another camera's frames (a rig's frame camera): not the events'
+    for k, (t_ns, frame) in enumerate(frames):
         name = frame_name(k, "png")
         (folder / "images").mkdir(exist_ok=True)
         if not cv2.imwrite(str(folder / name), frame):

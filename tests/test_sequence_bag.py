@@ -289,3 +289,16 @@ def test_simulate_format_ros1_ros2_writes_bags_beside_events_h5_exactly(tmp_path
     assert exact.size > 0 and (exact["t"] % 1000).any()        # sub-microsecond times kept
     np.testing.assert_array_equal(read_events(out / "events.bag"), exact)
     np.testing.assert_array_equal(read_events(out / "events.mcap"), exact)
+
+
+def test_a_rig_bag_unpacks_without_the_frame_cameras_frames(tmp_path):
+    """The frames of /frame_camera are another camera's: the event camera's folder gets none."""
+    from sim.sequence_bag import unpack_bag
+
+    _simulated(tmp_path / "r", rig=True)
+    write_sequence_bag(tmp_path / "r", tmp_path / "rig.bag")
+    (tmp_path / "out").mkdir()
+    unpack_bag(BagRecording(tmp_path / "rig.bag"), tmp_path / "out")
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["calib.txt",
+                                                                   "groundtruth.txt", "imu.txt"]
+    assert (tmp_path / "out" / "calib.txt").read_text().split()[0] == "31.0"
