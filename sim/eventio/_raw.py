@@ -41,7 +41,6 @@ import numba
 import numpy as np
 
 from sim.eventio._events import EVENT_DTYPE, _check_size
-from sim.eventio._formats import us_from_ns
 from sim.eventio._writer import _StreamingWriter
 
 __all__ = ["RawEventWriter", "evt2_writer", "evt3_writer", "iter_raw_chunks", "raw_info"]
@@ -56,13 +55,14 @@ _HALF_WRAP_2 = 1 << 27        # EVT2 time-high steps in half a wrap
 
 
 @numba.njit(cache=True)
-def _encode_evt3(t_us, x, y, p, out, state):
-    """EVT 3.0 words of events; ``state`` = [time high (full, -1 none), time low, y] is updated.
-    Returns the number of words written into ``out``."""
+def _encode_evt3(t_ns, x, y, p, out, state):
+    """EVT 3.0 words of events (times in ns, >= 0, stored as ``t_ns // 1000``); ``state`` =
+    [time high (full, -1 none), time low, y] is updated. Returns the words written into
+    ``out``."""
     n = 0
     high, low, cur_y = state[0], state[1], state[2]
-    for i in range(t_us.size):
-        t = t_us[i]
+    for i in range(t_ns.size):
+        t = t_ns[i] // 1000
         h = t >> 12
         if h != high:
             start = h if high < 0 else high + 1
@@ -87,12 +87,13 @@ def _encode_evt3(t_us, x, y, p, out, state):
 
 
 @numba.njit(cache=True)
-def _encode_evt2(t_us, x, y, p, out, state):
-    """EVT 2.0 words of events; ``state`` = [time high (full, -1 none)] is updated."""
+def _encode_evt2(t_ns, x, y, p, out, state):
+    """EVT 2.0 words of events (times in ns, stored as ``t_ns // 1000``); ``state`` = [time
+    high (full, -1 none)] is updated."""
     n = 0
     high = state[0]
-    for i in range(t_us.size):
-        t = t_us[i]
+    for i in range(t_ns.size):
+        t = t_ns[i] // 1000
         h = t >> 6
         if h != high:
             if high >= 0:                     # a gap of half a wrap or more: words between
@@ -238,17 +239,20 @@ class RawEventWriter(_StreamingWriter):
         self._check_chunk(events)
         if not events.size:
             return
-        t_us = us_from_ns(events["t"])
         step = _TIME_HIGH_3 if self._evt == 3 else _TIME_HIGH_2
-        first = t_us[0] // step if self._state[0] < 0 else self._state[0]
-        highs = int(t_us[-1] // step - first) + 2           # time-high words at most
+        last_us = int(events["t"][-1]) // 1000
+        first = int(events["t"][0]) // 1000 // step if self._state[0] < 0 else self._state[0]
+        highs = last_us // step - first + 2                  # time-high words at most
         if self._evt == 3:
             out = np.empty(3 * events.size + highs, np.uint16)
-            n = _encode_evt3(t_us, events["x"], events["y"], events["p"], out, self._state)
+            n = _encode_evt3(events["t"], events["x"], events["y"], events["p"], out,
+                             self._state)
         else:
             out = np.empty(2 * events.size + highs // _HALF_WRAP_2 + 2, np.uint32)
-            n = _encode_evt2(t_us, events["x"], events["y"], events["p"], out, self._state)
-        self._handle.write(out[:n].astype(out.dtype.newbyteorder("<"), copy=False).tobytes())
+            n = _encode_evt2(events["t"], events["x"], events["y"], events["p"], out,
+                             self._state)
+        self._handle.write(memoryview(out[:n].astype(out.dtype.newbyteorder("<"),
+                                                      copy=False)))
         self.count += events.size
         self._last_t = int(events["t"][-1])
 
