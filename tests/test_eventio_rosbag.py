@@ -321,8 +321,8 @@ def test_without_rosbags_one_line_names_the_extra(tmp_path, monkeypatch):
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, "__import__", no_rosbags)
-    with pytest.raises(ImportError, match=r"^ROS bags need the rosbags library; install it with "
-                                          r"pip install 'evfuse\[formats\]'$"):
+    with pytest.raises(ValueError, match=r"^ROS bags need rosbags, which is not installed; "
+                                         r"expected it from pip install 'evfuse\[formats\]'$"):
         RosEventWriter(tmp_path / "x.bag", W, H)
 
 

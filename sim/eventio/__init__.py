@@ -34,6 +34,8 @@ Modules (private; everything public is re-exported here):
 
 - ``_events``: :data:`EVENT_DTYPE`, :func:`make_events`, :func:`check_events` (events in memory).
 - ``_formats``: which format a file is, by its suffix.
+- ``_rosbag``: ROS 1 and ROS 2 bags of ``dvs_msgs/EventArray`` (rosbags; the messages built and
+  parsed with NumPy).
 - ``_writer``: the streaming writers' common part (``.partial`` file, checkpoint and resume).
 - ``_text``: the ECD text codec (compiled and line-by-line) and :class:`TextEventWriter`.
 - ``_hdf5``: :class:`H5EventWriter` and the checked reader of the DSEC layout.

@@ -32,15 +32,13 @@ import numpy as np
 
 from sim._atomic import partial_path
 from sim.eventio._events import EVENT_DTYPE, _check_size, _first_error
+from sim.eventio._formats import EXTRA_HINT, MissingExtraError
 from sim.eventio._writer import _StreamingWriter
 
-__all__ = ["EVENT_ARRAY", "EVENTS_TOPIC", "FORMATS_EXTRA", "MAX_EVENTS_PER_MESSAGE",
+__all__ = ["EVENT_ARRAY", "EVENTS_TOPIC", "MAX_EVENTS_PER_MESSAGE",
            "RosEventWriter", "SLICE_NS", "BagFile", "bag_info", "bag_ros_version",
            "decode_event_array", "encode_event_array", "iter_bag_chunks", "open_bag",
            "typestore"]
-
-FORMATS_EXTRA = "pip install 'evfuse[formats]'"
-"""What installs the optional formats' libraries."""
 
 EVENT_ARRAY = "dvs_msgs/msg/EventArray"
 EVENTS_TOPIC = "/dvs/events"
@@ -76,14 +74,15 @@ _CDR_EVENT = np.dtype({"names": ["a", "b", "sec", "nsec", "p", "x_next"],
 
 
 def _rosbags() -> Any:
-    """Import ``rosbags`` or say in one line which extra installs it."""
+    """Import ``rosbags`` or say in one line which extra installs it
+    (:class:`sim.eventio._formats.MissingExtraError`, a ValueError)."""
     try:
         import rosbags.rosbag1
         import rosbags.rosbag2
         import rosbags.typesys
     except ImportError:
-        raise ImportError(f"ROS bags need the rosbags library; install it with "
-                          f"{FORMATS_EXTRA}") from None
+        raise MissingExtraError(f"ROS bags need rosbags, which is not installed; expected it "
+                                f"from {EXTRA_HINT}") from None
     return rosbags
 
 
