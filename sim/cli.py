@@ -109,7 +109,8 @@ NON_NEGATIVE = number_type(non_negative, "a finite number >= 0")
 
 
 RECORDING_HELP = (" (or one event file: .aedat4 with its frames and IMU, .raw; with --calib "
-                  "and --poses)")
+                  "and --poses; or a ROS bag, .bag, .mcap or a ROS 2 bag folder, with its "
+                  "camera info, frames, poses and IMU)")
 """What a recording argument's help adds: it may be one event file (:mod:`sim.recording`)."""
 
 
