@@ -164,8 +164,10 @@ elif tool == "rosbags":                     # its own serializer: one object an 
         Time, Event = types["builtin_interfaces/msg/Time"], types["dvs_msgs/msg/Event"]
         Header, Array = types["std_msgs/msg/Header"], types[EVENT_ARRAY]
         serialize = store.serialize_ros1 if ros == 1 else store.serialize_cdr
+        if ros == 2:                                    # rosbags writes a ROS 2 bag folder
+            path = path.with_suffix("")
         if path.exists():                               # an earlier repeat's: rosbags never
-            path.unlink()                               # overwrites
+            __import__("shutil").rmtree(path) if path.is_dir() else path.unlink()  # overwrites
         slot = ev["t"] // 10_000_000                   # evfuse's messages: 10 ms slices
         cuts = np.flatnonzero(np.diff(slot)) + 1
         start = time.perf_counter()
