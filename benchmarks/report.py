@@ -756,10 +756,11 @@ def _noise_time_tables(data: dict) -> list[tuple[str, Table]]:
 # -------------------------------------------------------------------------------- formats.json
 
 def _formats_tables(data: dict) -> list[tuple[str, Table]]:
-    header = ["format", "direction", "tool", "Mev/s", "peak RSS MiB",
+    header = ["format", "direction", "tool", "Mev/s", "peak RSS MiB (half the events)",
               "evfuse time / fastest library"]
     body = [[r["format"], r["direction"], r["tool"], _num(r["mev_per_s"]),
-             _num(r["peak_rss_mib"], 0),
+             _num(r["peak_rss_mib"], 0) + ("" if r.get("peak_rss_mib_half") is None
+                                           else f" ({_num(r['peak_rss_mib_half'], 0)})"),
              "" if r.get("evfuse_over_fastest_library") is None
              else _num(r["evfuse_over_fastest_library"])] for r in data["rows"]]
     return [(f"{_num(data['events'], 0)} events, {data['sensor'][0]}x{data['sensor'][1]}, "

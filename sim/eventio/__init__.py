@@ -1,4 +1,5 @@
-"""Events in memory and on disk: the ECD text format and the DSEC HDF5 layout, streamed.
+"""Events in memory and on disk: the ECD text format and the DSEC HDF5 layout, streamed, and the
+formats of the cameras (AEDAT4, Prophesee RAW) through a registry.
 
 In memory (CONVENTIONS.md, "Events") events are a structured array of :data:`EVENT_DTYPE`:
 ``t`` int64 nanoseconds, ``x``/``y`` uint16 pixel column/row, ``p`` int8 (+1 ON, -1 OFF),
@@ -33,7 +34,11 @@ which names the first bad line (``file:line: ...``) and what was expected.
 Modules (private; everything public is re-exported here):
 
 - ``_events``: :data:`EVENT_DTYPE`, :func:`make_events`, :func:`check_events` (events in memory).
-- ``_formats``: which format a file is, by its suffix.
+- ``_formats``: the format registry: which format a file is, by its suffix (and a selector such
+  as ``evt=2`` where the suffix cannot say), and the codec interface every format follows
+  (streaming writer, ``iter_chunks``, ``info``); the floor-to-microseconds rule.
+- ``_raw``: Prophesee RAW, EVT 3.0 and EVT 2.0 (evfuse's own compiled codec).
+- ``_aedat4``: AEDAT4 through dv-processing (the ``formats`` extra): events, frames, IMU.
 - ``_rosbag``: ROS 1 and ROS 2 bags of ``dvs_msgs/EventArray`` (rosbags; the messages built and
   parsed with NumPy).
 - ``_writer``: the streaming writers' common part (``.partial`` file, checkpoint and resume).
