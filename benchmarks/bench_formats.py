@@ -265,7 +265,8 @@ def main(argv: list[str] | None = None) -> int:
         if kept.get("events") != args.events:
             raise SystemExit(f"formats.json holds {kept.get('events')} events, not "
                              f"{args.events}; measure every format or the same count")
-        rows = [r for r in kept["rows"] if r["format"] not in chosen] + rows
+        rows = [r for r in kept["rows"] if r["format"] not in chosen
+                or args.only not in (None, r["direction"])] + rows
     for row in rows:
         libraries = [r["seconds"] for r in rows if r["format"] == row["format"]
                      and r["direction"] == row["direction"] and r["tool"] != "evfuse"]
