@@ -45,13 +45,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from sim.eventio._events import _check_size
 from sim.eventio._rosbag import (
     EVENT_ARRAY,
     BagFile,
     RosEventWriter,
     bag_ros_version,
-    iter_bag_chunks,
     open_bag,
     typestore,
 )
@@ -515,10 +513,13 @@ class BagRecording:
     def iter_events(self, chunk_events: int = 10**6, t0_ns: int | None = None,
                     t1_ns: int | None = None, *, width: int | None = None,
                     height: int | None = None) -> Iterator[np.ndarray]:
-        """The events in chunks (:func:`sim.eventio._rosbag.iter_bag_chunks`)."""
-        _check_size(width, height, str(self.path))
-        yield from iter_bag_chunks(self.path, chunk_events, t0_ns, t1_ns, width=width,
-                                   height=height, topic=self.events_topic, ros=self.ros)
+        """The events of the event topic in chunks (:func:`sim.eventio.iter_event_chunks`:
+        checked, time-ordered, optionally a window ``t0_ns <= t < t1_ns``)."""
+        from sim.eventio import iter_event_chunks
+
+        yield from iter_event_chunks(self.path, chunk_events, t0_ns, t1_ns, width=width,
+                                     height=height, options={"topic": self.events_topic,
+                                                             "ros": self.ros})
 
     def camera(self) -> Any:
         """The first camera info as a :class:`sim.camera.Camera` (intrinsics and plumb_bob /

@@ -528,11 +528,11 @@ def _event_connections(reader: Any, path: Path, topic: str | None) -> list:
     return found
 
 
-def iter_bag_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | None = None,
-                    t1_ns: int | None = None, *, width: int | None = None,
-                    height: int | None = None, topic: str | None = None,
+def iter_bag_chunks(path: str | Path, chunk_events: int = 10**6, *, topic: str | None = None,
                     ros: int | None = None) -> Iterator[np.ndarray]:
-    """Stream the events of a bag's ``dvs_msgs/EventArray`` topic in chunks.
+    """The events of a bag's ``dvs_msgs/EventArray`` topic in chunks, in the bag's order: the
+    format registry's reader (:func:`sim.eventio.iter_event_chunks` checks the time order across
+    chunks, the sensor and a window, and names an event out of order by its index).
 
     Parameters
     ----------
@@ -541,59 +541,40 @@ def iter_bag_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | No
         say).
     chunk_events : int
         Most events per chunk.
-    t0_ns, t1_ns : int, optional
-        Only events with ``t0_ns <= t < t1_ns``.
-    width, height : int, optional
-        Sensor size; default the messages' own. Events outside it are an error.
     topic : str, optional
         The event topic; default the one topic of type ``dvs_msgs/EventArray``.
 
     Yields
     ------
     (M,) EVENT_DTYPE ndarray
-        Consecutive, time-ordered chunks of 1 to ``chunk_events`` events.
+        Consecutive chunks of 1 to ``chunk_events`` events. Each message's events are checked
+        against the message's own sensor size and time order (``"{path}: event {i}: ..."``).
 
     Raises
     ------
     ValueError
         Not a readable bag, no (or more than one) event topic, a ``topic`` that is not there,
-        a malformed message, or an event before the one it follows
-        (``"{path}: event {i}: ..."``, never sorted).
+        a malformed message (named by its index), an event outside its message's sensor.
     """
     path = Path(path)
     reader, ros = open_bag(path, ros)
     try:
         connections = _event_connections(reader, path, topic)
         pending: list[np.ndarray] = []
-        held = 0
-        index = 0
-        t_prev = None
-        # every message from the first: a bag's time need not be its messages' last event's
-        # (a recorder stamps the arrival), and the time order is checked from the start
+        held = index = 0
         for k, (_, _, data) in enumerate(reader.messages(connections=connections)):
-            events, w, h = decode_event_array(data, ros, f"{path}: event message {k}")
-            error = _first_error(events, width if width is not None else w,
-                                 height if height is not None else h, t_prev)
+            events, width, height = decode_event_array(data, ros, f"{path}: event message {k}")
+            error = _first_error(events, width, height, None)
             if error is not None:
                 raise ValueError(f"{path}: event {index + error[0]}: {error[1]}")
             index += events.size
-            if not events.size:
-                continue
-            t_prev = int(events["t"][-1])
-            if t0_ns is not None and t_prev < t0_ns:
-                continue
-            stop = t1_ns is not None and t_prev >= t1_ns
-            lo = 0 if t0_ns is None else int(np.searchsorted(events["t"], t0_ns))
-            hi = events.size if t1_ns is None else int(np.searchsorted(events["t"], t1_ns))
-            if hi > lo:
-                pending.append(events[lo:hi])
-                held += hi - lo
+            if events.size:
+                pending.append(events)
+                held += events.size
             while held >= chunk_events:
                 joined = np.concatenate(pending)
                 yield joined[:chunk_events]
                 pending, held = [joined[chunk_events:]], joined.size - chunk_events
-            if stop:
-                break
         if held:
             yield np.concatenate(pending)
     finally:
@@ -661,8 +642,7 @@ def ros_writer(path: Path, *, sensor_size: tuple[int, int] | None, ros: int | No
 
 def iter_ros_chunks(path: Path, *, chunk_events: int, topic: str | None = None,
                     ros: int | None = None, **options: Any) -> Iterator[np.ndarray]:
-    """The registry's reader: :func:`iter_bag_chunks` (the caller checks the time order and the
-    sensor across chunks; the messages' own sensor size is checked here)."""
+    """The registry's reader: :func:`iter_bag_chunks`."""
     return iter_bag_chunks(path, chunk_events, topic=topic, ros=ros)
 
 
