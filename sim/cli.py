@@ -330,9 +330,9 @@ def _check_bag_output(dst: Path, read: list, check_not_input, check_output_file)
 
 
 def _is_bag(path: Path) -> bool:
-    from sim.eventio._formats import is_bag_folder
+    from sim.sequence_bag import is_bag
 
-    return path.suffix.lower() in (".bag", ".mcap", ".db3") or is_bag_folder(path)
+    return is_bag(path)
 
 
 def _convert_bag_to_folder(args: argparse.Namespace) -> int:
@@ -557,9 +557,9 @@ def _add_convert(sub) -> None:
     convert.add_argument("dst", help="the event file to write (.txt, .h5, .aedat4, .raw, .bag, "
                                      ".mcap, a ROS 2 bag folder with --ros 2), or, from a bag, "
                                      "a sequence folder (a name without suffix, no --ros)")
-    convert.add_argument("--evt", type=int, choices=(2, 3), default=None,
+    convert.add_argument("--evt", type=count_type(2, 3), default=None,
                          help="RAW encoding of a .raw DST: 3 (EVT 3.0, default) or 2 (EVT 2.0)")
-    convert.add_argument("--ros", type=int, choices=(1, 2), default=None,
+    convert.add_argument("--ros", type=count_type(1, 2), default=None,
                          help="ROS version of a bag DST whose name cannot say (a folder name)")
     convert.add_argument("--topic", default=None,
                          help="event topic to read from a bag SRC or write to a bag DST "

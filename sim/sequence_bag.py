@@ -55,8 +55,8 @@ from sim.eventio._rosbag import (
 )
 from sim.textfile import numeric_rows, text_lines
 
-__all__ = ["BagRecording", "NAMESPACES", "exact_ns", "unpack_bag", "write_recording_folder",
-           "write_sequence_bag"]
+__all__ = ["BagRecording", "NAMESPACES", "exact_ns", "is_bag", "unpack_bag",
+           "write_recording_folder", "write_sequence_bag"]
 
 NAMESPACES = ("/dvs", "/frame_camera")
 """The event camera's and a rig's frame camera's topic namespaces."""
@@ -75,6 +75,15 @@ TF = "tf2_msgs/msg/TFMessage"
 OPTIC_FLOW = "esim_msgs/msg/OpticFlow"
 
 _NS = 1_000_000_000
+
+
+def is_bag(path: str | Path) -> bool:
+    """Whether ``path`` names a ROS bag: ``.bag``, ``.mcap``, ``.db3``, or an existing ROS 2 bag
+    folder (it holds ``metadata.yaml``)."""
+    from sim.eventio._formats import is_bag_folder
+
+    path = Path(path)
+    return path.suffix.lower() in (".bag", ".mcap", ".db3") or is_bag_folder(path)
 
 
 def exact_ns(field: str, where: str) -> int:
