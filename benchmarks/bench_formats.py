@@ -26,9 +26,14 @@ including the interpreter and the libraries it imports). The ratio column is evf
 the fastest library's for the same format and direction (< 2 is the issue's goal). Every
 measurement is the best of ``--repeat`` runs; the machine may be shared (say so when quoting).
 
-Run: ``.venv/bin/python benchmarks/bench_formats.py [--events N] [--repeat R]``. Printed and
-written to ``benchmarks/results/formats.json``. Another formats engineer adds rows (bags) to
-``MEASURES``.
+ROS bags (``ros1`` ``.bag``, ``ros2`` ``.mcap``): evfuse's writer and reader beside rosbags' own
+serializer (``serialize_ros1`` / ``serialize_cdr`` of messages built from its classes, one Python
+object an event, one message per 10 ms as evfuse writes them) and ``AnyReader.deserialize``;
+rosbags is the only pip-installable reader and writer of these bags.
+
+Run: ``.venv/bin/python benchmarks/bench_formats.py [--events N] [--repeat R] [--formats
+ros1,ros2]``. Printed and written to ``benchmarks/results/formats.json`` (with ``--formats``,
+only those formats' rows are replaced).
 """
 
 from __future__ import annotations
@@ -60,6 +65,12 @@ MEASURES = [
     ("txt", "read", "evfuse", "e.txt"),
     ("evt3", "convert", "evfuse", "c3.raw"), ("evt2", "convert", "evfuse", "c2.raw"),
     ("aedat4", "convert", "evfuse", "c.aedat4"), ("txt", "convert", "evfuse", "c.txt"),
+    ("ros1", "write", "evfuse", "e.bag"), ("ros1", "write", "rosbags", "r.bag"),
+    ("ros1", "read", "evfuse", "e.bag"), ("ros1", "read", "rosbags", "e.bag"),
+    ("ros1", "convert", "evfuse", "c.bag"),
+    ("ros2", "write", "evfuse", "e.mcap"), ("ros2", "write", "rosbags", "r.mcap"),
+    ("ros2", "read", "evfuse", "e.mcap"), ("ros2", "read", "rosbags", "e.mcap"),
+    ("ros2", "convert", "evfuse", "c.mcap"),
 ]
 
 _WORKER = r"""
@@ -141,6 +152,46 @@ elif tool == "dv-processing":
         recording = dv.io.MonoCameraRecording(str(path))
         while (batch := recording.getNextEventBatch()) is not None:
             count += batch.numpy().size          # to arrays, as evfuse and the others give
+elif tool == "rosbags":                     # its own serializer: one object an event
+    from rosbags.highlevel import AnyReader
+    from sim.eventio._rosbag import EVENT_ARRAY, typestore
+    if direction == "write":
+        from rosbags.rosbag1 import Writer as Writer1
+        from rosbags.rosbag2 import StoragePlugin, Writer as Writer2
+        ev = source_array()
+        ros = 1 if name.endswith(".bag") else 2
+        store = typestore(ros)
+        types = store.types
+        Time, Event = types["builtin_interfaces/msg/Time"], types["dvs_msgs/msg/Event"]
+        Header, Array = types["std_msgs/msg/Header"], types[EVENT_ARRAY]
+        serialize = store.serialize_ros1 if ros == 1 else store.serialize_cdr
+        if ros == 2:                                    # rosbags writes a ROS 2 bag folder
+            path = path.with_suffix("")
+        if path.exists():                               # an earlier repeat's: rosbags never
+            __import__("shutil").rmtree(path) if path.is_dir() else path.unlink()  # overwrites
+        slot = ev["t"] // 10_000_000                   # evfuse's messages: 10 ms slices
+        cuts = np.flatnonzero(np.diff(slot)) + 1
+        start = time.perf_counter()
+        writer = (Writer1(path) if ros == 1
+                  else Writer2(path, version=9, storage_plugin=StoragePlugin.MCAP))
+        with writer:
+            connection = writer.add_connection("/dvs/events", EVENT_ARRAY, typestore=store)
+            for part in np.split(ev, cuts):
+                t = part["t"].tolist()
+                events = [Event(x=x, y=y, ts=Time(sec=ti // 10**9, nanosec=ti % 10**9),
+                                polarity=p > 0)
+                          for x, y, ti, p in zip(part["x"].tolist(), part["y"].tolist(), t,
+                                                 part["p"].tolist())]
+                header = Header(stamp=Time(sec=t[-1] // 10**9, nanosec=t[-1] % 10**9),
+                                frame_id="", **({"seq": 0} if ros == 1 else {}))
+                writer.write(connection, t[-1], serialize(
+                    Array(header=header, height=480, width=640, events=events), EVENT_ARRAY))
+        count = ev.size
+    else:
+        start = time.perf_counter()
+        with AnyReader([path]) as reader:
+            for connection, _, data in reader.messages():
+                count += len(reader.deserialize(data, connection.msgtype).events)
 seconds = time.perf_counter() - start
 # VmHWM: this process's own peak (ru_maxrss would carry the parent's over fork and exec)
 hwm = next(line for line in open("/proc/self/status") if line.startswith("VmHWM"))
@@ -177,9 +228,13 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--events", type=int, default=10_000_000)
     parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--formats", default=None,
+                        help="comma-separated formats to measure (default all); their rows "
+                             "replace those in the recorded formats.json, the others are kept")
     parser.add_argument("--only", choices=("write", "read", "convert"), default=None,
                         help="measure one direction only")
     args = parser.parse_args(argv)
+    chosen = None if args.formats is None else set(args.formats.split(","))
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench_formats_") as tmp:
         folder, half = Path(tmp), Path(tmp) / "half"
@@ -187,6 +242,8 @@ def main(argv: list[str] | None = None) -> int:
         half.mkdir()
         _source(half, args.events // 2)
         for fmt, direction, tool, name in MEASURES:
+            if chosen is not None and fmt not in chosen:
+                continue
             if args.only is not None and direction != args.only:
                 continue
             try:
@@ -203,6 +260,13 @@ def main(argv: list[str] | None = None) -> int:
                 rows[-1]["peak_rss_mib_half"] = _run(fmt, direction, tool, half, name)[1]
             print(f"{fmt:<7} {direction:<5} {tool:<14} {args.events / seconds / 1e6:7.2f} Mev/s"
                   f"  {rss:7.0f} MiB", flush=True)
+    if chosen is not None and (RESULTS / "formats.json").is_file():
+        kept = json.loads((RESULTS / "formats.json").read_text())
+        if kept.get("events") != args.events:
+            raise SystemExit(f"formats.json holds {kept.get('events')} events, not "
+                             f"{args.events}; measure every format or the same count")
+        rows = [r for r in kept["rows"] if r["format"] not in chosen
+                or args.only not in (None, r["direction"])] + rows
     for row in rows:
         libraries = [r["seconds"] for r in rows if r["format"] == row["format"]
                      and r["direction"] == row["direction"] and r["tool"] != "evfuse"]

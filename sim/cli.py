@@ -110,7 +110,8 @@ NON_NEGATIVE = number_type(non_negative, "a finite number >= 0")
 
 
 RECORDING_HELP = (" (or one event file: .aedat4 with its frames and IMU, .raw; with --calib "
-                  "and --poses)")
+                  "and --poses; or a ROS bag, .bag, .mcap or a ROS 2 bag folder, with its "
+                  "camera info, frames, poses and IMU)")
 """What a recording argument's help adds: it may be one event file (:mod:`sim.recording`)."""
 
 
@@ -285,10 +286,13 @@ def _cmd_twin(args: argparse.Namespace) -> int:
 
 def _cmd_convert(args: argparse.Namespace) -> int:
     from sim.eventio import convert_events
-    from sim.output import check_output_file
+    from sim.output import check_not_input, check_output_file
     from sim.sequence import load_sequence
 
-    if Path(args.src).is_dir():                 # a whole sequence as one file
+    src, dst = Path(args.src), Path(args.dst)
+    if src.is_dir() and not _is_bag(src):               # a whole sequence as one file
+        if _is_bag(dst) or dst.suffix == "" or args.ros is not None:
+            return _convert_sequence(args)
         from sim.recording import write_sequence_file
 
         check_output_file(args.dst, [args.src], parameter="dst")
@@ -298,6 +302,8 @@ def _cmd_convert(args: argparse.Namespace) -> int:
         print(f"converted sequence {args.src} ({events} events, {frames} frames, {imu} IMU "
               f"samples) to {args.dst}")
         return 0
+    if _is_bag(src) and dst.suffix == "" and args.ros is None:
+        return _convert_bag_to_folder(args)
     width = height = None
     if args.sensor:
         try:
@@ -305,18 +311,70 @@ def _cmd_convert(args: argparse.Namespace) -> int:
         except ValueError:
             raise ValueError(f"--sensor must look like 240x180, got {args.sensor!r}") from None
     else:
-        folder = Path(args.src).resolve().parent
+        folder = src.resolve().parent
         if (folder / "images.txt").is_file() or (folder / "sequence.json").is_file():
             camera = load_sequence(folder).camera
             width, height = camera.width, camera.height
-    read = [args.src] + [Path(args.src).resolve().parent / name for name in
+    read = [args.src] + [src.resolve().parent / name for name in
                          ("calib.txt", "images.txt", "sequence.json")]       # for its size
-    check_output_file(args.dst, read, parameter="dst")
-    if Path(args.dst).exists() and not args.overwrite:
+    _check_bag_output(dst, read, check_not_input, check_output_file)
+    if dst.exists() and not args.overwrite:
         raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
+    topic = {"topic": args.topic} if args.topic is not None else None
     convert_events(args.src, args.dst, width=width, height=height,
-                   dst_selectors={"evt": args.evt})
+                   dst_selectors={"evt": args.evt, "ros": args.ros},
+                   src_options=topic if _is_bag(src) else None,
+                   dst_options=topic if _is_bag(dst) or args.ros is not None else None)
     print(f"converted {args.src} to {args.dst}")
+    return 0
+
+
+def _check_bag_output(dst: Path, read: list, check_not_input, check_output_file) -> None:
+    """A ROS 2 bag is a folder: an existing one may be replaced (--overwrite), any other folder
+    may not; every other output is one file."""
+    if dst.is_dir():
+        check_not_input(dst, read, "output bag", "dst")
+        if not (dst / "metadata.yaml").is_file():
+            raise ValueError(f"{dst} is an existing folder that is not a ROS 2 bag; expected "
+                             "a new path or a bag to replace")
+    else:
+        check_output_file(dst, read, parameter="dst")
+
+
+def _is_bag(path: Path) -> bool:
+    from sim.sequence_bag import is_bag
+
+    return is_bag(path)
+
+
+def _convert_bag_to_folder(args: argparse.Namespace) -> int:
+    """``evfuse convert in.bag FOLDER``: the bag's recording as an ECD sequence folder."""
+    from sim.sequence_bag import BagRecording, write_recording_folder
+
+    if args.sensor:
+        raise ValueError("--sensor applies to an event file; a bag's camera info gives its size")
+    recording = BagRecording(args.src, events_topic=args.topic)
+    write_recording_folder(recording, args.dst, overwrite=args.overwrite)
+    print(f"converted {args.src} to the sequence folder {args.dst} (events from "
+          f"{recording.events_topic}, frames from {recording.image_topic}, camera from "
+          f"{recording.camera_info_topic}, poses from {recording.pose_topic})")
+    return 0
+
+
+def _convert_sequence(args: argparse.Namespace) -> int:
+    """``evfuse convert SEQUENCE_FOLDER out.bag``: the whole sequence as one bag."""
+    from sim.output import check_not_input, check_output_file
+    from sim.sequence_bag import write_sequence_bag
+
+    src, dst = Path(args.src), Path(args.dst)
+    if args.sensor:
+        raise ValueError("--sensor applies to an event file; a sequence folder gives its size")
+    _check_bag_output(dst, [src], check_not_input, check_output_file)
+    if dst.exists() and not args.overwrite:
+        raise ValueError(f"{args.dst} exists; add --overwrite to replace it")
+    counts = write_sequence_bag(src, dst, ros=args.ros, events_topic=args.topic)
+    print(f"converted {args.src} to {args.dst}: " + ", ".join(f"{topic} {count}" for topic,
+                                                              count in counts.items()))
     return 0
 
 
@@ -509,15 +567,27 @@ def _add_twin(sub) -> None:
 def _add_convert(sub) -> None:
     convert = sub.add_parser("convert", help="convert events between file formats",
                              description="Convert events between ECD text (.txt), the DSEC "
-                                         "layout (.h5), AEDAT4 (.aedat4) and Prophesee RAW "
-                                         "(.raw, EVT 3.0 or --evt 2), streaming. The format "
-                                         "follows the file suffix (a RAW source: its header).")
-    convert.add_argument("src", help="the event file to read (.txt, .h5, .aedat4, .raw), or a "
-                                     "sequence folder to write as one .aedat4 (events, frames, "
-                                     "IMU)")
-    convert.add_argument("dst", help="the event file to write (.txt, .h5, .aedat4, .raw)")
-    convert.add_argument("--evt", type=int, choices=(2, 3), default=None,
+                                         "layout (.h5), AEDAT4 (.aedat4), Prophesee RAW "
+                                         "(.raw, EVT 3.0 or --evt 2) and ROS bags (.bag ROS 1; "
+                                         ".mcap or a folder with --ros 2 ROS 2), streaming. The "
+                                         "format follows the file suffix (a RAW source: its "
+                                         "header). A sequence folder as SRC is written whole "
+                                         "as one .aedat4 (events, frames, IMU) or one bag "
+                                         "(events, frames, depth, camera info, poses, IMU, "
+                                         "flow); a bag as SRC and a folder name as DST writes "
+                                         "an ECD sequence folder.")
+    convert.add_argument("src", help="the event file to read (.txt, .h5, .aedat4, .raw, .bag, "
+                                     ".mcap, a ROS 2 bag folder), or a sequence folder")
+    convert.add_argument("dst", help="the event file to write (.txt, .h5, .aedat4, .raw, .bag, "
+                                     ".mcap, a ROS 2 bag folder with --ros 2), or, from a bag, "
+                                     "a sequence folder (a name without suffix, no --ros)")
+    convert.add_argument("--evt", type=count_type(2, 3), default=None,
                          help="RAW encoding of a .raw DST: 3 (EVT 3.0, default) or 2 (EVT 2.0)")
+    convert.add_argument("--ros", type=count_type(1, 2), default=None,
+                         help="ROS version of a bag DST whose name cannot say (a folder name)")
+    convert.add_argument("--topic", default=None,
+                         help="event topic to read from a bag SRC or write to a bag DST "
+                              "(default: the bag's one dvs_msgs/EventArray topic; /dvs/events)")
     convert.add_argument("--overwrite", action="store_true", help="replace an existing DST")
     convert.add_argument("--sensor", default=None,
                          help="sensor size WxH for HDF5 output (default: from the sequence "

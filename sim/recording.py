@@ -3,6 +3,7 @@ any format that registers an unpacker, such as a bag) becomes the sequence folde
 reads (:func:`recording_folder`), and where a sequence folder becomes one file
 (:func:`write_sequence_file`).
 
+A ROS 2 bag is a folder (``metadata.yaml``), read as one recording like a file.
 A one-file recording is unpacked once into a cache folder outside its input (inputs are never
 written next to): ``$EVFUSE_CACHE`` or ``~/.cache/evfuse``, under ``recordings/<key>``, where
 the key hashes the file's absolute path, size and modification time and the contents of the
@@ -50,12 +51,12 @@ def cache_root() -> Path:
 def is_recording_file(path: str | Path) -> bool:
     """Whether ``path`` is a recording given as one file: a file of a registered event format
     other than ECD text and the DSEC layout (those are a sequence folder's events, and a command
-    given one says to give its folder)."""
-    from sim.eventio._formats import event_formats
+    given one says to give its folder), or a ROS 2 bag folder."""
+    from sim.eventio._formats import event_formats, is_bag_folder
 
     path = Path(path)
     suffixes = {s for f in event_formats() if f.name not in ("txt", "h5") for s in f.suffixes}
-    return path.is_file() and path.suffix.lower() in suffixes
+    return (path.is_file() and path.suffix.lower() in suffixes) or is_bag_folder(path)
 
 
 def _digest(*parts: str | bytes) -> str:
@@ -95,18 +96,18 @@ def recording_folder(path: str | Path, *, calib: str | Path | None = None,
         :func:`sim.eventio.iter_event_chunks`, naming the file).
     """
     from sim.eventio import convert_events
-    from sim.eventio._formats import format_for
+    from sim.eventio._formats import format_for, is_bag_folder
 
     path = Path(path)
     literal = ParameterError.literal
-    if path.is_dir():
+    if path.is_dir() and not is_bag_folder(path):
         if calib is not None or poses is not None:
             raise ParameterError(f"{literal(path)} is a sequence folder, which has its own "
                                  "calib.txt and groundtruth.txt; expected {calib} and {poses} "
                                  "only with a recording given as one file",
                                  calib="calib", poses="poses")
         return path
-    if not path.is_file():
+    if not (path.is_file() or is_bag_folder(path)):
         raise ValueError(f"recording {path} does not exist; expected a sequence folder or an "
                          "event file")
     fmt = format_for(path)
@@ -173,6 +174,18 @@ def _unpack_aedat4(src: Path, folder: Path) -> None:
 
 
 register_unpacker("aedat4", _unpack_aedat4)
+
+
+def _unpack_bag(src: Path, folder: Path) -> None:
+    """A bag's camera info (``calib.txt``), frames, poses and IMU, each topic found by its
+    message type (:func:`sim.sequence_bag.unpack_bag`)."""
+    from sim.sequence_bag import BagRecording, unpack_bag
+
+    unpack_bag(BagRecording(src), folder)
+
+
+register_unpacker("ros1", _unpack_bag)
+register_unpacker("ros2", _unpack_bag)
 
 
 def write_sequence_file(folder: str | Path, dst: str | Path) -> tuple[int, int, int]:

@@ -39,6 +39,8 @@ Modules (private; everything public is re-exported here):
   (streaming writer, ``iter_chunks``, ``info``); the floor-to-microseconds rule.
 - ``_raw``: Prophesee RAW, EVT 3.0 and EVT 2.0 (evfuse's own compiled codec).
 - ``_aedat4``: AEDAT4 through dv-processing (the ``formats`` extra): events, frames, IMU.
+- ``_rosbag``: ROS 1 and ROS 2 bags of ``dvs_msgs/EventArray`` (rosbags; the messages built and
+  parsed with NumPy).
 - ``_writer``: the streaming writers' common part (``.partial`` file, checkpoint and resume).
 - ``_text``: the ECD text codec (compiled and line-by-line) and :class:`TextEventWriter`.
 - ``_hdf5``: :class:`H5EventWriter` and the checked reader of the DSEC layout.

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sim.eventio._formats import format_for
+from sim.eventio._formats import format_for, is_bag_folder
 from sim.eventio._read import iter_event_chunks
 from sim.validation import ParameterError
 
@@ -14,7 +14,8 @@ __all__ = ["convert_events"]
 
 def convert_events(src: str | Path, dst: str | Path, width: int | None = None,
                    height: int | None = None, *, src_selectors: dict | None = None,
-                   dst_selectors: dict | None = None) -> None:
+                   dst_selectors: dict | None = None, src_options: dict | None = None,
+                   dst_options: dict | None = None) -> None:
     """Convert an event file between any two registered formats (by suffix), streaming.
 
     Parameters
@@ -29,7 +30,11 @@ def convert_events(src: str | Path, dst: str | Path, width: int | None = None,
         header: copied; given values take precedence). When given, every event is checked to
         lie inside the sensor. An HDF5 source's ``t_offset`` is kept in an HDF5 ``dst``.
     src_selectors, dst_selectors : dict, optional
-        Which format of a suffix that holds more than one (``{"evt": 2}``).
+        Which format of a suffix that holds more than one (``{"evt": 2}``; ``{"ros": 2}`` makes
+        a new folder name a ROS 2 bag).
+    src_options, dst_options : dict, optional
+        What the source's reader and the output's writer take besides the file (a bag's
+        ``{"topic": "/dvs/events"}``).
 
     Raises
     ------
@@ -44,13 +49,13 @@ def convert_events(src: str | Path, dst: str | Path, width: int | None = None,
     src, dst = Path(src), Path(dst)
     src_fmt = format_for(src, **(src_selectors or {}))
     dst_fmt = format_for(dst, **(dst_selectors or {}))
-    if not src.is_file():
+    if not (src.is_file() or is_bag_folder(src)):
         raise ValueError(f"event file {src} does not exist")
     if dst.exists() and dst.resolve() == src.resolve():
         raise ValueError(f"cannot convert {src} onto itself; expected a different output path")
-    options = {}
+    options = dict(dst_options or {})
     if src_fmt.name != "txt":
-        info = src_fmt.read_info(src)
+        info = src_fmt.read_info(src, **(src_options or {}))
         if info.get("sensor_size") is not None:
             width = width if width is not None else info["sensor_size"][0]
             height = height if height is not None else info["sensor_size"][1]
@@ -67,7 +72,7 @@ def convert_events(src: str | Path, dst: str | Path, width: int | None = None,
     try:
         with writer:
             for chunk in iter_event_chunks(src, 1 << 20, width=width, height=height,
-                                           selectors=src_selectors):
+                                           selectors=src_selectors, options=src_options):
                 writer.write(chunk)
     except BaseException:                 # a failed conversion leaves nothing (not resumable)
         _remove(writer.partial)

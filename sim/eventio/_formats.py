@@ -45,8 +45,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["EXTRA_HINT", "EventFormat", "MissingExtraError", "event_formats", "format_for",
-           "format_named", "register_format", "us_from_ns"]
+__all__ = ["EXTRA_HINT", "ROS2_FOLDER", "EventFormat", "MissingExtraError", "event_formats",
+           "format_for", "format_named", "is_bag_folder", "register_format", "us_from_ns"]
 
 EXTRA_HINT = "pip install 'evfuse[formats]'"
 """What to run for the optional formats' dependencies (the ``formats`` extra)."""
@@ -121,9 +121,9 @@ class EventFormat:
         """The file's events, in chunks, in file order (see the module docstring)."""
         return self._load(self.reader)(Path(path), chunk_events=chunk_events, **options)
 
-    def read_info(self, path: str | Path) -> dict:
-        """The cheap look at a file (see the module docstring)."""
-        return self._load(self.info)(Path(path))
+    def read_info(self, path: str | Path, **options: Any) -> dict:
+        """The cheap look at a file (see the module docstring; ``options`` as the reader's)."""
+        return self._load(self.info)(Path(path), **options)
 
 
 _REGISTRY: dict[str, EventFormat] = {}
@@ -155,8 +155,11 @@ def event_formats() -> tuple[EventFormat, ...]:
 
 
 def _known() -> str:
-    return ", ".join(f"{' or '.join(f.suffixes)} ({f.title})" for f in _REGISTRY.values()
-                     if f.default)
+    def names(fmt: EventFormat) -> str:
+        return " or ".join("a folder (with ros=2)" if s == ROS2_FOLDER else s
+                           for s in fmt.suffixes)
+
+    return ", ".join(f"{names(f)} ({f.title})" for f in _REGISTRY.values() if f.default)
 
 
 def format_named(name: str) -> EventFormat:
@@ -193,6 +196,8 @@ def format_for(path: str | Path, **selectors: Any) -> EventFormat:
     """
     path = Path(path)
     suffix = path.suffix.lower()
+    if not suffix and (is_bag_folder(path) or str(selectors.get("ros")) == "2"):
+        suffix = ROS2_FOLDER
     found = [f for f in _REGISTRY.values() if suffix in f.suffixes]
     if not found:
         raise ValueError(f"{path}: unknown event file type {suffix!r}; expected {_known()}")
@@ -212,6 +217,17 @@ def format_for(path: str | Path, **selectors: Any) -> EventFormat:
     return (defaults or found)[0]
 
 
+ROS2_FOLDER = "/"
+"""The pseudo-suffix of a ROS 2 bag folder (``metadata.yaml`` and its storage file): an
+existing one, or a new folder name with ``ros=2``."""
+
+
+def is_bag_folder(path: str | Path) -> bool:
+    """Whether ``path`` is an existing ROS 2 bag folder (it holds ``metadata.yaml``)."""
+    path = Path(path)
+    return path.is_dir() and (path / "metadata.yaml").is_file()
+
+
 def _kind(path: Path) -> str:
     """The format name of a file, by its suffix (its default format)."""
     return format_for(path).name
@@ -228,5 +244,11 @@ for _fmt in (
                 "iter_raw_chunks", "raw_info", selector={"evt": 3}),
     EventFormat("evt2", (".raw",), "Prophesee RAW EVT 2.0", "sim.eventio._raw", "evt2_writer",
                 "iter_raw_chunks", "raw_info", selector={"evt": 2}, default=False),
+    EventFormat("ros1", (".bag",), "ROS 1 bag", "sim.eventio._rosbag", "ros1_writer",
+                "iter_ros_chunks", "ros_info", selector={"ros": 1}, extra="formats",
+                time_unit="seconds"),
+    EventFormat("ros2", (".mcap", ".db3", ROS2_FOLDER), "ROS 2 bag", "sim.eventio._rosbag",
+                "ros2_writer", "iter_ros_chunks", "ros_info", selector={"ros": 2},
+                extra="formats", time_unit="seconds"),
 ):
     register_format(_fmt)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.eventio._events import EVENT_DTYPE, _check_size, _first_error
-from sim.eventio._formats import EventFormat, _kind, format_for
+from sim.eventio._formats import EventFormat, _kind, format_for, is_bag_folder
 from sim.eventio._hdf5 import H5EventWriter, _H5Source
 from sim.eventio._text import TextEventWriter, _iter_text_blocks, _line_blocks, _parse_block
 
@@ -109,8 +109,8 @@ def _iter_txt(path: Path, chunk_events: int, t0_ns: int | None, t1_ns: int | Non
 
 def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | None = None,
                       t1_ns: int | None = None, *, width: int | None = None,
-                      height: int | None = None,
-                      selectors: dict | None = None) -> Iterator[np.ndarray]:
+                      height: int | None = None, selectors: dict | None = None,
+                      options: dict | None = None) -> Iterator[np.ndarray]:
     """Stream the events of a file in chunks, never holding the whole file.
 
     Parameters
@@ -128,6 +128,8 @@ def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | 
     selectors : dict, optional
         Which format of a suffix that holds more than one (``{"evt": 2}``; see
         :func:`sim.eventio._formats.format_for`).
+    options : dict, optional
+        What the format's reader takes besides the file (a bag's ``{"topic": "/dvs/events"}``).
 
     Yields
     ------
@@ -148,24 +150,26 @@ def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | 
         raise ValueError(f"chunk_events must be a positive integer, got {chunk_events!r}")
     _check_window(t0_ns, t1_ns)
     _check_size(width, height, str(path))
-    if not path.is_file():
+    if not (path.is_file() or is_bag_folder(path)):
         raise ValueError(f"event file {path} does not exist")
     if kind in ("h5", "txt"):
+        if options:
+            raise ValueError(f"{path}: {', '.join(options)} do(es) not apply to a {kind} file")
         iterate = _iter_h5 if kind == "h5" else _iter_txt
         yield from iterate(path, chunk_events, t0_ns, t1_ns, width, height)
         return
     yield from _checked_chunks(path, format_for(path, **(selectors or {})), chunk_events, t0_ns,
-                               t1_ns, width, height)
+                               t1_ns, width, height, options or {})
 
 
 def _checked_chunks(path: Path, fmt: EventFormat, chunk_events: int, t0_ns: int | None,
-                    t1_ns: int | None, width: int | None,
-                    height: int | None) -> Iterator[np.ndarray]:
+                    t1_ns: int | None, width: int | None, height: int | None,
+                    options: dict) -> Iterator[np.ndarray]:
     """A registered codec's chunks, checked (time order across chunks, the sensor) and cut to a
     window: a time out of order is reported with the file and its event index, never sorted."""
     t_prev = None
     count = 0
-    for events in fmt.iter_chunks(path, chunk_events=chunk_events):
+    for events in fmt.iter_chunks(path, chunk_events=chunk_events, **options):
         error = _first_error(events, width, height, t_prev)
         if error is not None:
             raise ValueError(f"{path}: event {count + error[0]}: {error[1]}")

@@ -128,6 +128,10 @@ class _StreamingWriter:
         except BaseException:
             self._abort()
             raise
+        self._publish()
+
+    def _publish(self) -> None:
+        """Give the finished file its name."""
         os.replace(self.partial, self.path)
 
     def __enter__(self) -> Self:
