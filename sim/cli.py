@@ -124,6 +124,10 @@ def add_recording_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--poses", dest="recording_poses", default=None, metavar="POSES",
                         help="groundtruth.txt (t px py pz qx qy qz qw) of a recording given as "
                              "one event file")
+    parser.add_argument("--topic", dest="recording_topic", default=None, metavar="TOPIC",
+                        help="event topic of a recording given as a ROS bag (default: its one "
+                             "dvs_msgs/EventArray topic; frames, camera info, poses and IMU "
+                             "are then found by message type in its namespace)")
 
 
 def open_recording(args: argparse.Namespace, attr: str) -> None:
@@ -135,17 +139,19 @@ def open_recording(args: argparse.Namespace, attr: str) -> None:
 
     given = getattr(args, attr)
     calib, poses = args.recording_calib, args.recording_poses
+    topic = getattr(args, "recording_topic", None)
     if not is_recording_file(given):
-        if (calib or poses) and Path(given).is_dir():
+        if (calib or poses or topic) and Path(given).is_dir():
             raise ValueError(f"{given} is a sequence folder, which has its own calib.txt and "
-                             "groundtruth.txt; --calib and --poses go with a recording given "
-                             "as one event file")
+                             "groundtruth.txt; --calib, --poses and --topic go with a "
+                             "recording given as one event file or bag")
         return
     try:
-        setattr(args, attr, str(recording_folder(given, calib=calib, poses=poses)))
+        setattr(args, attr, str(recording_folder(given, calib=calib, poses=poses,
+                                                 topic=topic)))
     except ParameterError as error:
-        raise ValueError(error.rephrase({"calib": "--calib CALIB", "poses": "--poses"})) \
-            from None
+        raise ValueError(error.rephrase({"calib": "--calib CALIB", "poses": "--poses",
+                                         "topic": "--topic"})) from None
 
 
 def _cmd_scenes(args: argparse.Namespace) -> int:

@@ -35,7 +35,7 @@ from sim.validation import ParameterError
 __all__ = ["cache_root", "is_recording_file", "recording_folder", "register_unpacker",
            "write_sequence_file"]
 
-_UNPACKERS: dict[str, Callable[[Path, Path], None]] = {}
+_UNPACKERS: dict[str, Callable[..., None]] = {}
 
 
 def register_unpacker(format_name: str, unpack: Callable[[Path, Path], None]) -> None:
@@ -68,7 +68,8 @@ def _digest(*parts: str | bytes) -> str:
 
 
 def recording_folder(path: str | Path, *, calib: str | Path | None = None,
-                     poses: str | Path | None = None, cache: str | Path | None = None) -> Path:
+                     poses: str | Path | None = None, cache: str | Path | None = None,
+                     topic: str | None = None) -> Path:
     """The sequence folder of a recording.
 
     Parameters
@@ -82,6 +83,9 @@ def recording_folder(path: str | Path, *, calib: str | Path | None = None,
         ``groundtruth.txt`` (``t px py pz qx qy qz qw``, T_world_camera) of the recording.
     cache : str or Path, optional
         Cache folder (default :func:`cache_root`).
+    topic : str, optional
+        A bag's event topic (default: its one ``dvs_msgs/EventArray`` topic; a bag with several
+        needs it); its frames, camera, poses and IMU are the topics in its namespace.
 
     Returns
     -------
@@ -116,9 +120,13 @@ def recording_folder(path: str | Path, *, calib: str | Path | None = None,
         if not given.is_file():
             raise ValueError(f"{given} does not exist; expected a text file")
     stat = path.stat()
+    is_bag = fmt.name in ("ros1", "ros2")
+    if topic is not None and not is_bag:
+        raise ParameterError(f"{literal(path)} is a {fmt.title} file, which has no topics; "
+                             "expected {topic} only with a ROS bag", topic="topic")
     key = _digest(str(path.resolve()), str(stat.st_size), str(stat.st_mtime_ns),
                   *(p.read_bytes() for p in extra), "calib" if calib else "", "poses" if poses
-                  else "")
+                  else "", f"topic {topic}" if topic else "")
     folder = Path(cache or cache_root()) / "recordings" / f"{path.stem}-{key}"
     if folder.is_dir():
         return folder
@@ -128,7 +136,7 @@ def recording_folder(path: str | Path, *, calib: str | Path | None = None,
     try:
         unpack = _UNPACKERS.get(fmt.name)
         if unpack is not None:
-            unpack(path, partial)
+            unpack(path, partial, **({"topic": topic} if is_bag else {}))
         if calib is not None:
             shutil.copyfile(calib, partial / "calib.txt")
         if not (partial / "calib.txt").is_file():
@@ -139,7 +147,8 @@ def recording_folder(path: str | Path, *, calib: str | Path | None = None,
             shutil.copyfile(poses, partial / "groundtruth.txt")
         if not (partial / "images.txt").is_file():
             (partial / "images.txt").write_text("")
-        convert_events(path, partial / "events.h5")
+        convert_events(path, partial / "events.h5",
+                       src_options={"topic": topic} if is_bag and topic else None)
         os.replace(partial, folder)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
@@ -176,12 +185,13 @@ def _unpack_aedat4(src: Path, folder: Path) -> None:
 register_unpacker("aedat4", _unpack_aedat4)
 
 
-def _unpack_bag(src: Path, folder: Path) -> None:
+def _unpack_bag(src: Path, folder: Path, topic: str | None = None) -> None:
     """A bag's camera info (``calib.txt``), frames, poses and IMU, each topic found by its
-    message type (:func:`sim.sequence_bag.unpack_bag`)."""
+    message type, in the namespace of the event topic ``topic`` where given
+    (:func:`sim.sequence_bag.unpack_bag`)."""
     from sim.sequence_bag import BagRecording, unpack_bag
 
-    unpack_bag(BagRecording(src), folder)
+    unpack_bag(BagRecording(src, events_topic=topic), folder)
 
 
 register_unpacker("ros1", _unpack_bag)

@@ -358,3 +358,37 @@ def test_a_window_does_not_trust_the_bag_time_of_a_message(tmp_path):
     np.testing.assert_array_equal(np.concatenate(list(iter_event_chunks(tmp_path / "r.bag",
                                                                         256, t0, t1))),
                                   events[1000:2000])
+
+
+def test_a_recording_bag_with_two_event_topics_is_read_by_the_topic_given(tmp_path, capsys,
+                                                                         monkeypatch):
+    """The commands that read a recording take --topic: a bag with two event topics is read
+    from the one named (and refused without it, or with a topic it does not hold)."""
+    from sim.recording import recording_folder
+    from tests.conftest import run_cli
+
+    monkeypatch.setenv("EVFUSE_CACHE", str(tmp_path / "cache"))
+    store = typestore(1)
+    bag = tmp_path / "two.bag"
+    with Writer1(bag) as writer:
+        for topic, count in (("/a/events", 3), ("/b/events", 5)):
+            connection = writer.add_connection(topic, EVENT_ARRAY, typestore=store)
+            writer.write(connection, 1, encode_event_array(_events(count), W, H, 1))
+    calib = tmp_path / "calib.txt"
+    calib.write_text("200 200 173 130 0 0 0 0 0\n")
+    for topic, count in (("/a/events", 3), ("/b/events", 5)):
+        folder = recording_folder(bag, calib=calib, topic=topic, cache=tmp_path / "cache")
+        assert len(read_events(folder / "events.h5")) == count
+    assert run_cli(["events", str(bag), "--stats", "--calib", str(calib)]) == 2
+    assert "expected the one to read named (--topic)" in capsys.readouterr().err
+    assert run_cli(["events", str(bag), "--stats", "--calib", str(calib), "--topic",
+                    "/c/events"]) == 2
+    assert "/c/events" in capsys.readouterr().err
+    assert run_cli(["events", str(bag), "--stats", "--calib", str(calib), "--topic",
+                    "/b/events"]) == 0
+    assert [line.split() for line in capsys.readouterr().out.splitlines()
+            if line.split()[:1] == ["count"]] == [["count", "5"]]
+    raw = tmp_path / "x.raw"
+    convert_events(bag, raw, src_options={"topic": "/a/events"})
+    with pytest.raises(ValueError, match="has no topics; expected topic only with a ROS bag"):
+        recording_folder(raw, calib=calib, topic="/a/events", cache=tmp_path / "cache")
