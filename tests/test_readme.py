@@ -91,3 +91,34 @@ def test_the_docs_say_that_look_at_is_a_point_and_it_is_one():
     scene = parse_scene(_commented_scene(), "scenes.md")
     optical_axis = scene.trajectory.pose(0.0)[:3, 2]
     assert abs(optical_axis[1] - 1.0) < 1e-9
+
+
+FORMAT_ROWS = {"Prophesee RAW, EVT 3.0": "evt3", "Prophesee RAW, EVT 2.0": "evt2",
+               "AEDAT4": "aedat4", "ROS 1 bag": "ros1", "ROS 2 bag (mcap)": "ros2"}
+
+
+def _rate(value: float) -> str:
+    return f"{value:.2f}" if value < 1 else f"{value:.1f}"
+
+
+def test_the_readme_formats_table_is_bench_formats_json():
+    """The README's file-format speeds are those `benchmarks/bench_formats.py` recorded: for
+    each format and direction, evfuse's and the fastest library's events per second."""
+    import json
+
+    rows = json.loads((ROOT / "benchmarks" / "results" / "formats.json").read_text())["rows"]
+    table = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:6]]
+             for line in README.splitlines()
+             if line.startswith("| ") and line.split("|")[1].strip() in FORMAT_ROWS}
+    assert set(table) == set(FORMAT_ROWS)
+    for title, name in FORMAT_ROWS.items():
+        expected = []
+        for direction in ("write", "read"):
+            ours = [r for r in rows if (r["format"], r["direction"], r["tool"])
+                    == (name, direction, "evfuse")]
+            theirs = [r for r in rows if (r["format"], r["direction"]) == (name, direction)
+                      and r["tool"] != "evfuse"]
+            best = max(theirs, key=lambda r: r["mev_per_s"])
+            expected += [_rate(ours[0]["mev_per_s"]),
+                         f"{_rate(best['mev_per_s'])} ({best['tool']})"]
+        assert table[title] == expected, title
