@@ -361,6 +361,25 @@ def test_a_raw_recording_without_calib_is_refused_in_one_line(tmp_path, monkeypa
     assert "is a sequence folder" in capsys.readouterr().err
 
 
+
+@pytest.mark.parametrize("command", [["map"], ["map-global"], ["run"], ["twin"]])
+def test_every_command_that_reads_a_recording_opens_one_file(tmp_path, monkeypatch, capsys,
+                                                            command):
+    """map, map-global, run and twin go through the same opening of a one-file recording: a RAW
+    without --calib is refused there, in one line, before any work."""
+    monkeypatch.setenv("EVFUSE_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "e.raw"
+    _write("evt3", path, _events(n=100))
+    argv = [*command, str(path), "--out", str(tmp_path / "o")]
+    if command == ["twin"]:
+        argv += ["--depth", "1.0"]
+    assert run_cli(argv, [path]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert "holds no intrinsics; expected --calib" in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_the_ecd_prefix_maps_identically_from_text_aedat4_and_raw(ecd_slider, tmp_path,
                                                                    monkeypatch):
     from sim.exr import read_depth
