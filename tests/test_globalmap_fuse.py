@@ -386,7 +386,7 @@ def test_view_agreement_returns_a_known_depth_offset():
 @pytest.mark.parametrize("field,value", [("min_views", -1), ("min_views", 1.5),
                                          ("search_radius", -2), ("depth_tolerance", 0.0),
                                          ("depth_tolerance", float("nan")),
-                                         ("voxel_size", -0.01)])
+                                         ("voxel_size", -0.01), ("disjoint_events", 1)])
 def test_bad_parameters_name_the_parameter(field, value):
     with pytest.raises(ParameterError, match=field):
         FusionParams(**{field: value})
@@ -425,3 +425,50 @@ def test_precomputed_counts_give_the_same_results_and_are_checked():
     assert len(fuse_views(views, params, counts=zero).points) == 0
     with pytest.raises(ParameterError, match="counts must hold one count per point"):
         fuse_views(views, params, counts=counts[:2])
+
+
+# --- independent evidence: views that share events do not confirm each other --------------------
+
+def _windowed(views, windows):
+    return [DepthView(v.depth, v.camera, v.T_world_cam, v.t, v.name, events=w)
+            for v, w in zip(views, windows, strict=True)]
+
+
+def test_only_views_with_disjoint_events_confirm():
+    """Key views 0, 1, 2 with windows [0, 2], [1, 3], [2, 4]: 0 and 2 share no events (they only
+    touch at 2 s), 1 shares with both. A point of 0 is asked of view 2 only; 1 has no disjoint
+    view, so it is asked of both (the fallback); without the rule every view is asked."""
+    views = _views(noise=1.0)
+    params = FusionParams(min_views=1, depth_tolerance=0.03)
+    plain = agreement_counts(views, FusionParams(min_views=1, depth_tolerance=0.03,
+                                                 disjoint_events=False))
+    windowed = _windowed(views, [(0.0, 2.0), (1.0, 3.0), (2.0, 4.0)])
+    counts = agreement_counts(windowed, params)
+    only_2 = agreement_counts([views[0], views[2]], params)[0]
+    np.testing.assert_array_equal(counts[0], only_2)
+    assert counts[0].sum() < plain[0].sum()                    # view 1 no longer counts
+    np.testing.assert_array_equal(counts[1], plain[1])         # fallback: both asked
+    # views without a recorded window: everything as before
+    np.testing.assert_array_equal(np.concatenate(agreement_counts(views, params)),
+                                  np.concatenate(plain))
+
+
+def test_contributors_only_confirm():
+    views = _views(noise=1.0)
+    params = FusionParams(min_views=1, depth_tolerance=0.03)
+    every = fuse_views(views, params)
+    some = fuse_views(views, params, contributors=[False, True, False])
+    assert set(np.unique(some.view)) == {1}
+    assert 0 < len(some.points) < len(every.points)
+    with pytest.raises(ParameterError, match="contributors"):
+        fuse_views(views, params, contributors=[True])
+
+
+def test_shares_events_rules():
+    from fusion.globalmap.views import shares_events
+
+    a, b, c = _windowed(_views(), [(0.0, 2.0), (1.0, 3.0), (2.0, 4.0)])
+    assert shares_events(a, b) and shares_events(b, c) and not shares_events(a, c)
+    assert not shares_events(_views(1)[0], a)                  # unknown window
+    with pytest.raises(ValueError, match="events"):
+        DepthView(a.depth, a.camera, a.T_world_cam, events=(2.0, 1.0))
