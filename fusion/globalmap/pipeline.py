@@ -673,8 +673,11 @@ def _semidense_view(map_folder: Path) -> DepthView:
                      f"semidense {map_folder.parent.name}", events=_events_window(meta))
 
 
-def _events_window(meta: dict) -> tuple[float, float]:
-    """The event window ``[t0, t1]`` (s) a ``map.json`` records."""
+def _events_window(meta: dict) -> tuple[float, float] | None:
+    """The event window ``[t0, t1]`` (s) a ``map.json`` records (None where it records none:
+    the view is then not known to share events with any other)."""
+    if "window_s" not in meta:
+        return None
     t0, t1 = meta["window_s"]
     return float(t0), float(t1)
 
