@@ -12,13 +12,17 @@ window around the pixel it lands on) has ``|z_ij - depth_j| <= depth_tolerance *
 neither agrees nor counts against; a point that ``j`` sees behind a nearer surface (occluded)
 finds only that surface's depth and does not agree.
 
-Only independent evidence confirms: with ``FusionParams.disjoint_events`` (the default), a view
-``j`` whose events overlap ``i``'s (:func:`fusion.globalmap.views.shares_events`: neighbouring
-key views share half their events) is not asked, unless no view is disjoint from ``i`` (two or
-three key views): then every other view is. Two maps of the same events make the same
-errors, so their agreement says little: measured on slider_close (issue 40), 80.4 % of the
-points confirmed by a view with disjoint events lie within 1 % of their depth, 73.7 % of those
-confirmed by an event-sharing one.
+Independent evidence only: with ``FusionParams.disjoint_events``, a view ``j`` whose events
+overlap ``i``'s (:func:`fusion.globalmap.views.shares_events`: neighbouring key views share half
+their events) is not asked, unless no view is disjoint from ``i`` (two or three key views): then
+every other view is. Two maps of the same events make the same errors, so their agreement says
+less (issue 40, slider_close: 80.4 % of the points confirmed by a view with disjoint events lie
+within 1 % of their depth, 73.7 % of those confirmed by an event-sharing one). It is off by
+default: with the few key views of a short window, the views left to confirm are the far ones,
+which see less of the same surface, and recall falls more than precision rises (measured with
+``benchmarks/bench_global.py --goals``' views, end views confirming only, 2 plane steps: on
+slider_close 1 s, 5 views, precision at 1 % of depth 0.910 against 0.901, F 0.343 against
+0.398; on boxes_6dof 3.5-5.5 s, 4 views, F at 5 cm 0.134 against 0.215).
 
 * :func:`agreement_counts`: per point, how many other views agree (the multi-view check).
 * :func:`fuse_views`: the points with at least ``min_views`` agreeing other views, merged per
@@ -89,15 +93,21 @@ class FusionParams:
         The merge voxel; None: :func:`default_voxel_size` of the views.
     disjoint_events : bool
         Count only the views whose events are disjoint from the point's view's
-        (:func:`fusion.globalmap.views.shares_events`; default True). Views without a recorded
-        event window are always counted.
+        (:func:`fusion.globalmap.views.shares_events`; default False, see the module's
+        docstring). Views without a recorded event window are always counted.
+    inverse_depth_tolerance : float or None, 1/metres
+        A further agreement: ``|1/z_seen - 1/z_view| <= inverse_depth_tolerance`` (either one
+        suffices). An EMVS map's depth is resolved in steps uniform in inverse depth, so its
+        errors grow as ``z^2``: a relative tolerance that fits near points is under one plane
+        step far away. None (default): the relative tolerance alone.
     """
 
     min_views: int = 1
     depth_tolerance: float = 0.02
     search_radius: int = 1
     voxel_size: float | None = None
-    disjoint_events: bool = True
+    disjoint_events: bool = False
+    inverse_depth_tolerance: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "min_views", check_parameter(_count, "min_views",
@@ -109,6 +119,9 @@ class FusionParams:
         if self.voxel_size is not None:
             object.__setattr__(self, "voxel_size", check_parameter(
                 positive, "voxel_size", self.voxel_size))
+        if self.inverse_depth_tolerance is not None:
+            object.__setattr__(self, "inverse_depth_tolerance", check_parameter(
+                positive, "inverse_depth_tolerance", self.inverse_depth_tolerance))
         if not isinstance(self.disjoint_events, bool):
             raise ParameterError(f"{{disjoint_events}} must be True or False, got "
                                  f"{self.disjoint_events!r}", disjoint_events="disjoint_events")
@@ -195,10 +208,12 @@ def _project(points_world: np.ndarray, view: DepthView, field_r2: float
 
 
 @numba.njit(cache=True)
-def _match(col, row, z, depth, radius, tolerance, agree, nearest):  # pragma: no cover - compiled
+def _match(col, row, z, depth, radius, tolerance, inverse_tolerance, agree,
+           nearest):  # pragma: no cover - compiled
     """Per projected point (pixel ``(col, row)``, -1 where not seen, depth ``z``): ``agree``
     whether a point of ``depth`` in the window of ``radius`` pixels is within ``tolerance *
-    depth``; ``nearest`` the depth of the window's point nearest the pixel (NaN: none)."""
+    depth`` or ``inverse_tolerance`` in inverse depth; ``nearest`` the depth of the window's
+    point nearest the pixel (NaN: none)."""
     height, width = depth.shape
     for n in range(z.shape[0]):
         agree[n] = False
@@ -214,7 +229,8 @@ def _match(col, row, z, depth, radius, tolerance, agree, nearest):  # pragma: no
                 d = np.float64(depth[y, x])
                 if not d > 0.0:
                     continue
-                if abs(zn - d) <= tolerance * d:
+                if abs(zn - d) <= tolerance * d or (
+                        zn > 0.0 and abs(1.0 / zn - 1.0 / d) <= inverse_tolerance):
                     agree[n] = True
                 dist2 = (x - c) * (x - c) + (y - r) * (y - r)
                 if dist2 < best:
@@ -262,7 +278,8 @@ def _matches(views: list[DepthView], params: FusionParams):
             uv, z = _project(points[i], other, fields[j])
             col, row = _pixels(uv, other.camera)
             _match(col, row, np.ascontiguousarray(z), other.depth, params.search_radius,
-                   params.depth_tolerance, agree, nearest)
+                   params.depth_tolerance, params.inverse_depth_tolerance or -1.0, agree,
+                   nearest)
             yield i, j, agree, nearest, z
 
 

@@ -85,9 +85,17 @@ from sim.validation import ParameterError, check_parameter, integer, positive
 
 __all__ = ["GlobalParams", "map_and_fill_view", "map_global", "run_global", "sequence_poses"]
 
-END_VIEWS_MIN = 4
+END_VIEWS_MIN = 5
 """Key views from which the end views only confirm (:attr:`GlobalParams.end_views_confirm`):
-with fewer, the inner views would have no view with disjoint events left to confirm them."""
+at least three inner views then hold the map. With four, the two inner ones alone lose too much
+of what the ends see: measured on boxes_6dof 3.5-5.5 s (4 views, 2 plane steps), the fused map's
+F at 5 cm is 0.165 with the ends confirming only, 0.215 with their points."""
+AGREEMENT_STEPS = 2.0
+"""The fusion's agreement in inverse depth, in DSI plane steps
+(:attr:`fusion.globalmap.fuse.FusionParams.inverse_depth_tolerance`, when not given): a
+relative 2 % is under one plane step at boxes_6dof's depths (planes 4.5-9.9 cm apart there,
+issue 40). Measured there (4 views): F at 5 cm 0.151 with none, 0.180 with 1 step, 0.215 with
+2; on slider_close (0.23 m, 2 % is 2 steps) it changes nothing."""
 WORK_FOLDER = ".keyviews"
 """Where the key views of every round are mapped inside ``<out>.partial``; the final ones are
 moved to ``views/NNN`` and the folder removed."""
@@ -102,7 +110,8 @@ class GlobalParams:
     keyviews : KeyViewParams
         When a new key view is taken.
     fusion : FusionParams
-        Multi-view consistency and the merge voxel of the fused clouds.
+        Multi-view consistency and the merge voxel of the fused clouds (its
+        ``inverse_depth_tolerance`` None: :data:`AGREEMENT_STEPS` of the DSI's plane steps).
     tsdf : TSDFParams
         The TSDF volume of the filled views (its ``inverse_depth_step`` None: the DSI's plane
         spacing, so that the truncation follows the views' depth resolution).
@@ -321,9 +330,13 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
     filled = [_filled_view(views_root / f"{k:03d}" / "fill") for k in range(len(jobs))]
     filled_views = [view for view in filled if view is not None]
 
+    dsi = resolve_dsi_range(sequence, params.min_depth, params.max_depth)
+    step = (1.0 / dsi.min_depth - 1.0 / dsi.max_depth) / (params.planes - 1)
+    fusion = (params.fusion if params.fusion.inverse_depth_tolerance is not None
+              else replace(params.fusion, inverse_depth_tolerance=AGREEMENT_STEPS * step))
     tick = time.perf_counter()
     stage = progress_stage(desc="fuse", unit="view", noun="views", enabled=progress)
-    fused = fuse_views(semidense, params.fusion, contributors=_contributors(semidense, params))
+    fused = fuse_views(semidense, fusion, contributors=_contributors(semidense, params))
     if not len(fused.points):
         points = sum(int(np.count_nonzero(view.depth > 0)) for view in semidense)
         raise ParameterError(
@@ -333,7 +346,7 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
             f"{{baseline}} {params.keyviews.baseline:g} of the depth apart may see too little "
             "in common: lower {baseline}, or lower {min_views}",
             baseline="baseline", min_views="min_views")
-    fused_filled = (fuse_views(filled_views, params.fusion,
+    fused_filled = (fuse_views(filled_views, fusion,
                                contributors=_contributors(filled, params, filled_views))
                     if filled_views else None)
     stage.update(len(semidense) + len(filled_views))
@@ -346,8 +359,6 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
 
     tick = time.perf_counter()
     stage = progress_stage(desc="TSDF", unit="view", noun="views", enabled=progress)
-    dsi = resolve_dsi_range(sequence, params.min_depth, params.max_depth)
-    step = (1.0 / dsi.min_depth - 1.0 / dsi.max_depth) / (params.planes - 1)
     tsdf = (params.tsdf if params.tsdf.inverse_depth_step is not None
             else replace(params.tsdf, inverse_depth_step=step))
     mesh = tsdf_mesh(filled_views, tsdf) if filled_views else None
@@ -374,7 +385,7 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
             entry["semidense"] = entry["filled"] = None
             entry["semidense_global"] = entry["filled_global"] = None
         document["global"] = {"semidense": None, "filled": None, "tsdf": None}
-        document["view_agreement"] = view_agreement(semidense, params.fusion)
+        document["view_agreement"] = view_agreement(semidense, fusion)
         figure = draw_global_figure(fused.points, None, trajectory, centres, max(TAUS_M))
     stage.update(len(entries))
     stage.close()
