@@ -249,6 +249,19 @@ def test_depth_tolerance_is_relative_to_the_other_views_depth(sign):
         assert np.all(counts == int(agrees)), (sign, factor)
 
 
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_inverse_depth_tolerance_agrees_where_the_relative_one_does_not(sign):
+    """Walls at 2 m and 2 m +- 5 cm: 2.5 % apart (over a 1 % tolerance), |1/z - 1/d| =
+    0.05 / (2 (2 +- 0.05)) 1/m apart in inverse depth: agreed just above that, not just below."""
+    far = 2.0 + sign * 0.05
+    gap = abs(1 / 2.0 - 1 / far)
+    for factor, agrees in ((1 + 1e-3, True), (1 - 1e-3, False)):
+        params = FusionParams(depth_tolerance=0.01, search_radius=0,
+                              inverse_depth_tolerance=gap * factor)
+        i, j = _two_walls(np.full((30, 40), far))
+        assert np.all(agreement_counts([i, j], params)[0] == int(agrees)), (sign, factor)
+
+
 def test_an_occluded_point_does_not_agree():
     # view j, 0.2 m to the right, sees the wall at 2 m except where an occluder at 1 m hides it
     depth_j = np.full((30, 40), 2.0)
@@ -386,7 +399,8 @@ def test_view_agreement_returns_a_known_depth_offset():
 @pytest.mark.parametrize("field,value", [("min_views", -1), ("min_views", 1.5),
                                          ("search_radius", -2), ("depth_tolerance", 0.0),
                                          ("depth_tolerance", float("nan")),
-                                         ("voxel_size", -0.01), ("disjoint_events", 1)])
+                                         ("voxel_size", -0.01), ("disjoint_events", 1),
+                                         ("inverse_depth_tolerance", 0.0)])
 def test_bad_parameters_name_the_parameter(field, value):
     with pytest.raises(ParameterError, match=field):
         FusionParams(**{field: value})
@@ -439,9 +453,8 @@ def test_only_views_with_disjoint_events_confirm():
     touch at 2 s), 1 shares with both. A point of 0 is asked of view 2 only; 1 has no disjoint
     view, so it is asked of both (the fallback); without the rule every view is asked."""
     views = _views(noise=1.0)
-    params = FusionParams(min_views=1, depth_tolerance=0.03)
-    plain = agreement_counts(views, FusionParams(min_views=1, depth_tolerance=0.03,
-                                                 disjoint_events=False))
+    params = FusionParams(min_views=1, depth_tolerance=0.03, disjoint_events=True)
+    plain = agreement_counts(views, FusionParams(min_views=1, depth_tolerance=0.03))
     windowed = _windowed(views, [(0.0, 2.0), (1.0, 3.0), (2.0, 4.0)])
     counts = agreement_counts(windowed, params)
     only_2 = agreement_counts([views[0], views[2]], params)[0]
