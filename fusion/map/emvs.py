@@ -282,7 +282,12 @@ class DepthMapParams:
         parabola through the maximum and its two neighbours, in inverse depth) instead of the
         most-voted plane's depth. Default False: rpg_emvs's extraction, which ``evfuse map``,
         ``evfuse bench`` and the paper's reproduction (``evfuse reproduce``) record; the global
-        map (:class:`fusion.globalmap.pipeline.GlobalParams`) refines.
+        map (:class:`fusion.globalmap.pipeline.GlobalParams`) refines. Measured on inner key
+        views of ``benchmarks/bench_global.py --goals`` (100 planes, median filter 5): on
+        slider_close the median error halves (0.104 to 0.055 cm) but the share within 1 % of
+        the depth stays (0.887, 0.883: the points that miss are not quantised, they are wrong);
+        on boxes_6dof the median error falls from 4.88 to 4.45 cm and the share within 1 % rises
+        from 0.228 to 0.259 (without the median filter 4.25 to 2.91 cm, 0.296 to 0.357).
     """
 
     kernel: int = 5
