@@ -19,9 +19,16 @@ of the filled views). Reported per case:
 wall-clock seconds on whatever machine runs it (the table says how many cores); compare them
 only within one run.
 
-Run: ``PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_global.py [--quick] [--workers N]``.
-Results are printed and written to ``benchmarks/results/global.json`` (``global_quick.json``
-for ``--quick``).
+``--goals``: issue 40's goals (:data:`GOALS`: boxes_6dof 3.5-5.5 s, slider_close 0-1 s), each map
+scored against the same exact surface (the key views' union): the best single key view, the
+fused semi-dense map, the plain union of the views' points (``min_views`` 0, from the same
+views), the fused filled map and the TSDF mesh, at 5 cm, at 1 % of each point's depth and at the
+DSI's plane step at each point's depth; then each goal, met or not. ``--label`` names the run in
+the JSON (``benchmarks/results/global_goals.json`` keeps one entry per label: before / after).
+
+Run: ``PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_global.py [--quick | --goals]
+[--workers N]``. Results are printed and written to ``benchmarks/results/global.json``
+(``global_quick.json`` for ``--quick``, ``global_goals.json`` for ``--goals``).
 """
 
 from __future__ import annotations
@@ -47,6 +54,8 @@ CASES = {"slider_close": (0.0, 6.5), "boxes_6dof": (0.0, 6.0)}
 """Scene -> (start, length) in seconds: the issue's windows."""
 QUICK = {"slider_close": (0.0, 1.0), "boxes_6dof": (3.5, 1.0)}
 """``--quick``'s windows."""
+GOALS = {"boxes_6dof": (3.5, 2.0), "slider_close": (0.0, 1.0)}
+"""``--goals``' windows (issue 40)."""
 
 
 def run_case(name: str, start: float, length: float, workers: int | None) -> dict:
@@ -77,6 +86,99 @@ def run_case(name: str, start: float, length: float, workers: int | None) -> dic
                    "filled": v["filled"]} for v in views],
     }
     return row
+
+
+GOAL_KEYS = ("5cm", "depth1pct", "step")
+"""The tolerances of ``--goals``' table: 5 cm, 1 % of each point's depth, the plane step there."""
+
+
+def goal_case(name: str, start: float, length: float, workers: int | None) -> dict:
+    """Map one goal window globally and score every map against the same exact surface."""
+    from fusion.globalmap.fuse import FusionParams, fuse_views
+    from fusion.globalmap.pipeline import _semidense_view
+    from fusion.globalmap.score import SURFACE_SUPERSAMPLE, cloud_scores, exact_surface, exact_view
+    from fusion.globalmap.tsdf import Mesh
+    from fusion.io import read_mesh_ply, read_ply
+    from fusion.map.dsi_range import resolve_dsi_range
+    from sim.sequence import load_sequence
+
+    scene = load_scene(resolve_scene(name))
+    folder = cached_window(scene, CACHE, name, start, length, progress=True)
+    sequence = load_sequence(folder)
+    params = GlobalParams(workers=workers)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "global"
+        tick = time.perf_counter()
+        document = map_global(folder, out, params, progress=False)
+        wall = time.perf_counter() - tick
+        count = document["key_views"]
+        semidense = [_semidense_view(out / "views" / f"{k:03d}" / "map") for k in range(count)]
+        clouds = {name: _xyz(read_ply(out / file)[0])
+                  for name, file in (("fused", "global.ply"), ("filled", "global_filled.ply"))
+                  if (out / file).exists()}
+        clouds["union"] = fuse_views(semidense, FusionParams(min_views=0)).points
+        if (out / "mesh.ply").exists():
+            vertices, faces, _ = read_mesh_ply(out / "mesh.ply")
+            clouds["tsdf"] = Mesh(vertices, faces).sample(document["fused"]["voxel_size_m"] / 2)
+    exact = [exact_view(sequence, view.t, SURFACE_SUPERSAMPLE) for view in semidense]
+    reference = exact_surface(exact)
+    scene_depth = float(np.median(np.concatenate([v.depth[v.valid] for v in exact])))
+    dsi = resolve_dsi_range(sequence, params.min_depth, params.max_depth)
+    step = (1.0 / dsi.min_depth - 1.0 / dsi.max_depth) / (params.planes - 1)
+    poses = np.stack([view.T_world_cam for view in semidense])
+
+    def score(points: np.ndarray) -> dict:
+        return cloud_scores(points, reference, scene_depth, poses=poses, inverse_depth_step=step)
+
+    views = [score(view.points_world()) for view in semidense]
+    best = max(range(count), key=lambda k: views[k]["fscore_5cm"])
+    maps = {"best view": views[best], **{k: score(v) for k, v in clouds.items()}}
+    return {"scene": name, "window_s": [start, start + length], "key_views": count,
+            "best_view": best, "wall_s": wall, "maps": maps, "views": views,
+            "document_global": document["global"]}
+
+
+def _xyz(record: np.ndarray) -> np.ndarray:
+    return np.stack([record["x"], record["y"], record["z"]], 1).astype(np.float64)
+
+
+def goals(rows: list[dict]) -> list[tuple[str, float, float, bool]]:
+    """Issue 40's goals: (goal, measured, target, met)."""
+    out = []
+    for r in rows:
+        m = r["maps"]
+
+        def f(name: str, key: str, m: dict = m) -> float:
+            return m[name][key] if name in m else 0.0
+
+        if r["scene"] == "boxes_6dof":
+            out += [("boxes: fused F 5 cm >= 1.5 x best view", f("fused", "fscore_5cm"),
+                     1.5 * f("best view", "fscore_5cm")),
+                    ("boxes: fused F 5 cm >= plain union", f("fused", "fscore_5cm"),
+                     f("union", "fscore_5cm")),
+                    ("boxes: TSDF F 5 cm >= fused", f("tsdf", "fscore_5cm"),
+                     f("fused", "fscore_5cm"))]
+        elif r["scene"] == "slider_close":
+            out += [("slider: fused P 1 % >= best view", f("fused", "precision_depth1pct"),
+                     f("best view", "precision_depth1pct")),
+                    ("slider: filled F 1 % >= 0.9", f("filled", "fscore_depth1pct"), 0.9),
+                    ("slider: TSDF F 1 % >= fused", f("tsdf", "fscore_depth1pct"),
+                     f("fused", "fscore_depth1pct"))]
+    return [(name, value, target, value >= target) for name, value, target in out]
+
+
+def print_goals(rows: list[dict]) -> None:
+    """Per case the maps' P/R/F at each of :data:`GOAL_KEYS`, then the goals."""
+    print("\n| scene | map | points | " + " | ".join(f"P/R/F {k} %" for k in GOAL_KEYS) + " |")
+    print("|---|---|---|" + "---|" * len(GOAL_KEYS))
+    for r in rows:
+        for name, m in r["maps"].items():
+            cells = " | ".join(" / ".join(_f(m[f"{x}_{k}"], 100) for x in
+                                          ("precision", "recall", "fscore")) for k in GOAL_KEYS)
+            print(f"| {r['scene']} | {name} | {m['points']:,} | {cells} |")
+    print("\n| goal | measured | target | met |\n|---|---|---|---|")
+    for name, value, target, met in goals(rows):
+        print(f"| {name} | {100 * value:.1f} | {100 * target:.1f} | {'yes' if met else 'no'} |")
 
 
 def _f(value: float | None, scale: float = 1.0, digits: int = 1) -> str:
@@ -116,10 +218,24 @@ def print_table(rows: list[dict]) -> None:
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="1-second windows")
+    parser.add_argument("--goals", action="store_true", help="issue 40's goal windows")
+    parser.add_argument("--label", default="run", help="--goals: the run's name in the JSON")
     parser.add_argument("--scenes", default=None, help="comma-separated subset of the cases")
     parser.add_argument("--workers", type=int, default=None,
                         help="key views mapped at once (default: the machine's cores)")
     args = parser.parse_args(argv)
+    if args.goals:
+        names = args.scenes.split(",") if args.scenes else list(GOALS)
+        rows = [goal_case(name, *GOALS[name], args.workers) for name in names]
+        print_goals(rows)
+        path = RESULTS / "global_goals.json"
+        recorded = json.loads(path.read_text()) if path.exists() else {}
+        recorded[args.label] = {"cores": os.cpu_count(), "rows": rows,
+                                "goals": [list(g) for g in goals(rows)]}
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(recorded, indent=2, default=float))
+        print(f"written to {path}")
+        return rows
     cases = QUICK if args.quick else CASES
     names = args.scenes.split(",") if args.scenes else list(cases)
     rows = [run_case(name, *cases[name], args.workers) for name in names]

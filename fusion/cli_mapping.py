@@ -131,7 +131,7 @@ def _global_params(args: argparse.Namespace, method):
         method_params=method.settings, dense=method.params, min_depth=args.min_depth,
         max_depth=args.max_depth, planes=args.planes,
         depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median,
-                             keep_boundary_planes=args.keep_boundary_planes),
+                             keep_boundary_planes=args.keep_boundary_planes, subplane=True),
         workers=args.workers)
 
 

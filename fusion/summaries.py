@@ -211,17 +211,23 @@ def run_summary(report: dict, out: str | Path) -> str:
 
 
 def _global_scores(m: dict | None) -> str:
-    """One global-map score (:mod:`fusion.globalmap.score`) as text: accuracy, completeness and
-    F-scores with the point counts, or why it was not scored."""
+    """One global-map score (:mod:`fusion.globalmap.score`) as text: accuracy and F-scores at
+    2 and 5 cm, at 1 % of each point's depth and at the DSI's plane step there (where scored),
+    with the point counts, or why it was not scored."""
     if m is None:
         return "-"
     if not m["points"] or not m["reference_points"]:
         return (f"not scored ({m['points']:,} points against {m['reference_points']:,} "
                 "exact ones)")
-    return (f"accuracy {m['accuracy_cm']:.2f} cm, completeness {m['completeness_cm']:.2f} cm,"
-            f" F-score {100 * m['fscore_1cm']:.1f} / {100 * m['fscore_2cm']:.1f} / "
-            f"{100 * m['fscore_5cm']:.1f} % at 1 / 2 / 5 cm, on {m['points']:,} points "
-            f"against {m['reference_points']:,} exact ones")
+    relative = "".join(f" / {100 * m[f'fscore_{key}']:.1f}" for key in ("depth1pct", "step")
+                       if f"fscore_{key}" in m)
+    names = "".join(f" / {name}" for key, name in (("depth1pct", "1 % of depth"),
+                                                    ("step", "plane step"))
+                    if f"fscore_{key}" in m)
+    return (f"accuracy {m['accuracy_cm']:.2f} cm, F-score {100 * m['fscore_2cm']:.1f} / "
+            f"{100 * m['fscore_5cm']:.1f}{relative} % at 2 / 5 cm{names}, precision "
+            f"{100 * m['precision_5cm']:.1f} % at 5 cm, on {m['points']:,} points against "
+            f"{m['reference_points']:,} exact ones")
 
 
 def global_summary(document: dict, out: str | Path) -> str:
@@ -239,9 +245,9 @@ def global_summary(document: dict, out: str | Path) -> str:
     -------
     str
         Lines: the key views and rounds of selection; one line per view (its time, N1, its
-        semi-dense scores on a simulated sequence, why it was not filled where it was not); the
-        global semi-dense, filled and TSDF scores, or on real data the views' agreement; the
-        fused points, the mesh, the figure and the folder.
+        semi-dense scores on a simulated sequence against the global maps' exact surface, why it
+        was not filled where it was not); the global semi-dense, filled and TSDF scores, or on
+        real data the views' agreement; the fused points, the mesh, the figure and the folder.
     """
     out = Path(out)
     rounds = document["rounds"]
@@ -249,14 +255,16 @@ def global_summary(document: dict, out: str | Path) -> str:
              f"{'' if document['rounds_converged'] else ' (not settled: the last round stands)'}"]
     for view in document["views"]:
         line = f"  {view['folder']}: t_ref {view['t_ref']:.3f} s, N1 {view['N1']:,}"
-        if document["simulated"]:
-            line += f"; semi-dense {_global_scores(view['semidense'])}"
+        if document["simulated"]:        # against the global maps' reference, as they are
+            line += f"; semi-dense {_global_scores(view.get('semidense_global'))}"
         if view["fill_error"]:
             line += f"; not filled: {view['fill_error']}"
         lines.append(line)
     if document["simulated"]:
         for name in ("semidense", "filled", "tsdf"):
             lines.append(f"  global {name}: {_global_scores(document['global'][name])}")
+        lines.append("  (every map against the same exact surface: the union of the key views' "
+                     "exact views)")
     else:
         agreement = document["view_agreement"]
         median = agreement.get("median_abs_difference_m")

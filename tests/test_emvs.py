@@ -253,3 +253,118 @@ def test_points_beyond_the_range_land_on_the_last_plane_and_are_dropped():
         peak = (slice(int(v), int(v) + 2), slice(int(u), int(u) + 2))
         assert mask[peak].any(), (u, v)                    # inside the range: still mapped
         assert np.all(np.abs(1 / out[peak][mask[peak]] - 1 / z) <= 2 * spacing), (u, v, z)
+
+
+# --- sub-plane depth: the parabola through the maximum, in inverse depth -----------------------
+
+def _profile_dsi(profile, peaks_w, planes):
+    """A (planes, 1, P) DSI whose pixel p holds ``profile(w - peaks_w[p])`` at each plane."""
+    w = 1.0 / planes
+    return profile(w[:, None] - peaks_w[None, :])[:, None, :].astype(np.float32)
+
+
+@pytest.mark.parametrize("profile, bound", [
+    (lambda d, step=None: 100.0 - 2e4 * d ** 2, 1e-4),                 # a parabola: exact
+])
+def test_subplane_depth_is_exact_for_a_parabola_of_votes(profile, bound):
+    from fusion.map.emvs import subplane_inverse_depth
+
+    planes = depth_planes(DSIParams(0.5, 4.0, planes=40))
+    w = 1.0 / planes
+    step = abs(w[1] - w[0])
+    peaks = np.linspace(w[5], w[34], 97)                          # between planes, anywhere
+    dsi = _profile_dsi(profile, peaks, planes)
+    best = np.argmax(dsi, axis=0)
+    refined = subplane_inverse_depth(dsi, best, planes)[0]
+    plane_error = np.abs(w[best[0]] - peaks) / step
+    assert plane_error.max() > 0.45                                # the planes quantise
+    assert np.abs(refined - peaks).max() / step < bound
+
+
+@pytest.mark.parametrize("width, bound", [(0.7, 0.095), (1.0, 0.048), (2.0, 0.048)])
+def test_subplane_depth_of_a_gaussian_peak_within_its_stated_bound(width, bound):
+    """The docstring's bound for a Gaussian of ``width`` planes, over every peak position."""
+    from fusion.map.emvs import subplane_inverse_depth
+
+    planes = depth_planes(DSIParams(0.5, 4.0, planes=40))
+    w = 1.0 / planes
+    step = abs(w[1] - w[0])
+    peaks = np.linspace(w[10], w[12], 401)
+    dsi = _profile_dsi(lambda d: 50.0 * np.exp(-0.5 * (d / (width * step)) ** 2), peaks, planes)
+    best = np.argmax(dsi, axis=0)
+    error = np.abs(subplane_inverse_depth(dsi, best, planes)[0] - peaks) / step
+    assert error.max() <= bound + 1e-3
+    if width <= 1.0:
+        assert error.max() > 0.9 * bound          # the bound is the worst case, not loose
+    assert np.abs(w[best[0]] - peaks).max() / step > 0.49
+
+
+@pytest.mark.parametrize("half_width, bound", [(1.0, 0.167), (1.5, 0.086), (3.0, 0.086)])
+def test_subplane_depth_of_a_triangular_peak_within_its_stated_bound(half_width, bound):
+    from fusion.map.emvs import subplane_inverse_depth
+
+    planes = depth_planes(DSIParams(0.5, 4.0, planes=40))
+    w = 1.0 / planes
+    step = abs(w[1] - w[0])
+    peaks = np.linspace(w[10], w[12], 401)
+    dsi = _profile_dsi(lambda d: np.maximum(0.0, half_width * step - np.abs(d)), peaks, planes)
+    best = np.argmax(dsi, axis=0)
+    error = np.abs(subplane_inverse_depth(dsi, best, planes)[0] - peaks) / step
+    assert error.max() <= bound + 1e-3
+
+
+def test_subplane_depth_keeps_boundary_maxima_and_splits_a_tie():
+    from fusion.map.emvs import subplane_inverse_depth
+
+    planes = depth_planes(DSIParams(1.0, 2.0, planes=5))
+    w = 1.0 / planes
+    dsi = np.zeros((5, 1, 3), np.float32)
+    dsi[:, 0, 0] = [9, 5, 1, 0, 0]                  # maximum on the first plane: kept
+    dsi[:, 0, 1] = [0, 0, 1, 5, 9]                  # on the last: kept
+    dsi[:, 0, 2] = [0, 4, 4, 0, 0]                  # two equal planes: midway between them
+    best = np.argmax(dsi, axis=0)
+    np.testing.assert_allclose(subplane_inverse_depth(dsi, best, planes)[0],
+                               [w[0], w[4], 0.5 * (w[1] + w[2])])
+
+
+def test_subplane_depth_of_a_fronto_parallel_and_a_slanted_plane():
+    """Analytic events of points on two planes (one facing the camera, one slanted 50 deg):
+    the depth refined between the planes errs by a fraction of the plane step, the plane's by
+    a quarter of a step on average (uniform quantisation)."""
+    from fusion.map.emvs import DepthMapParams, semidense_depth
+
+    camera = Camera(80, 60, 70.0, 65.0, 39.5, 29.5)
+    rng = np.random.default_rng(3)
+    n = 120
+    uv = np.stack([rng.uniform(12, 68, n), rng.uniform(10, 50, n)], 1)
+    xy = (uv - [camera.cx, camera.cy]) / [camera.fx, camera.fy]
+    front = np.full(n // 2, 1.37)                                     # Z = 1.37 m
+    # slanted: Z = 1.8 + 0.012 x_pixels... as a plane n.X = d: Z (1 - tan(50deg) x) = 1.8
+    slant = 1.8 / (1.0 - np.tan(np.radians(50.0)) * 0.5 * xy[n // 2:, 0])
+    depth = np.concatenate([front, slant])
+    points = camera.backproject(uv, depth)
+    trajectory = LinearTrajectory(np.array([-0.4, -0.04, 0.0]), np.array([0.8, 0.08, 0.0]),
+                                  np.eye(3))
+    T_world_ref = trajectory.pose(0.5)
+    points_world = points + T_world_ref[:3, 3]
+    xy_all, t_all = [], []
+    for t in np.linspace(0.0, 1.0, 300):
+        T = trajectory.pose(t)
+        local = (points_world - T[:3, 3]) @ T[:3, :3]
+        xy_all.append(local[:, :2] / local[:, 2:3])
+        t_all.append(np.full(n, t))
+    params = DSIParams(0.8, 3.0, planes=30, packet_size=n)
+    dsi = disparity_space_image(np.concatenate(xy_all), np.concatenate(t_all), trajectory,
+                                T_world_ref, camera, params)
+    planes = depth_planes(params)
+    step = abs(1 / planes[1] - 1 / planes[0])
+    errors = {}
+    for subplane in (False, True):
+        got, _, _ = semidense_depth(dsi, planes, DepthMapParams(median=1, c=-255.0, border=0,
+                                                                subplane=subplane))
+        # each point's votes land in the 2x2 pixels around it: the one nearest holds its peak
+        z = got[np.round(uv[:, 1]).astype(int), np.round(uv[:, 0]).astype(int)]
+        errors[subplane] = np.abs(1 / z - 1 / depth) / step
+    assert np.median(errors[False]) > 0.15                          # quantised: ~1/4 step
+    assert np.median(errors[True]) < 0.5 * np.median(errors[False])
+    assert np.percentile(errors[True], 90) < 0.5

@@ -249,6 +249,19 @@ def test_depth_tolerance_is_relative_to_the_other_views_depth(sign):
         assert np.all(counts == int(agrees)), (sign, factor)
 
 
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_inverse_depth_tolerance_agrees_where_the_relative_one_does_not(sign):
+    """Walls at 2 m and 2 m +- 5 cm: 2.5 % apart (over a 1 % tolerance), |1/z - 1/d| =
+    0.05 / (2 (2 +- 0.05)) 1/m apart in inverse depth: agreed just above that, not just below."""
+    far = 2.0 + sign * 0.05
+    gap = abs(1 / 2.0 - 1 / far)
+    for factor, agrees in ((1 + 1e-3, True), (1 - 1e-3, False)):
+        params = FusionParams(depth_tolerance=0.01, search_radius=0,
+                              inverse_depth_tolerance=gap * factor)
+        i, j = _two_walls(np.full((30, 40), far))
+        assert np.all(agreement_counts([i, j], params)[0] == int(agrees)), (sign, factor)
+
+
 def test_an_occluded_point_does_not_agree():
     # view j, 0.2 m to the right, sees the wall at 2 m except where an occluder at 1 m hides it
     depth_j = np.full((30, 40), 2.0)
@@ -386,7 +399,8 @@ def test_view_agreement_returns_a_known_depth_offset():
 @pytest.mark.parametrize("field,value", [("min_views", -1), ("min_views", 1.5),
                                          ("search_radius", -2), ("depth_tolerance", 0.0),
                                          ("depth_tolerance", float("nan")),
-                                         ("voxel_size", -0.01)])
+                                         ("voxel_size", -0.01), ("disjoint_events", 1),
+                                         ("inverse_depth_tolerance", 0.0)])
 def test_bad_parameters_name_the_parameter(field, value):
     with pytest.raises(ParameterError, match=field):
         FusionParams(**{field: value})
@@ -425,3 +439,49 @@ def test_precomputed_counts_give_the_same_results_and_are_checked():
     assert len(fuse_views(views, params, counts=zero).points) == 0
     with pytest.raises(ParameterError, match="counts must hold one count per point"):
         fuse_views(views, params, counts=counts[:2])
+
+
+# --- independent evidence: views that share events do not confirm each other --------------------
+
+def _windowed(views, windows):
+    return [DepthView(v.depth, v.camera, v.T_world_cam, v.t, v.name, events=w)
+            for v, w in zip(views, windows, strict=True)]
+
+
+def test_only_views_with_disjoint_events_confirm():
+    """Key views 0, 1, 2 with windows [0, 2], [1, 3], [2, 4]: 0 and 2 share no events (they only
+    touch at 2 s), 1 shares with both. A point of 0 is asked of view 2 only; 1 has no disjoint
+    view, so it is asked of both (the fallback); without the rule every view is asked."""
+    views = _views(noise=1.0)
+    params = FusionParams(min_views=1, depth_tolerance=0.03, disjoint_events=True)
+    plain = agreement_counts(views, FusionParams(min_views=1, depth_tolerance=0.03))
+    windowed = _windowed(views, [(0.0, 2.0), (1.0, 3.0), (2.0, 4.0)])
+    counts = agreement_counts(windowed, params)
+    only_2 = agreement_counts([views[0], views[2]], params)[0]
+    np.testing.assert_array_equal(counts[0], only_2)
+    assert counts[0].sum() < plain[0].sum()                    # view 1 no longer counts
+    np.testing.assert_array_equal(counts[1], plain[1])         # fallback: both asked
+    # views without a recorded window: everything as before
+    np.testing.assert_array_equal(np.concatenate(agreement_counts(views, params)),
+                                  np.concatenate(plain))
+
+
+def test_contributors_only_confirm():
+    views = _views(noise=1.0)
+    params = FusionParams(min_views=1, depth_tolerance=0.03)
+    every = fuse_views(views, params)
+    some = fuse_views(views, params, contributors=[False, True, False])
+    assert set(np.unique(some.view)) == {1}
+    assert 0 < len(some.points) < len(every.points)
+    with pytest.raises(ParameterError, match="contributors"):
+        fuse_views(views, params, contributors=[True])
+
+
+def test_shares_events_rules():
+    from fusion.globalmap.views import shares_events
+
+    a, b, c = _windowed(_views(), [(0.0, 2.0), (1.0, 3.0), (2.0, 4.0)])
+    assert shares_events(a, b) and shares_events(b, c) and not shares_events(a, c)
+    assert not shares_events(_views(1)[0], a)                  # unknown window
+    with pytest.raises(ValueError, match="events"):
+        DepthView(a.depth, a.camera, a.T_world_cam, events=(2.0, 1.0))

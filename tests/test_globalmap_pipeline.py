@@ -71,6 +71,39 @@ def test_map_global_writes_every_file_and_the_contract_s_schema(global_run):
     assert document["rounds"] and document["rounds"][0]["round"] == 1
 
 
+def test_views_and_global_maps_are_scored_on_one_reference_and_printed_so(global_run):
+    """Each view's ``semidense_global`` is the view against the global maps' surface (what
+    ``gain_over_best_view`` compares), every score has the depth-following tolerances, the key
+    views refine depth between the planes and record their event windows, and the summary
+    prints the views' scores on that reference."""
+    from fusion.globalmap.pipeline import _semidense_view
+    from fusion.globalmap.score import SURFACE_SUPERSAMPLE, cloud_scores, exact_surface, exact_view
+    from fusion.map.dsi_range import resolve_dsi_range
+    from fusion.summaries import global_summary
+
+    sequence_folder, out, document = global_run
+    sequence = load_sequence(sequence_folder)
+    views = [_semidense_view(out / v["folder"] / "map") for v in document["views"]]
+    assert all(view.events == tuple(v["window_s"]) for view, v in
+               zip(views, document["views"], strict=True))
+    reference = exact_surface([exact_view(sequence, v.t, SURFACE_SUPERSAMPLE) for v in views])
+    dsi = resolve_dsi_range(sequence, None, None)
+    step = (1 / dsi.min_depth - 1 / dsi.max_depth) / (document["params"]["planes"] - 1)
+    assert document["inverse_depth_step_per_m"] == pytest.approx(step)
+    poses = np.stack([v.T_world_cam for v in views])
+    for view, entry in zip(views, document["views"], strict=True):
+        expected = cloud_scores(view.points_world(), reference, document["scene_depth_m"],
+                                poses=poses, inverse_depth_step=step)
+        assert entry["semidense_global"] == pytest.approx(expected)
+    for scores in [*document["global"].values(), document["views"][0]["semidense"]]:
+        assert {"fscore_depth1pct", "fscore_step", "tau_step_median_cm"} <= set(scores)
+    assert document["params"]["depth"]["subplane"] is True
+    text = global_summary(document, out)
+    f5 = 100 * document["views"][0]["semidense_global"]["fscore_5cm"]
+    assert f"views/000: t_ref {document['views'][0]['t_ref']:.3f} s" in text
+    assert f"{f5:.1f}" in text.splitlines()[1] and "plane step" in text
+
+
 def test_key_views_map_between_their_neighbours_at_the_nearest_frame(global_run):
     sequence_folder, out, document = global_run
     sequence = load_sequence(sequence_folder)

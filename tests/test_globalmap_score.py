@@ -303,3 +303,31 @@ def test_the_figure_draws_empty_clouds_and_heights(points):
     no_reference = nearest_distances(GRID, np.empty((0, 3)))            # inf: the last colour
     figure = draw_global_figure(GRID, no_reference, TRAJECTORY, KEY_VIEWS, 0.1)
     assert figure.shape == FIGURE_SHAPE
+
+
+def test_tolerances_that_follow_each_points_depth_by_hand():
+    """Three reference points on a camera's axis at 1, 2 and 4 m, ours 0.5, 1.5 and 5 cm beside
+    them: at 1 % of depth the taus are 1, 2 and 4 cm (the last misses), at the plane step of a
+    DSI 0.01 / m apart in inverse depth they are z^2 / 100 = 1, 4 and 16 cm (all pass)."""
+    reference = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0], [0.0, 0.0, 4.0]])
+    ours = reference + np.array([[0.005, 0, 0], [0.015, 0, 0], [0.05, 0, 0]])
+    s = cloud_scores(ours, reference, 2.0, poses=np.eye(4)[None], inverse_depth_step=0.01)
+    for name, (p, r) in {"depth1pct": (2 / 3, 2 / 3), "step": (1.0, 1.0)}.items():
+        assert s[f"precision_{name}"] == pytest.approx(p)
+        assert s[f"recall_{name}"] == pytest.approx(r)
+        assert s[f"fscore_{name}"] == pytest.approx(2 * p * r / (p + r))
+    assert s["tau_step_median_cm"] == pytest.approx(4.0)
+    assert "fscore_step" not in cloud_scores(ours, reference, 2.0, poses=np.eye(4)[None])
+    assert "fscore_depth1pct" not in cloud_scores(ours, reference, 2.0)
+    with pytest.raises(ValueError, match="inverse_depth_step"):
+        cloud_scores(ours, reference, 2.0, poses=np.eye(4)[None], inverse_depth_step=0.0)
+
+
+def test_point_depths_take_the_nearest_cameras_axis():
+    from fusion.globalmap.score import point_depths
+
+    turned = np.eye(4)
+    turned[:3, :3] = [[1, 0, 0], [0, 0, 1], [0, -1, 0]]    # looks along world +y ...
+    turned[:3, 3] = [5.0, 0.0, 0.0]                        # ... from x = 5 m
+    points = np.array([[0.1, 0.2, 1.5], [5.0, 2.5, 0.3]])
+    np.testing.assert_allclose(point_depths(points, np.stack([np.eye(4), turned])), [1.5, 2.5])

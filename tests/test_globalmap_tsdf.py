@@ -297,3 +297,38 @@ def test_an_observation_of_weight_zero_leaves_the_voxel_unseen():
     volume.integrate(DepthView(np.full((8, 8), 1.0, np.float32), camera, np.eye(4)))
     assert np.all(np.isfinite(volume.tsdf))
     np.testing.assert_allclose(volume.tsdf[:, :, k], 0.0, atol=1e-7)
+
+
+@pytest.mark.parametrize("depth", [1.0, 2.0])
+def test_truncation_follows_the_views_depth_resolution(depth):
+    """A plane at ``depth``: with an inverse-depth step s, voxels in front of it hold their exact
+    distance up to TRUNCATION_STEPS depth^2 s (2 x 4 x 0.02 = 16 cm at 2 m, 4 cm at 1 m),
+    clipped there; without it, at the fixed truncation (2 cm)."""
+    from fusion.globalmap.tsdf import TRUNCATION_STEPS
+
+    camera = PLAIN
+    view = plane_view(camera, depth)
+    voxel, step = 0.01, 0.02
+    lo = np.array([-0.05, -0.05, depth - 0.3])
+    band = TRUNCATION_STEPS * depth ** 2 * step
+    for inverse_step, expected in ((None, 0.02), (step, band)):
+        volume = TSDFVolume(lo, lo + [0.1, 0.1, 0.35], voxel, truncation=0.02,
+                            inverse_depth_step=inverse_step)
+        volume.integrate(view)
+        column = volume.tsdf[5, 5]
+        z = lo[2] + np.arange(len(column)) * voxel
+        front = (z < depth) & (volume.weight[5, 5] > 0)
+        np.testing.assert_allclose(column[front], np.minimum(depth - z[front], expected),
+                                   atol=1e-5)
+        behind = volume.weight[5, 5] > 0
+        assert (depth - z[behind]).min() > -expected - 1e-6       # nothing past the band
+
+
+def test_the_box_is_padded_by_the_widest_band():
+    view = plane_view(PLAIN, 2.0)
+    lo, hi, voxel, truncation = tsdf_grid([view], TSDFParams(inverse_depth_step=0.02))
+    points = view.points_world()
+    band = 2.0 * 2.0 ** 2 * 0.02
+    assert band > truncation
+    np.testing.assert_allclose(lo, points.min(0) - band, atol=1e-9)
+    np.testing.assert_allclose(hi, points.max(0) + band, atol=1e-9)

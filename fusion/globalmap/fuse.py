@@ -12,6 +12,18 @@ window around the pixel it lands on) has ``|z_ij - depth_j| <= depth_tolerance *
 neither agrees nor counts against; a point that ``j`` sees behind a nearer surface (occluded)
 finds only that surface's depth and does not agree.
 
+Independent evidence only: with ``FusionParams.disjoint_events``, a view ``j`` whose events
+overlap ``i``'s (:func:`fusion.globalmap.views.shares_events`: neighbouring key views share half
+their events) is not asked, unless no view is disjoint from ``i`` (two or three key views): then
+every other view is. Two maps of the same events make the same errors, so their agreement says
+less (issue 40, slider_close: 80.4 % of the points confirmed by a view with disjoint events lie
+within 1 % of their depth, 73.7 % of those confirmed by an event-sharing one). It is off by
+default: with the few key views of a short window, the views left to confirm are the far ones,
+which see less of the same surface, and recall falls more than precision rises (measured with
+``benchmarks/bench_global.py --goals``' views, end views confirming only, 2 plane steps: on
+slider_close 1 s, 5 views, precision at 1 % of depth 0.910 against 0.901, F 0.343 against
+0.398; on boxes_6dof 3.5-5.5 s, 4 views, F at 5 cm 0.134 against 0.215).
+
 * :func:`agreement_counts`: per point, how many other views agree (the multi-view check).
 * :func:`fuse_views`: the points with at least ``min_views`` agreeing other views, merged per
   voxel into one world-frame cloud (:class:`FusedCloud`).
@@ -50,7 +62,7 @@ import numba
 import numpy as np
 
 from fusion.fill.projection import nearest_per_pixel
-from fusion.globalmap.views import DepthView, to_camera
+from fusion.globalmap.views import DepthView, shares_events, to_camera
 from sim._summary import summary_repr
 from sim.camera import Camera
 from sim.validation import ParameterError, check_parameter, integer, positive
@@ -79,12 +91,23 @@ class FusionParams:
         (a square window around the pixel it lands on; semi-dense maps are thin edges).
     voxel_size : float or None, metres
         The merge voxel; None: :func:`default_voxel_size` of the views.
+    disjoint_events : bool
+        Count only the views whose events are disjoint from the point's view's
+        (:func:`fusion.globalmap.views.shares_events`; default False, see the module's
+        docstring). Views without a recorded event window are always counted.
+    inverse_depth_tolerance : float or None, 1/metres
+        A further agreement: ``|1/z_seen - 1/z_view| <= inverse_depth_tolerance`` (either one
+        suffices). An EMVS map's depth is resolved in steps uniform in inverse depth, so its
+        errors grow as ``z^2``: a relative tolerance that fits near points is under one plane
+        step far away. None (default): the relative tolerance alone.
     """
 
     min_views: int = 1
     depth_tolerance: float = 0.02
     search_radius: int = 1
     voxel_size: float | None = None
+    disjoint_events: bool = False
+    inverse_depth_tolerance: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "min_views", check_parameter(_count, "min_views",
@@ -96,6 +119,12 @@ class FusionParams:
         if self.voxel_size is not None:
             object.__setattr__(self, "voxel_size", check_parameter(
                 positive, "voxel_size", self.voxel_size))
+        if self.inverse_depth_tolerance is not None:
+            object.__setattr__(self, "inverse_depth_tolerance", check_parameter(
+                positive, "inverse_depth_tolerance", self.inverse_depth_tolerance))
+        if not isinstance(self.disjoint_events, bool):
+            raise ParameterError(f"{{disjoint_events}} must be True or False, got "
+                                 f"{self.disjoint_events!r}", disjoint_events="disjoint_events")
 
 
 @dataclass
@@ -179,10 +208,12 @@ def _project(points_world: np.ndarray, view: DepthView, field_r2: float
 
 
 @numba.njit(cache=True)
-def _match(col, row, z, depth, radius, tolerance, agree, nearest):  # pragma: no cover - compiled
+def _match(col, row, z, depth, radius, tolerance, inverse_tolerance, agree,
+           nearest):  # pragma: no cover - compiled
     """Per projected point (pixel ``(col, row)``, -1 where not seen, depth ``z``): ``agree``
     whether a point of ``depth`` in the window of ``radius`` pixels is within ``tolerance *
-    depth``; ``nearest`` the depth of the window's point nearest the pixel (NaN: none)."""
+    depth`` or ``inverse_tolerance`` in inverse depth; ``nearest`` the depth of the window's
+    point nearest the pixel (NaN: none)."""
     height, width = depth.shape
     for n in range(z.shape[0]):
         agree[n] = False
@@ -198,7 +229,8 @@ def _match(col, row, z, depth, radius, tolerance, agree, nearest):  # pragma: no
                 d = np.float64(depth[y, x])
                 if not d > 0.0:
                     continue
-                if abs(zn - d) <= tolerance * d:
+                if abs(zn - d) <= tolerance * d or (
+                        zn > 0.0 and abs(1.0 / zn - 1.0 / d) <= inverse_tolerance):
                     agree[n] = True
                 dist2 = (x - c) * (x - c) + (y - r) * (y - r)
                 if dist2 < best:
@@ -218,23 +250,36 @@ def _pixels(uv: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     return col, row
 
 
+def _askers(views: list[DepthView], i: int, params: FusionParams) -> set[int]:
+    """The views asked to confirm view ``i``'s points: the others; with
+    ``params.disjoint_events`` those that share no events with it, where there are any."""
+    others = {j for j in range(len(views)) if j != i}
+    if not params.disjoint_events:
+        return others
+    disjoint = {j for j in others if not shares_events(views[i], views[j])}
+    return disjoint or others
+
+
 def _matches(views: list[DepthView], params: FusionParams):
-    """Yield ``(i, j, agree, nearest, z)`` for every ordered pair of distinct views: whether
-    each point of ``i`` agrees with ``j``, the depth of ``j``'s nearest point to where it lands
-    (NaN: not seen or no point of ``j`` in the window) and its depth in ``j``."""
+    """Yield ``(i, j, agree, nearest, z)`` for every ordered pair of distinct views (with
+    ``params.disjoint_events``, only those that share no events): whether each point of ``i``
+    agrees with ``j``, the depth of ``j``'s nearest point to where it lands (NaN: not seen or no
+    point of ``j`` in the window) and its depth in ``j``."""
     points = [view.points_world() for view in views]
     fields = [_field_radius2(view.camera) for view in views]
+    askers = [_askers(views, i, params) for i in range(len(views))]
     for i in range(len(views)):
         n = len(points[i])
         agree = np.empty(n, np.bool_)
         nearest = np.empty(n, np.float64)
         for j, other in enumerate(views):
-            if j == i:
+            if j == i or j not in askers[i]:
                 continue
             uv, z = _project(points[i], other, fields[j])
             col, row = _pixels(uv, other.camera)
             _match(col, row, np.ascontiguousarray(z), other.depth, params.search_radius,
-                   params.depth_tolerance, agree, nearest)
+                   params.depth_tolerance, params.inverse_depth_tolerance or -1.0, agree,
+                   nearest)
             yield i, j, agree, nearest, z
 
 
@@ -250,8 +295,9 @@ def agreement_counts(views: list[DepthView], params: FusionParams) -> list[np.nd
     Returns
     -------
     list of (N_i,) int32 ndarray
-        Per view, in the order of :meth:`DepthView.pixels`: the number of OTHER views that see
-        the point and hold a point within the tolerance near where it lands (0 to V - 1).
+        Per view, in the order of :meth:`DepthView.pixels`: the number of OTHER views (with
+        ``params.disjoint_events``, of those that share no events with it) that see the point
+        and hold a point within the tolerance near where it lands (0 to V - 1).
     """
     views = _check_views(views)
     counts = [np.zeros(int(view.valid.sum()), np.int32) for view in views]
@@ -279,7 +325,8 @@ def _kept(views: list[DepthView], params: FusionParams,
 
 
 def fuse_views(views: list[DepthView], params: FusionParams, *,
-               counts: list[np.ndarray] | None = None) -> FusedCloud:
+               counts: list[np.ndarray] | None = None,
+               contributors: list[bool] | None = None) -> FusedCloud:
     """The fused cloud: points that at least ``min_views`` other views agree with, merged per
     voxel.
 
@@ -289,6 +336,9 @@ def fuse_views(views: list[DepthView], params: FusionParams, *,
     params : FusionParams
     counts : list of (N_i,) int ndarray, optional
         :func:`agreement_counts` of ``views`` with ``params``, if already computed.
+    contributors : list of bool, optional
+        Per view, whether its points may enter the cloud (default: every view's); the others
+        only confirm (e.g. key views whose event window lies on one side of them).
 
     Returns
     -------
@@ -300,6 +350,11 @@ def fuse_views(views: list[DepthView], params: FusionParams, *,
     views = _check_views(views)
     voxel = params.voxel_size if params.voxel_size is not None else default_voxel_size(views)
     keep, support = _kept(views, params, counts)
+    if contributors is not None:
+        if len(contributors) != len(views):
+            raise ParameterError(f"{{contributors}} must hold one flag per view ({len(views)}), "
+                                 f"got {len(contributors)}", contributors="contributors")
+        keep = [k & bool(c) for k, c in zip(keep, contributors, strict=True)]
     points = np.concatenate([view.points_world()[k] for view, k in zip(views, keep, strict=True)])
     sup = np.concatenate([s[k] for s, k in zip(support, keep, strict=True)]).astype(np.int32)
     origin = np.concatenate([np.full(int(k.sum()), i, np.int32) for i, k in enumerate(keep)])
@@ -364,7 +419,8 @@ def fuse_into_view(views: list[DepthView], ref: int, params: FusionParams, *,
 def view_agreement(views: list[DepthView], params: FusionParams) -> dict:
     """What a recording without ground truth can check: whether overlapping views agree.
 
-    For each pair of views ``a < b``, a point of either that the other sees and near which the
+    For each pair of views ``a < b`` (with ``params.disjoint_events``, that share no events),
+    a point of either that the other sees and near which the
     other holds a point is an *overlap point*; its difference is its depth in the other view
     minus the depth of the other's point nearest where it lands (both directions pooled).
 

@@ -85,6 +85,17 @@ from sim.validation import ParameterError, check_parameter, integer, positive
 
 __all__ = ["GlobalParams", "map_and_fill_view", "map_global", "run_global", "sequence_poses"]
 
+END_VIEWS_MIN = 5
+"""Key views from which the end views only confirm (:attr:`GlobalParams.end_views_confirm`):
+at least three inner views then hold the map. With four, the two inner ones alone lose too much
+of what the ends see: measured on boxes_6dof 3.5-5.5 s (4 views, 2 plane steps), the fused map's
+F at 5 cm is 0.165 with the ends confirming only, 0.215 with their points."""
+AGREEMENT_STEPS = 2.0
+"""The fusion's agreement in inverse depth, in DSI plane steps
+(:attr:`fusion.globalmap.fuse.FusionParams.inverse_depth_tolerance`, when not given): a
+relative 2 % is under one plane step at boxes_6dof's depths (planes 4.5-9.9 cm apart there,
+issue 40). Measured there (4 views): F at 5 cm 0.151 with none, 0.180 with 1 step, 0.215 with
+2; on slider_close (0.23 m, 2 % is 2 steps) it changes nothing."""
 WORK_FOLDER = ".keyviews"
 """Where the key views of every round are mapped inside ``<out>.partial``; the final ones are
 moved to ``views/NNN`` and the folder removed."""
@@ -99,9 +110,11 @@ class GlobalParams:
     keyviews : KeyViewParams
         When a new key view is taken.
     fusion : FusionParams
-        Multi-view consistency and the merge voxel of the fused clouds.
+        Multi-view consistency and the merge voxel of the fused clouds (its
+        ``inverse_depth_tolerance`` None: :data:`AGREEMENT_STEPS` of the DSI's plane steps).
     tsdf : TSDFParams
-        The TSDF volume of the filled views.
+        The TSDF volume of the filled views (its ``inverse_depth_step`` None: the DSI's plane
+        spacing, so that the truncation follows the views' depth resolution).
     method : str or None
         Filling method (default: the paper's, ``paper-idw``); resolved once, before any work.
     method_params : dict
@@ -114,7 +127,8 @@ class GlobalParams:
     planes : int
         DSI depth planes.
     depth : DepthMapParams
-        The semi-dense map's extraction from the DSI.
+        The semi-dense map's extraction from the DSI (default: rpg_emvs's, with the depth
+        refined between the planes, ``subplane``).
     t0, t1 : float or None, seconds
         The span to map (default: the data's).
     workers : int or None
@@ -127,6 +141,11 @@ class GlobalParams:
         The selection stands once every key view's depth scale (the one it was selected with)
         lies within this share of its own map's median depth (default 0.1; a view without map
         points has no say); else the views are selected and mapped again.
+    end_views_confirm : bool
+        With at least :data:`END_VIEWS_MIN` key views, the first and the last (their event
+        windows lie on one side of their reference: issue 40 measured 40-49 % of their points
+        within 0.23 cm on slider_close, 89.7 % of the inner views') confirm the other views'
+        points in the fused clouds but add none of their own (default True).
     """
 
     keyviews: KeyViewParams = field(default_factory=KeyViewParams)
@@ -138,12 +157,13 @@ class GlobalParams:
     min_depth: float | None = None
     max_depth: float | None = None
     planes: int = 100
-    depth: DepthMapParams = field(default_factory=DepthMapParams)
+    depth: DepthMapParams = field(default_factory=lambda: DepthMapParams(subplane=True))
     t0: float | None = None
     t1: float | None = None
     workers: int | None = None
     max_rounds: int = 3
     depth_scale_tolerance: float = 0.1
+    end_views_confirm: bool = True
 
     def __post_init__(self) -> None:
         check_parameter(positive, "depth_scale_tolerance", self.depth_scale_tolerance)
@@ -310,9 +330,13 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
     filled = [_filled_view(views_root / f"{k:03d}" / "fill") for k in range(len(jobs))]
     filled_views = [view for view in filled if view is not None]
 
+    dsi = resolve_dsi_range(sequence, params.min_depth, params.max_depth)
+    step = (1.0 / dsi.min_depth - 1.0 / dsi.max_depth) / (params.planes - 1)
+    fusion = (params.fusion if params.fusion.inverse_depth_tolerance is not None
+              else replace(params.fusion, inverse_depth_tolerance=AGREEMENT_STEPS * step))
     tick = time.perf_counter()
     stage = progress_stage(desc="fuse", unit="view", noun="views", enabled=progress)
-    fused = fuse_views(semidense, params.fusion)
+    fused = fuse_views(semidense, fusion, contributors=_contributors(semidense, params))
     if not len(fused.points):
         points = sum(int(np.count_nonzero(view.depth > 0)) for view in semidense)
         raise ParameterError(
@@ -322,7 +346,9 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
             f"{{baseline}} {params.keyviews.baseline:g} of the depth apart may see too little "
             "in common: lower {baseline}, or lower {min_views}",
             baseline="baseline", min_views="min_views")
-    fused_filled = fuse_views(filled_views, params.fusion) if filled_views else None
+    fused_filled = (fuse_views(filled_views, fusion,
+                               contributors=_contributors(filled, params, filled_views))
+                    if filled_views else None)
     stage.update(len(semidense) + len(filled_views))
     stage.close()
     timings["fusion_s"] = time.perf_counter() - tick
@@ -333,7 +359,9 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
 
     tick = time.perf_counter()
     stage = progress_stage(desc="TSDF", unit="view", noun="views", enabled=progress)
-    mesh = tsdf_mesh(filled_views, params.tsdf) if filled_views else None
+    tsdf = (params.tsdf if params.tsdf.inverse_depth_step is not None
+            else replace(params.tsdf, inverse_depth_step=step))
+    mesh = tsdf_mesh(filled_views, tsdf) if filled_views else None
     stage.update(len(filled_views))
     stage.close()
     timings["tsdf_s"] = time.perf_counter() - tick
@@ -349,14 +377,15 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
     trajectory = _trajectory_positions(sequence, jobs)
     centres = np.array([view.centre for view in semidense]).reshape(-1, 3)
     if simulated:
-        errors = _score(document, semidense, filled, fused, fused_filled, mesh, exact)
+        errors = _score(document, semidense, filled, fused, fused_filled, mesh, exact, step)
         write_error_cloud(tmp / "global_error.ply", fused.points, errors, max(TAUS_M))
         figure = draw_global_figure(fused.points, errors, trajectory, centres, max(TAUS_M))
     else:
         for entry in entries:
             entry["semidense"] = entry["filled"] = None
+            entry["semidense_global"] = entry["filled_global"] = None
         document["global"] = {"semidense": None, "filled": None, "tsdf": None}
-        document["view_agreement"] = view_agreement(semidense, params.fusion)
+        document["view_agreement"] = view_agreement(semidense, fusion)
         figure = draw_global_figure(fused.points, None, trajectory, centres, max(TAUS_M))
     stage.update(len(entries))
     stage.close()
@@ -385,6 +414,18 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
     })
     (tmp / "global.json").write_text(to_json(document))
     return document
+
+
+def _contributors(views: list[DepthView | None], params: GlobalParams,
+                  kept: list[DepthView] | None = None) -> list[bool]:
+    """Per view of ``kept`` (default ``views``, the key views in time order, None where a view
+    has none): whether its points enter the fused cloud (not an end view, or
+    :attr:`GlobalParams.end_views_confirm` off, or fewer than :data:`END_VIEWS_MIN` key
+    views)."""
+    ends = params.end_views_confirm and len(views) >= END_VIEWS_MIN
+    flags = [not (ends and k in (0, len(views) - 1)) for k in range(len(views))]
+    return [flag for flag, view in zip(flags, views, strict=True) if view is not None] \
+        if kept is not None else flags
 
 
 def _too_few_key_views(sequence: Sequence, params: GlobalParams, count: int,
@@ -623,7 +664,8 @@ def _view_entry(job: _Job, result: dict) -> dict:
     return {"t_ref": result["t_ref"], "t_key": job.t_key, "t_frame": result["t_frame"],
             "window_s": result["window_s"], "events": result["events"], "N1": result["N1"],
             "depth_median_m": result["depth_median_m"], "fill_error": result["fill_error"],
-            "semidense": None, "filled": None, "timings": result["timings"]}
+            "semidense": None, "filled": None, "semidense_global": None, "filled_global": None,
+            "timings": result["timings"]}
 
 
 def _camera(record: dict) -> Camera:
@@ -639,7 +681,16 @@ def _semidense_view(map_folder: Path) -> DepthView:
     meta = json.loads((map_folder / "map.json").read_text())
     return DepthView(read_depth(map_folder / "semidense_depth.exr"), _camera(meta["camera"]),
                      np.array(meta["T_world_ref"], np.float64), float(meta["t_ref"]),
-                     f"semidense {map_folder.parent.name}")
+                     f"semidense {map_folder.parent.name}", events=_events_window(meta))
+
+
+def _events_window(meta: dict) -> tuple[float, float] | None:
+    """The event window ``[t0, t1]`` (s) a ``map.json`` records (None where it records none:
+    the view is then not known to share events with any other)."""
+    if "window_s" not in meta:
+        return None
+    t0, t1 = meta["window_s"]
+    return float(t0), float(t1)
 
 
 def _filled_view(fill_folder: Path) -> DepthView | None:
@@ -648,42 +699,58 @@ def _filled_view(fill_folder: Path) -> DepthView | None:
     if not (fill_folder / "fill.json").is_file():
         return None
     meta = json.loads((fill_folder / "fill.json").read_text())
+    events = json.loads((fill_folder.parent / "map" / "map.json").read_text())
     return DepthView(read_depth(fill_folder / "dense_depth.exr"), _camera(meta["camera"]),
                      np.array(meta["T_world_frame"], np.float64), float(meta["t_frame"]),
-                     f"filled {fill_folder.parent.name}")
+                     f"filled {fill_folder.parent.name}", events=_events_window(events))
 
 
 def _score(document: dict, semidense: list[DepthView], filled: list[DepthView | None],
-           fused, fused_filled, mesh, exact: list[DepthView]) -> np.ndarray:
+           fused, fused_filled, mesh, exact: list[DepthView], inverse_depth_step: float
+           ) -> np.ndarray:
     """Score every key view and the global maps against the exact surface into ``document``;
-    return the fused semi-dense points' distances to it (metres)."""
+    return the fused semi-dense points' distances to it (metres).
+
+    Each view is scored twice: against its own exact view (``semidense``, ``filled``) and, as
+    the global maps are, against the union of the key views' exact views (``semidense_global``,
+    ``filled_global``): only the latter compare with the global maps. The tolerances that follow
+    the depth (1 % of it, the DSI's plane step ``inverse_depth_step`` at it) take each point's
+    depth in the nearest key view (:func:`fusion.globalmap.score.point_depths`)."""
     reference = exact_surface(exact)
     depths = np.concatenate([view.depth[view.valid] for view in exact])
     scene_depth = float(np.median(depths)) if len(depths) else 1.0
+    poses = np.stack([view.T_world_cam for view in semidense])
+
+    def score(points: np.ndarray, surface: np.ndarray) -> dict:
+        return cloud_scores(points, surface, scene_depth, poses=poses,
+                            inverse_depth_step=inverse_depth_step)
+
     for entry, own, dense, truth in zip(document["views"], semidense, filled, exact,
                                         strict=True):
         surface = exact_surface([truth])
-        entry["semidense"] = cloud_scores(own.points_world(), surface, scene_depth)
+        entry["semidense"] = score(own.points_world(), surface)
+        entry["semidense_global"] = score(own.points_world(), reference)
         if dense is None:
-            entry["filled"] = None
+            entry["filled"] = entry["filled_global"] = None
             continue
         # A rig's filled view is the frame camera's, which sees another surface than the
         # event camera's exact view: it is scored against the global exact surface instead.
         same = _same_view(own, dense)
-        entry["filled"] = cloud_scores(dense.points_world(), surface if same else reference,
-                                       scene_depth)
+        entry["filled"] = score(dense.points_world(), surface if same else reference)
         entry["filled_against"] = "view" if same else "global"
+        entry["filled_global"] = score(dense.points_world(), reference)
     document["global"] = {
-        "semidense": cloud_scores(fused.points, reference, scene_depth),
-        "filled": (None if fused_filled is None
-                   else cloud_scores(fused_filled.points, reference, scene_depth)),
-        "tsdf": (None if mesh is None else cloud_scores(
-            mesh.sample(fused_filled.voxel_size / 2), reference, scene_depth)),
+        "semidense": score(fused.points, reference),
+        "filled": None if fused_filled is None else score(fused_filled.points, reference),
+        "tsdf": (None if mesh is None
+                 else score(mesh.sample(fused_filled.voxel_size / 2), reference)),
     }
     document["scene_depth_m"] = scene_depth
+    document["inverse_depth_step_per_m"] = inverse_depth_step
     document["gain_over_best_view"] = {
-        name: _gain(document["global"][name], views, reference, scene_depth)
-        for name, views in (("semidense", semidense), ("filled", filled))}
+        name: _gain(document["global"][name], [entry[f"{name}_global"]
+                                               for entry in document["views"]])
+        for name in ("semidense", "filled")}
     return nearest_distances(fused.points, reference)
 
 
@@ -695,14 +762,12 @@ def _same_view(a: DepthView, b: DepthView) -> bool:
             and np.allclose(a.T_world_cam, b.T_world_cam, atol=1e-9))
 
 
-def _gain(fused: dict | None, views: list[DepthView | None], reference: np.ndarray,
-          scene_depth: float) -> dict | None:
+def _gain(fused: dict | None, views: list[dict | None]) -> dict | None:
     """The fused map against the best single key view, both scored against the same (global)
     exact surface: the view with the highest F-score at the largest tau, its scores, and the
     fused map's recall over that view's at each tau and its accuracy and completeness changes
     (cm; negative: better). None without a fused map or a view."""
-    scored = [(k, cloud_scores(view.points_world(), reference, scene_depth))
-              for k, view in enumerate(views) if view is not None]
+    scored = [(k, scores) for k, scores in enumerate(views) if scores is not None]
     if fused is None or not scored:
         return None
     widest = f"fscore_{round(100 * max(TAUS_M))}cm"

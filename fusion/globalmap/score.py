@@ -41,7 +41,7 @@ from sim.sequence import Sequence
 
 __all__ = ["FIGURE_PANEL", "KEY_VIEW_COLOUR", "RELATIVE_TAU", "SURFACE_SUPERSAMPLE", "TAUS_M",
            "cloud_scores", "draw_global_figure", "error_colours", "exact_surface", "exact_view",
-           "nearest_distances", "write_error_cloud"]
+           "nearest_distances", "point_depths", "write_error_cloud"]
 
 TAUS_M = (0.01, 0.02, 0.05)
 """Distances (m) at which precision, recall and F-score are given: 1, 2 and 5 cm."""
@@ -191,8 +191,45 @@ def _tau_name(tau: float) -> str:
     return f"{100 * tau:g}cm"
 
 
+def point_depths(points: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Each point's z-depth in the camera (of ``poses``) whose centre is nearest to it: the depth
+    that sets the point's tolerances (1 % of it, the DSI's plane step at it).
+
+    Parameters
+    ----------
+    points : (N, 3) array_like, metres, world frame
+    poses : (K, 4, 4) array_like, ``T_world_camera`` of the key views (K >= 1)
+
+    Returns
+    -------
+    (N,) float64 ndarray, metres (negative or 0 for a point behind or beside that camera)
+    """
+    points = _cloud("points", points)
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    if len(poses) == 0:
+        raise ValueError("poses must hold at least one camera pose")
+    if len(points) == 0:
+        return np.empty(0)
+    nearest = cKDTree(poses[:, :3, 3]).query(points, k=1)[1]
+    axes = poses[nearest, :3, 2]                       # each camera's optical axis, world frame
+    return np.einsum("ij,ij->i", points - poses[nearest, :3, 3], axes)
+
+
+def _share_within(distances: np.ndarray, taus: np.ndarray | float) -> float:
+    """Share of ``distances`` strictly under their ``taus`` (0 for none)."""
+    return float(np.mean(distances < taus)) if distances.size else 0.0
+
+
+def _prf(scores: dict, name: str, precision: float, recall: float) -> None:
+    total = precision + recall
+    scores[f"precision_{name}"] = precision
+    scores[f"recall_{name}"] = recall
+    scores[f"fscore_{name}"] = 2.0 * precision * recall / total if total > 0 else 0.0
+
+
 def cloud_scores(points: np.ndarray, reference: np.ndarray, scene_depth: float,
-                 taus: tuple[float, ...] = TAUS_M) -> dict:
+                 taus: tuple[float, ...] = TAUS_M, *, poses: np.ndarray | None = None,
+                 inverse_depth_step: float | None = None) -> dict:
     """Accuracy, completeness, Chamfer distance and precision / recall / F-score of a cloud.
 
     The definitions of DTU and Tanks and Temples, distances to the nearest point both ways:
@@ -213,6 +250,16 @@ def cloud_scores(points: np.ndarray, reference: np.ndarray, scene_depth: float,
         :data:`RELATIVE_TAU` of it.
     taus : tuple of float, metres, > 0
         Default :data:`TAUS_M` (keys ``precision_1cm``, ``recall_1cm``, ``fscore_1cm``, ...).
+    poses : (K, 4, 4) array_like or None
+        The key views' ``T_world_camera``: with them, tolerances that follow each point's depth
+        ``z`` (:func:`point_depths`; our points' for the precision, the reference's for the
+        recall): :data:`RELATIVE_TAU` of ``z`` (keys ``*_depth1pct``).
+    inverse_depth_step : float or None, 1/metres, > 0
+        With ``poses``: the DSI's plane spacing in inverse depth, ``(1/min - 1/max) /
+        (planes - 1)``; the further tolerance is the plane step at each point's depth,
+        ``z^2 inverse_depth_step`` (keys ``*_step``, with its median over the reference
+        ``tau_step_median_cm``): a map that finds each point's plane scores 1 there, one that
+        quantises to planes about half.
 
     Returns
     -------
@@ -220,7 +267,8 @@ def cloud_scores(points: np.ndarray, reference: np.ndarray, scene_depth: float,
         ``accuracy_cm``, ``completeness_cm``, ``chamfer_cm``, ``accuracy_median_cm``,
         ``completeness_median_cm``; ``precision_Xcm``, ``recall_Xcm``, ``fscore_Xcm`` per
         ``tau``; the same at 1 % of ``scene_depth`` (``precision_rel1pct``, ``recall_rel1pct``,
-        ``fscore_rel1pct``, with ``tau_rel1pct_cm``); the counts ``points`` and
+        ``fscore_rel1pct``, with ``tau_rel1pct_cm``); with ``poses`` (and
+        ``inverse_depth_step``) the per-point ones above; the counts ``points`` and
         ``reference_points``. Where either cloud is empty the distances are undefined: means
         and medians are NaN (written as ``null`` in JSON), precision and recall 0, so F 0.
     """
@@ -245,13 +293,22 @@ def cloud_scores(points: np.ndarray, reference: np.ndarray, scene_depth: float,
     scores["chamfer_cm"] = 0.5 * (scores["accuracy_cm"] + scores["completeness_cm"])
     tau_rel = RELATIVE_TAU * scene_depth
     for name, tau in [(_tau_name(t), t) for t in taus] + [("rel1pct", tau_rel)]:
-        precision = float(np.mean(accuracy < tau)) if accuracy.size else 0.0
-        recall = float(np.mean(completeness < tau)) if completeness.size else 0.0
-        total = precision + recall
-        scores[f"precision_{name}"] = precision
-        scores[f"recall_{name}"] = recall
-        scores[f"fscore_{name}"] = 2.0 * precision * recall / total if total > 0 else 0.0
+        _prf(scores, name, _share_within(accuracy, tau), _share_within(completeness, tau))
     scores["tau_rel1pct_cm"] = 100.0 * tau_rel
+    if poses is not None:
+        z_ours = point_depths(points, poses) if both else np.empty(0)
+        z_ref = point_depths(reference, poses) if both else np.empty(0)
+        _prf(scores, "depth1pct", _share_within(accuracy, RELATIVE_TAU * z_ours),
+             _share_within(completeness, RELATIVE_TAU * z_ref))
+        if inverse_depth_step is not None:
+            step = float(inverse_depth_step)
+            if not (math.isfinite(step) and step > 0):
+                raise ValueError(f"inverse_depth_step must be a finite number > 0 per metre, "
+                                 f"got {inverse_depth_step}")
+            _prf(scores, "step", _share_within(accuracy, step * z_ours ** 2),
+                 _share_within(completeness, step * z_ref ** 2))
+            scores["tau_step_median_cm"] = (100.0 * step * float(np.median(z_ref)) ** 2
+                                            if z_ref.size else math.nan)
     scores["points"] = len(points)
     scores["reference_points"] = len(reference)
     return scores

@@ -28,7 +28,16 @@ Defaults from the data (:func:`tsdf_grid`, one place for each rule):
   (the test's), the worst mesh vertex lies 0.31 voxel off the box at 2 voxels, 0.54 at 3 and
   1.98 at 4 (with the drop-off; 2.9 at 4 without it);
 * bounds: the box around every view's points (their back-projected depth), padded by the
-  truncation on every side.
+  largest truncation on every side.
+
+Truncation that follows each view's depth uncertainty (issue 40): an EMVS view resolves depth in
+steps of its DSI's planes, uniform in inverse depth, so its depth error at depth ``d`` grows as
+``sigma_d ~ d^2 step_w`` (``step_w`` the planes' spacing in inverse depth, 1/m). With
+``TSDFParams.inverse_depth_step``, an observation of a pixel of depth ``d`` is truncated at
+``max(truncation, TRUNCATION_STEPS d^2 step_w)``: a band narrower than the views' errors leaves
+the views' surfaces side by side, each voting the others' space free, and the mesh shows none
+(issue 40: boxes_6dof's 3.3 cm band against views 6-11 cm off). The behind-surface drop-off
+follows the same band.
 """
 
 from __future__ import annotations
@@ -44,6 +53,7 @@ from sim._summary import summary_repr
 from sim.validation import ParameterError, check_parameter, integer, positive
 
 __all__ = [
+    "TRUNCATION_STEPS",
     "TRUNCATION_VOXELS",
     "VOXEL_FOOTPRINTS",
     "Mesh",
@@ -57,6 +67,9 @@ __all__ = [
 VOXEL_FOOTPRINTS = 2.0
 #: Default truncation distance in voxels.
 TRUNCATION_VOXELS = 2.0
+#: With ``TSDFParams.inverse_depth_step``: the truncation at depth ``d`` is at least this many
+#: plane steps, ``d^2 inverse_depth_step`` each.
+TRUNCATION_STEPS = 2.0
 
 
 @dataclass(frozen=True)
@@ -75,12 +88,17 @@ class TSDFParams:
         The volume's box ``(lo, hi)``. None: the views' points padded by the truncation.
     max_voxels : int
         A volume with more voxels is refused (8 bytes a voxel: 50 million is 400 MB).
+    inverse_depth_step : float or None, 1/metres
+        The views' depth resolution in inverse depth (an EMVS map's plane spacing): each
+        observation of depth ``d`` is truncated at ``max(truncation, TRUNCATION_STEPS d^2
+        inverse_depth_step)``. None: ``truncation`` everywhere.
     """
 
     voxel_size: float | None = None
     truncation: float | None = None
     bounds: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     max_voxels: int = 50_000_000
+    inverse_depth_step: float | None = None
 
 
 @dataclass
@@ -137,7 +155,7 @@ class Mesh:
 
 @numba.njit(cache=True, parallel=True)
 def _integrate(tsdf, weight, lo, voxel, truncation, R_cw, t_cw, fx, fy, cx, cy, coeffs,
-               distorted, depth):  # pragma: no cover - compiled
+               distorted, depth, band):  # pragma: no cover - compiled
     """Fuse one depth image into the volume (see the module's docstring)."""
     nx, ny, nz = tsdf.shape
     height, width = depth.shape
@@ -171,12 +189,13 @@ def _integrate(tsdf, weight, lo, voxel, truncation, R_cw, t_cw, fx, fy, cx, cy, 
                 if not d > 0.0:
                     continue
                 sdf = d - z
-                if sdf < -truncation:
+                trunc = max(truncation, band * d * d)
+                if sdf < -trunc:
                     continue
-                if sdf > truncation:
-                    sdf = truncation
-                # behind the surface the weight drops linearly to 0 at -truncation
-                observation = 1.0 if sdf >= 0.0 else 1.0 + sdf / truncation
+                if sdf > trunc:
+                    sdf = trunc
+                # behind the surface the weight drops linearly to 0 at -trunc
+                observation = 1.0 if sdf >= 0.0 else 1.0 + sdf / trunc
                 if not observation > 0.0:
                     # at -truncation (to rounding) the weight is 0: adding it to an unseen
                     # voxel would write 0 / 0, a NaN that no later view could replace
@@ -197,6 +216,9 @@ class TSDFVolume:
     truncation : float, metres, at least ``voxel_size``
     max_voxels : int
         A larger grid is refused with a :class:`~sim.validation.ParameterError`.
+    inverse_depth_step : float or None, 1/metres
+        :attr:`TSDFParams.inverse_depth_step`: the truncation at depth ``d`` is at least
+        ``TRUNCATION_STEPS d^2 inverse_depth_step``.
 
     Attributes
     ----------
@@ -207,7 +229,8 @@ class TSDFVolume:
     """
 
     def __init__(self, lo, hi, voxel_size: float, truncation: float,
-                 max_voxels: int = TSDFParams.max_voxels) -> None:
+                 max_voxels: int = TSDFParams.max_voxels,
+                 inverse_depth_step: float | None = None) -> None:
         voxel_size = check_parameter(positive, "voxel_size", voxel_size)
         truncation = check_parameter(positive, "truncation", truncation)
         max_voxels = int(check_parameter(lambda n, v: integer(n, v, 1), "max_voxels",
@@ -236,6 +259,8 @@ class TSDFVolume:
         self.truncation = truncation
         self.tsdf = np.zeros(shape, dtype=np.float32)
         self.weight = np.zeros(shape, dtype=np.float32)
+        self.inverse_depth_step = (None if inverse_depth_step is None else check_parameter(
+            positive, "inverse_depth_step", inverse_depth_step))
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -257,7 +282,8 @@ class TSDFVolume:
         _integrate(self.tsdf, self.weight, self.lo, self.voxel_size, self.truncation, R_cw,
                    t_cw, float(camera.fx), float(camera.fy), float(camera.cx),
                    float(camera.cy), np.asarray(camera.distortion, dtype=np.float64),
-                   bool(camera.has_distortion), np.ascontiguousarray(view.depth))
+                   bool(camera.has_distortion), np.ascontiguousarray(view.depth),
+                   TRUNCATION_STEPS * (self.inverse_depth_step or 0.0))
 
     def observed_cubes(self) -> np.ndarray:
         """(NX, NY, NZ) bool ndarray: ``[i, j, k]`` is True where the cube between grid
@@ -309,6 +335,16 @@ def _footprint(views: list[DepthView]) -> float:
     return float(np.median(values)) if values.size else math.nan
 
 
+def _widest_band(views: list[DepthView], inverse_depth_step: float | None) -> float:
+    """The largest depth-following truncation, ``TRUNCATION_STEPS d^2 inverse_depth_step`` at
+    the views' largest depth ``d`` (0 without a step), metres."""
+    if inverse_depth_step is None:
+        return 0.0
+    step = check_parameter(positive, "inverse_depth_step", inverse_depth_step)
+    deepest = max((float(view.depth.max()) for view in views if view.valid.any()), default=0.0)
+    return TRUNCATION_STEPS * deepest ** 2 * step
+
+
 def tsdf_grid(views: list[DepthView], params: TSDFParams = TSDFParams()
               ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """The volume's box, voxel size and truncation: ``params``' values, the rest from the data.
@@ -323,6 +359,8 @@ def tsdf_grid(views: list[DepthView], params: TSDFParams = TSDFParams()
     lo, hi : (3,) float64 ndarray, metres, world frame
     voxel_size : float, metres
     truncation : float, metres
+        The smallest truncation (with ``params.inverse_depth_step``, an observation's grows with
+        its depth; the box is padded by the largest).
 
     Raises
     ------
@@ -354,11 +392,14 @@ def tsdf_grid(views: list[DepthView], params: TSDFParams = TSDFParams()
         points = points[np.all(np.isfinite(points), axis=1)]
         points_lo, points_hi = points.min(0), points.max(0)
 
+    band = _widest_band(views, params.inverse_depth_step)
+
     def box(v: float) -> tuple[np.ndarray, np.ndarray, float]:
         trunc = truncation if truncation is not None else TRUNCATION_VOXELS * v
         if params.bounds is not None:
             return points_lo, points_hi, trunc
-        return points_lo - trunc, points_hi + trunc, trunc
+        pad = max(trunc, band)
+        return points_lo - pad, points_hi + pad, trunc
 
     if voxel is not None:
         lo, hi, trunc = box(voxel)
@@ -389,7 +430,8 @@ def tsdf_mesh(views: list[DepthView], params: TSDFParams = TSDFParams()) -> Mesh
         Vertices in world metres.
     """
     lo, hi, voxel, truncation = tsdf_grid(views, params)
-    volume = TSDFVolume(lo, hi, voxel, truncation, max_voxels=params.max_voxels)
+    volume = TSDFVolume(lo, hi, voxel, truncation, max_voxels=params.max_voxels,
+                        inverse_depth_step=params.inverse_depth_step)
     for view in views:
         volume.integrate(view)
     return volume.mesh()

@@ -16,7 +16,7 @@ from fusion.fill.projection import map_points_world
 from sim._summary import summary_repr
 from sim.camera import Camera
 
-__all__ = ["DepthView", "to_camera", "to_world"]
+__all__ = ["DepthView", "shares_events", "to_camera", "to_world"]
 
 
 def to_world(points: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray:
@@ -68,6 +68,10 @@ class DepthView:
         The view's time on the poses' clock.
     name : str
         A label for reports (e.g. ``"view 3 semidense"``).
+    events : (float, float) or None, seconds
+        The window ``[t0, t1]`` of the events the view was made from (None: not known, e.g.
+        exact depth): two views whose windows overlap share evidence
+        (:func:`shares_events`).
     """
 
     depth: np.ndarray
@@ -75,6 +79,7 @@ class DepthView:
     T_world_cam: np.ndarray
     t: float = 0.0
     name: str = ""
+    events: tuple[float, float] | None = None
 
     __repr__ = summary_repr
 
@@ -89,6 +94,12 @@ class DepthView:
         object.__setattr__(self, "depth", np.where(np.isfinite(depth), depth, 0.0)
                            .astype(np.float32))
         object.__setattr__(self, "T_world_cam", pose)
+        if self.events is not None:
+            t0, t1 = (float(t) for t in self.events)
+            if not (np.isfinite(t0) and np.isfinite(t1) and t0 <= t1):
+                raise ValueError(f"events must be a window (t0, t1) of seconds with t0 <= t1, "
+                                 f"got {self.events!r}")
+            object.__setattr__(self, "events", (t0, t1))
 
     @property
     def valid(self) -> np.ndarray:
@@ -116,3 +127,21 @@ class DepthView:
     def centre(self) -> np.ndarray:
         """(3,) float64 ndarray, metres: the camera centre in the world frame."""
         return self.T_world_cam[:3, 3].copy()
+
+
+def shares_events(a: DepthView, b: DepthView) -> bool:
+    """Whether two views are known to share events: both record their event window and the
+    windows overlap by more than a point (windows that only touch, ``a.t1 == b.t0``, share
+    none). A view without a window is not known to share any.
+
+    Parameters
+    ----------
+    a, b : DepthView
+
+    Returns
+    -------
+    bool
+    """
+    if a.events is None or b.events is None:
+        return False
+    return min(a.events[1], b.events[1]) > max(a.events[0], b.events[0])
