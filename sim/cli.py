@@ -273,6 +273,11 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     print(f"generate: {result.ran} jobs simulated, {result.skipped} already complete, "
           f"{result.failed} failed, in {result.wall_s:.1f} s on {result.cluster}; manifest "
           f"{result.out / 'manifest.csv'}")
+    if result.ran:
+        from sim.dataset import cost_table
+
+        print(cost_table([result.out / r["path"] for r in result.rows if r["status"] == "done"],
+                         {worker["device"] for worker in result.workers}))
     if result.failed:
         print(f"generate: {result.failed} jobs failed (their errors are in the manifest); "
               "retry them with the same command plus --resume", file=sys.stderr)
