@@ -21,7 +21,9 @@
 #     the GPU (--workers 16 --gpu-per-job 0.0625; goal >= 1 simulated s per wall s; was 0.07);
 #   4 the same 16 jobs on the machine's CPU cores (llvm_ad_rgb, one worker per core): the GPU
 #     must make datasets faster than its own CPU cores;
-#   5 the test suite on cuda_ad_rgb (pytest -n 14 -v: a cut-off run still lists its failures).
+#   5 the test suite on cuda_ad_rgb (pytest -n 14 -v: a cut-off run still lists its failures;
+#     the figures of tests whose bound was measured on llvm only are recorded, see
+#     tests/conftest.py's variant_bound, into variant_figures.jsonl).
 # Without a GPU it runs on whatever variant evfuse picks and says so: a dry run of the script.
 # DRY=1 shrinks every step (0.02 s windows, 2 jobs of 0.05 s on 2 workers, one test file).
 set -uo pipefail
@@ -119,7 +121,9 @@ print(_scene('slider_close', 'hd')[1])" 2>/dev/null | tail -1)   # its camera pr
          --variant cuda_ad_rgb
        else sweep sweep-gpu 120 --workers "$WORKERS" --gpu-per-job 0.5; fi ;;
     4) sweep sweep-cpu 150 --workers "$WORKERS" --variant llvm_ad_rgb ;;
-    5) run tests 300 "$PY" -m pytest -v -n "$TEST_WORKERS" -p no:cacheprovider "$TESTS" ;;
+    5) rm -f "$OUT/variant_figures.jsonl"     # figures with no bound of this variant's own yet
+       EVFUSE_VARIANT_FIGURES="$OUT/variant_figures.jsonl" \
+         run tests 300 "$PY" -m pytest -v -n "$TEST_WORKERS" -p no:cacheprovider "$TESTS" ;;
     *) echo "unknown step $step" >&2 ;;
   esac
 done
@@ -199,5 +203,13 @@ if log.is_file():
     for name in failed:
         print(f"  {name}")
     summary["tests"] = {"rc": int(rc), "passed": passed, "failed": failed}
+figures = out / "variant_figures.jsonl"
+if figures.is_file():
+    records = [json.loads(line) for line in figures.read_text().splitlines() if line.strip()]
+    print(f"figures checked against {len(records) and records[0]['bound_from']}'s bounds "
+          "(this variant has none of its own yet):")
+    for r in records:
+        print(f"  {r['test']}: {r['figure']} = {r['value']:g} (bound {r['bound']:g})")
+    summary["variant_figures"] = records
 (out / "summary.json").write_text(json.dumps(summary, indent=1))
 EOF

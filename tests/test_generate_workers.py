@@ -88,7 +88,8 @@ def test_the_kernel_cache_is_drjits_own_folder(monkeypatch, tmp_path):
 
 def test_drjit_puts_its_kernels_in_that_folder(tmp_path):
     """What :func:`kernel_cache_dir` says is where Dr.Jit (1.5) puts the kernels it compiles:
-    a fresh process with ``DRJIT_CACHE_DIR`` set fills that folder, on this machine's backend."""
+    a fresh process with ``DRJIT_CACHE_DIR`` set fills that folder, on this machine's backend,
+    and a second one finds the kernel there (the folder does not grow)."""
     variant = use_variant()
     if variant == "scalar_rgb":
         pytest.skip("scalar_rgb compiles no kernels")
@@ -96,8 +97,11 @@ def test_drjit_puts_its_kernels_in_that_folder(tmp_path):
     folder = tmp_path / "cache"
     code = (f"import drjit as dr\nfrom drjit.{backend} import Float\n"
             "x = dr.arange(Float, 10) * 1.25 + 0.5\ndr.eval(x)\nprint(x[2])")
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                          env={**os.environ, "DRJIT_CACHE_DIR": str(folder)}, timeout=300)
-    assert done.returncode == 0, done.stderr[-1000:]
-    assert done.stdout.split()[-1] == "3.0"
-    assert any(name.endswith(".bin") for name in os.listdir(folder))
+    kernels = []
+    for _ in range(2):                  # a second process finds the first one's kernel
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              env={**os.environ, "DRJIT_CACHE_DIR": str(folder)}, timeout=300)
+        assert done.returncode == 0, done.stderr[-1000:]
+        assert done.stdout.split()[-1] == "3.0"
+        kernels.append(sorted(name for name in os.listdir(folder) if name.endswith(".bin")))
+    assert kernels[0] and kernels[1] == kernels[0]
