@@ -76,6 +76,11 @@ def test_without_profiles_the_device_row_says_what_rendered_and_that_it_is_unmea
     camera = next(line for line in table.splitlines() if "event camera" in line).split()
     assert camera[2] == "13.00" and len(camera) == 4                 # no device, no host
     assert cost_table([]) == "cost: no complete job"
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "sequence.json").write_text("{not json")
+    assert cost_table([tmp_path / "bad"]) == ("cost: no complete job; left out, unreadable: "
+                                              "bad (JSONDecodeError)")
+    assert "left out, unreadable: bad" in cost_table([tmp_path / "t", tmp_path / "bad"])
 
 
 def test_the_kernel_cache_is_drjits_own_folder(monkeypatch, tmp_path):

@@ -90,16 +90,22 @@ def cost_table(folders: Iterable[str | Path], devices: Iterable[str] = ()) -> st
         profile measured them), and the device row: the variants, the devices, and the
         event camera's device seconds (or why they are not known).
     """
-    jobs = [job_costs(folder) for folder in folders]
+    jobs, unread = [], []
+    for folder in folders:
+        try:
+            jobs.append(job_costs(folder))
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as error:
+            unread.append(f"{Path(folder).name} ({type(error).__name__})")
+    skipped = f"; left out, unreadable: {', '.join(unread)}" if unread else ""
     if not jobs:
-        return "cost: no complete job"
+        return f"cost: no complete job{skipped}"
     simulated = sum(j["simulated_s"] for j in jobs)
     profiled = [j for j in jobs if j["source"] == PROFILE_FILE]
     measured = bool(jobs) and all(j["device_s"] is not None for j in jobs)
     device_s = sum(j["device_s"] for j in jobs) if measured else None
     lines = [f"cost of {len(jobs)} jobs ({simulated:g} s simulated), seconds summed over the "
              f"jobs, from {len(profiled)} profile.json and {len(jobs) - len(profiled)} "
-             "timings_s:",
+             f"timings_s{skipped}:",
              f"  {'part':<14} {'wall s':>9} {'device s':>9} {'host s':>9} "
              f"{'wall s per simulated s':>23}"]
     for part in (*PARTS, "other", "total"):

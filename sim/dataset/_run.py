@@ -203,6 +203,16 @@ def _cores() -> int:
         (os.cpu_count() or 1)
 
 
+def _warm_records(client) -> tuple[dict, ...]:
+    """Each worker's warm-up record (:func:`sim.dataset._workers.warm_worker`); none where the
+    workers cannot be asked (the jobs run all the same)."""
+    try:
+        records = client.run(lambda dask_worker: getattr(dask_worker, "evfuse_warm", None))
+    except Exception:
+        return ()
+    return tuple(record for record in records.values() if record)
+
+
 def _has_bokeh() -> bool:
     """Whether Dask's dashboard can be served (it needs bokeh)."""
     import importlib.util
@@ -332,14 +342,12 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
         else:
             client, cluster, cluster_name = _client(scheduler, workers, threads, gpu, todo[0],
                                                     variant, warm)
+            warmed = _warm_records(client)
             link = client.dashboard_link if cluster is None or _has_bokeh() else None
             progress.say(f"generate: {len(todo)} jobs on {cluster_name}; dashboard: "
                          f"{link or 'none (install bokeh for it)'}")
             try:
                 _run_on(client, todo, work, variant, retries, gpu, finish, progress)
-                warmed = tuple(record for record in client.run(
-                    lambda dask_worker: getattr(dask_worker, "evfuse_warm", None)).values()
-                    if record)
             finally:
                 client.close()
                 if cluster is not None:
