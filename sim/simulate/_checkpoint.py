@@ -5,9 +5,10 @@ The event stage's state is copied on the simulation's thread and written by a ba
 (:class:`_BackgroundWrite`), under a temporary name renamed over the old file once flushed to
 disk: the simulation goes on while it is written, and a crash (a kill, a power cut) mid-write
 leaves the previous checkpoint, complete, never a torn one under the final name. At 1280x720 a
-checkpoint is 52 MB; writing it cost 0.08-0.24 s on the 2-core machine (of which the copies on
-the simulation's thread 0.002-0.05 s), and on the H200 machine 5.46 s of a 25-s run when it was
-written in line every second (issue 36).
+checkpoint is 52 MB. Written in line, it cost the simulation 0.27-0.82 s each on the shared
+2-core machine (slider_close, the per-pixel sampler), and 5.46 s of a 25-s run on the H200
+machine, written every second (issue 36); in the background, 0.10-0.14 s each here (the state's
+copies and the event files' flush stay on the simulation's thread).
 
 What a crash loses is bounded in wall time: the last complete checkpoint is at most
 :data:`CHECKPOINT_SECONDS` (or :data:`CHECKPOINT_SAMPLES` samples, whichever comes first) plus
