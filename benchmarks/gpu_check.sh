@@ -183,7 +183,13 @@ for name in ("sweep-gpu", "sweep-cpu"):
           f"{wall if wall is not None else float('nan'):.1f} s = "
           f"{rate if rate is not None else float('nan'):.3f} simulated s per wall s; jobs "
           f"{min(jobs, default=0):.1f}-{max(jobs, default=0):.1f} s  {verdict}")
+    text = log.read_text().splitlines()
+    table = [line for k, line in enumerate(text) if k >= next(
+        (i for i, l in enumerate(text) if l.startswith("cost of ")), len(text))]
+    for line in table:                    # generate's cost table, its device row last
+        print(f"  {line}")
     summary["sweeps"][name] = {"jobs": len(rows), "done": len(done), "wall_s": wall,
+                               "cost_table": table,
                                "simulated_s": simulated, "simulated_per_wall_s": rate,
                                "job_wall_s": jobs}
 gpu_rate = (summary["sweeps"].get("sweep-gpu") or {}).get("simulated_per_wall_s")
