@@ -2,9 +2,10 @@
 
 1. Throughput (the ESIM authors' protocol): a smooth random texture moving 2.5 px per frame,
    C = 0.2, frames held in memory, at 240x180, 640x480 and 1280x720; events per second and ms per
-   frame of ``emulate_events`` (ideal preset, both cores). The anchor is esim_py measured
-   beside evfuse (``ESIM_PY`` below). Its figures come from issue 11's measurement, not from a
-   run in this repository: esim_py rebuilt from its upstream sources with its upstream build
+   frame of ``emulate_events`` (ideal preset, both cores). The ratio to esim_py measured in
+   the same run, on the same input, is ``bench_esim.py``'s (it needs esim_py built from its
+   sources). The figures quoted here (``ESIM_PY`` below) are history: issue 11's measurement,
+   not a run in this repository: esim_py rebuilt from its upstream sources with its upstream build
    flags on a 2-core machine of the development machine's kind, run beside evfuse on the same
    input with identical events: 8.9 / 7.1 / 4.1 Mev/s at 240x180 / 640x480 / 1280x720, and
    evfuse / esim_py was 1.3x / 1.7x / 2.8x. Printed and written beside this run's figures, with
@@ -185,7 +186,8 @@ def main(argv=None) -> dict:
     rows: list[dict] = []
     throughput(rows, args.frames, sizes)
     print("\nEmulation throughput (moving texture, 2.5 px/frame, C = 0.2, frames in memory).")
-    print(f"Anchor: esim_py, {ESIM_PY_SOURCE}.")
+    print(f"Anchor: esim_py, {ESIM_PY_SOURCE} (history; the ratio of one run beside esim_py: "
+          "benchmarks/bench_esim.py).")
     print("'vs anchor' = this run / the anchor (two runs: indicative); 'beside' = evfuse / "
           "esim_py measured side by side (issue 11), the ratio to quote.")
     print(f"{'size':>9} {'events/frame':>13} {'Mev/s':>7} {'ms/frame':>9} {'esim_py':>8} "

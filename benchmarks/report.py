@@ -490,6 +490,31 @@ def _shader_tables(data: dict) -> list[tuple[str, Table]]:
              "warm.", (["measure", "value"], rows))]
 
 
+# ---------------------------------------------------------------------- events_vs_esim.json
+
+def _esim_tables(data: dict) -> list[tuple[str, Table]]:
+    summary = data["summary"]
+    if data["esim_py"] is None:
+        return [(f"esim_py was absent ({data['esim_py_absent_because']}): evfuse alone.",
+                 (["sensor", "events", "evfuse Mev/s", "1 thread Mev/s"],
+                  [[size, _num(e["events"]), _num(e["evfuse_mev_per_s"]),
+                    _num(e["evfuse_1t_mev_per_s"])] for size, e in summary.items()]))]
+    header = ["sensor", "events", "esim_py Mev/s", "evfuse Mev/s", "evfuse / esim_py (min-max)",
+              "1 thread / esim_py (min-max)", "same events", "largest time difference"]
+    body = []
+    for size, e in summary.items():
+        r, r1, c = e["evfuse_over_esim"], e["evfuse_1t_over_esim"], e["events_check"]
+        same = c["esim_events"] == c["evfuse_events"] and c["same_pixels_and_polarities"]
+        body.append([size, _num(e["events"]), _num(e["esim_py_mev_per_s"]),
+                     _num(e["evfuse_mev_per_s"]),
+                     f"{_num(r['median'])}x ({_num(r['min'])}-{_num(r['max'])})",
+                     f"{_num(r1['median'])}x ({_num(r1['min'])}-{_num(r1['max'])})",
+                     _num(same), f"{_num(c['max_time_difference_ns'])} ns"])
+    return [(f"Medians of {data['reps']} repetitions, evfuse on {data['threads']} threads; each "
+             "ratio is one repetition's esim_py wall time over evfuse's, with the lowest and "
+             "highest.", (header, body))]
+
+
 # ------------------------------------------------------------------------------- events.json
 
 def _events_tables(data: dict) -> list[tuple[str, Table]]:
@@ -819,6 +844,10 @@ SECTIONS: tuple[Section, ...] = (
             "events against a per-pixel Python loop of the same model, and streaming to disk "
             "with bounded memory.",
             "python -m benchmarks.bench_events", _events_tables, _events_plots),
+    Section("events_vs_esim.json", "Event emulation beside esim_py",
+            "`emulate_events` and esim_py (ESIM's emulator built from its sources) on the same "
+            "frames in one run, alternating, with their events compared.",
+            "python -m benchmarks.bench_esim --esim DIR", _esim_tables, lambda data: []),
     Section("emvs.json", "DSI construction (EMVS)",
             "Million events per second of building the disparity space image on 1 and 2 "
             "threads, for uniformly random events and events on edges.",

@@ -129,8 +129,9 @@ def _refuse_for_global(args: argparse.Namespace) -> None:
     """Refuse, in one line, the map flags a global map cannot honour."""
     refused = [flag for flag, on in (("--resume", getattr(args, "resume", False)),
                                      ("--views", (getattr(args, "views", 1) or 1) > 1),
-                                     ("--clip-window", args.clip_window),
-                                     ("--depth-range oracle", args.depth_range == "oracle"))
+                                     ("--clip-window", getattr(args, "clip_window", False)),
+                                     ("--depth-range oracle",
+                                      getattr(args, "depth_range", "auto") == "oracle"))
                if on]
     if refused:
         raise ValueError(f"{', '.join(refused)} cannot be used with a global map (its key "
@@ -160,8 +161,10 @@ def _cmd_run_global(args: argparse.Namespace) -> int:
     _check_depth_flags(args)
     params = _global_params(args, _fill_method(args))
     document = run_global(args.source, args.out, args.t0, args.t1, params, spp=args.spp,
-                          seed=args.seed, overwrite=args.overwrite, progress=not args.quiet)
+                          seed=args.seed, overwrite=args.overwrite, progress=not args.quiet,
+                          profile=args.profile)
     print(global_summary(document, args.out))
+    _print_profile(args)
     return 0
 
 
@@ -195,9 +198,27 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
         extra_map = FusedViews(views=args.views)
     report = run_pipeline(args.source, args.out, params, overwrite=args.overwrite,
-                          progress=not args.quiet, resume=args.resume, extra_map=extra_map)
+                          progress=not args.quiet, resume=args.resume, extra_map=extra_map,
+                          profile=args.profile)
     print(run_summary(report, args.out))
+    _print_profile(args)
     return 0
+
+
+def _print_profile(args: argparse.Namespace) -> None:
+    """With ``--profile``, the run's simulation profile (``OUT/sequence/profile.json``)."""
+    if not args.profile:
+        return
+    import json
+
+    from sim.profile import PROFILE_JSON, profile_table
+
+    path = Path(args.out) / "sequence" / PROFILE_JSON
+    if path.is_file():          # a resumed run whose simulation was complete before has none
+        print(profile_table(json.loads(path.read_text(encoding="utf-8"))))
+        print(f"profile written to {path}")
+    else:
+        print(f"no profile: the simulation in {path.parent} was complete before this run")
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
@@ -248,7 +269,7 @@ def _add_map_global(sub) -> None:
                     "global_error.ply, global.png.")
     map_global.add_argument("sequence", help="sequence folder (simulated or ECD)")
     map_global.add_argument("--out", required=True, help="folder to write")
-    add_map_options(map_global)
+    add_map_options(map_global, global_map=True)
     add_global_options(map_global)
     add_dense_options(map_global)
     map_global.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
@@ -291,6 +312,9 @@ def _add_run(sub) -> None:
     add_map_options(run)
     run.add_argument("--spp", type=count_type(1), default=None, help="samples per pixel (scenes)")
     run.add_argument("--seed", type=SEED, default=None, help="simulation seed (scenes)")
+    run.add_argument("--profile", action="store_true",
+                     help="the simulation also writes OUT/sequence/profile.json, printed at the "
+                          "end (as simulate --profile; scenes)")
     add_dense_options(run)
     run.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     run.add_argument("--resume", action="store_true",
@@ -311,7 +335,8 @@ def _add_run(sub) -> None:
     add_global_options(run)
     run.set_defaults(run=_cmd_run, flag_names={**GLOBAL_FLAG_NAMES, "ref_time": "--ref-time",
                                                 "map_global": "evfuse map-global",
-                                                "run_global": "run --global"},
+                                                "run_global": "run --global",
+                                                "profile": "--profile"},
                      interrupted="resume with the same command plus --resume (a simulation "
                                  "continues from its last checkpoint)")
 

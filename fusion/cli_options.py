@@ -31,7 +31,7 @@ KEEP_BOUNDARY_HELP = ("keep the map points whose DSI maximum lies on the first o
                       "outside the range, not at its edge)")
 
 
-def add_map_options(parser: argparse.ArgumentParser) -> None:
+def add_map_options(parser: argparse.ArgumentParser, global_map: bool = False) -> None:
     """Add the map flags (``map``, ``map-global``, ``run``): the window, the DSI's depth range
     and planes, and the depth map's detection (:class:`fusion.map.emvs.DepthMapParams`).
 
@@ -39,6 +39,9 @@ def add_map_options(parser: argparse.ArgumentParser) -> None:
     ----------
     parser : argparse.ArgumentParser
         The subcommand's parser.
+    global_map : bool
+        For ``map-global``: without ``--clip-window`` and ``--depth-range`` (a global map's key
+        views' windows are clipped to the data, its DSI range is blind).
     """
     parser.add_argument("--t0", type=FINITE, default=None,
                         help="window start, s (default: where the events and the poses begin; "
@@ -46,21 +49,24 @@ def add_map_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--t1", type=FINITE, default=None,
                         help="window end, s (default: where the events or the poses end; for a "
                              "scene, 1 s after --t0, refused where the scene ends sooner)")
-    parser.add_argument("--clip-window", action="store_true",
-                        help="map the part of --t0/--t1 that the events and poses (or the "
-                             "scene) cover (recorded in map.json) instead of refusing a window "
-                             "past them")
+    if not global_map:
+        parser.add_argument("--clip-window", action="store_true",
+                            help="map the part of --t0/--t1 that the events and poses (or the "
+                                 "scene) cover (recorded in map.json) instead of refusing a "
+                                 "window past them")
     parser.add_argument("--min-depth", type=FINITE, default=None,
                         help="nearest DSI plane, m (default: the near end of the working range "
                              "the scene file declares, else 0.2 m)")
     parser.add_argument("--max-depth", type=FINITE, default=None,
                         help="farthest DSI plane, m (default: the far end of the working range "
                              "the scene file declares, else 5 m)")
-    parser.add_argument("--depth-range", choices=("auto", "oracle"), default="auto",
-                        help="auto (default): --min-depth/--max-depth, else the scene's declared "
-                             "range, else 0.2-5 m, never the exact depth; oracle: the exact "
-                             "depth at the reference view widened by 20 %% (simulated sequences "
-                             "only; every output then says it used the answer)")
+    if not global_map:
+        parser.add_argument("--depth-range", choices=("auto", "oracle"), default="auto",
+                            help="auto (default): --min-depth/--max-depth, else the scene's "
+                                 "declared range, else 0.2-5 m, never the exact depth; oracle: "
+                                 "the exact depth at the reference view widened by 20 %% "
+                                 "(simulated sequences only; every output then says it used "
+                                 "the answer)")
     parser.add_argument("--planes", type=count_type(2), default=100,
                         help="depth planes, uniform in inverse depth (default 100, the paper's "
                              "240x180x100 grid)")

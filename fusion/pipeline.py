@@ -293,7 +293,7 @@ class ExtraMap(Protocol):
 
 def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None = None,
                  overwrite: bool = False, progress: bool = True, resume: bool = False,
-                 extra_map: ExtraMap | None = None) -> dict:
+                 extra_map: ExtraMap | None = None, profile: bool = False) -> dict:
     """Run simulate -> map -> fill -> score on a scene or a sequence folder.
 
     Parameters
@@ -318,6 +318,9 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
         ``<out>/<name>/map/``, filled into ``<out>/<name>/fill/`` with the same method and
         scored like the first; ``report.json`` gets its block under ``name``. A scene is then
         simulated over ``extra_map.span`` (the run's window is mapped as without it).
+    profile : bool
+        The simulation also writes ``sequence/profile.json`` (:mod:`sim.profile`); refused
+        for a sequence folder (nothing is simulated).
 
     Returns
     -------
@@ -345,6 +348,9 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
     out = Path(out)
     scene = (None if is_sequence_folder(source)
              else load_scene(resolve_scene(source), seed=params.seed))
+    if profile and scene is None:
+        raise ParameterError(f"{{profile}}: {ParameterError.literal(str(source))} is a sequence "
+                             "folder, nothing is simulated to profile", profile="profile=True")
     inputs = [Path(source)] if scene is None else scene_files(scene)
     identity = _run_identity(source, scene, params)
     if extra_map is not None:
@@ -355,7 +361,7 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
         check_output_dir(out, overwrite, inputs)
     try:
         return _run(source, scene, out, params, method, overwrite, progress, resume, inputs,
-                    identity, extra_map)
+                    identity, extra_map, profile)
     except ValueError as exc:
         # Bad input (found after the run folder was started): nothing worth keeping. The
         # message must not send the user to the folder deleted here: it names the run folder.
@@ -371,7 +377,7 @@ def run_pipeline(source: str | Path, out: str | Path, params: RunParams | None =
 
 def _run(source, scene, out: Path, params: RunParams, method: ResolvedMethod, overwrite: bool,
          progress: bool, resume: bool, inputs: list, identity: dict,
-         extra_map: ExtraMap | None = None) -> dict:
+         extra_map: ExtraMap | None = None, profile: bool = False) -> dict:
     clock = time.perf_counter()
     timings: dict[str, float] = {}
     with atomic_output_dir(out, overwrite=overwrite, resume=resume, inputs=inputs,
@@ -383,7 +389,8 @@ def _run(source, scene, out: Path, params: RunParams, method: ResolvedMethod, ov
             t0, t1 = params.t0, params.t1
         else:
             sequence_folder, t0, t1 = _simulate_window(scene, tmp / "sequence", params,
-                                                       progress, timings, resume, extra_map)
+                                                       progress, timings, resume, extra_map,
+                                                       profile)
             simulated_here = True
         tick = time.perf_counter()
         # A window simulated here is all the data there is: a rig's clock offsets
@@ -516,11 +523,13 @@ def _errors_summary(map_errors: dict | None, fill_errors: dict | None) -> dict |
 
 
 def _simulate_window(scene, folder: Path, params: RunParams, progress: bool, timings: dict,
-                     resume: bool = False, extra_map: ExtraMap | None = None):
+                     resume: bool = False, extra_map: ExtraMap | None = None,
+                     profile: bool = False):
     """Simulate the run's window into ``folder`` (:func:`sim.simulate.window.simulate_window`:
     with ``resume``, a complete ``folder`` is re-used and the checkpoint an interruption left in
-    its ``.partial`` continued); return the folder and the window ``(t0, t1)`` the map is asked
-    (with ``clip_window``, ``t1`` may lie past the simulated end, the scene's)."""
+    its ``.partial`` continued; ``profile``: with its ``profile.json``); return the folder and the
+    window ``(t0, t1)`` the map is asked (with ``clip_window``, ``t1`` may lie past the
+    simulated end, the scene's)."""
     from sim.simulate.window import is_simulated, simulate_window
 
     t0 = 0.0 if params.t0 is None else float(params.t0)
@@ -550,7 +559,7 @@ def _simulate_window(scene, folder: Path, params: RunParams, progress: bool, tim
                                     slack=max(map(abs, scene.rig.offsets.values())))
     tick = time.perf_counter()
     simulate_window(scene, folder, start, end - start, resume=resume, progress=progress,
-                    spp=params.spp)
+                    spp=params.spp, profile=profile)
     timings["simulate_s"] = time.perf_counter() - tick
     return folder, t0, t1
 

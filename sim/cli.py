@@ -141,7 +141,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
     result = simulate(scene, args.out, variant=args.variant, overwrite=args.overwrite,
                       progress=not args.quiet, with_events=not args.no_events,
-                      event_formats=formats, resume=args.resume, **inputs)
+                      event_formats=formats, resume=args.resume, profile=args.profile, **inputs)
     what = f"{result.n_frames} frames and depth maps ({result.n_renders} renders)"
     if result.n_events is not None and result.sampler == "pixel":
         what += (f", {result.n_events} events ({result.event_renders} frames and "
@@ -157,6 +157,11 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         what += f", the motion ground truth ({', '.join(parts)})"
     print(f"wrote {what} with {result.variant} in {result.timings['total']:.1f} s to "
           f"{result.out}")
+    if result.profile is not None:
+        from sim.profile import PROFILE_JSON, profile_table
+
+        print(profile_table(result.profile))
+        print(f"profile written to {Path(result.out) / PROFILE_JSON}")
     return 0
 
 
@@ -269,10 +274,15 @@ def _cmd_generate(args: argparse.Namespace) -> int:
     result = generate(sweep, args.out, scheduler=args.scheduler, workers=args.workers,
                       threads=args.threads, resume=args.resume, overwrite=args.overwrite,
                       retries=args.retries, variant=args.variant, gpu=args.gpu_per_job,
+                      profile=args.profile,
                       report=(lambda line: print(line, flush=True)) if args.quiet else None)
     print(f"generate: {result.ran} jobs simulated, {result.skipped} already complete, "
           f"{result.failed} failed, in {result.wall_s:.1f} s on {result.cluster}; manifest "
           f"{result.out / 'manifest.csv'}")
+    if args.profile:
+        from sim.profile import PROFILE_JSON, profiles_summary
+
+        print(profiles_summary(sorted((result.out / "jobs").glob(f"*/{PROFILE_JSON}"))))
     if result.ran:
         from sim.dataset import cost_table
 
@@ -371,12 +381,18 @@ def _add_simulate(sub) -> None:
                                "plus calibration error); the truth is kept in "
                                "groundtruth_exact.txt and calib_exact.txt (default: the scene's "
                                "[rig], else perfect)")
+    simulate.add_argument("--profile", action="store_true",
+                          help="also write profile.json and print it: each stage's wall seconds "
+                               "beside its Dr.Jit kernels (device seconds, launches, compilation, "
+                               "copies), and the event camera's host and device seconds per "
+                               "simulated second")
     simulate.add_argument("--resume", action="store_true",
                           help="continue an interrupted run of the same command from the "
                                "checkpoint it left in OUT.partial (the result is the same as an "
                                "uninterrupted run's)")
     simulate.set_defaults(run=_cmd_simulate,
-                          interrupted="resume with the same command plus --resume")
+                          interrupted="resume with the same command plus --resume",
+                          flag_names={"spp": "--spp", "min_rate": "--min-rate"})
 
 
 def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) -> None:
@@ -473,6 +489,9 @@ def _add_generate(sub) -> None:
                                "jobs per GPU; workers started with --resources GPU=1)")
     generate.add_argument("--variant", default=None,
                           help="Mitsuba variant of every job (default: each worker's fastest)")
+    generate.add_argument("--profile", action="store_true",
+                          help="each job also writes profile.json (evfuse simulate --profile); "
+                               "the jobs' event camera is summed up at the end")
     generate.add_argument("--resume", action="store_true",
                           help="continue DIR (same sweep file): complete jobs are kept, "
                                "interrupted ones resume from their checkpoint, failed ones are "

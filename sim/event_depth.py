@@ -50,6 +50,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.eventio import EVENT_DTYPE, H5EventWriter, TextEventWriter, read_byte_span
+from sim.profile import stage as profile_stage
 
 __all__ = ["DEPTH_TXT", "DEPTH_TXT_NAME", "EDGE_JUMP", "EVENT_DEPTH_DTYPE", "FLAG_EDGE",
            "FLAG_NO_SURFACE", "LABELS_TXT", "NO_OBJECT", "EventDepth", "EventOutputs",
@@ -458,7 +459,8 @@ class EventOutputs:
         columns = {}
         if self._depth is not None:
             tick = time.perf_counter()
-            depth, flag = self._depth.annotate(events, t)
+            with profile_stage("event_depth"):
+                depth, flag = self._depth.annotate(events, t)
             columns = {"depth": depth, "depth_flag": flag, "object_id": self._depth.object_id}
             if self._timings is not None:           # counted here, not in event_write
                 seconds = time.perf_counter() - tick

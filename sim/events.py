@@ -45,6 +45,8 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
+from numba.core import types
+from numba.extending import overload
 
 from sim.eventio import EVENT_DTYPE
 from sim.noise import (
@@ -52,6 +54,7 @@ from sim.noise import (
     CAUSE_LEAK,
     CAUSE_SHOT,
     CAUSE_SIGNAL,
+    THRESHOLD_FLOOR,
     NoiseParams,
     background_events,
     cutoff_frequency,
@@ -68,6 +71,7 @@ from sim.noise import (
     ramp_turn,
     threshold_map,
 )
+from sim.profile import stage as profile_stage
 from sim.radiometry import DVS_DARK_LUMINANCE, DVS_RESPONSIVITY, photocurrent
 from sim.validation import integer, positive
 
@@ -155,8 +159,10 @@ def log_intensity(luminance: np.ndarray, eps: float = DVS_DARK_LUMINANCE) -> np.
 
 
 # ------------------------------------------------------------------------------------------------
-# Compiled kernels. The interval is processed in two parallel passes over rows: count the events
-# of every row, then (after a prefix sum gives each row its slot) write them.
+# Compiled kernels. With the low-pass or the leak on, the interval is processed in two parallel
+# passes over rows: count the events of every row, then (after a prefix sum gives each row its
+# slot) write them. Without either, one fused pass over chunks of rows (_linear_chunks). Either
+# way the events are then put in time order by a bucket sort (_time_sorted).
 # ------------------------------------------------------------------------------------------------
 
 
@@ -315,14 +321,233 @@ def _write_rows(L0, raw0, raw1, x, ref, c_on, c_off, last_t, offsets, t0, dt, re
             ref[y, i] = r - d if leaky else r
 
 
+# The common case, no low-pass and no leak: the level is the line from the last sample's level
+# to the new one, and every crossing is a signal's. :func:`_count_rows` and :func:`_write_rows`
+# reduced to it, step for step (the same arithmetic, so the same events), without the arrays
+# and branches the filter and the leak need, and fused: each chunk of rows counts a row (then
+# in cache) and writes it where its share of the output, sized from the last interval's events,
+# has room (:meth:`EventEmulator._linear_crossings`).
+
+
+@numba.njit(cache=True)
+def _all_finite(values):  # pragma: no cover - compiled
+    """Whether every element of the C-contiguous float64 ``values`` is finite: no element
+    has the exponent bits all set (infinities and NaNs), tested on the integers so that the
+    loop vectorises."""
+    bits = values.reshape(-1).view(np.uint64)
+    exponent = np.uint64(0x7FF0000000000000)
+    bad = np.uint64(0)
+    for k in range(bits.size):
+        bad |= np.uint64((bits[k] & exponent) == exponent)
+    return bad == 0
+
+
+@numba.njit(cache=True)
+def _count_rows_linear(L1, ref, c_on, c_off):  # pragma: no cover - compiled
+    """:func:`_count_rows` without filter or leak, on finite levels: events per row of the
+    interval ending at ``L1`` (H, W); thresholds as in :func:`_linear_chunks`."""
+    height, width = L1.shape
+    counts = np.zeros(height, dtype=np.int64)
+    for y in range(height):
+        n = 0
+        for i in range(width):
+            n += threshold_crossings(L1[y, i], ref[y, i], _at(c_on, y, i), _at(c_off, y, i))[0]
+        counts[y] = n
+    return counts
+
+
+_CHUNKS = 16
+"""Chunks of rows of :func:`_linear_chunks` (fewer on a sensor of fewer rows)."""
+
+
+def _at(values, y, i):
+    """A threshold at pixel ``(y, i)`` in a compiled kernel: ``values[y, i]`` of a map, or
+    ``values`` itself when it is one number for every pixel (a uniform sensor's), which keeps
+    the maps out of the kernel's memory traffic."""
+    return values if np.ndim(values) == 0 else values[y, i]
+
+
+@overload(_at, inline="always")
+def _at_compiled(values, y, i):
+    if isinstance(values, types.Float):
+        return lambda values, y, i: values
+    return lambda values, y, i: values[y, i]
+
+
+@numba.njit(cache=True, parallel=True)
+def _linear_chunks(L0, L1, ref, c_on, c_off, last_t, t0, dt, refractory, lo, hi, start, end,
+                   out_t, out_x, out_y, out_p, keep, filled, reached):  # pragma: no cover
+    """:func:`_write_rows` without filter or leak, on finite levels: the crossings of the line
+    from ``L0`` to ``L1`` (:func:`crossing_time`), chunk by chunk of rows.
+
+    Chunk ``c`` holds rows ``lo[c]`` to ``hi[c]`` (excluded) and writes its events, in pixel
+    order, from ``start[c]`` up to ``end[c]`` of the outputs; a row is counted first (each
+    pixel's count kept) and written only if it fits, and the chunk stops at the first row
+    that does not. It leaves the next free slot in ``filled[c]`` and the first row not
+    written in ``reached[c]`` (``hi[c]`` when done). ``c_on`` and ``c_off`` are (H, W) maps
+    or one number each (:func:`_at`). ``keep`` (written only when ``refractory`` > 0) is
+    False for an event the refractory period drops. Moves the written rows' references and
+    last kept times; the rows not written are untouched.
+    """
+    width = L1.shape[1]
+    for c in numba.prange(len(lo)):
+        counts = np.empty(width, np.int64)
+        k = start[c]
+        y = lo[c]
+        while y < hi[c]:
+            n = 0
+            for i in range(width):
+                m = threshold_crossings(L1[y, i], ref[y, i], _at(c_on, y, i),
+                                        _at(c_off, y, i))[0]
+                counts[i] = m
+                n += m
+            if k + n > end[c]:
+                break
+            for i in range(width if n > 0 else 0):
+                if counts[i] == 0:
+                    continue
+                r = ref[y, i]
+                b = L1[y, i]
+                m, step, sign = threshold_crossings(b, r, _at(c_on, y, i), _at(c_off, y, i))
+                a = L0[y, i]
+                last = last_t[y, i]
+                for j in range(1, m + 1):
+                    t = crossing_time(r + j * step, a, b - a, t0, dt)
+                    out_t[k] = t
+                    out_x[k] = i
+                    out_y[k] = y
+                    out_p[k] = sign
+                    if refractory > 0:
+                        if t - last < refractory:
+                            keep[k] = False
+                        else:
+                            keep[k] = True
+                            last = t
+                    else:
+                        last = t
+                    k += 1
+                last_t[y, i] = last
+                ref[y, i] = r + m * step
+            y += 1
+        filled[c] = k
+        reached[c] = y
+
+
+@numba.njit(cache=True)
+def _kept(keep, first, stop):  # pragma: no cover - compiled
+    """Number of events from ``first[s]`` to ``stop[s]`` of each segment ``s`` that ``keep``
+    keeps (all of them when it is empty)."""
+    kept = 0
+    for s in range(len(first)):
+        if keep.size == 0:
+            kept += stop[s] - first[s]
+        else:
+            for k in range(first[s], stop[s]):
+                kept += keep[k]
+    return kept
+
+
+_SMALL_BUCKET = 32
+"""Largest bucket of :func:`_time_sorted` left to the insertion sort; a larger one is
+merge-sorted first."""
+
+
+@numba.njit(cache=True)
+def _time_sorted(t, xs, ys, p, cause, keep, first, stop, t0, dt, width, pixels, out,
+                 out_cause):  # pragma: no cover - compiled
+    """Write the kept events into ``out`` (EVENT_DTYPE) in time order, ties in pixel order,
+    with their causes into ``out_cause`` (unless ``cause`` is empty).
+
+    The input is the events from ``first[s]`` to ``stop[s]`` of each segment ``s``, with times
+    in ``[t0, t0 + dt]``; ``keep`` is empty when every event is kept; ``out`` has room for the
+    kept events exactly (:func:`_kept`); ``width`` and ``pixels`` are the sensor's. A bucket
+    sort on the key ``(t - t0) * pixels + pixel`` (unique but for one pixel's events in the
+    same nanosecond, which keep their input order): as many buckets as events over the
+    interval's times, then a stable insertion sort, which moves events within their bucket
+    only (a bucket of more than :data:`_SMALL_BUCKET` events is merge-sorted first).
+    """
+    kept = len(out)
+    if kept == 0:
+        return
+    scale = kept / (dt + 1.0)
+    bound = np.zeros(kept + 1, dtype=np.int64)       # bucket b: bound[b] to bound[b + 1]
+    bucket = np.empty(len(t), dtype=np.int32)
+    for s in range(len(first)):
+        for k in range(first[s], stop[s]):
+            if keep.size == 0 or keep[k]:
+                b = min(int((t[k] - t0) * scale), kept - 1)
+                bucket[k] = b
+                bound[b + 1] += 1
+    for b in range(kept):
+        bound[b + 1] += bound[b]
+    fill = bound[:-1].copy()
+    key = np.empty(kept, dtype=np.int64)
+    source = np.empty(kept, dtype=np.int64)
+    for s in range(len(first)):
+        for k in range(first[s], stop[s]):
+            if keep.size == 0 or keep[k]:
+                m = fill[bucket[k]]
+                fill[bucket[k]] = m + 1
+                key[m] = (t[k] - t0) * pixels + np.int64(ys[k]) * width + xs[k]
+                source[m] = k
+    for b in range(kept):
+        if bound[b + 1] - bound[b] > _SMALL_BUCKET:
+            lo, hi = bound[b], bound[b + 1]
+            order = np.argsort(key[lo:hi], kind="mergesort")
+            key[lo:hi] = key[lo:hi][order]
+            source[lo:hi] = source[lo:hi][order]
+    for m in range(1, kept):
+        km = key[m]
+        if key[m - 1] <= km:
+            continue
+        sm = source[m]
+        q = m
+        while q > 0 and key[q - 1] > km:             # never past the bucket's start
+            key[q] = key[q - 1]
+            source[q] = source[q - 1]
+            q -= 1
+        key[q] = km
+        source[q] = sm
+    for m in range(kept):
+        k = source[m]
+        out[m].t = t[k]
+        out[m].x = xs[k]
+        out[m].y = ys[k]
+        out[m].p = p[k]
+        if cause.size > 0:
+            out_cause[m] = cause[k]
+
+
+def _sensor_maps(shape: tuple[int, int], params: EventParams, rng: np.random.Generator
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The sensor's fixed maps, drawn from ``rng`` in this order: ON and OFF thresholds
+    (:func:`sim.noise.threshold_map`), hot pixels (:func:`sim.noise.hot_pixel_mask`) and leak
+    rates (:func:`sim.noise.leak_rate_map`), each (H, W)."""
+    noise = params.noise
+    c_on, c_off = threshold_map(shape, params.contrast_on, params.contrast_off,
+                                noise.threshold_sigma, rng)
+    return (c_on, c_off, hot_pixel_mask(shape, noise.hot_pixel_fraction, rng),
+            leak_rate_map(shape, noise, rng))
+
+
+def _uniform_sensor(shape: tuple[int, int], params: EventParams) -> bool:
+    """Whether :func:`_sensor_maps` gives maps that do not depend on its draws: exact
+    thresholds (each ``max(C, floor)``), no hot pixel and no leak (rates all 0)."""
+    noise = params.noise
+    return (noise.threshold_sigma == 0 and noise.leak_rate == 0
+            and round(noise.hot_pixel_fraction * shape[0] * shape[1]) == 0)
+
+
 def clocked(method):
-    """Add the wall time of each call of an emulator's ``method`` to its ``seconds``."""
+    """Add the wall time of each call of an emulator's ``method`` to its ``seconds`` (and, in a
+    profiled run, its Dr.Jit kernels to the stage ``profile_stage``: :func:`sim.profile.stage`)."""
 
     @functools.wraps(method)
     def timed(self, *args, **kwargs):
         tick = time.perf_counter()
         try:
-            return method(self, *args, **kwargs)
+            with profile_stage(self.profile_stage):
+                return method(self, *args, **kwargs)
         finally:
             self.seconds += time.perf_counter() - tick
 
@@ -383,21 +608,44 @@ class EventEmulator:
         self.kernel = kernel
         self.params = params or EventParams()
         self.shape = (int(shape[0]), int(shape[1]))
-        noise = self.params.noise
-        self._rng = np.random.default_rng(self.params.seed)
-        self.c_on, self.c_off = threshold_map(self.shape, self.params.contrast_on,
-                                              self.params.contrast_off, noise.threshold_sigma,
-                                              self._rng)
-        self.hot_mask = hot_pixel_mask(self.shape, noise.hot_pixel_fraction, self._rng)
-        self.leak_rates = leak_rate_map(self.shape, noise, self._rng)
+        self._generator = np.random.default_rng(self.params.seed)
+        self._draws_pending = _uniform_sensor(self.shape, self.params)
+        if self._draws_pending:
+            self.c_on, self.c_off = (np.full(self.shape, max(c, THRESHOLD_FLOOR)) for c in
+                                     (self.params.contrast_on, self.params.contrast_off))
+            self.hot_mask = np.zeros(self.shape, dtype=bool)
+            self.leak_rates = np.zeros(self.shape)
+        else:
+            self.c_on, self.c_off, self.hot_mask, self.leak_rates = _sensor_maps(
+                self.shape, self.params, self._generator)
         self.ref: np.ndarray | None = None
         self._L: np.ndarray | None = None
         self._raw: np.ndarray | None = None
         self._cutoff: np.ndarray | None = None
         self._t: int | None = None
         self._last_t = np.full(self.shape, np.iinfo(np.int64).min // 2, dtype=np.int64)
+        # Exact thresholds are one number each: the kernels take them so (_at).
+        self._thresholds = ((max(self.params.contrast_on, THRESHOLD_FLOOR),
+                             max(self.params.contrast_off, THRESHOLD_FLOOR))
+                            if self.params.noise.threshold_sigma == 0 else (self.c_on, self.c_off))
+        bounds = np.linspace(0, self.shape[0], min(self.shape[0], _CHUNKS) + 1).astype(np.int64)
+        self._chunk_rows = (bounds[:-1], bounds[1:])      # of _linear_crossings
+        self._chunk_events: np.ndarray | None = None      # each chunk's events last interval
+        self._work: tuple[np.ndarray, ...] | None = None  # its buffers
+        self._allocate = None           # where the sorted crossings go (_EventStack.reserve)
         self.seconds = 0.0
+        self.profile_stage = "emulate"        # timings_s's stage of its kernels (sim.profile)
         self.last_causes = np.zeros(0, np.uint8)
+
+    @property
+    def _rng(self) -> np.random.Generator:
+        """The sensor's generator, past the draws of its maps (:func:`_sensor_maps`): when
+        they were not needed (:func:`_uniform_sensor`), it makes them on first use, so that
+        every later draw is the one it would have been."""
+        if self._draws_pending:
+            self._draws_pending = False
+            _sensor_maps(self.shape, self.params, self._generator)
+        return self._generator
 
     def warm_up(self) -> float:
         """Compile the emulator's kernels (or load them from numba's cache) and start their
@@ -405,6 +653,7 @@ class EventEmulator:
         does not pay for it; this emulator's state is untouched. Returns the seconds it took."""
         tick = time.perf_counter()
         spare = type(self)((1, 2), self.params, self.kernel)
+        spare.profile_stage = "emulate_compile"
         spare.start(np.zeros((1, 2)), 0.0)
         spare.advance(np.array([[0.0, 1.0]]), 1e-3)
         return time.perf_counter() - tick
@@ -464,7 +713,8 @@ class EventEmulator:
             if value.shape != self.shape:
                 raise ValueError(f"emulator state: {key} has shape {value.shape}; expected the "
                                  f"sensor's {self.shape}")
-        self._rng.bit_generator.state = state["rng"]
+        self._draws_pending = False
+        self._generator.bit_generator.state = state["rng"]
         self._t = None if state["time_ns"] is None else int(state["time_ns"])
         self.ref = arrays.get("ref")
         self._L, self._raw = arrays.get("level"), arrays.get("raw")
@@ -473,7 +723,10 @@ class EventEmulator:
             self._last_t = arrays["last_t"]
 
     def _check(self, L: np.ndarray, name: str, finite: bool = True) -> np.ndarray:
-        L = np.ascontiguousarray(L, dtype=np.float64)
+        """``L`` as the emulator's own float64 array (always a copy: the emulator keeps the
+        last sample as its state, so a caller may reuse its frame buffer), shape and
+        finiteness checked."""
+        L = np.array(L, dtype=np.float64, order="C")
         if L.shape != self.shape:
             raise ValueError(f"{name} must have shape {self.shape}, got {L.shape}")
         if finite and not np.all(np.isfinite(L)):
@@ -536,23 +789,26 @@ class EventEmulator:
         if needs_light:
             Y = np.exp(L1) if luminance is None else np.asarray(luminance, dtype=np.float64)
         cutoff = self._cutoff
+        x = None                                    # no filter: the level is the input
         if noise.cutoff_hz > 0:
             if not np.all(np.isfinite(L1)):
                 raise ValueError("L1 has non-finite values; expected log intensities")
             cutoff = cutoff_frequency(Y, noise)
             x = lowpass_exponent(dt_ns * 1e-9, self._cutoff, cutoff)
-        else:
-            x = np.full(self.shape, np.inf)
-        drift = np.zeros((0, 0))
+        drift = None
         if noise.leak_rate > 0:
             drift = -leak_drift(dt_ns * 1e-9, self.c_on, self.leak_rates, noise, self._rng)
         raw = L1
         if self.kernel == "drjit":
             events, causes, L1 = self._drjit_crossings(
-                raw, cutoff if noise.cutoff_hz > 0 else None, self._t, dt_ns, drift)
+                raw, cutoff if noise.cutoff_hz > 0 else None, self._t, dt_ns,
+                np.zeros((0, 0)) if drift is None else drift)
+        elif x is None and drift is None:
+            events, causes, L1 = self._linear_crossings(raw, self._t, dt_ns)
         else:
-            events, causes, L1 = self._crossings(self._L, self._raw, raw, x, self._t, dt_ns,
-                                                 drift)
+            events, causes, L1 = self._crossings(
+                self._L, self._raw, raw, np.full(self.shape, np.inf) if x is None else x,
+                self._t, dt_ns, np.zeros((0, 0)) if drift is None else drift)
         events = self._with_noise(events, causes, self._t, t1_ns, Y)
         self._L, self._raw, self._cutoff, self._t = L1, raw, cutoff, t1_ns
         return events
@@ -580,6 +836,9 @@ class EventEmulator:
         if noise.hot_pixel_fraction > 0 and noise.hot_pixel_rate > 0:
             hot = hot_pixel_events(t0_ns, t1_ns, self.hot_mask, noise.hot_pixel_rate, self._rng)
             parts.append((hot, np.full(len(hot), CAUSE_HOT_PIXEL, np.uint8)))
+        if len(parts) == 1:                         # nothing to merge: no copy
+            self.last_causes = causes
+            return events
         events, self.last_causes = merge_labelled_events(*parts)
         self.last_causes = self.last_causes.astype(np.uint8, copy=False)
         return events
@@ -606,17 +865,72 @@ class EventEmulator:
         refractory = int(round(self.params.noise.refractory_period * 1e9))
         _write_rows(L0, raw0, raw1, x, self.ref, self.c_on, self.c_off, self._last_t, offsets,
                     t0_ns, float(dt_ns), refractory, drift, t, xs, y, p, cause, keep)
-        # Time order, ties in pixel order: sort on (t - t0) * pixels + pixel index. The key is
-        # unique unless one pixel fires twice in the same nanosecond, so the fast (unstable)
-        # sort gives the stable order; it fits int64 for intervals up to ~9e18 / (H W) ns.
-        pixels = self.shape[0] * self.shape[1]
-        key = (t - t0_ns) * pixels + (y.astype(np.int64) * self.shape[1] + xs)
-        order = np.argsort(key)
-        if refractory > 0:
-            order = order[keep[order]]
-        events = np.empty(len(order), EVENT_DTYPE)
-        events["t"], events["x"], events["y"], events["p"] = t[order], xs[order], y[order], p[order]
-        return events, cause[order], L1
+        events, causes = _sort_events(t, xs, y, p, cause, keep if refractory > 0 else keep[:0],
+                                      np.zeros(1, np.int64), np.array([total], np.int64), t0_ns,
+                                      dt_ns, self.shape, self._allocate)
+        return events, causes, L1
+
+    def _linear_crossings(self, L1, t0_ns: int, dt_ns: int
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_crossings` without filter or leak (the same events): the crossings of the
+        line from the last level to ``L1`` (H, W), every one a signal's; the level at the
+        interval's end is ``L1`` itself.
+
+        One fused pass (:func:`_linear_chunks`) over chunks of rows, into buffers kept from
+        interval to interval, each chunk given room for its events of the last interval and a
+        quarter more (its exact count on the first); the rows that did not fit run again,
+        with room for their exact count."""
+        if not _all_finite(L1):
+            raise ValueError("L1 has non-finite values; expected log intensities")
+        lo, hi = self._chunk_rows
+        if self._chunk_events is None:
+            room = np.add.reduceat(_count_rows_linear(L1, self.ref, *self._thresholds), lo)
+        else:
+            room = self._chunk_events + self._chunk_events // 4 + 256
+        buffers = self._buffers(int(room.sum()))
+        first, stop, reached = self._linear_pass(L1, t0_ns, dt_ns, lo, hi, room, buffers)
+        self._chunk_events = stop - first
+        if np.any(reached < hi):                     # too little room: the rest, exactly
+            todo = np.flatnonzero(reached < hi)
+            per_row = np.concatenate(([0], np.cumsum(
+                _count_rows_linear(L1, self.ref, *self._thresholds))))
+            room = per_row[hi[todo]] - per_row[reached[todo]]
+            more = tuple(np.empty(int(room.sum()), a.dtype) for a in buffers)
+            first2, stop2, _ = self._linear_pass(L1, t0_ns, dt_ns, reached[todo], hi[todo],
+                                                 room, more)
+            self._chunk_events[todo] += stop2 - first2
+            buffers = tuple(np.concatenate([a[i:j] for i, j in zip(first, stop, strict=True)]
+                                           + [b[i:j] for i, j in zip(first2, stop2, strict=True)])
+                            for a, b in zip(buffers, more, strict=True))
+            first, stop = np.zeros(1, np.int64), np.array([len(buffers[0])], np.int64)
+        t, xs, y, p, keep = buffers
+        if self.params.noise.refractory_period <= 0:
+            keep = keep[:0]
+        events, _ = _sort_events(t, xs, y, p, np.zeros(0, np.uint8), keep, first, stop, t0_ns,
+                                 dt_ns, self.shape, self._allocate)
+        return events, np.full(len(events), CAUSE_SIGNAL, np.uint8), L1
+
+    def _linear_pass(self, L1, t0_ns, dt_ns, lo, hi, room, buffers
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`_linear_chunks` on chunks of rows ``lo[c]`` to ``hi[c]``, each with ``room``
+        events in ``buffers`` (t, x, y, p, keep), one after the other; returns each chunk's
+        first and next free slots and its first row not written."""
+        stop = np.cumsum(room)
+        first = stop - room
+        filled, reached = np.empty_like(first), np.empty_like(first)
+        refractory = int(round(self.params.noise.refractory_period * 1e9))
+        _linear_chunks(self._L, L1, self.ref, *self._thresholds, self._last_t, t0_ns,
+                       float(dt_ns), refractory, lo, hi, first, stop, *buffers, filled, reached)
+        return first, filled, reached
+
+    def _buffers(self, size: int) -> tuple[np.ndarray, ...]:
+        """The crossings' work arrays (t int64, x uint16, y uint16, p int8, keep bool) with
+        at least ``size`` elements, kept from call to call (grown by half when short)."""
+        if self._work is None or len(self._work[0]) < size:
+            size = max(size, 0 if self._work is None else len(self._work[0]) * 3 // 2)
+            self._work = tuple(np.empty(size, dtype) for dtype in
+                               (np.int64, np.uint16, np.uint16, np.int8, np.bool_))
+        return self._work
 
     def _drjit_crossings(self, raw1: np.ndarray, cutoff1: np.ndarray | None, t0_ns: int,
                          dt_ns: int, drift: np.ndarray
@@ -652,6 +966,20 @@ class EventEmulator:
         events["t"], events["p"] = t[order], p[order]
         events["y"], events["x"] = np.divmod(pix[order], width)
         return events, cause[order], level.reshape(self.shape)
+
+
+def _sort_events(t, xs, y, p, cause, keep, first, stop, t0_ns: int, dt_ns: int,
+                 shape: tuple[int, int], allocate=None) -> tuple[np.ndarray, np.ndarray]:
+    """The kept crossings (``keep`` empty: all) of the segments ``first[s]`` to ``stop[s]``
+    as events in time order, ties in pixel order (sensor ``shape``), and their causes (empty
+    when ``cause`` is): :func:`_time_sorted`. ``allocate(n)`` gives the events' array
+    (default a new one; :class:`_EventStack`)."""
+    kept = _kept(keep, first, stop)
+    events = np.empty(kept, EVENT_DTYPE) if allocate is None else allocate(kept)
+    causes = np.empty(kept if cause.size else 0, np.uint8)
+    _time_sorted(t, xs, y, p, cause, keep, first, stop, t0_ns, float(dt_ns), shape[1],
+                 shape[0] * shape[1], events, causes)
+    return events, causes
 
 
 def _check_stack(log_frames, times) -> tuple[np.ndarray, np.ndarray]:
@@ -690,9 +1018,55 @@ def emulate_events(log_frames: np.ndarray, times: np.ndarray,
     log_frames, times = _check_stack(log_frames, times)
     emulator = EventEmulator(log_frames.shape[1:], params)
     emulator.start(log_frames[0], times[0])
-    chunks = [emulator.advance(frame, t) for frame, t in zip(log_frames[1:], times[1:],
-                                                              strict=True)]
-    return np.concatenate(chunks) if chunks else np.empty(0, EVENT_DTYPE)
+    stack = _EventStack(len(times) - 1)
+    emulator._allocate = stack.reserve
+    for frame, t in zip(log_frames[1:], times[1:], strict=True):
+        stack.append(emulator.advance(frame, t))
+    return stack.events()
+
+
+class _EventStack:
+    """The events of successive intervals in one growing array, each interval's sorted
+    crossings written straight into it (:meth:`reserve`, the emulator's ``_allocate``):
+    no array per interval and no concatenation.
+
+    Parameters
+    ----------
+    intervals : int
+        How many intervals will be appended: the array grows to the events so far plus, for
+        each interval left, as many as the last one had, and a quarter more.
+    """
+
+    def __init__(self, intervals: int):
+        self._array = np.empty(0, EVENT_DTYPE)
+        self._size = 0
+        self._left = intervals
+        self._reserved: np.ndarray | None = None
+
+    def reserve(self, count: int) -> np.ndarray:
+        """Room for ``count`` events after those appended, (count,) EVENT_DTYPE."""
+        need = self._size + count
+        if need > len(self._array):
+            grown = np.empty(max(need + count * max(self._left - 1, 0),
+                                 3 * len(self._array) // 2) * 5 // 4, EVENT_DTYPE)
+            grown[:self._size] = self._array[:self._size]
+            self._array = grown
+        self._reserved = self._array[self._size:need]
+        return self._reserved
+
+    def append(self, events: np.ndarray) -> None:
+        """Append an interval's events (a copy unless they are the room just reserved)."""
+        if events is not self._reserved:
+            self.reserve(len(events))[:] = events
+        self._size += len(events)
+        self._left -= 1
+        self._reserved = None
+
+    def events(self) -> np.ndarray:
+        """(N,) EVENT_DTYPE: every event appended, in order; a copy only where the array has
+        more than a quarter of room left."""
+        events = self._array[:self._size]
+        return events.copy() if 4 * self._size < 3 * len(self._array) else events
 
 
 def emulate_events_reference(log_frames: np.ndarray, times: np.ndarray,

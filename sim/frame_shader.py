@@ -45,6 +45,7 @@ import numpy as np
 from sim._summary import summary_repr
 from sim.flow import surface_points
 from sim.pixel_sampling import geometric_edges
+from sim.profile import stage as profile_stage
 from sim.render import Renderer
 from sim.shader import EventShader
 
@@ -242,19 +243,21 @@ class FrameShader:
         cost : ExposureCost
         """
         tick = time.perf_counter()
-        motion = self.motion(depth, t, exposure)
+        with profile_stage("frame_motion"):
+            motion = self.motion(depth, t, exposure)
         count = exposure_times(motion, self.flat_spp) if times is None else int(times)
         centres = t + exposure * ((np.arange(count) + 0.5) / count - 0.5)
         pixels = self.shape[0] * self.shape[1]
         checks, edge = 0, np.zeros(0, dtype=np.int64)
         tock = time.perf_counter()
         self.seconds["motion"] += tock - tick
-        if self._edges is not None:
-            looks = 1 if motion == 0 else math.floor(motion / _CHECK_STEP_PX) + 2
-            checks = looks
-            edge = np.flatnonzero(self.edges(np.linspace(t - exposure / 2, t + exposure / 2,
-                                                         looks)).reshape(-1))
-        flat = np.setdiff1d(np.arange(pixels), edge, assume_unique=True)
+        with profile_stage("frame_edges"):
+            if self._edges is not None:
+                looks = 1 if motion == 0 else math.floor(motion / _CHECK_STEP_PX) + 2
+                checks = looks
+                edge = np.flatnonzero(self.edges(np.linspace(
+                    t - exposure / 2, t + exposure / 2, looks)).reshape(-1))
+            flat = np.setdiff1d(np.arange(pixels), edge, assume_unique=True)
         tick = time.perf_counter()
         self.seconds["edges"] += tick - tock
         total = np.zeros(pixels, dtype=np.float64)

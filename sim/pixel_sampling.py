@@ -565,6 +565,7 @@ class PixelEventEmulator(EventEmulator):
         one block of per-pixel samples); this emulator's state is untouched."""
         tick = time.perf_counter()
         spare = type(self)((1, 2), self.params, self.kernel)
+        spare.profile_stage = "emulate_compile"
         spare.start(np.zeros((1, 2)), 0.0)
         pixels = np.array([0, 0, 0, 1, 1], np.int64)
         times = np.array([0, 500_000, 1_000_000, 0, 1_000_000], np.int64)

@@ -66,25 +66,34 @@ def test_a_failed_background_write_is_raised_and_leaves_the_old_file(tmp_path):
 
 
 def test_the_simulation_renders_on_while_a_checkpoint_is_written(tmp_path, monkeypatch):
-    """The first checkpoint's write waits until the event camera renders again: it can only
-    finish if the simulation did not wait for it (an in-line write would hold the render
-    back, and the wait would time out)."""
-    rendered = threading.Event()
-    seen: list[bool] = []
+    """The first checkpoint's write waits until the event camera has rendered after the
+    checkpoint was handed over: it can only finish if the simulation did not wait for it (an
+    in-line write would hold the render back, and the wait would time out). A render always
+    comes between two checkpoints (one is taken only after a step with no pending tail)."""
+    renders, handed_over, seen = [0], [], []
+    rendered = threading.Condition()
     real_frame, real_savez = EventShader.frame, np.savez
+    real_submit = checkpoints._BackgroundWrite.submit
 
     def frame(shader, t):
-        rendered.set()
+        with rendered:
+            renders[0] += 1
+            rendered.notify_all()
         return real_frame(shader, t)
+
+    def submit(writes, path, write):
+        handed_over.append(renders[0])
+        return real_submit(writes, path, write)
 
     def savez(handle, **arrays):
         if not seen:
-            rendered.clear()
-            seen.append(rendered.wait(20))
+            with rendered:
+                seen.append(rendered.wait_for(lambda: renders[0] > handed_over[0], 60))
         return real_savez(handle, **arrays)
 
     monkeypatch.setattr(checkpoints, "CHECKPOINT_SAMPLES", 1)
     monkeypatch.setattr(EventShader, "frame", frame)
+    monkeypatch.setattr(checkpoints._BackgroundWrite, "submit", submit)
     monkeypatch.setattr(checkpoints.np, "savez", savez)
     result = _simulate(tmp_path / "seq")
     assert result.n_events > 5000

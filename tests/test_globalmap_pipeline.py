@@ -205,7 +205,7 @@ def test_run_global_refuses_what_makes_no_sense_in_one_line(plane_sequence, tmp_
     out = str(tmp_path / "r")
     assert run_cli(["run", "complex_sphere", "--global", "--resume", "--out", out]) == 2
     assert "--resume cannot be used with a global map" in capsys.readouterr().err
-    assert run_cli(["map-global", str(plane_sequence), "--out", out, "--clip-window",
+    assert run_cli(["run", "complex_sphere", "--global", "--out", out, "--clip-window",
                     "--depth-range", "oracle"]) == 2
     assert ("--clip-window, --depth-range oracle cannot be used with a global map"
             in capsys.readouterr().err)
@@ -319,3 +319,53 @@ def test_a_global_run_refuses_a_sequence_folder_in_the_library(plane_sequence, t
                                          "a sequence folder"):
         run_global(plane_sequence, tmp_path / "lib")
     assert not (tmp_path / "lib").exists()
+
+
+def test_map_global_lists_only_the_flags_it_accepts(plane_sequence, tmp_path, capsys):
+    """--help shows no flag map-global would refuse; given anyway, argparse names it."""
+    with pytest.raises(SystemExit):
+        run_cli(["map-global", "--help"])
+    shown = capsys.readouterr().out
+    assert "--baseline" in shown and "--min-views" in shown
+    assert "--clip-window" not in shown and "--depth-range" not in shown
+    with pytest.raises(SystemExit):
+        run_cli(["map-global", str(plane_sequence), "--out", str(tmp_path / "g"),
+                 "--clip-window"])
+    assert "unrecognized arguments: --clip-window" in capsys.readouterr().err
+
+
+def test_fewer_than_two_key_views_are_refused_naming_baseline(plane_sequence, tmp_path,
+                                                              capsys):
+    """No empty success: a window whose camera moves less than the criteria ask gives one key
+    view, which is refused in one line (how far it moved, what to lower), nothing written."""
+    out = tmp_path / "g"
+    before = tree_hashes(plane_sequence)
+    assert run_cli(["map-global", str(plane_sequence), "--out", str(out), "--baseline", "50",
+                    "--angle", "90", "--workers", "1", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert "gives 1 key view: the camera moved" in err[0]
+    assert "--baseline 50" in err[0] and "--angle 90" in err[0]
+    assert "lower --baseline or --angle, or give a longer window (--t0, --t1)" in err[0]
+    assert not out.exists() and not (tmp_path / "g.partial").exists()
+    assert tree_hashes(plane_sequence) == before
+
+
+def test_an_empty_fused_map_is_refused_naming_baseline(plane_sequence, tmp_path, capsys):
+    out = tmp_path / "g"
+    assert run_cli(["map-global", str(plane_sequence), "--out", str(out), "--min-views", "40",
+                    "--workers", "1", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is empty: no point of its" in err[0]
+    assert "--min-views 40" in err[0] and "lower --baseline" in err[0]
+    assert not out.exists()
+
+
+def test_the_real_prefix_at_the_default_baseline_is_refused(ecd_slider, tmp_path, capsys):
+    """The ECD prefix moves 4.5 cm at about 0.8 m: the default 10 % baseline gives one key
+    view, which used to be fused into an empty global.ply with exit 0."""
+    out = tmp_path / "g"
+    assert run_cli(["map-global", str(ecd_slider), "--out", str(out), "--min-depth", "0.47",
+                    "--max-depth", "2.4", "--workers", "1", "--quiet"]) == 2
+    assert "gives 1 key view" in capsys.readouterr().err
+    assert not out.exists()

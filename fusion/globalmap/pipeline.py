@@ -47,6 +47,7 @@ from fusion.globalmap.keyviews import (
     KeyViewParams,
     inverse_depth_middle,
     key_view_windows,
+    rotation_angle_deg,
     select_key_views,
 )
 from fusion.globalmap.score import (
@@ -235,7 +236,7 @@ def _sequence_folder(source: str | Path) -> Path:
 def run_global(scene: str | Path, out: str | Path, t0: float | None = None,
                t1: float | None = None, params: GlobalParams | None = None,
                spp: int | None = None, seed: int | None = None, overwrite: bool = False,
-               progress: bool = True) -> dict:
+               progress: bool = True, profile: bool = False) -> dict:
     """Simulate a scene's window into ``out/sequence`` (as ``evfuse run`` does), then map it
     globally into ``out`` (:func:`map_global`).
 
@@ -251,6 +252,8 @@ def run_global(scene: str | Path, out: str | Path, t0: float | None = None,
     spp, seed : int or None
         Samples per pixel and seed of the simulation (default: the scene's).
     overwrite, progress : bool
+    profile : bool
+        The simulation also writes ``sequence/profile.json`` (:mod:`sim.profile`).
 
     Returns
     -------
@@ -283,7 +286,7 @@ def run_global(scene: str | Path, out: str | Path, t0: float | None = None,
                            command="evfuse run --global") as tmp:
         folder, t0, t1 = _simulate_window(loaded, tmp / "sequence",
                                           RunParams(t0=t0, t1=t1, spp=spp, seed=seed),
-                                          progress, timings)
+                                          progress, timings, profile=profile)
         return _map_global(folder, tmp, replace(params, t0=t0, t1=t1), progress, timings)
 
 
@@ -293,6 +296,8 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
     clock = time.perf_counter()
     sequence = load_sequence(source)
     jobs, results, rounds, converged = _key_views(sequence, tmp, params, progress, timings)
+    if len(jobs) < 2:
+        raise _too_few_key_views(sequence, params, len(jobs), rounds)
     views_root = tmp / "views"
     views_root.mkdir()
     entries = []
@@ -308,6 +313,15 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
     tick = time.perf_counter()
     stage = progress_stage(desc="fuse", unit="view", noun="views", enabled=progress)
     fused = fuse_views(semidense, params.fusion)
+    if not len(fused.points):
+        points = sum(int(np.count_nonzero(view.depth > 0)) for view in semidense)
+        raise ParameterError(
+            f"the fused map of {ParameterError.literal(str(sequence.folder))} is empty: no "
+            f"point of its {len(jobs)} key views' maps ({points:,} points) is confirmed by "
+            f"{{min_views}} {params.fusion.min_views} other views; key views "
+            f"{{baseline}} {params.keyviews.baseline:g} of the depth apart may see too little "
+            "in common: lower {baseline}, or lower {min_views}",
+            baseline="baseline", min_views="min_views")
     fused_filled = fuse_views(filled_views, params.fusion) if filled_views else None
     stage.update(len(semidense) + len(filled_views))
     stage.close()
@@ -371,6 +385,28 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
     })
     (tmp / "global.json").write_text(to_json(document))
     return document
+
+
+def _too_few_key_views(sequence: Sequence, params: GlobalParams, count: int,
+                       rounds: list[dict]) -> ParameterError:
+    """The refusal of a window with fewer than two key views: how far the camera moved in it,
+    against the criteria that would have taken a second view."""
+    window = time_window(sequence, params.t0, params.t1)
+    times, poses = sequence_poses(sequence, window.t0, window.t1)
+    travel = float(np.max(np.linalg.norm(poses[:, :3, 3] - poses[0, :3, 3], axis=1)))
+    turn = float(np.max(rotation_angle_deg(poses[0, :3, :3], poses[:, :3, :3])))
+    scales = rounds[-1]["depth_scale_m"] if rounds else []
+    scale = f"{scales[0]:.2f} m" if scales else "the depth"
+    keys = params.keyviews
+    return ParameterError(
+        f"{ParameterError.literal(str(sequence.folder))} over [{window.t0:g}, {window.t1:g}] s "
+        f"gives {count} key view: the camera moved {100 * travel:.1f} cm and turned "
+        f"{turn:.1f} deg, short of {{baseline}} {keys.baseline:g} x {scale} = "
+        f"{100 * keys.baseline * (scales[0] if scales else 1.0):.1f} cm"
+        + ("" if scales else " of depth") + f" and {{angle_deg}} {keys.angle_deg:g} deg; a "
+        "global map fuses at least 2 key views: lower {baseline} or {angle_deg}, or give a "
+        "longer window ({t0}, {t1})",
+        baseline="baseline", angle_deg="angle_deg", t0="t0", t1="t1")
 
 
 def _key_views(sequence: Sequence, tmp: Path, params: GlobalParams, progress: bool,

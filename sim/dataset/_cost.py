@@ -15,13 +15,13 @@ import json
 from collections.abc import Iterable
 from pathlib import Path
 
+from sim.profile import EVENT_CAMERA_STAGES, PROFILE_JSON
+
 __all__ = ["PROFILE_FILE", "cost_table", "job_costs"]
 
-PROFILE_FILE = "profile.json"
+PROFILE_FILE = PROFILE_JSON
 """A sequence folder's profile (``evfuse simulate --profile``), read when present."""
-EVENT_CAMERA = ("event_render", "event_sample", "emulate")
-"""``timings_s``' stages of the event camera (its renders, its sampler, the emulator)."""
-PARTS = {"event camera": EVENT_CAMERA,
+PARTS = {"event camera": EVENT_CAMERA_STAGES,
          "events, rest": ("emulate_compile", "event_write", "event_depth"),
          "checkpoints": ("checkpoint",),
          "frames": ("frame_setup", "depth", "exposure_control", "frame_motion", "frame_edges",

@@ -297,7 +297,8 @@ def _log(dataset: Path, event: str, job: Job, rest: str = "") -> None:
         os.close(fd)
 
 
-def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
+def run_job(job: Job, dataset: str | Path, variant: str | None = None,
+            profile: bool = False) -> dict:
     """Simulate one job into ``DIR/jobs/<job_id>/`` in this process (what a worker runs).
 
     A complete folder is kept (its record read back); an interrupted one
@@ -311,6 +312,8 @@ def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
         The dataset folder.
     variant : str, optional
         Mitsuba variant (default: simulate's).
+    profile : bool
+        Also write the job's ``profile.json`` (:mod:`sim.profile`).
 
     Returns
     -------
@@ -347,7 +350,8 @@ def run_job(job: Job, dataset: str | Path, variant: str | None = None) -> dict:
         with _ONE_AT_A_TIME:
             text = scene_text(job, variant) if job.generated else None
             scene, kwargs = job_inputs(job, job_scene(job, text))
-            simulate(scene, folder, variant=variant, progress=False, resume=resume, **kwargs)
+            simulate(scene, folder, variant=variant, progress=False, resume=resume,
+                     profile=profile, **kwargs)
         if text is not None:
             write_bytes_atomically(folder / SCENE_FILE, text.encode())
     except BaseException as error:

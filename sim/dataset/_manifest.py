@@ -19,6 +19,7 @@ from pathlib import Path
 
 from sim._atomic import partial_path, write_bytes_atomically
 from sim.output import MARKER
+from sim.profile import PROFILE_JSON
 from sim.validation import ParameterError
 
 __all__ = ["COLUMN_TYPES", "MANIFEST_CSV", "MANIFEST_PARQUET", "SOFTWARE_COLUMNS",
@@ -53,10 +54,11 @@ _ARROW = {int: "int64", float: "float64", str: "string"}
 def output_hash(folder: str | Path) -> str:
     """sha256 over a sequence folder's files: each file's relative path (sorted, ``/``
     separated) then its bytes; ``sequence.json`` without its timings (``timings_s``, the
-    only wall-clock content of a sequence folder) and without the scene file's path
-    (``scene.source``: a built-in scene's path is the worker's install, while the scene's text,
-    ``scene.toml``, stays in), re-serialised with sorted keys; the ``.evfuse`` marker (who
-    wrote the folder, from which real input paths) is left out.
+    wall-clock content of a sequence folder besides ``profile.json``) and without the scene
+    file's path (``scene.source``: a built-in scene's path is the worker's install, while the
+    scene's text, ``scene.toml``, stays in), re-serialised with sorted keys; the ``.evfuse``
+    marker (who wrote the folder, from which real input paths) and ``profile.json`` (wall and
+    device seconds, :mod:`sim.profile`) are left out.
 
     Parameters
     ----------
@@ -73,7 +75,7 @@ def output_hash(folder: str | Path) -> str:
     files = sorted(p for p in folder.rglob("*") if p.is_file())
     for path in sorted(files, key=lambda p: p.relative_to(folder).as_posix()):
         name = path.relative_to(folder).as_posix()
-        if name == MARKER:
+        if name in (MARKER, PROFILE_JSON):
             continue
         data = path.read_bytes()
         if name == "sequence.json":

@@ -223,7 +223,7 @@ def _has_bokeh() -> bool:
 def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | None = None,
              workers: int | None = None, threads: int | None = None, resume: bool = False,
              overwrite: bool = False, retries: int = 1, variant: str | None = None,
-             gpu: float | None = None, warm: bool = True,
+             gpu: float | None = None, profile: bool = False, warm: bool = True,
              report: Callable[[str], None] | None = None) -> GenerateResult:
     """Run a sweep's jobs into a dataset folder.
 
@@ -258,6 +258,8 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
         a remote cluster's workers must declare it (``dask worker --resources GPU=1``), a local
         cluster's workers each declare ``GPU = 1`` (the one GPU they share; a share <= 1).
         None: none asked.
+    profile : bool
+        Each job's sequence folder also gets ``profile.json`` (:mod:`sim.profile`).
     warm : bool
         Warm each Dask worker once as it starts, before its first job (the variant, the
         imports and a few milliseconds of the first job's scene:
@@ -332,7 +334,7 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
             for job in todo:
                 progress.running(1)
                 try:
-                    record = run_job(job, work, variant)
+                    record = run_job(job, work, variant, profile)
                 except Exception as error:
                     finish(job, None, _one_line(error))
                 else:
@@ -347,7 +349,7 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
             progress.say(f"generate: {len(todo)} jobs on {cluster_name}; dashboard: "
                          f"{link or 'none (install bokeh for it)'}")
             try:
-                _run_on(client, todo, work, variant, retries, gpu, finish, progress)
+                _run_on(client, todo, work, variant, retries, gpu, finish, progress, profile)
             finally:
                 client.close()
                 if cluster is not None:
@@ -363,15 +365,16 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
 
 
 def _run_on(client, todo: list[Job], out: Path, variant: str | None, retries: int,
-            gpu: float | None, finish, progress: _Progress) -> None:
+            gpu: float | None, finish, progress: _Progress, profile: bool = False) -> None:
     """Submit the jobs to a Dask client and record each as it finishes."""
     from distributed import as_completed
 
     resources = {"GPU": gpu} if gpu else None
     futures = {}
     for job in todo:
-        future = client.submit(run_job, job, str(out), variant, key=f"evfuse-{job.job_id}",
-                               retries=retries, pure=False, resources=resources)
+        future = client.submit(run_job, job, str(out), variant, profile,
+                               key=f"evfuse-{job.job_id}", retries=retries, pure=False,
+                               resources=resources)
         futures[future] = job
     for future in as_completed(futures):
         job = futures[future]

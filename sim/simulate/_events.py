@@ -41,6 +41,7 @@ from sim.pixel_sampling import (
     pixel_blocks,
     refine_edges,
 )
+from sim.profile import stage
 from sim.progress import progress as progress_stage
 from sim.render import Renderer
 from sim.sampling import (
@@ -136,14 +137,16 @@ class _TimedCamera:
     def luminance(self, t: float) -> np.ndarray:
         tick = time.perf_counter()
         try:
-            return self._camera.luminance(t)
+            with stage("event_render"):
+                return self._camera.luminance(t)
         finally:
             self.seconds += time.perf_counter() - tick
 
     def depth(self, t: float) -> np.ndarray:
         tick = time.perf_counter()
         try:
-            return self._camera.depth(t)
+            with stage("event_render"):
+                return self._camera.depth(t)
         finally:
             self.seconds += time.perf_counter() - tick
 
@@ -160,7 +163,8 @@ class _ShaderSource:
     def _timed(self, function, *args):
         tick = time.perf_counter()
         try:
-            return function(*args)
+            with stage("event_render"):
+                return function(*args)
         finally:
             self.seconds += time.perf_counter() - tick
 
@@ -515,36 +519,43 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                       ) as (bar, writers), checkpoint.in_background():
         # The sampler's step splits into its renders (event_render), the emulator's own time
         # (emulate) and the rest: choosing the samples (event_sample).
-        timings["emulate_compile"] += emulator.warm_up()
+        with stage("emulate_compile"):
+            timings["emulate_compile"] += emulator.warm_up()
         since, saved_at = 0, time.perf_counter()
         tick = time.perf_counter()
         rendered, emulated = source.render_seconds, emulator.seconds
-        for step in source.steps(emulator, start, end, contrast, params, sampling, stats):
-            tock = time.perf_counter()
-            render = source.render_seconds - rendered
-            emulate = emulator.seconds - emulated
-            timings["event_render"] += render
-            timings["emulate"] += emulate
-            timings["event_sample"] += (tock - tick) - render - emulate
-            writers.write(step.events, step.t, pending=step.pending, causes=step.causes)
-            if step.events is not None and len(step.events):
-                count += len(step.events)
-                on += int(np.count_nonzero(step.events["p"] > 0))
-            tick = time.perf_counter()
-            timings["event_write"] += tick - tock
-            since += 1
-            # Only where the sampler can be restarted from this step (no tail pending).
-            if not step.pending and checkpoint.due(since, tick - saved_at):
-                checkpoint.save_events(step.sample, emulator, stats, count, on, writers.writers,
-                                       **step.extra)
-                since, saved_at = 0, time.perf_counter()
-                timings["checkpoint"] += saved_at - tick
-                tick = saved_at
-            rendered, emulated = source.render_seconds, emulator.seconds
-            bar.n = round(step.t - start, 6)
-            bar.set_postfix_str(f"{count:,} events, {source.progress(stats, why)}",
-                                refresh=False)
-            bar.update(0)
+        # Profiled (sim.profile): the renders' and the emulator's kernels are their own stages
+        # inside the step; what else the step runs is the sampler's.
+        with stage("event_sample"):
+            for step in source.steps(emulator, start, end, contrast, params, sampling, stats):
+                tock = time.perf_counter()
+                render = source.render_seconds - rendered
+                emulate = emulator.seconds - emulated
+                timings["event_render"] += render
+                timings["emulate"] += emulate
+                timings["event_sample"] += (tock - tick) - render - emulate
+                with stage("event_write"):
+                    writers.write(step.events, step.t, pending=step.pending,
+                                  causes=step.causes)
+                if step.events is not None and len(step.events):
+                    count += len(step.events)
+                    on += int(np.count_nonzero(step.events["p"] > 0))
+                tick = time.perf_counter()
+                timings["event_write"] += tick - tock
+                since += 1
+                # Only where the sampler can be restarted from this step (no tail pending).
+                if not step.pending and checkpoint.due(since, tick - saved_at):
+                    with stage("checkpoint"):
+                        checkpoint.save_events(step.sample, emulator, stats, count, on,
+                                               writers.writers, **step.extra)
+                    since, saved_at = 0, time.perf_counter()
+                    timings["checkpoint"] += saved_at - tick
+                    tick = saved_at
+                rendered, emulated = source.render_seconds, emulator.seconds
+                bar.n = round(step.t - start, 6)
+                bar.set_postfix_str(f"{count:,} events, {source.progress(stats, why)}",
+                                    refresh=False)
+                bar.update(0)
     ignored = (f"[render] edge_spp = {scene.render.edge_spp} needs a JIT variant's shader "
                f"(llvm_ad_rgb or cuda_ad_rgb): {renderer.variant} rendered every pixel at "
                f"event_spp = {scene.render.event_spp}"

@@ -36,6 +36,7 @@ from sim.frames import (
     exposure_sample_times,
     luminance_to_frame,
 )
+from sim.profile import stage
 from sim.progress import progress as progress_stage
 from sim.render import Renderer
 from sim.scene import Scene
@@ -143,7 +144,8 @@ def _simulate_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.n
     image_names = [frame_name(index, "png") for index in range(len(times))]
     depth_names = [frame_name(index, "exr") for index in range(len(times))]
     tick = time.perf_counter()
-    expose = _Exposures(scene, renderer, times)
+    with stage("frame_setup"):
+        expose = _Exposures(scene, renderer, times)
     timings["frame_setup"] = timings.get("frame_setup", 0.0) + time.perf_counter() - tick
     checkpoint.set_frame_stage(expose.record())
     bar = progress_stage(times, desc=f"simulate {scene.name}", unit="frame", noun="frames",
@@ -155,20 +157,23 @@ def _simulate_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.n
             previous = None
             continue
         tick = time.perf_counter()
-        depth = renderer.depth(t)
+        with stage("depth"):
+            depth = renderer.depth(t)
         tock = time.perf_counter()
         timings["depth"] += tock - tick
         if not params.ideal and index >= len(exposures):
             if previous is None and index > 0:            # resumed: read frame index-1 back
                 previous = cv2.imread(str(folder / image_names[index - 1]),
                                       cv2.IMREAD_UNCHANGED)
-            exposures.append(_frame_exposure(scene, expose, t, pattern, previous,
-                                             exposures[-1] if exposures else None))
+            with stage("exposure_control"):
+                exposures.append(_frame_exposure(scene, expose, t, pattern, previous,
+                                                 exposures[-1] if exposures else None))
             checkpoint.set_exposures(exposures)           # before the frame is written
             tack = time.perf_counter()
             timings["exposure_control"] += tack - tock
             tock = tack
-        luminance, cost = expose(t, None if params.ideal else exposures[index], depth)
+        with stage("render"):
+            luminance, cost = expose(t, None if params.ideal else exposures[index], depth)
         tack = time.perf_counter()
         motion, edges = expose.take_seconds()
         timings["frame_motion"] += motion
@@ -177,18 +182,23 @@ def _simulate_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.n
         rng = np.random.default_rng([scene.seed, FRAME_NOISE_STREAM, index])
         if params.ideal:
             if gain is None:                          # resumed: frame 0's exposure again
-                first = luminance if index == 0 else expose(times[0], None,
-                                                            renderer.depth(times[0]))[0]
-                gain = auto_gain(first)
-                checkpoint.set_gain(gain)                 # before the first frame is written
-                expose.take_seconds()                     # all of it exposure control
+                with stage("exposure_control"):
+                    first = luminance if index == 0 else expose(times[0], None,
+                                                                renderer.depth(times[0]))[0]
+                    gain = auto_gain(first)
+                    checkpoint.set_gain(gain)             # before the first frame is written
+                motion, edges = expose.take_seconds()
                 tick = time.perf_counter()
-                timings["exposure_control"] += tick - tack
+                timings["frame_motion"] += motion
+                timings["frame_edges"] += edges
+                timings["exposure_control"] += tick - tack - motion - edges
                 tack = tick
-            frame = luminance_to_frame(luminance, gain, params)
+            with stage("frame_sensor"):
+                frame = luminance_to_frame(luminance, gain, params)
         else:
-            frame = sensor_frame(luminance, exposures[index], params.sensor, pattern,
-                                 params.output_gamma, rng)
+            with stage("frame_sensor"):
+                frame = sensor_frame(luminance, exposures[index], params.sensor, pattern,
+                                     params.output_gamma, rng)
         tock = time.perf_counter()
         timings["frame_sensor"] += tock - tack
         previous = frame
@@ -196,15 +206,19 @@ def _simulate_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.n
         if not ok:
             raise OSError(f"cannot encode {image} as PNG")
         checkpoint.set_frame_cost(index, cost.as_dict())  # before the frame is written
-        write_bytes_atomically(image, png.tobytes())
-        with atomic_file(depth_map) as partial:
-            write_depth(partial, depth)
+        with stage("write"):
+            write_bytes_atomically(image, png.tobytes())
+            with atomic_file(depth_map) as partial:
+                write_depth(partial, depth)
         timings["write"] += time.perf_counter() - tock
     if params.ideal and gain is None:  # every frame was on disk, but the gain was not saved
         tick = time.perf_counter()
-        gain = auto_gain(expose(times[0], None, renderer.depth(times[0]))[0])
-        expose.take_seconds()
-        timings["exposure_control"] += time.perf_counter() - tick
+        with stage("exposure_control"):
+            gain = auto_gain(expose(times[0], None, renderer.depth(times[0]))[0])
+        motion, edges = expose.take_seconds()
+        timings["frame_motion"] += motion
+        timings["frame_edges"] += edges
+        timings["exposure_control"] += time.perf_counter() - tick - motion - edges
     return gain, exposures, image_names, depth_names
 
 

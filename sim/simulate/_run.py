@@ -28,6 +28,7 @@ from sim.flow import write_motion_ground_truth
 from sim.frames import frame_times
 from sim.imu import write_motion_truth
 from sim.output import atomic_output_dir, check_output_dir
+from sim.profile import PROFILE_JSON, STAGES, profile_record, recording, stage
 from sim.render import Renderer
 from sim.sampling import SamplingParams
 from sim.scene import Scene
@@ -41,6 +42,7 @@ from sim.simulate._checkpoint import (
 )
 from sim.simulate._events import _choose_sampler, _simulate_events
 from sim.simulate._frames import _frames_record, _simulate_frames, frame_cost_record
+from sim.simulate.memory import device_memory
 from sim.trajectory import sample_times, write_trajectory
 from sim.two_camera import simulate_frame_camera
 from sim.validation import ParameterError
@@ -71,6 +73,8 @@ class SimulationResult:
         Mitsuba variant used.
     timings : dict
         Seconds spent per stage (by this call: a resumed run counts only what it did).
+    profile : dict or None
+        ``profile.json`` (:func:`sim.profile.profile_record`) when asked for (``profile``).
     """
 
     out: Path
@@ -82,6 +86,7 @@ class SimulationResult:
     event_renders: int = 0
     event_pixel_samples: int = 0
     sampler: str | None = None
+    profile: dict | None = None
 
     __repr__ = summary_repr
 
@@ -134,7 +139,8 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
              sampling: SamplingParams | None = None, with_events: bool = True,
              event_formats: tuple[str, ...] = ("h5", "txt"),
              resume: bool = False, sampler: str | None = None,
-             rig: RigParams | None = None, motion_truth: bool = True) -> SimulationResult:
+             rig: RigParams | None = None, motion_truth: bool = True,
+             profile: bool = False) -> SimulationResult:
     """Render a scene into a sequence folder.
 
     Parameters
@@ -193,6 +199,12 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         each event's depth and labels (:mod:`sim.event_depth`, :mod:`sim.event_labels`).
         False keeps the frames, depth maps,
         poses and events only (smaller, and a little faster).
+    profile : bool
+        Also write ``profile.json``: each stage's wall seconds beside the Dr.Jit kernels it ran
+        (device seconds, launches, compilation, copies) and the event camera's host and device
+        seconds per simulated second (:mod:`sim.profile`). Each stage then waits for its
+        kernels at its end, which can add a few percent of wall time. On ``scalar_rgb`` (no
+        Dr.Jit kernels) the wall times alone, with a note.
 
     Returns
     -------
@@ -239,51 +251,62 @@ def simulate(scene: Scene, out: str | Path, *, duration: float | None = None,
         _check_resumable(out, overwrite, identity, inputs)
     else:
         check_output_dir(out, overwrite, inputs)
-    timings = {"setup": 0.0, "frame_setup": 0.0, "depth": 0.0, "exposure_control": 0.0,
-               "frame_motion": 0.0, "frame_edges": 0.0, "render": 0.0, "frame_sensor": 0.0,
-               "write": 0.0, "event_render": 0.0,
-               "emulate": 0.0, "emulate_compile": 0.0, "event_sample": 0.0, "event_write": 0.0,
-               "event_depth": 0.0, "checkpoint": 0.0}
+    timings = dict.fromkeys(STAGES, 0.0)
     clock = time.perf_counter()
-    renderer = Renderer(scene, spp=spp, variant=variant)
-    identity["variant"] = renderer.variant
-    if with_events:
-        sampler, why = _choose_sampler(scene, renderer.variant, sampler)
-    timings["setup"] = time.perf_counter() - clock
-    with atomic_output_dir(out, overwrite=overwrite, resume=resume, inputs=inputs,
-                           command="evfuse simulate", keep_failed=True) as tmp:
-        checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
-        rig_record = _write_rig(tmp, scene, sample_times(start, end, scene.render.pose_rate))
-        tick = time.perf_counter()
-        imu_record = write_motion_truth(tmp, scene, start, end) if motion_truth else None
-        timings["imu"] = time.perf_counter() - tick
-        gain, exposures, flow_record = _write_frames(scene, renderer, tmp, times, spp,
-                                                     checkpoint, progress, timings, motion_truth)
-        event_info = checkpoint.events_done
-        if with_events and event_info is None:
-            event_info = _simulate_events(scene, renderer, tmp, start, end, events, sampling,
-                                          event_formats, checkpoint, progress, timings,
-                                          sampler, why, event_depth=motion_truth)
-            checkpoint.set_events_done(event_info)
-        for key in ("sampling_warning", "edge_spp_warning"):
-            if with_events and event_info.get(key):
-                print(f"simulate {scene.name}: warning: {event_info[key]}", file=sys.stderr,
-                      flush=True)
-        frame_camera = scene.frame_camera.camera if scene.frame_camera else scene.camera
-        frame_cost = frame_cost_record(checkpoint.frame_stage, checkpoint.frame_costs,
-                                       frame_camera, scene.frames.auto_exposure)
-        write_sequence_json(tmp / "sequence.json", _sequence_record(
-            scene, renderer, start, duration, times, gain, exposures, flow_record, motion_truth,
-            event_info if with_events else None, rig_record, imu_record, frame_cost, timings))
-        checkpoint.remove()
+    with recording(profile) as ledger:
+        with stage("setup"):
+            renderer = Renderer(scene, spp=spp, variant=variant)
+            identity["variant"] = renderer.variant
+            if with_events:
+                sampler, why = _choose_sampler(scene, renderer.variant, sampler)
+        timings["setup"] = time.perf_counter() - clock
+        with atomic_output_dir(out, overwrite=overwrite, resume=resume, inputs=inputs,
+                               command="evfuse simulate", keep_failed=True) as tmp:
+            checkpoint = _Checkpoint(tmp / CHECKPOINT_FOLDER, identity, resume)
+            rig_record = _write_rig(tmp, scene, sample_times(start, end, scene.render.pose_rate))
+            tick = time.perf_counter()
+            with stage("imu"):
+                imu_record = write_motion_truth(tmp, scene, start, end) if motion_truth else None
+            timings["imu"] = time.perf_counter() - tick
+            with device_memory(scene, sampling, sampler if with_events else None):
+                gain, exposures, flow_record = _write_frames(
+                    scene, renderer, tmp, times, spp, checkpoint, progress, timings,
+                    motion_truth)
+                event_info = checkpoint.events_done
+                if with_events and event_info is None:
+                    event_info = _simulate_events(
+                        scene, renderer, tmp, start, end, events, sampling, event_formats,
+                        checkpoint, progress, timings, sampler, why, event_depth=motion_truth)
+                    checkpoint.set_events_done(event_info)
+            for key in ("sampling_warning", "edge_spp_warning"):
+                if with_events and event_info.get(key):
+                    print(f"simulate {scene.name}: warning: {event_info[key]}", file=sys.stderr,
+                          flush=True)
+            frame_camera = scene.frame_camera.camera if scene.frame_camera else scene.camera
+            frame_cost = frame_cost_record(checkpoint.frame_stage, checkpoint.frame_costs,
+                                           frame_camera, scene.frames.auto_exposure)
+            write_sequence_json(tmp / "sequence.json", _sequence_record(
+                scene, renderer, start, duration, times, gain, exposures, flow_record,
+                motion_truth, event_info if with_events else None, rig_record, imu_record,
+                frame_cost, timings))
+            profiled = None
+            if profile:
+                ledger.lap("other")
+                profiled = profile_record(
+                    {**timings, "total": time.perf_counter() - clock},
+                    ledger if renderer.variant != "scalar_rgb" else None, renderer.variant,
+                    end - start if with_events else None)
+                write_sequence_json(tmp / PROFILE_JSON, profiled)
+            checkpoint.remove()
     timings["total"] = time.perf_counter() - clock
     n_renders = frame_cost["exposure_times"]
     if not with_events:
-        return SimulationResult(out, len(times), n_renders, renderer.variant, timings)
+        return SimulationResult(out, len(times), n_renders, renderer.variant, timings,
+                                profile=profiled)
     return SimulationResult(out, len(times), n_renders, renderer.variant, timings,
                             event_info["count"], event_info["renders"],
                             event_info.get("pixel_samples", 0),
-                            event_info.get("sampler", "frame"))
+                            event_info.get("sampler", "frame"), profile=profiled)
 
 
 # --- the steps of simulate() -------------------------------------------------------------------
@@ -352,8 +375,9 @@ def _write_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.ndar
         write_index(folder / "depthmaps.txt", times + offset, depth_names)
         if motion_truth:
             tick = time.perf_counter()
-            flow_record = write_motion_ground_truth(scene, renderer, folder, times, depth_names,
-                                                    offset)
+            with stage("flow"):
+                flow_record = write_motion_ground_truth(scene, renderer, folder, times,
+                                                        depth_names, offset)
     else:                         # a rig: frame_camera/, and the event camera's depth at its times
         gain, exposures, frame_view = simulate_frame_camera(
             scene, renderer, folder, times, offset, _simulate_frames, spp=spp,
@@ -362,8 +386,9 @@ def _write_frames(scene: Scene, renderer: Renderer, folder: Path, times: np.ndar
         if motion_truth:                               # the frame camera's, in its folder
             view_scene, view_renderer, view_folder, view_depths, readout = frame_view
             tick = time.perf_counter()
-            flow_record = write_motion_ground_truth(view_scene, view_renderer, view_folder,
-                                                    times, view_depths, offset, readout)
+            with stage("flow"):
+                flow_record = write_motion_ground_truth(view_scene, view_renderer, view_folder,
+                                                        times, view_depths, offset, readout)
             flow_record["motion_truth_folder"] = view_folder.name
     if tick is not None:
         timings["flow"] = time.perf_counter() - tick

@@ -11,11 +11,13 @@ extra sample; :data:`BYTES_PER_SAMPLE` rounds it up.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from sim.validation import ParameterError
 
 __all__ = ["BASE_BYTES", "BYTES_PER_SAMPLE", "MAX_SENSOR_SIDE", "check_simulation_memory",
-           "machine_memory", "simulation_bytes"]
+           "device_memory", "is_out_of_memory", "machine_memory", "simulation_bytes"]
 
 BYTES_PER_SAMPLE = 112
 """Peak bytes per pixel sample of a render pass (measured 100-106, see the module's notes)."""
@@ -86,3 +88,67 @@ def check_simulation_memory(width: int, height: int, spp: int, *, at_least: bool
             f"this machine's {have / 2**30:.1f} GiB: use a smaller {{{sensor}}} or fewer "
             f"{{{samples}}}", **{sensor: sensor, samples: samples})
     return need
+
+
+_OUT_OF_MEMORY = ("out of memory", "cuda_error_out_of_memory", "cudaerrormemoryallocation")
+"""How Dr.Jit (``jit_malloc(): out of memory! Could not allocate N bytes of device memory.``)
+and CUDA say that an allocation failed, lower case."""
+
+
+def is_out_of_memory(error: BaseException) -> bool:
+    """Whether ``error``, or an error it was raised from, is an allocation that failed
+    (:class:`MemoryError`, or Dr.Jit's or CUDA's out-of-memory message)."""
+    seen: set[int] = set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        if isinstance(error, MemoryError):
+            return True
+        if any(key in str(error).lower() for key in _OUT_OF_MEMORY):
+            return True
+        error = error.__cause__ or error.__context__
+    return False
+
+
+@contextmanager
+def device_memory(scene, sampling=None, sampler: str | None = None) -> Iterator[None]:
+    """Turn an out-of-memory inside the renders into one line that says what to lower.
+
+    Parameters
+    ----------
+    scene : sim.scene.Scene
+        Its event camera's sensor and samples per pixel are named.
+    sampling : sim.sampling.SamplingParams, optional
+        The per-pixel sampler's block length (``1 / min_rate``) is named.
+    sampler : {"pixel", "frame"} or None
+        The event camera's sampler (None: no events).
+
+    Raises
+    ------
+    ParameterError
+        In place of an allocation that failed (:func:`is_out_of_memory`): the device, the
+        sensor's resolution, the samples per pixel and the block length, and what to lower
+        (``{spp}``, ``{event_spp}``, ``{sensor}``, ``{min_rate}`` placeholders).
+    """
+    try:
+        yield
+    except Exception as exc:
+        if not is_out_of_memory(exc):
+            raise
+        import sys
+
+        mitsuba = sys.modules.get("mitsuba")
+        variant = mitsuba.variant() if mitsuba is not None else None
+        where = "the GPU" if variant and variant.startswith("cuda") else "this machine"
+        camera, render = scene.camera, scene.render
+        block = ""
+        if sampler == "pixel" and sampling is not None:
+            block = (f", the per-pixel sampler's blocks of {1e3 / sampling.min_rate:g} ms "
+                     f"(all pixels' samples of a block are held at once)")
+        raise ParameterError(
+            f"{where} ran out of memory ({variant}) rendering a {camera.width}x{camera.height} "
+            f"sensor at {render.spp} samples per pixel for frames and {render.event_spp} for "
+            f"events{block}: lower the {{sensor}}, the {{spp}} or {{event_spp}}"
+            + (", or shorten the blocks with a higher {min_rate}" if block else "")
+            + f" ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})",
+            sensor="sensor size", spp="spp", event_spp="[render] event_spp",
+            min_rate="sampling min_rate") from None

@@ -99,8 +99,8 @@ def simulate_window(scene: Scene, folder: str | Path, start: float, duration: fl
     progress : bool
         Progress bars.
     **options
-        ``spp``, ``events``, ``sampling``, ``sampler``, ``event_formats``, ``motion_truth``, as
-        :func:`sim.simulate.simulate` takes them.
+        ``spp``, ``events``, ``sampling``, ``sampler``, ``event_formats``, ``motion_truth``,
+        ``profile``, as :func:`sim.simulate.simulate` takes them.
 
     Returns
     -------
