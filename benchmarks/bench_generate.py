@@ -44,6 +44,17 @@ error of the sweep's total; the error each seed would have had from the mean of 
 a seed that is not probed gets in a larger sweep); and each job's
 frame render (``timings_s``' ``frame_motion + frame_edges + render``) beside its event render
 (``event_render``). About 3 minutes.
+
+**Warm workers** (``--warm``): issue 36's per-job start-up, before and after. Six 0.05-s
+slider_close jobs at 48x36 on a 2-worker local cluster (:func:`sim.dataset.generate`), each run
+into a fresh Dr.Jit kernel cache (``DRJIT_CACHE_DIR``, empty) and again with the cache it
+filled: with ``warm=False`` (each worker's first job pays the imports, the variant and its
+kernels) and ``warm=True`` (each worker warmed once as it starts,
+:func:`sim.dataset.warm_worker`). Reported: each job's own wall seconds (``manifest.csv``'s
+``wall_s``), the first job of each worker against the others (the start-up a job pays), the
+whole ``generate`` call, and the cache's file count after each run (a second run that finds the
+first's kernels adds none). Written to ``benchmarks/results/generate_warm.json``. About 3
+minutes.
 """
 
 from __future__ import annotations
@@ -239,14 +250,81 @@ def check_estimates() -> dict:
     return result
 
 
+WARM_SWEEP = """name = "warm"
+seeds = [1, 2, 3, 4, 5, 6]
+
+[[scenes]]
+name = "slider_close"
+
+[grid]
+sensor = "48x36"
+t0 = 0.0
+t1 = 0.05
+"""
+
+
+def warm_workers() -> dict:
+    """Per-job start-up on 2 workers, cold and warmed workers, cold and filled kernel cache
+    (module docstring, ``--warm``)."""
+    from sim.dataset import generate, read_manifest
+
+    runs = []
+    with tempfile.TemporaryDirectory(prefix="bench-warm-") as tmp:
+        sweep = Path(tmp) / "warm.toml"
+        sweep.write_text(WARM_SWEEP)
+        for warm in (False, True):
+            cache = Path(tmp) / f"cache-{warm}"
+            cache.mkdir()
+            os.environ["DRJIT_CACHE_DIR"] = str(cache)          # the workers inherit it
+            for cache_state in ("empty", "filled"):
+                out = Path(tmp) / f"out-{warm}-{cache_state}"
+                result = generate(sweep, out, workers=2, threads=1, warm=warm,
+                                  report=lambda line: None)
+                rows = read_manifest(out)
+                pids = {}
+                for line in (out / "runs.log").read_text().splitlines():
+                    event, job_id, pid = line.split()[:3]
+                    if event == "start":
+                        pids.setdefault(pid, []).append(job_id)
+                firsts = {jobs[0] for jobs in pids.values()}
+                first = [float(r["wall_s"]) for r in rows if r["job_id"] in firsts]
+                later = [float(r["wall_s"]) for r in rows if r["job_id"] not in firsts]
+                runs.append({"warm": warm, "cache": cache_state, "generate_s": result.wall_s,
+                             "first_job_s": sum(first) / len(first),
+                             "later_job_s": sum(later) / len(later) if later else None,
+                             "job_s": [float(r["wall_s"]) for r in rows],
+                             "warm_s": [w.get("warm_s") for w in result.workers],
+                             "cache_files": len(os.listdir(cache)),
+                             "hashes": [r["output_hash"] for r in rows]})
+                r = runs[-1]
+                print(f"warm={warm!s:<5} cache {cache_state:<6}: generate {r['generate_s']:5.1f} s"
+                      f", first job of a worker {r['first_job_s']:5.2f} s, later jobs "
+                      f"{r['later_job_s'] or 0:5.2f} s, workers' warm-up "
+                      f"{', '.join(f'{w:.1f}' for w in r['warm_s'] if w is not None) or '-'} s,"
+                      f" kernel cache {r['cache_files']} files", flush=True)
+        os.environ.pop("DRJIT_CACHE_DIR")
+    same = all(r["hashes"] == runs[0]["hashes"] for r in runs)
+    print(f"same bytes in every run: {same}")
+    result = {"machine": "shared 2-core machine, loaded by other sessions; llvm_ad_rgb",
+              "sweep": WARM_SWEEP, "runs": runs, "same_hashes": same}
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "generate_warm.json").write_text(json.dumps(result, indent=2))
+    print(f"written to {RESULTS / 'generate_warm.json'}")
+    return result
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="64x48, 0.05 s jobs")
     parser.add_argument("--estimates", action="store_true",
                         help="only check --dry-run's estimates against real tabletop jobs")
+    parser.add_argument("--warm", action="store_true",
+                        help="only measure the per-job start-up with and without warm workers")
     args = parser.parse_args(argv)
     if args.estimates:
         return check_estimates()
+    if args.warm:
+        return warm_workers()
     from sim.dataset import default_cluster_size, parse_sweep
 
     cores = default_cluster_size()[0]

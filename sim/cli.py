@@ -406,6 +406,11 @@ def _cmd_generate(args: argparse.Namespace) -> int:
         from sim.profile import PROFILE_JSON, profiles_summary
 
         print(profiles_summary(sorted((result.out / "jobs").glob(f"*/{PROFILE_JSON}"))))
+    if result.ran:
+        from sim.dataset import cost_table
+
+        print(cost_table([result.out / r["path"] for r in result.rows if r["status"] == "done"],
+                         {worker["device"] for worker in result.workers}))
     if result.failed:
         print(f"generate: {result.failed} jobs failed (their errors are in the manifest); "
               "retry them with the same command plus --resume", file=sys.stderr)

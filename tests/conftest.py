@@ -301,3 +301,69 @@ def interrupted_pixel_blocks(monkeypatch: pytest.MonkeyPatch, blocks: int,
         yield seen
     finally:
         monkeypatch.setattr(driver, "pixel_blocks", real)
+
+
+# --- figures whose bound depends on the Mitsuba variant ------------------------------------------
+
+VARIANT_FIGURES_ENV = "EVFUSE_VARIANT_FIGURES"
+"""A JSON-lines file that :func:`variant_bound` appends each figure to where the active variant
+has no bound of its own yet (``benchmarks/gpu_check.sh`` sets it, to bring them back)."""
+MEASURED_VARIANT = "llvm_ad_rgb"
+"""The variant every bound was first measured on."""
+
+
+@pytest.fixture(scope="session")
+def variant() -> str:
+    """The Mitsuba variant the suite renders with (:func:`sim.variant.use_variant`)."""
+    from sim.variant import use_variant
+
+    return use_variant()
+
+
+def bound_for(variant: str, what: str, value: float, bounds: dict[str, float],
+              test: str = "") -> float:
+    """The bound of a figure that depends on the variant (renders, float32 atomics, kernel
+    order): ``bounds[variant]``. Where the variant has none yet, the bound measured on
+    :data:`MEASURED_VARIANT`, and the figure is recorded to say what the variant gives: a
+    warning in the test report and a line in :data:`VARIANT_FIGURES_ENV`'s file when set
+    (never a silent skip).
+
+    Parameters
+    ----------
+    variant : str
+    what : str
+        The figure's name, as the record shows it.
+    value : float
+        The figure measured by the test.
+    bounds : dict of str to float
+        Each variant's bound, :data:`MEASURED_VARIANT`'s at least.
+    test : str
+        The test's node id, for the record.
+    """
+    import json
+    import warnings
+
+    if variant in bounds:
+        return bounds[variant]
+    record = {"test": test, "figure": what, "variant": variant, "value": float(value),
+              "bound_from": MEASURED_VARIANT, "bound": bounds[MEASURED_VARIANT]}
+    target = os.environ.get(VARIANT_FIGURES_ENV)
+    if target:
+        fd = os.open(target, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        try:
+            os.write(fd, (json.dumps(record) + "\n").encode())
+        finally:
+            os.close(fd)
+    warnings.warn(f"{what} = {value:g} on {variant}, which has no bound of its own yet: "
+                  f"checked against {MEASURED_VARIANT}'s {bounds[MEASURED_VARIANT]:g}, recorded",
+                  stacklevel=2)
+    return bounds[MEASURED_VARIANT]
+
+
+@pytest.fixture
+def variant_bound(request, variant):
+    """:func:`bound_for` for this test and the active variant:
+    ``variant_bound(what, value, {"llvm_ad_rgb": bound, ...})``."""
+    def bound(what: str, value: float, bounds: dict[str, float]) -> float:
+        return bound_for(variant, what, value, bounds, request.node.nodeid)
+    return bound

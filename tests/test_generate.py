@@ -132,6 +132,32 @@ def test_gpu_shares_are_met_by_a_local_clusters_workers(reference, tmp_path):
         generate(TINY, tmp_path / "two", workers=2, gpu=2.0, **QUIET)
 
 
+def test_warm_workers_share_one_kernel_cache_and_write_the_in_process_bytes(reference, tmp_path,
+                                                                            monkeypatch):
+    """Each worker is warmed once as it starts (the variant, the imports, a few milliseconds of
+    the first job) and every worker reads and fills the one Dr.Jit kernel cache of
+    ``DRJIT_CACHE_DIR``: a second dataset's workers find kernels the first's compiled, and
+    compile fewer. (Some kernels, those with a devirtualised call such as Mitsuba's
+    ``Shape::compute_surface_interaction``, hash differently in each process and are compiled
+    again: the cache grows on every run; a kernel without one is found again:
+    ``tests/test_generate_workers.py``.) The bytes are the in-process ones."""
+    cache = tmp_path / "kernels"
+    monkeypatch.setenv("DRJIT_CACHE_DIR", str(cache))
+    first = generate(TINY, tmp_path / "first", workers=2, threads=1, **QUIET)
+    assert (first.ran, first.failed) == (4, 0) and len(first.workers) == 2
+    assert {w["kernel_cache"] for w in first.workers} == {str(cache)}
+    assert all(w["warm_error"] == "" and w["warm_s"] > 0 for w in first.workers)
+    assert {w["variant"] for w in first.workers} == {r["render"]["variant"] for r in (
+        json.loads((tmp_path / "first" / row["path"] / "sequence.json").read_text())
+        for row in first.rows)}
+    assert _tree(tmp_path / "first") == _tree(reference / "tiny")
+    compiled = len(os.listdir(cache))
+    assert compiled > 10
+    second = generate(TINY, tmp_path / "second", workers=2, threads=1, **QUIET)
+    assert second.failed == 0
+    assert len(os.listdir(cache)) - compiled < compiled        # 17 and 27 of 59 and 49 seen
+
+
 def test_a_killed_workers_job_runs_again_from_its_checkpoint(reference, tmp_path):
     sweep = tmp_path / "long.toml"
     sweep.write_text(LONG)

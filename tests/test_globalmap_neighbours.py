@@ -134,13 +134,15 @@ def test_the_fused_map_is_a_map_folder_the_fill_reads(one_view, fused3, tmp_path
     assert filled.n2 >= filled.n1_in_frame > 0
 
 
-def test_the_fused_map_is_more_precise_and_with_nine_views_denser(one_view, fused3, tmp_path):
+def test_the_fused_map_is_more_precise_and_with_nine_views_denser(one_view, fused3, tmp_path,
+                                                                 variant_bound):
     """Measured on this sequence (llvm_ad_rgb; the defaults: candidates at c = 0, two other
     views within 2 %, a quarter-window spacing): one view N1 296, precision within 5 % 0.713
     (MAE dominated by 138 points 10 cm off); 3 views N1 143 at 0.986; 5 views 288 at 0.917;
     9 views 432 at 0.789. Asserted: 3 and 5 views at least 0.15 above the one view's precision,
     9 views above it with at least 1.3x its points (this 64x48 wall has few pixels to gain;
-    boxes_6dof's paper window: 4.06x at 88.3 % against 81.9 %, README)."""
+    boxes_6dof's paper window: 4.06x at 88.3 % against 81.9 %, README). The figures depend on
+    the renders, so on the variant: bounds measured on llvm_ad_rgb (``variant_bound``)."""
     folder, mapped = one_view
     out, _ = fused3
     one = mapped.info["errors"]["precision_5pct"]
@@ -148,8 +150,11 @@ def test_the_fused_map_is_more_precise_and_with_nine_views_denser(one_view, fuse
     nine = fused_reference_map(folder / "map", tmp_path / "fused9", views=9, progress=False)
     precision = {fused: json.loads((fused / "map" / "map.json").read_text())["errors"][
         "precision_5pct"] for fused in (out, tmp_path / "fused5", tmp_path / "fused9")}
-    assert precision[out] >= one + 0.15 and precision[tmp_path / "fused5"] >= one + 0.15
-    assert precision[tmp_path / "fused9"] > one and nine["N1"] >= 1.3 * mapped.n1
+    gain = min(precision[out], precision[tmp_path / "fused5"]) - one
+    assert gain >= variant_bound("3 and 5 views' precision gain", gain, {"llvm_ad_rgb": 0.15})
+    denser = nine["N1"] / mapped.n1
+    assert precision[tmp_path / "fused9"] > one
+    assert denser >= variant_bound("9 views' N1 / one view's", denser, {"llvm_ad_rgb": 1.3})
     assert five["N1"] <= nine["N1"]
 
 

@@ -27,6 +27,7 @@ from sim._summary import summary_repr
 from sim.dataset._jobs import JOBS_FOLDER, RUNS_LOG, Job, run_job
 from sim.dataset._manifest import job_record, read_manifest, write_manifest
 from sim.dataset._sweep import Sweep, load_sweep
+from sim.dataset._workers import KERNEL_CACHE_ENV, device_name, kernel_cache_dir, worker_plugin
 from sim.output import (
     MARKER,
     OutputError,
@@ -39,6 +40,7 @@ from sim.output import (
     write_marker,
 )
 from sim.validation import ParameterError
+from sim.variant import active_variant
 
 __all__ = ["SWEEP_COPY", "GenerateResult", "default_cluster_size", "generate"]
 
@@ -62,6 +64,10 @@ class GenerateResult:
         Seconds of this call from the first job submitted to the last finished.
     cluster : str
         How the jobs ran (``in-process``, ``LocalCluster 2 x 1 thread``, the scheduler).
+    workers : tuple of dict
+        Each Dask worker's warm-up (:func:`sim.dataset._workers.warm_worker`: ``variant``,
+        ``device``, ``kernel_cache``, ``kernel_cache_files``, ``warm_s``, ``warm_error``);
+        in process, this process's variant and device alone; empty when no job ran.
     """
 
     out: Path
@@ -71,6 +77,7 @@ class GenerateResult:
     failed: int
     wall_s: float
     cluster: str
+    workers: tuple[dict, ...] = ()
 
     __repr__ = summary_repr
 
@@ -165,22 +172,28 @@ def _row(job: Job, status: str, record: dict | None = None, error: str = "") -> 
 
 
 def _client(scheduler: str | None, workers: int | None, threads: int | None,
-            gpu: float | None = None):
+            gpu: float | None = None, warm_job: Job | None = None, variant: str | None = None,
+            warm: bool = True):
     """A Dask client, the cluster it made (None for ``scheduler``) and its description. With
     ``gpu`` each local worker declares ``GPU = 1`` (this machine's GPU, shared by them), so that
-    the jobs' requests are met; a remote cluster's workers declare their own."""
+    the jobs' requests are met; a remote cluster's workers declare their own. Every worker is
+    warmed once as it starts (``warm``, with ``warm_job``:
+    :func:`sim.dataset._workers.worker_plugin`); a local cluster's workers share one Dr.Jit
+    kernel cache (:func:`sim.dataset._workers.kernel_cache_dir`) and split the cores."""
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
         client = Client(scheduler)
+        client.register_plugin(worker_plugin(None, warm_job, variant, warm))
         return client, None, f"scheduler {scheduler}"
     n, t = default_cluster_size()
     n, t = workers or n, threads or t
     cluster = LocalCluster(n_workers=n, threads_per_worker=t, processes=True,
                            dashboard_address=":0" if _has_bokeh() else None, silence_logs=40,
-                           resources={"GPU": 1.0} if gpu else None)
+                           resources={"GPU": 1.0} if gpu else None,
+                           env={KERNEL_CACHE_ENV: str(kernel_cache_dir())})
     client = Client(cluster)
-    client.register_plugin(_drjit_threads(max(1, _cores() // n)))   # no oversubscription
+    client.register_plugin(worker_plugin(max(1, _cores() // n), warm_job, variant, warm))
     return client, cluster, f"LocalCluster {n} x {t} thread{'s' * (t > 1)}"
 
 
@@ -190,20 +203,14 @@ def _cores() -> int:
         (os.cpu_count() or 1)
 
 
-def _drjit_threads(threads: int):
-    """A Dask worker plugin that sets each worker's Dr.Jit thread pool to ``threads`` (also on
-    a worker restarted after a crash)."""
-    from distributed import WorkerPlugin
-
-    class DrJitThreads(WorkerPlugin):
-        name = "evfuse-drjit-threads"
-
-        def setup(self, worker) -> None:
-            import drjit
-
-            drjit.set_thread_count(threads)
-
-    return DrJitThreads()
+def _warm_records(client) -> tuple[dict, ...]:
+    """Each worker's warm-up record (:func:`sim.dataset._workers.warm_worker`); none where the
+    workers cannot be asked (the jobs run all the same)."""
+    try:
+        records = client.run(lambda dask_worker: getattr(dask_worker, "evfuse_warm", None))
+    except Exception:
+        return ()
+    return tuple(record for record in records.values() if record)
 
 
 def _has_bokeh() -> bool:
@@ -216,7 +223,7 @@ def _has_bokeh() -> bool:
 def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | None = None,
              workers: int | None = None, threads: int | None = None, resume: bool = False,
              overwrite: bool = False, retries: int = 1, variant: str | None = None,
-             gpu: float | None = None, profile: bool = False,
+             gpu: float | None = None, profile: bool = False, warm: bool = True,
              report: Callable[[str], None] | None = None) -> GenerateResult:
     """Run a sweep's jobs into a dataset folder.
 
@@ -253,6 +260,11 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
         None: none asked.
     profile : bool
         Each job's sequence folder also gets ``profile.json`` (:mod:`sim.profile`).
+    warm : bool
+        Warm each Dask worker once as it starts, before its first job (the variant, the
+        imports and a few milliseconds of the first job's scene:
+        :func:`sim.dataset._workers.warm_worker`); False leaves that to each worker's first
+        job.
     report : callable, optional
         Called with each progress line (default: stderr; a tqdm bar on a terminal).
 
@@ -316,6 +328,7 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
             progress.finished(job, record, error)
 
         clock = time.perf_counter()
+        warmed: tuple[dict, ...] = ()
         if workers == 0 or not todo:
             cluster_name = "in-process"
             for job in todo:
@@ -326,8 +339,12 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
                     finish(job, None, _one_line(error))
                 else:
                     finish(job, record)
+            if todo and active_variant() is not None:
+                warmed = ({"variant": active_variant(), "device": device_name(active_variant())},)
         else:
-            client, cluster, cluster_name = _client(scheduler, workers, threads, gpu)
+            client, cluster, cluster_name = _client(scheduler, workers, threads, gpu, todo[0],
+                                                    variant, warm)
+            warmed = _warm_records(client)
             link = client.dashboard_link if cluster is None or _has_bokeh() else None
             progress.say(f"generate: {len(todo)} jobs on {cluster_name}; dashboard: "
                          f"{link or 'none (install bokeh for it)'}")
@@ -344,7 +361,7 @@ def generate(sweep: str | Path | Sweep, out: str | Path, *, scheduler: str | Non
         raise
     _finish(work, out)
     return GenerateResult(out, list(rows.values()), counts["ran"], counts["skipped"],
-                          counts["failed"], wall, cluster_name)
+                          counts["failed"], wall, cluster_name, warmed)
 
 
 def _run_on(client, todo: list[Job], out: Path, variant: str | None, retries: int,

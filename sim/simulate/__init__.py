@@ -20,8 +20,9 @@ and gives the same files as an uninterrupted one. Three things make that possibl
 - ``<out>.partial/.checkpoint/`` holds what a resumed run needs (see :class:`_Checkpoint`):
   the run's identity (scene text, seed, times, parameters, software), the frames' gain and the
   event stage's state, saved at a sample boundary every :data:`CHECKPOINT_SECONDS` of wall
-  time or :data:`CHECKPOINT_SAMPLES` samples, whichever comes first. It is removed before the
-  folder is renamed into place.
+  time or :data:`CHECKPOINT_SAMPLES` samples, whichever comes first, and written in the
+  background (a crash loses at most that interval plus one step and two writes: see
+  ``_checkpoint``). It is removed before the folder is renamed into place.
 
 The package's modules:
 

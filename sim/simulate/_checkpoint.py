@@ -1,27 +1,46 @@
 """Checkpoint and resume of a simulation: the run's identity, and the state of an unfinished
-run in ``<out>.partial/.checkpoint/`` (see :class:`_Checkpoint`)."""
+run in ``<out>.partial/.checkpoint/`` (see :class:`_Checkpoint`).
+
+The event stage's state is copied on the simulation's thread and written by a background thread
+(:class:`_BackgroundWrite`), under a temporary name renamed over the old file once flushed to
+disk: the simulation goes on while it is written, and a crash (a kill, a power cut) mid-write
+leaves the previous checkpoint, complete, never a torn one under the final name. At 1280x720 a
+checkpoint is 52 MB. Written in line, it cost the simulation 0.27-0.82 s each on the shared
+2-core machine (slider_close, the per-pixel sampler), and 5.46 s of a 25-s run on the H200
+machine, written every second (issue 36); in the background, 0.10-0.14 s each here (the state's
+copies and the event files' flush stay on the simulation's thread).
+
+What a crash loses is bounded in wall time: the last complete checkpoint is at most
+:data:`CHECKPOINT_SECONDS` (or :data:`CHECKPOINT_SAMPLES` samples, whichever comes first) plus
+one sampler step plus two checkpoint writes old, since the next one is copied when due and a
+checkpoint is never copied while the previous one is still being written (the simulation waits
+for it instead, which it does only when a write takes longer than the interval).
+"""
 
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import platform
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict
 from importlib import metadata
 from pathlib import Path
 
 import numpy as np
 
-from sim._atomic import write_bytes_atomically
+from sim._atomic import atomic_file, write_bytes_atomically
 from sim.events import EventEmulator, EventParams
 from sim.output import evfuse_version, resumable_partial, resume_differences
 from sim.sampling import Sample, SamplingParams
 from sim.scene import Scene
 from sim.validation import ParameterError
 
-CHECKPOINT_SECONDS = 1.0
-"""Wall-clock seconds between two checkpoints of the event stage."""
+CHECKPOINT_SECONDS = 2.0
+"""Wall-clock seconds between two checkpoints of the event stage (what a crash loses is at most
+this plus one sampler step and two checkpoint writes: see the module docstring)."""
 CHECKPOINT_SAMPLES = 1000
 """Most event-camera samples between two checkpoints of the event stage, however fast."""
 CHECKPOINT_FOLDER = ".checkpoint"
@@ -93,6 +112,49 @@ def _mismatch(partial: Path, differences: list[str]) -> ParameterError:
         resume="resume=True")
 
 
+class _BackgroundWrite:
+    """Files written on one background thread, one at a time, each atomically.
+
+    :meth:`submit` returns at once; the next :meth:`submit` (or :meth:`wait`) first waits for
+    the write before it and raises the error it met, if any (a full disk), so that no error is
+    lost and no two writes of the same file race.
+    """
+
+    def __init__(self) -> None:
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+
+    @property
+    def busy(self) -> bool:
+        """Whether a write is still under way."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def submit(self, path: Path, write: Callable[[object], None]) -> None:
+        """Write ``path`` in the background: ``write(handle)`` fills ``<path>.partial`` (an open
+        binary file), which is then flushed to disk and renamed to ``path``
+        (:func:`sim._atomic.atomic_file`)."""
+        self.wait()
+
+        def run() -> None:
+            try:
+                with atomic_file(path) as partial, partial.open("wb") as handle:
+                    write(handle)
+            except BaseException as error:       # raised again on the caller's thread
+                self._error = error
+
+        self._thread = threading.Thread(target=run, name=f"evfuse checkpoint {path.name}")
+        self._thread.start()
+
+    def wait(self) -> None:
+        """Wait for the write under way, if any; raise the error it met."""
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        error, self._error = self._error, None
+        if error is not None:
+            raise error
+
+
 class _Checkpoint:
     """The state of an unfinished simulation, in ``<out>.partial/.checkpoint/``.
 
@@ -108,7 +170,8 @@ class _Checkpoint:
     :meth:`EventEmulator.get_state`), and under ``state`` the JSON
     text of the sample's time and flags, the emulator's time and generator state, the sampling
     counters, the event counts and each writer's :meth:`checkpoint`. Both files are written
-    under a temporary name and renamed over the old one.
+    under a temporary name and renamed over the old one; ``events.npz`` in the background
+    (:meth:`save_events`, :meth:`in_background`).
 
     Parameters
     ----------
@@ -122,6 +185,7 @@ class _Checkpoint:
 
     def __init__(self, folder: Path, identity: dict, resume: bool) -> None:
         self.folder = folder
+        self._writes = _BackgroundWrite()
         fingerprint = _fingerprint(identity)
         if resume:
             self.data = self.read(folder)
@@ -207,22 +271,42 @@ class _Checkpoint:
         return self.data["events"]
 
     def set_events_done(self, info: dict) -> None:
+        self._writes.wait()
         self.data["events"] = json.loads(json.dumps(info))
         self._save()
+
+    @contextmanager
+    def in_background(self) -> Iterator[None]:
+        """The event stage's span: on leaving it, wait for the checkpoint being written, so
+        that an interrupted run leaves its last one on disk (an error of that write is raised
+        unless the stage is already leaving on an exception of its own)."""
+        try:
+            yield
+        except BaseException:
+            try:
+                self._writes.wait()
+            except Exception:                    # the stage's own exception goes on
+                pass
+            raise
+        self._writes.wait()
 
     def save_events(self, sample: Sample, emulator: EventEmulator, stats, count: int, on: int,
                     writers: dict, **extra: np.ndarray) -> None:
         """Save the event stage after ``sample`` (which has no pending tail); ``extra`` arrays
-        (the per-pixel sampler's ``observed_rates``) are saved beside the others."""
-        emulator_state = emulator.get_state()
+        (the per-pixel sampler's ``observed_rates``) are saved beside the others.
+
+        The state is copied here (the writers flushed, the arrays copied) and written to
+        ``events.npz`` in the background; a write still under way is waited for first."""
+        emulator_state = emulator.get_state()                       # copies
         arrays = {f"emulator_{key}": emulator_state.pop(key) for key in _EMULATOR_ARRAYS}
         state = {"sample": sample.state(),
                  "emulator": emulator_state, "stats": asdict(stats), "count": count, "on": on,
                  "writers": {fmt: writer.checkpoint() for fmt, writer in writers.items()}}
-        buffer = io.BytesIO()
-        np.savez(buffer, sample_luminance=sample.luminance, sample_log=sample.log,
-                 state=np.array(json.dumps(state)), **arrays, **extra)
-        write_bytes_atomically(self.folder / "events.npz", buffer.getvalue())
+        arrays.update(sample_luminance=np.array(sample.luminance), sample_log=np.array(sample.log),
+                      state=np.array(json.dumps(state)),
+                      **{key: np.array(value) for key, value in extra.items()})
+        self._writes.submit(self.folder / "events.npz",
+                            lambda handle: np.savez(handle, **arrays))
 
     def load_events(self) -> tuple[dict, dict] | None:
         """The arrays and state saved by :meth:`save_events`, or None if there are none."""
@@ -242,6 +326,7 @@ class _Checkpoint:
 
     def remove(self) -> None:
         """Delete the folder, ``checkpoint.json`` last (until then a resume still works)."""
+        self._writes.wait()
         for path in sorted(self.folder.iterdir(), key=lambda p: p.name == "checkpoint.json"):
             path.unlink()
         self.folder.rmdir()

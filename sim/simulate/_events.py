@@ -516,7 +516,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                                  objects=objects, objects_at=objects_at)
                       if event_depth else None,
                       timings, cpu_render=not renderer.variant.startswith("cuda")
-                      ) as (bar, writers):
+                      ) as (bar, writers), checkpoint.in_background():
         # The sampler's step splits into its renders (event_render), the emulator's own time
         # (emulate) and the rest: choosing the samples (event_sample).
         with stage("emulate_compile"):
