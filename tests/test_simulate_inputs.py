@@ -71,7 +71,7 @@ def test_evfuse_simulate_and_the_same_job_give_simulate_the_same_inputs(tmp_path
     def fake(scene, out, **kwargs):
         calls.append((scene, kwargs))
         return SimpleNamespace(n_frames=0, n_renders=0, n_events=None, sampler="frame",
-                               variant="none", timings={"total": 0.0}, out=out)
+                               variant="none", timings={"total": 0.0}, out=out, profile=None)
 
     # the package (``sim.simulate`` as an attribute is sim's re-exported function)
     monkeypatch.setattr(importlib.import_module("sim.simulate"), "simulate", fake)
@@ -86,7 +86,8 @@ t0 = 0.5\nt1 = 0.75\ncontrast = 0.3\nnoise = "realistic"\nlam = 0.4\nmin_rate = 
 max_rate = 900.0\nsampler = "frame"\nspp = 4\nframe_sensor = "machine_vision"\nrig = "lab"
 motion_truth = false\n""").jobs[0]
     job_scene, job_kwargs = job_inputs(job)
-    simulate_only = ("variant", "overwrite", "progress", "with_events", "event_formats", "resume")
+    simulate_only = ("variant", "overwrite", "progress", "with_events", "event_formats", "resume",
+                     "profile")
     assert {k: v for k, v in cli_kwargs.items() if k not in simulate_only} == job_kwargs
     assert cli_scene.frames == job_scene.frames and cli_scene.camera == job_scene.camera
     assert cli_scene.seed == job_scene.seed == 3
