@@ -529,3 +529,30 @@ def test_writers_resume_from_a_checkpoint(tmp_path, closed):
         TextEventWriter(paths["txt"], resume=saved["txt"])
     with pytest.raises(ValueError, match="checkpoint\\(\\) of a h5 event writer"):
         H5EventWriter(paths["h5"], 30, 20, resume=saved["txt"])
+
+
+def test_an_hdf5_chunk_damaged_by_a_kill_is_refused_in_one_line(tmp_path):
+    """A kill inside an HDF5 write can leave the chunk a checkpoint ends in half-written (its
+    compressed bytes garbled): resuming it is refused at once, naming the file and the dataset,
+    instead of failing at the next write with HDF5's "filter returned failure during read"."""
+    import h5py
+
+    events = _stream(3000)
+    path = tmp_path / "events.h5"
+    writer = H5EventWriter(path, 30, 20, chunk_size=64)
+    writer.write(events[:700])
+    saved = writer.checkpoint()
+    writer.write(events[700:1000])
+    writer._file.close()                                 # the process is gone
+    partial = writer.partial
+    with h5py.File(partial, "r") as file:                # the chunk holding event 699
+        info = file["events/t"].id.get_chunk_info_by_coord((699 // 64 * 64,))
+    with open(partial, "r+b") as raw:
+        raw.seek(info.byte_offset)
+        raw.write(b"\xff" * info.size)
+    with pytest.raises(ValueError) as caught:
+        H5EventWriter(path, 30, 20, chunk_size=64, resume=saved)
+    message = str(caught.value)
+    assert "\n" not in message and str(partial) in message
+    assert "/events/t is damaged where the checkpoint ends" in message
+    assert "simulate again from the start" in message

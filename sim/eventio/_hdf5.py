@@ -170,7 +170,15 @@ class H5EventWriter(_StreamingWriter):
                                           (self._ms_to_idx, next_ms, "ms_to_idx entries")]:
                 if dataset.shape[0] < length:
                     raise self._too_short(what, dataset.shape[0], length)
-                dataset.resize((length,))
+                try:          # cut, and the chunk the next write continues must read back
+                    dataset.resize((length,))
+                    dataset[max(length - dataset.chunks[0], 0):length]
+                except (OSError, RuntimeError) as exc:
+                    raise ValueError(
+                        f"{self.partial}: {dataset.name} is damaged where the checkpoint ends "
+                        f"(a chunk half-written when the process was stopped: {exc}); expected "
+                        "the file the checkpointed writer left: it cannot be continued, "
+                        "simulate again from the start") from None
             if "t_offset" in self._file:          # written by a close() after the checkpoint
                 del self._file["t_offset"]
         except BaseException:
