@@ -912,7 +912,7 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
                  contrast: float, log_eps: float, params: SamplingParams | None = None,
                  stats: PixelSamplingStats | None = None,
                  after: tuple[float, np.ndarray] | None = None,
-                 edges: bool = False) -> Iterator[PixelBlock]:
+                 edges: bool = False, device: str | None = None) -> Iterator[PixelBlock]:
     """Sample every pixel at its own times from t0 to t1 and emulate its events, block by block.
 
     Parameters
@@ -946,6 +946,13 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         value at a boundary depends on that time only, so a pixel changes from one
         renderer to the other at a boundary where no edge crosses it, where both agree up to
         the texture filter's bound.
+    device : {"llvm", "cuda"}, optional
+        Build, shade, check and refine each block's samples on this Dr.Jit device
+        (:func:`sim._drjit_sampling.device_block`, shading through
+        ``source.luminance_device``) instead of the reference path (numba and NumPy, shading
+        through ``source.luminance``); the blocks that ``edges`` renders with
+        ``source.fine_luminance`` take the reference path. The same samples and events up to
+        the levels' ``log`` (see :mod:`sim._drjit_sampling`).
 
     Yields
     ------
@@ -1013,6 +1020,20 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         inner = _intra_counts(rate.reshape(-1), log_b.reshape(-1), log_e.reshape(-1), observed,
                               scale, length, bound, dt_min_ns)
         # Every pixel: its block-start sample, `inner` evenly spaced samples, its block-end one.
+        on_device = device is not None and (fine_e is None or not (fine_b | fine_e).any())
+        if on_device:
+            from sim._drjit_sampling import device_block
+
+            pix, times, levels, lums, observed = device_block(
+                source.luminance_device, inner, t_b, length, log_b.reshape(-1),
+                lum_b.reshape(-1).astype(np.float64), log_e.reshape(-1),
+                lum_e.reshape(-1).astype(np.float64), float(t0), float(t1), bound, scale,
+                dt_min_ns, log_eps, stats, device)
+            events = emulator.advance_samples(pix, times, levels, lums, t_e, lum_e)
+            stats.blocks += 1
+            t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, log_e, fine_e
+            yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
+            continue
         pix, times, levels, lums, mid_pix, mid_s = _block_samples(
             inner, t_b, length, log_b.reshape(-1), lum_b.reshape(-1), log_e.reshape(-1),
             lum_e.reshape(-1), float(t0), float(t1))

@@ -467,6 +467,64 @@ class EventShader:
         values[order] = self._shade(pixels[order], *self._poses.locate(times[order]))
         return values
 
+    def luminance_device(self, pixels, times):
+        """:meth:`luminance` of device arrays, left on the device (no host round trip).
+
+        Parameters
+        ----------
+        pixels : (N,) UInt32 Dr.Jit array of the variant's backend
+            Flat pixel indices ``y W + x``, non-decreasing (the caller's order: shaded as
+            given), within the image (not checked here: they index the device arrays).
+        times : (N,) Float64 Dr.Jit array, seconds
+            Within ``[t0, t1]`` (not checked); a static scene only.
+
+        Returns
+        -------
+        (N,) Float32 Dr.Jit array
+            The values :meth:`luminance` gives for the same pixels and times, bit for bit:
+            the pose interval and fraction are :meth:`_PoseGrid.locate`'s float64 operations
+            on the device, the launches the same frozen kernel. Times spanning more than
+            :data:`POSE_TABLE_NODES` intervals of the pose grid are refused (ValueError).
+        """
+        mi, dr = self._mi, self._dr
+        count = dr.width(pixels)
+        if count == 0:
+            return dr.zeros(mi.Float, 0)
+        if self.renderer.scene.is_dynamic:
+            raise ValueError("EventShader.luminance_device traces static scenes only")
+        grid = self._poses
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):       # IEEE, as NumPy's
+            fraction = (times - self.t0) / grid.step
+            node = dr.clip(dr.floor(fraction), 0, grid.count - 1)
+            fraction = dr.clip(fraction - node, 0.0, 1.0)
+            node = type(pixels)(node)
+            lo, hi = dr.min(node), dr.max(node)
+            dr.eval(node, fraction, lo, hi)
+        first, last = int(lo[0]), int(hi[0]) + 1
+        if last - first > POSE_TABLE_NODES:
+            raise ValueError(f"times span {last - first} intervals of the pose grid; "
+                             f"luminance_device takes at most {POSE_TABLE_NODES}")
+        table = self._table(first, last)
+        step = self._samples_per_launch
+        parts = []
+        for start in range(0, count, step):
+            stop = min(start + step, count)
+            size = max(stop - start, MIN_LAUNCH)       # small launches padded (MIN_LAUNCH)
+            index = dr.minimum(dr.arange(mi.UInt32, size) + start, stop - 1)
+            inputs = (dr.gather(mi.UInt32, pixels, index),
+                      dr.gather(mi.UInt32, node, index) - first,
+                      mi.Float(dr.gather(type(fraction), fraction, index)),
+                      dr.zeros(mi.Float, size))
+            dr.eval(inputs)
+            dr.make_opaque(*inputs)
+            with _no_cyclic_gc():
+                total = self._trace(self.renderer.mitsuba_scene, self._directions,
+                                    self._jitter, *inputs[:3], table, inputs[3],
+                                    self._filtering)
+            parts.append(total if size == stop - start
+                         else dr.gather(mi.Float, total, dr.arange(mi.UInt32, stop - start)))
+        return parts[0] if len(parts) == 1 else dr.concat(parts)
+
     def frame(self, t: float) -> np.ndarray:
         """Every pixel at time ``t``: the values of :meth:`luminance` for those pixels and time.
 

@@ -167,6 +167,19 @@ class _ShaderSource:
     def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
         return self._timed(self._camera.shader.luminance, pixels, times)
 
+    def luminance_device(self, pixels, times):
+        """:meth:`sim.shader.EventShader.luminance_device`, evaluated (so that its time is
+        the render's: Dr.Jit runs its launches asynchronously, this waits for them)."""
+        import drjit as dr
+
+        def shade():
+            values = self._camera.shader.luminance_device(pixels, times)
+            dr.eval(values)
+            dr.sync_thread()
+            return values
+
+        return self._timed(shade)
+
     def subsamples(self, t: float) -> np.ndarray:
         return self._timed(self._camera.shader.subsamples, t)
 
@@ -404,10 +417,16 @@ class _PixelSampler:
     name = "pixel"
     emulator_type = PixelEventEmulator
     stats_type = PixelSamplingStats
+    on_device = True
+    """Build and refine the blocks' samples on the renders' Dr.Jit device
+    (:func:`sim._drjit_sampling.device_block`); False: the reference path (numba, NumPy)."""
 
     def __init__(self, camera: _EventCamera) -> None:
         self._source = _ShaderSource(camera)
         self._after: tuple[float, np.ndarray] | None = None
+        variant = camera._renderer.variant
+        self._device = (("cuda" if variant.startswith("cuda") else "llvm")
+                        if self.on_device and camera.shader is not None else None)
 
     @property
     def render_seconds(self) -> float:
@@ -428,7 +447,7 @@ class _PixelSampler:
         """Sample every pixel over ``[start, end]`` with its events, one step a block."""
         for block in pixel_blocks(self._source, emulator, start, end, contrast, params.log_eps,
                                   sampling, stats, after=self._after,
-                                  edges=self._source.refines_edges):
+                                  edges=self._source.refines_edges, device=self._device):
             yield _Step(block.t, block.events, Sample(block.t, block.luminance, block.log, 0.0,
                                                       True),
                         extra={"observed_rates": block.observed},
