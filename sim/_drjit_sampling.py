@@ -102,10 +102,13 @@ def device_block(shade: Callable, inner: np.ndarray, t_b: int, length: int, log_
 
     Returns
     -------
-    pix, times : (S,) int64 ndarray
-        Every sample's flat pixel and time (ns), sorted by pixel, then time.
-    levels, lums : (S,) float64 ndarray
-        Its log intensity and linear luminance.
+    samples : tuple of (S,) Dr.Jit arrays on the device
+        Every sample's flat pixel (UInt32) and time (Int64, ns), sorted by pixel, then time,
+        its log intensity and linear luminance (Float64): what
+        :meth:`sim.pixel_sampling.PixelEventEmulator.advance_device` takes (``.numpy()`` of
+        each: :meth:`~sim.pixel_sampling.PixelEventEmulator.advance_samples`').
+    counts : (P,) int64 ndarray
+        Each pixel's samples.
     observed : (P,) float64 ndarray, 1/s
         Each pixel's largest ``|dL/dt|`` over its intervals that met the bound.
     """
@@ -149,10 +152,11 @@ def device_block(shade: Callable, inner: np.ndarray, t_b: int, length: int, log_
         pix, times, levels, lums = _refine(m, render, pix, times, levels, lums, bound, scale_d,
                                            dt_min_ns, log_eps, t0, t1, stats)
         observed = _observed(m, pix, times, levels, bound, scale_d, n_pixels)
-        dr.eval(pix, times, levels, lums, observed)
+        counts = dr.zeros(m.UInt32, n_pixels)
+        dr.scatter_reduce(dr.ReduceOp.Add, counts, m.UInt32(1), pix)
+        dr.eval(pix, times, levels, lums, observed, counts)
         stats.intervals += dr.width(pix) - n_pixels
-        return (pix.numpy().astype(np.int64), times.numpy(), levels.numpy(), lums.numpy(),
-                observed.numpy())
+        return (pix, times, levels, lums), counts.numpy().astype(np.int64), observed.numpy()
 
 
 def _shaded(m, shade, pixels, times, t0: float, t1: float, log_eps: float):

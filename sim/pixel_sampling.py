@@ -605,8 +605,6 @@ class PixelEventEmulator(EventEmulator):
             raise ValueError("call start() before advance_samples()")
         noise = self.params.noise
         t0_ns = self._t
-        shape = self.shape
-        n_pixels = shape[0] * shape[1]
         if np.shares_memory(self._L, self._raw):       # start() sets both to the same array
             self._L = self._L.copy()
         ref, level, raw = self.ref.reshape(-1), self._L.reshape(-1), self._raw.reshape(-1)
@@ -638,6 +636,65 @@ class PixelEventEmulator(EventEmulator):
                 exponent = _lowpass_exponent(dt * 1e-9, cutoff[:-1], cutoff[1:])
                 exponent[~same] = np.inf
             crossings = self._numba_crossings((pixels, times_ns, levels, exponent, *state))
+        return self._events_of(crossings, refractory, t0_ns, t_end_ns, end_luminance)
+
+    @clocked
+    def advance_device(self, counts: np.ndarray, times_ns, levels, luminance, t_end_ns: int,
+                       end_luminance: np.ndarray) -> np.ndarray:
+        """:meth:`advance_samples` of samples left on the Dr.Jit device (``kernel`` drjit):
+        the same events for the same samples.
+
+        Parameters
+        ----------
+        counts : (P,) int64 ndarray
+            Samples of each pixel (its start sample, the inner ones, its end sample), the
+            samples in pixel order.
+        times_ns, levels, luminance : (S,) Dr.Jit Int64, Float64, Float64 arrays
+            Each sample's time (ns), unfiltered log intensity and linear luminance, sorted by
+            pixel, then time (:func:`sim._drjit_sampling.device_block`).
+        t_end_ns : int
+        end_luminance : (H, W) array_like
+
+        Returns
+        -------
+        (N,) EVENT_DTYPE ndarray
+            As :meth:`advance_samples`.
+        """
+        if self.ref is None:
+            raise ValueError("call start() before advance_device()")
+        if self.kernel != "drjit":
+            raise ValueError("advance_device needs the drjit kernel (PixelEventEmulator(..., "
+                             "kernel='drjit'))")
+        import drjit as dr
+
+        from sim._drjit_events import pixel_events_device
+
+        noise = self.params.noise
+        if np.shares_memory(self._L, self._raw):       # start() sets both to the same array
+            self._L = self._L.copy()
+        counts = np.asarray(counts, np.int64)
+        normals, leak = np.zeros(0), (np.zeros(0), 0.0)
+        if noise.leak_rate > 0:                         # one draw per interval, in order
+            normals = self._rng.standard_normal(int(counts.sum()) - len(counts))
+            leak = (self.leak_rates.reshape(-1), float(noise.leak_jitter))
+        cutoff = None
+        if noise.cutoff_hz > 0:                         # sim.noise._cutoff, IEEE on the device
+            with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+                cutoff = dr.clip(luminance / noise.cutoff_intensity_ref,
+                                 noise.cutoff_min_fraction, 1.0) * noise.cutoff_hz
+        refractory = int(round(noise.refractory_period * 1e9))
+        crossings = pixel_events_device(
+            counts, times_ns, levels, cutoff, self.ref.reshape(-1), self._L.reshape(-1),
+            self._raw.reshape(-1), self._last_t.reshape(-1), self.c_on.reshape(-1),
+            self.c_off.reshape(-1), leak, normals, refractory, CROSSING_TOLERANCE_NS,
+            device=self._device)
+        return self._events_of(crossings, refractory, self._t, t_end_ns, end_luminance)
+
+    def _events_of(self, crossings: tuple[np.ndarray, ...], refractory: int, t0_ns: int,
+                   t_end_ns: int, end_luminance: np.ndarray) -> np.ndarray:
+        """A block's events from its crossings (those the refractory period keeps, sorted by
+        time, ties in pixel order), noise merged in by :meth:`_close_block`."""
+        n_pixels = self.shape[0] * self.shape[1]
         out_t, out_pix, out_p, out_cause, keep = crossings
         if refractory > 0 and not keep.all():
             out_t, out_pix, out_p, out_cause = (out_t[keep], out_pix[keep], out_p[keep],
@@ -646,7 +703,7 @@ class PixelEventEmulator(EventEmulator):
         total = len(order)
         events = np.empty(total, EVENT_DTYPE)
         events["t"] = out_t[order]
-        events["y"], events["x"] = np.divmod(out_pix[order], shape[1])
+        events["y"], events["x"] = np.divmod(out_pix[order], self.shape[1])
         events["p"] = out_p[order]
         return self._close_block(events, t0_ns, t_end_ns, end_luminance, out_cause[order])
 
@@ -1024,12 +1081,17 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         if on_device:
             from sim._drjit_sampling import device_block
 
-            pix, times, levels, lums, observed = device_block(
+            samples, counts, observed = device_block(
                 source.luminance_device, inner, t_b, length, log_b.reshape(-1),
                 lum_b.reshape(-1).astype(np.float64), log_e.reshape(-1),
                 lum_e.reshape(-1).astype(np.float64), float(t0), float(t1), bound, scale,
                 dt_min_ns, log_eps, stats, device)
-            events = emulator.advance_samples(pix, times, levels, lums, t_e, lum_e)
+            if emulator.kernel == "drjit":             # the samples stay on the device
+                events = emulator.advance_device(counts, *samples[1:], t_e, lum_e)
+            else:
+                pix, times, levels, lums = (a.numpy() for a in samples)
+                events = emulator.advance_samples(pix.astype(np.int64), times, levels, lums,
+                                                  t_e, lum_e)
             stats.blocks += 1
             t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, log_e, fine_e
             yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)

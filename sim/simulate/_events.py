@@ -341,6 +341,7 @@ class _FrameSampler:
 
     name = "frame"
     emulator_type = EventEmulator
+    emulator_kernel = "auto"
     stats_type = SamplingStats
 
     def __init__(self, camera: _EventCamera) -> None:
@@ -416,6 +417,10 @@ class _PixelSampler:
 
     name = "pixel"
     emulator_type = PixelEventEmulator
+    emulator_kernel = "auto"
+    """The emulator's kernel (:class:`sim.events.EventEmulator`): ``auto`` runs Dr.Jit's on
+    ``cuda``, fed the device path's samples where they are
+    (:meth:`sim.pixel_sampling.PixelEventEmulator.advance_device`), numba's on the CPU."""
     stats_type = PixelSamplingStats
     on_device = True
     """Build and refine the blocks' samples on the renders' Dr.Jit device
@@ -512,7 +517,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
     """
     cam = scene.camera
     kind = _SAMPLERS[sampler]
-    emulator = kind.emulator_type((cam.height, cam.width), params)
+    emulator = kind.emulator_type((cam.height, cam.width), params, kind.emulator_kernel)
     stats, count, on, positions, saved = _restore_events(checkpoint, emulator, kind.stats_type)
     contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
     # Edges at more sub-samples need the shader (a JIT variant); scalar_rgb says so.
