@@ -147,3 +147,28 @@ def test_a_run_can_fail_the_comparison():
     dev = _blocks(renderer, 1.0, "llvm", params, SamplingParams(lam=0.25, min_rate=25.0), None)
     ref = _blocks(renderer, 1.0, None, params, SamplingParams(lam=0.3, min_rate=25.0), None)
     assert dev[1] != ref[1]
+
+
+def test_simulate_writes_the_reference_events_with_the_device_path(tmp_path, monkeypatch):
+    """End to end (the driver, its checkpoints every block, the event files): the device path,
+    simulate's default on a JIT variant, writes the reference path's events."""
+    from sim.eventio import read_events
+    from sim.simulate import simulate
+    from sim.simulate._events import _PixelSampler
+
+    scene = load_scene(resolve_scene("complex_sphere"))
+    scene = replace(scene, camera=scene.camera.with_resolution(48, 36))
+    runs = {}
+    for on_device in (False, True):
+        monkeypatch.setattr(_PixelSampler, "on_device", on_device)
+        folder = tmp_path / str(on_device)
+        result = simulate(scene, folder, start=1.0, duration=0.04, progress=False,
+                          with_events=True, event_formats=("h5",), sampler="pixel",
+                          motion_truth=False, events=EventParams.preset("realistic", seed=2),
+                          sampling=SamplingParams(lam=0.25, min_rate=50.0))
+        runs[on_device] = (result, read_events(folder / "events.h5"))
+    (ref, ref_events), (dev, dev_events) = runs[False], runs[True]
+    assert len(ref_events) > 50 and dev.n_events == ref.n_events
+    assert dev.event_pixel_samples == ref.event_pixel_samples
+    for key in ("t", "x", "y", "p"):
+        np.testing.assert_array_equal(dev_events[key], ref_events[key])
