@@ -90,6 +90,9 @@ EDGE_COS = 0.95
 """Two neighbouring sub-samples on one surface whose normals are more than arccos(0.95) = 18
 degrees apart straddle a crease (a box's edge): :func:`geometric_edges`. A sphere or a
 height field seen at 240x180 turns its normal by a few degrees a pixel."""
+FRAMES_AHEAD = 16
+"""Block-end frames the device path renders together (:meth:`sim.shader.EventShader.
+subsamples_many`, launches of at most its ray limit): they do not depend on the samples."""
 MAX_DILATION = 64
 """Largest radius (pixels) over which the predicted rate is spread within a block; faster image
 motion is left to the check (it then costs bisection renders, never accuracy)."""
@@ -1007,9 +1010,10 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         Build, shade, check and refine each block's samples on this Dr.Jit device
         (:func:`sim._drjit_sampling.device_block`, shading through
         ``source.luminance_device``) instead of the reference path (numba and NumPy, shading
-        through ``source.luminance``); the blocks that ``edges`` renders with
-        ``source.fine_luminance`` take the reference path. The same samples and events up to
-        the levels' ``log`` (see :mod:`sim._drjit_sampling`).
+        through ``source.luminance``), the block-end frames :data:`FRAMES_AHEAD` at a time
+        (``source.subsamples_many``, where the source has it); the blocks that ``edges``
+        renders with ``source.fine_luminance`` take the reference path. The same samples
+        and events up to the levels' ``log`` (see :mod:`sim._drjit_sampling`).
 
     Yields
     ------
@@ -1059,12 +1063,16 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         emulator.start(log_b, t0, lum_b)
     observed = None if after is None else np.asarray(after[1], dtype=np.float64)
     centres = camera.normalized_pixel_centres()
-    while t_b < t1_ns:
-        t_e = min(t_b + block_ns, t1_ns)
-        if t1_ns - t_e < dt_min_ns:                 # no sliver of a block at the end
-            t_e = t1_ns
+    ends = _block_ends(t_b, t1_ns, block_ns, dt_min_ns)
+    ahead: dict[int, np.ndarray] = {}
+    batched = device is not None and hasattr(source, "subsamples_many")
+    for t_e in ends:
         length = t_e - t_b
-        sub_e = source.subsamples(float(seconds(t_e)))
+        if batched and t_e not in ahead:           # the next frames, several a launch
+            chunk = [t for t in ends if t >= t_e][:FRAMES_AHEAD]
+            ahead = dict(zip(chunk, source.subsamples_many(seconds(np.array(chunk))),
+                             strict=True))
+        sub_e = ahead.pop(t_e) if batched else source.subsamples(float(seconds(t_e)))
         stats.full_renders += 1
         lum_e, fine_e = boundary(sub_e, t_e)
         log_e = log_of(lum_e)
@@ -1114,6 +1122,19 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         stats.blocks += 1
         t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, log_e, fine_e
         yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
+
+
+def _block_ends(t_b: int, t1_ns: int, block_ns: int, dt_min_ns: int) -> list[int]:
+    """The ends (ns) of the blocks from ``t_b`` to ``t1_ns``: every ``block_ns``, the last one
+    stretched to ``t1_ns`` rather than leave a sliver shorter than ``dt_min_ns``."""
+    ends = []
+    while t_b < t1_ns:
+        t_e = min(t_b + block_ns, t1_ns)
+        if t1_ns - t_e < dt_min_ns:                 # no sliver of a block at the end
+            t_e = t1_ns
+        ends.append(t_e)
+        t_b = t_e
+    return ends
 
 
 def _shade(source: PixelSource, stats: PixelSamplingStats, fine: np.ndarray | None,

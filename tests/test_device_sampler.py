@@ -57,6 +57,22 @@ def test_luminance_device_is_luminance_bit_for_bit(count, monkeypatch):
     assert np.ptp(expected) > 0                            # a scene that is seen
 
 
+@pytest.mark.parametrize("limits", [None, (2 * 40 * 30 * 4, 3)])
+def test_subsamples_many_are_subsamples_bit_for_bit(limits, monkeypatch):
+    """Several frames a launch; with small limits, two frames a launch and a pose table too
+    short for the times of one launch (the launch is cut)."""
+    shader = EventShader(_renderer("complex_sphere"), 4, t0=1.0, t1=1.2)
+    if limits is not None:
+        monkeypatch.setattr("sim.shader.MAX_RAYS_PER_LAUNCH", limits[0])
+        monkeypatch.setattr("sim.shader.POSE_TABLE_NODES", limits[1])
+    times = np.array([1.0, 1.01, 1.0101, 1.05, 1.2])
+    frames = shader.subsamples_many(times)
+    assert len(frames) == len(times)
+    for t, frame in zip(times, frames, strict=True):
+        np.testing.assert_array_equal(frame, shader.subsamples(float(t)))
+    assert not np.array_equal(frames[0], frames[-1])
+
+
 def test_luminance_device_refuses_a_span_beyond_one_pose_table(monkeypatch):
     import mitsuba as mi
 

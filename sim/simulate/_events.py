@@ -183,6 +183,9 @@ class _ShaderSource:
     def subsamples(self, t: float) -> np.ndarray:
         return self._timed(self._camera.shader.subsamples, t)
 
+    def subsamples_many(self, times: np.ndarray) -> list[np.ndarray]:
+        return self._timed(self._camera.shader.subsamples_many, times)
+
     def geometry(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         return self._timed(self._camera.shader.geometry, t)
 
