@@ -76,8 +76,8 @@ def device_block(shade: Callable, inner: np.ndarray, t_b: int, length: int, log_
     Parameters
     ----------
     shade : callable
-        ``shade(pixels, seconds)`` -> linear luminance: device arrays (UInt32 flat pixels,
-        Float64 seconds) in, a device Float32 array out
+        ``shade(pixels, seconds, between)`` -> linear luminance: device arrays (UInt32 flat
+        pixels, Float64 seconds) and the bounds of the seconds in, a device Float32 array out
         (:meth:`sim.shader.EventShader.luminance_device`).
     inner : (P,) int64 ndarray
         Samples each pixel takes strictly inside the block (:func:`sim.pixel_sampling.
@@ -121,9 +121,11 @@ def device_block(shade: Callable, inner: np.ndarray, t_b: int, length: int, log_
     on = _device_array
     fast = dr.flag(dr.JitFlag.FastMath)
 
+    span = (min(max(t_b * 1e-9, t0), t1), min(max((t_b + length) * 1e-9, t0), t1))
+
     def render(pixels, seconds):                # the shader under the caller's flags
         with dr.scoped_set_flag(dr.JitFlag.FastMath, fast):
-            return shade(pixels, seconds)
+            return shade(pixels, seconds, span)
 
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         counts = on(m.UInt32, inner)
@@ -163,7 +165,6 @@ def _shaded(m, shade, pixels, times, t0: float, t1: float, log_eps: float):
     """Luminance (Float64) and level of samples at ``times`` (Int64 ns), shaded on the
     device by ``shade`` (which runs its kernel under the caller's Dr.Jit flags)."""
     seconds = dr.clip(m.Float64(times) * 1e-9, t0, t1)
-    dr.eval(seconds)
     y = m.Float64(shade(pixels, seconds))
     return y, dr.log(y + log_eps)
 

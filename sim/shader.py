@@ -467,7 +467,7 @@ class EventShader:
         values[order] = self._shade(pixels[order], *self._poses.locate(times[order]))
         return values
 
-    def luminance_device(self, pixels, times):
+    def luminance_device(self, pixels, times, between: tuple[float, float] | None = None):
         """:meth:`luminance` of device arrays, left on the device (no host round trip).
 
         Parameters
@@ -477,6 +477,10 @@ class EventShader:
             given), within the image (not checked here: they index the device arrays).
         times : (N,) Float64 Dr.Jit array, seconds
             Within ``[t0, t1]`` (not checked); a static scene only.
+        between : (float, float), seconds, optional
+            Bounds of ``times`` that the caller knows (a block's ends): the pose table is
+            then taken from them, with no reduction and wait on the device (a table wider
+            than the times need gives the same values).
 
         Returns
         -------
@@ -498,9 +502,14 @@ class EventShader:
             node = dr.clip(dr.floor(fraction), 0, grid.count - 1)
             fraction = dr.clip(fraction - node, 0.0, 1.0)
             node = type(pixels)(node)
-            lo, hi = dr.min(node), dr.max(node)
-            dr.eval(node, fraction, lo, hi)
-        first, last = int(lo[0]), int(hi[0]) + 1
+            if between is None:
+                lo, hi = dr.min(node), dr.max(node)
+                dr.eval(node, fraction, lo, hi)
+                first, last = int(lo[0]), int(hi[0]) + 1
+            else:
+                dr.eval(node, fraction)
+                ends = grid.locate(self._check_times(np.asarray(between, np.float64)))[0]
+                first, last = int(ends[0]), int(ends[1]) + 1
         if last - first > POSE_TABLE_NODES:
             raise ValueError(f"times span {last - first} intervals of the pose grid; "
                              f"luminance_device takes at most {POSE_TABLE_NODES}")

@@ -54,6 +54,9 @@ def test_luminance_device_is_luminance_bit_for_bit(count, monkeypatch):
                                           mi.Float64(times)))
     assert got.dtype == np.float32 and got.shape == expected.shape
     np.testing.assert_array_equal(got, expected)
+    wider = _device(shader.luminance_device(mi.UInt32(pixels.astype(np.uint32)),
+                                            mi.Float64(times), between=(3.0, 3.2)))
+    np.testing.assert_array_equal(wider, expected)             # a pose table from the bounds
     assert np.ptp(expected) > 0                            # a scene that is seen
 
 

@@ -167,13 +167,13 @@ class _ShaderSource:
     def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
         return self._timed(self._camera.shader.luminance, pixels, times)
 
-    def luminance_device(self, pixels, times):
+    def luminance_device(self, pixels, times, between=None):
         """:meth:`sim.shader.EventShader.luminance_device`, evaluated (so that its time is
         the render's: Dr.Jit runs its launches asynchronously, this waits for them)."""
         import drjit as dr
 
         def shade():
-            values = self._camera.shader.luminance_device(pixels, times)
+            values = self._camera.shader.luminance_device(pixels, times, between)
             dr.eval(values)
             dr.sync_thread()
             return values
