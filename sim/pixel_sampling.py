@@ -1066,10 +1066,10 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     ends = _block_ends(t_b, t1_ns, block_ns, dt_min_ns)
     ahead: dict[int, np.ndarray] = {}
     batched = device is not None and hasattr(source, "subsamples_many")
-    for t_e in ends:
+    for i, t_e in enumerate(ends):
         length = t_e - t_b
         if batched and t_e not in ahead:           # the next frames, several a launch
-            chunk = [t for t in ends if t >= t_e][:FRAMES_AHEAD]
+            chunk = ends[i:i + FRAMES_AHEAD]
             ahead = dict(zip(chunk, source.subsamples_many(seconds(np.array(chunk))),
                              strict=True))
         sub_e = ahead.pop(t_e) if batched else source.subsamples(float(seconds(t_e)))
