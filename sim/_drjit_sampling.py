@@ -54,7 +54,7 @@ def _module(device: str):
     return module
 
 
-def _concat(m, parts):
+def _concat(parts):
     """Device arrays of one type joined end to end (``dr.concat``, empty ones skipped)."""
     parts = [a for a in parts if dr.width(a) > 0]
     if not parts:
@@ -70,7 +70,7 @@ def _take(values, index):
 def device_block(shade: Callable, inner: np.ndarray, t_b: int, length: int, log_b: np.ndarray,
                  lum_b: np.ndarray, log_e: np.ndarray, lum_e: np.ndarray, t0: float, t1: float,
                  bound: float, scale: np.ndarray | None, dt_min_ns: int, log_eps: float,
-                 stats, device: str = "llvm") -> tuple[np.ndarray, ...]:
+                 stats, device: str = "llvm") -> tuple[tuple, np.ndarray, np.ndarray]:
     """A block's samples, shaded, checked and refined on the device.
 
     Parameters
@@ -215,13 +215,13 @@ def _refine(m, shade, pix, times, levels, lums, bound, scale, dt_min_ns, log_eps
         if s is not None:
             d1, d2 = d1 * s, d2 * s
         a, b = dr.compress(d1 > bound), dr.compress(d2 > bound)
-        p, ta, la, tb, lb, o = (_concat(m, [_take(x, a), _take(y, b)]) for x, y in (
+        p, ta, la, tb, lb, o = (_concat([_take(x, a), _take(y, b)]) for x, y in (
             (p, p), (ta, mt), (la, ml), (mt, tb), (ml, lb), (o, o)))
         if p is None:
             break
     if not found:
         return pix, times, levels, lums
-    new_p, new_t, new_l, new_y, new_o = (_concat(m, list(parts))
+    new_p, new_t, new_l, new_y, new_o = (_concat(list(parts))
                                          for parts in zip(*found, strict=True))
     # Sorted by (interval, time) on the host: the midpoints are few. Each goes in before the
     # old sample after its interval (np.insert at new_o + 1), old samples move past those.
