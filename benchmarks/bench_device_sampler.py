@@ -5,7 +5,9 @@ fresh process each, the paths alternating, ``--repeat`` times, and reports per p
 camera's wall time (``sequence.json``'s ``event_render + event_sample + emulate +
 emulate_compile``), the Dr.Jit kernels' execution time inside the event stage
 (``dr.kernel_history()``, ``execution_time`` summed), the host time (wall less kernel time),
-the launches, the events and the pixel samples; the fastest repeat of each path
+the launches, the events, the pixel samples and the CPU time of the whole event stage (every
+thread: Dr.Jit's workers, numba, Python; ``getrusage``, less sensitive to other processes than
+wall time); the fastest repeat of each path
 is kept. Paths:
 
 - ``reference``: the blocks' samples built, shaded, checked and refined by numba and NumPy
@@ -27,6 +29,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import resource
 import subprocess
 import sys
 import tempfile
@@ -60,9 +63,13 @@ def child(case: str, path: str) -> dict:
 
     def measured(*args, **kwargs):
         dr.kernel_history()                                    # cleared
+        before = resource.getrusage(resource.RUSAGE_SELF)
         try:
             return stage(*args, **kwargs)
         finally:
+            after = resource.getrusage(resource.RUSAGE_SELF)
+            kernels["cpu"] = (after.ru_utime + after.ru_stime - before.ru_utime
+                              - before.ru_stime)
             history = dr.kernel_history()
             kernels["seconds"] = sum(k.get("execution_time", 0.0) for k in history) / 1e3
             kernels["launches"] = len(history)
@@ -88,6 +95,7 @@ def child(case: str, path: str) -> dict:
             "emulator_kernel": events["emulator_kernel"], "wall_s": round(wall, 4),
             "kernel_s": round(kernels["seconds"], 4),
             "host_s": round(wall - kernels["seconds"], 4), "launches": kernels["launches"],
+            "event_stage_cpu_s": round(kernels["cpu"], 3),
             "events": events["count"], "pixel_samples": events["pixel_samples"],
             "timings_s": {k: timings[k] for k in TIMED}}
 
@@ -122,12 +130,13 @@ def main(argv=None) -> list:
                 row["frame_over_pixel_wall"] = round(frame["wall_s"] / row["wall_s"], 2)
     print(f"{'case':8} {'path':12} {'wall s':>8} {'kernel s':>9} {'host s':>8} "
           f"{'host s/sim s':>12} {'launches':>9} {'events':>10} {'pixel samples':>14} "
-          f"{'frame/pixel':>11}")
+          f"{'frame/pixel':>11} {'cpu s':>7}")
     for row in rows:
         print(f"{row['case']:8} {row['path']:12} {row['wall_s']:8.3f} {row['kernel_s']:9.3f} "
               f"{row['host_s']:8.3f} {row['host_s'] / row['duration_s']:12.3f} "
               f"{row['launches']:9d} {row['events']:10,d} {row['pixel_samples']:14,d} "
-              f"{row.get('frame_over_pixel_wall', float('nan')):11.2f}")
+              f"{row.get('frame_over_pixel_wall', float('nan')):11.2f} "
+              f"{row['event_stage_cpu_s']:7.2f}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"date": time.strftime("%Y-%m-%d"), "repeat": args.repeat,
                                     "rows": rows}, indent=1) + "\n")
