@@ -56,7 +56,7 @@ import numpy as np
 
 from sim.noise import CAUSE_LEAK, CAUSE_SIGNAL
 
-__all__ = ["DEVICES", "active_device", "pixel_events"]
+__all__ = ["DEVICES", "active_device", "pixel_events", "pixel_events_device"]
 
 DEVICES = ("llvm", "cuda")
 """The Dr.Jit backends :func:`pixel_events` runs on."""
@@ -448,22 +448,73 @@ def _pixel_events(pix, t, L, cutoff, ref, level, raw, last_t, c_on, c_off, leak,
     """:func:`pixel_events`' body, under strict IEEE arithmetic."""
     m = _backend(device)
     if len(pix) == 0:
-        return (np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.int8),
-                np.empty(0, np.uint8), np.empty(0, np.bool_))
+        return _no_crossings()
     starts = np.flatnonzero(np.r_[True, pix[1:] != pix[:-1]])
     ends = np.r_[starts[1:], len(pix)]
+    on = _device_array
+    samples = (on(m.Int64, t), on(m.Float64, L),
+               on(m.Float64, cutoff if cutoff is not None else np.zeros(1)),
+               on(m.Float64, normals if leak[0].size > 0 else np.zeros(1)))
+    return _runs(m, pix[starts], starts, ends, samples, cutoff is not None, ref, level, raw,
+                 last_t, c_on, c_off, leak, refractory, tolerance_ns, drift)
+
+
+def _no_crossings() -> tuple[np.ndarray, ...]:
+    return (np.empty(0, np.int64), np.empty(0, np.int64), np.empty(0, np.int8),
+            np.empty(0, np.uint8), np.empty(0, np.bool_))
+
+
+def pixel_events_device(counts: np.ndarray, t, L, cutoff, ref: np.ndarray, level: np.ndarray,
+                        raw: np.ndarray, last_t: np.ndarray, c_on: np.ndarray,
+                        c_off: np.ndarray, leak: tuple[np.ndarray, float], normals: np.ndarray,
+                        refractory: int, tolerance_ns: float, device: str = "llvm"
+                        ) -> tuple[np.ndarray, ...]:
+    """:func:`pixel_events` of samples already on the device, every pixel in its turn.
+
+    Parameters
+    ----------
+    counts : (P,) int64 ndarray
+        Samples of each pixel (at least 2: its start and end samples), the samples in pixel
+        order: pixel ``p``'s are ``sum(counts[:p])`` onwards.
+    t, L : (S,) Dr.Jit Int64 and Float64 arrays of ``device``
+        Each sample's time (ns) and unfiltered log intensity (AD types are detached).
+    cutoff : (S,) Dr.Jit Float64 array or None
+        Each sample's low-pass cutoff, Hz; None: no filter.
+    ref, level, raw, last_t, c_on, c_off, leak, normals, refractory, tolerance_ns
+        As :func:`pixel_events` (host arrays; the state left in place).
+    device : {"llvm", "cuda"}
+
+    Returns
+    -------
+    As :func:`pixel_events`: the same crossings for the same samples, bit for bit.
+    """
+    m = _backend(device)
+    if len(counts) == 0:
+        return _no_crossings()
+    counts = np.asarray(counts, np.int64)
+    ends = np.cumsum(counts)
+    starts = ends - counts
+    with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+        samples = (m.Int64(dr.detach(t)), m.Float64(dr.detach(L)),
+                   m.Float64(dr.detach(cutoff)) if cutoff is not None else m.Float64(0.0),
+                   _device_array(m.Float64, normals if leak[0].size > 0 else np.zeros(1)))
+        return _runs(m, np.arange(len(counts)), starts, ends, samples, cutoff is not None,
+                     ref, level, raw, last_t, c_on, c_off, leak, refractory, tolerance_ns,
+                     None)
+
+
+def _runs(m, pixels, starts, ends, samples, filtered, ref, level, raw, last_t, c_on, c_off,
+          leak, refractory, tolerance_ns, drift):
+    """The two launches over the runs ``starts[i]:ends[i]`` of samples of pixel
+    ``pixels[i]`` (runs in pixel order, ``samples`` on the device)."""
     lane = _lanes(ends - starts)
     # Each run's first normal: one per interval before it.
     first_normal = (starts - np.arange(len(starts)))[lane]
     starts, ends = starts[lane], ends[lane]
-    p = pix[starts]
+    p = pixels[lane]
     leak_rates, leak_jitter = leak
     leaky = leak_rates.size > 0
-    filtered = cutoff is not None
     on = _device_array
-    samples = (on(m.Int64, t), on(m.Float64, L),
-               on(m.Float64, cutoff if filtered else np.zeros(1)),
-               on(m.Float64, normals if leaky else np.zeros(1)))
     runs = [on(m.Int64, p), on(m.UInt32, starts), on(m.UInt32, ends),
             on(m.UInt32, first_normal), on(m.Float64, ref[p]), on(m.Float64, level[p]),
             on(m.Float64, raw[p]), on(m.Int64, last_t[p]), on(m.Float64, c_on[p]),

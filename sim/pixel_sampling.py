@@ -90,6 +90,9 @@ EDGE_COS = 0.95
 """Two neighbouring sub-samples on one surface whose normals are more than arccos(0.95) = 18
 degrees apart straddle a crease (a box's edge): :func:`geometric_edges`. A sphere or a
 height field seen at 240x180 turns its normal by a few degrees a pixel."""
+FRAMES_AHEAD = 16
+"""Block-end frames the device path renders together (:meth:`sim.shader.EventShader.
+subsamples_many`, launches of at most its ray limit): they do not depend on the samples."""
 MAX_DILATION = 64
 """Largest radius (pixels) over which the predicted rate is spread within a block; faster image
 motion is left to the check (it then costs bisection renders, never accuracy)."""
@@ -606,8 +609,6 @@ class PixelEventEmulator(EventEmulator):
             raise ValueError("call start() before advance_samples()")
         noise = self.params.noise
         t0_ns = self._t
-        shape = self.shape
-        n_pixels = shape[0] * shape[1]
         if np.shares_memory(self._L, self._raw):       # start() sets both to the same array
             self._L = self._L.copy()
         ref, level, raw = self.ref.reshape(-1), self._L.reshape(-1), self._raw.reshape(-1)
@@ -639,6 +640,65 @@ class PixelEventEmulator(EventEmulator):
                 exponent = _lowpass_exponent(dt * 1e-9, cutoff[:-1], cutoff[1:])
                 exponent[~same] = np.inf
             crossings = self._numba_crossings((pixels, times_ns, levels, exponent, *state))
+        return self._events_of(crossings, refractory, t0_ns, t_end_ns, end_luminance)
+
+    @clocked
+    def advance_device(self, counts: np.ndarray, times_ns, levels, luminance, t_end_ns: int,
+                       end_luminance: np.ndarray) -> np.ndarray:
+        """:meth:`advance_samples` of samples left on the Dr.Jit device (``kernel`` drjit):
+        the same events for the same samples.
+
+        Parameters
+        ----------
+        counts : (P,) int64 ndarray
+            Samples of each pixel (its start sample, the inner ones, its end sample), the
+            samples in pixel order.
+        times_ns, levels, luminance : (S,) Dr.Jit Int64, Float64, Float64 arrays
+            Each sample's time (ns), unfiltered log intensity and linear luminance, sorted by
+            pixel, then time (:func:`sim._drjit_sampling.device_block`).
+        t_end_ns : int
+        end_luminance : (H, W) array_like
+
+        Returns
+        -------
+        (N,) EVENT_DTYPE ndarray
+            As :meth:`advance_samples`.
+        """
+        if self.ref is None:
+            raise ValueError("call start() before advance_device()")
+        if self.kernel != "drjit":
+            raise ValueError("advance_device needs the drjit kernel (PixelEventEmulator(..., "
+                             "kernel='drjit'))")
+        import drjit as dr
+
+        from sim._drjit_events import pixel_events_device
+
+        noise = self.params.noise
+        if np.shares_memory(self._L, self._raw):       # start() sets both to the same array
+            self._L = self._L.copy()
+        counts = np.asarray(counts, np.int64)
+        normals, leak = np.zeros(0), (np.zeros(0), 0.0)
+        if noise.leak_rate > 0:                         # one draw per interval, in order
+            normals = self._rng.standard_normal(int(counts.sum()) - len(counts))
+            leak = (self.leak_rates.reshape(-1), float(noise.leak_jitter))
+        cutoff = None
+        if noise.cutoff_hz > 0:                         # sim.noise._cutoff, IEEE on the device
+            with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
+                cutoff = dr.clip(luminance / noise.cutoff_intensity_ref,
+                                 noise.cutoff_min_fraction, 1.0) * noise.cutoff_hz
+        refractory = int(round(noise.refractory_period * 1e9))
+        crossings = pixel_events_device(
+            counts, times_ns, levels, cutoff, self.ref.reshape(-1), self._L.reshape(-1),
+            self._raw.reshape(-1), self._last_t.reshape(-1), self.c_on.reshape(-1),
+            self.c_off.reshape(-1), leak, normals, refractory, CROSSING_TOLERANCE_NS,
+            device=self._device)
+        return self._events_of(crossings, refractory, self._t, t_end_ns, end_luminance)
+
+    def _events_of(self, crossings: tuple[np.ndarray, ...], refractory: int, t0_ns: int,
+                   t_end_ns: int, end_luminance: np.ndarray) -> np.ndarray:
+        """A block's events from its crossings (those the refractory period keeps, sorted by
+        time, ties in pixel order), noise merged in by :meth:`_close_block`."""
+        n_pixels = self.shape[0] * self.shape[1]
         out_t, out_pix, out_p, out_cause, keep = crossings
         if refractory > 0 and not keep.all():
             out_t, out_pix, out_p, out_cause = (out_t[keep], out_pix[keep], out_p[keep],
@@ -647,7 +707,7 @@ class PixelEventEmulator(EventEmulator):
         total = len(order)
         events = np.empty(total, EVENT_DTYPE)
         events["t"] = out_t[order]
-        events["y"], events["x"] = np.divmod(out_pix[order], shape[1])
+        events["y"], events["x"] = np.divmod(out_pix[order], self.shape[1])
         events["p"] = out_p[order]
         return self._close_block(events, t0_ns, t_end_ns, end_luminance, out_cause[order])
 
@@ -913,7 +973,7 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
                  contrast: float, log_eps: float, params: SamplingParams | None = None,
                  stats: PixelSamplingStats | None = None,
                  after: tuple[float, np.ndarray] | None = None,
-                 edges: bool = False) -> Iterator[PixelBlock]:
+                 edges: bool = False, device: str | None = None) -> Iterator[PixelBlock]:
     """Sample every pixel at its own times from t0 to t1 and emulate its events, block by block.
 
     Parameters
@@ -947,6 +1007,14 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         value at a boundary depends on that time only, so a pixel changes from one
         renderer to the other at a boundary where no edge crosses it, where both agree up to
         the texture filter's bound.
+    device : {"llvm", "cuda"}, optional
+        Build, shade, check and refine each block's samples on this Dr.Jit device
+        (:func:`sim._drjit_sampling.device_block`, shading through
+        ``source.luminance_device``) instead of the reference path (numba and NumPy, shading
+        through ``source.luminance``), the block-end frames :data:`FRAMES_AHEAD` at a time
+        (``source.subsamples_many``, where the source has it); the blocks that ``edges``
+        renders with ``source.fine_luminance`` take the reference path. The same samples
+        and events up to the levels' ``log`` (see :mod:`sim._drjit_sampling`).
 
     Yields
     ------
@@ -996,12 +1064,16 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         emulator.start(log_b, t0, lum_b)
     observed = None if after is None else np.asarray(after[1], dtype=np.float64)
     centres = camera.normalized_pixel_centres()
-    while t_b < t1_ns:
-        t_e = min(t_b + block_ns, t1_ns)
-        if t1_ns - t_e < dt_min_ns:                 # no sliver of a block at the end
-            t_e = t1_ns
+    ends = _block_ends(t_b, t1_ns, block_ns, dt_min_ns)
+    ahead: dict[int, np.ndarray] = {}
+    batched = device is not None and hasattr(source, "subsamples_many")
+    for i, t_e in enumerate(ends):
         length = t_e - t_b
-        sub_e = source.subsamples(float(seconds(t_e)))
+        if batched and t_e not in ahead:           # the next frames, several a launch
+            chunk = ends[i:i + FRAMES_AHEAD]
+            ahead = dict(zip(chunk, source.subsamples_many(seconds(np.array(chunk))),
+                             strict=True))
+        sub_e = ahead.pop(t_e) if batched else source.subsamples(float(seconds(t_e)))
         stats.full_renders += 1
         lum_e, fine_e = boundary(sub_e, t_e)
         log_e = log_of(lum_e)
@@ -1014,6 +1086,25 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         inner = _intra_counts(rate.reshape(-1), log_b.reshape(-1), log_e.reshape(-1), observed,
                               scale, length, bound, dt_min_ns)
         # Every pixel: its block-start sample, `inner` evenly spaced samples, its block-end one.
+        on_device = device is not None and (fine_e is None or not (fine_b | fine_e).any())
+        if on_device:
+            from sim._drjit_sampling import device_block
+
+            samples, counts, observed = device_block(
+                source.luminance_device, inner, t_b, length, log_b.reshape(-1),
+                lum_b.reshape(-1).astype(np.float64), log_e.reshape(-1),
+                lum_e.reshape(-1).astype(np.float64), float(t0), float(t1), bound, scale,
+                dt_min_ns, log_eps, stats, device)
+            if emulator.kernel == "drjit":             # the samples stay on the device
+                events = emulator.advance_device(counts, *samples[1:], t_e, lum_e)
+            else:
+                pix, times, levels, lums = (a.numpy() for a in samples)
+                events = emulator.advance_samples(pix.astype(np.int64), times, levels, lums,
+                                                  t_e, lum_e)
+            stats.blocks += 1
+            t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, log_e, fine_e
+            yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
+            continue
         pix, times, levels, lums, mid_pix, mid_s = _block_samples(
             inner, t_b, length, log_b.reshape(-1), lum_b.reshape(-1), log_e.reshape(-1),
             lum_e.reshape(-1), float(t0), float(t1))
@@ -1032,6 +1123,19 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         stats.blocks += 1
         t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, log_e, fine_e
         yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
+
+
+def _block_ends(t_b: int, t1_ns: int, block_ns: int, dt_min_ns: int) -> list[int]:
+    """The ends (ns) of the blocks from ``t_b`` to ``t1_ns``: every ``block_ns``, the last one
+    stretched to ``t1_ns`` rather than leave a sliver shorter than ``dt_min_ns``."""
+    ends = []
+    while t_b < t1_ns:
+        t_e = min(t_b + block_ns, t1_ns)
+        if t1_ns - t_e < dt_min_ns:                 # no sliver of a block at the end
+            t_e = t1_ns
+        ends.append(t_e)
+        t_b = t_e
+    return ends
 
 
 def _shade(source: PixelSource, stats: PixelSamplingStats, fine: np.ndarray | None,

@@ -467,6 +467,73 @@ class EventShader:
         values[order] = self._shade(pixels[order], *self._poses.locate(times[order]))
         return values
 
+    def luminance_device(self, pixels, times, between: tuple[float, float] | None = None):
+        """:meth:`luminance` of device arrays, left on the device (no host round trip).
+
+        Parameters
+        ----------
+        pixels : (N,) UInt32 Dr.Jit array of the variant's backend
+            Flat pixel indices ``y W + x``, non-decreasing (the caller's order: shaded as
+            given), within the image (not checked here: they index the device arrays).
+        times : (N,) Float64 Dr.Jit array, seconds
+            Within ``[t0, t1]`` (not checked); a static scene only.
+        between : (float, float), seconds, optional
+            Bounds of ``times`` that the caller knows (a block's ends): the pose table is
+            then taken from them, with no reduction and wait on the device (a table wider
+            than the times need gives the same values).
+
+        Returns
+        -------
+        (N,) Float32 Dr.Jit array
+            The values :meth:`luminance` gives for the same pixels and times, bit for bit:
+            the pose interval and fraction are :meth:`_PoseGrid.locate`'s float64 operations
+            on the device, the launches the same frozen kernel. Times spanning more than
+            :data:`POSE_TABLE_NODES` intervals of the pose grid are refused (ValueError).
+        """
+        mi, dr = self._mi, self._dr
+        count = dr.width(pixels)
+        if count == 0:
+            return dr.zeros(mi.Float, 0)
+        if self.renderer.scene.is_dynamic:
+            raise ValueError("EventShader.luminance_device traces static scenes only")
+        grid = self._poses
+        with dr.scoped_set_flag(dr.JitFlag.FastMath, False):       # IEEE, as NumPy's
+            fraction = (times - self.t0) / grid.step
+            node = dr.clip(dr.floor(fraction), 0, grid.count - 1)
+            fraction = dr.clip(fraction - node, 0.0, 1.0)
+            node = type(pixels)(node)
+            if between is None:
+                lo, hi = dr.min(node), dr.max(node)
+                dr.eval(node, fraction, lo, hi)
+                first, last = int(lo[0]), int(hi[0]) + 1
+            else:
+                dr.eval(node, fraction)
+                ends = grid.locate(self._check_times(np.asarray(between, np.float64)))[0]
+                first, last = int(ends[0]), int(ends[1]) + 1
+        if last - first > POSE_TABLE_NODES:
+            raise ValueError(f"times span {last - first} intervals of the pose grid; "
+                             f"luminance_device takes at most {POSE_TABLE_NODES}")
+        table = self._table(first, last)
+        step = self._samples_per_launch
+        parts = []
+        for start in range(0, count, step):
+            stop = min(start + step, count)
+            size = max(stop - start, MIN_LAUNCH)       # small launches padded (MIN_LAUNCH)
+            index = dr.minimum(dr.arange(mi.UInt32, size) + start, stop - 1)
+            inputs = (dr.gather(mi.UInt32, pixels, index),
+                      dr.gather(mi.UInt32, node, index) - first,
+                      mi.Float(dr.gather(type(fraction), fraction, index)),
+                      dr.zeros(mi.Float, size))
+            dr.eval(inputs)
+            dr.make_opaque(*inputs)
+            with _no_cyclic_gc():
+                total = self._trace(self.renderer.mitsuba_scene, self._directions,
+                                    self._jitter, *inputs[:3], table, inputs[3],
+                                    self._filtering)
+            parts.append(total if size == stop - start
+                         else dr.gather(mi.Float, total, dr.arange(mi.UInt32, stop - start)))
+        return parts[0] if len(parts) == 1 else dr.concat(parts)
+
     def frame(self, t: float) -> np.ndarray:
         """Every pixel at time ``t``: the values of :meth:`luminance` for those pixels and time.
 
@@ -502,6 +569,55 @@ class EventShader:
         values = self._all_at(t, self.shape[0] * self.shape[1] * self.spp,
                               self._trace_subsamples, MAX_RAYS_PER_LAUNCH)
         return self._on_grid(values)
+
+    def subsamples_many(self, times: np.ndarray) -> list[np.ndarray]:
+        """:meth:`subsamples` at each of several times (a static scene), several frames a
+        launch: their values bit for bit (each sub-sample is shaded on its own, from the same
+        pose interval and fraction), with fewer launches and host round trips.
+
+        Parameters
+        ----------
+        times : (K,) float64 ndarray, seconds
+            Within ``[t0, t1]``.
+
+        Returns
+        -------
+        list of K (H n, W n) float32 ndarray
+        """
+        mi, dr = self._mi, self._dr
+        times = self._check_times(times)
+        if self.renderer.scene.is_dynamic:
+            raise ValueError("EventShader.subsamples_many traces static scenes only")
+        count = self.shape[0] * self.shape[1] * self.spp
+        node, fraction = self._poses.locate(times)
+        frames: list[np.ndarray] = []
+        per_launch = max(1, MAX_RAYS_PER_LAUNCH // count)
+        start = 0
+        while start < len(times):
+            stop = min(start + per_launch, len(times))
+            first = int(node[start:stop].min())
+            while int(node[start:stop].max()) + 1 - first > POSE_TABLE_NODES:
+                stop -= 1                              # one pose table a launch
+            table = self._table(first, int(node[start:stop].max()) + 1)
+            size = max((stop - start) * count, MIN_LAUNCH)
+            index = dr.minimum(dr.arange(mi.UInt32, size), (stop - start) * count - 1)
+            frame = index // count
+            inputs = (index - frame * count,
+                      dr.gather(mi.UInt32, mi.UInt32(node[start:stop] - first), frame),
+                      dr.gather(mi.Float, mi.Float(fraction[start:stop].astype(np.float32)),
+                                frame),
+                      dr.zeros(mi.Float, size))
+            dr.eval(inputs)
+            dr.make_opaque(*inputs)
+            with _no_cyclic_gc():
+                total = self._trace_subsamples(self.renderer.mitsuba_scene, self._directions,
+                                               self._jitter, *inputs[:3], table, inputs[3],
+                                               self._filtering)
+                values = np.asarray(total, dtype=np.float32)
+            frames += [self._on_grid(values[k * count:(k + 1) * count])
+                       for k in range(stop - start)]
+            start = stop
+        return frames
 
     def _on_grid(self, values: np.ndarray) -> np.ndarray:
         """(H W spp, ...) per-sub-sample values, pixel by pixel, laid out on the sub-sample grid

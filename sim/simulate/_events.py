@@ -171,8 +171,24 @@ class _ShaderSource:
     def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
         return self._timed(self._camera.shader.luminance, pixels, times)
 
+    def luminance_device(self, pixels, times, between=None):
+        """:meth:`sim.shader.EventShader.luminance_device`, evaluated (so that its time is
+        the render's: Dr.Jit runs its launches asynchronously, this waits for them)."""
+        import drjit as dr
+
+        def shade():
+            values = self._camera.shader.luminance_device(pixels, times, between)
+            dr.eval(values)
+            dr.sync_thread()
+            return values
+
+        return self._timed(shade)
+
     def subsamples(self, t: float) -> np.ndarray:
         return self._timed(self._camera.shader.subsamples, t)
+
+    def subsamples_many(self, times: np.ndarray) -> list[np.ndarray]:
+        return self._timed(self._camera.shader.subsamples_many, times)
 
     def geometry(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         return self._timed(self._camera.shader.geometry, t)
@@ -332,6 +348,7 @@ class _FrameSampler:
 
     name = "frame"
     emulator_type = EventEmulator
+    emulator_kernel = "auto"
     stats_type = SamplingStats
 
     def __init__(self, camera: _EventCamera) -> None:
@@ -407,11 +424,21 @@ class _PixelSampler:
 
     name = "pixel"
     emulator_type = PixelEventEmulator
+    emulator_kernel = "auto"
+    """The emulator's kernel (:class:`sim.events.EventEmulator`): ``auto`` runs Dr.Jit's on
+    ``cuda``, fed the device path's samples where they are
+    (:meth:`sim.pixel_sampling.PixelEventEmulator.advance_device`), numba's on the CPU."""
     stats_type = PixelSamplingStats
+    on_device = True
+    """Build and refine the blocks' samples on the renders' Dr.Jit device
+    (:func:`sim._drjit_sampling.device_block`); False: the reference path (numba, NumPy)."""
 
     def __init__(self, camera: _EventCamera) -> None:
         self._source = _ShaderSource(camera)
         self._after: tuple[float, np.ndarray] | None = None
+        variant = camera._renderer.variant
+        self._device = (("cuda" if variant.startswith("cuda") else "llvm")
+                        if self.on_device and camera.shader is not None else None)
 
     @property
     def render_seconds(self) -> float:
@@ -432,7 +459,7 @@ class _PixelSampler:
         """Sample every pixel over ``[start, end]`` with its events, one step a block."""
         for block in pixel_blocks(self._source, emulator, start, end, contrast, params.log_eps,
                                   sampling, stats, after=self._after,
-                                  edges=self._source.refines_edges):
+                                  edges=self._source.refines_edges, device=self._device):
             yield _Step(block.t, block.events, Sample(block.t, block.luminance, block.log, 0.0,
                                                       True),
                         extra={"observed_rates": block.observed},
@@ -497,7 +524,7 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
     """
     cam = scene.camera
     kind = _SAMPLERS[sampler]
-    emulator = kind.emulator_type((cam.height, cam.width), params)
+    emulator = kind.emulator_type((cam.height, cam.width), params, kind.emulator_kernel)
     stats, count, on, positions, saved = _restore_events(checkpoint, emulator, kind.stats_type)
     contrast = np.minimum(emulator.c_on, emulator.c_off)      # each pixel's own threshold
     # Edges at more sub-samples need the shader (a JIT variant); scalar_rgb says so.
