@@ -153,16 +153,9 @@ class Aedat4EventWriter(_StreamingWriter):
     def _abort(self) -> None:
         self._writer = None
 
-    def close(self) -> None:
-        """Finish the file and move it to ``path`` (replacing it). Closing twice is harmless."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._finish()
-        except BaseException:
-            self._abort()
-            raise
+    def _publish(self) -> None:
+        """Move the finished file (inside the ``.partial`` folder: dv-processing wants an
+        ``.aedat4`` name) to ``path``, and drop the folder."""
         os.replace(self._file, self.path)
         self.partial.rmdir()
 

@@ -222,16 +222,7 @@ class RawEventWriter(_StreamingWriter):
             self._handle = self.partial.open("wb")
             self._handle.write(_header(evt, width, height))
             return
-        self._reopen(resume, ("size", "state"))
-        size = int(resume["size"])
-        handle = self.partial.open("r+b")
-        has = handle.seek(0, os.SEEK_END)
-        if has < size:
-            handle.close()
-            raise self._too_short("bytes", has, size)
-        handle.truncate(size)
-        handle.seek(size)
-        self._handle = handle
+        self._handle = self._reopen_bytes(resume, ("state",))
         self._state = np.array(resume["state"], np.int64)
 
     def write(self, events: np.ndarray) -> None:

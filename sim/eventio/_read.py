@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.eventio._events import EVENT_DTYPE, _check_size, _first_error
-from sim.eventio._formats import EventFormat, _kind, format_for, is_bag_folder
+from sim.eventio._formats import _kind, format_for, is_bag_folder
 from sim.eventio._hdf5 import H5EventWriter, _H5Source
 from sim.eventio._text import TextEventWriter, _iter_text_blocks, _line_blocks, _parse_block
 
@@ -76,20 +76,9 @@ def _iter_h5(path: Path, chunk_events: int, t0_ns: int | None, t1_ns: int | None
     try:
         start = 0 if t0_ns is None else source.index_at(t0_ns)
         stop = source.size if t1_ns is None else source.index_before(t1_ns)
-        t_prev = None
-        for begin in range(start, stop, chunk_events):
-            events = source.read(begin, min(begin + chunk_events, stop))
-            error = _first_error(events, width, height, t_prev)
-            if error is not None:
-                raise ValueError(f"{path}: event {begin + error[0]}: {error[1]}")
-            t_prev = int(events["t"][-1])
-            lo = 0 if t0_ns is None else int(np.searchsorted(events["t"], t0_ns, side="left"))
-            hi = (events.size if t1_ns is None
-                  else int(np.searchsorted(events["t"], t1_ns, side="left")))
-            if hi > lo:
-                yield events[lo:hi]
-            if hi < events.size:
-                return
+        chunks = (source.read(begin, min(begin + chunk_events, stop))
+                  for begin in range(start, stop, chunk_events))
+        yield from _checked_window(path, chunks, start, t0_ns, t1_ns, width, height)
     finally:
         source.close()
 
@@ -158,18 +147,20 @@ def iter_event_chunks(path: str | Path, chunk_events: int = 10**6, t0_ns: int | 
         iterate = _iter_h5 if kind == "h5" else _iter_txt
         yield from iterate(path, chunk_events, t0_ns, t1_ns, width, height)
         return
-    yield from _checked_chunks(path, format_for(path, **(selectors or {})), chunk_events, t0_ns,
-                               t1_ns, width, height, options or {})
+    # a time out of order is reported with the file and its event index, never sorted
+    chunks = format_for(path, **(selectors or {})).iter_chunks(path, chunk_events=chunk_events,
+                                                               **(options or {}))
+    yield from _checked_window(path, chunks, 0, t0_ns, t1_ns, width, height)
 
 
-def _checked_chunks(path: Path, fmt: EventFormat, chunk_events: int, t0_ns: int | None,
-                    t1_ns: int | None, width: int | None, height: int | None,
-                    options: dict) -> Iterator[np.ndarray]:
-    """A registered codec's chunks, checked (time order across chunks, the sensor) and cut to a
-    window: a time out of order is reported with the file and its event index, never sorted."""
+def _checked_window(path: Path, chunks, first: int, t0_ns: int | None, t1_ns: int | None,
+                    width: int | None, height: int | None) -> Iterator[np.ndarray]:
+    """Consecutive chunks of a file's events, from its event ``first`` on, checked (time order
+    across chunks, the sensor: the first bad event named by its index in the file) and cut to
+    ``[t0_ns, t1_ns)``; stops at the first chunk that reaches ``t1_ns``."""
     t_prev = None
-    count = 0
-    for events in fmt.iter_chunks(path, chunk_events=chunk_events, **options):
+    count = first
+    for events in chunks:
         error = _first_error(events, width, height, t_prev)
         if error is not None:
             raise ValueError(f"{path}: event {count + error[0]}: {error[1]}")

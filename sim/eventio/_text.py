@@ -333,16 +333,7 @@ class TextEventWriter(_StreamingWriter):
         if resume is None:
             self._handle = self.partial.open("wb")
             return
-        self._reopen(resume, ("size",))
-        size = int(resume["size"])
-        handle = self.partial.open("r+b")
-        has = handle.seek(0, os.SEEK_END)
-        if has < size:
-            handle.close()
-            raise self._too_short("bytes", has, size)
-        handle.truncate(size)
-        handle.seek(size)
-        self._handle = handle
+        self._handle = self._reopen_bytes(resume, ())
 
     def write(self, events: np.ndarray) -> None:
         """Append a chunk of events.

@@ -102,6 +102,21 @@ class _StreamingWriter:
         self.count = int(resume["count"])
         self._last_t = None if resume["last_t"] is None else int(resume["last_t"])
 
+    def _reopen_bytes(self, resume: dict, keys: tuple[str, ...]):
+        """:meth:`_reopen` for a format written as a plain byte stream: the ``.partial`` file
+        cut to the checkpoint's ``size`` (what was written after it dropped) and opened to
+        append there. Returns the open binary file."""
+        self._reopen(resume, ("size", *keys))
+        size = int(resume["size"])
+        handle = self.partial.open("r+b")
+        has = handle.seek(0, os.SEEK_END)
+        if has < size:
+            handle.close()
+            raise self._too_short("bytes", has, size)
+        handle.truncate(size)
+        handle.seek(size)
+        return handle
+
     def _too_short(self, what: str, has: int, needs: int) -> ValueError:
         return ValueError(f"{self.partial} holds {has} {what}, fewer than the {needs} the "
                           "checkpoint counted; expected the file the checkpointed writer left")
