@@ -524,12 +524,7 @@ class EventShader:
                       dr.gather(mi.UInt32, node, index) - first,
                       mi.Float(dr.gather(type(fraction), fraction, index)),
                       dr.zeros(mi.Float, size))
-            dr.eval(inputs)
-            dr.make_opaque(*inputs)
-            with _no_cyclic_gc():
-                total = self._trace(self.renderer.mitsuba_scene, self._directions,
-                                    self._jitter, *inputs[:3], table, inputs[3],
-                                    self._filtering)
+            total = self._traced(self._trace, inputs, table)
             parts.append(total if size == stop - start
                          else dr.gather(mi.Float, total, dr.arange(mi.UInt32, stop - start)))
         return parts[0] if len(parts) == 1 else dr.concat(parts)
@@ -607,13 +602,7 @@ class EventShader:
                       dr.gather(mi.Float, mi.Float(fraction[start:stop].astype(np.float32)),
                                 frame),
                       dr.zeros(mi.Float, size))
-            dr.eval(inputs)
-            dr.make_opaque(*inputs)
-            with _no_cyclic_gc():
-                total = self._trace_subsamples(self.renderer.mitsuba_scene, self._directions,
-                                               self._jitter, *inputs[:3], table, inputs[3],
-                                               self._filtering)
-                values = np.asarray(total, dtype=np.float32)
+            values = self._traced(self._trace_subsamples, inputs, table, to_host=True)
             frames += [self._on_grid(values[k * count:(k + 1) * count])
                        for k in range(stop - start)]
             start = stop
@@ -733,11 +722,22 @@ class EventShader:
 
     def _launch(self, pixels: np.ndarray, node: np.ndarray, fraction: np.ndarray, first: int,
                 table, trace) -> np.ndarray:
-        index, nodes, fractions, zeros = self._kernel_inputs(pixels, node, fraction, first)
+        inputs = self._kernel_inputs(pixels, node, fraction, first)
+        return self._traced(trace, inputs, table, to_host=True)[:len(pixels)]
+
+    def _traced(self, trace, inputs: tuple, table, to_host: bool = False):
+        """One launch of the frozen kernel ``trace`` (:meth:`_trace`,
+        :meth:`_trace_subsamples`) on its device inputs ``(index, node, fraction, zeros)``,
+        evaluated and made opaque first (their sizes change per call, the kernel not), without
+        cyclic garbage collection while it runs (:func:`_no_cyclic_gc`). Returns its Float
+        values, as a float32 ndarray with ``to_host``."""
+        dr = self._dr
+        dr.eval(inputs)
+        dr.make_opaque(*inputs)
         with _no_cyclic_gc():
-            total = trace(self.renderer.mitsuba_scene, self._directions, self._jitter, index,
-                          nodes, fractions, table, zeros, self._filtering)
-            return np.asarray(total, dtype=np.float32)[:len(pixels)]
+            total = trace(self.renderer.mitsuba_scene, self._directions, self._jitter,
+                          *inputs[:3], table, inputs[3], self._filtering)
+            return np.asarray(total, dtype=np.float32) if to_host else total
 
     def _kernel_inputs(self, pixels: np.ndarray, node: np.ndarray, fraction: np.ndarray,
                        first: int) -> tuple:
