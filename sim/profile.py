@@ -133,11 +133,11 @@ class KernelLedger:
             for entry in entries:
                 cost.add(entry)
 
-    def total(self) -> StageKernels:
-        """Everything charged, all stages together."""
+    def total(self, names=None) -> StageKernels:
+        """Everything charged to the stages ``names`` (default all), summed."""
         out = StageKernels()
-        for cost in self.stages.values():
-            for key, value in asdict(cost).items():
+        for name in self.stages if names is None else names:
+            for key, value in asdict(self.stages.get(name, StageKernels())).items():
                 setattr(out, key, getattr(out, key) + value)
         return out
 
@@ -237,10 +237,7 @@ def profile_record(timings: Mapping[str, float], ledger: KernelLedger | None, va
         if name not in stages:
             stages[name] = _stage_record(0.0, costs[name], measured)
     camera_wall = sum(float(timings.get(name, 0.0)) for name in EVENT_CAMERA_STAGES)
-    camera_cost = StageKernels()
-    for name in EVENT_CAMERA_STAGES:
-        for key, value in asdict(costs.get(name, StageKernels())).items():
-            setattr(camera_cost, key, getattr(camera_cost, key) + value)
+    camera_cost = ledger.total(EVENT_CAMERA_STAGES) if ledger is not None else None
     event_camera = _stage_record(camera_wall, camera_cost, measured)
     if simulated_s:
         event_camera["per_simulated_s"] = {
