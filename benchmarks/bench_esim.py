@@ -40,7 +40,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from benchmarks.bench_events import SIZES, moving_texture
+from benchmarks.bench_events import SIZES, checked_sizes, moving_texture
 from sim.events import emulate_events
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -133,11 +133,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--sizes", default=",".join(SIZES),
                         help=f"sensors, among {','.join(SIZES)} (default all)")
     args = parser.parse_args(argv)
-    sizes = args.sizes.split(",")
-    unknown = [size for size in sizes if size not in SIZES]
-    if unknown:
-        parser.error(f"--sizes: unknown sensor {unknown[0]!r}, expected some of "
-                     f"{','.join(SIZES)}")
+    sizes = checked_sizes(parser, args.sizes)
     if args.reps < 1:
         parser.error(f"--reps must be at least 1, got {args.reps}")
     if args.frames < 4:

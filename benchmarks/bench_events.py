@@ -164,6 +164,16 @@ def scene_shares(names: list[str], duration: float) -> list[dict]:
     return rows
 
 
+def checked_sizes(parser: argparse.ArgumentParser, sizes: str) -> list[str]:
+    """``--sizes``, comma-separated labels of :data:`SIZES`; an unknown one is a usage error."""
+    labels = sizes.split(",")
+    unknown = [size for size in labels if size not in SIZES]
+    if unknown:
+        parser.error(f"--sizes: unknown sensor {unknown[0]!r}, expected some of "
+                     f"{','.join(SIZES)}")
+    return labels
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=60)
@@ -174,11 +184,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--sizes", default=",".join(SIZES),
                         help=f"sensors to time, among {','.join(SIZES)} (default all)")
     args = parser.parse_args(argv)
-    sizes = args.sizes.split(",")
-    unknown = [size for size in sizes if size not in SIZES]
-    if unknown:
-        parser.error(f"--sizes: unknown sensor {unknown[0]!r}, expected some of "
-                     f"{','.join(SIZES)}")
+    sizes = checked_sizes(parser, args.sizes)
     if args.frames < 4:
         parser.error(f"--frames must be at least 4, got {args.frames}")
     EventParams()                                                  # fail early on import errors
