@@ -68,6 +68,7 @@ from sim.events import (
     EventEmulator,
     EventParams,
     clocked,
+    crossing_time,
     filtered_crossing_time,
     interval_levels,
     threshold_crossings,
@@ -539,6 +540,61 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
     return n
 
 
+@numba.njit(cache=True)
+def _pixel_events_direct(pix, t, L, ref, level, raw, last_t, c_on, c_off, refractory, out_t,
+                         out_pix, out_p, out_cause, keep):  # pragma: no cover - compiled
+    """:func:`_pixel_events` without the low-pass filter and without leak (``exponent`` all
+    ``inf``, ``leak`` empty): the common case, in one threshold test per interval.
+
+    The same crossings, times, causes and pixel states bit for bit: without the filter the
+    level is the input (:func:`sim.events.interval_levels` gives ``(1.0, b, b)``), the
+    leak-free count is the count, every crossing's cause is the signal, and each time is
+    :func:`sim.events.filtered_crossing_time`'s at ``x = inf``, :func:`sim.events.crossing_time`
+    on the line from the last level (``tests/test_sampler_kernels.py`` compares the two
+    kernels on random blocks). It skips the general kernel's second threshold test, its
+    per-interval filter and leak branches and the ``exponent`` array (a float64 per sample).
+    """
+    capacity = len(out_t)
+    j, end, n = 0, len(pix), 0
+    while j < end:
+        p = pix[j]
+        r = ref[p]
+        lf = level[p]
+        ta = t[j]
+        last = last_t[p]
+        con, coff = c_on[p], c_off[p]
+        j += 1
+        while j < end and pix[j] == p:
+            tb = t[j]
+            lb = L[j]
+            count, c, sign = threshold_crossings(lb, r, con, coff)
+            if count:
+                if n + count <= capacity:
+                    dt = float(tb - ta)
+                    for i in range(1, count + 1):
+                        te = crossing_time(r + i * c, lf, lb - lf, ta, dt)
+                        out_t[n] = te
+                        out_pix[n] = p
+                        out_p[n] = sign
+                        out_cause[n] = CAUSE_SIGNAL
+                        if refractory > 0 and te - last < refractory:
+                            keep[n] = False
+                        else:
+                            keep[n] = True
+                            last = te
+                        n += 1
+                else:
+                    n += count
+            r += count * c                          # also when 0: -0.0 becomes 0.0, as there
+            lf, ta = lb, tb
+            j += 1
+        ref[p] = r
+        level[p] = lf
+        raw[p] = lf
+        last_t[p] = last
+    return n
+
+
 def _outputs(n: int) -> tuple[np.ndarray, ...]:
     """Times (int64 ns), flat pixels (int64), polarities (int8), causes (uint8) and keep
     flags of ``n`` crossings."""
@@ -632,6 +688,11 @@ class PixelEventEmulator(EventEmulator):
             crossings = pixel_events(pixels, times_ns, levels, cutoff, *state,
                                      CROSSING_TOLERANCE_NS, device=self._device)
         else:
+            if cutoff is None and not len(normals):     # no filter, no leak: the short kernel
+                crossings = self._numba_crossings(
+                    _pixel_events_direct, (pixels, times_ns, levels, ref, level, raw, last_t,
+                                           c_on, c_off, refractory), 3)
+                return self._events_of(crossings, refractory, t0_ns, t_end_ns, end_luminance)
             if cutoff is None:
                 exponent = np.full(max(len(pixels) - 1, 0), np.inf)
             else:
@@ -639,7 +700,8 @@ class PixelEventEmulator(EventEmulator):
                 # same values as lowpass_exponent on the pixels' own intervals.
                 exponent = _lowpass_exponent(dt * 1e-9, cutoff[:-1], cutoff[1:])
                 exponent[~same] = np.inf
-            crossings = self._numba_crossings((pixels, times_ns, levels, exponent, *state))
+            crossings = self._numba_crossings(_pixel_events, (pixels, times_ns, levels,
+                                                              exponent, *state), 4)
         return self._events_of(crossings, refractory, t0_ns, t_end_ns, end_luminance)
 
     @clocked
@@ -711,20 +773,23 @@ class PixelEventEmulator(EventEmulator):
         events["p"] = out_p[order]
         return self._close_block(events, t0_ns, t_end_ns, end_luminance, out_cause[order])
 
-    def _numba_crossings(self, args: tuple) -> tuple[np.ndarray, ...]:
-        """:func:`_pixel_events` in one pass, with outputs sized from the last block's count
-        (twice it, at least 4,096); when they are too short, the pixels' state is restored
-        and the kernel runs again with outputs of the exact size. Returns the crossings'
-        times, pixels, polarities, causes and keep flags, in (pixel, time) order."""
-        state = args[4:8]                                   # ref, level, raw, last_t
+    def _numba_crossings(self, kernel: Callable, args: tuple,
+                         first_state: int) -> tuple[np.ndarray, ...]:
+        """``kernel`` (:func:`_pixel_events` or :func:`_pixel_events_direct`, whose pixel
+        state ``ref, level, raw, last_t`` is ``args[first_state:first_state + 4]``) in one
+        pass, with outputs sized from the last block's count (twice it, at least 4,096); when
+        they are too short, the pixels' state is restored and the kernel runs again with
+        outputs of the exact size. Returns the crossings' times, pixels, polarities, causes
+        and keep flags, in (pixel, time) order."""
+        state = args[first_state:first_state + 4]
         saved = [a.copy() for a in state]
         outputs = _outputs(max(2 * self._last_count, 4096))
-        n = _pixel_events(*args, *outputs)
+        n = kernel(*args, *outputs)
         if n > len(outputs[0]):
             for a, b in zip(state, saved, strict=True):
                 a[...] = b
             outputs = _outputs(n)
-            _pixel_events(*args, *outputs)
+            kernel(*args, *outputs)
         self._last_count = n
         return tuple(a[:n] for a in outputs)
 

@@ -135,8 +135,13 @@ NOISY = dataclasses.replace(noise_preset("realistic"), shot_noise_rate=300.0, le
 12 ms."""
 
 
-@pytest.mark.parametrize("noise", [noise_preset("ideal"), noise_preset("realistic"), NOISY],
-                         ids=["ideal", "realistic", "noisy"])
+REFRACTORY = dataclasses.replace(noise_preset("ideal"), refractory_period=0.2e-3)
+"""No filter and no leak (the short kernel, :func:`sim.pixel_sampling._pixel_events_direct`)
+but a refractory period."""
+
+
+@pytest.mark.parametrize("noise", [noise_preset("ideal"), REFRACTORY, noise_preset("realistic"),
+                                   NOISY], ids=["ideal", "refractory", "realistic", "noisy"])
 def test_the_kernel_gives_the_plain_references_events_bit_for_bit(noise):
     params = EventParams(contrast_on=0.2, contrast_off=0.25, log_eps=EPS, noise=noise, seed=3)
     start, blocks = _blocks(seed=1)
@@ -220,3 +225,35 @@ def test_a_block_with_more_crossings_than_its_outputs_hold_is_run_again_from_its
         level += ramp
     for key in ("ref", "level", "raw", "last_t"):
         np.testing.assert_array_equal(fast.get_state()[key], slow.get_state()[key])
+
+
+@pytest.mark.parametrize("refractory", [0, 200_000])
+def test_the_short_kernel_is_the_general_one_without_filter_and_leak(refractory):
+    """Without the low-pass filter and the leak, :meth:`PixelEventEmulator.advance_samples`
+    runs :func:`~sim.pixel_sampling._pixel_events_direct`: the same crossings (times, pixels,
+    polarities, causes, keep flags) and pixel states as :func:`~sim.pixel_sampling.
+    _pixel_events` given ``exponent`` all ``inf`` and no leak, block after block."""
+    from sim.pixel_sampling import _outputs, _pixel_events, _pixel_events_direct
+
+    start, blocks = _blocks(seed=4)
+    n = SHAPE[0] * SHAPE[1]
+    rng = np.random.default_rng(5)
+    c_on, c_off = rng.uniform(0.15, 0.3, n), rng.uniform(0.15, 0.3, n)
+    states = [[np.log(start + EPS).reshape(-1).copy() for _ in range(3)]
+              + [np.full(n, -10**12, np.int64)] for _ in range(2)]
+    total = 0
+    for pix, times, levels, *_ in blocks:
+        general, short = _outputs(20_000), _outputs(20_000)
+        m = _pixel_events(pix, times, levels, np.full(len(pix) - 1, np.inf), *states[0], c_on,
+                          c_off, (np.zeros(0), 0.0), np.zeros(0), refractory, *general)
+        k = _pixel_events_direct(pix, times, levels, *states[1], c_on, c_off, refractory,
+                                 *short)
+        assert m == k
+        for a, b in zip(general, short, strict=True):
+            np.testing.assert_array_equal(a[:m], b[:k])
+        for a, b in zip(*states, strict=True):
+            np.testing.assert_array_equal(a, b)
+        total += m
+        if refractory:
+            assert not general[4][:m].all()             # the refractory period dropped some
+    assert total > 100
