@@ -242,14 +242,10 @@ def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
     # NumPy's float32 log (numba's, libm's, may differ in the last bit); the rest is compiled.
     slope_u, slope_v = _weighted_slopes(np.log(weight), weight, height, width, n)
     xy = camera.normalized_pixel_centres() if centres is None else centres
-    rate, speeds = _predicted_rate(float(camera.fx), float(camera.fy), np.asarray(xy, np.float64),
-                                   np.asarray(depth),
-                                   np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6),
-                                   slope_u, slope_v)
-    speed = 0.0
-    for top in speeds:             # as ``max(speed, np.max(hypot))``: a NaN twist is skipped
-        speed = max(speed, float(top))
-    radius = min(MAX_DILATION, math.ceil(speed * seconds))
+    args = (float(camera.fx), float(camera.fy), np.asarray(xy, np.float64), np.asarray(depth),
+            np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6))
+    rate, squares = _predicted_rate(*args, slope_u, slope_v)
+    radius = _dilation_radius(squares, seconds, partial(_flow_speeds, *args))
     if radius > 0:
         kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
         rate = cv2.dilate(rate, kernel, borderType=cv2.BORDER_REPLICATE)
@@ -390,7 +386,8 @@ def _weighted_slopes(logw, weight, height, width, n):  # pragma: no cover - comp
 def _predicted_rate(fx, fy, xy, depth, twists, slope_u, slope_v):  # pragma: no cover
     """Each pixel's largest ``slope_u |du/dt| + slope_v |dv/dt|`` over the twists (motion field
     :func:`sim.sampling._point_flow`, 0 where ``depth`` <= 0), (H, W) float64, and per twist
-    the largest ``hypot(du/dt, dv/dt)`` (0 at least, NaN if any is)."""
+    the largest ``du^2 + dv^2`` (0 at least, NaN if any is): the fastest pixel's speed squared,
+    rounded (:func:`_flow_speeds` gives the speeds themselves; :func:`_dilation_radius`)."""
     height, width = depth.shape
     n_twists = twists.shape[0]
     rate = np.empty((height, width))
@@ -404,13 +401,61 @@ def _predicted_rate(fx, fy, xy, depth, twists, slope_u, slope_v):  # pragma: no 
                 if z > 0.0:
                     du, dv = _point_flow(fx, fy, xy[y, x, 0], xy[y, x, 1], z, twists[k])
                 best = _nan_max(best, slope_u[y, x] * abs(du) + slope_v[y, x] * abs(dv))
-                tops[y, k] = _nan_max(tops[y, k], math.hypot(du, dv))
+                tops[y, k] = _nan_max(tops[y, k], du * du + dv * dv)
             rate[y, x] = best
-    speeds = np.zeros(n_twists)
+    squares = np.zeros(n_twists)
     for k in range(n_twists):
         for y in range(height):
-            speeds[k] = _nan_max(speeds[k], tops[y, k])
-    return rate, speeds
+            squares[k] = _nan_max(squares[k], tops[y, k])
+    return rate, squares
+
+
+@numba.njit(cache=True)
+def _flow_speeds(fx, fy, xy, depth, twists):  # pragma: no cover - compiled
+    """Per twist the largest ``hypot(du/dt, dv/dt)`` over the pixels of :func:`_predicted_rate`
+    (0 at least, NaN if any is), pixels/s: the exact speeds, where :func:`_dilation_radius`
+    cannot decide from the squares."""
+    height, width = depth.shape
+    speeds = np.zeros(twists.shape[0])
+    for k in range(twists.shape[0]):
+        for y in range(height):
+            for x in range(width):
+                z = np.float64(depth[y, x])
+                du, dv = 0.0, 0.0
+                if z > 0.0:
+                    du, dv = _point_flow(fx, fy, xy[y, x, 0], xy[y, x, 1], z, twists[k])
+                speeds[k] = _nan_max(speeds[k], math.hypot(du, dv))
+    return speeds
+
+
+SPEED_SLACK = 1e-12
+"""Relative gap :func:`_dilation_radius` allows between ``sqrt`` of a twist's largest
+``du^2 + dv^2`` and its largest ``hypot(du, dv)``: each is within 2 ulp (4.5e-16) of the
+exact value, so the pixel radius ``ceil(speed seconds)`` taken from the squares is the one
+taken from ``hypot`` whenever no integer lies within this slack of ``speed seconds``."""
+
+
+def _dilation_radius(squares: np.ndarray, seconds: float, exact: Callable[[], np.ndarray]
+                     ) -> int:
+    """The prediction's dilation in pixels: ``min(MAX_DILATION, ceil(speed seconds))`` with
+    ``speed`` the largest over the twists of the fastest pixel's ``hypot(du, dv)`` (a NaN
+    twist skipped), as it was computed from every pixel's ``hypot``.
+
+    From ``sqrt`` of each twist's largest ``du^2 + dv^2`` (``squares``, :func:`_predicted_rate`:
+    no ``hypot`` per pixel, half the kernel's time) when that decides the integer within
+    :data:`SPEED_SLACK`; else, or where the squares are not finite or all (nearly) 0 (a
+    speed of 1e-170 squares to 0), from ``exact()``
+    (:func:`_flow_speeds`), so the radius is always ``hypot``'s
+    (``tests/test_sampler_kernels.py``)."""
+    squares = np.asarray(squares, np.float64)
+    if np.all(np.isfinite(squares)) and squares.max(initial=0.0) > 1e-280:
+        product = math.sqrt(float(squares.max())) * seconds
+        if math.ceil(product * (1.0 - SPEED_SLACK)) == math.ceil(product * (1.0 + SPEED_SLACK)):
+            return min(MAX_DILATION, math.ceil(product))
+    speed = 0.0
+    for top in exact():           # as ``max(speed, np.max(hypot))``: a NaN twist is skipped
+        speed = max(speed, float(top))
+    return min(MAX_DILATION, math.ceil(speed * seconds))
 
 
 def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

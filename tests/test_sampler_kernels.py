@@ -230,3 +230,44 @@ def test_the_shifted_luminance_kernel_is_numpys_expression():
         out = np.empty(len(values))
         _plus(values, 0.43, out)
         assert np.array_equal(out, np.asarray(values, np.float64) + 0.43)
+
+
+@pytest.mark.parametrize("case", ["at an integer", "NaN twist", "at rest", "tiny", "fast"])
+def test_the_dilation_radius_from_the_squares_is_hypots(case):
+    """:func:`sim.pixel_sampling.rate_map` takes its dilation from each twist's largest
+    ``du^2 + dv^2`` (no ``hypot`` per pixel) unless that cannot decide ``ceil(speed seconds)``:
+    the map is NumPy's, ``hypot`` and all, where ``speed seconds`` is an integer to the last bit,
+    where a twist is NaN, where the camera is at rest or creeps (speeds whose squares underflow)
+    and where it outruns the dilation's cap."""
+    from sim.pixel_sampling import _dilation_radius
+
+    rng = np.random.default_rng(11)
+    camera = _camera(23, 19, distorted=True)
+    sub = _luminance(rng, (38, 46))
+    depth = rng.uniform(0.2, 3.0, (19, 23))
+    twists = [(np.array([0.3, -0.1, 0.05]), np.array([0.02, 0.1, -0.03])),
+              (np.array([0.2, 0.0, 0.0]), np.array([0.0, 0.05, 0.0]))]
+    if case == "NaN twist":
+        twists[1] = (np.array([np.nan, 0.0, 0.0]), np.zeros(3))
+    elif case == "at rest":
+        twists = [(np.zeros(3), np.zeros(3))] * 2
+    elif case == "tiny":
+        twists = [(np.array([1e-170, 0.0, 0.0]), np.zeros(3))] * 2
+    elif case == "fast":
+        twists = [(np.array([50.0, 0.0, 0.0]), np.zeros(3))] * 2
+    centres = camera.normalized_pixel_centres()
+    speed = 0.0
+    for v, w in twists:
+        flow = _numpy_motion_field(camera, depth, v, w, centres)
+        speed = max(speed, float(np.max(np.hypot(*flow), initial=0.0)))
+    seconds = 3.0 / speed if case == "at an integer" else 0.01
+    want = _numpy_rate_map(camera, sub, depth, twists, seconds, 0.43, centres)
+    got = rate_map(camera, sub, depth, twists, seconds, 0.43, centres)
+    np.testing.assert_array_equal(got, want)                # NaN where NumPy's is NaN
+    if case == "at an integer":           # the squares alone cannot say: hypot decides
+        calls = []
+        _dilation_radius(np.array([(3.0 / seconds) ** 2]), seconds,
+                         lambda: calls.append(1) or np.array([3.0 / seconds]))
+        assert calls
+    if case == "tiny":
+        assert math.ceil(speed * seconds) == 1          # not 0: the squares were 0
