@@ -115,7 +115,7 @@ def _global_params(args: argparse.Namespace, method):
     """The global map's parameters from the flags (``map-global``, ``run --global``)."""
     from dataclasses import replace
 
-    from fusion.globalmap import FusionParams, GlobalParams, KeyViewParams, TSDFParams
+    from fusion.globalmap import GlobalParams, KeyViewParams
     from fusion.map.emvs import DepthMapParams
 
     keyviews = {key: value for key, value in (("baseline", args.baseline),
@@ -124,10 +124,11 @@ def _global_params(args: argparse.Namespace, method):
                 if value is not None}
     fusion = {key: value for key, value in (("min_views", args.min_views),
                                             ("depth_tolerance", args.depth_tolerance),
+                                            ("reject", args.reject),
                                             ("voxel_size", args.voxel)) if value is not None}
     return GlobalParams(
-        keyviews=KeyViewParams(**keyviews), fusion=replace(FusionParams(), **fusion),
-        tsdf=TSDFParams(voxel_size=args.voxel), method=method.method.name,
+        keyviews=KeyViewParams(**keyviews), fusion=replace(GlobalParams().fusion, **fusion),
+        tsdf=replace(GlobalParams().tsdf, voxel_size=args.voxel), method=method.method.name,
         method_params=method.settings, dense=method.params, min_depth=args.min_depth,
         max_depth=args.max_depth, planes=args.planes,
         depth=DepthMapParams(kernel=args.kernel, c=args.c, median=args.median,
@@ -276,7 +277,8 @@ def _add_map_global(sub) -> None:
         description="Key views along the sequence (EMVS's criteria: --baseline, --angle, "
                     "--max-events), each mapped and filled as evfuse map and evfuse fill do "
                     "(views/NNN/map, views/NNN/fill), fused in the world frame (global.ply: "
-                    "points that --min-views other views confirm), integrated into a TSDF "
+                    "points that --min-views other views confirm or no more views "
+                    "contradict), integrated into a TSDF "
                     "(mesh.ply), scored against the exact surface (simulated sequences) or "
                     "checked by the views' agreement (real recordings): global.json, "
                     "global_error.ply, global.png.")

@@ -156,8 +156,11 @@ def add_global_options(parser: argparse.ArgumentParser) -> None:
     add("--max-events", type=count_type(1), default=None,
         help="... or this many events have come since it (default: no budget)")
     add("--min-views", type=count_type(0), default=None,
-        help="k: other views that must agree on a point for the fused cloud to "
-             "keep it (default 1; 0 keeps every point)")
+        help="k: a point that k other views agree with is kept in the fused "
+             "clouds (default 1; 0 keeps every point)")
+    add("--reject", choices=("outvoted", "unconfirmed"), default=None,
+        help="which of the other points are dropped: those that more views "
+             "contradict than confirm (outvoted, default) or all (unconfirmed)")
     add("--depth-tolerance", type=POSITIVE, default=None,
         help="views agree on a point within this share of its depth "
              "(default 0.02)")

@@ -15,8 +15,10 @@ from fusion.globalmap.fuse import (
     FusionParams,
     agreement_counts,
     default_voxel_size,
+    evidence_counts,
     fuse_into_view,
     fuse_views,
+    kept_points,
     view_agreement,
 )
 from fusion.globalmap.views import DepthView, to_camera
@@ -485,3 +487,53 @@ def test_shares_events_rules():
     assert not shares_events(_views(1)[0], a)                  # unknown window
     with pytest.raises(ValueError, match="events"):
         DepthView(a.depth, a.camera, a.T_world_cam, events=(2.0, 1.0))
+
+
+def test_contradictions_and_the_outvoted_rule():
+    """View i: a wall at 2 m. View j (the same camera): the wall on columns 0-9, a nearer
+    surface (1.5 m) on 10-19, nothing on 20-39. Each of i's points is confirmed by j (0-9),
+    contradicted by it (10-19) or not checked (20-39). 'unconfirmed' keeps the first; 'outvoted'
+    also the unchecked ones; at k = 0 both keep all."""
+    depth_j = np.zeros((30, 40))
+    depth_j[:, :10] = 2.0
+    depth_j[:, 10:20] = 1.5
+    i, j = _two_walls(depth_j)
+    u = i.pixels()[:, 0]
+    params = FusionParams(search_radius=0, voxel_size=1e-4)           # no merging
+    agree, contradict = evidence_counts([i, j], params)
+    np.testing.assert_array_equal(agree[0], (u < 10).astype(np.int32))
+    np.testing.assert_array_equal(contradict[0], ((u >= 10) & (u < 20)).astype(np.int32))
+    np.testing.assert_array_equal(agree[0], agreement_counts([i, j], params)[0])
+    for reject, kept_columns in (("unconfirmed", u < 10), ("outvoted", (u < 10) | (u >= 20))):
+        rule = FusionParams(search_radius=0, voxel_size=1e-4, reject=reject)
+        np.testing.assert_array_equal(kept_points(agree[0], contradict[0], rule), kept_columns)
+        cloud = fuse_views([i, j], rule, contributors=[True, False])
+        assert len(cloud.points) == np.count_nonzero(kept_columns), reject
+        every = fuse_views([i, j], FusionParams(min_views=0, search_radius=0, voxel_size=1e-4,
+                                                reject=reject), contributors=[True, False])
+        assert len(every.points) == len(u)
+
+
+def test_outvoted_drops_a_point_under_k_that_more_views_contradict_than_confirm():
+    """At k = 2, a point one view confirms: dropped where two contradict it, kept where one
+    does (a tie), and at k = 1 kept either way (k views confirming always keep a point)."""
+    wall = np.full((30, 40), 2.0)
+    near = np.full((30, 40), 1.5)
+    i, confirm = _two_walls(wall)
+    _, contra_a = _two_walls(near)
+    _, contra_b = _two_walls(near)
+    params = FusionParams(min_views=2, search_radius=0, reject="outvoted")
+    agree, contradict = evidence_counts([i, confirm, contra_a, contra_b], params)
+    assert np.all(agree[0] == 1) and np.all(contradict[0] == 2)
+    assert not kept_points(agree[0], contradict[0], params).any()
+    assert kept_points(agree[0], contradict[0], FusionParams(min_views=1,
+                                                              reject="outvoted")).all()
+    agree, contradict = evidence_counts([i, confirm, contra_a], params)
+    assert kept_points(agree[0], contradict[0], params).all()
+    with pytest.raises(ParameterError, match="reject"):
+        kept_points(agree[0], None, params)
+
+
+def test_the_reject_rule_is_checked():
+    with pytest.raises(ParameterError, match="reject"):
+        FusionParams(reject="majority")

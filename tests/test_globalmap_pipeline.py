@@ -387,7 +387,7 @@ def test_fewer_than_two_key_views_are_refused_naming_baseline(plane_sequence, tm
 def test_an_empty_fused_map_is_refused_naming_baseline(plane_sequence, tmp_path, capsys):
     out = tmp_path / "g"
     assert run_cli(["map-global", str(plane_sequence), "--out", str(out), "--min-views", "40",
-                    "--workers", "1", "--quiet"]) == 2
+                    "--reject", "unconfirmed", "--workers", "1", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "is empty: no point of its" in err[0]
     assert "--min-views 40" in err[0] and "lower --baseline" in err[0]

@@ -332,3 +332,35 @@ def test_the_box_is_padded_by_the_widest_band():
     assert band > truncation
     np.testing.assert_allclose(lo, points.min(0) - band, atol=1e-9)
     np.testing.assert_allclose(hi, points.max(0) + band, atol=1e-9)
+
+
+def test_a_search_radius_meshes_a_view_sparser_than_the_voxels():
+    """A fronto-parallel plane at 1 m seen on every third column only (strips 1 px wide): at
+    search radius 0 a voxel's pixel mostly holds no depth, so few cubes have eight observed
+    corners and the mesh covers little of the plane; at radius 1 every pixel has a strip within
+    1 px, and the mesh covers the plane and lies on it (the module's bound: 0 off a
+    fronto-parallel plane, to marching cubes' interpolation)."""
+    camera = PLAIN
+    depth = np.zeros((camera.height, camera.width), np.float32)
+    depth[:, ::3] = 1.0
+    view = DepthView(depth, camera, np.eye(4))
+    lo, hi, voxel = np.array([-0.4, -0.3, 0.9]), np.array([0.4, 0.3, 1.1]), 0.01
+    covered = {}
+    for radius in (0, 1):
+        mesh = tsdf_mesh([view], TSDFParams(voxel_size=voxel, truncation=0.03,
+                                            bounds=(tuple(lo), tuple(hi)),
+                                            search_radius=radius))
+        covered[radius] = float(mesh.areas().sum())
+        if radius:
+            np.testing.assert_allclose(mesh.vertices[:, 2], 1.0, atol=1e-6)
+    box = float(np.prod((hi - lo)[:2]))              # m^2; inside the field of view at 1 m
+    assert box < (camera.width - 1) / camera.fx * (camera.height - 1) / camera.fy
+    assert covered[0] < 0.2 * box, covered
+    assert covered[1] > 0.95 * box, covered
+
+
+def test_the_search_radius_is_checked():
+    with pytest.raises(ParameterError, match="search_radius"):
+        TSDFParams(search_radius=-1)
+    with pytest.raises(ParameterError, match="search_radius"):
+        TSDFVolume((0, 0, 0), (1, 1, 1), 0.1, 0.2, search_radius=1.5)

@@ -24,9 +24,24 @@ which see less of the same surface, and recall falls more than precision rises (
 slider_close 1 s, 5 views, precision at 1 % of depth 0.910 against 0.901, F 0.343 against
 0.398; on boxes_6dof 3.5-5.5 s, 4 views, F at 5 cm 0.134 against 0.215).
 
-* :func:`agreement_counts`: per point, how many other views agree (the multi-view check).
-* :func:`fuse_views`: the points with at least ``min_views`` agreeing other views, merged per
-  voxel into one world-frame cloud (:class:`FusedCloud`).
+A seen point that ``j`` does not confirm although ``j`` holds a point in the window where it
+lands is *contradicted* by ``j`` (``j`` has its own depth there, another one). A semi-dense map
+holds points only on the edges it saw: a view that holds no point where another's point lands
+says nothing about it, it neither confirms nor contradicts.
+
+Which points are kept (``FusionParams.reject``): ``"unconfirmed"`` keeps the points that at
+least ``min_views`` other views confirm; ``"outvoted"`` also keeps those that no more views
+contradict than confirm (:func:`kept_points`). The first throws away every point the others
+cannot check: on a short window of key views far apart, most of them (issue 40, boxes_6dof
+3.5-5.5 s, 4 views: the fused cloud held half the recall of the views' plain union, F at 5 cm
+0.215 against the union's 0.359). The second drops only what the evidence is against: measured
+there, F at 5 cm 0.36, precision 0.68 against the union's 0.62 (``benchmarks/bench_global.py
+--goals``).
+
+* :func:`agreement_counts`: per point, how many other views agree (the multi-view check);
+  :func:`evidence_counts` also how many contradict.
+* :func:`fuse_views`: the kept points, merged per voxel into one world-frame cloud
+  (:class:`FusedCloud`).
 * :func:`fuse_into_view`: a reference view's own agreed points plus the others' agreed points
   projected into its pixels (a z-buffer): a denser, consistency-checked map in one view.
 * :func:`view_agreement`: what a real recording can check without ground truth: the depth
@@ -67,8 +82,12 @@ from sim._summary import summary_repr
 from sim.camera import Camera
 from sim.validation import ParameterError, check_parameter, integer, positive
 
-__all__ = ["FusedCloud", "FusionParams", "agreement_counts", "default_voxel_size",
-           "fuse_into_view", "fuse_views", "view_agreement"]
+__all__ = ["REJECT_RULES", "FusedCloud", "FusionParams", "agreement_counts",
+           "default_voxel_size", "evidence_counts", "fuse_into_view", "fuse_views",
+           "kept_points", "view_agreement"]
+
+REJECT_RULES = ("unconfirmed", "outvoted")
+""":attr:`FusionParams.reject`'s rules: which points the fusion drops."""
 
 
 def _count(name: str, value: object) -> int:
@@ -82,7 +101,8 @@ class FusionParams:
     Attributes
     ----------
     min_views : int
-        k: how many OTHER views must agree for a point to be kept (0 keeps every point).
+        k: a point that at least this many OTHER views agree with is kept (0 keeps every
+        point).
     depth_tolerance : float
         Relative depth tolerance of an agreement: ``|z_seen - z_view| <= depth_tolerance *
         z_view`` (default 0.02, 2 %).
@@ -108,6 +128,7 @@ class FusionParams:
     voxel_size: float | None = None
     disjoint_events: bool = False
     inverse_depth_tolerance: float | None = None
+    reject: str = "unconfirmed"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "min_views", check_parameter(_count, "min_views",
@@ -125,6 +146,9 @@ class FusionParams:
         if not isinstance(self.disjoint_events, bool):
             raise ParameterError(f"{{disjoint_events}} must be True or False, got "
                                  f"{self.disjoint_events!r}", disjoint_events="disjoint_events")
+        if self.reject not in REJECT_RULES:
+            raise ParameterError(f"{{reject}} must be one of {', '.join(REJECT_RULES)}, got "
+                                 f"{ParameterError.literal(self.reject)}", reject="reject")
 
 
 @dataclass
@@ -137,7 +161,7 @@ class FusedCloud:
         One point per occupied voxel: the mean of the kept points in it.
     support : (N,) int32 ndarray
         The most views that agreed on a point merged into the voxel, the point's own view
-        included (``>= 1 + min_views``).
+        included (``>= 1 + min_views`` unless ``FusionParams.reject`` is ``"outvoted"``).
     view : (N,) int32 ndarray
         Index of the view the voxel's first point came from (views in order, then each view's
         points in the order of :meth:`DepthView.pixels`).
@@ -299,20 +323,77 @@ def agreement_counts(views: list[DepthView], params: FusionParams) -> list[np.nd
         ``params.disjoint_events``, of those that share no events with it) that see the point
         and hold a point within the tolerance near where it lands (0 to V - 1).
     """
+    return evidence_counts(views, params)[0]
+
+
+def evidence_counts(views: list[DepthView], params: FusionParams
+                    ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """How many other views confirm and how many contradict each point of each view.
+
+    Parameters
+    ----------
+    views : list of DepthView
+    params : FusionParams
+        As :func:`agreement_counts` uses it.
+
+    Returns
+    -------
+    agree : list of (N_i,) int32 ndarray
+        :func:`agreement_counts`.
+    contradict : list of (N_i,) int32 ndarray
+        Per view, in the order of :meth:`DepthView.pixels`: the number of OTHER views (asked
+        as for ``agree``) that see the point and hold a point within ``search_radius`` pixels
+        of where it lands, none of them within the tolerance (0 to V - 1; ``agree +
+        contradict`` is the number of views that could check the point).
+    """
     views = _check_views(views)
-    counts = [np.zeros(int(view.valid.sum()), np.int32) for view in views]
-    for i, _j, agree, _nearest, _z in _matches(views, params):
-        counts[i] += agree
-    return counts
+    agree = [np.zeros(int(view.valid.sum()), np.int32) for view in views]
+    contradict = [np.zeros_like(a) for a in agree]
+    for i, _j, agreed, nearest, _z in _matches(views, params):
+        agree[i] += agreed
+        contradict[i] += np.isfinite(nearest) & ~agreed
+    return agree, contradict
+
+
+def kept_points(agree: np.ndarray, contradict: np.ndarray | None, params: FusionParams
+                ) -> np.ndarray:
+    """Which points the fusion keeps, from the other views' evidence.
+
+    Parameters
+    ----------
+    agree : (N,) int ndarray
+        Other views that confirm each point (:func:`evidence_counts`).
+    contradict : (N,) int ndarray or None
+        Other views that contradict it; needed by ``params.reject`` ``"outvoted"`` only.
+    params : FusionParams
+        ``min_views`` and ``reject`` are used.
+
+    Returns
+    -------
+    (N,) bool ndarray
+        ``agree >= min_views``; with ``reject`` ``"outvoted"``, or ``agree >= contradict``.
+    """
+    keep = np.asarray(agree) >= params.min_views
+    if params.reject == "outvoted":
+        if contradict is None:
+            raise ParameterError("{reject} outvoted needs the contradicting views' counts",
+                                 reject="reject")
+        keep |= np.asarray(agree) >= np.asarray(contradict)
+    return keep
 
 
 def _kept(views: list[DepthView], params: FusionParams,
           counts: list[np.ndarray] | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Per view: the kept points' mask and their support (count + 1, the point's own view
-    included); at k = 0 every point is kept. ``counts``: :func:`agreement_counts`' (computed
-    when None, checked against the views otherwise)."""
+    """Per view: the kept points' mask (:func:`kept_points`) and their support (count + 1, the
+    point's own view included); at k = 0 every point is kept. ``counts``:
+    :func:`agreement_counts`' (computed when None, checked against the views otherwise; with
+    ``reject`` ``"outvoted"`` the contradictions are counted again beside them)."""
+    contradict: list[np.ndarray] | list[None] = [None] * len(views)
     if counts is None:
-        counts = agreement_counts(views, params)
+        if params.reject == "outvoted":
+            counts, contradict = evidence_counts(views, params)
+        else:
+            counts = agreement_counts(views, params)
     else:
         counts = [np.asarray(c) for c in counts]
         sizes = [int(view.valid.sum()) for view in views]
@@ -320,15 +401,18 @@ def _kept(views: list[DepthView], params: FusionParams,
             raise ParameterError(f"{{counts}} must hold one count per point of each view, "
                                  f"{sizes} points, got shapes {[c.shape for c in counts]}",
                                  counts="counts")
-    keep = [c >= params.min_views for c in counts]
+        if params.reject == "outvoted":
+            contradict = evidence_counts(views, params)[1]
+    keep = [kept_points(c, d, params) for c, d in zip(counts, contradict, strict=True)]
     return keep, [c + 1 for c in counts]
 
 
 def fuse_views(views: list[DepthView], params: FusionParams, *,
                counts: list[np.ndarray] | None = None,
                contributors: list[bool] | None = None) -> FusedCloud:
-    """The fused cloud: points that at least ``min_views`` other views agree with, merged per
-    voxel.
+    """The fused cloud: the points :func:`kept_points` keeps (at least ``min_views`` other views
+    agree with them; with ``reject`` ``"outvoted"`` also those no more views contradict),
+    merged per voxel.
 
     Parameters
     ----------

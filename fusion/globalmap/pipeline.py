@@ -60,7 +60,7 @@ from fusion.globalmap.score import (
     nearest_distances,
     write_error_cloud,
 )
-from fusion.globalmap.tsdf import TSDFParams, tsdf_mesh
+from fusion.globalmap.tsdf import GLOBAL_SEARCH_RADIUS, TSDFParams, tsdf_mesh
 from fusion.globalmap.views import DepthView
 from fusion.io import to_json, write_mesh_ply, write_ply
 from fusion.map.dsi_range import resolve_dsi_range
@@ -112,9 +112,14 @@ class GlobalParams:
     fusion : FusionParams
         Multi-view consistency and the merge voxel of the fused clouds (its
         ``inverse_depth_tolerance`` None: :data:`AGREEMENT_STEPS` of the DSI's plane steps).
+        Default: a point is dropped only where more views contradict it than confirm it
+        (``reject="outvoted"``, :func:`fusion.globalmap.fuse.kept_points`).
     tsdf : TSDFParams
         The TSDF volume of the filled views (its ``inverse_depth_step`` None: the DSI's plane
-        spacing, so that the truncation follows the views' depth resolution).
+        spacing, so that the truncation follows the views' depth resolution). Default: a
+        voxel without depth at its pixel takes the nearest within
+        :data:`fusion.globalmap.tsdf.GLOBAL_SEARCH_RADIUS` pixels (the filled views are
+        sparse).
     method : str or None
         Filling method (default: the paper's, ``paper-idw``); resolved once, before any work.
     method_params : dict
@@ -149,8 +154,9 @@ class GlobalParams:
     """
 
     keyviews: KeyViewParams = field(default_factory=KeyViewParams)
-    fusion: FusionParams = field(default_factory=FusionParams)
-    tsdf: TSDFParams = field(default_factory=TSDFParams)
+    fusion: FusionParams = field(default_factory=lambda: FusionParams(reject="outvoted"))
+    tsdf: TSDFParams = field(
+        default_factory=lambda: TSDFParams(search_radius=GLOBAL_SEARCH_RADIUS))
     method: str | None = None
     method_params: dict = field(default_factory=dict)
     dense: DenseParams = field(default_factory=DenseParams)
@@ -342,7 +348,9 @@ def _map_global(source: Path, tmp: Path, params: GlobalParams, progress: bool,
         raise ParameterError(
             f"the fused map of {ParameterError.literal(str(sequence.folder))} is empty: no "
             f"point of its {len(jobs)} key views' maps ({points:,} points) is confirmed by "
-            f"{{min_views}} {params.fusion.min_views} other views; key views "
+            f"{{min_views}} {params.fusion.min_views} other views"
+            + (" or contradicted by no more views than confirm it"
+               if params.fusion.reject == "outvoted" else "") + "; key views "
             f"{{baseline}} {params.keyviews.baseline:g} of the depth apart may see too little "
             "in common: lower {baseline}, or lower {min_views}",
             baseline="baseline", min_views="min_views")
