@@ -18,6 +18,7 @@ from fusion.globalmap.fuse import (
     evidence_counts,
     fuse_into_view,
     fuse_views,
+    fused_depth_points,
     kept_points,
     view_agreement,
 )
@@ -537,3 +538,33 @@ def test_outvoted_drops_a_point_under_k_that_more_views_contradict_than_confirm(
 def test_the_reject_rule_is_checked():
     with pytest.raises(ParameterError, match="reject"):
         FusionParams(reject="majority")
+
+
+def test_fused_depth_is_the_mean_inverse_depth_of_the_confirming_views():
+    """View i: a wall at 2 m. View j, 0.2 m to the side: the wall at 2.02 m on its columns
+    0-29, nothing on 30-39. Where j confirms a point of i (within 2 %), j's depth moved along
+    its own ray puts the point at 2.02 m in i too, so the fused depth is 1 / mean(1/2, 1/2.02)
+    and the point stays on i's ray (its pixel); where j holds nothing the point stays put.
+    At one pose, two walls 1 % apart meet at their harmonic mean. (Depths are float32: 1e-7.)"""
+    depth_j = np.zeros((30, 40))
+    depth_j[:, :30] = 2.02
+    i, j = _two_walls(depth_j, tx=0.2)
+    params = FusionParams(search_radius=0)
+    agree = agreement_counts([i, j], params)[0] >= 1
+    assert 300 < np.count_nonzero(agree) < len(agree)
+    fused = fused_depth_points([i, j], params)[0]
+    own = i.points_world()
+    expected = 1.0 / np.mean([1 / 2.0, 1 / 2.02])
+    np.testing.assert_allclose(fused[agree, 2], expected, rtol=1e-7)
+    np.testing.assert_allclose(fused[agree, :2] / fused[agree, 2:], own[agree, :2] / 2.0,
+                               rtol=1e-7)                          # on i's ray
+    np.testing.assert_array_equal(fused[~agree], own[~agree])
+    a, b = _two_walls(np.full((30, 40), 1.99), depth_i=2.01)
+    for points in fused_depth_points([a, b], params):
+        np.testing.assert_allclose(points[:, 2], 1.0 / np.mean([1 / 2.01, 1 / 1.99]),
+                                   rtol=1e-7)
+    cloud = fuse_views([a, b], FusionParams(search_radius=0, fuse_depth=True))
+    np.testing.assert_allclose(cloud.points[:, 2], 1.0 / np.mean([1 / 2.01, 1 / 1.99]),
+                               rtol=1e-7)
+    with pytest.raises(ParameterError, match="fuse_depth"):
+        FusionParams(fuse_depth=1)

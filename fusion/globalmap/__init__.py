@@ -1,8 +1,9 @@
 """One global map from many key views (issue 25).
 
 * :mod:`fusion.globalmap.views` -- :class:`DepthView`: a depth image with its camera and world pose.
-* :mod:`fusion.globalmap.fuse` -- multi-view consistency: agreement counts, the fused point cloud,
-  the fused map in one reference view, and the agreement of overlapping views (no ground truth).
+* :mod:`fusion.globalmap.fuse` -- multi-view consistency: agreement and contradiction counts,
+  the fused point cloud (optionally with fused depths), the fused map in one reference view, and
+  the agreement of overlapping views (no ground truth).
 * :mod:`fusion.globalmap.tsdf` -- the truncated signed distance volume integrated from depth views
   (a numba kernel) and its marching-cubes mesh.
 * :mod:`fusion.globalmap.score` -- scoring against the exact geometry (simulated sequences only):
@@ -21,8 +22,11 @@ from fusion.globalmap.fuse import (
     FusionParams,
     agreement_counts,
     default_voxel_size,
+    evidence_counts,
     fuse_into_view,
     fuse_views,
+    fused_depth_points,
+    kept_points,
     view_agreement,
 )
 from fusion.globalmap.keyviews import KeyViewParams, key_view_windows, select_key_views
@@ -43,8 +47,9 @@ from fusion.globalmap.views import DepthView, to_camera, to_world
 __all__ = [
     "TAUS_M", "DepthView", "FusedCloud", "FusedViews", "FusionParams", "GlobalParams",
     "KeyViewParams", "Mesh", "TSDFParams", "TSDFVolume", "agreement_counts", "cloud_scores",
-    "default_voxel_size", "draw_global_figure", "error_colours", "exact_surface", "exact_view",
-    "fuse_into_view", "fuse_views", "fused_reference_map", "key_view_windows", "map_global",
-    "neighbour_times", "run_global", "select_key_views", "to_camera", "to_world", "tsdf_grid",
-    "tsdf_mesh", "view_agreement", "write_error_cloud",
+    "default_voxel_size", "draw_global_figure", "error_colours", "evidence_counts",
+    "exact_surface", "exact_view", "fuse_into_view", "fuse_views", "fused_depth_points",
+    "fused_reference_map", "key_view_windows", "kept_points", "map_global", "neighbour_times",
+    "run_global", "select_key_views", "to_camera", "to_world", "tsdf_grid", "tsdf_mesh",
+    "view_agreement", "write_error_cloud",
 ]
