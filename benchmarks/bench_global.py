@@ -24,7 +24,9 @@ scored against the same exact surface (the key views' union): the best single ke
 fused semi-dense map, the plain union of the views' points (``min_views`` 0, from the same
 views), the fused filled map and the TSDF mesh, at 5 cm, at 1 % of each point's depth and at the
 DSI's plane step at each point's depth; then each goal, met or not. ``--label`` names the run in
-the JSON (``benchmarks/results/global_goals.json`` keeps one entry per label: before / after).
+the JSON (``benchmarks/results/global_goals.json`` keeps one entry per label: before / after);
+``--method`` (a filling method) and ``--fuse-depth`` change the maps as ``map-global``'s flags
+do.
 
 Run: ``PYTHONPATH=$PWD .venv/bin/python benchmarks/bench_global.py [--quick | --goals]
 [--workers N]``. Results are printed and written to ``benchmarks/results/global.json``
@@ -38,6 +40,7 @@ import json
 import os
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -92,7 +95,8 @@ GOAL_KEYS = ("5cm", "depth1pct", "step")
 """The tolerances of ``--goals``' table: 5 cm, 1 % of each point's depth, the plane step there."""
 
 
-def goal_case(name: str, start: float, length: float, workers: int | None) -> dict:
+def goal_case(name: str, start: float, length: float, workers: int | None,
+              method: str | None = None, fuse_depth: bool = False) -> dict:
     """Map one goal window globally and score every map against the same exact surface."""
     from fusion.globalmap.fuse import FusionParams, fuse_views
     from fusion.globalmap.pipeline import _semidense_view
@@ -105,7 +109,8 @@ def goal_case(name: str, start: float, length: float, workers: int | None) -> di
     scene = load_scene(resolve_scene(name))
     folder = cached_window(scene, CACHE, name, start, length, progress=True)
     sequence = load_sequence(folder)
-    params = GlobalParams(workers=workers)
+    params = GlobalParams(workers=workers, method=method)
+    params = replace(params, fusion=replace(params.fusion, fuse_depth=fuse_depth))
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "global"
         tick = time.perf_counter()
@@ -134,6 +139,7 @@ def goal_case(name: str, start: float, length: float, workers: int | None) -> di
     best = max(range(count), key=lambda k: views[k]["fscore_5cm"])
     maps = {"best view": views[best], **{k: score(v) for k, v in clouds.items()}}
     return {"scene": name, "window_s": [start, start + length], "key_views": count,
+            "method": document["params"]["method"], "fuse_depth": fuse_depth,
             "best_view": best, "wall_s": wall, "maps": maps, "views": views,
             "document_global": document["global"]}
 
@@ -221,12 +227,16 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--goals", action="store_true", help="issue 40's goal windows")
     parser.add_argument("--label", default="run", help="--goals: the run's name in the JSON")
     parser.add_argument("--scenes", default=None, help="comma-separated subset of the cases")
+    parser.add_argument("--method", default=None, help="--goals: the filling method")
+    parser.add_argument("--fuse-depth", action="store_true",
+                        help="--goals: fuse each point's depth with its confirming views'")
     parser.add_argument("--workers", type=int, default=None,
                         help="key views mapped at once (default: the machine's cores)")
     args = parser.parse_args(argv)
     if args.goals:
         names = args.scenes.split(",") if args.scenes else list(GOALS)
-        rows = [goal_case(name, *GOALS[name], args.workers) for name in names]
+        rows = [goal_case(name, *GOALS[name], args.workers, args.method, args.fuse_depth)
+                for name in names]
         print_goals(rows)
         path = RESULTS / "global_goals.json"
         recorded = json.loads(path.read_text()) if path.exists() else {}

@@ -125,6 +125,7 @@ def _global_params(args: argparse.Namespace, method):
     fusion = {key: value for key, value in (("min_views", args.min_views),
                                             ("depth_tolerance", args.depth_tolerance),
                                             ("reject", args.reject),
+                                            ("fuse_depth", args.fuse_depth),
                                             ("voxel_size", args.voxel)) if value is not None}
     return GlobalParams(
         keyviews=KeyViewParams(**keyviews), fusion=replace(GlobalParams().fusion, **fusion),

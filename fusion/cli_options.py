@@ -161,6 +161,9 @@ def add_global_options(parser: argparse.ArgumentParser) -> None:
     add("--reject", choices=("outvoted", "unconfirmed"), default=None,
         help="which of the other points are dropped: those that more views "
              "contradict than confirm (outvoted, default) or all (unconfirmed)")
+    add("--fuse-depth", action="store_true", default=None,
+        help="move each fused point to the mean inverse depth of the views that "
+             "confirm it (more precise, less recall; default: its view's depth)")
     add("--depth-tolerance", type=POSITIVE, default=None,
         help="views agree on a point within this share of its depth "
              "(default 0.02)")

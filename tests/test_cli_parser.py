@@ -59,9 +59,9 @@ def test_unknown_group_command_is_refused():
             add(sub, "simulate")
 
 
-@pytest.mark.parametrize("flags,reject", [([], "outvoted"), (["--reject", "unconfirmed"],
-                                                              "unconfirmed")])
-def test_map_global_s_flags_give_the_global_map_s_fusion_and_tsdf(flags, reject):
+@pytest.mark.parametrize("flags,reject,fuse_depth", [
+    ([], "outvoted", False), (["--reject", "unconfirmed", "--fuse-depth"], "unconfirmed", True)])
+def test_map_global_s_flags_give_the_global_map_s_fusion_and_tsdf(flags, reject, fuse_depth):
     """map-global's defaults are GlobalParams' (outvoted points dropped, the TSDF's search
     radius), not FusionParams' and TSDFParams' own; --reject and --voxel replace only theirs."""
     from fusion.globalmap import GlobalParams
@@ -70,7 +70,7 @@ def test_map_global_s_flags_give_the_global_map_s_fusion_and_tsdf(flags, reject)
     args = build_parser().parse_args(["map-global", "SEQ", "--out", "G", "--voxel", "0.01",
                                       *flags])
     params = cli_mapping._global_params(args, cli_mapping._fill_method(args))
-    assert params.fusion.reject == reject
+    assert params.fusion.reject == reject and params.fusion.fuse_depth is fuse_depth
     assert params.fusion.voxel_size == params.tsdf.voxel_size == 0.01
     assert params.tsdf.search_radius == GLOBAL_SEARCH_RADIUS == GlobalParams().tsdf.search_radius
     with pytest.raises(SystemExit):
