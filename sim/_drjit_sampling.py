@@ -293,9 +293,10 @@ def _opaque(kind, value):
 
 
 def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx: float,
-                      fy: float, centres, depth: np.ndarray, twists: np.ndarray, seconds: float,
-                      log_b, log_e, observed, scale, block_ns: int, bound: float,
-                      dt_min_ns: int, device: str = "llvm") -> tuple[object, int, int]:
+                      fy: float, centres, depth: np.ndarray, twists: np.ndarray,
+                      dilation: Callable[[float], int], seconds: float, log_b, log_e, observed,
+                      scale, per_sample: float, most: int,
+                      device: str = "llvm") -> tuple[object, int, int]:
     """:func:`sim.pixel_sampling.rate_map` and :func:`sim.pixel_sampling._intra_counts` on the
     device: the samples each pixel takes strictly inside a block.
 
@@ -304,11 +305,11 @@ def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, in
     Dr.Jit's fast-math mode off), so the counts are theirs bit for bit wherever the rates are
     finite (``tests/test_device_sampler.py``). Two parts stay on the host: the float32
     ``log`` of the sub-samples' weights (NumPy's; Dr.Jit's differs in the last bit), which the
-    caller passes, and the fastest pixel's speed where the squares of the flow cannot decide
-    the dilation (:func:`sim.pixel_sampling._dilation_radius`: it is then taken from every
-    pixel's ``hypot`` by numba). The dilation is a maximum over the clamped window, as
-    ``cv2.dilate`` with ``BORDER_REPLICATE``; a NaN rate (never from a finite render) spreads
-    over the window here.
+    caller passes, and the dilation's radius from the fastest pixel's squared speed, which
+    the caller's ``dilation`` decides (:func:`sim.pixel_sampling._dilation_radius`, from every
+    pixel's ``hypot`` by numba where the square cannot decide it). The dilation is a maximum
+    over the clamped window, as ``cv2.dilate`` with ``BORDER_REPLICATE``; a NaN rate (never
+    from a finite render) spreads over the window here.
 
     Parameters
     ----------
@@ -326,15 +327,20 @@ def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, in
         Exact depth at the block's start (0 where nothing is seen).
     twists : (K, 6) float64 ndarray
         :func:`sim.sampling._twist` of each velocity the block spans.
+    dilation : callable
+        ``dilation(top)`` -> the rate map's dilation in pixels, from the largest ``du^2 + dv^2``
+        over the pixels and twists (NaN where one is not finite).
     seconds : float
-        The block's length (``block_ns`` 1e-9).
+        The block's length.
     log_b, log_e : (P,) Dr.Jit Float64 arrays
         Each pixel's level at the block's start and end.
     observed, scale : (P,) Dr.Jit Float64 arrays or None
         The last block's observed rates and :func:`sim.sampling.contrast_scale`'s.
-    block_ns, dt_min_ns : int, ns
-    bound : float
-        ``lam C``.
+    per_sample : float
+        The change a sample may see (``MARGIN lam C``).
+    most : int
+        Samples a pixel takes at most (the block's length over the shortest interval, at
+        least 1).
     device : {"llvm", "cuda"}
 
     Returns
@@ -346,10 +352,8 @@ def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, in
     radius : int
         The dilation (pixels).
     """
-    from sim.pixel_sampling import MARGIN
-
     m = _module(device)
-    rate, radius = device_rate(weight, logw, shape, fx, fy, centres, depth, twists, seconds,
+    rate, radius = device_rate(weight, logw, shape, fx, fy, centres, depth, twists, dilation,
                                device)
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         # _intra_counts: at least the net change, the last block's rates; times the scale.
@@ -359,23 +363,22 @@ def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, in
             r = _nan_max(r, observed)
         if scale is not None:
             r = r * scale
-        wanted = dr.ceil(r * secs / _opaque(m.Float64, MARGIN * bound))
+        wanted = dr.ceil(r * secs / _opaque(m.Float64, per_sample))
         wanted = dr.select((wanted != wanted) | (wanted == math.inf), 0.0, wanted)
-        most = _opaque(m.Float64, float(max(block_ns // dt_min_ns, 1)))
-        inner = m.UInt32(dr.minimum(dr.maximum(wanted, 1.0), most) - 1.0)
+        inner = m.UInt32(dr.minimum(dr.maximum(wanted, 1.0), _opaque(m.Float64, float(most)))
+                         - 1.0)
         total = dr.sum(m.UInt64(inner))
         dr.eval(inner, total)
         return inner, int(total[0]), radius
 
 
 def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx: float,
-                fy: float, centres: tuple, depth: np.ndarray, twists: np.ndarray, seconds: float,
-                device: str = "llvm") -> tuple[object, int]:
+                fy: float, centres: tuple, depth: np.ndarray, twists: np.ndarray,
+                dilation: Callable[[float], int], device: str = "llvm") -> tuple[object, int]:
     """:func:`sim.pixel_sampling.rate_map` on the device (the arguments are
     :func:`device_prediction`'s): the rate map, flat ((H W,) Dr.Jit Float64), and its
     dilation (pixels)."""
     from sim._drjit_events import _device_array
-    from sim.pixel_sampling import _dilation_radius, _flow_speeds
 
     m = _module(device)
     height, width = shape
@@ -419,7 +422,7 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
         slope_u = sums[1] / nn * (n_d / mean)
         slope_v = sums[2] / nn * (n_d / mean)
         # The motion field of each twist (sim.sampling._point_flow, its operations in order).
-        xy, x, yy = centres
+        _, x, yy = centres
         z = _device_array(m.Float64, np.asarray(depth, np.float64).reshape(-1))
         seen = z > 0.0
         fx_d, fy_d = _opaque(m.Float64, fx), _opaque(m.Float64, fy)
@@ -438,13 +441,7 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
         finite = dr.all(dr.isfinite(squares))
         top = dr.max(dr.select(dr.isfinite(squares), squares, 0.0))
         dr.eval(best, finite, top)
-        top_host = float(top[0]) if bool(finite[0]) else math.nan
-
-        def exact():                                      # every pixel's hypot, by numba
-            return _flow_speeds(float(fx), float(fy), np.asarray(xy, np.float64),
-                                np.asarray(depth), np.asarray(twists, np.float64).reshape(-1, 6))
-
-        radius = _dilation_radius(np.array([top_host]), seconds, exact)
+        radius = dilation(float(top[0]) if bool(finite[0]) else math.nan)
         rate = best
         if radius > 0:                              # the maximum over the clamped window
             rate = _dilate(m, rate, height, width, radius)

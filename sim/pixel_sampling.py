@@ -1285,9 +1285,21 @@ def _predicted_on_device(device: str, on: dict, camera: Camera, sub_b: np.ndarra
     inner, total, _ = device_prediction(
         weight, logw, (camera.height, camera.width), float(camera.fx), float(camera.fy),
         kept["centres"], depth, np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6),
-        length * 1e-9, kept["log_b"], kept["log_e"], last, kept.get("scale"), length, bound,
-        dt_min_ns, device)
+        _dilation_of(camera, centres, depth, twists, length * 1e-9), length * 1e-9,
+        kept["log_b"], kept["log_e"], last, kept.get("scale"), MARGIN * bound,
+        max(length // dt_min_ns, 1), device)
     return inner, total, kept
+
+
+def _dilation_of(camera: Camera, centres: np.ndarray, depth: np.ndarray, twists: list,
+                 seconds: float) -> Callable[[float], int]:
+    """``dilation(top)``: :func:`_dilation_radius` of a block from the largest ``du^2 + dv^2``
+    over its pixels and twists (``top``, NaN where one is not finite), every pixel's ``hypot``
+    by :func:`_flow_speeds` where that cannot decide: what
+    :func:`sim._drjit_sampling.device_prediction` asks its caller."""
+    args = (float(camera.fx), float(camera.fy), np.asarray(centres, np.float64),
+            np.asarray(depth), np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6))
+    return lambda top: _dilation_radius(np.array([top]), seconds, partial(_flow_speeds, *args))
 
 
 def _block_ends(t_b: int, t1_ns: int, block_ns: int, dt_min_ns: int) -> list[int]:

@@ -207,7 +207,7 @@ def test_the_prediction_on_the_device_is_numbas_bit_for_bit(n, variant):
     a distorted camera, blocks whose dilation is 0 (a camera at rest), 1 or tens of pixels,
     with and without the last block's rates and the pixels' threshold scale."""
     from sim._drjit_sampling import _module, device_centres, device_prediction, device_rate
-    from sim.pixel_sampling import _intra_counts, _log_weights, rate_map
+    from sim.pixel_sampling import MARGIN, _dilation_of, _intra_counts, _log_weights, rate_map
     from sim.sampling import _twist
     from tests.test_sampler_kernels import _camera, _luminance
 
@@ -230,7 +230,8 @@ def test_the_prediction_on_the_device_is_numbas_bit_for_bit(n, variant):
         weight, logw, _ = _log_weights(camera, sub, eps)
         args = (weight, logw, (height, width), float(camera.fx), float(camera.fy),
                 device_centres(centres, device), depth,
-                np.array([_twist(v, w) for v, w in twists]), block_ns * 1e-9)
+                np.array([_twist(v, w) for v, w in twists]),
+                _dilation_of(camera, centres, depth, twists, block_ns * 1e-9))
         rate, radius = device_rate(*args, device=device)
         want = rate_map(camera, sub, depth, twists, block_ns * 1e-9, eps, centres)
         np.testing.assert_array_equal(rate.numpy().reshape(height, width), want)
@@ -241,9 +242,9 @@ def test_the_prediction_on_the_device_is_numbas_bit_for_bit(n, variant):
         scale = rng.uniform(0.5, 2.0, height * width)
         for obs, sc in ((None, None), (observed, scale)):
             inner, total, _ = device_prediction(
-                *args, m.Float64(log_b), m.Float64(log_e),
+                *args, block_ns * 1e-9, m.Float64(log_b), m.Float64(log_e),
                 None if obs is None else m.Float64(obs), None if sc is None else m.Float64(sc),
-                block_ns, 0.1, 50_000, device)
+                MARGIN * 0.1, max(block_ns // 50_000, 1), device)
             counts = _intra_counts(want.reshape(-1), log_b, log_e, obs, sc, block_ns, 0.1,
                                    50_000)
             np.testing.assert_array_equal(inner.numpy().astype(np.int64), counts)
@@ -276,5 +277,5 @@ def test_the_prediction_of_wide_pixels_is_numbas_sent_to_the_device(variant):
     weight, logw, _ = _log_weights(camera, sub, 0.43)
     with pytest.raises(ValueError, match="7x7"):
         device_prediction(weight, logw, (5, 7), 1.0, 1.0, device_centres(centres, device),
-                          depth, np.zeros((1, 6)), 0.01, None, None, None, None, 10_000_000,
-                          0.1, 50_000, device)
+                          depth, np.zeros((1, 6)), lambda top: 0, 0.01, None, None, None, None,
+                          0.05, 200, device)
