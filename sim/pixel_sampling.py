@@ -1132,7 +1132,8 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         (:func:`sim._drjit_sampling.device_block`, shading through
         ``source.luminance_device``) instead of the reference path (numba and NumPy, shading
         through ``source.luminance``), the block-end frames :data:`FRAMES_AHEAD` at a time
-        (``source.subsamples_many``, where the source has it); the blocks that ``edges``
+        (``source.subsamples_many``, where the source has it) and the block starts' depth maps
+        with them (``source.depth_many``, where it has it); the blocks that ``edges``
         renders with ``source.fine_luminance`` take the reference path. The same samples
         and events up to the levels' ``log`` (see :mod:`sim._drjit_sampling`).
 
@@ -1186,6 +1187,7 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     centres = camera.normalized_pixel_centres()
     ends = _block_ends(t_b, t1_ns, block_ns, dt_min_ns)
     ahead: dict[int, np.ndarray] = {}
+    depths: dict[int, np.ndarray] = {}                 # block starts' depth maps, batched too
     batched = device is not None and hasattr(source, "subsamples_many")
     on: dict = {}                  # what the device path keeps on the device between blocks
     for i, t_e in enumerate(ends):
@@ -1194,12 +1196,16 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
             chunk = ends[i:i + FRAMES_AHEAD]
             ahead = dict(zip(chunk, source.subsamples_many(seconds(np.array(chunk))),
                              strict=True))
+            if hasattr(source, "depth_many"):
+                starts = [t_b, *chunk[:-1]]
+                depths = dict(zip(starts, source.depth_many(seconds(np.array(starts))),
+                                  strict=True))
         sub_e = ahead.pop(t_e) if batched else source.subsamples(float(seconds(t_e)))
         stats.full_renders += 1
         lum_e, fine_e = boundary(sub_e, t_e)
         log_e = log_of(lum_e)
         shade = partial(_shade, source, stats, None if fine_e is None else fine_b | fine_e)
-        depth = source.depth(float(seconds(t_b)))
+        depth = depths.pop(t_b) if t_b in depths else source.depth(float(seconds(t_b)))
         stats.depth_renders += 1
         twists = [source.camera_velocity(float(seconds(t_b))),
                   source.camera_velocity(float(seconds(t_e)))]
