@@ -499,6 +499,23 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 
 
+@numba.njit(cache=True, inline="always")
+def _write_crossing(out_t, out_pix, out_p, out_cause, keep, n, te, p, sign, cause, last,
+                    refractory):  # pragma: no cover - compiled
+    """Crossing ``n`` of the per-pixel kernels (time ``te`` ns, pixel ``p``, polarity, cause),
+    ``keep`` False where it falls within the refractory period after the pixel's last kept
+    one; returns the pixel's last kept time."""
+    out_t[n] = te
+    out_pix[n] = p
+    out_p[n] = sign
+    out_cause[n] = cause
+    if refractory > 0 and te - last < refractory:
+        keep[n] = False
+        return last
+    keep[n] = True
+    return te
+
+
 @numba.njit(cache=True)
 def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
                   refractory, out_t, out_pix, out_p, out_cause,
@@ -567,15 +584,10 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
                     for i in range(1, count + 1):
                         te = filtered_crossing_time(r + i * c, lf, a, b, x, f_lo, y_lo, f_hi,
                                                     y_hi, ta, float(dt))
-                        out_t[n] = te
-                        out_pix[n] = p
-                        out_p[n] = sign
-                        out_cause[n] = CAUSE_LEAK if sf != sign or i > nf else CAUSE_SIGNAL
-                        if refractory > 0 and te - last < refractory:
-                            keep[n] = False
-                        else:
-                            keep[n] = True
-                            last = te
+                        last = _write_crossing(
+                            out_t, out_pix, out_p, out_cause, keep, n, te, p, sign,
+                            CAUSE_LEAK if sf != sign or i > nf else CAUSE_SIGNAL, last,
+                            refractory)
                         n += 1
                 else:
                     n += count
@@ -627,15 +639,8 @@ def _pixel_events_direct(pix, t, L, ref, level, raw, last_t, c_on, c_off, refrac
                     dt = float(tb - ta)
                     for i in range(1, count + 1):
                         te = crossing_time(r + i * c, lf, lb - lf, ta, dt)
-                        out_t[n] = te
-                        out_pix[n] = p
-                        out_p[n] = sign
-                        out_cause[n] = CAUSE_SIGNAL
-                        if refractory > 0 and te - last < refractory:
-                            keep[n] = False
-                        else:
-                            keep[n] = True
-                            last = te
+                        last = _write_crossing(out_t, out_pix, out_p, out_cause, keep, n, te, p,
+                                               sign, CAUSE_SIGNAL, last, refractory)
                         n += 1
                 else:
                     n += count
