@@ -292,6 +292,17 @@ def _opaque(kind, value):
     return out
 
 
+def _scalars(m, values, width: int) -> list:
+    """Float64 scalars the kernels read from memory (as :func:`_opaque`'s), sent in one copy:
+    each gathered inside the kernels that use it, over ``width`` lanes, instead of one memory
+    fill (a launch on a GPU) each."""
+    from sim._drjit_events import _device_array
+
+    table = _device_array(m.Float64, np.asarray(values, np.float64))
+    lanes = dr.zeros(m.UInt32, width)
+    return [dr.gather(m.Float64, table, lanes + i) for i in range(len(values))]
+
+
 def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx: float,
                       fy: float, centres, depth: np.ndarray, twists: np.ndarray,
                       dilation: Callable[[float], int], seconds: float, log_b, log_e, observed,
@@ -357,18 +368,17 @@ def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, in
                                device)
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         # _intra_counts: at least the net change, the last block's rates; times the scale.
-        secs = _opaque(m.Float64, seconds)
+        secs, per, top = _scalars(m, [seconds, per_sample, float(most)], dr.width(rate))
         r = _nan_max(rate, dr.abs(log_e - log_b) / secs)
         if observed is not None:
             r = _nan_max(r, observed)
         if scale is not None:
             r = r * scale
-        wanted = dr.ceil(r * secs / _opaque(m.Float64, per_sample))
+        wanted = dr.ceil(r * secs / per)
         wanted = dr.select((wanted != wanted) | (wanted == math.inf), 0.0, wanted)
-        inner = m.UInt32(dr.minimum(dr.maximum(wanted, 1.0), _opaque(m.Float64, float(most)))
-                         - 1.0)
+        inner = m.UInt32(dr.minimum(dr.maximum(wanted, 1.0), top) - 1.0)
+        dr.eval(inner)                              # once, then summed
         total = dr.sum(m.UInt64(inner))
-        dr.eval(inner, total)
         return inner, int(total[0]), radius
 
 
@@ -417,7 +427,9 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
         for i in range(1, n):
             sums = [s_ + m.Float64(_take(a, first + i)) for s_, a in zip(sums, acc, strict=True)]
         # Opaque: Dr.Jit turns a division by a literal into a product by its reciprocal.
-        nn, n_d = _opaque(m.Float64, float(n * n)), _opaque(m.Float64, float(n))
+        twists = np.asarray(twists, np.float64).reshape(-1, 6)
+        nn, n_d, fx_d, fy_d, *motion = _scalars(m, [float(n * n), float(n), fx, fy,
+                                                    *twists.reshape(-1)], height * width)
         mean = sums[0] / nn
         slope_u = sums[1] / nn * (n_d / mean)
         slope_v = sums[2] / nn * (n_d / mean)
@@ -425,11 +437,10 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
         _, x, yy = centres
         z = _device_array(m.Float64, np.asarray(depth, np.float64).reshape(-1))
         seen = z > 0.0
-        fx_d, fy_d = _opaque(m.Float64, fx), _opaque(m.Float64, fy)
         best = m.Float64(0.0)
         squares = None
-        for twist in np.asarray(twists, np.float64).reshape(-1, 6):
-            vx, vy, vz, wx, wy, wz = (_opaque(m.Float64, float(v)) for v in twist)
+        for k in range(len(twists)):
+            vx, vy, vz, wx, wy, wz = motion[6 * k:6 * k + 6]
             px = -vx - z * (wy - wz * yy)
             py = -vy - z * (wz * x - wx)
             pz = -vz - z * (wx * yy - wy * x)
@@ -438,10 +449,9 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
             best = _nan_max(best, slope_u * dr.abs(du) + slope_v * dr.abs(dv))
             square = du * du + dv * dv
             squares = square if squares is None else _nan_max(squares, square)
-        finite = dr.all(dr.isfinite(squares))
-        top = dr.max(dr.select(dr.isfinite(squares), squares, 0.0))
-        dr.eval(best, finite, top)
-        radius = dilation(float(top[0]) if bool(finite[0]) else math.nan)
+        dr.eval(best, squares)                      # one kernel, then one reduction
+        top = float(dr.max(dr.select(dr.isfinite(squares), squares, math.inf))[0])
+        radius = dilation(top if math.isfinite(top) else math.nan)
         rate = best
         if radius > 0:                              # the maximum over the clamped window
             rate = _dilate(m, rate, height, width, radius)
