@@ -324,7 +324,7 @@ def _kernel(m, samples, runs, out, leak_jitter: float, refractory: int, filtered
 
 
 _DTYPES = {dr.VarType.Int64: np.int64, dr.VarType.UInt32: np.uint32,
-           dr.VarType.Float64: np.float64}
+           dr.VarType.Float64: np.float64, dr.VarType.Float32: np.float32}
 
 
 def _device_array(kind, values: np.ndarray):

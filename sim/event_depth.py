@@ -160,10 +160,12 @@ def nearer_object(ids_a: np.ndarray, ids_b: np.ndarray, weight: np.ndarray) -> n
 
 
 class RecentDepth:
-    """A depth render function that keeps its last render (renders are deterministic in time).
+    """A depth render function that keeps its last renders (renders are deterministic in time).
 
     The event stage and the sampler that drives it ask for the depth at the same times; this
-    renders it once. The array returned is read-only (it is shared).
+    renders it once. :meth:`many` renders several times at once (the per-pixel sampler's
+    block starts, ahead of their blocks) and keeps them until they are asked for. The arrays
+    returned are read-only (they are shared).
 
     Parameters
     ----------
@@ -172,22 +174,48 @@ class RecentDepth:
         another per-pixel render of time (``Renderer.object_ids``, with its ``dtype``).
     dtype : numpy dtype
         Of the kept render (default float32).
+    render_many : callable, optional
+        ``render_many(times) -> (K, H, W)``, the same maps as ``render`` at each time
+        (``Renderer.depth_many``); default ``render`` a time.
     """
 
-    def __init__(self, render: Callable[[float], np.ndarray], dtype=np.float32) -> None:
+    KEEP = 20
+    """Renders kept at most: the last asked for and those :meth:`many` made ahead (the
+    per-pixel sampler asks for 16 at a time)."""
+
+    def __init__(self, render: Callable[[float], np.ndarray], dtype=np.float32,
+                 render_many: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
         self._render, self._dtype = render, np.dtype(dtype)
-        self._t: float | None = None
-        self._depth: np.ndarray | None = None
+        self._render_many = render_many
+        self._kept: dict[float, np.ndarray] = {}
         self.renders = 0
-        """Depth renders made."""
+        """Depth renders made (maps)."""
+
+    def _keep(self, t: float, depth) -> np.ndarray:
+        depth = np.array(depth, dtype=self._dtype)
+        depth.flags.writeable = False
+        self._kept[t] = depth
+        while len(self._kept) > self.KEEP:
+            del self._kept[next(iter(self._kept))]           # the oldest first
+        self.renders += 1
+        return depth
 
     def __call__(self, t: float) -> np.ndarray:
-        if self._depth is None or t != self._t:
-            depth = np.array(self._render(t), dtype=self._dtype)
-            depth.flags.writeable = False
-            self._t, self._depth = t, depth
-            self.renders += 1
-        return self._depth
+        if t not in self._kept:
+            return self._keep(t, self._render(t))
+        return self._kept[t]
+
+    def many(self, times) -> list[np.ndarray]:
+        """The maps at ``times`` (seconds), those not kept rendered together."""
+        times = [float(t) for t in np.asarray(times, dtype=np.float64).reshape(-1)]
+        missing = list(dict.fromkeys(t for t in times if t not in self._kept))
+        if len(missing) > 1 and self._render_many is not None:
+            for t, depth in zip(missing, self._render_many(np.array(missing)), strict=True):
+                self._keep(t, depth)
+        else:
+            for t in missing:
+                self._keep(t, self._render(t))
+        return [self._kept[t] for t in times]
 
 
 class EventDepth:

@@ -233,14 +233,8 @@ def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
         moves in ``seconds`` (at most :data:`MAX_DILATION`).
     """
     height, width = camera.height, camera.width
-    luminance = np.asarray(subsamples, dtype=np.float32)       # float32: a rate, not a level
-    n = luminance.shape[0] // height
-    if luminance.shape != (height * n, width * n) or n < 1:
-        raise ValueError(f"subsamples must have shape (H n, W n) for the camera's {height}x"
-                         f"{width} pixels, got {luminance.shape}")
-    weight = luminance + np.float32(log_eps)
-    # NumPy's float32 log (numba's, libm's, may differ in the last bit); the rest is compiled.
-    slope_u, slope_v = _weighted_slopes(np.log(weight), weight, height, width, n)
+    weight, logw, n = _log_weights(camera, subsamples, log_eps)
+    slope_u, slope_v = _weighted_slopes(logw, weight, height, width, n)
     xy = camera.normalized_pixel_centres() if centres is None else centres
     args = (float(camera.fx), float(camera.fy), np.asarray(xy, np.float64), np.asarray(depth),
             np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6))
@@ -250,6 +244,21 @@ def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
         kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
         rate = cv2.dilate(rate, kernel, borderType=cv2.BORDER_REPLICATE)
     return rate
+
+
+def _log_weights(camera: Camera, subsamples: np.ndarray,
+                 log_eps: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`rate_map`'s weights ``Y_s + eps`` of the sub-samples ((H n, W n) float32: a rate,
+    not a level), their float32 ``log`` (NumPy's: numba's and Dr.Jit's may differ in the last
+    bit, so the host takes it for every path) and ``n``."""
+    height, width = camera.height, camera.width
+    luminance = np.asarray(subsamples, dtype=np.float32)
+    n = luminance.shape[0] // height
+    if luminance.shape != (height * n, width * n) or n < 1:
+        raise ValueError(f"subsamples must have shape (H n, W n) for the camera's {height}x"
+                         f"{width} pixels, got {luminance.shape}")
+    weight = luminance + np.float32(log_eps)
+    return weight, np.log(weight), n
 
 
 # The prediction's per-pixel work, compiled (rows in parallel): each kernel gives exactly the
@@ -490,6 +499,23 @@ def pixel_means(subsamples: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 
 
+@numba.njit(cache=True, inline="always")
+def _write_crossing(out_t, out_pix, out_p, out_cause, keep, n, te, p, sign, cause, last,
+                    refractory):  # pragma: no cover - compiled
+    """Crossing ``n`` of the per-pixel kernels (time ``te`` ns, pixel ``p``, polarity, cause),
+    ``keep`` False where it falls within the refractory period after the pixel's last kept
+    one; returns the pixel's last kept time."""
+    out_t[n] = te
+    out_pix[n] = p
+    out_p[n] = sign
+    out_cause[n] = cause
+    if refractory > 0 and te - last < refractory:
+        keep[n] = False
+        return last
+    keep[n] = True
+    return te
+
+
 @numba.njit(cache=True)
 def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, leak, normals,
                   refractory, out_t, out_pix, out_p, out_cause,
@@ -558,15 +584,10 @@ def _pixel_events(pix, t, L, exponent, ref, level, raw, last_t, c_on, c_off, lea
                     for i in range(1, count + 1):
                         te = filtered_crossing_time(r + i * c, lf, a, b, x, f_lo, y_lo, f_hi,
                                                     y_hi, ta, float(dt))
-                        out_t[n] = te
-                        out_pix[n] = p
-                        out_p[n] = sign
-                        out_cause[n] = CAUSE_LEAK if sf != sign or i > nf else CAUSE_SIGNAL
-                        if refractory > 0 and te - last < refractory:
-                            keep[n] = False
-                        else:
-                            keep[n] = True
-                            last = te
+                        last = _write_crossing(
+                            out_t, out_pix, out_p, out_cause, keep, n, te, p, sign,
+                            CAUSE_LEAK if sf != sign or i > nf else CAUSE_SIGNAL, last,
+                            refractory)
                         n += 1
                 else:
                     n += count
@@ -618,15 +639,8 @@ def _pixel_events_direct(pix, t, L, ref, level, raw, last_t, c_on, c_off, refrac
                     dt = float(tb - ta)
                     for i in range(1, count + 1):
                         te = crossing_time(r + i * c, lf, lb - lf, ta, dt)
-                        out_t[n] = te
-                        out_pix[n] = p
-                        out_p[n] = sign
-                        out_cause[n] = CAUSE_SIGNAL
-                        if refractory > 0 and te - last < refractory:
-                            keep[n] = False
-                        else:
-                            keep[n] = True
-                            last = te
+                        last = _write_crossing(out_t, out_pix, out_p, out_cause, keep, n, te, p,
+                                               sign, CAUSE_SIGNAL, last, refractory)
                         n += 1
                 else:
                     n += count
@@ -1118,11 +1132,13 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         renderer to the other at a boundary where no edge crosses it, where both agree up to
         the texture filter's bound.
     device : {"llvm", "cuda"}, optional
-        Build, shade, check and refine each block's samples on this Dr.Jit device
+        Predict (:func:`sim._drjit_sampling.device_prediction`), build, shade, check and refine
+        each block's samples on this Dr.Jit device
         (:func:`sim._drjit_sampling.device_block`, shading through
         ``source.luminance_device``) instead of the reference path (numba and NumPy, shading
         through ``source.luminance``), the block-end frames :data:`FRAMES_AHEAD` at a time
-        (``source.subsamples_many``, where the source has it); the blocks that ``edges``
+        (``source.subsamples_many``, where the source has it) and the block starts' depth maps
+        with them (``source.depth_many``, where it has it); the blocks that ``edges``
         renders with ``source.fine_luminance`` take the reference path. The same samples
         and events up to the levels' ``log`` (see :mod:`sim._drjit_sampling`).
 
@@ -1176,35 +1192,41 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     centres = camera.normalized_pixel_centres()
     ends = _block_ends(t_b, t1_ns, block_ns, dt_min_ns)
     ahead: dict[int, np.ndarray] = {}
+    depths: dict[int, np.ndarray] = {}                 # block starts' depth maps, batched too
     batched = device is not None and hasattr(source, "subsamples_many")
+    on: dict = {}                  # what the device path keeps on the device between blocks
     for i, t_e in enumerate(ends):
         length = t_e - t_b
         if batched and t_e not in ahead:           # the next frames, several a launch
             chunk = ends[i:i + FRAMES_AHEAD]
             ahead = dict(zip(chunk, source.subsamples_many(seconds(np.array(chunk))),
                              strict=True))
+            if hasattr(source, "depth_many"):
+                starts = [t_b, *chunk[:-1]]
+                depths = dict(zip(starts, source.depth_many(seconds(np.array(starts))),
+                                  strict=True))
         sub_e = ahead.pop(t_e) if batched else source.subsamples(float(seconds(t_e)))
         stats.full_renders += 1
         lum_e, fine_e = boundary(sub_e, t_e)
         log_e = log_of(lum_e)
         shade = partial(_shade, source, stats, None if fine_e is None else fine_b | fine_e)
-        depth = source.depth(float(seconds(t_b)))
+        depth = depths.pop(t_b) if t_b in depths else source.depth(float(seconds(t_b)))
         stats.depth_renders += 1
         twists = [source.camera_velocity(float(seconds(t_b))),
                   source.camera_velocity(float(seconds(t_e)))]
-        rate = rate_map(camera, sub_b, depth, twists, length * 1e-9, log_eps, centres)
-        inner = _intra_counts(rate.reshape(-1), log_b.reshape(-1), log_e.reshape(-1), observed,
-                              scale, length, bound, dt_min_ns)
         # Every pixel: its block-start sample, `inner` evenly spaced samples, its block-end one.
         on_device = device is not None and (fine_e is None or not (fine_b | fine_e).any())
         if on_device:
             from sim._drjit_sampling import device_block
 
-            samples, counts, observed = device_block(
-                source.luminance_device, inner, t_b, length, log_b.reshape(-1),
-                lum_b.reshape(-1).astype(np.float64), log_e.reshape(-1),
-                lum_e.reshape(-1).astype(np.float64), float(t0), float(t1), bound, scale,
-                dt_min_ns, log_eps, stats, device)
+            inner, total, on = _predicted_on_device(
+                device, on, camera, sub_b, depth, twists, length, log_eps, centres, log_b, log_e,
+                observed, scale, bound, dt_min_ns)
+            samples, counts, observed, on["observed"] = device_block(
+                source.luminance_device, inner, t_b, length, on["log_b"],
+                lum_b.reshape(-1).astype(np.float64), on["log_e"],
+                lum_e.reshape(-1).astype(np.float64), float(t0), float(t1), bound,
+                on.get("scale"), dt_min_ns, log_eps, stats, device, total=total)
             if emulator.kernel == "drjit":             # the samples stay on the device
                 events = emulator.advance_device(counts, *samples[1:], t_e, lum_e)
             else:
@@ -1215,6 +1237,10 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
             t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, log_e, fine_e
             yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
             continue
+        on = {}                                        # nothing left on the device
+        rate = rate_map(camera, sub_b, depth, twists, length * 1e-9, log_eps, centres)
+        inner = _intra_counts(rate.reshape(-1), log_b.reshape(-1), log_e.reshape(-1), observed,
+                              scale, length, bound, dt_min_ns)
         pix, times, levels, lums, mid_pix, mid_s = _block_samples(
             inner, t_b, length, log_b.reshape(-1), lum_b.reshape(-1), log_e.reshape(-1),
             lum_e.reshape(-1), float(t0), float(t1))
@@ -1233,6 +1259,58 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         stats.blocks += 1
         t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, log_e, fine_e
         yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
+
+
+def _predicted_on_device(device: str, on: dict, camera: Camera, sub_b: np.ndarray,
+                         depth: np.ndarray, twists: list, length: int, log_eps: float,
+                         centres: np.ndarray, log_b: np.ndarray, log_e: np.ndarray,
+                         observed: np.ndarray | None, scale: np.ndarray | None, bound: float,
+                         dt_min_ns: int) -> tuple[object, int, dict]:
+    """A block's :func:`_intra_counts` on ``device`` (:func:`sim._drjit_sampling.
+    device_prediction`: the same counts), left there, with their sum and ``on``: the arrays
+    the device keeps (the block's levels, the pixel centres, the scale and, from the last
+    device block, the observed rates). Where a pixel has 8x8 sub-samples or more, the counts
+    are numba's (:func:`rate_map`), sent to the device."""
+    from sim._drjit_events import _device_array
+    from sim._drjit_sampling import _module, device_centres, device_prediction
+
+    m = _module(device)
+    kept = {"log_b": on["log_e"] if "log_e" in on else _device_array(m.Float64,
+                                                                       log_b.reshape(-1)),
+            "log_e": _device_array(m.Float64, log_e.reshape(-1))}
+    for name, make in (("centres", lambda: device_centres(centres, device)),
+                       ("scale", lambda: None if scale is None else _device_array(m.Float64,
+                                                                                  scale))):
+        kept[name] = on[name] if name in on else make()
+    if "scale" in kept and kept["scale"] is None:
+        del kept["scale"]
+    last = on.get("observed")
+    if last is None and observed is not None:
+        last = _device_array(m.Float64, observed)
+    weight, logw, n = _log_weights(camera, sub_b, log_eps)
+    if n >= 8:
+        rate = rate_map(camera, sub_b, depth, twists, length * 1e-9, log_eps, centres)
+        inner = _intra_counts(rate.reshape(-1), log_b.reshape(-1), log_e.reshape(-1), observed,
+                              scale, length, bound, dt_min_ns)
+        return _device_array(m.UInt32, inner), int(inner.sum()), kept
+    inner, total, _ = device_prediction(
+        weight, logw, (camera.height, camera.width), float(camera.fx), float(camera.fy),
+        kept["centres"], depth, np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6),
+        _dilation_of(camera, centres, depth, twists, length * 1e-9), length * 1e-9,
+        kept["log_b"], kept["log_e"], last, kept.get("scale"), MARGIN * bound,
+        max(length // dt_min_ns, 1), device)
+    return inner, total, kept
+
+
+def _dilation_of(camera: Camera, centres: np.ndarray, depth: np.ndarray, twists: list,
+                 seconds: float) -> Callable[[float], int]:
+    """``dilation(top)``: :func:`_dilation_radius` of a block from the largest ``du^2 + dv^2``
+    over its pixels and twists (``top``, NaN where one is not finite), every pixel's ``hypot``
+    by :func:`_flow_speeds` where that cannot decide: what
+    :func:`sim._drjit_sampling.device_prediction` asks its caller."""
+    args = (float(camera.fx), float(camera.fy), np.asarray(centres, np.float64),
+            np.asarray(depth), np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6))
+    return lambda top: _dilation_radius(np.array([top]), seconds, partial(_flow_speeds, *args))
 
 
 def _block_ends(t_b: int, t1_ns: int, block_ns: int, dt_min_ns: int) -> list[int]:

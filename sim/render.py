@@ -620,6 +620,34 @@ class Renderer:
         z = dr.select(si.is_valid(), si.t * self._rays.z, 0.0)
         return np.array(z, dtype=np.float32).reshape(shape)
 
+    def depth_many(self, times: np.ndarray) -> np.ndarray:
+        """:meth:`depth` at several times (K,) seconds, (K, H, W) float32: one ray cast for
+        all of them where the scene is static on a JIT variant, each ray turned by its own
+        time's pose with the same float32 operations as :meth:`depth`'s, so that each map is
+        :meth:`depth`'s bit for bit (``tests/test_render.py``); else one :meth:`depth` a time.
+        """
+        times = np.asarray(times, dtype=np.float64).reshape(-1)
+        if self.variant == "scalar_rgb" or self.scene.is_dynamic or len(times) < 2:
+            return np.stack([self.depth(float(t)) for t in times])
+        mi, dr = self._mi, self._dr
+        shape = (self.camera.height, self.camera.width)
+        n = shape[0] * shape[1]
+        poses = [self._set_state(float(t), None) for t in times]
+        rotations = np.stack([pose[:3, :3] for pose in poses]).astype(np.float32).reshape(-1, 9)
+        origins = np.stack([pose[:3, 3] for pose in poses]).astype(np.float32)
+        lane = dr.arange(mi.UInt32, len(times) * n)
+        view, pixel = lane // n, lane % n
+        entries = [dr.gather(mi.Float, mi.Float(np.ascontiguousarray(rotations[:, i])), view)
+                   for i in range(9)]
+        rotation = mi.Matrix3f(*entries)
+        origin = mi.Point3f(*(dr.gather(mi.Float, mi.Float(np.ascontiguousarray(origins[:, i])),
+                                        view) for i in range(3)))
+        rays = dr.gather(mi.Vector3f, self._rays, pixel)
+        si = self._scene.ray_intersect(mi.Ray3f(origin, rotation @ rays),
+                                       ray_flags=mi.RayFlags.Minimal, coherent=True)
+        z = dr.select(si.is_valid(), si.t * rays.z, 0.0)
+        return np.array(z, dtype=np.float32).reshape(len(times), *shape)
+
     def _depth_scalar(self, pose: np.ndarray) -> np.ndarray:
         mi = self._mi
         origin = mi.Point3f(*pose[:3, 3].tolist())

@@ -191,3 +191,91 @@ def test_simulate_writes_the_reference_events_with_the_device_path(tmp_path, mon
     assert dev.event_pixel_samples == ref.event_pixel_samples
     for key in ("t", "x", "y", "p"):
         np.testing.assert_array_equal(dev_events[key], ref_events[key])
+
+
+def _variant_device(variant: str) -> str:
+    """The Dr.Jit device of the suite's variant (the prediction runs on the CPU's ``llvm``
+    under ``scalar_rgb``)."""
+    return "cuda" if variant.startswith("cuda") else "llvm"
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 7])
+def test_the_prediction_on_the_device_is_numbas_bit_for_bit(n, variant):
+    """:func:`sim._drjit_sampling.device_rate` and ``device_prediction`` against
+    :func:`sim.pixel_sampling.rate_map` and ``_intra_counts`` (numba, themselves NumPy's bit
+    for bit: tests/test_sampler_kernels.py) on random sub-samples over decades, zero depths,
+    a distorted camera, blocks whose dilation is 0 (a camera at rest), 1 or tens of pixels,
+    with and without the last block's rates and the pixels' threshold scale."""
+    from sim._drjit_sampling import _module, device_centres, device_prediction, device_rate
+    from sim.pixel_sampling import MARGIN, _dilation_of, _intra_counts, _log_weights, rate_map
+    from sim.sampling import _twist
+    from tests.test_sampler_kernels import _camera, _luminance
+
+    device = _variant_device(variant)
+    m = _module(device)
+    rng = np.random.default_rng(n)
+    width, height = 31, 19
+    radii = set()
+    for trial in range(4):
+        camera = _camera(width, height, distorted=trial % 2 == 0)
+        sub = _luminance(rng, (height * n, width * n))
+        eps = [0.43, 1e-3, 5.0, 0.1][trial]
+        depth = rng.uniform(0.1, 8.0, (height, width)).astype(np.float32)
+        depth[rng.random(depth.shape) < 0.1] = 0.0
+        twists = [(rng.normal(size=3) * 0.5, rng.normal(size=3) * 0.3) for _ in range(2)]
+        if trial == 2:                    # at rest: no dilation (hypot decides, by numba)
+            twists = [(np.zeros(3), np.zeros(3))] * 2
+        block_ns = [10_000_000, 100_000, 1_000, 200_000_000][trial]
+        centres = camera.normalized_pixel_centres()
+        weight, logw, _ = _log_weights(camera, sub, eps)
+        args = (weight, logw, (height, width), float(camera.fx), float(camera.fy),
+                device_centres(centres, device), depth,
+                np.array([_twist(v, w) for v, w in twists]),
+                _dilation_of(camera, centres, depth, twists, block_ns * 1e-9))
+        rate, radius = device_rate(*args, device=device)
+        want = rate_map(camera, sub, depth, twists, block_ns * 1e-9, eps, centres)
+        np.testing.assert_array_equal(rate.numpy().reshape(height, width), want)
+        radii.add(min(radius, 2))
+        log_b = rng.normal(size=height * width)
+        log_e = log_b + rng.normal(size=height * width) * 0.1
+        observed = 10.0 ** rng.uniform(-3, 5, height * width)
+        scale = rng.uniform(0.5, 2.0, height * width)
+        for obs, sc in ((None, None), (observed, scale)):
+            inner, total, _ = device_prediction(
+                *args, block_ns * 1e-9, m.Float64(log_b), m.Float64(log_e),
+                None if obs is None else m.Float64(obs), None if sc is None else m.Float64(sc),
+                MARGIN * 0.1, max(block_ns // 50_000, 1), device)
+            counts = _intra_counts(want.reshape(-1), log_b, log_e, obs, sc, block_ns, 0.1,
+                                   50_000)
+            np.testing.assert_array_equal(inner.numpy().astype(np.int64), counts)
+            assert total == counts.sum()
+    assert radii == {0, 1, 2}
+
+
+def test_the_prediction_of_wide_pixels_is_numbas_sent_to_the_device(variant):
+    """8x8 sub-samples a pixel and more (NumPy's pairwise sums, not ported): the device path
+    takes numba's counts, and device_prediction refuses them."""
+    from sim._drjit_sampling import device_centres, device_prediction
+    from sim.pixel_sampling import _intra_counts, _log_weights, _predicted_on_device, rate_map
+    from tests.test_sampler_kernels import _camera, _luminance
+
+    device = _variant_device(variant)
+    rng = np.random.default_rng(8)
+    camera = _camera(7, 5, distorted=True)
+    sub = _luminance(rng, (40, 56))
+    depth = rng.uniform(0.1, 8.0, (5, 7))
+    twists = [(np.array([0.3, 0.0, 0.1]), np.array([0.0, 0.2, 0.0]))] * 2
+    centres = camera.normalized_pixel_centres()
+    log_b, log_e = rng.normal(size=35), rng.normal(size=35)
+    inner, total, kept = _predicted_on_device(device, {}, camera, sub, depth, twists,
+                                              10_000_000, 0.43, centres, log_b, log_e, None,
+                                              None, 0.1, 50_000)
+    want = _intra_counts(rate_map(camera, sub, depth, twists, 0.01, 0.43, centres).reshape(-1),
+                         log_b, log_e, None, None, 10_000_000, 0.1, 50_000)
+    np.testing.assert_array_equal(inner.numpy().astype(np.int64), want)
+    assert total == want.sum() and "log_e" in kept
+    weight, logw, _ = _log_weights(camera, sub, 0.43)
+    with pytest.raises(ValueError, match="7x7"):
+        device_prediction(weight, logw, (5, 7), 1.0, 1.0, device_centres(centres, device),
+                          depth, np.zeros((1, 6)), lambda top: 0, 0.01, None, None, None, None,
+                          0.05, 200, device)

@@ -415,3 +415,33 @@ def test_vertex_normals_are_mitsubas_to_float_rounding():
     ours = vertex_normals(vertices.astype(np.float32), faces)
     assert np.all(np.abs(np.linalg.norm(ours, axis=1) - 1.0) < 1e-6)
     np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name, t0", [("boxes_6dof", 3.0), ("complex_sphere", 1.0)])
+def test_depth_many_is_depth_at_each_time_bit_for_bit(name, t0):
+    """One ray cast for several times (each ray turned by its own time's pose) gives each
+    time's :meth:`Renderer.depth` bit for bit, on non-planar scenes seen from a turning
+    camera; and :class:`sim.event_depth.RecentDepth` renders each time once, batched."""
+    from dataclasses import replace
+
+    from scenes import resolve_scene
+    from sim.event_depth import RecentDepth
+    from sim.scene import load_scene
+
+    scene = load_scene(resolve_scene(name))
+    renderer = Renderer(replace(scene, camera=scene.camera.with_resolution(40, 30)), spp=1)
+    times = t0 + np.array([0.0, 0.013, 0.05, 0.31])
+    many = renderer.depth_many(times)
+    one = np.stack([renderer.depth(float(t)) for t in times])
+    assert many.shape == (4, 30, 40) and many.dtype == np.float32
+    np.testing.assert_array_equal(many.view(np.int32), one.view(np.int32))
+    assert not np.array_equal(one[0], one[-1]) and (one > 0).mean() > 0.5
+    calls = []
+    recent = RecentDepth(renderer.depth, render_many=lambda t: calls.append(len(t))
+                         or renderer.depth_many(t))
+    got = recent.many(times[:3])
+    assert calls == [3] and recent.renders == 3
+    np.testing.assert_array_equal(recent(float(times[1])), one[1])    # kept, not rendered
+    assert recent.renders == 3
+    np.testing.assert_array_equal(recent.many(times[2:])[1], one[3])  # only the new time
+    assert calls == [3] and recent.renders == 4 and len(got) == 3

@@ -97,7 +97,8 @@ class _EventCamera:
                  edge_spp: int = 0):
         self._renderer, self._spp = renderer, spp
         self.scene, self.camera = renderer.scene, renderer.camera
-        self.depth = RecentDepth(renderer.depth)     # shared by the sampler and per-event depth
+        # shared by the sampler and per-event depth
+        self.depth = RecentDepth(renderer.depth, render_many=renderer.depth_many)
         self.shader = self.fine_shader = None
         self.edge_samples = 0                         # pixels refined by luminance(), so far
         if renderer.variant != "scalar_rgb":
@@ -198,6 +199,9 @@ class _ShaderSource:
 
     def depth(self, t: float) -> np.ndarray:
         return self._timed(self._camera.depth, t)
+
+    def depth_many(self, times: np.ndarray) -> list[np.ndarray]:
+        return self._timed(self._camera.depth.many, times)
 
     def camera_velocity(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         return self._camera.scene.trajectory.camera_velocity(t)
