@@ -184,7 +184,8 @@ def nearest_distances(points: np.ndarray, reference: np.ndarray) -> np.ndarray:
         return np.full(len(points), np.inf)
     if len(points) == 0:
         return np.empty(0)
-    return cKDTree(reference).query(points, k=1)[0]
+    # Every core: each query is independent, so the distances are the same on any count.
+    return cKDTree(reference).query(points, k=1, workers=-1)[0]
 
 
 def _tau_name(tau: float) -> str:
