@@ -332,8 +332,8 @@ def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, in
     fx, fy : float
         Focal lengths, pixels.
     centres : tuple
-        ``camera.normalized_pixel_centres()`` ((H, W, 2) float64 ndarray) and its x and y
-        flat on the device (:func:`device_centres`).
+        The x and y of ``camera.normalized_pixel_centres()``, flat, on the device
+        (:func:`device_centres`).
     depth : (H, W) ndarray, metres
         Exact depth at the block's start (0 where nothing is seen).
     twists : (K, 6) float64 ndarray
@@ -434,7 +434,7 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
         slope_u = sums[1] / nn * (n_d / mean)
         slope_v = sums[2] / nn * (n_d / mean)
         # The motion field of each twist (sim.sampling._point_flow, its operations in order).
-        _, x, yy = centres
+        x, yy = centres
         z = _device_array(m.Float64, np.asarray(depth, np.float64).reshape(-1))
         seen = z > 0.0
         best = m.Float64(0.0)
@@ -485,10 +485,10 @@ def _dilate(m, values, height: int, width: int, radius: int):
 
 def device_centres(xy: np.ndarray, device: str = "llvm") -> tuple:
     """``camera.normalized_pixel_centres()`` ((H, W, 2) ndarray) as :func:`device_prediction`
-    takes it: itself, and its x and y flat on the device (uploaded once a run)."""
+    takes it: its x and y, flat, on the device (uploaded once a run)."""
     from sim._drjit_events import _device_array
 
     m = _module(device)
     xy = np.asarray(xy, np.float64)
-    return (xy, _device_array(m.Float64, xy[..., 0].reshape(-1)),
+    return (_device_array(m.Float64, xy[..., 0].reshape(-1)),
             _device_array(m.Float64, xy[..., 1].reshape(-1)))

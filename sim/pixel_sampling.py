@@ -235,15 +235,22 @@ def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
     height, width = camera.height, camera.width
     weight, logw, n = _log_weights(camera, subsamples, log_eps)
     slope_u, slope_v = _weighted_slopes(logw, weight, height, width, n)
-    xy = camera.normalized_pixel_centres() if centres is None else centres
-    args = (float(camera.fx), float(camera.fy), np.asarray(xy, np.float64), np.asarray(depth),
-            np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6))
+    args = _flow_args(camera, camera.normalized_pixel_centres() if centres is None else centres,
+                      depth, twists)
     rate, squares = _predicted_rate(*args, slope_u, slope_v)
     radius = _dilation_radius(squares, seconds, partial(_flow_speeds, *args))
     if radius > 0:
         kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
         rate = cv2.dilate(rate, kernel, borderType=cv2.BORDER_REPLICATE)
     return rate
+
+
+def _flow_args(camera: Camera, centres: np.ndarray, depth: np.ndarray, twists: list) -> tuple:
+    """The motion field's inputs as the kernels take them (:func:`_predicted_rate`,
+    :func:`_flow_speeds`): ``fx``, ``fy``, the (H, W, 2) float64 pixel centres, the depth and
+    the (K, 6) float64 twists (:func:`sim.sampling._twist`)."""
+    return (float(camera.fx), float(camera.fy), np.asarray(centres, np.float64),
+            np.asarray(depth), np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6))
 
 
 def _log_weights(camera: Camera, subsamples: np.ndarray,
@@ -1238,9 +1245,8 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
             yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
             continue
         on = {}                                        # nothing left on the device
-        rate = rate_map(camera, sub_b, depth, twists, length * 1e-9, log_eps, centres)
-        inner = _intra_counts(rate.reshape(-1), log_b.reshape(-1), log_e.reshape(-1), observed,
-                              scale, length, bound, dt_min_ns)
+        inner = _host_counts(camera, sub_b, depth, twists, length, log_eps, centres, log_b,
+                             log_e, observed, scale, bound, dt_min_ns)
         pix, times, levels, lums, mid_pix, mid_s = _block_samples(
             inner, t_b, length, log_b.reshape(-1), lum_b.reshape(-1), log_e.reshape(-1),
             lum_e.reshape(-1), float(t0), float(t1))
@@ -1261,6 +1267,16 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
 
 
+def _host_counts(camera: Camera, sub_b: np.ndarray, depth: np.ndarray, twists: list,
+                 length: int, log_eps: float, centres: np.ndarray, log_b: np.ndarray,
+                 log_e: np.ndarray, observed: np.ndarray | None, scale: np.ndarray | None,
+                 bound: float, dt_min_ns: int) -> np.ndarray:
+    """A block's :func:`_intra_counts` from its :func:`rate_map`, by numba on the host."""
+    rate = rate_map(camera, sub_b, depth, twists, length * 1e-9, log_eps, centres)
+    return _intra_counts(rate.reshape(-1), log_b.reshape(-1), log_e.reshape(-1), observed, scale,
+                         length, bound, dt_min_ns)
+
+
 def _predicted_on_device(device: str, on: dict, camera: Camera, sub_b: np.ndarray,
                          depth: np.ndarray, twists: list, length: int, log_eps: float,
                          centres: np.ndarray, log_b: np.ndarray, log_e: np.ndarray,
@@ -1270,47 +1286,40 @@ def _predicted_on_device(device: str, on: dict, camera: Camera, sub_b: np.ndarra
     device_prediction`: the same counts), left there, with their sum and ``on``: the arrays
     the device keeps (the block's levels, the pixel centres, the scale and, from the last
     device block, the observed rates). Where a pixel has 8x8 sub-samples or more, the counts
-    are numba's (:func:`rate_map`), sent to the device."""
+    are numba's (:func:`_host_counts`), sent to the device."""
     from sim._drjit_events import _device_array
     from sim._drjit_sampling import _module, device_centres, device_prediction
 
     m = _module(device)
     kept = {"log_b": on["log_e"] if "log_e" in on else _device_array(m.Float64,
                                                                        log_b.reshape(-1)),
-            "log_e": _device_array(m.Float64, log_e.reshape(-1))}
-    for name, make in (("centres", lambda: device_centres(centres, device)),
-                       ("scale", lambda: None if scale is None else _device_array(m.Float64,
-                                                                                  scale))):
-        kept[name] = on[name] if name in on else make()
-    if "scale" in kept and kept["scale"] is None:
-        del kept["scale"]
+            "log_e": _device_array(m.Float64, log_e.reshape(-1)),
+            "centres": on["centres"] if "centres" in on else device_centres(centres, device)}
+    if scale is not None:
+        kept["scale"] = on["scale"] if "scale" in on else _device_array(m.Float64, scale)
     last = on.get("observed")
     if last is None and observed is not None:
         last = _device_array(m.Float64, observed)
     weight, logw, n = _log_weights(camera, sub_b, log_eps)
     if n >= 8:
-        rate = rate_map(camera, sub_b, depth, twists, length * 1e-9, log_eps, centres)
-        inner = _intra_counts(rate.reshape(-1), log_b.reshape(-1), log_e.reshape(-1), observed,
-                              scale, length, bound, dt_min_ns)
+        inner = _host_counts(camera, sub_b, depth, twists, length, log_eps, centres, log_b,
+                             log_e, observed, scale, bound, dt_min_ns)
         return _device_array(m.UInt32, inner), int(inner.sum()), kept
+    seconds = length * 1e-9
+    flow = _flow_args(camera, centres, depth, twists)
     inner, total, _ = device_prediction(
-        weight, logw, (camera.height, camera.width), float(camera.fx), float(camera.fy),
-        kept["centres"], depth, np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6),
-        _dilation_of(camera, centres, depth, twists, length * 1e-9), length * 1e-9,
-        kept["log_b"], kept["log_e"], last, kept.get("scale"), MARGIN * bound,
-        max(length // dt_min_ns, 1), device)
+        weight, logw, (camera.height, camera.width), flow[0], flow[1], kept["centres"], depth,
+        flow[4], _dilation_of(flow, seconds), seconds, kept["log_b"], kept["log_e"], last,
+        kept.get("scale"), MARGIN * bound, max(length // dt_min_ns, 1), device)
     return inner, total, kept
 
 
-def _dilation_of(camera: Camera, centres: np.ndarray, depth: np.ndarray, twists: list,
-                 seconds: float) -> Callable[[float], int]:
+def _dilation_of(flow: tuple, seconds: float) -> Callable[[float], int]:
     """``dilation(top)``: :func:`_dilation_radius` of a block from the largest ``du^2 + dv^2``
     over its pixels and twists (``top``, NaN where one is not finite), every pixel's ``hypot``
-    by :func:`_flow_speeds` where that cannot decide: what
+    by :func:`_flow_speeds` of ``flow`` (:func:`_flow_args`) where that cannot decide: what
     :func:`sim._drjit_sampling.device_prediction` asks its caller."""
-    args = (float(camera.fx), float(camera.fy), np.asarray(centres, np.float64),
-            np.asarray(depth), np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6))
-    return lambda top: _dilation_radius(np.array([top]), seconds, partial(_flow_speeds, *args))
+    return lambda top: _dilation_radius(np.array([top]), seconds, partial(_flow_speeds, *flow))
 
 
 def _block_ends(t_b: int, t1_ns: int, block_ns: int, dt_min_ns: int) -> list[int]:

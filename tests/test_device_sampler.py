@@ -207,7 +207,14 @@ def test_the_prediction_on_the_device_is_numbas_bit_for_bit(n, variant):
     a distorted camera, blocks whose dilation is 0 (a camera at rest), 1 or tens of pixels,
     with and without the last block's rates and the pixels' threshold scale."""
     from sim._drjit_sampling import _module, device_centres, device_prediction, device_rate
-    from sim.pixel_sampling import MARGIN, _dilation_of, _intra_counts, _log_weights, rate_map
+    from sim.pixel_sampling import (
+        MARGIN,
+        _dilation_of,
+        _flow_args,
+        _intra_counts,
+        _log_weights,
+        rate_map,
+    )
     from sim.sampling import _twist
     from tests.test_sampler_kernels import _camera, _luminance
 
@@ -231,7 +238,7 @@ def test_the_prediction_on_the_device_is_numbas_bit_for_bit(n, variant):
         args = (weight, logw, (height, width), float(camera.fx), float(camera.fy),
                 device_centres(centres, device), depth,
                 np.array([_twist(v, w) for v, w in twists]),
-                _dilation_of(camera, centres, depth, twists, block_ns * 1e-9))
+                _dilation_of(_flow_args(camera, centres, depth, twists), block_ns * 1e-9))
         rate, radius = device_rate(*args, device=device)
         want = rate_map(camera, sub, depth, twists, block_ns * 1e-9, eps, centres)
         np.testing.assert_array_equal(rate.numpy().reshape(height, width), want)
