@@ -536,14 +536,19 @@ class Renderer:
         self._geometry = None                            # see _geometry_scene
 
     # ----------------------------------------------------------------------------------------
-    def _set_state(self, t: float, pose: np.ndarray | None) -> np.ndarray:
-        """Move the camera (and the moving objects) to time ``t``; return the pose used."""
-        mi = self._mi
+    def _checked_pose(self, t: float, pose: np.ndarray | None) -> np.ndarray:
+        """``pose`` (default the trajectory's at ``t``), checked: a finite (4, 4) float64."""
         if pose is None:
             pose = self.scene.trajectory.pose(float(t))
         pose = np.asarray(pose, dtype=np.float64)
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
             raise ValueError(f"pose must be a finite (4, 4) T_world_camera, got shape {pose.shape}")
+        return pose
+
+    def _set_state(self, t: float, pose: np.ndarray | None) -> np.ndarray:
+        """Move the camera (and the moving objects) to time ``t``; return the pose used."""
+        mi = self._mi
+        pose = self._checked_pose(t, pose)
         changed = False
         normals: dict[str, np.ndarray] = {}
         if self._pose is None or not np.array_equal(pose, self._pose):
@@ -615,9 +620,14 @@ class Renderer:
         rotation = mi.Matrix3f(pose[:3, :3].astype(np.float32))
         origin = mi.Point3f(*pose[:3, 3].astype(np.float32).tolist())
         dr.make_opaque(rotation, origin)                 # else each pose compiles a new kernel
-        ray = mi.Ray3f(origin, rotation @ self._rays)
+        return self._cast_depth(mi.Ray3f(origin, rotation @ self._rays), self._rays.z, shape)
+
+    def _cast_depth(self, ray, axis_z, shape: tuple[int, ...]) -> np.ndarray:
+        """z-depth (float32, ``shape``) of a ray batch whose directions have camera-frame z
+        ``axis_z`` (unit directions: ``t`` along the ray times it), 0 where nothing is hit."""
+        mi, dr = self._mi, self._dr
         si = self._scene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=True)
-        z = dr.select(si.is_valid(), si.t * self._rays.z, 0.0)
+        z = dr.select(si.is_valid(), si.t * axis_z, 0.0)
         return np.array(z, dtype=np.float32).reshape(shape)
 
     def depth_many(self, times: np.ndarray) -> np.ndarray:
@@ -632,7 +642,7 @@ class Renderer:
         mi, dr = self._mi, self._dr
         shape = (self.camera.height, self.camera.width)
         n = shape[0] * shape[1]
-        poses = [self._set_state(float(t), None) for t in times]
+        poses = [self._checked_pose(float(t), None) for t in times]      # the sensor is not traced
         rotations = np.stack([pose[:3, :3] for pose in poses]).astype(np.float32).reshape(-1, 9)
         origins = np.stack([pose[:3, 3] for pose in poses]).astype(np.float32)
         lane = dr.arange(mi.UInt32, len(times) * n)
@@ -643,10 +653,7 @@ class Renderer:
         origin = mi.Point3f(*(dr.gather(mi.Float, mi.Float(np.ascontiguousarray(origins[:, i])),
                                         view) for i in range(3)))
         rays = dr.gather(mi.Vector3f, self._rays, pixel)
-        si = self._scene.ray_intersect(mi.Ray3f(origin, rotation @ rays),
-                                       ray_flags=mi.RayFlags.Minimal, coherent=True)
-        z = dr.select(si.is_valid(), si.t * rays.z, 0.0)
-        return np.array(z, dtype=np.float32).reshape(len(times), *shape)
+        return self._cast_depth(mi.Ray3f(origin, rotation @ rays), rays.z, (len(times), *shape))
 
     def _depth_scalar(self, pose: np.ndarray) -> np.ndarray:
         mi = self._mi
@@ -805,14 +812,10 @@ class Renderer:
         (0 where nothing is hit); ``t`` places the moving objects."""
         poses = self._row_poses(poses)
         self._set_state(t, poses[len(poses) // 2])
-        mi, dr = self._mi, self._dr
-        shape = (self.camera.height, self.camera.width)
         if self.variant == "scalar_rgb":
             raise ValueError("depth_rows needs a JIT variant, not scalar_rgb")
-        si = self._scene.ray_intersect(self._row_rays(poses), ray_flags=mi.RayFlags.Minimal,
-                                       coherent=True)
-        z = dr.select(si.is_valid(), si.t * self._rays.z, 0.0)
-        return np.array(z, dtype=np.float32).reshape(shape)
+        return self._cast_depth(self._row_rays(poses), self._rays.z,
+                                (self.camera.height, self.camera.width))
 
     def render(self, t: float, pose: np.ndarray | None = None) -> RenderResult:
         """Luminance and depth for the same time and pose."""
