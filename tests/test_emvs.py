@@ -11,6 +11,18 @@ from sim.se3 import make_pose, so3_exp
 from sim.trajectory import LinearTrajectory
 
 
+def _point_events(points_world: np.ndarray, trajectory, times: np.ndarray):
+    """Analytic events of static points seen along ``trajectory``: each point's normalized
+    coordinates (N K, 2) at each of the ``times`` (K,), and their times (N K,)."""
+    xy, t_all = [], []
+    for t in times:
+        T = trajectory.pose(t)
+        local = (points_world - T[:3, 3]) @ T[:3, :3]
+        xy.append(local[:, :2] / local[:, 2:3])
+        t_all.append(np.full(len(points_world), t))
+    return np.concatenate(xy), np.concatenate(t_all)
+
+
 def test_planes_are_uniform_in_inverse_depth():
     z = depth_planes(DSIParams(0.5, 4.0, planes=8))
     assert z[0] == pytest.approx(0.5) and z[-1] == pytest.approx(4.0)
@@ -52,14 +64,7 @@ def test_events_of_known_points_come_back_at_their_depth():
                                   np.eye(3))
     T_world_ref = trajectory.pose(0.5)
     points_world = points + T_world_ref[:3, 3]
-    times = np.linspace(0.0, 1.0, 400)
-    xy, t_all = [], []
-    for t in times:
-        T = trajectory.pose(t)
-        local = (points_world - T[:3, 3]) @ T[:3, :3]
-        xy.append(local[:, :2] / local[:, 2:3])
-        t_all.append(np.full(n_points, t))
-    xy, t_all = np.concatenate(xy), np.concatenate(t_all)
+    xy, t_all = _point_events(points_world, trajectory, np.linspace(0.0, 1.0, 400))
     params = DSIParams(0.6, 3.0, planes=30, packet_size=n_points)
     dsi = disparity_space_image(xy, t_all, trajectory, T_world_ref, camera, params)
     assert dsi.shape == (30, 60, 80) and dsi.dtype == np.float32
@@ -217,15 +222,9 @@ def test_points_beyond_the_range_land_on_the_last_plane_and_are_dropped():
                                   np.eye(3))
     T_world_ref = trajectory.pose(0.5)
     points_world = points + T_world_ref[:3, 3]
-    xy, t_all = [], []
-    for t in np.linspace(0.0, 1.0, 400):
-        T = trajectory.pose(t)
-        local = (points_world - T[:3, 3]) @ T[:3, :3]
-        xy.append(local[:, :2] / local[:, 2:3])
-        t_all.append(np.full(n_points, t))
+    xy, t_all = _point_events(points_world, trajectory, np.linspace(0.0, 1.0, 400))
     params = DSIParams(0.6, 3.0, planes=30, packet_size=n_points)
-    dsi = disparity_space_image(np.concatenate(xy), np.concatenate(t_all), trajectory,
-                                T_world_ref, camera, params)
+    dsi = disparity_space_image(xy, t_all, trajectory, T_world_ref, camera, params)
     planes = depth_planes(params)
     settings = DepthMapParams(kernel=5, c=5, median=1)
     counts: dict = {}
@@ -347,15 +346,9 @@ def test_subplane_depth_of_a_fronto_parallel_and_a_slanted_plane():
                                   np.eye(3))
     T_world_ref = trajectory.pose(0.5)
     points_world = points + T_world_ref[:3, 3]
-    xy_all, t_all = [], []
-    for t in np.linspace(0.0, 1.0, 300):
-        T = trajectory.pose(t)
-        local = (points_world - T[:3, 3]) @ T[:3, :3]
-        xy_all.append(local[:, :2] / local[:, 2:3])
-        t_all.append(np.full(n, t))
+    events_xy, t_all = _point_events(points_world, trajectory, np.linspace(0.0, 1.0, 300))
     params = DSIParams(0.8, 3.0, planes=30, packet_size=n)
-    dsi = disparity_space_image(np.concatenate(xy_all), np.concatenate(t_all), trajectory,
-                                T_world_ref, camera, params)
+    dsi = disparity_space_image(events_xy, t_all, trajectory, T_world_ref, camera, params)
     planes = depth_planes(params)
     step = abs(1 / planes[1] - 1 / planes[0])
     errors = {}
