@@ -267,7 +267,9 @@ def test_evfuse_convert_takes_the_new_suffixes_and_evt_2(tmp_path, capsys):
     assert not (tmp_path / "e.foo").exists() and not list(tmp_path.glob("*.partial"))
 
 
-def test_simulate_format_writes_aedat4_and_raw_beside_events_h5(tmp_path):
+def simulated_formats(tmp_path, formats: tuple[str, ...]):
+    """A moving poster's 0.3 s simulated into ``tmp_path / "seq"`` with ``formats``: the
+    scene, the folder and its exact events (``events.h5``)."""
     from sim.scene import parse_scene
     from sim.simulate import simulate
     from tests.test_simulate import FRAMES, MOVING, OBJECTS, scene_text
@@ -275,8 +277,14 @@ def test_simulate_format_writes_aedat4_and_raw_beside_events_h5(tmp_path):
     scene = parse_scene(scene_text(OBJECTS, trajectory=MOVING, duration=0.3, extra=FRAMES),
                         tmp_path / "s.toml")
     out = tmp_path / "seq"
-    simulate(scene, out, progress=False, event_formats=("h5", "aedat4", "evt3"))
-    exact = read_events(out / "events.h5")
+    simulate(scene, out, progress=False, event_formats=formats)
+    return scene, out, read_events(out / "events.h5")
+
+
+def test_simulate_format_writes_aedat4_and_raw_beside_events_h5(tmp_path):
+    from sim.simulate import simulate
+
+    scene, out, exact = simulated_formats(tmp_path, ("h5", "aedat4", "evt3"))
     assert exact.size > 0
     floored = exact.copy()
     floored["t"] = exact["t"] // 1000 * 1000

@@ -28,13 +28,12 @@ from sim.simulate import simulate
 from sim.simulate.memory import device_memory, is_out_of_memory
 from sim.validation import ParameterError
 from tests.conftest import scene_text
+from tests.test_event_driver import CAMERA, FRAMES  # 48x36, one-sample frames
 from tests.test_simulate import OBJECTS  # the textured poster
 
 ROOT = Path(__file__).resolve().parent.parent
-CAMERA = "[camera]\nwidth = 48\nheight = 36\nfx = 40.0\nfy = 40.0\ncx = 24.0\ncy = 18.0\n"
 TURNING = ('[trajectory]\ntype = "linear"\nposition = [0.0, 0.0, 0.0]\n'
            "velocity = [0.6, 0.0, 0.2]\nlook_at = [0.3, 1.0, 0.1]\n")
-FRAMES = "[frames]\nrate = 20.0\nexposure = 0.01\nexposure_samples = 1\n[render]\nspp = 1\n"
 OOM = "jit_malloc(): out of memory! Could not allocate 2147483648 bytes of device memory."
 
 

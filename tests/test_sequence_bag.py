@@ -277,15 +277,9 @@ def test_the_ecd_prefix_maps_identically_from_text_a_ros1_bag_and_a_ros2_bag(
 
 
 def test_simulate_format_ros1_ros2_writes_bags_beside_events_h5_exactly(tmp_path):
-    from sim.scene import parse_scene
-    from sim.simulate import simulate
-    from tests.test_simulate import FRAMES, MOVING, OBJECTS, scene_text
+    from tests.test_formats import simulated_formats
 
-    scene = parse_scene(scene_text(OBJECTS, trajectory=MOVING, duration=0.3, extra=FRAMES),
-                        tmp_path / "s.toml")
-    out = tmp_path / "seq"
-    simulate(scene, out, progress=False, event_formats=("h5", "ros1", "ros2"))
-    exact = read_events(out / "events.h5")
+    _, out, exact = simulated_formats(tmp_path, ("h5", "ros1", "ros2"))
     assert exact.size > 0 and (exact["t"] % 1000).any()        # sub-microsecond times kept
     np.testing.assert_array_equal(read_events(out / "events.bag"), exact)
     np.testing.assert_array_equal(read_events(out / "events.mcap"), exact)
