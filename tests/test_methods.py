@@ -369,11 +369,11 @@ def test_methods_asked_for_as_text_are_refused_in_the_library_s_terms():
         (lambda: fill_request("nearest", stages=DenseParams(
             segmentation=SegmentationParams(5.0))),
          "method nearest and threshold 5 contradict each other: only the paper's methods "
-         "(paper-idw, paper-gaussian, paper-exponential) use threshold (drop it, or give one of "
-         "them)",
+         "(paper-idw, paper-gaussian, paper-exponential, paper-colorization) use threshold "
+         "(drop it, or give one of them)",
          "--method nearest and --threshold 5 contradict each other: only the paper's methods "
-         "(paper-idw, paper-gaussian, paper-exponential) use --threshold (drop it, or give one "
-         "of them)"),
+         "(paper-idw, paper-gaussian, paper-exponential, paper-colorization) use --threshold "
+         "(drop it, or give one of them)"),
         (lambda: fill_request("paper-gaussian", weighting="idw"),
          "method paper-gaussian and weighting idw contradict each other: paper-gaussian uses "
          "gaussian weights (give method paper-idw, or drop weighting)", None),

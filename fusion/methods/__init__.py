@@ -35,8 +35,8 @@ The package's modules:
 - ``_registry``: :func:`register`, :class:`FillMethod`, the settings checks,
   :class:`MethodVariant`, method lookup and :func:`run_method`;
 - ``_variants``: labels and ``--param`` settings into variants, the fill's method resolved;
-- ``paper``, ``classic``, ``baselines``, ``surface_fit``, ``mesh``: the built-in methods, each
-  module registering its own on import.
+- ``paper``, ``classic``, ``baselines``, ``surface_fit``, ``mesh``, ``completed``: the built-in
+  methods, each module registering its own on import.
 
 Built-ins, each with its own analytic test (``tests/test_methods.py``):
 
@@ -60,6 +60,9 @@ Built-ins, each with its own analytic test (``tests/test_methods.py``):
 - ``mesh`` (:mod:`fusion.methods.mesh`): ``plane``'s fits, then a Delaunay mesh of the cleaned map
   across triangles whose corners lie on one surface, then the paper's fill in the paper's
   regions.
+- ``paper-colorization`` (:mod:`fusion.methods.completed`): the paper's method, then Levin et
+  al.'s colorization from its depths into the pixels it left empty (``evfuse map-global``'s
+  default).
 """
 
 from __future__ import annotations
@@ -74,6 +77,7 @@ import fusion.methods.classic  # noqa: F401  (registers nearest, telea, morpholo
 import fusion.methods.baselines  # noqa: F401  (registers guided, bilateral, colorization, fbs)
 import fusion.methods.surface_fit  # noqa: F401  (registers plane and hybrid)
 import fusion.methods.mesh  # noqa: F401  (registers mesh)
+import fusion.methods.completed  # noqa: F401  (registers paper-colorization)
 # isort: on
 from fusion.methods._errors import MethodError
 from fusion.methods._labels import format_value, method_label, parse_value, split_labels
