@@ -4,8 +4,8 @@ For each case (:data:`CASES`: ``slider_close`` over its whole 6.5 s, ``boxes_6do
 the window is simulated once into a cache folder (``runs/bench_global``,
 :func:`sim.simulate.window.cached_window`) and mapped by
 :func:`fusion.globalmap.pipeline.map_global` with the defaults (key views at 10 % of the median
-depth or 10 degrees, the paper's fill, fusion with one other view agreeing within 2 %, the TSDF
-of the filled views). Reported per case:
+depth or 10 degrees, the default fill (``paper-colorization``), fusion with one other view
+agreeing within 2 %, the TSDF of the filled views). Reported per case:
 
 - time per key view (map and fill, median and total over the rounds), of the fusion, of the
   TSDF and of the scoring; the key views, the rounds, the workers;
@@ -109,7 +109,8 @@ def goal_case(name: str, start: float, length: float, workers: int | None,
     scene = load_scene(resolve_scene(name))
     folder = cached_window(scene, CACHE, name, start, length, progress=True)
     sequence = load_sequence(folder)
-    params = GlobalParams(workers=workers, method=method)
+    params = GlobalParams(workers=workers)
+    params = params if method is None else replace(params, method=method)
     params = replace(params, fusion=replace(params.fusion, fuse_depth=fuse_depth))
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "global"
@@ -227,7 +228,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--goals", action="store_true", help="issue 40's goal windows")
     parser.add_argument("--label", default="run", help="--goals: the run's name in the JSON")
     parser.add_argument("--scenes", default=None, help="comma-separated subset of the cases")
-    parser.add_argument("--method", default=None, help="--goals: the filling method")
+    parser.add_argument("--method", default=None,
+                        help="--goals: the filling method (default: map-global's)")
     parser.add_argument("--fuse-depth", action="store_true",
                         help="--goals: fuse each point's depth with its confirming views'")
     parser.add_argument("--workers", type=int, default=None,

@@ -11,7 +11,9 @@ import argparse
 from pathlib import Path
 
 from fusion.cli_options import (
+    DEFAULT_METHOD_HELP,
     GLOBAL_FLAG_NAMES,
+    GLOBAL_METHOD_HELP,
     MAP_FLAG_NAMES,
     add_dense_options,
     add_global_options,
@@ -64,9 +66,10 @@ def _cmd_map(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fill_method(args: argparse.Namespace):
-    """The filling method the flags name, resolved with its settings and the fill stage's
-    parameters (:func:`fusion.methods.fill_request`)."""
+def _fill_method(args: argparse.Namespace, default: str | None = None):
+    """The filling method the flags name (``default`` where neither ``--method`` nor
+    ``--weighting`` names one; None: the paper's), resolved with its settings and the fill
+    stage's parameters (:func:`fusion.methods.fill_request`)."""
     from fusion.fill.dense import DenseParams
     from fusion.fill.filling import FillParams, SelectionParams
     from fusion.fill.segmentation import SegmentationParams
@@ -76,7 +79,9 @@ def _fill_method(args: argparse.Namespace):
         segmentation=SegmentationParams(args.threshold, args.min_region),
         selection=SelectionParams(args.ring, args.min_ring_ratio, args.max_inside_ratio),
         fill=FillParams(args.weighting or "idw", sigma=args.sigma, scale=args.scale))
-    return fill_request(args.method, args.param or [], weighting=args.weighting, stages=stages)
+    named = args.method is not None or args.weighting is not None
+    return fill_request(args.method if named else default, args.param or [],
+                        weighting=args.weighting, stages=stages)
 
 
 def _cmd_fill(args: argparse.Namespace) -> int:
@@ -109,6 +114,14 @@ def _cmd_fill(args: argparse.Namespace) -> int:
         raise ValueError("give a map folder, or all of --frame, --sparse-depth and --calib")
     print(fill_summary(result.info, args.out))
     return 0
+
+
+def _global_fill_method(args: argparse.Namespace):
+    """:func:`_fill_method` with the global map's default method
+    (:data:`fusion.globalmap.GLOBAL_FILL_METHOD`)."""
+    from fusion.globalmap import GLOBAL_FILL_METHOD
+
+    return _fill_method(args, GLOBAL_FILL_METHOD)
 
 
 def _global_params(args: argparse.Namespace, method):
@@ -159,7 +172,7 @@ def _cmd_map_global(args: argparse.Namespace) -> int:
     _refuse_for_global(args)
     _check_depth_flags(args)
     open_recording(args, "sequence")
-    params = replace(_global_params(args, _fill_method(args)), t0=args.t0, t1=args.t1)
+    params = replace(_global_params(args, _global_fill_method(args)), t0=args.t0, t1=args.t1)
     document = map_global(args.sequence, args.out, params, overwrite=args.overwrite,
                           progress=not args.quiet)
     print(global_summary(document, args.out))
@@ -172,7 +185,7 @@ def _cmd_run_global(args: argparse.Namespace) -> int:
 
     _refuse_for_global(args)
     _check_depth_flags(args)
-    params = _global_params(args, _fill_method(args))
+    params = _global_params(args, _global_fill_method(args))
     document = run_global(args.source, args.out, args.t0, args.t1, params, spp=args.spp,
                           seed=args.seed, overwrite=args.overwrite, progress=not args.quiet,
                           profile=args.profile)
@@ -289,7 +302,7 @@ def _add_map_global(sub) -> None:
     map_global.add_argument("--out", required=True, help="folder to write")
     add_map_options(map_global, global_map=True)
     add_global_options(map_global)
-    add_dense_options(map_global)
+    add_dense_options(map_global, GLOBAL_METHOD_HELP)
     map_global.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     map_global.add_argument("--quiet", action="store_true", help="no progress lines")
     map_global.set_defaults(run=_cmd_map_global, flag_names=GLOBAL_FLAG_NAMES)
@@ -334,7 +347,7 @@ def _add_run(sub) -> None:
     run.add_argument("--profile", action="store_true",
                      help="the simulation also writes OUT/sequence/profile.json, printed at the "
                           "end (as simulate --profile; scenes)")
-    add_dense_options(run)
+    add_dense_options(run, f"{DEFAULT_METHOD_HELP}; with --global, {GLOBAL_METHOD_HELP}")
     run.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted run of the same command from OUT.partial: "

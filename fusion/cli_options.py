@@ -10,8 +10,9 @@ import argparse
 
 from sim.cli import FINITE, NON_NEGATIVE, POSITIVE, count_type
 
-__all__ = ["GLOBAL_FLAG_NAMES", "KEEP_BOUNDARY_HELP", "MAP_FLAG_NAMES", "VARIANT_FLAG_NAMES",
-           "add_dense_options", "add_global_options", "add_map_options", "add_subcommand"]
+__all__ = ["DEFAULT_METHOD_HELP", "GLOBAL_FLAG_NAMES", "GLOBAL_METHOD_HELP", "KEEP_BOUNDARY_HELP",
+           "MAP_FLAG_NAMES", "VARIANT_FLAG_NAMES", "add_dense_options", "add_global_options",
+           "add_map_options", "add_subcommand"]
 
 VARIANT_FLAG_NAMES = {"variant": "--variant"}
 """Every command's name of a forced Mitsuba variant (see :func:`fusion.cli.main`); a command's own
@@ -82,7 +83,16 @@ def add_map_options(parser: argparse.ArgumentParser, global_map: bool = False) -
                         help=KEEP_BOUNDARY_HELP)
 
 
-def add_dense_options(parser: argparse.ArgumentParser) -> None:
+DEFAULT_METHOD_HELP = "paper-idw, the paper's"
+"""``--method``'s default as ``evfuse fill`` and ``evfuse run`` state it."""
+GLOBAL_METHOD_HELP = ("paper-colorization: the paper's, completed by colorization where it "
+                      "leaves pixels empty")
+"""``--method``'s default as ``evfuse map-global`` states it
+(:data:`fusion.globalmap.GLOBAL_FILL_METHOD`, tested)."""
+
+
+def add_dense_options(parser: argparse.ArgumentParser,
+                      default_method: str = DEFAULT_METHOD_HELP) -> None:
     """Add the fill flags (``fill``, ``map-global``, ``run``): the filling method and its
     settings, and the paper's segmentation, selection and weights.
 
@@ -90,10 +100,12 @@ def add_dense_options(parser: argparse.ArgumentParser) -> None:
     ----------
     parser : argparse.ArgumentParser
         The subcommand's parser.
+    default_method : str
+        What ``--method``'s help says its default is.
     """
     parser.add_argument("--method", default=None,
                         help="filling method: a name listed by `evfuse methods` or "
-                             "module:function (default paper-idw, the paper's; "
+                             f"module:function (default {default_method}; "
                              "paper-WEIGHTING with --weighting), or NAME{KEY=VALUE,...} with "
                              "settings (as --param). The flags from --threshold on are the "
                              "paper's methods': with any other, one set off its default is "

@@ -75,3 +75,34 @@ def test_map_global_s_flags_give_the_global_map_s_fusion_and_tsdf(flags, reject,
     assert params.tsdf.search_radius == GLOBAL_SEARCH_RADIUS == GlobalParams().tsdf.search_radius
     with pytest.raises(SystemExit):
         build_parser().parse_args(["map-global", "SEQ", "--out", "G", "--reject", "all"])
+
+
+def test_map_global_fills_with_the_global_map_s_default_method_and_fill_with_the_paper_s():
+    """map-global and run --global default to GLOBAL_FILL_METHOD (their --help says so); fill
+    and run to the paper's; --method or --weighting names another."""
+    from fusion.globalmap import GLOBAL_FILL_METHOD, GlobalParams
+
+    assert GlobalParams().method == GLOBAL_FILL_METHOD == "paper-colorization"
+
+    def resolved(argv, global_map):
+        args = build_parser().parse_args(argv)
+        pick = cli_mapping._global_fill_method if global_map else cli_mapping._fill_method
+        return pick(args).method.name
+
+    base = ["map-global", "SEQ", "--out", "G"]
+    assert resolved(base, True) == GLOBAL_FILL_METHOD
+    assert resolved([*base, "--method", "paper-idw"], True) == "paper-idw"
+    assert resolved([*base, "--weighting", "gaussian"], True) == "paper-gaussian"
+    assert resolved(["fill", "M", "--out", "F"], False) == "paper-idw"
+    assert resolved(["run", "S", "--out", "R", "--global"], True) == GLOBAL_FILL_METHOD
+    assert resolved(["run", "S", "--out", "R"], False) == "paper-idw"
+    for command, default in (("map-global", GLOBAL_FILL_METHOD), ("fill", "paper-idw")):
+        action = next(a for a in cli_mapping_parser(command)._actions
+                      if "--method" in a.option_strings)
+        assert action.help.split("(default ")[1].startswith(default)
+
+
+def cli_mapping_parser(command: str) -> argparse.ArgumentParser:
+    """The subcommand's parser."""
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices[command]

@@ -69,6 +69,9 @@ def test_map_global_writes_every_file_and_the_contract_s_schema(global_run):
     assert document["params"]["keyviews"] == {"baseline": 0.1, "angle_deg": 10.0,
                                               "max_events": None}
     assert document["rounds"] and document["rounds"][0]["round"] == 1
+    assert document["params"]["method"] == "paper-colorization"            # GLOBAL_FILL_METHOD
+    assert json.loads((out / "views" / "000" / "fill" / "fill.json").read_text())[
+        "method"] == "paper-colorization"
 
 
 def test_views_and_global_maps_are_scored_on_one_reference_and_printed_so(global_run):

@@ -31,7 +31,7 @@ from fusion.globalmap.fuse import (
 )
 from fusion.globalmap.keyviews import KeyViewParams, key_view_windows, select_key_views
 from fusion.globalmap.neighbours import FusedViews, fused_reference_map, neighbour_times
-from fusion.globalmap.pipeline import GlobalParams, map_global, run_global
+from fusion.globalmap.pipeline import GLOBAL_FILL_METHOD, GlobalParams, map_global, run_global
 from fusion.globalmap.score import (
     TAUS_M,
     cloud_scores,
@@ -45,9 +45,9 @@ from fusion.globalmap.tsdf import Mesh, TSDFParams, TSDFVolume, tsdf_grid, tsdf_
 from fusion.globalmap.views import DepthView, to_camera, to_world
 
 __all__ = [
-    "TAUS_M", "DepthView", "FusedCloud", "FusedViews", "FusionParams", "GlobalParams",
-    "KeyViewParams", "Mesh", "TSDFParams", "TSDFVolume", "agreement_counts", "cloud_scores",
-    "default_voxel_size", "draw_global_figure", "error_colours", "evidence_counts",
+    "GLOBAL_FILL_METHOD", "TAUS_M", "DepthView", "FusedCloud", "FusedViews", "FusionParams",
+    "GlobalParams", "KeyViewParams", "Mesh", "TSDFParams", "TSDFVolume", "agreement_counts",
+    "cloud_scores", "default_voxel_size", "draw_global_figure", "error_colours", "evidence_counts",
     "exact_surface", "exact_view", "fuse_into_view", "fuse_views", "fused_depth_points",
     "fused_reference_map", "key_view_windows", "kept_points", "map_global", "neighbour_times",
     "run_global", "select_key_views", "to_camera", "to_world", "tsdf_grid", "tsdf_mesh",

@@ -83,7 +83,8 @@ from sim.sequence import Sequence, load_sequence
 from sim.trajectory import read_trajectory
 from sim.validation import ParameterError, check_parameter, integer, positive
 
-__all__ = ["GlobalParams", "map_and_fill_view", "map_global", "run_global", "sequence_poses"]
+__all__ = ["GLOBAL_FILL_METHOD", "GlobalParams", "map_and_fill_view", "map_global", "run_global",
+           "sequence_poses"]
 
 END_VIEWS_MIN = 5
 """Key views from which the end views only confirm (:attr:`GlobalParams.end_views_confirm`):
@@ -96,6 +97,12 @@ AGREEMENT_STEPS = 2.0
 relative 2 % is under one plane step at boxes_6dof's depths (planes 4.5-9.9 cm apart there,
 issue 40). Measured there (4 views): F at 5 cm 0.151 with none, 0.180 with 1 step, 0.215 with
 2; on slider_close (0.23 m, 2 % is 2 steps) it changes nothing."""
+GLOBAL_FILL_METHOD = "paper-colorization"
+"""The key views' default filling method (:attr:`GlobalParams.method`): the paper's, completed
+by colorization where it leaves pixels empty (:mod:`fusion.methods.completed`). The paper's
+alone leaves 39-44 % of each slider_close key view empty, and the fused filled map's F at 1 %
+of depth is then 0.774 on slider_close 0-1 s; completed, 0.906 (``benchmarks/bench_global.py
+--goals``, ``--method paper-idw`` beside the default)."""
 WORK_FOLDER = ".keyviews"
 """Where the key views of every round are mapped inside ``<out>.partial``; the final ones are
 moved to ``views/NNN`` and the folder removed."""
@@ -121,7 +128,8 @@ class GlobalParams:
         :data:`fusion.globalmap.tsdf.GLOBAL_SEARCH_RADIUS` pixels (the filled views are
         sparse).
     method : str or None
-        Filling method (default: the paper's, ``paper-idw``); resolved once, before any work.
+        Filling method (default :data:`GLOBAL_FILL_METHOD`, ``paper-colorization``; None: the
+        paper's, ``paper-idw``); resolved once, before any work.
     method_params : dict
         The method's own settings.
     dense : DenseParams
@@ -157,7 +165,7 @@ class GlobalParams:
     fusion: FusionParams = field(default_factory=lambda: FusionParams(reject="outvoted"))
     tsdf: TSDFParams = field(
         default_factory=lambda: TSDFParams(search_radius=GLOBAL_SEARCH_RADIUS))
-    method: str | None = None
+    method: str | None = GLOBAL_FILL_METHOD
     method_params: dict = field(default_factory=dict)
     dense: DenseParams = field(default_factory=DenseParams)
     min_depth: float | None = None
