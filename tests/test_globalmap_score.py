@@ -331,3 +331,20 @@ def test_point_depths_take_the_nearest_cameras_axis():
     turned[:3, 3] = [5.0, 0.0, 0.0]                        # ... from x = 5 m
     points = np.array([[0.1, 0.2, 1.5], [5.0, 2.5, 0.3]])
     np.testing.assert_allclose(point_depths(points, np.stack([np.eye(4), turned])), [1.5, 2.5])
+
+
+def test_nearest_distances_are_the_brute_force_ones_near_and_far():
+    """The k-d tree's larger leaves (KD_LEAF_SIZE) change no distance: against every pairwise
+    distance, for points on, near and far from a curved two-sided surface."""
+    rng = np.random.default_rng(7)
+    u = rng.normal(size=(3000, 3))
+    sphere = 0.5 * u / np.linalg.norm(u, axis=1, keepdims=True)
+    floor = np.column_stack([rng.uniform(-2, 2, 3000), np.full(3000, -0.6),
+                             rng.uniform(-2, 2, 3000)])
+    reference = np.concatenate([sphere, floor])
+    points = np.concatenate([reference[:300] + rng.normal(0, 0.002, (300, 3)),
+                             rng.uniform(-3.0, 3.0, (700, 3))])
+    brute = np.sqrt(((points[:, None, :] - reference[None, :, :]) ** 2).sum(-1)).min(1)
+    found = nearest_distances(points, reference)
+    np.testing.assert_allclose(found, brute, rtol=1e-12, atol=0)
+    assert found.max() > 1.0 and found.min() < 0.01
