@@ -18,6 +18,12 @@ sample counts per pixel and the frames' levels, and sees per level only the numb
 intervals still to split; it sorts only the midpoints found (few: one in slider_close's
 half second) by their interval and time.
 
+Both take ``B`` consecutive blocks at once (a pass of :func:`sim.pixel_sampling.pixel_blocks`'
+wavefront): a block axis on the prediction's images, the pixels of block ``b`` numbered
+``b P + p`` in the samples. Every operation on a value stays within its block (no gradient,
+dilation or interval crosses from one block's image into another's), so each block gets what
+a pass of that block alone gives it, bit for bit; only the launches are shared.
+
 Exactness, against the reference (:func:`sim.pixel_sampling._block_samples`,
 :func:`sim.pixel_sampling._refine`, :func:`sim.pixel_sampling._observed_rates`, numba and
 NumPy):

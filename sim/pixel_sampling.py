@@ -31,7 +31,15 @@ fastest pixel needs (:mod:`sim.sampling`), every pixel keeps its own time line:
   photoreceptor low-pass models, each pixel with its own time step). Background and hot-pixel
   events are drawn per block. All samples of a block lie in ``[t_b, t_e]`` and every pixel has a
   sample at ``t_e``, so the block's events are final when it ends: they leave sorted by time, one
-  block at a time, in memory bounded by one block.
+  block at a time, in memory bounded by one pass (see Passes).
+
+- Passes (:attr:`sim.sampling.SamplingParams.wavefront`, ``B``; the device path): ``B``
+  consecutive blocks are predicted, built, shaded, checked and refined in one set of device
+  launches, each block's image on its own, then emulated block after block (a pixel's samples
+  reach the emulator in time order). The one change to the method: every block of a pass takes
+  as its floor the observed rates of the last block before the pass (the most recent ones
+  known when the pass starts), not those of the block just before it. ``B = 1`` is the method
+  above, event for event. A run can be continued only after a pass (:attr:`PixelBlock.floor`).
 
 - Edges (``edges``, ``[render] edge_spp``): point sub-samples alias where an edge of the
   geometry or of a shadow crosses a pixel (textures are filtered over each sub-sample's
@@ -1130,11 +1138,14 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         L = log(Y + log_eps).
     params : SamplingParams, optional
         ``lam``, and ``min_rate`` (blocks of ``1 / min_rate`` seconds, a frame at each
-        boundary) and ``max_rate`` (no pixel interval is split below ``2 / max_rate``).
+        boundary), ``max_rate`` (no pixel interval is split below ``2 / max_rate``) and
+        ``wavefront`` (blocks a pass, each taking the floor known at the pass's start; the
+        reference path keeps that rule too, block by block).
     stats : PixelSamplingStats, optional
         Filled while iterating.
     after : (float, ndarray), optional
-        Continue from the end of a block this function yielded: its ``t`` and ``observed``,
+        Continue from the end of a pass this function yielded: its last block's ``t`` and
+        ``floor``,
         with the emulator's state as it was after that block. The blocks that
         follow are exactly those an uninterrupted run gives (renders are deterministic in
         time).
@@ -1147,7 +1158,9 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         the texture filter's bound.
     device : {"llvm", "cuda"}, optional
         Predict (:func:`sim._drjit_sampling.device_prediction`), build, shade, check and refine
-        each block's samples on this Dr.Jit device
+        each pass's samples (``params.wavefront`` blocks, one at a time with ``edges``, and no
+        pass spanning more than ``source.pass_span_ns`` where the source has it) on this Dr.Jit
+        device
         (:func:`sim._drjit_sampling.device_block`, shading through
         ``source.luminance_device``) instead of the reference path (numba and NumPy, shading
         through ``source.luminance``), the block-end frames :data:`FRAMES_AHEAD` at a time

@@ -431,7 +431,8 @@ class _FrameSampler:
 
 class _PixelSampler:
     """Each pixel at its own adaptive times (:func:`sim.pixel_sampling.pixel_blocks`, which
-    emulates a pixel's events as it samples it), one step a block; checkpoints at block ends.
+    emulates a pixel's events as it samples it), one step a block; checkpoints at the ends of
+    passes (:attr:`sim.sampling.SamplingParams.wavefront`).
 
     Parameters
     ----------
