@@ -313,3 +313,17 @@ def test_the_wavefront_must_be_a_whole_number_of_blocks(value):
                                          r">= 1, got"):
         SamplingParams(wavefront=value)
 
+
+
+def test_a_pass_is_cut_where_one_launch_cannot_shade_its_span(monkeypatch):
+    """A pose table of 1,500 nodes (15 ms of the 10-us grid) holds one 10-ms block, not two:
+    passes of 4 asked for become passes of one block (a floor at every block), the events
+    those of one block a pass, where one launch over 40 ms would be refused."""
+    monkeypatch.setattr("sim.shader.POSE_TABLE_NODES", 1500)
+    renderer = _renderer("boxes_6dof")
+    params = EventParams(noise=noise_preset("ideal"), seed=5)
+    cut, cut_stats, _ = _run(renderer, 3.0, "llvm", params, SamplingParams(wavefront=4), 0.06)
+    one, one_stats, _ = _run(renderer, 3.0, "llvm", params, SamplingParams(wavefront=1), 0.06)
+    assert all(b.floor is not None for b in cut) and cut_stats == one_stats
+    for a, b in zip(cut, one, strict=True):
+        np.testing.assert_array_equal(a.events, b.events)
