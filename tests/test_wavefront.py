@@ -31,12 +31,12 @@ START = {"boxes_6dof": 3.0, "complex_sphere": 1.0}
 run here (tests/test_device_sampler.py's)."""
 
 
-def _run(renderer, start, device, params, sampling, seconds):
-    """:func:`pixel_blocks` over ``[start, start + seconds]`` (numba's emulator): the blocks,
-    the counters and the emulator."""
+def _run(renderer, start, device, params, sampling, seconds, kernel="numba"):
+    """:func:`pixel_blocks` over ``[start, start + seconds]`` (the emulator's ``kernel``): the
+    blocks, the counters and the emulator."""
     camera = _EventCamera(renderer, 4, start, start + seconds)
     emulator = PixelEventEmulator((renderer.camera.height, renderer.camera.width), params,
-                                  "numba")
+                                  kernel)
     stats = PixelSamplingStats()
     blocks = list(pixel_blocks(_ShaderSource(camera), emulator, start, start + seconds,
                                np.minimum(emulator.c_on, emulator.c_off), params.log_eps,
@@ -327,3 +327,18 @@ def test_a_pass_is_cut_where_one_launch_cannot_shade_its_span(monkeypatch):
     assert all(b.floor is not None for b in cut) and cut_stats == one_stats
     for a, b in zip(cut, one, strict=True):
         np.testing.assert_array_equal(a.events, b.events)
+
+
+def test_the_emulator_fed_on_the_device_takes_each_block_of_a_pass_in_turn():
+    """Dr.Jit's emulator fed each block's samples of a pass where they lie on the device (a
+    slice of the pass's arrays, advance_device): numba's events from the host copies, bit for
+    bit (no low-pass filter)."""
+    renderer = _renderer("complex_sphere")
+    params = EventParams(noise=noise_preset("ideal"), seed=5)
+    sampling = SamplingParams(lam=0.25, wavefront=3)
+    host, host_stats, _ = _run(renderer, 1.0, "llvm", params, sampling, 0.06)
+    dev, dev_stats, emulator = _run(renderer, 1.0, "llvm", params, sampling, 0.06, "drjit")
+    assert emulator.kernel == "drjit" and dev_stats == host_stats
+    for a, b in zip(dev, host, strict=True):
+        np.testing.assert_array_equal(a.events, b.events)
+    assert sum(len(b.events) for b in host) > 50 and len(host[1].events) > 0
