@@ -172,10 +172,13 @@ def device_block(shade: Callable, inner: np.ndarray, t_b, length, log_b: np.ndar
         pix = dr.cumsum(mark)
         k = dr.arange(m.UInt32, total) - _take(first, pix)
         k_in = _take(counts, pix)
-        block = pix // image
-        times = (_take(_device_array(m.Int64, starts), block)
-                 + (m.Int64(k) * _take(_device_array(m.Int64, lengths), block))
-                 // m.Int64(k_in + 1))
+        if len(starts) == 1:
+            t_b, length = int(starts[0]), int(lengths[0])
+        else:                                   # each sample's block's start and length
+            block = pix // image
+            t_b = _take(_device_array(m.Int64, starts), block)
+            length = _take(_device_array(m.Int64, lengths), block)
+        times = t_b + (m.Int64(k) * length) // m.Int64(k_in + 1)
         start = k == 0
         levels = dr.select(start, _take(on(m.Float64, log_b), pix),
                            _take(on(m.Float64, log_e), pix))
@@ -408,15 +411,16 @@ def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, in
     image = dr.width(rate) // blocks
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         # _intra_counts: at least the net change, the last block's rates; times the scale.
-        lane = dr.arange(m.UInt32, dr.width(rate))
-        block = lane // image
-        pixel = lane % image
-
-        def each(values):                       # a (P,) array read by every block's pixels
-            return values if dr.width(values) == dr.width(rate) else _take(values, pixel)
         table = np.stack([_per_block(seconds, blocks), [per_sample] * blocks,
                           [float(x) for x in _per_block(most, blocks)]], axis=1)
-        secs, per, top = _scalars(m, table, dr.width(rate), block)
+        if blocks == 1:
+            secs, per, top = _scalars(m, table[0], dr.width(rate))
+        else:
+            lane = dr.arange(m.UInt32, dr.width(rate))
+            secs, per, top = _scalars(m, table, dr.width(rate), lane // image)
+
+        def each(values):                       # a (P,) array read by every block's pixels
+            return values if dr.width(values) == dr.width(rate) else _take(values, lane % image)
         r = _nan_max(rate, dr.abs(log_e - log_b) / secs)
         if observed is not None:
             r = _nan_max(r, each(observed))
@@ -455,8 +459,8 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
         # One lane per (block, pixel row, sub-sample column): its n sub-sample rows summed in
         # float32; the neighbours only within the lane's block.
         lane = dr.arange(m.UInt32, blocks * height * cols)
-        base = (lane // (height * cols)) * (rows * cols)
-        y, c = (lane % (height * cols)) // cols, lane % cols
+        base = 0 if blocks == 1 else (lane // (height * cols)) * (rows * cols)
+        y, c = (lane if blocks == 1 else lane % (height * cols)) // cols, lane % cols
         zero = m.Float32(0.0)
         acc = None
         for j in range(n):
@@ -477,15 +481,23 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
         dr.eval(acc)
         # Each pixel's n column sums in float64, in order (-0.0 + a is a).
         pixel = dr.arange(m.UInt32, blocks * image)
-        block, own = pixel // image, pixel % image
-        first = block * (height * cols) + (own // width) * cols + (own % width) * n
+        if blocks == 1:
+            block, own = None, pixel
+            first = (pixel // width) * cols + (pixel % width) * n
+        else:
+            block, own = pixel // image, pixel % image
+            first = block * (height * cols) + (own // width) * cols + (own % width) * n
         sums = [m.Float64(_take(a, first)) for a in acc]
         for i in range(1, n):
             sums = [s_ + m.Float64(_take(a, first + i)) for s_, a in zip(sums, acc, strict=True)]
         # Opaque: Dr.Jit turns a division by a literal into a product by its reciprocal.
         twists = np.asarray(twists, np.float64).reshape(blocks, -1, 6)
-        nn, n_d, fx_d, fy_d = _scalars(m, [float(n * n), float(n), fx, fy], blocks * image)
-        motion = _scalars(m, twists.reshape(blocks, -1), blocks * image, block)
+        if blocks == 1:
+            nn, n_d, fx_d, fy_d, *motion = _scalars(m, [float(n * n), float(n), fx, fy,
+                                                        *twists.reshape(-1)], image)
+        else:
+            nn, n_d, fx_d, fy_d = _scalars(m, [float(n * n), float(n), fx, fy], blocks * image)
+            motion = _scalars(m, twists.reshape(blocks, -1), blocks * image, block)
         mean = sums[0] / nn
         slope_u = sums[1] / nn * (n_d / mean)
         slope_v = sums[2] / nn * (n_d / mean)
@@ -508,11 +520,11 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
         dr.eval(best, squares)                      # one kernel, then one reduction
         # Each block's largest square (a maximum: exact in any order), inf where one is not
         # finite.
-        tops = dr.zeros(m.Float64, blocks)
-        dr.scatter_reduce(dr.ReduceOp.Max, tops,
-                          dr.select(dr.isfinite(squares), squares, math.inf), block)
+        finite = dr.select(dr.isfinite(squares), squares, math.inf)
+        tops = ([float(dr.max(finite)[0])] if blocks == 1
+                else dr.block_reduce(dr.ReduceOp.Max, finite, image).numpy().tolist())
         radii = [dilate(top if math.isfinite(top) else math.nan)
-                 for dilate, top in zip(dilations, tops.numpy().tolist(), strict=True)]
+                 for dilate, top in zip(dilations, tops, strict=True)]
         rate = best
         if max(radii) > 0:                          # the maximum over the clamped window
             rate = _dilate(m, rate, height, width, radii)

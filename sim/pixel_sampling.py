@@ -1352,18 +1352,16 @@ def _device_pass(source: PixelSource, emulator: PixelEventEmulator, blocks: list
     from sim._drjit_sampling import _module, device_block
 
     m = _module(device)
-    # Each pixel's luminance and level at the pass's B + 1 boundaries, in one upload each: a
-    # block's start is the previous block's end.
+    # Each pixel's luminance and level at its block's start and end, block after block, each
+    # filled in place into an aligned array that Dr.Jit maps without a copy (on llvm).
     image = blocks[0].lum_b.size
-    lums, levels = aligned_empty((len(blocks) + 1, image), np.float64), \
-        aligned_empty((len(blocks) + 1, image), np.float64)
-    lums[0], levels[0] = blocks[0].lum_b.reshape(-1), blocks[0].log_b.reshape(-1)
-    for k, block in enumerate(blocks):
-        lums[k + 1], levels[k + 1] = block.lum_e.reshape(-1), block.log_e.reshape(-1)
-    lums, levels = (_device_array(m.Float64, a.reshape(-1)) for a in (lums, levels))
-    span = len(blocks) * image
-    lum_b, log_b = _slice(lums, 0, span, m), _slice(levels, 0, span, m)
-    lum_e, log_e = _slice(lums, image, image + span, m), _slice(levels, image, image + span, m)
+    ends = {}
+    for name in ("lum_b", "log_b", "lum_e", "log_e"):
+        values = aligned_empty((len(blocks), image), np.float64)
+        for k, block in enumerate(blocks):
+            values[k] = getattr(block, name).reshape(-1)
+        ends[name] = _device_array(m.Float64, values.reshape(-1))
+    lum_b, log_b, lum_e, log_e = ends["lum_b"], ends["log_b"], ends["lum_e"], ends["log_e"]
     inner, total = _predicted_on_device(device, on, camera, blocks, log_b, log_e, log_eps,
                                         centres, floor, scale, bound, dt_min_ns)
     samples, counts, observed, _ = device_block(
