@@ -1381,8 +1381,10 @@ def _device_pass(source: PixelSource, emulator: PixelEventEmulator, blocks: list
             events = emulator.advance_device(counts[own], *part[1:], block.t_e, block.lum_e)
         else:
             pix, times, levels, lums = (a[lo:hi] for a in host)
-            events = emulator.advance_samples(pix.astype(np.int64) - k * image, times, levels,
-                                              lums, block.t_e, block.lum_e)
+            pix = pix.astype(np.int64)
+            if k:                                      # block k's pixels are k P + p
+                pix -= k * image
+            events = emulator.advance_samples(pix, times, levels, lums, block.t_e, block.lum_e)
         yield block, events, observed[own]
 
 
