@@ -1145,8 +1145,7 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         Filled while iterating.
     after : (float, ndarray), optional
         Continue from the end of a pass this function yielded: its last block's ``t`` and
-        ``floor``,
-        with the emulator's state as it was after that block. The blocks that
+        ``floor``, with the emulator's state as it was after that block. The blocks that
         follow are exactly those an uninterrupted run gives (renders are deterministic in
         time).
     edges : bool
@@ -1355,20 +1354,19 @@ def _device_pass(source: PixelSource, emulator: PixelEventEmulator, blocks: list
     # Each pixel's luminance and level at its block's start and end, block after block, each
     # filled in place into an aligned array that Dr.Jit maps without a copy (on llvm).
     image = blocks[0].lum_b.size
-    ends = {}
+    sent = {}
     for name in ("lum_b", "log_b", "lum_e", "log_e"):
         values = aligned_empty((len(blocks), image), np.float64)
         for k, block in enumerate(blocks):
             values[k] = getattr(block, name).reshape(-1)
-        ends[name] = _device_array(m.Float64, values.reshape(-1))
-    lum_b, log_b, lum_e, log_e = ends["lum_b"], ends["log_b"], ends["lum_e"], ends["log_e"]
-    inner, total = _predicted_on_device(device, on, camera, blocks, log_b, log_e, log_eps,
-                                        centres, floor, scale, bound, dt_min_ns)
+        sent[name] = _device_array(m.Float64, values.reshape(-1))
+    inner, total = _predicted_on_device(device, on, camera, blocks, sent["log_b"],
+                                        sent["log_e"], log_eps, centres, floor, scale, bound,
+                                        dt_min_ns)
     samples, counts, observed, _ = device_block(
         source.luminance_device, inner, [b.t_b for b in blocks], [b.length for b in blocks],
-        log_b, lum_b, log_e, lum_e, t0, t1, bound, on.get("scale"), dt_min_ns, log_eps,
-        stats, device, total=total)
-    image = len(counts) // len(blocks)
+        sent["log_b"], sent["lum_b"], sent["log_e"], sent["lum_e"], t0, t1, bound,
+        on.get("scale"), dt_min_ns, log_eps, stats, device, total=total)
     sizes = counts.reshape(len(blocks), image).sum(axis=1)
     offsets = np.cumsum(sizes) - sizes
     host = None if emulator.kernel == "drjit" else [a.numpy() for a in samples]
@@ -1425,8 +1423,8 @@ def _predicted_on_device(device: str, on: dict, camera: Camera, blocks: list[_Bl
         on["scale"] = _device_array(m.Float64, scale)
     weight, logw = (aligned_empty((len(blocks), *blocks[0].sub_b.shape), np.float32)
                     for _ in range(2))
-    n = [_log_weights(camera, b.sub_b, log_eps, (weight[k], logw[k]))
-         for k, b in enumerate(blocks)][0][2]
+    for k, block in enumerate(blocks):                 # in place: one upload each, mapped
+        n = _log_weights(camera, block.sub_b, log_eps, (weight[k], logw[k]))[2]
     if n >= 8:
         inner = np.concatenate([
             _host_counts(camera, b.sub_b, b.depth, b.twists, b.length, log_eps, centres,
