@@ -23,12 +23,15 @@
 #     must make datasets faster than its own CPU cores;
 #   5 the test suite on cuda_ad_rgb (pytest -n 14 -v: a cut-off run still lists its failures;
 #     the figures of tests whose bound was measured on llvm only are recorded, see
-#     tests/conftest.py's variant_bound, into variant_figures.jsonl).
+#     tests/conftest.py's variant_bound, into variant_figures.jsonl);
+#   6 the per-pixel sampler one block a pass against 16 (SamplingParams.wavefront), slider_close's
+#     0.5 s, one fresh process each (benchmarks/bench_device_sampler.py: host s, wall s,
+#     launches, events), run after step 2: which default the GPU wants.
 # Without a GPU it runs on whatever variant evfuse picks and says so: a dry run of the script.
 # DRY=1 shrinks every step (0.02 s windows, 2 jobs of 0.05 s on 2 workers, one test file).
 set -uo pipefail
 OUT=${OUT:-/tmp/gpu_check}
-STEPS=${STEPS:-"1 2 3 4 5"}
+STEPS=${STEPS:-"1 2 6 3 4 5"}
 BUDGET_S=${BUDGET_S:-450}
 DRY=${DRY:-0}
 RUNS=${RUNS:-/tmp/gpu_check_runs}
@@ -124,6 +127,8 @@ print(_scene('slider_close', 'hd')[1])" 2>/dev/null | tail -1)   # its camera pr
     5) rm -f "$OUT/variant_figures.jsonl"     # figures with no bound of this variant's own yet
        EVFUSE_VARIANT_FIGURES="$OUT/variant_figures.jsonl" \
          run tests 300 "$PY" -m pytest -v -n "$TEST_WORKERS" -p no:cacheprovider "$TESTS" ;;
+    6) run wavefront 120 "$PY" benchmarks/bench_device_sampler.py --cases 240x180 --repeat 1 \
+         --paths device device-wavefront --wavefront 16 --out "$OUT/wavefront.json" ;;
     *) echo "unknown step $step" >&2 ;;
   esac
 done
@@ -198,6 +203,14 @@ if gpu_rate and cpu_rate:
     print(f"GPU sweep against the same machine's CPU cores: {gpu_rate / cpu_rate:.2f}x"
           f"{'' if gpu else ' (no GPU: both ran on this machine variant)'}")
     summary["gpu_over_cpu"] = gpu_rate / cpu_rate
+wavefront = out / "wavefront.json"
+if wavefront.is_file():
+    rows = json.loads(wavefront.read_text())["rows"]
+    for r in rows:
+        print(f"{r['path']:<16} wavefront {r['wavefront']:>2}: host {r['host_s']:.3f} s, "
+              f"wall {r['wall_s']:.3f} s, {r['launches']} launches, {r['events']:,} events "
+              f"({r['duration_s']} s simulated, {r['variant']})")
+    summary["wavefront"] = rows
 log = out / "tests.log"
 if log.is_file():
     text = log.read_text()

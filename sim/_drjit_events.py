@@ -338,15 +338,23 @@ def _device_array(kind, values: np.ndarray):
     values = np.ascontiguousarray(values, dtype=_DTYPES[dr.type_v(kind)])
     if values.ctypes.data % ALIGNMENT == 0:
         return kind(values)
-    buffer = np.empty(values.nbytes + ALIGNMENT, np.uint8)
-    start = -buffer.ctypes.data % ALIGNMENT
-    aligned = buffer[start:start + values.nbytes].view(values.dtype)
+    aligned = aligned_empty(values.shape, values.dtype)
     aligned[...] = values
     return kind(aligned)
 
 
 ALIGNMENT = 128
 """Bytes to which the host arrays Dr.Jit maps on ``llvm`` are aligned (:func:`_device_array`)."""
+
+
+def aligned_empty(shape, dtype) -> np.ndarray:
+    """An uninitialised host array whose data starts on an :data:`ALIGNMENT`-byte boundary:
+    filled in place, :func:`_device_array` hands it to Dr.Jit without another copy."""
+    dtype = np.dtype(dtype)
+    size = int(np.prod(shape)) * dtype.itemsize
+    buffer = np.empty(size + ALIGNMENT, np.uint8)
+    start = -buffer.ctypes.data % ALIGNMENT
+    return buffer[start:start + size].view(dtype).reshape(shape)
 
 
 PACKET = 32

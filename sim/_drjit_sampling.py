@@ -18,6 +18,12 @@ sample counts per pixel and the frames' levels, and sees per level only the numb
 intervals still to split; it sorts only the midpoints found (few: one in slider_close's
 half second) by their interval and time.
 
+Both take ``B`` consecutive blocks at once (a pass of :func:`sim.pixel_sampling.pixel_blocks`'
+wavefront): a block axis on the prediction's images, the pixels of block ``b`` numbered
+``b P + p`` in the samples. Every operation on a value stays within its block (no gradient,
+dilation or interval crosses from one block's image into another's), so each block gets what
+a pass of that block alone gives it, bit for bit; only the launches are shared.
+
 Exactness, against the reference (:func:`sim.pixel_sampling._block_samples`,
 :func:`sim.pixel_sampling._refine`, :func:`sim.pixel_sampling._observed_rates`, numba and
 NumPy):
@@ -74,12 +80,13 @@ def _take(values, index):
     return dr.gather(type(values), values, index)
 
 
-def device_block(shade: Callable, inner: np.ndarray, t_b: int, length: int, log_b: np.ndarray,
+def device_block(shade: Callable, inner: np.ndarray, t_b, length, log_b: np.ndarray,
                  lum_b: np.ndarray, log_e: np.ndarray, lum_e: np.ndarray, t0: float, t1: float,
                  bound: float, scale: np.ndarray | None, dt_min_ns: int, log_eps: float,
                  stats, device: str = "llvm", total: int | None = None
                  ) -> tuple[tuple, np.ndarray, np.ndarray, object]:
-    """A block's samples, shaded, checked and refined on the device.
+    """A block's samples, shaded, checked and refined on the device; or those of ``B``
+    consecutive blocks at once (a pass of the wavefront), each block's pixels on their own.
 
     Parameters
     ----------
@@ -87,15 +94,15 @@ def device_block(shade: Callable, inner: np.ndarray, t_b: int, length: int, log_
         ``shade(pixels, seconds, between)`` -> linear luminance: device arrays (UInt32 flat
         pixels, Float64 seconds) and the bounds of the seconds in, a device Float32 array out
         (:meth:`sim.shader.EventShader.luminance_device`).
-    inner : (P,) int64 ndarray or Dr.Jit UInt32 array
-        Samples each pixel takes strictly inside the block (:func:`sim.pixel_sampling.
-        _intra_counts`, or :func:`device_prediction`'s, on the device, with their ``total``).
-        Any of the (P,) float64 arrays below may be given as a Dr.Jit Float64 array on the
-        device too.
-    t_b, length : int, ns
-        The block's start and length.
-    log_b, lum_b, log_e, lum_e : (P,) float64 ndarray
-        Each pixel's level and luminance at the block's start and end.
+    inner : (B P,) int64 ndarray or Dr.Jit UInt32 array
+        Samples each pixel takes strictly inside its block (:func:`sim.pixel_sampling.
+        _intra_counts`, or :func:`device_prediction`'s, on the device, with their ``total``),
+        block after block. Any of the (B P,) float64 arrays below may be given as a Dr.Jit
+        Float64 array on the device too.
+    t_b, length : int or (B,) sequence of int, ns
+        Each block's start and length (the blocks consecutive).
+    log_b, lum_b, log_e, lum_e : (B P,) float64 ndarray
+        Each pixel's level and luminance at its block's start and end.
     t0, t1 : float, seconds
         The run's span (a sample's time in seconds is clipped to it).
     bound : float
@@ -115,35 +122,47 @@ def device_block(shade: Callable, inner: np.ndarray, t_b: int, length: int, log_
     Returns
     -------
     samples : tuple of (S,) Dr.Jit arrays on the device
-        Every sample's flat pixel (UInt32) and time (Int64, ns), sorted by pixel, then time,
+        Every sample's pixel (UInt32, ``b P + p`` for pixel ``p`` of block ``b``) and time
+        (Int64, ns), sorted by block, pixel, then time (so each block's samples are one run),
         its log intensity and linear luminance (Float64): what
-        :meth:`sim.pixel_sampling.PixelEventEmulator.advance_device` takes (``.numpy()`` of
-        each: :meth:`~sim.pixel_sampling.PixelEventEmulator.advance_samples`').
-    counts : (P,) int64 ndarray
-        Each pixel's samples.
-    observed : (P,) float64 ndarray, 1/s
-        Each pixel's largest ``|dL/dt|`` over its intervals that met the bound.
-    observed_device : (P,) Dr.Jit Float64 array
+        :meth:`sim.pixel_sampling.PixelEventEmulator.advance_device` takes of one block
+        (``.numpy()`` of each: :meth:`~sim.pixel_sampling.PixelEventEmulator.advance_samples`').
+    counts : (B P,) int64 ndarray
+        Each pixel's samples in its block.
+    observed : (B P,) float64 ndarray, 1/s
+        Each pixel's largest ``|dL/dt|`` over its intervals in its block that met the bound.
+    observed_device : (B P,) Dr.Jit Float64 array
         The same, left on the device.
+
+    Notes
+    -----
+    The blocks of a pass are independent: each sample's operations are those of its block
+    alone (the pixels ``b P + p`` only index; a block's pixel is shaded as ``p``), so a pass
+    gives each block what a pass of that block alone gives it, bit for bit
+    (``tests/test_wavefront.py``).
     """
     from sim._drjit_events import _device_array
 
     m = _module(device)
+    starts = np.atleast_1d(np.asarray(t_b, np.int64))
+    lengths = np.atleast_1d(np.asarray(length, np.int64))
     if dr.is_array_v(inner):
         n_pixels, n_mid = dr.width(inner), int(total)
     else:
         n_pixels, n_mid = len(inner), int(inner.sum())
+    image = n_pixels // len(starts)             # the pixels of one block's image
     total = n_mid + 2 * n_pixels
 
     def on(kind, values):                       # host arrays sent, device ones as they are
         return values if dr.is_array_v(values) else _device_array(kind, values)
     fast = dr.flag(dr.JitFlag.FastMath)
 
-    span = (min(max(t_b * 1e-9, t0), t1), min(max((t_b + length) * 1e-9, t0), t1))
+    span = (min(max(int(starts[0]) * 1e-9, t0), t1),
+            min(max(int(starts[-1] + lengths[-1]) * 1e-9, t0), t1))
 
     def render(pixels, seconds):                # the shader under the caller's flags
         with dr.scoped_set_flag(dr.JitFlag.FastMath, fast):
-            return shade(pixels, seconds, span)
+            return shade(pixels if len(starts) == 1 else pixels % image, seconds, span)
 
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         counts = on(m.UInt32, inner)
@@ -153,15 +172,23 @@ def device_block(shade: Callable, inner: np.ndarray, t_b: int, length: int, log_
         pix = dr.cumsum(mark)
         k = dr.arange(m.UInt32, total) - _take(first, pix)
         k_in = _take(counts, pix)
-        times = m.Int64(t_b) + (m.Int64(k) * length) // m.Int64(k_in + 1)
+        if len(starts) == 1:
+            t_b, length = int(starts[0]), int(lengths[0])
+        else:                                   # each sample's block's start and length
+            block = pix // image
+            t_b = _take(_device_array(m.Int64, starts), block)
+            length = _take(_device_array(m.Int64, lengths), block)
+        times = t_b + (m.Int64(k) * length) // m.Int64(k_in + 1)
         start = k == 0
         levels = dr.select(start, _take(on(m.Float64, log_b), pix),
                            _take(on(m.Float64, log_e), pix))
         lums = dr.select(start, _take(on(m.Float64, lum_b), pix),
                          _take(on(m.Float64, lum_e), pix))
         scale_d = None if scale is None else on(m.Float64, scale)
+        if scale_d is not None and len(starts) > 1:      # each block's pixels scaled alike
+            scale_d = _take(scale_d, dr.arange(m.UInt32, n_pixels) % image)
         middle = (k > 0) & (k <= k_in)
-        dr.eval(pix, times, levels, lums, middle)
+        dr.eval(pix, times, levels, lums, middle, *([] if scale_d is None else [scale_d]))
         if n_mid:
             index = dr.compress(middle)
             y, level = _shaded(m, render, _take(pix, index), _take(times, index), t0, t1,
@@ -292,24 +319,35 @@ def _opaque(kind, value):
     return out
 
 
-def _scalars(m, values, width: int) -> list:
+def _scalars(m, values, width: int, block=None) -> list:
     """Float64 scalars the kernels read from memory (as :func:`_opaque`'s), sent in one copy:
     each gathered inside the kernels that use it, over ``width`` lanes, instead of one memory
-    fill (a launch on a GPU) each."""
+    fill (a launch on a GPU) each. With ``block`` (UInt32, each lane's block), ``values`` is a
+    (B, V) table and each lane reads its own block's row."""
     from sim._drjit_events import _device_array
 
-    table = _device_array(m.Float64, np.asarray(values, np.float64))
-    lanes = dr.zeros(m.UInt32, width)
-    return [dr.gather(m.Float64, table, lanes + i) for i in range(len(values))]
+    values = np.asarray(values, np.float64)
+    table = _device_array(m.Float64, values.reshape(-1))
+    size = values.shape[-1]
+    lanes = dr.zeros(m.UInt32, width) if block is None else block * size
+    return [dr.gather(m.Float64, table, lanes + i) for i in range(size)]
+
+
+def _per_block(values, blocks: int) -> list:
+    """A per-block argument as a list of ``blocks`` items (one value: the same for all)."""
+    if isinstance(values, (list, tuple)):
+        return list(values)
+    return [values] * blocks
 
 
 def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx: float,
                       fy: float, centres, depth: np.ndarray, twists: np.ndarray,
-                      dilation: Callable[[float], int], seconds: float, log_b, log_e, observed,
-                      scale, per_sample: float, most: int,
-                      device: str = "llvm") -> tuple[object, int, int]:
+                      dilation, seconds, log_b, log_e, observed, scale, per_sample: float,
+                      most, device: str = "llvm") -> tuple[object, int, object]:
     """:func:`sim.pixel_sampling.rate_map` and :func:`sim.pixel_sampling._intra_counts` on the
-    device: the samples each pixel takes strictly inside a block.
+    device: the samples each pixel takes strictly inside a block, or inside each of ``B``
+    blocks at once (a leading block axis on ``weight``, ``logw``, ``depth`` and ``twists``;
+    each block's image on its own: no gradient or dilation crosses from one into another).
 
     The same integer and float64 / float32 operations in the same order as the numba kernels
     (:func:`sim.pixel_sampling._weighted_slopes`, ``_predicted_rate``, ``_intra_kernel``;
@@ -324,7 +362,7 @@ def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, in
 
     Parameters
     ----------
-    weight, logw : (H n, W n) float32 ndarray
+    weight, logw : (H n, W n) or (B, H n, W n) float32 ndarray
         The block start's sub-samples plus ``log_eps`` and their float32 ``log``
         (``n < 8``: the pairwise sums of wider pixels are not ported).
     shape : (int, int)
@@ -334,46 +372,60 @@ def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, in
     centres : tuple
         The x and y of ``camera.normalized_pixel_centres()``, flat, on the device
         (:func:`device_centres`).
-    depth : (H, W) ndarray, metres
+    depth : (H, W) or (B, H, W) ndarray, metres
         Exact depth at the block's start (0 where nothing is seen).
-    twists : (K, 6) float64 ndarray
+    twists : (K, 6) or (B, K, 6) float64 ndarray
         :func:`sim.sampling._twist` of each velocity the block spans.
-    dilation : callable
+    dilation : callable or list of callables
         ``dilation(top)`` -> the rate map's dilation in pixels, from the largest ``du^2 + dv^2``
-        over the pixels and twists (NaN where one is not finite).
-    seconds : float
-        The block's length.
-    log_b, log_e : (P,) Dr.Jit Float64 arrays
-        Each pixel's level at the block's start and end.
-    observed, scale : (P,) Dr.Jit Float64 arrays or None
-        The last block's observed rates and :func:`sim.sampling.contrast_scale`'s.
+        over the block's pixels and twists (NaN where one is not finite); one per block.
+    seconds : float or list of float
+        The block's length (each block's).
+    log_b, log_e : (B P,) Dr.Jit Float64 arrays
+        Each pixel's level at its block's start and end.
+    observed : (P,) or (B P,) Dr.Jit Float64 array or None
+        The rates the counts take as a floor (:func:`sim.pixel_sampling._intra_counts`'
+        ``observed``): one for every block, or each block's.
+    scale : (P,) Dr.Jit Float64 array or None
+        :func:`sim.sampling.contrast_scale`'s.
     per_sample : float
         The change a sample may see (``MARGIN lam C``).
-    most : int
+    most : int or list of int
         Samples a pixel takes at most (the block's length over the shortest interval, at
         least 1).
     device : {"llvm", "cuda"}
 
     Returns
     -------
-    inner : (P,) Dr.Jit UInt32 array
-        :func:`sim.pixel_sampling._intra_counts`'s.
+    inner : (B P,) Dr.Jit UInt32 array
+        :func:`sim.pixel_sampling._intra_counts`'s, block after block.
     total : int
         Their sum.
-    radius : int
-        The dilation (pixels).
+    radius : int or list of int
+        The dilation (pixels): each block's where ``weight`` has a block axis.
     """
     m = _module(device)
     rate, radius = device_rate(weight, logw, shape, fx, fy, centres, depth, twists, dilation,
                                device)
+    blocks = len(radius) if isinstance(radius, list) else 1
+    image = dr.width(rate) // blocks
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         # _intra_counts: at least the net change, the last block's rates; times the scale.
-        secs, per, top = _scalars(m, [seconds, per_sample, float(most)], dr.width(rate))
+        table = np.stack([_per_block(seconds, blocks), [per_sample] * blocks,
+                          [float(x) for x in _per_block(most, blocks)]], axis=1)
+        if blocks == 1:
+            secs, per, top = _scalars(m, table[0], dr.width(rate))
+        else:
+            lane = dr.arange(m.UInt32, dr.width(rate))
+            secs, per, top = _scalars(m, table, dr.width(rate), lane // image)
+
+        def each(values):                       # a (P,) array read by every block's pixels
+            return values if dr.width(values) == dr.width(rate) else _take(values, lane % image)
         r = _nan_max(rate, dr.abs(log_e - log_b) / secs)
         if observed is not None:
-            r = _nan_max(r, observed)
+            r = _nan_max(r, each(observed))
         if scale is not None:
-            r = r * scale
+            r = r * each(scale)
         wanted = dr.ceil(r * secs / per)
         wanted = dr.select((wanted != wanted) | (wanted == math.inf), 0.0, wanted)
         inner = m.UInt32(dr.minimum(dr.maximum(wanted, 1.0), top) - 1.0)
@@ -384,35 +436,42 @@ def device_prediction(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, in
 
 def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx: float,
                 fy: float, centres: tuple, depth: np.ndarray, twists: np.ndarray,
-                dilation: Callable[[float], int], device: str = "llvm") -> tuple[object, int]:
+                dilation, device: str = "llvm") -> tuple[object, object]:
     """:func:`sim.pixel_sampling.rate_map` on the device (the arguments are
-    :func:`device_prediction`'s): the rate map, flat ((H W,) Dr.Jit Float64), and its
-    dilation (pixels)."""
+    :func:`device_prediction`'s): the rate map, flat ((B H W,) Dr.Jit Float64), and its
+    dilation (pixels; a list, each block's, where ``weight`` has a block axis)."""
     from sim._drjit_events import _device_array
 
     m = _module(device)
     height, width = shape
-    rows, cols = weight.shape
+    weight, logw = np.asarray(weight), np.asarray(logw)
+    single = weight.ndim == 2
+    blocks, rows, cols = weight.reshape(-1, *weight.shape[-2:]).shape
     n = rows // height
     if n >= 8:
         raise ValueError(f"device_prediction takes at most 7x7 sub-samples a pixel, got {n}x{n}")
+    image = height * width
+    dilations = _per_block(dilation, blocks)
     with dr.scoped_set_flag(dr.JitFlag.FastMath, False):
         w_d = _device_array(m.Float32, weight.reshape(-1))
         l_d = _device_array(m.Float32, logw.reshape(-1))
-        # One lane per (pixel row, sub-sample column): its n sub-sample rows summed in float32.
-        lane = dr.arange(m.UInt32, height * cols)
-        y, c = lane // cols, lane % cols
+        size = blocks * rows * cols
+        # One lane per (block, pixel row, sub-sample column): its n sub-sample rows summed in
+        # float32; the neighbours only within the lane's block.
+        lane = dr.arange(m.UInt32, blocks * height * cols)
+        base = 0 if blocks == 1 else (lane // (height * cols)) * (rows * cols)
+        y, c = (lane if blocks == 1 else lane % (height * cols)) // cols, lane % cols
         zero = m.Float32(0.0)
         acc = None
         for j in range(n):
             r = y * n + j
-            at = r * cols + c
+            at = base + r * cols + c
             level = _take(l_d, at)
-            gu = dr.select(c + 1 < cols, dr.abs(_take(l_d, dr.minimum(at + 1, rows * cols - 1))
+            gu = dr.select(c + 1 < cols, dr.abs(_take(l_d, dr.minimum(at + 1, size - 1))
                                                 - level), zero)
             gu = dr.select(c > 0, _nan_max(gu, dr.abs(level - _take(l_d, dr.maximum(at, 1) - 1))),
                            gu)
-            gv = dr.select(r + 1 < rows, dr.abs(_take(l_d, dr.minimum(at + cols, rows * cols - 1))
+            gv = dr.select(r + 1 < rows, dr.abs(_take(l_d, dr.minimum(at + cols, size - 1))
                                                 - level), zero)
             gv = dr.select(r > 0, _nan_max(gv, dr.abs(level - _take(l_d, dr.maximum(at, cols)
                                                                       - cols))), gv)
@@ -421,25 +480,34 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
                    else (acc[0] + w, acc[1] + gu * w, acc[2] + gv * w))
         dr.eval(acc)
         # Each pixel's n column sums in float64, in order (-0.0 + a is a).
-        pixel = dr.arange(m.UInt32, height * width)
-        first = (pixel // width) * cols + (pixel % width) * n
+        pixel = dr.arange(m.UInt32, blocks * image)
+        if blocks == 1:
+            block, own = None, pixel
+            first = (pixel // width) * cols + (pixel % width) * n
+        else:
+            block, own = pixel // image, pixel % image
+            first = block * (height * cols) + (own // width) * cols + (own % width) * n
         sums = [m.Float64(_take(a, first)) for a in acc]
         for i in range(1, n):
             sums = [s_ + m.Float64(_take(a, first + i)) for s_, a in zip(sums, acc, strict=True)]
         # Opaque: Dr.Jit turns a division by a literal into a product by its reciprocal.
-        twists = np.asarray(twists, np.float64).reshape(-1, 6)
-        nn, n_d, fx_d, fy_d, *motion = _scalars(m, [float(n * n), float(n), fx, fy,
-                                                    *twists.reshape(-1)], height * width)
+        twists = np.asarray(twists, np.float64).reshape(blocks, -1, 6)
+        if blocks == 1:
+            nn, n_d, fx_d, fy_d, *motion = _scalars(m, [float(n * n), float(n), fx, fy,
+                                                        *twists.reshape(-1)], image)
+        else:
+            nn, n_d, fx_d, fy_d = _scalars(m, [float(n * n), float(n), fx, fy], blocks * image)
+            motion = _scalars(m, twists.reshape(blocks, -1), blocks * image, block)
         mean = sums[0] / nn
         slope_u = sums[1] / nn * (n_d / mean)
         slope_v = sums[2] / nn * (n_d / mean)
         # The motion field of each twist (sim.sampling._point_flow, its operations in order).
-        x, yy = centres
+        x, yy = centres if blocks == 1 else (_take(centres[0], own), _take(centres[1], own))
         z = _device_array(m.Float64, np.asarray(depth, np.float64).reshape(-1))
         seen = z > 0.0
         best = m.Float64(0.0)
         squares = None
-        for k in range(len(twists)):
+        for k in range(twists.shape[1]):
             vx, vy, vz, wx, wy, wz = motion[6 * k:6 * k + 6]
             px = -vx - z * (wy - wz * yy)
             py = -vy - z * (wz * x - wx)
@@ -450,27 +518,38 @@ def device_rate(weight: np.ndarray, logw: np.ndarray, shape: tuple[int, int], fx
             square = du * du + dv * dv
             squares = square if squares is None else _nan_max(squares, square)
         dr.eval(best, squares)                      # one kernel, then one reduction
-        top = float(dr.max(dr.select(dr.isfinite(squares), squares, math.inf))[0])
-        radius = dilation(top if math.isfinite(top) else math.nan)
+        # Each block's largest square (a maximum: exact in any order), inf where one is not
+        # finite.
+        finite = dr.select(dr.isfinite(squares), squares, math.inf)
+        tops = ([float(dr.max(finite)[0])] if blocks == 1
+                else dr.block_reduce(dr.ReduceOp.Max, finite, image).numpy().tolist())
+        radii = [dilate(top if math.isfinite(top) else math.nan)
+                 for dilate, top in zip(dilations, tops, strict=True)]
         rate = best
-        if radius > 0:                              # the maximum over the clamped window
-            rate = _dilate(m, rate, height, width, radius)
+        if max(radii) > 0:                          # the maximum over the clamped window
+            rate = _dilate(m, rate, height, width, radii)
         dr.eval(rate)
-        return rate, radius
+        return rate, (radii[0] if single else radii)
 
 
-def _dilate(m, values, height: int, width: int, radius: int):
-    """The largest of ``values`` ((H W,) Float64, row-major) over the ``(2 radius + 1)^2``
-    window of each pixel, the window clamped to the image (``cv2.dilate`` with a square kernel
-    and ``BORDER_REPLICATE``): along the rows, then the columns, one symbolic loop each."""
-    pixel = dr.arange(m.UInt32, height * width)
-    py, px = m.Int32(pixel // width), m.Int32(pixel % width)
-    r = _opaque(m.Int32, radius)
+def _dilate(m, values, height: int, width: int, radii: list[int]):
+    """The largest of ``values`` ((B H W,) Float64, each block's image row-major) over the
+    ``(2 radius + 1)^2`` window of each pixel (its block's radius), the window clamped to the
+    block's image (``cv2.dilate`` with a square kernel and ``BORDER_REPLICATE``): along the
+    rows, then the columns, one symbolic loop each."""
+    image = height * width
+    pixel = dr.arange(m.UInt32, len(radii) * image)
+    own = pixel % image
+    py, px = m.Int32(own // width), m.Int32(own % width)
+    if len(radii) == 1:
+        r = _opaque(m.Int32, radii[0])
+    else:
+        r = _take(m.Int32(np.asarray(radii, np.int32)), pixel // image)
     for along, size in ((px, width), (py, height)):
         step = 1 if along is px else width
         src = values
         out = _take(src, pixel)
-        d = dr.zeros(m.Int32, height * width) - r
+        d = dr.zeros(m.Int32, len(radii) * image) - r
 
         def body(d, out, along=along, size=size, step=step, src=src):
             other = dr.clip(along + d, 0, size - 1)

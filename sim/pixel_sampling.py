@@ -31,7 +31,15 @@ fastest pixel needs (:mod:`sim.sampling`), every pixel keeps its own time line:
   photoreceptor low-pass models, each pixel with its own time step). Background and hot-pixel
   events are drawn per block. All samples of a block lie in ``[t_b, t_e]`` and every pixel has a
   sample at ``t_e``, so the block's events are final when it ends: they leave sorted by time, one
-  block at a time, in memory bounded by one block.
+  block at a time, in memory bounded by one pass (see Passes).
+
+- Passes (:attr:`sim.sampling.SamplingParams.wavefront`, ``B``; the device path): ``B``
+  consecutive blocks are predicted, built, shaded, checked and refined in one set of device
+  launches, each block's image on its own, then emulated block after block (a pixel's samples
+  reach the emulator in time order). The one change to the method: every block of a pass takes
+  as its floor the observed rates of the last block before the pass (the most recent ones
+  known when the pass starts), not those of the block just before it. ``B = 1`` is the method
+  above, event for event. A run can be continued only after a pass (:attr:`PixelBlock.floor`).
 
 - Edges (``edges``, ``[render] edge_spp``): point sub-samples alias where an edge of the
   geometry or of a shadow crosses a pixel (textures are filtered over each sub-sample's
@@ -186,8 +194,12 @@ class PixelBlock:
         The block's events, sorted by time (ties in pixel order).
     observed : (H W,) float64 ndarray
         Each pixel's largest observed |dL/dt| in the block (over the intervals that met the
-        bound), 1/s: the next block's prediction uses it; continuing after this block
-        (``after`` of :func:`pixel_blocks`) needs it.
+        bound), 1/s.
+    floor : (H W,) float64 ndarray or None, 1/s
+        At the last block of a pass (:attr:`sim.sampling.SamplingParams.wavefront`): the
+        rates the next pass's prediction takes as a floor (this block's ``observed``), which
+        continuing after this block (``after`` of :func:`pixel_blocks`) needs. None inside a
+        pass: the run cannot be continued from there.
     """
 
     t: float
@@ -195,6 +207,7 @@ class PixelBlock:
     log: np.ndarray
     events: np.ndarray
     observed: np.ndarray
+    floor: np.ndarray | None = None
 
 
 def rate_map(camera: Camera, subsamples: np.ndarray, depth: np.ndarray,
@@ -253,19 +266,21 @@ def _flow_args(camera: Camera, centres: np.ndarray, depth: np.ndarray, twists: l
             np.asarray(depth), np.array([_twist(v, w) for v, w in twists]).reshape(-1, 6))
 
 
-def _log_weights(camera: Camera, subsamples: np.ndarray,
-                 log_eps: float) -> tuple[np.ndarray, np.ndarray, int]:
+def _log_weights(camera: Camera, subsamples: np.ndarray, log_eps: float,
+                 out: tuple[np.ndarray, np.ndarray] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
     """:func:`rate_map`'s weights ``Y_s + eps`` of the sub-samples ((H n, W n) float32: a rate,
     not a level), their float32 ``log`` (NumPy's: numba's and Dr.Jit's may differ in the last
-    bit, so the host takes it for every path) and ``n``."""
+    bit, so the host takes it for every path) and ``n``; written into ``out`` where given."""
     height, width = camera.height, camera.width
     luminance = np.asarray(subsamples, dtype=np.float32)
     n = luminance.shape[0] // height
     if luminance.shape != (height * n, width * n) or n < 1:
         raise ValueError(f"subsamples must have shape (H n, W n) for the camera's {height}x"
                          f"{width} pixels, got {luminance.shape}")
-    weight = luminance + np.float32(log_eps)
-    return weight, np.log(weight), n
+    weight, logw = out if out is not None else (None, None)
+    weight = np.add(luminance, np.float32(log_eps), out=weight)
+    return weight, np.log(weight, out=logw), n
 
 
 # The prediction's per-pixel work, compiled (rows in parallel): each kernel gives exactly the
@@ -1123,12 +1138,14 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         L = log(Y + log_eps).
     params : SamplingParams, optional
         ``lam``, and ``min_rate`` (blocks of ``1 / min_rate`` seconds, a frame at each
-        boundary) and ``max_rate`` (no pixel interval is split below ``2 / max_rate``).
+        boundary), ``max_rate`` (no pixel interval is split below ``2 / max_rate``) and
+        ``wavefront`` (blocks a pass, each taking the floor known at the pass's start; the
+        reference path keeps that rule too, block by block).
     stats : PixelSamplingStats, optional
         Filled while iterating.
     after : (float, ndarray), optional
-        Continue from the end of a block this function yielded: its ``t`` and ``observed``,
-        with the emulator's state as it was after that block. The blocks that
+        Continue from the end of a pass this function yielded: its last block's ``t`` and
+        ``floor``, with the emulator's state as it was after that block. The blocks that
         follow are exactly those an uninterrupted run gives (renders are deterministic in
         time).
     edges : bool
@@ -1140,7 +1157,9 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
         the texture filter's bound.
     device : {"llvm", "cuda"}, optional
         Predict (:func:`sim._drjit_sampling.device_prediction`), build, shade, check and refine
-        each block's samples on this Dr.Jit device
+        each pass's samples (``params.wavefront`` blocks, one at a time with ``edges``, and no
+        pass spanning more than ``source.pass_span_ns`` where the source has it) on this Dr.Jit
+        device
         (:func:`sim._drjit_sampling.device_block`, shading through
         ``source.luminance_device``) instead of the reference path (numba and NumPy, shading
         through ``source.luminance``), the block-end frames :data:`FRAMES_AHEAD` at a time
@@ -1195,76 +1214,183 @@ def pixel_blocks(source: PixelSource, emulator: PixelEventEmulator, t0: float, t
     log_b = log_of(lum_b)
     if after is None:
         emulator.start(log_b, t0, lum_b)
-    observed = None if after is None else np.asarray(after[1], dtype=np.float64)
+    floor = None if after is None else np.asarray(after[1], dtype=np.float64)
     centres = camera.normalized_pixel_centres()
     ends = _block_ends(t_b, t1_ns, block_ns, dt_min_ns)
     ahead: dict[int, np.ndarray] = {}
     depths: dict[int, np.ndarray] = {}                 # block starts' depth maps, batched too
     batched = device is not None and hasattr(source, "subsamples_many")
-    on: dict = {}                  # what the device path keeps on the device between blocks
-    for i, t_e in enumerate(ends):
-        length = t_e - t_b
-        if batched and t_e not in ahead:           # the next frames, several a launch
-            chunk = ends[i:i + FRAMES_AHEAD]
-            ahead = dict(zip(chunk, source.subsamples_many(seconds(np.array(chunk))),
-                             strict=True))
-            if hasattr(source, "depth_many"):
-                starts = [t_b, *chunk[:-1]]
-                depths = dict(zip(starts, source.depth_many(seconds(np.array(starts))),
-                                  strict=True))
-        sub_e = ahead.pop(t_e) if batched else source.subsamples(float(seconds(t_e)))
-        stats.full_renders += 1
-        lum_e, fine_e = boundary(sub_e, t_e)
-        log_e = log_of(lum_e)
-        shade = partial(_shade, source, stats, None if fine_e is None else fine_b | fine_e)
-        depth = depths.pop(t_b) if t_b in depths else source.depth(float(seconds(t_b)))
-        stats.depth_renders += 1
-        twists = [source.camera_velocity(float(seconds(t_b))),
-                  source.camera_velocity(float(seconds(t_e)))]
-        # Every pixel: its block-start sample, `inner` evenly spaced samples, its block-end one.
-        on_device = device is not None and (fine_e is None or not (fine_b | fine_e).any())
-        if on_device:
-            from sim._drjit_sampling import device_block
-
-            inner, total, on = _predicted_on_device(
-                device, on, camera, sub_b, depth, twists, length, log_eps, centres, log_b, log_e,
-                observed, scale, bound, dt_min_ns)
-            samples, counts, observed, on["observed"] = device_block(
-                source.luminance_device, inner, t_b, length, on["log_b"],
-                lum_b.reshape(-1).astype(np.float64), on["log_e"],
-                lum_e.reshape(-1).astype(np.float64), float(t0), float(t1), bound,
-                on.get("scale"), dt_min_ns, log_eps, stats, device, total=total)
-            if emulator.kernel == "drjit":             # the samples stay on the device
-                events = emulator.advance_device(counts, *samples[1:], t_e, lum_e)
-            else:
-                pix, times, levels, lums = (a.numpy() for a in samples)
-                events = emulator.advance_samples(pix.astype(np.int64), times, levels, lums,
-                                                  t_e, lum_e)
-            stats.blocks += 1
-            t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, log_e, fine_e
-            yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
+    on: dict = {}                  # what the device path keeps on the device between passes
+    done = 0
+    for size in _passes(ends, t_b, 1 if edges else params.wavefront,
+                        getattr(source, "pass_span_ns", None)):
+        # The pass's blocks: their boundary frames, depth maps and twists, on the host.
+        blocks = []
+        for i in range(done, done + size):
+            t_e = ends[i]
+            if batched and t_e not in ahead:           # the next frames, several a launch
+                chunk = ends[i:i + FRAMES_AHEAD]
+                ahead = dict(zip(chunk, source.subsamples_many(seconds(np.array(chunk))),
+                                 strict=True))
+                if hasattr(source, "depth_many"):
+                    starts = [t_b, *chunk[:-1]]
+                    depths = dict(zip(starts, source.depth_many(seconds(np.array(starts))),
+                                      strict=True))
+            sub_e = ahead.pop(t_e) if batched else source.subsamples(float(seconds(t_e)))
+            stats.full_renders += 1
+            lum_e, fine_e = boundary(sub_e, t_e)
+            depth = depths.pop(t_b) if t_b in depths else source.depth(float(seconds(t_b)))
+            stats.depth_renders += 1
+            blocks.append(_Block(t_b, t_e, sub_b, lum_b, log_b, fine_b, lum_e, log_of(lum_e),
+                                 fine_e, depth,
+                                 [source.camera_velocity(float(seconds(t_b))),
+                                  source.camera_velocity(float(seconds(t_e)))]))
+            t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, blocks[-1].log_e, fine_e
+        done += size
+        observed = []
+        # Every pixel: its block-start sample, `inner` evenly spaced samples, its block-end one,
+        # every block of the pass taking the same floor (the rates observed before the pass).
+        if device is not None and all(b.fine_b is None or not (b.fine_b | b.fine_e).any()
+                                      for b in blocks):
+            for block, events, rates in _device_pass(source, emulator, blocks, device, on,
+                                                     camera, centres, floor, scale, bound,
+                                                     dt_min_ns, log_eps, float(t0), float(t1),
+                                                     stats):
+                observed.append(rates)
+                stats.blocks += 1
+                last = len(observed) == len(blocks)
+                yield PixelBlock(float(seconds(block.t_e)), block.lum_e, block.log_e, events,
+                                 rates, _floor(observed) if last else None)
+            floor = _floor(observed)
             continue
-        on = {}                                        # nothing left on the device
-        inner = _host_counts(camera, sub_b, depth, twists, length, log_eps, centres, log_b,
-                             log_e, observed, scale, bound, dt_min_ns)
-        pix, times, levels, lums, mid_pix, mid_s = _block_samples(
-            inner, t_b, length, log_b.reshape(-1), lum_b.reshape(-1), log_e.reshape(-1),
-            lum_e.reshape(-1), float(t0), float(t1))
-        if len(mid_pix):
-            values = shade(mid_pix, mid_s)
-            logs = np.empty(len(values))                # log(float64(value) + log_eps):
-            _plus(values, log_eps, logs)                # NumPy's log, in place
-            np.log(logs, out=logs)
-            _fill_middle(inner, values, logs, levels, lums)         # (values: float32)
-            stats.pixel_samples += len(mid_pix)
-        pix, times, levels, lums = _refine(shade, pix, times, levels, lums, bound, scale,
-                                           dt_min_ns, log_eps, stats, seconds)
-        stats.intervals += len(pix) - n_pixels
-        observed = _observed_rates(pix, times, levels, bound, scale)
-        events = emulator.advance_samples(pix, times, levels, lums, t_e, lum_e)
-        stats.blocks += 1
-        t_b, sub_b, lum_b, log_b, fine_b = t_e, sub_e, lum_e, log_e, fine_e
-        yield PixelBlock(float(seconds(t_e)), lum_e, log_e, events, observed)
+        on.clear()                                     # nothing left on the device
+        for block in blocks:
+            shade = partial(_shade, source, stats,
+                            None if block.fine_e is None else block.fine_b | block.fine_e)
+            inner = _host_counts(camera, block.sub_b, block.depth, block.twists, block.length,
+                                 log_eps, centres, block.log_b, block.log_e, floor, scale,
+                                 bound, dt_min_ns)
+            pix, times, levels, lums, mid_pix, mid_s = _block_samples(
+                inner, block.t_b, block.length, block.log_b.reshape(-1),
+                block.lum_b.reshape(-1), block.log_e.reshape(-1), block.lum_e.reshape(-1),
+                float(t0), float(t1))
+            if len(mid_pix):
+                values = shade(mid_pix, mid_s)
+                logs = np.empty(len(values))                # log(float64(value) + log_eps):
+                _plus(values, log_eps, logs)                # NumPy's log, in place
+                np.log(logs, out=logs)
+                _fill_middle(inner, values, logs, levels, lums)     # (values: float32)
+                stats.pixel_samples += len(mid_pix)
+            pix, times, levels, lums = _refine(shade, pix, times, levels, lums, bound, scale,
+                                               dt_min_ns, log_eps, stats, seconds)
+            stats.intervals += len(pix) - n_pixels
+            observed.append(_observed_rates(pix, times, levels, bound, scale))
+            events = emulator.advance_samples(pix, times, levels, lums, block.t_e, block.lum_e)
+            stats.blocks += 1
+            last = len(observed) == len(blocks)
+            yield PixelBlock(float(seconds(block.t_e)), block.lum_e, block.log_e, events,
+                             observed[-1], _floor(observed) if last else None)
+        floor = _floor(observed)
+
+
+@dataclass
+class _Block:
+    """What a block's samples start from: its ends (ns), the frames there (the start's
+    sub-samples, each end's pixel values, levels and pixels an edge crosses), the depth map at
+    its start and the camera's twists at both ends."""
+
+    t_b: int
+    t_e: int
+    sub_b: np.ndarray
+    lum_b: np.ndarray
+    log_b: np.ndarray
+    fine_b: np.ndarray | None
+    lum_e: np.ndarray
+    log_e: np.ndarray
+    fine_e: np.ndarray | None
+    depth: np.ndarray
+    twists: list
+
+    @property
+    def length(self) -> int:
+        return self.t_e - self.t_b
+
+
+def _floor(observed: list[np.ndarray]) -> np.ndarray:
+    """The rates the next pass's prediction takes as its floor, from each block's observed
+    rates in this pass: the last block's (see :attr:`SamplingParams.wavefront`)."""
+    return observed[-1]
+
+
+def _passes(ends: list[int], t_b: int, wavefront: int, span_ns: int | None) -> list[int]:
+    """The number of blocks of each pass over the blocks ending at ``ends`` (from ``t_b``):
+    ``wavefront`` each, fewer in the last, and fewer where a pass would span more than
+    ``span_ns`` (the source's longest span of one launch; None: no limit), at least one."""
+    sizes, i = [], 0
+    while i < len(ends):
+        size = 1
+        start = t_b if i == 0 else ends[i - 1]
+        while (size < wavefront and i + size < len(ends)
+               and (span_ns is None or ends[i + size] - start <= span_ns)):
+            size += 1
+        sizes.append(size)
+        i += size
+    return sizes
+
+
+def _device_pass(source: PixelSource, emulator: PixelEventEmulator, blocks: list[_Block],
+                 device: str, on: dict, camera: Camera, centres: np.ndarray,
+                 floor: np.ndarray | None, scale: np.ndarray | None, bound: float,
+                 dt_min_ns: int, log_eps: float, t0: float, t1: float,
+                 stats: PixelSamplingStats) -> Iterator[tuple[_Block, np.ndarray, np.ndarray]]:
+    """One pass of the wavefront on the device: every block's counts predicted in one set of
+    launches (:func:`_predicted_on_device`), their samples built, shaded, checked and refined
+    together (:func:`sim._drjit_sampling.device_block`), then each block's samples emulated
+    in time order. Yields each block, its events and its observed rates."""
+    from sim._drjit_events import _device_array, aligned_empty
+    from sim._drjit_sampling import _module, device_block
+
+    m = _module(device)
+    # Each pixel's luminance and level at its block's start and end, block after block, each
+    # filled in place into an aligned array that Dr.Jit maps without a copy (on llvm).
+    image = blocks[0].lum_b.size
+    sent = {}
+    for name in ("lum_b", "log_b", "lum_e", "log_e"):
+        values = aligned_empty((len(blocks), image), np.float64)
+        for k, block in enumerate(blocks):
+            values[k] = getattr(block, name).reshape(-1)
+        sent[name] = _device_array(m.Float64, values.reshape(-1))
+    inner, total = _predicted_on_device(device, on, camera, blocks, sent["log_b"],
+                                        sent["log_e"], log_eps, centres, floor, scale, bound,
+                                        dt_min_ns)
+    samples, counts, observed, _ = device_block(
+        source.luminance_device, inner, [b.t_b for b in blocks], [b.length for b in blocks],
+        sent["log_b"], sent["lum_b"], sent["log_e"], sent["lum_e"], t0, t1, bound,
+        on.get("scale"), dt_min_ns, log_eps, stats, device, total=total)
+    sizes = counts.reshape(len(blocks), image).sum(axis=1)
+    offsets = np.cumsum(sizes) - sizes
+    host = None if emulator.kernel == "drjit" else [a.numpy() for a in samples]
+    for k, block in enumerate(blocks):
+        lo, hi = int(offsets[k]), int(offsets[k] + sizes[k])
+        own = slice(k * image, (k + 1) * image)
+        if host is None:                               # the samples stay on the device
+            part = samples if len(blocks) == 1 else [
+                _slice(a, lo, hi, m) for a in samples]
+            events = emulator.advance_device(counts[own], *part[1:], block.t_e, block.lum_e)
+        else:
+            pix, times, levels, lums = (a[lo:hi] for a in host)
+            pix = pix.astype(np.int64)
+            if k:                                      # block k's pixels are k P + p
+                pix -= k * image
+            events = emulator.advance_samples(pix, times, levels, lums, block.t_e, block.lum_e)
+        yield block, events, observed[own]
+
+
+def _slice(values, lo: int, hi: int, m):
+    """``values[lo:hi]`` of a Dr.Jit array, on the device."""
+    import drjit as dr
+
+    return dr.gather(type(values), values, dr.arange(m.UInt32, hi - lo) + lo)
 
 
 def _host_counts(camera: Camera, sub_b: np.ndarray, depth: np.ndarray, twists: list,
@@ -1277,41 +1403,45 @@ def _host_counts(camera: Camera, sub_b: np.ndarray, depth: np.ndarray, twists: l
                          length, bound, dt_min_ns)
 
 
-def _predicted_on_device(device: str, on: dict, camera: Camera, sub_b: np.ndarray,
-                         depth: np.ndarray, twists: list, length: int, log_eps: float,
-                         centres: np.ndarray, log_b: np.ndarray, log_e: np.ndarray,
-                         observed: np.ndarray | None, scale: np.ndarray | None, bound: float,
-                         dt_min_ns: int) -> tuple[object, int, dict]:
-    """A block's :func:`_intra_counts` on ``device`` (:func:`sim._drjit_sampling.
-    device_prediction`: the same counts), left there, with their sum and ``on``: the arrays
-    the device keeps (the block's levels, the pixel centres, the scale and, from the last
-    device block, the observed rates). Where a pixel has 8x8 sub-samples or more, the counts
-    are numba's (:func:`_host_counts`), sent to the device."""
-    from sim._drjit_events import _device_array
+def _predicted_on_device(device: str, on: dict, camera: Camera, blocks: list[_Block], log_b,
+                         log_e, log_eps: float, centres: np.ndarray, floor: np.ndarray | None,
+                         scale: np.ndarray | None, bound: float, dt_min_ns: int
+                         ) -> tuple[object, int]:
+    """The blocks' :func:`_intra_counts` (each block's floor ``floor``) on ``device``
+    (:func:`sim._drjit_sampling.device_prediction`, every block in one set of launches: the
+    same counts), left there block after block, with their sum. ``log_b`` and ``log_e`` are
+    the blocks' levels on the device ((B P,) Float64); ``on`` keeps what the device keeps
+    between passes (the pixel centres, the scale). Where a pixel has 8x8 sub-samples or
+    more, the counts are numba's (:func:`_host_counts`), sent to the device."""
+    from sim._drjit_events import _device_array, aligned_empty
     from sim._drjit_sampling import _module, device_centres, device_prediction
 
     m = _module(device)
-    kept = {"log_b": on["log_e"] if "log_e" in on else _device_array(m.Float64,
-                                                                       log_b.reshape(-1)),
-            "log_e": _device_array(m.Float64, log_e.reshape(-1)),
-            "centres": on["centres"] if "centres" in on else device_centres(centres, device)}
-    if scale is not None:
-        kept["scale"] = on["scale"] if "scale" in on else _device_array(m.Float64, scale)
-    last = on.get("observed")
-    if last is None and observed is not None:
-        last = _device_array(m.Float64, observed)
-    weight, logw, n = _log_weights(camera, sub_b, log_eps)
+    if "centres" not in on:
+        on["centres"] = device_centres(centres, device)
+    if scale is not None and "scale" not in on:
+        on["scale"] = _device_array(m.Float64, scale)
+    weight, logw = (aligned_empty((len(blocks), *blocks[0].sub_b.shape), np.float32)
+                    for _ in range(2))
+    for k, block in enumerate(blocks):                 # in place: one upload each, mapped
+        n = _log_weights(camera, block.sub_b, log_eps, (weight[k], logw[k]))[2]
     if n >= 8:
-        inner = _host_counts(camera, sub_b, depth, twists, length, log_eps, centres, log_b,
-                             log_e, observed, scale, bound, dt_min_ns)
-        return _device_array(m.UInt32, inner), int(inner.sum()), kept
-    seconds = length * 1e-9
-    flow = _flow_args(camera, centres, depth, twists)
+        inner = np.concatenate([
+            _host_counts(camera, b.sub_b, b.depth, b.twists, b.length, log_eps, centres,
+                         b.log_b, b.log_e, floor, scale, bound, dt_min_ns) for b in blocks])
+        return _device_array(m.UInt32, inner), int(inner.sum())
+    flows = [_flow_args(camera, centres, b.depth, b.twists) for b in blocks]
+    depth = aligned_empty((len(blocks), camera.height, camera.width), np.float64)
+    for k, b in enumerate(blocks):
+        depth[k] = b.depth
     inner, total, _ = device_prediction(
-        weight, logw, (camera.height, camera.width), flow[0], flow[1], kept["centres"], depth,
-        flow[4], _dilation_of(flow, seconds), seconds, kept["log_b"], kept["log_e"], last,
-        kept.get("scale"), MARGIN * bound, max(length // dt_min_ns, 1), device)
-    return inner, total, kept
+        weight, logw, (camera.height, camera.width), flows[0][0], flows[0][1], on["centres"],
+        depth, np.stack([f[4] for f in flows]),
+        [_dilation_of(f, b.length * 1e-9) for f, b in zip(flows, blocks, strict=True)],
+        [b.length * 1e-9 for b in blocks], log_b, log_e,
+        None if floor is None else _device_array(m.Float64, floor), on.get("scale"),
+        MARGIN * bound, [max(b.length // dt_min_ns, 1) for b in blocks], device)
+    return inner, total
 
 
 def _dilation_of(flow: tuple, seconds: float) -> Callable[[float], int]:

@@ -78,17 +78,28 @@ class SamplingParams:
         (default 0.5).
     min_rate, max_rate : float, Hz
         Bounds of the sampling rate (default 100 Hz and 20 kHz).
+    wavefront : int
+        Blocks of the per-pixel sampler (:func:`sim.pixel_sampling.pixel_blocks`) handled in
+        one pass of device launches (default 1): each block of a pass takes as its floor the
+        rates observed in the last block before the pass, not in the block just before it.
+        1: every block its predecessor's. A pass holds its blocks' samples at once (memory
+        grows with it: about 9 million samples a block at 1280x720).
     """
 
     lam: float = 0.5
     min_rate: float = 100.0
     max_rate: float = 20000.0
+    wavefront: int = 1
 
     def __post_init__(self) -> None:
         if not 0 < self.lam <= 1:
             raise ValueError(f"SamplingParams.lam must be in (0, 1], got {self.lam}")
         for name in ("min_rate", "max_rate"):
             positive(f"SamplingParams.{name}", getattr(self, name))
+        if isinstance(self.wavefront, bool) or not isinstance(self.wavefront, int) \
+                or self.wavefront < 1:
+            raise ValueError(f"SamplingParams.wavefront must be a whole number >= 1, got "
+                             f"{self.wavefront!r}")
         if not 0 < self.min_rate <= self.max_rate:
             raise ValueError(f"SamplingParams needs 0 < min_rate <= max_rate, got "
                              f"{self.min_rate} and {self.max_rate}")

@@ -262,8 +262,14 @@ def test_the_prediction_on_the_device_is_numbas_bit_for_bit(n, variant):
 def test_the_prediction_of_wide_pixels_is_numbas_sent_to_the_device(variant):
     """8x8 sub-samples a pixel and more (NumPy's pairwise sums, not ported): the device path
     takes numba's counts, and device_prediction refuses them."""
-    from sim._drjit_sampling import device_centres, device_prediction
-    from sim.pixel_sampling import _intra_counts, _log_weights, _predicted_on_device, rate_map
+    from sim._drjit_sampling import _module, device_centres, device_prediction
+    from sim.pixel_sampling import (
+        _Block,
+        _intra_counts,
+        _log_weights,
+        _predicted_on_device,
+        rate_map,
+    )
     from tests.test_sampler_kernels import _camera, _luminance
 
     device = _variant_device(variant)
@@ -274,13 +280,16 @@ def test_the_prediction_of_wide_pixels_is_numbas_sent_to_the_device(variant):
     twists = [(np.array([0.3, 0.0, 0.1]), np.array([0.0, 0.2, 0.0]))] * 2
     centres = camera.normalized_pixel_centres()
     log_b, log_e = rng.normal(size=35), rng.normal(size=35)
-    inner, total, kept = _predicted_on_device(device, {}, camera, sub, depth, twists,
-                                              10_000_000, 0.43, centres, log_b, log_e, None,
-                                              None, 0.1, 50_000)
+    m = _module(device)
+    block = _Block(0, 10_000_000, sub, None, log_b, None, None, log_e, None, depth, twists)
+    kept: dict = {}
+    inner, total = _predicted_on_device(device, kept, camera, [block], m.Float64(log_b),
+                                        m.Float64(log_e), 0.43, centres, None, None, 0.1,
+                                        50_000)
     want = _intra_counts(rate_map(camera, sub, depth, twists, 0.01, 0.43, centres).reshape(-1),
                          log_b, log_e, None, None, 10_000_000, 0.1, 50_000)
     np.testing.assert_array_equal(inner.numpy().astype(np.int64), want)
-    assert total == want.sum() and "log_e" in kept
+    assert total == want.sum() and "centres" in kept
     weight, logw, _ = _log_weights(camera, sub, 0.43)
     with pytest.raises(ValueError, match="7x7"):
         device_prediction(weight, logw, (5, 7), 1.0, 1.0, device_centres(centres, device),

@@ -172,6 +172,15 @@ class _ShaderSource:
     def luminance(self, pixels: np.ndarray, times: np.ndarray) -> np.ndarray:
         return self._timed(self._camera.shader.luminance, pixels, times)
 
+    @property
+    def pass_span_ns(self) -> int:
+        """The longest span of times (ns) one :meth:`luminance_device` call takes: one pose
+        table (:data:`sim.shader.POSE_TABLE_NODES` steps of the pose grid, less two for the
+        ends' rounding), which bounds a pass of :func:`sim.pixel_sampling.pixel_blocks`."""
+        from sim import shader
+
+        return int((shader.POSE_TABLE_NODES - 2) * self._camera.shader.pose_step * 1e9)
+
     def luminance_device(self, pixels, times, between=None):
         """:meth:`sim.shader.EventShader.luminance_device`, evaluated (so that its time is
         the render's: Dr.Jit runs its launches asynchronously, this waits for them)."""
@@ -330,6 +339,9 @@ class _Step:
     extra : dict of str to ndarray
         Arrays a checkpoint saves beside the sample (the per-pixel sampler's
         ``observed_rates``).
+    resumable : bool
+        The sampler can continue from here (False inside a pass of the per-pixel sampler's
+        wavefront): no checkpoint may be taken otherwise.
     """
 
     t: float
@@ -338,6 +350,7 @@ class _Step:
     pending: bool = False
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     causes: np.ndarray | None = None
+    resumable: bool = True
 
 
 class _FrameSampler:
@@ -418,7 +431,8 @@ class _FrameSampler:
 
 class _PixelSampler:
     """Each pixel at its own adaptive times (:func:`sim.pixel_sampling.pixel_blocks`, which
-    emulates a pixel's events as it samples it), one step a block; checkpoints at block ends.
+    emulates a pixel's events as it samples it), one step a block; checkpoints at the ends of
+    passes (:attr:`sim.sampling.SamplingParams.wavefront`).
 
     Parameters
     ----------
@@ -464,9 +478,11 @@ class _PixelSampler:
         for block in pixel_blocks(self._source, emulator, start, end, contrast, params.log_eps,
                                   sampling, stats, after=self._after,
                                   edges=self._source.refines_edges, device=self._device):
+            # Inside a pass of the wavefront no checkpoint: a resumed run starts a pass.
             yield _Step(block.t, block.events, Sample(block.t, block.luminance, block.log, 0.0,
                                                       True),
-                        extra={"observed_rates": block.observed},
+                        resumable=block.floor is not None,
+                        extra={} if block.floor is None else {"observed_rates": block.floor},
                         causes=emulator.last_causes)     # of the block just emulated
 
     @staticmethod
@@ -574,8 +590,10 @@ def _simulate_events(scene: Scene, renderer: Renderer, folder: Path, start: floa
                 tick = time.perf_counter()
                 timings["event_write"] += tick - tock
                 since += 1
-                # Only where the sampler can be restarted from this step (no tail pending).
-                if not step.pending and checkpoint.due(since, tick - saved_at):
+                # Only where the sampler can be restarted from this step (no tail pending,
+                # not inside a pass).
+                if not step.pending and step.resumable \
+                        and checkpoint.due(since, tick - saved_at):
                     with stage("checkpoint"):
                         checkpoint.save_events(step.sample, emulator, stats, count, on,
                                                writers.writers, **step.extra)
