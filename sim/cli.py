@@ -179,11 +179,15 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if not 0 < args.min_rate <= args.max_rate:
         raise ValueError(f"--min-rate {args.min_rate:g} and --max-rate {args.max_rate:g}: "
                          "expected 0 < --min-rate <= --max-rate (Hz)")
+    if args.wavefront is not None and args.sampler == "frame":
+        raise ValueError(f"--wavefront {args.wavefront}: only the per-pixel sampler takes it "
+                         "(--sampler pixel), not --sampler frame")
     scene, inputs = simulate_inputs(
         load_scene(resolve_scene(args.scene), seed=args.seed), start=args.start,
         duration=args.duration, contrast=args.contrast, noise=args.noise, lam=args.lam,
-        min_rate=args.min_rate, max_rate=args.max_rate, sampler=args.sampler, spp=args.spp,
-        frame_sensor=args.frame_sensor, rig=args.rig, motion_truth=not args.no_motion_truth)
+        min_rate=args.min_rate, max_rate=args.max_rate, wavefront=args.wavefront,
+        sampler=args.sampler, spp=args.spp, frame_sensor=args.frame_sensor, rig=args.rig,
+        motion_truth=not args.no_motion_truth)
     formats = tuple(f.strip() for f in args.event_format.split(",") if f.strip())
     formats += tuple(name for name in args.format or () if name not in formats)
     result = simulate(scene, args.out, variant=args.variant, overwrite=args.overwrite,
@@ -482,6 +486,12 @@ def _add_simulate(sub) -> None:
                           help="lowest render rate for the event camera, Hz (default 100)")
     simulate.add_argument("--max-rate", type=FINITE, default=20000.0,
                           help="highest render rate for the event camera, Hz (default 20000)")
+    simulate.add_argument("--wavefront", type=count_type(1), default=None, metavar="B",
+                          help="per-pixel sampler on the device: blocks (1 / --min-rate each) "
+                               "predicted, shaded and refined in one pass of launches, each "
+                               "taking the rates observed before its pass as its floor "
+                               "(default 1: fewest samples; larger passes make fewer launches "
+                               "and hold B blocks' samples at once)")
     simulate.add_argument("--sampler", choices=("pixel", "frame"), default=None,
                           help="how the event camera is sampled: pixel (each pixel at its own "
                                "adaptive times; static scenes) or frame (whole frames at one "

@@ -48,6 +48,8 @@ t1 = 0.05
     (BASE.replace('"48x36"', '"48 by 36"'), "grid.sensor", "WIDTHxHEIGHT"),
     (BASE + 'noise = "loud"\n', "grid.noise", "ideal"),
     (BASE + "spp = 5\n", "grid.spp", "perfect square"),
+    (BASE + "wavefront = 0\n", "grid.wavefront", "integer >= 1"),
+    (BASE + 'wavefront = 4\nsampler = "frame"\n', "grid", "only the per-pixel sampler"),
     (BASE + "\n[draw]\ncontrast = { gauss = [0.1, 0.2] }\n", "draw.contrast", "uniform"),
     (BASE + "\n[draw]\ncontrast = { uniform = [0.3, 0.1] }\n", "draw.contrast.uniform",
      "low < high"),

@@ -39,8 +39,8 @@ def test_defaults_change_nothing_and_leave_the_window_to_simulate(scene):
 def test_each_plain_value_reaches_its_object(scene):
     out, kwargs = simulate_inputs(
         scene, start=0.5, end=0.75, contrast=0.3, noise="realistic", lam=0.4, min_rate=50.0,
-        max_rate=900.0, sampler="frame", spp=4, frame_sensor="machine_vision", frame_rate=20.0,
-        rig="mocap", sensor=(48, 36), speed=2.0, motion_truth=False)
+        max_rate=900.0, wavefront=4, sampler="frame", spp=4, frame_sensor="machine_vision",
+        frame_rate=20.0, rig="mocap", sensor=(48, 36), speed=2.0, motion_truth=False)
     camera = scene.camera.with_resolution(48, 36)
     assert out.camera == camera
     expected = with_frame_sensor(replace(scene, frames=replace(scene.frames, rate=20.0)),
@@ -51,7 +51,8 @@ def test_each_plain_value_reaches_its_object(scene):
     assert kwargs == {"start": 0.5, "duration": 0.25, "sampler": "frame", "spp": 4,
                       "rig": RigParams.from_preset("mocap"),
                       "events": EventParams.preset("realistic", contrast=0.3, seed=3),
-                      "sampling": SamplingParams(lam=0.4, min_rate=50.0, max_rate=900.0),
+                      "sampling": SamplingParams(lam=0.4, min_rate=50.0, max_rate=900.0,
+                                                 wavefront=4),
                       "motion_truth": False}
     # a duration is passed on as it is; "scene" ends the window at the (scaled) scene's end
     assert simulate_inputs(scene, start=0.1, duration=0.2)[1]["duration"] == 0.2
@@ -70,7 +71,7 @@ def test_evfuse_simulate_and_the_same_job_give_simulate_the_same_inputs(tmp_path
 
     def fake(scene, out, **kwargs):
         calls.append((scene, kwargs))
-        return SimpleNamespace(n_frames=0, n_renders=0, n_events=None, sampler="frame",
+        return SimpleNamespace(n_frames=0, n_renders=0, n_events=None, sampler="pixel",
                                variant="none", timings={"total": 0.0}, out=out, profile=None)
 
     # the package (``sim.simulate`` as an attribute is sim's re-exported function)
@@ -78,16 +79,25 @@ def test_evfuse_simulate_and_the_same_job_give_simulate_the_same_inputs(tmp_path
     assert main(["simulate", "slider_close", "--out", str(tmp_path / "seq"), "--seed", "3",
                  "--start", "0.5", "--duration", "0.25", "--contrast", "0.3", "--noise",
                  "realistic", "--lambda", "0.4", "--min-rate", "50", "--max-rate", "900",
-                 "--sampler", "frame", "--spp", "4", "--frame-sensor", "machine_vision",
-                 "--rig", "lab", "--no-motion-truth", "--quiet"]) == 0
+                 "--wavefront", "3", "--sampler", "pixel", "--spp", "4", "--frame-sensor",
+                 "machine_vision", "--rig", "lab", "--no-motion-truth", "--quiet"]) == 0
     (cli_scene, cli_kwargs), = calls
     job = parse_sweep("""seeds = [3]\n\n[[scenes]]\nname = "slider_close"\n\n[grid]
 t0 = 0.5\nt1 = 0.75\ncontrast = 0.3\nnoise = "realistic"\nlam = 0.4\nmin_rate = 50.0
-max_rate = 900.0\nsampler = "frame"\nspp = 4\nframe_sensor = "machine_vision"\nrig = "lab"
-motion_truth = false\n""").jobs[0]
+max_rate = 900.0\nwavefront = 3\nsampler = "pixel"\nspp = 4\nframe_sensor = "machine_vision"
+rig = "lab"\nmotion_truth = false\n""").jobs[0]
     job_scene, job_kwargs = job_inputs(job)
     simulate_only = ("variant", "overwrite", "progress", "with_events", "event_formats", "resume",
                      "profile")
     assert {k: v for k, v in cli_kwargs.items() if k not in simulate_only} == job_kwargs
     assert cli_scene.frames == job_scene.frames and cli_scene.camera == job_scene.camera
     assert cli_scene.seed == job_scene.seed == 3
+
+
+def test_wavefront_with_the_frame_sampler_is_refused_in_one_line(tmp_path, capsys):
+    assert main(["simulate", "slider_close", "--out", str(tmp_path / "seq"), "--wavefront", "4",
+                 "--sampler", "frame", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].endswith("--wavefront 4: only the per-pixel sampler takes it (--sampler "
+                            "pixel), not --sampler frame")
+    assert not (tmp_path / "seq").exists()

@@ -71,6 +71,12 @@ def _spp(name: str, value: object) -> int:
     return spp
 
 
+def _blocks(name: str, value: object) -> int:
+    """A whole number >= 1 (what :class:`~sim.sampling.SamplingParams` takes as
+    ``wavefront``)."""
+    return integer(name, value, 1)
+
+
 def _fraction(name: str, value: object) -> float:
     """A number in (0, 1] (what :class:`~sim.sampling.SamplingParams` takes as ``lam``)."""
     fraction = finite(name, value)
@@ -104,6 +110,8 @@ PARAMETERS: dict[str, tuple[str, Callable[[str, object], object] | None]] = {
             "(SamplingParams.lam, in (0, 1]; default 0.5)", _fraction),
     "min_rate": ("lowest event-camera render rate, Hz (default 100)", positive),
     "max_rate": ("highest event-camera render rate, Hz (default 20000)", positive),
+    "wavefront": ("the per-pixel sampler's blocks a pass of device launches "
+                  "(SamplingParams.wavefront; default 1)", _blocks),
     "sampler": ("pixel or frame (default: simulate's choice)", _choice("pixel", "frame")),
     "spp": ("samples per pixel, a perfect square (default: the scene's)", _spp),
     "frame_sensor": ("the standard camera's sensor preset (sim.frames.FRAME_SENSOR_NAMES; "

@@ -19,7 +19,8 @@ def simulate_inputs(scene: Scene, *, start: float = 0.0, duration: float | None 
                     end: float | Literal["scene"] | None = None, contrast: float = 0.2,
                     noise: str = "ideal", lam: float | None = None,
                     min_rate: float | None = None, max_rate: float | None = None,
-                    sampler: str | None = None, spp: int | None = None,
+                    wavefront: int | None = None, sampler: str | None = None,
+                    spp: int | None = None,
                     frame_sensor: str | None = None, frame_rate: float | None = None,
                     rig: str | None = None, sensor: tuple[int, int] | None = None,
                     speed: float | None = None, motion_truth: bool = True,
@@ -51,6 +52,9 @@ def simulate_inputs(scene: Scene, *, start: float = 0.0, duration: float | None 
         (:class:`sim.sampling.SamplingParams`; default its own).
     min_rate, max_rate : float, Hz, optional
         Bounds of the event camera's render rate (default: SamplingParams's).
+    wavefront : int, optional
+        The per-pixel sampler's blocks a pass (:attr:`sim.sampling.SamplingParams.wavefront`;
+        default its own, 1).
     sampler : {"pixel", "frame"}, optional
         Passed on (default: simulate's choice).
     spp : int, optional
@@ -114,7 +118,7 @@ def simulate_inputs(scene: Scene, *, start: float = 0.0, duration: float | None 
                                  f"t1 > t0 (scene {ParameterError.literal(scene.name)} lasts "
                                  f"{scene.duration:g} s)", t0="t0", t1="t1")
         duration = end - start
-    rates = {"lam": lam, "min_rate": min_rate, "max_rate": max_rate}
+    rates = {"lam": lam, "min_rate": min_rate, "max_rate": max_rate, "wavefront": wavefront}
     kwargs = {
         "start": start, "duration": duration,
         "events": EventParams.preset(noise, contrast=contrast, seed=scene.seed),
