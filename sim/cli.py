@@ -530,7 +530,8 @@ def _add_simulate(sub) -> None:
                                "uninterrupted run's)")
     simulate.set_defaults(run=_cmd_simulate,
                           interrupted="resume with the same command plus --resume",
-                          flag_names={"spp": "--spp", "min_rate": "--min-rate"})
+                          flag_names={"spp": "--spp", "min_rate": "--min-rate",
+                                      "wavefront": "--wavefront"})
 
 
 def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) -> None:

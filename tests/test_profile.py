@@ -23,6 +23,7 @@ from sim.profile import (
     recording,
     stage,
 )
+from sim.sampling import SamplingParams
 from sim.scene import parse_scene
 from sim.simulate import simulate
 from sim.simulate.memory import device_memory, is_out_of_memory
@@ -222,6 +223,13 @@ def test_an_out_of_memory_names_the_resolution_and_block_and_what_to_lower(scene
     assert "blocks of 10 ms" in message and "--min-rate" in message and "--spp" in message
     assert "jit_malloc(): out of memory!" in message
     assert not (tmp_path / "oom").exists()                 # nothing that looks complete
+    # Passes of several blocks: the pass is named, and fewer blocks a pass suggested.
+    with pytest.raises(ParameterError) as caught:
+        simulate(scene, tmp_path / "oom4", start=0.05, duration=0.1, progress=False,
+                 sampler="pixel", sampling=SamplingParams(wavefront=4))
+    message = caught.value.rephrase({"wavefront": "--wavefront", "min_rate": "--min-rate"})
+    assert "a pass of 4 blocks" in message and "lower --wavefront" in message
+    assert "\n" not in message and not (tmp_path / "oom4").exists()
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:

@@ -118,7 +118,8 @@ def device_memory(scene, sampling=None, sampler: str | None = None) -> Iterator[
     scene : sim.scene.Scene
         Its event camera's sensor and samples per pixel are named.
     sampling : sim.sampling.SamplingParams, optional
-        The per-pixel sampler's block length (``1 / min_rate``) is named.
+        The per-pixel sampler's block length (``1 / min_rate``) and blocks a pass
+        (``wavefront``) are named.
     sampler : {"pixel", "frame"} or None
         The event camera's sampler (None: no events).
 
@@ -127,7 +128,8 @@ def device_memory(scene, sampling=None, sampler: str | None = None) -> Iterator[
     ParameterError
         In place of an allocation that failed (:func:`is_out_of_memory`): the device, the
         sensor's resolution, the samples per pixel and the block length, and what to lower
-        (``{spp}``, ``{event_spp}``, ``{sensor}``, ``{min_rate}`` placeholders).
+        (``{spp}``, ``{event_spp}``, ``{sensor}``, ``{min_rate}``, ``{wavefront}``
+        placeholders).
     """
     try:
         yield
@@ -140,15 +142,19 @@ def device_memory(scene, sampling=None, sampler: str | None = None) -> Iterator[
         variant = mitsuba.variant() if mitsuba is not None else None
         where = "the GPU" if variant and variant.startswith("cuda") else "this machine"
         camera, render = scene.camera, scene.render
-        block = ""
+        block, lower = "", ""
         if sampler == "pixel" and sampling is not None:
+            blocks = sampling.wavefront
+            held = "a block" if blocks == 1 else f"a pass of {blocks} blocks"
             block = (f", the per-pixel sampler's blocks of {1e3 / sampling.min_rate:g} ms "
-                     f"(all pixels' samples of a block are held at once)")
+                     f"(all pixels' samples of {held} are held at once)")
+            lower = (", or shorten the blocks with a higher {min_rate}" if blocks == 1 else
+                     ", or take fewer blocks a pass with a lower {wavefront} or shorter ones "
+                     "with a higher {min_rate}")
         raise ParameterError(
             f"{where} ran out of memory ({variant}) rendering a {camera.width}x{camera.height} "
             f"sensor at {render.spp} samples per pixel for frames and {render.event_spp} for "
-            f"events{block}: lower the {{sensor}}, the {{spp}} or {{event_spp}}"
-            + (", or shorten the blocks with a higher {min_rate}" if block else "")
+            f"events{block}: lower the {{sensor}}, the {{spp}} or {{event_spp}}{lower}"
             + f" ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})",
             sensor="sensor size", spp="spp", event_spp="[render] event_spp",
-            min_rate="sampling min_rate") from None
+            min_rate="sampling min_rate", wavefront="sampling wavefront") from None
