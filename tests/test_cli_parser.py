@@ -97,12 +97,6 @@ def test_map_global_fills_with_the_global_map_s_default_method_and_fill_with_the
     assert resolved(["run", "S", "--out", "R", "--global"], True) == GLOBAL_FILL_METHOD
     assert resolved(["run", "S", "--out", "R"], False) == "paper-idw"
     for command, default in (("map-global", GLOBAL_FILL_METHOD), ("fill", "paper-idw")):
-        action = next(a for a in cli_mapping_parser(command)._actions
+        action = next(a for a in _subcommands(build_parser())[command]._actions
                       if "--method" in a.option_strings)
         assert action.help.split("(default ")[1].startswith(default)
-
-
-def cli_mapping_parser(command: str) -> argparse.ArgumentParser:
-    """The subcommand's parser."""
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    return sub.choices[command]

@@ -40,11 +40,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fusion.fill import dense as fill_stage
 from fusion.fill.records import DenseParams
 from fusion.methods._registry import Filled, NoParams, add_built_in
 from fusion.methods.baselines import colorization_completion
-from fusion.methods.paper import PaperMethod
+from fusion.methods.paper import PaperMethod, _paper_function
 from sim.camera import Camera
 
 __all__ = ["CompletedPaperMethod", "complete_by_colorization"]
@@ -92,12 +91,14 @@ class CompletedPaperMethod(PaperMethod):
                       {**paper.timings, "completion_s": time.perf_counter() - tick})
 
 
+_paper_idw = _paper_function("idw", NoParams)
+
+
 def _completed_paper(frame: np.ndarray, sparse: np.ndarray, camera: Camera,
                      params: dict) -> np.ndarray:
     """``paper-colorization`` as a plain function (:func:`fusion.methods.run_method`, ``evfuse
-    bench``): the paper's stages with their defaults, then the completion."""
-    NoParams(**params)
-    return complete_by_colorization(frame, fill_stage.densify(frame, sparse, DenseParams())[2])
+    bench``): ``paper-idw``'s (the paper's stages with their defaults), then the completion."""
+    return complete_by_colorization(frame, _paper_idw(frame, sparse, camera, params))
 
 
 add_built_in(CompletedPaperMethod(
