@@ -179,9 +179,6 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if not 0 < args.min_rate <= args.max_rate:
         raise ValueError(f"--min-rate {args.min_rate:g} and --max-rate {args.max_rate:g}: "
                          "expected 0 < --min-rate <= --max-rate (Hz)")
-    if args.wavefront is not None and args.sampler == "frame":
-        raise ValueError(f"--wavefront {args.wavefront}: only the per-pixel sampler takes it "
-                         "(--sampler pixel), not --sampler frame")
     scene, inputs = simulate_inputs(
         load_scene(resolve_scene(args.scene), seed=args.seed), start=args.start,
         duration=args.duration, contrast=args.contrast, noise=args.noise, lam=args.lam,
@@ -531,7 +528,7 @@ def _add_simulate(sub) -> None:
     simulate.set_defaults(run=_cmd_simulate,
                           interrupted="resume with the same command plus --resume",
                           flag_names={"spp": "--spp", "min_rate": "--min-rate",
-                                      "wavefront": "--wavefront"})
+                                      "wavefront": "--wavefront", "sampler": "--sampler"})
 
 
 def _add_events(sub, event_figure: Callable[[Path, np.ndarray, str], object]) -> None:

@@ -42,10 +42,10 @@ import numba
 import numpy as np
 
 from sim.camera import Camera
-from sim.validation import positive
+from sim.validation import ParameterError, positive
 
 __all__ = ["AT_MAX_RATE_NOTE", "AT_MAX_RATE_WARN_SHARE", "Sample", "SamplingParams",
-           "SamplingStats", "adaptive_samples", "contrast_scale", "log_rate_bound",
+           "SamplingStats", "adaptive_samples", "check_sampler", "contrast_scale", "log_rate_bound",
            "max_rate_warning", "motion_field"]
 
 MARGIN = 0.75
@@ -103,6 +103,22 @@ class SamplingParams:
         if not 0 < self.min_rate <= self.max_rate:
             raise ValueError(f"SamplingParams needs 0 < min_rate <= max_rate, got "
                              f"{self.min_rate} and {self.max_rate}")
+
+
+def check_sampler(wavefront: int | None, sampler: str | None) -> None:
+    """Refuse a wavefront asked of the frame sampler, which has no blocks
+    (:attr:`SamplingParams.wavefront` is the per-pixel sampler's).
+
+    Raises
+    ------
+    sim.validation.ParameterError
+        ``wavefront`` given with ``sampler`` ``"frame"``, naming ``{wavefront}`` and
+        ``{sampler}``.
+    """
+    if wavefront is not None and sampler == "frame":
+        raise ParameterError(f"{{wavefront}} {wavefront}: only the per-pixel sampler takes it "
+                             "({sampler} pixel), not {sampler} frame", wavefront="wavefront",
+                             sampler="sampler")
 
 
 @dataclass(frozen=True)

@@ -39,7 +39,7 @@ def test_defaults_change_nothing_and_leave_the_window_to_simulate(scene):
 def test_each_plain_value_reaches_its_object(scene):
     out, kwargs = simulate_inputs(
         scene, start=0.5, end=0.75, contrast=0.3, noise="realistic", lam=0.4, min_rate=50.0,
-        max_rate=900.0, wavefront=4, sampler="frame", spp=4, frame_sensor="machine_vision",
+        max_rate=900.0, wavefront=4, sampler="pixel", spp=4, frame_sensor="machine_vision",
         frame_rate=20.0, rig="mocap", sensor=(48, 36), speed=2.0, motion_truth=False)
     camera = scene.camera.with_resolution(48, 36)
     assert out.camera == camera
@@ -48,7 +48,7 @@ def test_each_plain_value_reaches_its_object(scene):
     assert out.frames == expected and out.frames.rate == 20.0
     assert isinstance(out.trajectory, TimeScaledTrajectory)
     assert out.duration == pytest.approx(scene.duration / 2)
-    assert kwargs == {"start": 0.5, "duration": 0.25, "sampler": "frame", "spp": 4,
+    assert kwargs == {"start": 0.5, "duration": 0.25, "sampler": "pixel", "spp": 4,
                       "rig": RigParams.from_preset("mocap"),
                       "events": EventParams.preset("realistic", contrast=0.3, seed=3),
                       "sampling": SamplingParams(lam=0.4, min_rate=50.0, max_rate=900.0,
@@ -94,7 +94,11 @@ rig = "lab"\nmotion_truth = false\n""").jobs[0]
     assert cli_scene.seed == job_scene.seed == 3
 
 
-def test_wavefront_with_the_frame_sampler_is_refused_in_one_line(tmp_path, capsys):
+def test_wavefront_with_the_frame_sampler_is_refused_in_one_line(scene, tmp_path, capsys):
+    with pytest.raises(ParameterError) as error:
+        simulate_inputs(scene, wavefront=2, sampler="frame")
+    assert str(error.value) == ("wavefront 2: only the per-pixel sampler takes it (sampler "
+                                "pixel), not sampler frame")
     assert main(["simulate", "slider_close", "--out", str(tmp_path / "seq"), "--wavefront", "4",
                  "--sampler", "frame", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()

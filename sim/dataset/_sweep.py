@@ -169,12 +169,13 @@ def _check_sampling(jobs: list[Job], fail) -> None:
     """Every job's lam, min_rate and max_rate together, as simulate takes them
     (:class:`~sim.sampling.SamplingParams`: min_rate <= max_rate), and no wavefront with the
     frame sampler, before any job runs."""
-    from sim.sampling import SamplingParams
+    from sim.sampling import SamplingParams, check_sampler
 
     for job in jobs:
-        if "wavefront" in job.params and job.params.get("sampler") == "frame":
-            raise fail("grid", f"a job with wavefront = {job.params['wavefront']!r} and sampler "
-                               "= \"frame\": only the per-pixel sampler takes wavefront")
+        try:
+            check_sampler(job.params.get("wavefront"), job.params.get("sampler"))
+        except ValueError as error:
+            raise fail("grid", f"a job with {error}") from None
     keys = ("lam", "min_rate", "max_rate")
     for combo in {tuple(job.params.get(k) for k in keys) for job in jobs}:
         given = {k: v for k, v in zip(keys, combo, strict=True) if v is not None}

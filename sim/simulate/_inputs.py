@@ -89,12 +89,13 @@ def simulate_inputs(scene: Scene, *, start: float = 0.0, duration: float | None 
     ------
     ValueError
         A value the scene or the objects refuse (:class:`~sim.validation.ParameterError` for
-        the window).
+        the window, and for a ``wavefront`` with the frame sampler:
+        :func:`sim.sampling.check_sampler`).
     """
     from sim.capture_errors import RigParams
     from sim.events import EventParams
     from sim.frames import with_frame_sensor
-    from sim.sampling import SamplingParams
+    from sim.sampling import SamplingParams, check_sampler
     from sim.trajectory import TimeScaledTrajectory
 
     if sensor is not None:
@@ -118,6 +119,7 @@ def simulate_inputs(scene: Scene, *, start: float = 0.0, duration: float | None 
                                  f"t1 > t0 (scene {ParameterError.literal(scene.name)} lasts "
                                  f"{scene.duration:g} s)", t0="t0", t1="t1")
         duration = end - start
+    check_sampler(wavefront, sampler)
     rates = {"lam": lam, "min_rate": min_rate, "max_rate": max_rate, "wavefront": wavefront}
     kwargs = {
         "start": start, "duration": duration,
